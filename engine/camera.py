@@ -1,0 +1,132 @@
+"""Pinhole camera: eye, target, up and vertical field of view, with automatic framing.
+
+Pixel (0, 0) is the top-left pixel; the ray of pixel (x, y) passes through its centre:
+``d = normalize(fwd + sx * right + sy * up)`` with
+``sx = (2 (x + 0.5) / W - 1) * tan(fov / 2) * W / H`` and ``sy = (1 - 2 (y + 0.5) / H) * tan(fov / 2)``,
+where ``fwd = normalize(target - eye)``, ``right = normalize(fwd x up)``, ``up' = right x fwd``.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit, prange
+
+from .errors import InputError
+
+#: default viewing direction (from target towards eye) for automatic framing
+FRAME_DIR = (0.55, 0.45, 1.0)
+
+
+def _vec3(v, name):
+    try:
+        a = np.asarray(v, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise InputError(f"camera {name} must be 3 numbers, got {v!r}") from None
+    if a.shape != (3,) or not np.isfinite(a).all():
+        raise InputError(f"camera {name} must be 3 finite numbers, got {v!r}")
+    return a
+
+
+@njit(cache=True)
+def pixel_dir(basis, W, H, x, y):
+    """Unit direction of the ray through the centre of pixel (x, y); basis from Camera.basis."""
+    th = basis[4, 0]
+    asp = W / H
+    sx = (2.0 * (x + 0.5) / W - 1.0) * th * asp
+    sy = (1.0 - 2.0 * (y + 0.5) / H) * th
+    dx = basis[1, 0] + sx * basis[2, 0] + sy * basis[3, 0]
+    dy = basis[1, 1] + sx * basis[2, 1] + sy * basis[3, 1]
+    dz = basis[1, 2] + sx * basis[2, 2] + sy * basis[3, 2]
+    n = math.sqrt(dx * dx + dy * dy + dz * dz)
+    return dx / n, dy / n, dz / n
+
+
+@njit(cache=True, parallel=True)
+def _fill_rays(basis, W, H, origins, dirs):
+    for y in prange(H):
+        for x in range(W):
+            i = y * W + x
+            dx, dy, dz = pixel_dir(basis, W, H, x, y)
+            origins[i, 0] = basis[0, 0]
+            origins[i, 1] = basis[0, 1]
+            origins[i, 2] = basis[0, 2]
+            dirs[i, 0] = dx
+            dirs[i, 1] = dy
+            dirs[i, 2] = dz
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole camera. eye, target, up: 3 floats each; fov: vertical field of view in degrees."""
+
+    eye: tuple = (0.0, 0.0, 5.0)
+    target: tuple = (0.0, 0.0, 0.0)
+    up: tuple = (0.0, 1.0, 0.0)
+    fov: float = 45.0
+
+    def __post_init__(self):
+        eye = _vec3(self.eye, "eye")
+        target = _vec3(self.target, "target")
+        up = _vec3(self.up, "up")
+        try:
+            fov = float(self.fov)
+        except (TypeError, ValueError):
+            raise InputError(f"camera fov must be a number of degrees, got {self.fov!r}") from None
+        if not (0.0 < fov < 180.0):
+            raise InputError(f"camera fov must be between 0 and 180 degrees (exclusive), got {fov}")
+        fwd = target - eye
+        if not np.linalg.norm(fwd) > 0:
+            raise InputError("camera eye and target coincide")
+        if not np.linalg.norm(up) > 0:
+            raise InputError("camera up vector is zero")
+        if np.linalg.norm(np.cross(fwd / np.linalg.norm(fwd), up / np.linalg.norm(up))) < 1e-9:
+            raise InputError("camera up vector is parallel to the viewing direction")
+        object.__setattr__(self, "eye", tuple(eye.tolist()))
+        object.__setattr__(self, "target", tuple(target.tolist()))
+        object.__setattr__(self, "up", tuple(up.tolist()))
+        object.__setattr__(self, "fov", fov)
+
+    @classmethod
+    def frame(cls, lo, hi, fov=45.0, direction=FRAME_DIR, up=(0.0, 1.0, 0.0)):
+        """A camera looking at the centre of the box [lo, hi] from ``direction``, far enough
+        that the box's bounding sphere fits the vertical field of view (with a 5% margin)."""
+        lo = np.asarray(lo, np.float64)
+        hi = np.asarray(hi, np.float64)
+        c = 0.5 * (lo + hi)
+        r = 0.5 * float(np.linalg.norm(hi - lo))
+        if r == 0:
+            r = max(1e-6 * float(np.abs(c).max()), 1e-12)
+        d = np.asarray(direction, np.float64)
+        d = d / np.linalg.norm(d)
+        dist = r / math.sin(math.radians(fov) / 2) * 1.05
+        return cls(eye=tuple(c + d * dist), target=tuple(c), up=tuple(up), fov=fov)
+
+    def basis(self):
+        """(5, 3) float64: eye, fwd, right, up, [tan(fov/2), 0, 0] for the kernels."""
+        eye = np.asarray(self.eye)
+        fwd = np.asarray(self.target) - eye
+        fwd /= np.linalg.norm(fwd)
+        right = np.cross(fwd, np.asarray(self.up))
+        right /= np.linalg.norm(right)
+        up = np.cross(right, fwd)
+        b = np.zeros((5, 3))
+        b[0], b[1], b[2], b[3] = eye, fwd, right, up
+        b[4, 0] = math.tan(math.radians(self.fov) / 2)
+        return b
+
+    def rays(self, width, height):
+        """Primary rays, row-major from the top-left pixel: (origins, dirs), each (H*W, 3) float64."""
+        from .config import _positive_int
+
+        W = _positive_int("image width", width, 1, 16384)
+        H = _positive_int("image height", height, 1, 16384)
+        o = np.empty((W * H, 3))
+        d = np.empty((W * H, 3))
+        _fill_rays(self.basis(), W, H, o, d)
+        return o, d
+
+    def replace(self, **kw):
+        from dataclasses import replace
+
+        return replace(self, **kw)

@@ -1,0 +1,119 @@
+"""Settings that flow into the engine as plain values (kernels never read globals).
+
+Each dataclass validates itself in ``__post_init__`` and raises InputError naming the field.
+"""
+
+import math
+from dataclasses import dataclass, field, replace
+
+from .errors import InputError
+
+INSERT_MODES = ("bbox", "exact")
+SHADING_MODES = ("lambert", "normal", "cost")
+#: Default ceiling on grid cells (two int32 arrays of this size plus cell lists): 256 MiB.
+DEFAULT_MAX_CELLS = 1 << 25
+
+
+def _positive_int(name, v, lo=1, hi=None):
+    if isinstance(v, bool) or not isinstance(v, int):
+        try:
+            if int(v) != v:
+                raise ValueError
+            v = int(v)
+        except (TypeError, ValueError):
+            raise InputError(f"{name} must be an integer, got {v!r}") from None
+    if v < lo or (hi is not None and v > hi):
+        rng = f">= {lo}" if hi is None else f"between {lo} and {hi}"
+        raise InputError(f"{name} must be {rng}, got {v}")
+    return v
+
+
+@dataclass(frozen=True)
+class GridParams:
+    """How to build the grid each frame.
+
+    strategy   name of a registered build strategy (engine.grid.registry)
+    density    lambda: target cells ~ density * triangles, shaped by the scene bounds
+    macro      macro-cell edge k in cells (a macro cell is k**3 cells); 1 disables skipping gain
+    insert     "bbox" (triangle bounding box, fast) or "exact" (separating-axis test, fewer refs)
+    threads    build thread count (None: all cores); may exceed the core count
+    max_cells  ceiling on nx*ny*nz; a larger request is reduced to it with a warning
+    """
+
+    strategy: str = "serial"
+    density: float = 4.0
+    macro: int = 4
+    insert: str = "bbox"
+    threads: int | None = None
+    max_cells: int = DEFAULT_MAX_CELLS
+
+    def __post_init__(self):
+        try:
+            d = float(self.density)
+        except (TypeError, ValueError):
+            raise InputError(f"density (lambda) must be a number, got {self.density!r}") from None
+        if not math.isfinite(d) or d <= 0:
+            raise InputError(f"density (lambda) must be a positive finite number, got {self.density!r}")
+        object.__setattr__(self, "density", d)
+        object.__setattr__(self, "macro", _positive_int("macro cell size", self.macro, 1, 64))
+        if self.insert not in INSERT_MODES:
+            raise InputError(f"unknown insertion test {self.insert!r}; choose one of {', '.join(INSERT_MODES)}")
+        object.__setattr__(self, "max_cells", _positive_int("max_cells", self.max_cells, 1, 1 << 31 - 1))
+        if self.threads is not None:
+            from .threads import check_threads
+
+            object.__setattr__(self, "threads", check_threads(self.threads))
+        from .grid.registry import get_builder
+
+        get_builder(self.strategy)
+
+    def replace(self, **kw):
+        return replace(self, **kw)
+
+
+@dataclass(frozen=True)
+class RenderParams:
+    """How to cast and shade the primary rays.
+
+    width, height  image size in pixels (each 1..16384)
+    shading        "lambert" (headlight, or the point light when shadows are on), "normal"
+                   (geometric normal facing the viewer, mapped to RGB) or "cost" (heat map of
+                   triangle tests per ray)
+    shadows        cast one hard shadow ray per hit towards ``light``
+    light          point-light position (3 floats); None: above and behind the camera
+    watertight     Woop-Benthin-Wald watertight ray-triangle test (True) or the faster
+                   Moller-Trumbore test (False)
+    threads        render thread count (None: all cores)
+    tile           square tile edge in pixels; tiles are the unit of parallel work
+    """
+
+    width: int = 640
+    height: int = 480
+    shading: str = "lambert"
+    shadows: bool = False
+    light: tuple | None = None
+    watertight: bool = True
+    threads: int | None = None
+    tile: int = 16
+
+    def __post_init__(self):
+        object.__setattr__(self, "width", _positive_int("image width", self.width, 1, 16384))
+        object.__setattr__(self, "height", _positive_int("image height", self.height, 1, 16384))
+        object.__setattr__(self, "tile", _positive_int("tile size", self.tile, 1, 256))
+        if self.shading not in SHADING_MODES:
+            raise InputError(f"unknown shading mode {self.shading!r}; choose one of {', '.join(SHADING_MODES)}")
+        if self.light is not None:
+            try:
+                light = tuple(float(x) for x in self.light)
+            except (TypeError, ValueError):
+                raise InputError(f"light must be 3 numbers, got {self.light!r}") from None
+            if len(light) != 3 or not all(math.isfinite(x) for x in light):
+                raise InputError(f"light must be 3 finite numbers, got {self.light!r}")
+            object.__setattr__(self, "light", light)
+        if self.threads is not None:
+            from .threads import check_threads
+
+            object.__setattr__(self, "threads", check_threads(self.threads))
+
+    def replace(self, **kw):
+        return replace(self, **kw)

@@ -1,0 +1,261 @@
+"""build_grid / GridBuilder: validate, compute the grid geometry, then clear, insert and build
+macro cells with the chosen strategy, reusing buffers from frame to frame."""
+
+import math
+import time
+import warnings
+
+import numpy as np
+
+from ..arrays import TRI_DTYPE
+from ..config import GridParams
+from ..errors import InputError
+from ..threads import check_threads, use_threads
+from . import common
+from .layout import BOUNDS_PAD, Grid, GridSpec
+from .registry import get_builder
+from .strategies.base import timed
+
+INT32_MAX = np.iinfo(np.int32).max
+
+
+class GridCapWarning(UserWarning):
+    """The resolution asked for exceeded max_cells and was reduced."""
+
+
+def grid_dims(extent, n_tris, density, max_cells):
+    """Cells per axis for a box of the given extent: about density * n_tris cubical-ish cells.
+
+    Axes too thin for one cell get one and the budget goes to the others (flat scenes).
+    Returns (dims (3,) int64, capped bool).
+    """
+    extent = np.asarray(extent, dtype=np.float64)
+    target = max(1.0, density * n_tris)
+    capped = target > max_cells
+    target = min(target, float(max_cells))
+    dims = np.ones(3, np.int64)
+    active = [a for a in range(3) if extent[a] > 0]
+    for _ in range(3):
+        if not active:
+            break
+        vol = float(np.prod(extent[active]))
+        s = (target / vol) ** (1.0 / len(active))
+        thin = [a for a in active if extent[a] * s < 1.0]
+        if not thin:
+            for a in active:
+                dims[a] = max(1, int(round(extent[a] * s)))
+            break
+        for a in thin:
+            dims[a] = 1
+        active = [a for a in active if a not in thin]
+    while int(np.prod(dims)) > max_cells:
+        capped = True
+        a = int(np.argmax(dims))
+        dims[a] = max(1, int(dims[a] * 0.9))
+    return dims, capped
+
+
+def make_spec(lo_scene, hi_scene, n_tris, params):
+    """GridSpec over the padded scene bounds, at params.density and params.macro."""
+    lo_scene = np.asarray(lo_scene, np.float64)
+    hi_scene = np.asarray(hi_scene, np.float64)
+    ext = hi_scene - lo_scene
+    big = float(ext.max())
+    if big > 0:
+        pad = BOUNDS_PAD * big
+    else:
+        pad = max(1e-6 * float(np.abs(lo_scene).max()), 1e-30)
+    lo = lo_scene - pad
+    hi = hi_scene + pad
+    raw_ext = np.where(ext > 1e-9 * max(big, 1e-300), ext, 0.0)
+    dims, capped = grid_dims(raw_ext, n_tris, params.density, params.max_cells)
+    cell = (hi - lo) / dims
+    k = params.macro
+    mdims = (dims + k - 1) // k
+    return GridSpec(lo=lo, hi=hi, dims=dims, cell=cell, inv_cell=1.0 / cell, macro=k, mdims=mdims, capped=capped)
+
+
+class GridBuffers:
+    """Arrays kept from one build to the next; they grow only when they must.
+
+    count  (L, C) int32 view into a flat buffer; all zero between clear and insert
+    start  (L, C+1) int32 view
+    refs(n) -> (n,) int32 view of the reference buffer (grown by 1.5x when too small)
+    """
+
+    def __init__(self):
+        self._count = np.zeros(0, np.int32)
+        self._start = np.zeros(0, np.int32)
+        self._refs = np.zeros(0, np.int32)
+        self.macro_full = np.zeros(0, np.uint8)
+        self.count = self._count.reshape(0, 0)
+        self.start = self._start.reshape(0, 1)
+        self.prev_spec = None  # spec and layers of the last build, for the next clear
+        self.prev_layers = 0
+
+    def prepare(self, spec, layers):
+        """Size the views for this build. Returns True when count is known to be all zero."""
+        C = spec.n_cells
+        fresh = False
+        if self._count.size < layers * C:
+            self._count = np.zeros(int(layers * C * 1.25) + 16, np.int32)
+            fresh = True
+        if self._start.size < layers * (C + 1):
+            self._start = np.zeros(int(layers * (C + 1) * 1.25) + 16, np.int32)
+        return fresh
+
+    def set_views(self, spec, layers):
+        C = spec.n_cells
+        self.count = self._count[: layers * C].reshape(layers, C)
+        self.start = self._start[: layers * (C + 1)].reshape(layers, C + 1)
+        M = spec.n_macro
+        if self.macro_full.size != M:
+            self.macro_full = np.zeros(M, np.uint8)
+
+    def prev_count_view(self):
+        s = self.prev_spec
+        C = s.n_cells
+        return self._count[: self.prev_layers * C].reshape(self.prev_layers, C)
+
+    def refs(self, n):
+        if n > INT32_MAX:
+            raise InputError(
+                f"the grid would hold {n} references, more than int32 offsets allow; lower the density "
+                f"(lambda) or use exact insertion"
+            )
+        if self._refs.size < n:
+            self._refs = np.empty(int(n * 1.5) + 16, np.int32)
+        return self._refs[:n]
+
+    @property
+    def ref_buffer(self):
+        return self._refs
+
+
+def _check_tris(tris):
+    if not isinstance(tris, np.ndarray) or tris.dtype != TRI_DTYPE or tris.ndim != 3 or tris.shape[1:] != (3, 3):
+        from ..arrays import as_triangles
+
+        return as_triangles(tris)
+    if tris.shape[0] == 0:
+        raise InputError("triangles: the scene is empty (0 triangles)")
+    if not tris.flags.c_contiguous:
+        tris = np.ascontiguousarray(tris)
+    return tris
+
+
+class GridBuilder:
+    """Builds a grid per frame with fixed parameters, reusing its buffers.
+
+    ``build(tris)`` validates the triangles (shape, dtype, NaN/inf: fused into the bounds pass),
+    chooses the resolution from the scene bounds, then runs the strategy's three stages.
+    """
+
+    def __init__(self, params: GridParams | None = None):
+        self.params = params or GridParams()
+        self.bufs = GridBuffers()
+        self.warm = False
+
+    def build(self, tris, params: GridParams | None = None) -> Grid:
+        if params is not None:
+            self.params = params
+        p = self.params
+        strategy = get_builder(p.strategy)()
+        threads = check_threads(p.threads)
+        t_start = time.perf_counter()
+        times = {}
+        tris = _check_tris(tris)
+        F = tris.shape[0]
+        use_threads(threads)
+
+        with timed(times, "bounds_ms"):
+            n_chunks = max(1, min(threads, F // 4096 + 1))
+            bb = np.empty((n_chunks, 7), np.float64)
+            common.scene_bounds(tris, n_chunks, bb)
+        if bb[:, 6].sum() > 0:
+            bad = np.argwhere(~(np.abs(tris) <= 1e30))[0]
+            raise InputError(
+                f"triangles contain NaN, infinity or coordinates beyond 1e30 "
+                f"(first at triangle {bad[0]}, vertex {bad[1]}, axis {bad[2]})"
+            )
+        lo_scene = bb[:, 0:3].min(axis=0)
+        hi_scene = bb[:, 3:6].max(axis=0)
+        spec = make_spec(lo_scene, hi_scene, F, p)
+        if spec.capped:
+            warnings.warn(
+                f"grid resolution capped at max_cells={p.max_cells} "
+                f"(density {p.density:g} x {F} triangles asked for more); using dims {tuple(spec.dims)}",
+                GridCapWarning,
+                stacklevel=2,
+            )
+        layers = strategy.layers(threads)
+        bufs = self.bufs
+
+        # clear: only the cells of macro cells that were full in the previous build
+        with timed(times, "clear_ms"):
+            fresh = bufs.prepare(spec, layers)
+            cleared = 0
+            if not fresh and bufs.prev_spec is not None:
+                prev = bufs.prev_count_view()
+                ps = bufs.prev_spec
+                if strategy.parallel_stages and threads > 1:
+                    touched = np.zeros(threads, np.int64)
+                    common.clear_macro_parallel(prev, ps.dims, ps.macro, ps.mdims, bufs.macro_full, threads, touched)
+                    cleared = int(touched.sum())
+                else:
+                    cleared = common.clear_macro_range(prev, ps.dims, ps.macro, ps.mdims, bufs.macro_full, 0, ps.n_macro)
+            bufs.set_views(spec, layers)
+
+        with timed(times, "insert_ms"):
+            refs = strategy.insert(tris, spec, bufs, threads, p.insert == "exact", times)
+
+        with timed(times, "macro_ms"):
+            if strategy.parallel_stages and threads > 1:
+                looked = np.zeros(threads, np.int64)
+                common.macro_build_parallel(bufs.count, spec.dims, spec.macro, spec.mdims, bufs.macro_full, threads, looked)
+            else:
+                common.macro_build_range(bufs.count, spec.dims, spec.macro, spec.mdims, bufs.macro_full, 0, spec.n_macro)
+        bufs.prev_spec = spec
+        bufs.prev_layers = layers
+
+        times["build_ms"] = (time.perf_counter() - t_start) * 1e3
+        stats = dict(times)
+        stats.update(
+            strategy=p.strategy,
+            threads=threads,
+            insert=p.insert,
+            triangles=F,
+            cells=spec.n_cells,
+            references=int(refs),
+            refs_per_tri=refs / F,
+            cells_cleared=cleared,
+            macro_cells=spec.n_macro,
+            macro_full=int(bufs.macro_full.sum()),
+            dims="x".join(str(int(d)) for d in spec.dims),
+        )
+        grid = Grid(
+            spec=spec,
+            cell_start=bufs.start,
+            tri_ids=bufs.ref_buffer,
+            cell_count=bufs.count,
+            macro_full=bufs.macro_full,
+            references=int(refs),
+            n_triangles=F,
+            stats=stats,
+        )
+        stats["grid_bytes"] = grid.memory_bytes()
+        return grid
+
+
+def build_grid(tris, params: GridParams | None = None, **kw) -> Grid:
+    """One-shot build. ``kw`` are GridParams fields (e.g. strategy="serial", density=4)."""
+    if params is None:
+        params = GridParams(**kw)
+    elif kw:
+        params = params.replace(**kw)
+    from ..arrays import as_triangles
+
+    tris = as_triangles(tris, allow_degenerate=False)
+    grid = GridBuilder(params).build(tris)
+    # a one-shot grid owns its arrays
+    return grid

@@ -1,0 +1,278 @@
+"""Kernels shared by every build strategy: bounds, triangle-to-cell ranges, the exact
+triangle/box test, clearing, prefix sums and the macro-cell build.
+
+All kernels take arrays and scalars only and write into buffers they are given.  Cell
+coordinates are computed in float64 from the float32 triangles.
+"""
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from .layout import INSERT_EPS
+
+EPS = INSERT_EPS
+
+
+# ---------------------------------------------------------------------------------------------
+# scene bounds (+ the finiteness check that guards every later kernel)
+
+
+@njit(cache=True, parallel=True)
+def scene_bounds(tris, n_chunks, out):
+    """Min/max over all vertices, per chunk of triangles.
+
+    tris (F,3,3) float32; out (n_chunks, 7) float64 receives per chunk
+    [xmin, ymin, zmin, xmax, ymax, zmax, bad] where bad > 0 when a NaN or inf was seen.
+    """
+    F = tris.shape[0]
+    for ch in prange(n_chunks):
+        a = ch * F // n_chunks
+        b = (ch + 1) * F // n_chunks
+        x0 = y0 = z0 = np.inf
+        x1 = y1 = z1 = -np.inf
+        bad = 0.0
+        for f in range(a, b):
+            for v in range(3):
+                x = np.float64(tris[f, v, 0])
+                y = np.float64(tris[f, v, 1])
+                z = np.float64(tris[f, v, 2])
+                if not (abs(x) <= 1e30 and abs(y) <= 1e30 and abs(z) <= 1e30):
+                    bad += 1.0
+                x0 = min(x0, x)
+                y0 = min(y0, y)
+                z0 = min(z0, z)
+                x1 = max(x1, x)
+                y1 = max(y1, y)
+                z1 = max(z1, z)
+        out[ch, 0] = x0
+        out[ch, 1] = y0
+        out[ch, 2] = z0
+        out[ch, 3] = x1
+        out[ch, 4] = y1
+        out[ch, 5] = z1
+        out[ch, 6] = bad
+
+
+# ---------------------------------------------------------------------------------------------
+# triangle -> cells
+
+
+@njit(cache=True)
+def _clampi(v, lo, hi):
+    return lo if v < lo else (hi if v > hi else v)
+
+
+@njit(cache=True)
+def tri_cell_range(tris, f, lo, inv_cell, dims):
+    """Inclusive cell index range (i0, j0, k0, i1, j1, k1) of triangle f's grown bounding box."""
+    ax = np.float64(tris[f, 0, 0])
+    bx = np.float64(tris[f, 1, 0])
+    cx = np.float64(tris[f, 2, 0])
+    ay = np.float64(tris[f, 0, 1])
+    by = np.float64(tris[f, 1, 1])
+    cy = np.float64(tris[f, 2, 1])
+    az = np.float64(tris[f, 0, 2])
+    bz = np.float64(tris[f, 1, 2])
+    cz = np.float64(tris[f, 2, 2])
+    i0 = int(math.floor((min(ax, bx, cx) - lo[0]) * inv_cell[0] - EPS))
+    i1 = int(math.floor((max(ax, bx, cx) - lo[0]) * inv_cell[0] + EPS))
+    j0 = int(math.floor((min(ay, by, cy) - lo[1]) * inv_cell[1] - EPS))
+    j1 = int(math.floor((max(ay, by, cy) - lo[1]) * inv_cell[1] + EPS))
+    k0 = int(math.floor((min(az, bz, cz) - lo[2]) * inv_cell[2] - EPS))
+    k1 = int(math.floor((max(az, bz, cz) - lo[2]) * inv_cell[2] + EPS))
+    nx, ny, nz = dims[0], dims[1], dims[2]
+    return (
+        _clampi(i0, 0, nx - 1),
+        _clampi(j0, 0, ny - 1),
+        _clampi(k0, 0, nz - 1),
+        _clampi(i1, 0, nx - 1),
+        _clampi(j1, 0, ny - 1),
+        _clampi(k1, 0, nz - 1),
+    )
+
+
+@njit(cache=True)
+def _axis_test(p0, p1, p2, r):
+    """True when the projections p0..p2 of the triangle are separated from [-r, r]."""
+    return min(p0, p1, p2) > r or max(p0, p1, p2) < -r
+
+
+@njit(cache=True)
+def tri_box_overlap(tris, f, cx, cy, cz, hx, hy, hz):
+    """Separating-axis test of triangle f against the box centre c, half-size h (float64).
+
+    Akenine-Möller, "Fast 3D Triangle-Box Overlap Testing", JGT 2001.  The three box-normal
+    axes are skipped: callers only test cells inside the triangle's bounding-box range.
+    Touching counts as overlap; degenerate triangles fall through to True on zero axes.
+    """
+    v0x = tris[f, 0, 0] - cx
+    v0y = tris[f, 0, 1] - cy
+    v0z = tris[f, 0, 2] - cz
+    v1x = tris[f, 1, 0] - cx
+    v1y = tris[f, 1, 1] - cy
+    v1z = tris[f, 1, 2] - cz
+    v2x = tris[f, 2, 0] - cx
+    v2y = tris[f, 2, 1] - cy
+    v2z = tris[f, 2, 2] - cz
+    e0x = v1x - v0x
+    e0y = v1y - v0y
+    e0z = v1z - v0z
+    e1x = v2x - v1x
+    e1y = v2y - v1y
+    e1z = v2z - v1z
+    e2x = v0x - v2x
+    e2y = v0y - v2y
+    e2z = v0z - v2z
+    # plane
+    nx = e0y * e1z - e0z * e1y
+    ny = e0z * e1x - e0x * e1z
+    nz = e0x * e1y - e0y * e1x
+    d = nx * v0x + ny * v0y + nz * v0z
+    r = hx * abs(nx) + hy * abs(ny) + hz * abs(nz)
+    if abs(d) > r:
+        return False
+    # nine edge x axis cross products: a = e x X = (0, ez, -ey), etc.
+    for ex, ey, ez in ((e0x, e0y, e0z), (e1x, e1y, e1z), (e2x, e2y, e2z)):
+        # X axis: (0, ez, -ey)
+        r = hy * abs(ez) + hz * abs(ey)
+        if _axis_test(ez * v0y - ey * v0z, ez * v1y - ey * v1z, ez * v2y - ey * v2z, r):
+            return False
+        # Y axis: (-ez, 0, ex)
+        r = hx * abs(ez) + hz * abs(ex)
+        if _axis_test(-ez * v0x + ex * v0z, -ez * v1x + ex * v1z, -ez * v2x + ex * v2z, r):
+            return False
+        # Z axis: (ey, -ex, 0)
+        r = hx * abs(ey) + hy * abs(ex)
+        if _axis_test(ey * v0x - ex * v0y, ey * v1x - ex * v1y, ey * v2x - ex * v2y, r):
+            return False
+    return True
+
+
+@njit(cache=True)
+def cell_overlaps(tris, f, i, j, k, lo, cell):
+    """Exact-insertion test of triangle f against cell (i, j, k) grown by EPS cells."""
+    hx = cell[0] * (0.5 + EPS)
+    hy = cell[1] * (0.5 + EPS)
+    hz = cell[2] * (0.5 + EPS)
+    cx = lo[0] + (i + 0.5) * cell[0]
+    cy = lo[1] + (j + 0.5) * cell[1]
+    cz = lo[2] + (k + 0.5) * cell[2]
+    return tri_box_overlap(tris, f, cx, cy, cz, hx, hy, hz)
+
+
+# ---------------------------------------------------------------------------------------------
+# clear / scan / macro cells
+
+
+@njit(cache=True)
+def _macro_cells_range(m, dims, k, mdims):
+    mi = m % mdims[0]
+    mj = (m // mdims[0]) % mdims[1]
+    mk = m // (mdims[0] * mdims[1])
+    i0 = mi * k
+    j0 = mj * k
+    k0 = mk * k
+    return i0, j0, k0, min(i0 + k, dims[0]), min(j0 + k, dims[1]), min(k0 + k, dims[2])
+
+
+@njit(cache=True)
+def clear_macro_range(count, dims, k, mdims, macro_full, m0, m1):
+    """Zero the counts of every layer's cells inside the non-empty macro cells m0..m1-1.
+
+    count (L, C) int32 viewed with the PREVIOUS frame's dims; macro_full (M,) its flags.
+    Cells of empty macro cells are already zero and are not touched (the seed's clear).
+    Returns the number of cells zeroed.
+    """
+    nx = dims[0]
+    nxy = dims[0] * dims[1]
+    L = count.shape[0]
+    touched = 0
+    for m in range(m0, m1):
+        if macro_full[m] == 0:
+            continue
+        i0, j0, k0, i1, j1, k1 = _macro_cells_range(m, dims, k, mdims)
+        for l in range(L):
+            for kk in range(k0, k1):
+                for jj in range(j0, j1):
+                    base = kk * nxy + jj * nx
+                    for ii in range(i0, i1):
+                        count[l, base + ii] = 0
+        touched += (i1 - i0) * (j1 - j0) * (k1 - k0) * L
+    return touched
+
+
+@njit(cache=True, parallel=True)
+def clear_macro_parallel(count, dims, k, mdims, macro_full, n_threads, touched):
+    """Parallel clear: thread t takes the t-th contiguous section of macro cells (the seed).
+
+    touched (n_threads,) int64 receives cells zeroed per thread (load-balance figure).
+    """
+    M = macro_full.shape[0]
+    for t in prange(n_threads):
+        touched[t] = clear_macro_range(count, dims, k, mdims, macro_full, t * M // n_threads, (t + 1) * M // n_threads)
+
+
+@njit(cache=True)
+def macro_build_range(count, dims, k, mdims, macro_full, m0, m1):
+    """Flag macro cells m0..m1-1: scan each one's cells (all layers) until a non-empty one.
+
+    Returns the number of cells inspected.
+    """
+    nx = dims[0]
+    nxy = dims[0] * dims[1]
+    L = count.shape[0]
+    looked = 0
+    for m in range(m0, m1):
+        i0, j0, k0, i1, j1, k1 = _macro_cells_range(m, dims, k, mdims)
+        full = 0
+        for l in range(L):
+            for kk in range(k0, k1):
+                for jj in range(j0, j1):
+                    base = kk * nxy + jj * nx
+                    for ii in range(i0, i1):
+                        looked += 1
+                        if count[l, base + ii] != 0:
+                            full = 1
+                            break
+                    if full:
+                        break
+                if full:
+                    break
+            if full:
+                break
+        macro_full[m] = full
+    return looked
+
+
+@njit(cache=True, parallel=True)
+def macro_build_parallel(count, dims, k, mdims, macro_full, n_threads, looked):
+    """Parallel macro build, one contiguous section of macro cells per thread."""
+    M = macro_full.shape[0]
+    for t in prange(n_threads):
+        looked[t] = macro_build_range(count, dims, k, mdims, macro_full, t * M // n_threads, (t + 1) * M // n_threads)
+
+
+@njit(cache=True)
+def scan_inclusive(count, start):
+    """start[c] = count[0] + ... + count[c] for c < C, start[C] = total; returns the total.
+
+    count (C,) int32, start (C+1,) int32.  A scatter that pre-decrements start[c] then leaves
+    start[c] at the first slot of cell c: the CSR offsets.
+    """
+    C = count.shape[0]
+    s = 0
+    for c in range(C):
+        s += count[c]
+        start[c] = s
+    start[C] = s
+    return s
+
+
+@njit(cache=True)
+def total_count(count):
+    s = 0
+    for c in range(count.shape[0]):
+        s += count[c]
+    return s
