@@ -28,7 +28,7 @@ def _vec3(v, name):
     return a
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def pixel_dir(basis, W, H, x, y):
     """Unit direction of the ray through the centre of pixel (x, y); basis from Camera.basis."""
     th = basis[4, 0]

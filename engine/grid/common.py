@@ -64,7 +64,7 @@ def _clampi(v, lo, hi):
     return lo if v < lo else (hi if v > hi else v)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def tri_cell_range(tris, f, lo, inv_cell, dims):
     """Inclusive cell index range (i0, j0, k0, i1, j1, k1) of triangle f's grown bounding box."""
     ax = np.float64(tris[f, 0, 0])
@@ -99,7 +99,7 @@ def _axis_test(p0, p1, p2, r):
     return min(p0, p1, p2) > r or max(p0, p1, p2) < -r
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def tri_box_overlap(tris, f, cx, cy, cz, hx, hy, hz):
     """Separating-axis test of triangle f against the box centre c, half-size h (float64).
 
@@ -150,7 +150,7 @@ def tri_box_overlap(tris, f, cx, cy, cz, hx, hy, hz):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def cell_overlaps(tris, f, i, j, k, lo, cell):
     """Exact-insertion test of triangle f against cell (i, j, k) grown by EPS cells."""
     hx = cell[0] * (0.5 + EPS)

@@ -20,43 +20,50 @@ def shear_setup(dx, dy, dz):
     ax, ay, az = abs(dx), abs(dy), abs(dz)
     if ax >= ay and ax >= az:
         kz = 0
+        dkz = dx
     elif ay >= az:
         kz = 1
+        dkz = dy
     else:
         kz = 2
+        dkz = dz
     kx = (kz + 1) % 3
     ky = (kx + 1) % 3
-    d = (dx, dy, dz)
-    if d[kz] < 0.0:
+    if dkz < 0.0:
         kx, ky = ky, kx
-    Sx = d[kx] / d[kz]
-    Sy = d[ky] / d[kz]
-    Sz = 1.0 / d[kz]
+    Sx = _pick(dx, dy, dz, kx) / dkz
+    Sy = _pick(dx, dy, dz, ky) / dkz
+    Sz = 1.0 / dkz
     return kx, ky, kz, Sx, Sy, Sz
+
+
+@njit(cache=True)
+def _pick(x, y, z, k):
+    return x if k == 0 else (y if k == 1 else z)
 
 
 @njit(cache=True)
 def permute(x, y, z, kx, ky, kz):
     """(v[kx], v[ky], v[kz]) of the vector (x, y, z)."""
-    v = (x, y, z)
-    return v[kx], v[ky], v[kz]
+    return _pick(x, y, z, kx), _pick(x, y, z, ky), _pick(x, y, z, kz)
 
 
 @njit(cache=True)
-def intersect_watertight(tris, f, okx, oky, okz, kx, ky, kz, Sx, Sy, Sz, tmin, tmax):
-    """Woop et al. 2013 watertight test of triangle f; a hit needs tmin < t < tmax.
+def intersect_watertight(p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z, okx, oky, okz, Sx, Sy, Sz, tmin, tmax):
+    """Woop et al. 2013 watertight test; a hit needs tmin < t < tmax.
 
-    (okx, oky, okz) is the ray origin permuted by (kx, ky, kz) (see :func:`permute`).
+    The vertices p0, p1, p2 and the origin (okx, oky, okz) are given already permuted by the
+    ray's (kx, ky, kz) (see :func:`shear_setup` and :func:`permute`).
     """
-    ax = np.float64(tris[f, 0, kx]) - okx
-    ay = np.float64(tris[f, 0, ky]) - oky
-    az = np.float64(tris[f, 0, kz]) - okz
-    bx = np.float64(tris[f, 1, kx]) - okx
-    by = np.float64(tris[f, 1, ky]) - oky
-    bz = np.float64(tris[f, 1, kz]) - okz
-    cx = np.float64(tris[f, 2, kx]) - okx
-    cy = np.float64(tris[f, 2, ky]) - oky
-    cz = np.float64(tris[f, 2, kz]) - okz
+    ax = p0x - okx
+    ay = p0y - oky
+    az = p0z - okz
+    bx = p1x - okx
+    by = p1y - oky
+    bz = p1z - okz
+    cx = p2x - okx
+    cy = p2y - oky
+    cz = p2z - okz
     Ax = ax - Sx * az
     Ay = ay - Sy * az
     Bx = bx - Sx * bz
@@ -79,17 +86,14 @@ def intersect_watertight(tris, f, okx, oky, okz, kx, ky, kz, Sx, Sy, Sz, tmin, t
 
 
 @njit(cache=True)
-def intersect_fast(tris, f, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    """Möller-Trumbore test of triangle f (double-sided, not watertight)."""
-    v0x = np.float64(tris[f, 0, 0])
-    v0y = np.float64(tris[f, 0, 1])
-    v0z = np.float64(tris[f, 0, 2])
-    e1x = tris[f, 1, 0] - v0x
-    e1y = tris[f, 1, 1] - v0y
-    e1z = tris[f, 1, 2] - v0z
-    e2x = tris[f, 2, 0] - v0x
-    e2y = tris[f, 2, 1] - v0y
-    e2z = tris[f, 2, 2] - v0z
+def intersect_fast(v0x, v0y, v0z, v1x, v1y, v1z, v2x, v2y, v2z, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Möller-Trumbore test (double-sided, not watertight)."""
+    e1x = v1x - v0x
+    e1y = v1y - v0y
+    e1z = v1z - v0z
+    e2x = v2x - v0x
+    e2y = v2y - v0y
+    e2z = v2z - v0z
     px = dy * e2z - dz * e2y
     py = dz * e2x - dx * e2z
     pz = dx * e2y - dy * e2x

@@ -42,7 +42,7 @@ def _u8(c):
     return np.uint8(0 if v < 0 else (255 if v > 255 else v))
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _normal(tris, f):
     e1x = np.float64(tris[f, 1, 0]) - tris[f, 0, 0]
     e1y = np.float64(tris[f, 1, 1]) - tris[f, 0, 1]

@@ -7,6 +7,10 @@ inside the current cell's t-range (t_hit <= t at which the ray leaves the cell).
 insertion is conservative (every cell a triangle's grown bounds touch), no nearer triangle can
 be waiting in a later cell, and a triangle tested early whose hit lies in a later cell is not
 lost to the mailbox.
+
+Per-ray and per-triangle helpers that take arrays are compiled with ``_nrt=False``: they never
+allocate, and without it numba reference-counts every array argument on every call (measured:
+about 90 ns of a 110 ns ray that misses the grid).
 """
 
 import math
@@ -31,6 +35,21 @@ def _floor_clamp(x, n):
 
 
 @njit(cache=True)
+def _slab(o, d, lo, hi, t0, t1):
+    """Clip [t0, t1] to the slab lo <= o + t d <= hi; returns an empty range (t0 > t1) on a miss."""
+    if d == 0.0:
+        if o < lo or o > hi:
+            return np.inf, -np.inf
+        return t0, t1
+    inv = 1.0 / d
+    ta = (lo - o) * inv
+    tb = (hi - o) * inv
+    if ta > tb:
+        ta, tb = tb, ta
+    return max(t0, ta), min(t1, tb)
+
+
+@njit(cache=True, _nrt=False)
 def trace_ray(
     tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
     ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox,
@@ -41,25 +60,10 @@ def trace_ray(
     mailbox (MAILBOX,) int32 scratch.
     """
     # clip the ray to the grid box (axis-parallel rays: a zero component never steps)
-    t0 = tmin
-    t1 = tmax
-    o = (ox, oy, oz)
-    d = (dx, dy, dz)
-    for a in range(3):
-        if d[a] == 0.0:
-            if o[a] < lo[a] or o[a] > hi[a]:
-                return -1, np.inf, 0.0, 0.0, 0, 0
-        else:
-            inv = 1.0 / d[a]
-            ta = (lo[a] - o[a]) * inv
-            tb = (hi[a] - o[a]) * inv
-            if ta > tb:
-                ta, tb = tb, ta
-            if ta > t0:
-                t0 = ta
-            if tb < t1:
-                t1 = tb
-    if t0 > t1:
+    t0, t1 = _slab(ox, dx, lo[0], hi[0], tmin, tmax)
+    t0, t1 = _slab(oy, dy, lo[1], hi[1], t0, t1)
+    t0, t1 = _slab(oz, dz, lo[2], hi[2], t0, t1)
+    if not (t0 <= t1):
         return -1, np.inf, 0.0, 0.0, 0, 0
 
     nx, ny, nz = dims[0], dims[1], dims[2]
@@ -151,9 +155,17 @@ def trace_ray(
                 mailbox[slot] = f
                 tests += 1
                 if watertight:
-                    hit, t, u, v = intersect_watertight(tris, f, okx, oky, okz, kx, ky, kz, Sx, Sy, Sz, tmin, best_t)
+                    hit, t, u, v = intersect_watertight(
+                        np.float64(tris[f, 0, kx]), np.float64(tris[f, 0, ky]), np.float64(tris[f, 0, kz]),
+                        np.float64(tris[f, 1, kx]), np.float64(tris[f, 1, ky]), np.float64(tris[f, 1, kz]),
+                        np.float64(tris[f, 2, kx]), np.float64(tris[f, 2, ky]), np.float64(tris[f, 2, kz]),
+                        okx, oky, okz, Sx, Sy, Sz, tmin, best_t)
                 else:
-                    hit, t, u, v = intersect_fast(tris, f, ox, oy, oz, dx, dy, dz, tmin, best_t)
+                    hit, t, u, v = intersect_fast(
+                        np.float64(tris[f, 0, 0]), np.float64(tris[f, 0, 1]), np.float64(tris[f, 0, 2]),
+                        np.float64(tris[f, 1, 0]), np.float64(tris[f, 1, 1]), np.float64(tris[f, 1, 2]),
+                        np.float64(tris[f, 2, 0]), np.float64(tris[f, 2, 1]), np.float64(tris[f, 2, 2]),
+                        ox, oy, oz, dx, dy, dz, tmin, best_t)
                 if hit:
                     best_t = t
                     best_f = f
@@ -181,3 +193,4 @@ def trace_ray(
     if best_f < 0:
         return -1, np.inf, 0.0, 0.0, cells, tests
     return best_f, best_t, best_u, best_v, cells, tests
+

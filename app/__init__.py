@@ -1,0 +1,1 @@
+"""gridrt applications: the viewer, the headless frame dump and the benchmarks (``gridrt ...``)."""

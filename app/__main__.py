@@ -1,0 +1,47 @@
+"""``gridrt`` / ``python -m app``: view | dump | bench | strategies."""
+
+import argparse
+import sys
+
+import engine  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
+from engine.errors import GridrtError
+
+from . import dump
+
+
+def build_parser():
+    p = argparse.ArgumentParser(prog="gridrt", description="Per-frame parallel uniform-grid ray tracer for "
+                                "animated triangle scenes (Ize, Wald, Robertson, Parker, RT 2006).")
+    sub = p.add_subparsers(dest="command", required=True)
+    dump.add_parser(sub)
+    from . import bench, view
+
+    view.add_parser(sub)
+    bench.add_parser(sub)
+    s = sub.add_parser("strategies", help="list the grid build strategies")
+    s.set_defaults(func=_list_strategies)
+    return p
+
+
+def _list_strategies(a):
+    from engine.grid.registry import BUILDERS, names
+
+    for n in names():
+        doc = (BUILDERS[n].__doc__ or "").strip().splitlines()
+        print(f"{n:20s} {doc[0] if doc else ''}")
+    return 0
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args) or 0
+    except GridrtError as e:
+        print(f"gridrt: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,105 @@
+"""Arguments shared by the subcommands, and their conversion into engine objects."""
+
+import argparse
+
+import engine  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
+from engine.camera import Camera
+from engine.config import INSERT_MODES, SHADING_MODES, GridParams, RenderParams
+from engine.errors import InputError
+from engine.threads import MAX_THREADS
+
+
+def vec3(text):
+    try:
+        parts = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z (three numbers), got {text!r}") from None
+    if len(parts) != 3:
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z (three numbers), got {text!r}")
+    return tuple(parts)
+
+
+def size(text):
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, e.g. 1024x768, got {text!r}") from None
+    if w < 1 or h < 1:
+        raise argparse.ArgumentTypeError(f"image size must be positive, got {text!r}")
+    return w, h
+
+
+def add_scene_args(p):
+    g = p.add_argument_group("scene")
+    g.add_argument("--scene", default="marbles",
+                   help="built-in scene (marbles, icosphere) or a mesh file (.obj .ply .stl .off .glb .gltf)")
+    g.add_argument("--count", type=int, default=None,
+                   help="triangles for built-in scenes (marbles: default 8800; scales past 1M)")
+    g.add_argument("--animate", choices=("twist", "wave"), default=None, help="deform a mesh file over time")
+    g.add_argument("--amplitude", type=float, default=None, help="deformation amplitude in scene units")
+    g.add_argument("--speed", type=float, default=1.0, help="animation speed factor")
+    g.add_argument("--seed", type=int, default=0, help="random seed of procedural scenes")
+
+
+def add_grid_args(p):
+    g = p.add_argument_group("grid")
+    g.add_argument("--strategy", default="serial", help="grid build strategy (see `gridrt strategies`)")
+    g.add_argument("--threads", type=int, default=None, help=f"threads for build and render (1..{MAX_THREADS}; "
+                   "default: all cores)")
+    g.add_argument("--lambda", dest="density", type=float, default=4.0,
+                   help="grid density: cells ~ lambda x triangles (default 4)")
+    g.add_argument("--macro", type=int, default=4, help="macro-cell edge in cells (default 4)")
+    g.add_argument("--insert", choices=INSERT_MODES, default="bbox",
+                   help="triangle insertion test: bounding box (fast) or exact SAT (fewer references)")
+    g.add_argument("--max-cells", type=int, default=None, help="ceiling on grid cells")
+
+
+def add_render_args(p, default_size=(1024, 768)):
+    g = p.add_argument_group("render")
+    g.add_argument("--size", type=size, default=default_size, help="image size WIDTHxHEIGHT")
+    g.add_argument("--shading", choices=SHADING_MODES, default="lambert")
+    g.add_argument("--shadows", action="store_true", help="hard shadows from one point light")
+    g.add_argument("--light", type=vec3, default=None, help="point light X,Y,Z (default: above the camera)")
+    g.add_argument("--fast-intersect", action="store_true",
+                   help="Moller-Trumbore instead of the watertight test (faster, may leak at edges)")
+    g.add_argument("--eye", type=vec3, default=None, help="camera position X,Y,Z")
+    g.add_argument("--target", type=vec3, default=None, help="camera look-at point X,Y,Z")
+    g.add_argument("--up", type=vec3, default=None, help="camera up vector X,Y,Z (default 0,1,0)")
+    g.add_argument("--fov", type=float, default=45.0, help="vertical field of view in degrees")
+
+
+def scene_from_args(a):
+    from engine.scene import make_scene
+
+    return make_scene(a.scene, count=a.count, animate=a.animate, amplitude=a.amplitude, speed=a.speed, seed=a.seed)
+
+
+def grid_params(a):
+    kw = dict(strategy=a.strategy, density=a.density, macro=a.macro, insert=a.insert, threads=a.threads)
+    if getattr(a, "max_cells", None) is not None:
+        kw["max_cells"] = a.max_cells
+    return GridParams(**kw)
+
+
+def render_params(a):
+    w, h = a.size
+    return RenderParams(width=w, height=h, shading=a.shading, shadows=a.shadows, light=a.light,
+                        watertight=not a.fast_intersect, threads=a.threads)
+
+
+def camera_from_args(a):
+    """An explicit camera when --eye/--target are given, else None (the pipeline frames the
+    scene with --fov and --up)."""
+    if a.eye is None and a.target is None:
+        return None
+    if a.eye is None or a.target is None:
+        raise InputError("an explicit camera needs both --eye and --target")
+    return Camera(eye=a.eye, target=a.target, up=a.up or (0.0, 1.0, 0.0), fov=a.fov)
+
+
+def pipeline_from_args(a, scene=None):
+    from engine.pipeline import FramePipeline
+
+    scene = scene if scene is not None else scene_from_args(a)
+    return FramePipeline(scene, grid_params(a), render_params(a), camera=camera_from_args(a),
+                         fov=a.fov, up=a.up or (0.0, 1.0, 0.0))

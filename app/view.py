@@ -1,0 +1,416 @@
+"""``gridrt view``: the interactive viewer.
+
+A glfw window with an OpenGL 3.3 core context; moderngl shows the ray-traced image (app/blit.py,
+shaders from shaders/); an imgui-bundle panel floats over it (app/ui.py).  The FramePipeline runs
+on a worker thread (app/worker.py), so the window keeps answering while a scene loads, the numba
+kernels compile or a heavy frame renders, and shows what it is waiting for.
+
+Nothing is written to the working directory unless the user asks (a screenshot key or button
+writes there only when no --screenshot-dir is given); imgui.ini is disabled.
+"""
+
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+from . import cli
+
+TITLE = "gridrt"
+#: UI frame cap (frames per second) when the display has no vsync (Xvfb)
+UI_FPS_CAP = 60.0
+#: a frame job shows the progress overlay once it has run this long (seconds)
+SLOW_FRAME_S = 0.5
+#: a scene load shows the overlay once it has run this long (seconds)
+SLOW_LOAD_S = 0.15
+
+
+def add_parser(sub):
+    p = sub.add_parser("view", help="open the interactive viewer (needs a display)",
+                       description="Interactive viewer: a window with the ray-traced animation and a control "
+                                   "panel.  Without a display, use `gridrt dump`.")
+    cli.add_scene_args(p)
+    cli.add_grid_args(p)
+    cli.add_render_args(p, default_size=(1024, 768))
+    g = p.add_argument_group("viewer")
+    g.add_argument("--scale", type=float, default=1.0,
+                   help="render resolution as a fraction of the window (0.1..2; default 1)")
+    g.add_argument("--paused", action="store_true", help="start with the animation paused")
+    g.add_argument("--hide-panel", action="store_true", help="start with the panel hidden (H toggles)")
+    g.add_argument("--screenshot-dir", type=Path, default=None,
+                   help="folder for F12/P screenshots (default: the current directory, only when asked)")
+    g.add_argument("--state-file", type=Path, default=None,
+                   help="write the viewer state as JSON to this file several times a second "
+                        "(frame counters, parameters, screenshot paths, widget positions; for scripts/tests)")
+    p.set_defaults(func=run)
+    return p
+
+
+def no_display_message():
+    return ("gridrt view: no display found (DISPLAY and WAYLAND_DISPLAY are unset); render headless instead: "
+            "gridrt dump --scene marbles --frames 60 --out out/marbles")
+
+
+def window_failed_message(why):
+    return (f"gridrt view: cannot open an OpenGL 3.3 window ({why}); render headless instead: "
+            "gridrt dump --scene marbles --frames 60 --out out/marbles")
+
+
+def run(a):
+    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        print(no_display_message(), file=sys.stderr)
+        return 3
+    from engine.errors import InputError
+
+    if not (0.1 <= a.scale <= 2.0) or not math.isfinite(a.scale):
+        raise InputError(f"--scale must be between 0.1 and 2, got {a.scale}")
+    state = initial_state(a)
+    viewer = Viewer(a, state)
+    return viewer.run()
+
+
+def initial_state(a):
+    """A ViewerState from the parsed arguments (validating them the same way dump does)."""
+    from engine.threads import check_threads, max_threads
+    from engine.warmup import cache_is_cold
+
+    from .state import SceneSpec, ViewerState
+
+    gp = cli.grid_params(a)   # validates strategy, lambda, macro, insert, threads
+    w, h = a.size
+    rp = cli.render_params(a)
+    st = ViewerState(
+        scene=SceneSpec(source=str(a.scene), count=a.count, animate=a.animate, amplitude=a.amplitude,
+                        speed=a.speed, seed=a.seed),
+        playing=not a.paused,
+    )
+    st.strategy = gp.strategy
+    st.threads = check_threads(gp.threads)
+    st.max_threads = max_threads()
+    st.density = gp.density
+    st.macro = gp.macro
+    st.insert = gp.insert
+    st.max_cells = getattr(a, "max_cells", None)
+    st.watertight = rp.watertight
+    st.shading = rp.shading
+    st.shadows = rp.shadows
+    st.light = rp.light
+    st.scale = float(a.scale)
+    st.fov = a.fov
+    st.up = a.up or (0.0, 1.0, 0.0)
+    st.camera = cli.camera_from_args(a)
+    st.home = st.camera
+    st.show_panel = not a.hide_panel
+    st.window_size = (w, h)
+    st.cold_cache = cache_is_cold()
+    if os.path.exists(str(a.scene)):
+        st.file_text = str(a.scene)
+    return st
+
+
+def _next_free(folder, stem):
+    i = 0
+    while True:
+        p = folder / f"{stem}_{i:04d}.png"
+        if not p.exists():
+            return p
+        i += 1
+
+
+class Viewer:
+    """Window, frame loop and lifecycle.  Resources are made in :meth:`run` and freed in its
+    ``finally`` block."""
+
+    def __init__(self, args, state):
+        self.args = args
+        self.state = state
+        self.shot_dir = Path(args.screenshot_dir) if args.screenshot_dir is not None else None
+        self.state_file = Path(args.state_file) if args.state_file is not None else None
+        self.image = None              # the frame on screen, (H, W, 4) uint8
+        self.last_key = None           # parameters of the last submitted frame
+        self.glfw_error = ""
+        self._last_state_write = 0.0
+        self._last_result_time = None
+
+    # ---- lifecycle ------------------------------------------------------------------------
+    def run(self):
+        from imgui_bundle import imgui  # noqa: F401  (import first: it points pyglfw at its libglfw)
+        import glfw
+        import moderngl
+
+        from engine.grid.registry import names
+
+        from .blit import Blitter
+        from .input import InputHandler
+        from .ui import ImguiRuntime
+        from .worker import RenderWorker
+
+        st = self.state
+        glfw.set_error_callback(self._on_glfw_error)
+        if not glfw.init():
+            print(window_failed_message(self.glfw_error or "glfw could not initialise"), file=sys.stderr)
+            return 3
+        win = ui = blitter = ctx = worker = None
+        try:
+            for hint, value in ((glfw.CONTEXT_VERSION_MAJOR, 3), (glfw.CONTEXT_VERSION_MINOR, 3),
+                                (glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE),
+                                (glfw.OPENGL_FORWARD_COMPAT, True)):
+                glfw.window_hint(hint, value)
+            w, h = st.window_size
+            win = glfw.create_window(int(w), int(h), TITLE, None, None)
+            if not win:
+                print(window_failed_message(self.glfw_error or "no OpenGL 3.3 core context"), file=sys.stderr)
+                return 3
+            glfw.make_context_current(win)
+            glfw.swap_interval(1)
+            ctx = moderngl.create_context()
+            self.glfw, self.win, self.ctx = glfw, win, ctx
+            self.strategies = names()
+            self.input = InputHandler(glfw, win, st, self.strategies)
+            ui = ImguiRuntime(win)
+            blitter = Blitter(ctx)
+            worker = RenderWorker(self._make_pipeline)
+            self.ui, self.blitter, self.worker = ui, blitter, worker
+            self._start_load(st.scene, keep_camera=True)
+            self._loop()
+            return 0
+        finally:
+            if worker is not None and not worker.stop(timeout=15.0):
+                print("gridrt view: the render thread did not finish in time; exiting anyway", file=sys.stderr)
+            if blitter is not None:
+                blitter.release()
+            if ui is not None:
+                ui.shutdown()
+            if ctx is not None:
+                ctx.release()
+            if win is not None:
+                glfw.destroy_window(win)
+            glfw.terminate()
+            self._write_state(force=True)
+
+    def _on_glfw_error(self, code, description):
+        self.glfw_error = description.decode() if isinstance(description, bytes) else str(description)
+
+    def _make_pipeline(self, scene, job):
+        from engine.pipeline import FramePipeline
+
+        return FramePipeline(scene, job.grid_params, job.render_params, camera=job.camera, fov=job.fov, up=job.up)
+
+    def _start_load(self, spec, keep_camera=False):
+        from .worker import LoadJob
+
+        st = self.state
+        if not keep_camera:
+            st.camera = st.home = None
+        rw, rh = st.render_size_for(*self._fb_size())
+        st.busy_since = time.perf_counter()
+        self.worker.submit(LoadJob(spec, st.grid_params(), st.render_params(rw, rh), camera=st.camera,
+                                   fov=st.fov, up=st.up, label=f"loading {spec.label()}"))
+        self.last_key = None
+
+    def _fb_size(self):
+        fw, fh = self.glfw.get_framebuffer_size(self.win)
+        return max(fw, 1), max(fh, 1)
+
+    # ---- frame loop -----------------------------------------------------------------------
+    def _loop(self):
+        glfw = self.glfw
+        st = self.state
+        from imgui_bundle import imgui
+
+        from .ui import draw_overlay, draw_panel
+
+        last = time.perf_counter()
+        while not glfw.window_should_close(self.win) and not st.quit:
+            glfw.poll_events()
+            now = time.perf_counter()
+            dt, last = now - last, now
+            if dt > 0:
+                st.ui_fps = 1.0 / dt if st.ui_fps == 0 else 0.9 * st.ui_fps + 0.1 / dt
+            self._collect_results(now)
+            fw, fh = glfw.get_framebuffer_size(self.win)
+            if fw == 0 or fh == 0:           # minimised
+                time.sleep(0.05)
+                continue
+            st.framebuffer_size = (fw, fh)
+            st.window_size = tuple(glfw.get_window_size(self.win))
+
+            self.ui.new_frame()
+            self.input.process(imgui.get_io(), dt)
+            if st.scene_request is not None:
+                spec, st.scene_request = st.scene_request, None
+                st.scene_error = ""
+                self._start_load(spec)
+            st.advance(dt)
+            st.widget_rects = {}
+            if st.show_panel:
+                draw_panel(st, self.strategies)
+            self._update_busy(now)
+            job, elapsed = self.worker.current()
+            draw_overlay(st, elapsed)
+
+            self.ctx.screen.use()
+            self.ctx.viewport = (0, 0, fw, fh)
+            self.ctx.clear(0.12, 0.13, 0.16, 1.0)
+            self.blitter.draw((0, 0, fw, fh))
+            self.ui.render()
+            if st.want_window_shot:
+                st.want_window_shot = False
+                self._save_window_shot(fw, fh)
+            glfw.swap_buffers(self.win)
+            if st.want_shot:
+                st.want_shot = False
+                self._save_shot()
+            self._submit_frame()
+            st.ui_frames += 1
+            self._write_state()
+            spare = 1.0 / UI_FPS_CAP - (time.perf_counter() - now)
+            if spare > 0:
+                time.sleep(spare)
+
+    def _collect_results(self, now):
+        from .worker import LoadResult
+
+        st = self.state
+        for res in self.worker.take():
+            if isinstance(res, LoadResult):
+                if res.error:
+                    st.scene_error = f"cannot load {res.spec.source}: {res.error}"
+                    print(f"gridrt view: {st.scene_error}", file=sys.stderr, flush=True)
+                    if self.worker.pipeline is None:
+                        st.message = "no scene loaded: pick a built-in scene or open a file"
+                    continue
+                st.scene = res.spec
+                st.scene_name, st.triangles = res.scene_name, res.triangles
+                st.duration, st.static = res.duration, res.static
+                st.time = 0.0 if res.duration is None else math.fmod(st.time, res.duration)
+                st.history.clear()
+                st.message = f"loaded {res.scene_name} in {res.seconds:.2f} s"
+                print(f"gridrt view: loaded {res.scene_name} ({res.triangles} triangles) in {res.seconds:.2f} s",
+                      flush=True)
+                self.last_key = None
+            elif res.error:
+                st.message = ""
+                st.scene_error = f"frame failed: {res.error}"
+                print(f"gridrt view: {st.scene_error}", file=sys.stderr, flush=True)
+            else:
+                self.image = res.image
+                self.blitter.upload(res.image)
+                st.stats = res.stats
+                st.history.add(res.stats)
+                st.rendered_frames += 1
+                st.cold_cache = False
+                st.scene_radius = res.radius
+                if st.camera is None:
+                    st.camera = res.camera
+                if st.home is None:
+                    st.home = res.camera
+                if self._last_result_time is not None:
+                    dt = now - self._last_result_time
+                    if dt > 0:
+                        st.render_fps = 1 / dt if st.render_fps == 0 else 0.8 * st.render_fps + 0.2 / dt
+                self._last_result_time = now
+
+    def _update_busy(self, now):
+        from .worker import LoadJob
+
+        st = self.state
+        job, elapsed = self.worker.current()
+        if job is None:
+            st.busy = None
+        elif isinstance(job, LoadJob):
+            st.busy = job.label if elapsed >= SLOW_LOAD_S else None
+        elif st.cold_cache:
+            st.busy = "compiling numba kernels (first run only; cached for later runs)"
+        elif elapsed >= SLOW_FRAME_S:
+            st.busy = ("building the grid and rendering (a strategy's first use compiles its kernels)"
+                       if st.rendered_frames < 3 or job.grid_params.strategy != self._last_strategy()
+                       else "rendering a slow frame")
+        else:
+            st.busy = None
+
+    def _last_strategy(self):
+        return self.state.stats.get("strategy")
+
+    def _submit_frame(self):
+        from engine.errors import InputError
+
+        from .worker import FrameJob
+
+        st = self.state
+        if self.worker.busy or self.worker.pipeline is None:
+            return
+        fw, fh = st.framebuffer_size
+        rw, rh = st.render_size_for(fw, fh)
+        st.render_size = (rw, rh)
+        try:
+            gp = st.grid_params()
+            rp = st.render_params(rw, rh)
+        except InputError as e:
+            st.scene_error = str(e)
+            return
+        key = (st.time, st.camera, gp, rp)
+        if key == self.last_key:
+            return
+        self.last_key = key
+        self.worker.submit(FrameJob(st.time, st.camera, gp, rp))
+
+    # ---- outputs --------------------------------------------------------------------------
+    def _shot_folder(self):
+        d = self.shot_dir or Path.cwd()
+        d.mkdir(parents=True, exist_ok=True)
+        return d
+
+    def _save_shot(self):
+        from PIL import Image
+
+        st = self.state
+        if self.image is None:
+            st.message = "no frame to save yet"
+            return
+        try:
+            p = _next_free(self._shot_folder(), "gridrt")
+            Image.fromarray(self.image[:, :, :3]).save(p)
+        except OSError as e:
+            st.message = f"screenshot failed: {e}"
+            print(f"gridrt view: {st.message}", file=sys.stderr, flush=True)
+            return
+        st.last_screenshot = str(p)
+        st.message = f"saved {p.name}"
+        print(f"gridrt view: saved screenshot {p}", flush=True)
+
+    def _save_window_shot(self, fw, fh):
+        import numpy as np
+        from PIL import Image
+
+        st = self.state
+        raw = self.ctx.screen.read(viewport=(0, 0, fw, fh), components=3)
+        _ = self.ctx.error   # reading the default framebuffer leaves a pending GL error on some drivers
+        img = np.frombuffer(raw, np.uint8).reshape(fh, fw, 3)[::-1]
+        try:
+            p = _next_free(self._shot_folder(), "gridrt_window")
+            Image.fromarray(np.ascontiguousarray(img)).save(p)
+        except OSError as e:
+            st.message = f"window screenshot failed: {e}"
+            print(f"gridrt view: {st.message}", file=sys.stderr, flush=True)
+            return
+        st.last_window_shot = str(p)
+        st.message = f"saved {p.name}"
+        print(f"gridrt view: saved window screenshot {p}", flush=True)
+
+    def _write_state(self, force=False):
+        if self.state_file is None:
+            return
+        now = time.perf_counter()
+        if not force and now - self._last_state_write < 0.1:
+            return
+        self._last_state_write = now
+        tmp = self.state_file.with_name(self.state_file.name + ".tmp")
+        try:
+            tmp.write_text(json.dumps(self.state.snapshot()))
+            os.replace(tmp, self.state_file)
+        except OSError as e:
+            print(f"gridrt view: cannot write state file {self.state_file}: {e}", file=sys.stderr, flush=True)
+            self.state_file = None

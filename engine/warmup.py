@@ -1,0 +1,23 @@
+"""Compile-cache awareness: tell a cold start (numba compiles for seconds) from a warm one."""
+
+import os
+
+
+def _kernels():
+    from .camera import _fill_rays
+    from .grid import common
+    from .grid.strategies.serial import count_serial, scatter_serial
+    from .trace.render import cast_kernel, render_kernel
+
+    return [render_kernel, cast_kernel, count_serial, scatter_serial, common.scene_bounds,
+            common.macro_build_range, common.clear_macro_range, _fill_rays]
+
+
+def cache_is_cold():
+    """True when some core kernel has no on-disk compile cache yet (first run after install)."""
+    for k in _kernels():
+        cache = getattr(k, "_cache", None)
+        path = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
+        if path is None or not os.path.exists(path):
+            return True
+    return False
