@@ -40,10 +40,14 @@ class FramePipeline:
     camera         Camera, or None to frame the scene's bounds at the first frame
                    (with vertical field of view ``fov`` and up vector ``up``)
 
-    A static scene is gridded once and not rebuilt until the grid parameters change.
+    A static scene is gridded once and not rebuilt until the grid parameters change.  A scene
+    whose ``static_mask`` marks some triangles as never moving is split (``split_static``): the
+    static part gets its own grid, built once, the moving part is rebuilt every frame, and the ray
+    caster traverses both; triangle ids in the output stay the scene's.
     """
 
-    def __init__(self, scene, grid_params=None, render_params=None, camera=None, fov=45.0, up=(0.0, 1.0, 0.0)):
+    def __init__(self, scene, grid_params=None, render_params=None, camera=None, fov=45.0, up=(0.0, 1.0, 0.0),
+                 split_static=True):
         self.scene = scene
         self.fov = fov
         self.up = up
@@ -55,6 +59,47 @@ class FramePipeline:
         self.grid = None
         self._built_params = None
         self.frame_index = 0
+        self.split_static = split_static
+        self._split = None  # (ids_static, ids_moving, static tris, moving tris buffer, static builder)
+        self.static_grid = None
+        self._static_params = None
+
+    def _split_parts(self):
+        """The static/moving split of the scene, or None when it does not apply."""
+        mask = getattr(self.scene, "static_mask", None)
+        if not self.split_static or mask is None or self.scene.static:
+            return None
+        mask = np.asarray(mask, bool)
+        if mask.shape != (self.scene.n_triangles,) or mask.all() or not mask.any():
+            return None
+        if self._split is None:
+            ids_s = np.flatnonzero(mask).astype(np.int32)
+            ids_m = np.flatnonzero(~mask).astype(np.int32)
+            self._split = (ids_s, ids_m, None, np.empty((len(ids_m), 3, 3), np.float32), GridBuilder())
+        return self._split
+
+    def _build(self, tris, gp):
+        """(grid, second-grid tuple or None, rebuilt?, static_build_ms) for this frame."""
+        parts = self._split_parts()
+        if parts is None:
+            rebuild = self.grid is None or not self.scene.static or self._built_params != gp
+            if rebuild:
+                self.grid = self.builder.build(tris, gp)
+                self._built_params = gp
+            return self.grid, None, rebuild, 0.0
+        ids_s, ids_m, static_tris, moving, sbuilder = parts
+        static_ms = 0.0
+        if self.static_grid is None or self._static_params != gp:
+            static_tris = np.ascontiguousarray(tris[ids_s])
+            self._split = (ids_s, ids_m, static_tris, moving, sbuilder)
+            self.static_grid = sbuilder.build(static_tris, gp)
+            self._static_params = gp
+            static_ms = self.static_grid.stats["build_ms"]
+        np.take(tris, ids_m, axis=0, out=moving)
+        self.grid = self.builder.build(moving, gp)
+        self._built_params = gp
+        second = (self.grid, moving, ids_s, ids_m)
+        return self.static_grid, second, True, static_ms
 
     def step(self, t, camera=None):
         """Render the scene at time t; returns a Frame. ``camera`` overrides the pipeline's."""
@@ -63,23 +108,27 @@ class FramePipeline:
         tris = self.scene.triangles_at(float(t))
         anim_ms = (time.perf_counter() - t0) * 1e3
         gp = self.grid_params
-        rebuild = self.grid is None or not self.scene.static or self._built_params != gp
-        if rebuild:
-            self.grid = self.builder.build(tris, gp)
-            self._built_params = gp
-        grid = self.grid
+        grid, second, rebuild, static_ms = self._build(tris, gp)
         cam = camera or self.camera
         if cam is None:
-            cam = self.camera = Camera.frame(grid.spec.lo, grid.spec.hi, fov=self.fov, up=self.up)
-        res = self.renderer.render(grid, tris, cam, self.render_params)
+            lo, hi = grid.spec.scene_lo, grid.spec.scene_hi
+            if second is not None:
+                lo = np.minimum(lo, second[0].spec.scene_lo)
+                hi = np.maximum(hi, second[0].spec.scene_hi)
+            cam = self.camera = Camera.frame(lo, hi, fov=self.fov, up=self.up)
+        if second is not None:
+            res = self.renderer.render(self.static_grid, self._split[2], cam, self.render_params, second=second)
+            grid = second[0]
+        else:
+            res = self.renderer.render(grid, tris, cam, self.render_params)
         gs = grid.stats
         rp = self.render_params
         stats = {
             "frame": self.frame_index,
             "t": float(t),
-            "triangles": gs["triangles"],
-            "cells": gs["cells"],
-            "references": gs["references"],
+            "triangles": self.scene.n_triangles,
+            "cells": gs["cells"] + (self.static_grid.stats["cells"] if second is not None else 0),
+            "references": gs["references"] + (self.static_grid.stats["references"] if second is not None else 0),
             "threads": gs["threads"],
             "strategy": gs["strategy"],
             "insert": gs["insert"],
@@ -92,9 +141,11 @@ class FramePipeline:
             "bounds_ms": gs.get("bounds_ms", 0.0) if rebuild else 0.0,
             "rebuilt": int(rebuild),
             "refs_per_tri": gs["refs_per_tri"],
+            "moving_triangles": gs["triangles"],
+            "static_build_ms": static_ms,
             "dims": gs["dims"],
             "macro_full": gs["macro_full"],
-            "grid_bytes": gs["grid_bytes"],
+            "grid_bytes": gs["grid_bytes"] + (self.static_grid.stats["grid_bytes"] if second is not None else 0),
             "width": rp.width,
             "height": rp.height,
             "shading": rp.shading,

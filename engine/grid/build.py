@@ -72,7 +72,8 @@ def make_spec(lo_scene, hi_scene, n_tris, params):
     cell = (hi - lo) / dims
     k = params.macro
     mdims = (dims + k - 1) // k
-    return GridSpec(lo=lo, hi=hi, dims=dims, cell=cell, inv_cell=1.0 / cell, macro=k, mdims=mdims, capped=capped)
+    return GridSpec(lo=lo, hi=hi, dims=dims, cell=cell, inv_cell=1.0 / cell, macro=k, mdims=mdims, capped=capped,
+                    scene_lo=lo_scene, scene_hi=hi_scene)
 
 
 class GridBuffers:

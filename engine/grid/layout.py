@@ -39,6 +39,7 @@ class GridSpec:
     macro      int           macro-cell edge k, in cells
     mdims      (3,) int64    macro cells along each axis, ceil(dims / k)
     capped     bool          True when the resolution asked for was reduced to max_cells
+    scene_lo, scene_hi (3,) float64  the triangles' own bounds (unpadded)
     """
 
     lo: np.ndarray
@@ -49,6 +50,8 @@ class GridSpec:
     macro: int
     mdims: np.ndarray
     capped: bool = False
+    scene_lo: np.ndarray = None
+    scene_hi: np.ndarray = None
 
     @property
     def n_cells(self) -> int:

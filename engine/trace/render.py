@@ -6,8 +6,9 @@ Shading (all colours linear in [0, 1], stored as ``uint8(round(255 * c))``, alph
 * ``lambert``:         ALBEDO * (AMBIENT + (1 - AMBIENT) * s), where s = |n . d| (headlight)
                        without shadows; with shadows s = max(0, n_f . l) * visible, n_f the unit
                        geometric normal turned towards the viewer, l the unit vector to the light,
-                       visible = 0 when a shadow ray from p + n_f * 1e-6 * diag(grid) to the light
-                       hits anything, else 1 (a light behind the surface gives s = 0).
+                       visible = 0 when a shadow ray from p + n_f * 1e-6 * diag to the light hits
+                       anything, else 1 (a light behind the surface gives s = 0); diag is the
+                       length of the diagonal of the triangles' bounding box (unpadded).
 * ``normal``:          (n_f + 1) / 2
 * ``cost``:            heat map of h = min(1, tests / 64) (triangle tests of the primary ray),
                        blue (h = 0) -> green (0.5) -> red (1); also shown on background pixels.
@@ -33,6 +34,9 @@ BACKGROUND = (0.12, 0.13, 0.16)
 ALBEDO = (0.85, 0.78, 0.66)
 AMBIENT = 0.15
 COST_SCALE = 64.0
+#: shadow-ray origins move off the surface by this fraction of the scene's bounding-box diagonal
+SHADOW_OFFSET = 1e-6
+_NO_IDS = np.zeros(0, np.int32)
 SHADING_CODES = {"lambert": 0, "normal": 1, "cost": 2}
 
 
@@ -59,18 +63,44 @@ def _normal(tris, f):
     return nx / n, ny / n, nz / n
 
 
+@njit(cache=True, _nrt=False)
+def trace_two(
+    tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
+    tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b, mdims_b, macro_full_b,
+    has_b, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mb,
+):
+    """Nearest hit over grid A and (when has_b) grid B: (which 0/1, tri, t, u, v, cells, tests)."""
+    f, t, u, v, nc, nt = trace_ray(
+        tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
+        ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mb,
+    )
+    if not has_b or (any_hit and f >= 0):
+        return 0, f, t, u, v, nc, nt
+    f2, t2, u2, v2, nc2, nt2 = trace_ray(
+        tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b, mdims_b, macro_full_b,
+        ox, oy, oz, dx, dy, dz, tmin, t if f >= 0 else tmax, watertight, any_hit, mb,
+    )
+    if f2 >= 0:
+        return 1, f2, t2, u2, v2, nc + nc2, nt + nt2
+    return 0, f, t, u, v, nc + nc2, nt + nt2
+
+
 @njit(cache=True, parallel=True)
 def render_kernel(
     tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
-    basis, W, H, tile, mode, shadows, light, watertight,
+    tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b, mdims_b, macro_full_b,
+    has_b, ids_a, ids_b, basis, W, H, tile, mode, shadows, light, off, watertight,
     img, tbuf, idbuf, costbuf, cellbuf,
 ):
     """Render W x H pixels into img (H,W,4) uint8, tbuf (H,W) float32, idbuf (H,W) int32,
-    costbuf (H,W) int32 (triangle tests) and cellbuf (H,W) int32 (cells visited)."""
+    costbuf (H,W) int32 (triangle tests) and cellbuf (H,W) int32 (cells visited).
+
+    Grid A over tris, and with has_b also grid B over tris_b (a scene split into static and
+    moving parts); ids_a / ids_b map each part's triangle index to the scene's (used when
+    has_b).  off: shadow-ray origin offset along the normal.
+    """
     ntx = (W + tile - 1) // tile
     nty = (H + tile - 1) // tile
-    diag = math.sqrt((hi[0] - lo[0]) ** 2 + (hi[1] - lo[1]) ** 2 + (hi[2] - lo[2]) ** 2)
-    off = 1e-6 * diag
     ex, ey, ez = basis[0, 0], basis[0, 1], basis[0, 2]
     for ti in prange(ntx * nty):
         mb = np.empty(MAILBOX, np.int32)
@@ -79,12 +109,16 @@ def render_kernel(
         for y in range(ty0, min(ty0 + tile, H)):
             for x in range(tx0, min(tx0 + tile, W)):
                 dx, dy, dz = pixel_dir(basis, W, H, x, y)
-                f, t, u, v, nc, nt = trace_ray(
+                which, f, t, u, v, nc, nt = trace_two(
                     tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
-                    ex, ey, ez, dx, dy, dz, 0.0, np.inf, watertight, False, mb,
+                    tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b, mdims_b,
+                    macro_full_b, has_b, ex, ey, ez, dx, dy, dz, 0.0, np.inf, watertight, False, mb,
                 )
                 tbuf[y, x] = np.float32(t)
-                idbuf[y, x] = f
+                if f >= 0 and has_b:
+                    idbuf[y, x] = ids_b[f] if which == 1 else ids_a[f]
+                else:
+                    idbuf[y, x] = f
                 costbuf[y, x] = nt
                 cellbuf[y, x] = nc
                 r = BACKGROUND[0]
@@ -97,7 +131,10 @@ def render_kernel(
                     else:
                         r, g, b = 2.0 * h - 1.0, 2.0 - 2.0 * h, 0.0
                 elif f >= 0:
-                    nx, ny, nz = _normal(tris, f)
+                    if which == 1:
+                        nx, ny, nz = _normal(tris_b, f)
+                    else:
+                        nx, ny, nz = _normal(tris, f)
                     dn = nx * dx + ny * dy + nz * dz
                     if dn > 0.0:
                         nx, ny, nz, dn = -nx, -ny, -nz, -dn
@@ -121,9 +158,11 @@ def render_kernel(
                                 lz /= ld
                                 s = nx * lx + ny * ly + nz * lz
                                 if s > 0.0:
-                                    sf, st, su, sv, snc, snt = trace_ray(
+                                    sw, sf, st, su, sv, snc, snt = trace_two(
                                         tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims,
-                                        macro_full, px + nx * off, py + ny * off, pz + nz * off, lx, ly, lz,
+                                        macro_full, tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b,
+                                        tri_ids_b, macro_b, mdims_b, macro_full_b, has_b,
+                                        px + nx * off, py + ny * off, pz + nz * off, lx, ly, lz,
                                         0.0, ld, watertight, True, mb,
                                     )
                                     if sf >= 0:
@@ -235,28 +274,45 @@ class Renderer:
             )
         return self._bufs
 
-    def render(self, grid, tris, camera, params: RenderParams | None = None) -> RenderResult:
+    def render(self, grid, tris, camera, params: RenderParams | None = None, second=None) -> RenderResult:
+        """Render ``grid`` over ``tris``; ``second`` = (grid_b, tris_b, ids_a, ids_b) adds a second
+        grid traversed together with the first (static and moving parts of one scene); the tri
+        buffer then holds scene ids through ids_a / ids_b ((F_a,), (F_b,) int32)."""
         params = params or RenderParams()
         tris = _check_grid_tris(grid, tris)
+        if second is not None:
+            grid_b, tris_b, ids_a, ids_b = second
+            tris_b = _check_grid_tris(grid_b, tris_b)
+            ids_a = np.ascontiguousarray(ids_a, np.int32)
+            ids_b = np.ascontiguousarray(ids_b, np.int32)
+            if ids_a.shape != (len(tris),) or ids_b.shape != (len(tris_b),):
+                raise InputError("triangle id maps must have one entry per triangle of each grid")
+            lo_s = np.minimum(grid.spec.scene_lo, grid_b.spec.scene_lo)
+            hi_s = np.maximum(grid.spec.scene_hi, grid_b.spec.scene_hi)
+        else:
+            grid_b, tris_b, ids_a, ids_b = grid, tris, _NO_IDS, _NO_IDS
+            lo_s, hi_s = grid.spec.scene_lo, grid.spec.scene_hi
         threads = check_threads(params.threads)
         W, H = params.width, params.height
         img, tb, ib, cb, nb = self.buffers(W, H)
         basis = camera.basis()
+        diag = float(np.linalg.norm(hi_s - lo_s))
         if params.light is not None:
             light = np.asarray(params.light, np.float64)
         else:
-            light = default_light(grid, camera)
+            light = default_light(diag, camera)
         use_threads(threads)
         t0 = time.perf_counter()
         render_kernel(
-            tris, *_grid_args(grid), basis, W, H, params.tile, SHADING_CODES[params.shading],
-            bool(params.shadows), light, bool(params.watertight), img, tb, ib, cb, nb,
+            tris, *_grid_args(grid), tris_b, *_grid_args(grid_b), second is not None, ids_a, ids_b,
+            basis, W, H, params.tile, SHADING_CODES[params.shading], bool(params.shadows), light,
+            SHADOW_OFFSET * diag, bool(params.watertight), img, tb, ib, cb, nb,
         )
         ms = (time.perf_counter() - t0) * 1e3
         n = W * H
         stats = dict(
             render_ms=ms,
-            mrays=n * (2 if params.shadows else 1) / (ms * 1e3) if ms > 0 else float("nan"),
+            mrays=n / (ms * 1e3) if ms > 0 else float("nan"),
             hit_fraction=float((ib >= 0).mean()),
             tests_per_ray=float(cb.mean()),
             cells_per_ray=float(nb.mean()),
@@ -265,10 +321,10 @@ class Renderer:
         return RenderResult(img, tb, ib, cb, nb, stats)
 
 
-def default_light(grid, camera):
-    """Above and to the right of the camera, at the grid's scale: eye + (0.6 right + up) * diag."""
+def default_light(diag, camera):
+    """Above and to the right of the camera, at the scene's scale: eye + (0.6 right + up) * diag,
+    where diag is the length of the scene's bounding-box diagonal."""
     b = camera.basis()
-    diag = float(np.linalg.norm(grid.spec.hi - grid.spec.lo))
     return b[0] + (0.6 * b[2] + 1.0 * b[3]) * diag
 
 
