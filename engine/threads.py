@@ -13,13 +13,39 @@ MAX_THREADS = max(16, os.cpu_count() or 1)
 
 
 def configure_env():
-    """Set NUMBA_NUM_THREADS (unless the user did) and prefer the OpenMP threading layer.
+    """Set NUMBA_NUM_THREADS (unless the user did), prefer the OpenMP threading layer and point
+    numba's compile cache at a folder keyed by the engine's source.
 
     Must run before the first ``import numba`` to take effect.  The omp layer is the one that
     tolerates parallel kernels launched from two Python threads at once (the viewer does that).
+    numba keys a cached kernel on its own file only, so after an edit to a function it calls
+    from another file it would load stale machine code; a cache folder per source hash avoids that.
     """
     os.environ.setdefault("NUMBA_NUM_THREADS", str(MAX_THREADS))
     os.environ.setdefault("NUMBA_THREADING_LAYER", "omp")
+    if "NUMBA_CACHE_DIR" not in os.environ:
+        os.environ["NUMBA_CACHE_DIR"] = _cache_dir()
+
+
+def _cache_dir():
+    import hashlib
+    import shutil
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent
+    h = hashlib.sha1()
+    for p in sorted(root.rglob("*.py")):
+        h.update(str(p.relative_to(root)).encode())
+        h.update(p.read_bytes())
+    base = root / "__pycache__"
+    here = base / f"numba-{h.hexdigest()[:16]}"
+    try:
+        for old in base.glob("numba-*"):
+            if old != here:
+                shutil.rmtree(old, ignore_errors=True)
+    except OSError:
+        pass
+    return str(here)
 
 
 def max_threads():

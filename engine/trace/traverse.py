@@ -22,6 +22,9 @@ from .intersect import intersect_fast, intersect_watertight, permute, shear_setu
 
 #: mailbox slots per ray (direct-mapped by triangle id)
 MAILBOX = 32
+#: direction components smaller than this never step the DDA (their inverse would overflow to
+#: inf and turn 0 * inf into NaN); over any representable t they move the ray by nothing.
+TINY_DIR = 1e-300
 
 
 @njit(cache=True)
@@ -37,7 +40,7 @@ def _floor_clamp(x, n):
 @njit(cache=True)
 def _slab(o, d, lo, hi, t0, t1):
     """Clip [t0, t1] to the slab lo <= o + t d <= hi; returns an empty range (t0 > t1) on a miss."""
-    if d == 0.0:
+    if abs(d) < TINY_DIR:
         if o < lo or o > hi:
             return np.inf, -np.inf
         return t0, t1
@@ -73,12 +76,12 @@ def trace_ray(
     ix = _floor_clamp((px - lo[0]) * inv_cell[0], nx)
     iy = _floor_clamp((py - lo[1]) * inv_cell[1], ny)
     iz = _floor_clamp((pz - lo[2]) * inv_cell[2], nz)
-    sx = 1 if dx > 0.0 else (-1 if dx < 0.0 else 0)
-    sy = 1 if dy > 0.0 else (-1 if dy < 0.0 else 0)
-    sz = 1 if dz > 0.0 else (-1 if dz < 0.0 else 0)
-    idx = 1.0 / dx if dx != 0.0 else np.inf
-    idy = 1.0 / dy if dy != 0.0 else np.inf
-    idz = 1.0 / dz if dz != 0.0 else np.inf
+    sx = 0 if abs(dx) < TINY_DIR else (1 if dx > 0.0 else -1)
+    sy = 0 if abs(dy) < TINY_DIR else (1 if dy > 0.0 else -1)
+    sz = 0 if abs(dz) < TINY_DIR else (1 if dz > 0.0 else -1)
+    idx = 1.0 / dx if sx != 0 else np.inf
+    idy = 1.0 / dy if sy != 0 else np.inf
+    idz = 1.0 / dz if sz != 0 else np.inf
 
     kx = ky = kz = 0
     okx = oky = okz = 0.0

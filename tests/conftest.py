@@ -1,0 +1,156 @@
+"""Shared fixtures and scene helpers for the gridrt tests.
+
+* ``rng``: a seeded numpy Generator (fixed seed, so failures reproduce).
+* ``shared_data(relpath)``: path of a file under ``../shared/data`` (real third-party meshes, not
+  shipped with the repository); skips the test with a reason when it is absent.
+* ``--update-golden``: regenerate ``tests/golden/*.png`` from the brute-force reference renderer
+  (see ``test_golden.py``).
+* Procedural scenes: :func:`random_triangles`, :func:`random_scene` (slivers, huge, flat,
+  duplicated and zero-area triangles), :func:`icosphere`, :func:`load_tris`.
+"""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import engine  # noqa: F401  (sets NUMBA_NUM_THREADS before anything imports numba)
+
+#: ../shared/data relative to the repository (present on the development machines only).
+SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+TEAPOT = "static/utah_teapot/teapot.obj"
+ARMADILLO = "static/armadillo/armadillo.off"
+BUNNY = "static/stanford_bunny/stanford-bunny.obj"
+
+
+def pytest_addoption(parser):
+    parser.addoption(
+        "--update-golden",
+        action="store_true",
+        default=False,
+        help="regenerate tests/golden/*.png from the brute-force reference renderer (tests/reference.py)",
+    )
+
+
+@pytest.fixture
+def update_golden(request):
+    return request.config.getoption("--update-golden")
+
+
+@pytest.fixture
+def rng():
+    """Seeded numpy Generator; every test gets the same fresh stream."""
+    return np.random.default_rng(20061204)
+
+
+def shared_data_path(relpath):
+    """Absolute path of ``relpath`` under ../shared/data, or pytest.skip naming what is missing."""
+    p = SHARED_DATA / relpath
+    if not p.is_file():
+        pytest.skip(f"real test data not available: {p} (../shared/data is not part of the repository)")
+    return p
+
+
+@pytest.fixture
+def shared_data():
+    """The :func:`shared_data_path` helper as a fixture: ``shared_data("static/...")``."""
+    return shared_data_path
+
+
+def load_mesh_arrays(relpath):
+    """(vertices (V, 3) float32, faces (F, 3) int64) of a mesh in ../shared/data, loaded with
+    trimesh without merging or reordering anything (skips when the file is absent)."""
+    import trimesh
+
+    p = shared_data_path(relpath)
+    m = trimesh.load(p, force="mesh", process=False)
+    return np.asarray(m.vertices, np.float32), np.asarray(m.faces, np.int64)
+
+
+def load_tris(relpath):
+    """(F, 3, 3) float32 triangles of a mesh in ../shared/data (skips when absent)."""
+    v, f = load_mesh_arrays(relpath)
+    return np.ascontiguousarray(v[f])
+
+
+def icosphere(subdivisions=2, radius=1.0, center=(0.0, 0.0, 0.0)):
+    """Closed icosphere from trimesh.creation: (vertices (V, 3) float32, faces (F, 3) int64)."""
+    import trimesh
+
+    m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    v = (np.asarray(m.vertices) + np.asarray(center)).astype(np.float32)
+    return v, np.asarray(m.faces, np.int64)
+
+
+def icosphere_tris(subdivisions=2, radius=1.0, center=(0.0, 0.0, 0.0)):
+    v, f = icosphere(subdivisions, radius, center)
+    return np.ascontiguousarray(v[f])
+
+
+def random_triangles(rng, n, size=0.2, box=1.0):
+    """n random triangles (float32): centres uniform in [0, box]^3, vertices within ``size``."""
+    c = rng.uniform(0.0, box, (n, 1, 3))
+    return (c + rng.uniform(-size, size, (n, 3, 3))).astype(np.float32)
+
+
+def random_scene(rng, n, size_mode="mixed", flat_axis=None, dup_frac=0.0, degen_frac=0.0):
+    """A varied random scene of ``n`` float32 triangles in roughly [0, 1]^3.
+
+    size_mode: "small" (edges ~1e-3..1e-2), "medium" (~0.05..0.3), "huge" (~0.5..2, spanning the
+    scene), "sliver" (one edge 1e-6..1e-3 of the others) or "mixed" (each triangle picks one).
+    flat_axis: 0, 1 or 2 sets that coordinate of every vertex to one value (zero extent).
+    dup_frac / degen_frac: fraction of triangles replaced by copies of others / zero-area ones
+    (repeated vertex or collinear), always leaving at least one proper triangle.
+    """
+    modes = ("small", "medium", "huge", "sliver")
+    pick = rng.integers(0, len(modes), n) if size_mode == "mixed" else np.full(n, modes.index(size_mode))
+    centres = rng.uniform(0.0, 1.0, (n, 3))
+    tris = np.empty((n, 3, 3))
+    for f in range(n):
+        mode = modes[pick[f]]
+        if mode == "small":
+            s = 10.0 ** rng.uniform(-3, -2)
+        elif mode == "medium":
+            s = rng.uniform(0.05, 0.3)
+        elif mode == "huge":
+            s = rng.uniform(0.5, 2.0)
+        else:
+            s = rng.uniform(0.05, 0.5)
+        tri = centres[f] + rng.normal(0.0, s, (3, 3))
+        if mode == "sliver":
+            tri[2] = tri[1] + (tri[1] - tri[0]) * 10.0 ** rng.uniform(-6, -3) * rng.normal(size=3)
+        tris[f] = tri
+    if flat_axis is not None:
+        tris[:, :, flat_axis] = rng.uniform(0.0, 1.0)
+    keep = 0  # triangle 0 stays a proper triangle
+    n_dup = int(dup_frac * n)
+    n_deg = int(degen_frac * n)
+    slots = rng.permutation(np.arange(1, n)) if n > 1 else np.zeros(0, int)
+    for s in slots[:n_dup]:
+        tris[s] = tris[rng.integers(0, n)]
+    for s in slots[n_dup : n_dup + n_deg]:
+        if rng.random() < 0.5:
+            tris[s, 2] = tris[s, rng.integers(0, 2)]
+        else:
+            tris[s, 2] = tris[s, 0] + rng.uniform(-2, 3) * (tris[s, 1] - tris[s, 0])
+    out = tris.astype(np.float32)
+    assert np.linalg.norm(np.cross(out[keep, 1] - out[keep, 0], out[keep, 2] - out[keep, 0]).astype(np.float64)) > 0
+    return out
+
+
+def random_rays(rng, n, lo, hi, outside=0.5, aim=False):
+    """n rays: origins uniform in the box [lo, hi] grown by ``outside`` times its size on each
+    side (so some start inside the grid, some outside); directions random unit vectors, or, with
+    ``aim``, towards random points of the box [lo, hi] (so more rays hit something).
+    Returns float64 origins and directions (n, 3)."""
+    lo = np.asarray(lo, np.float64)
+    hi = np.asarray(hi, np.float64)
+    ext = hi - lo
+    o = rng.uniform(lo - outside * ext, hi + outside * ext, (n, 3))
+    if not aim:
+        d = rng.normal(size=(n, 3))
+    else:
+        d = rng.uniform(lo, hi, (n, 3)) - o
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return o, d

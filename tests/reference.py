@@ -1,0 +1,459 @@
+"""Independent brute-force references for the grid builder and the ray caster (tests only).
+
+Everything here is plain numpy in float64, written to be slow and obviously correct.  It imports
+nothing from ``engine``: the grid *placement* (``lo``, ``cell``, ``dims``) and the camera
+parameters are inputs, and the membership rule, the ray/triangle test, the camera model and the
+shading formulas are re-implemented from their written definitions (``notes/CONTEXT.md`` and the
+docstring of ``engine/trace/render.py``).
+
+Conventions (same as the engine's):
+
+* triangles ``(F, 3, 3)``; they are rounded to float32 first (the engine stores float32), then
+  every computation is done in float64 on those exact values;
+* a cell ``(i, j, k)`` has linear index ``c = i + nx * (j + ny * k)`` and is the closed box
+  ``[lo + (i, j, k) * cell, lo + (i + 1, j + 1, k + 1) * cell]``;
+* rays: origins and directions ``(N, 3)`` float64; hit point ``o + t d``; barycentrics
+  ``p = (1 - u - v) v0 + u v1 + v v2``.
+
+References
+----------
+* T. Akenine-Moller, "Fast 3D Triangle-Box Overlap Testing", JGT 6(1), 2001 (the 13 axes).
+* T. Moller, B. Trumbore, "Fast, Minimum Storage Ray/Triangle Intersection", JGT 2(1), 1997.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Cell-size fraction by which triangle boxes / cell boxes are grown before the overlap tests.
+INSERT_EPS = 1e-5
+#: Decision margins within this fraction of the coordinate scale count as ties (don't-care).
+AMBIG_RTOL = 1e-12
+
+
+def tris64(tris):
+    """(F, 3, 3) float64 copy of ``tris`` after rounding to float32, as the engine stores them."""
+    a = np.asarray(tris)
+    if a.ndim != 3 or a.shape[1:] != (3, 3):
+        raise ValueError(f"triangles must have shape (F, 3, 3), got {a.shape}")
+    return a.astype(np.float32).astype(np.float64)
+
+
+# ----------------------------------------------------------------------------------------------
+# Triangle-to-cell membership
+# ----------------------------------------------------------------------------------------------
+
+
+def cell_index(ijk, dims):
+    """Linear cell index ``i + nx * (j + ny * k)`` of integer coordinates ``ijk`` (..., 3)."""
+    ijk = np.asarray(ijk, dtype=np.int64)
+    return ijk[..., 0] + dims[0] * (ijk[..., 1] + dims[1] * ijk[..., 2])
+
+
+def _candidates(t64, lo, cell, dims, all_cells):
+    """Yield chunks ``(f (n,), ijk (n, 3))`` of candidate (triangle, cell) pairs.
+
+    A candidate range is the triangle's bounding-box cell range grown by one cell on every side
+    (INSERT_EPS is far below one cell), clipped to the grid; ``all_cells`` pairs every triangle
+    with every cell instead (tiny grids, for checking this enumeration).
+    """
+    F = len(t64)
+    if all_cells:
+        i0 = np.zeros((F, 3), np.int64)
+        i1 = np.broadcast_to(dims - 1, (F, 3)).copy()
+    else:
+        bmin = t64.min(axis=1)
+        bmax = t64.max(axis=1)
+        i0 = np.floor((bmin - lo) / cell).astype(np.int64) - 1
+        i1 = np.floor((bmax - lo) / cell).astype(np.int64) + 1
+        i0 = np.clip(i0, 0, dims - 1)
+        i1 = np.clip(i1, 0, dims - 1)
+    ext = np.maximum(i1 - i0 + 1, 0)
+    counts = ext.prod(axis=1)
+    budget = 1 << 20
+    f_start = 0
+    while f_start < F:
+        csum = np.cumsum(counts[f_start:])
+        f_end = f_start + max(1, int(np.searchsorted(csum, budget, side="right")))
+        f = np.repeat(np.arange(f_start, f_end), counts[f_start:f_end])
+        if len(f):
+            starts = np.concatenate(([0], np.cumsum(counts[f_start:f_end])[:-1]))
+            off = np.arange(len(f)) - np.repeat(starts, counts[f_start:f_end])
+            ex = ext[f]
+            a = off % ex[:, 0]
+            b = (off // ex[:, 0]) % ex[:, 1]
+            c = off // (ex[:, 0] * ex[:, 1])
+            ijk = i0[f] + np.stack([a, b, c], axis=1)
+            yield f, ijk
+        f_start = f_end
+
+
+def _sat_margins(V, ijk, lo, cell, exact):
+    """Normalized decision margins of candidate pairs; a pair is in the grid iff all are >= 0.
+
+    V: (n, 3, 3) float64 triangles; ijk: (n, 3) int64 cells.  Each margin is divided by its own
+    tie tolerance, so ``|margin| <= 1`` means "within rounding of the decision boundary".
+    Returns (n, 6) for the bounding-box rule, (n, 16) for the exact rule (6 box-face margins,
+    the triangle normal and the 9 edge cross products; axes that are (nearly) the zero vector
+    are "weak": they count only as ties when they would separate).
+    """
+    cmin = lo + ijk * cell
+    cmax = lo + (ijk + 1) * cell
+    # per-axis coordinate scale: the largest magnitude the computation touches
+    scale_axis = np.maximum(np.maximum(np.abs(cmin), np.abs(cmax)), cell)
+    scale_axis = np.maximum(scale_axis, np.abs(V).max(axis=1))
+    tol_axis = AMBIG_RTOL * scale_axis
+    e = INSERT_EPS * cell
+    bmin = V.min(axis=1)
+    bmax = V.max(axis=1)
+    m_lo = (cmax - (bmin - e)) / tol_axis  # triangle box starts before the cell ends
+    m_hi = ((bmax + e) - cmin) / tol_axis  # triangle box ends after the cell starts
+    margins = [m_lo, m_hi]
+    if exact:
+        tol = AMBIG_RTOL * scale_axis.max(axis=1)
+        centre = lo + (ijk + 0.5) * cell
+        half = cell * (0.5 + INSERT_EPS)
+        P = V - centre[:, None, :]
+        edges = [V[:, 1] - V[:, 0], V[:, 2] - V[:, 1], V[:, 0] - V[:, 2]]
+        axes = [np.cross(edges[0], V[:, 2] - V[:, 0])]
+        unit = np.eye(3)
+        for ed in edges:
+            for j in range(3):
+                axes.append(np.cross(ed, np.broadcast_to(unit[j], ed.shape)))
+        elen = [np.linalg.norm(ed, axis=1) for ed in edges]
+        lens = [elen[0] * elen[2]] + [elen[i] for i in range(3) for _ in range(3)]
+        cols = []
+        for a, ref_len in zip(axes, lens):
+            alen = np.linalg.norm(a, axis=1)
+            p = np.einsum("nkc,nc->nk", P, a)
+            r = (np.abs(a) * half).sum(axis=1)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                m = (r - np.maximum(p.min(axis=1), -p.max(axis=1))) / alen / tol
+            weak = ~(alen > 1e-9 * ref_len)
+            m = np.where(weak, np.where(m < 0, -0.5, np.inf), m)
+            cols.append(m[:, None])
+        margins.append(np.concatenate(cols, axis=1))
+    return np.concatenate(margins, axis=1)
+
+
+@dataclass
+class RefPairs:
+    """Reference membership: ``pairs`` (P, 2) int64 sorted unique (cell, tri) rows that are in
+    the grid; ``ambiguous`` (Q, 2) int64 rows whose decision is a tie (don't-care, may or may not
+    be in ``pairs``)."""
+
+    pairs: np.ndarray
+    ambiguous: np.ndarray
+
+
+def _ref_pairs(tris, lo, cell, dims, exact, all_cells=False):
+    t64 = tris64(tris)
+    lo = np.asarray(lo, np.float64)
+    cell = np.asarray(cell, np.float64)
+    dims = np.asarray(dims, np.int64)
+    got, amb = [], []
+    for f, ijk in _candidates(t64, lo, cell, dims, all_cells):
+        m = _sat_margins(t64[f], ijk, lo, cell, exact).min(axis=1)
+        c = cell_index(ijk, dims)
+        rows = np.stack([c, f], axis=1)
+        got.append(rows[m >= 0])
+        amb.append(rows[np.abs(m) <= 1])
+    empty = np.zeros((0, 2), np.int64)
+    pairs = np.unique(np.concatenate(got or [empty]), axis=0).reshape(-1, 2)
+    ambiguous = np.unique(np.concatenate(amb or [empty]), axis=0).reshape(-1, 2)
+    return RefPairs(pairs.astype(np.int64), ambiguous.astype(np.int64))
+
+
+def ref_pairs_bbox(tris, lo, cell, dims, all_cells=False):
+    """Bounding-box rule: triangle f is in cell (i, j, k) iff its axis-aligned bounding box grown
+    by INSERT_EPS cell sizes on every side overlaps the closed cell box on all three axes.
+
+    tris (F, 3, 3); lo (3,) float64; cell (3,) float64; dims (3,) int.  Returns :class:`RefPairs`.
+    """
+    return _ref_pairs(tris, lo, cell, dims, exact=False, all_cells=all_cells)
+
+
+def ref_pairs_exact(tris, lo, cell, dims, all_cells=False):
+    """Exact rule: the bounding-box rule and no separating axis among the 13 of Akenine-Moller
+    (3 box normals, the triangle normal, 9 edge x box-axis products) between the triangle and the
+    cell box grown by INSERT_EPS cell sizes.  Returns :class:`RefPairs`."""
+    return _ref_pairs(tris, lo, cell, dims, exact=True, all_cells=all_cells)
+
+
+def pairs_to_set(pairs):
+    """Set of (cell, tri) tuples from a (P, 2) integer array."""
+    return set(map(tuple, np.asarray(pairs, dtype=np.int64).reshape(-1, 2).tolist()))
+
+
+def compare_pairs(got, ref):
+    """Return (missing, extra): pairs the reference has and ``got`` lacks, and the reverse, both
+    with ties removed, as sorted lists of (cell, tri)."""
+    g = pairs_to_set(got)
+    r = pairs_to_set(ref.pairs)
+    a = pairs_to_set(ref.ambiguous)
+    return sorted((r - g) - a), sorted((g - r) - a)
+
+
+def ref_macro_occupancy(pairs, dims, macro):
+    """(mx, my, mz) bool array indexed [mi, mj, mk]: True iff any cell of that macro cell (a
+    macro^3 block of cells, clipped at the grid border) holds a triangle; mdims = ceil(dims/macro).
+    pairs: (P, 2) (cell, tri) rows."""
+    dims = np.asarray(dims, np.int64)
+    mdims = -(-dims // macro)
+    occ = np.zeros(tuple(mdims), bool)
+    cells = np.unique(np.asarray(pairs, np.int64).reshape(-1, 2)[:, 0])
+    i = cells % dims[0]
+    j = (cells // dims[0]) % dims[1]
+    k = cells // (dims[0] * dims[1])
+    occ[i // macro, j // macro, k // macro] = True
+    return occ
+
+
+def ref_macro_flags(pairs, dims, macro):
+    """(M,) bool occupancy in linear macro order ``mi + mx * (mj + my * mk)``."""
+    return ref_macro_occupancy(pairs, dims, macro).ravel(order="F")
+
+
+# ----------------------------------------------------------------------------------------------
+# Ray casting
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class RefHits:
+    """Brute-force nearest hits, all (N,).
+
+    t: float64 distance parameter (inf on miss); tri: int64 triangle id (-1 on miss); u, v:
+    barycentrics of the hit (nan on miss); t2: the nearest hit t of any *other* triangle (inf if
+    none) so exact ties can be told; edge: min(u, v, 1-u-v) of the hit (how far inside the hit
+    triangle, in barycentric units; nan on miss); graze: the largest min(u, v, 1-u-v) (< 0) over
+    triangles the ray misses, i.e. how close it
+    came to hitting something in front of its hit, i.e. crossing its plane in (tmin, min(t, tmax))
+    (-inf if nothing).
+    """
+
+    t: np.ndarray
+    tri: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    t2: np.ndarray
+    edge: np.ndarray
+    graze: np.ndarray
+
+    @property
+    def hit(self):
+        return self.tri >= 0
+
+
+def ref_cast(tris, origins, dirs, tmin=0.0, tmax=np.inf):
+    """Nearest hit of every ray over all triangles (double-sided Moller-Trumbore, float64).
+
+    A triangle is hit iff det != 0, u >= 0, v >= 0, u + v <= 1 and tmin < t < tmax (the
+    engine's documented open interval).
+    tris (F, 3, 3); origins, dirs (N, 3); tmin, tmax scalars or (N,).  Returns :class:`RefHits`.
+    """
+    T = tris64(tris)
+    O = np.asarray(origins, np.float64).reshape(-1, 3)
+    D = np.asarray(dirs, np.float64).reshape(-1, 3)
+    N, F = len(O), len(T)
+    tmin = np.broadcast_to(np.asarray(tmin, np.float64), (N,))
+    tmax = np.broadcast_to(np.asarray(tmax, np.float64), (N,))
+    v0 = T[:, 0]
+    e1 = T[:, 1] - v0
+    e2 = T[:, 2] - v0
+    out = RefHits(
+        t=np.full(N, np.inf),
+        tri=np.full(N, -1, np.int64),
+        u=np.full(N, np.nan),
+        v=np.full(N, np.nan),
+        t2=np.full(N, np.inf),
+        edge=np.full(N, np.nan),
+        graze=np.full(N, -np.inf),
+    )
+    step = max(1, 400_000 // max(F, 1))
+    for s0 in range(0, N, step):
+        o = O[s0 : s0 + step, None, :]
+        d = D[s0 : s0 + step, None, :]
+        m = len(o)
+        p = np.cross(d, e2)
+        det = np.einsum("mfc,fc->mf", p, e1)
+        s = o - v0
+        q = np.cross(s, e1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / det
+            u = np.einsum("mfc,mfc->mf", s, p) * inv
+            v = np.einsum("mfc,mfc->mf", np.broadcast_to(d, q.shape), q) * inv
+            t = np.einsum("mfc,fc->mf", q, e2) * inv
+        w = 1.0 - u - v
+        bary = np.minimum(np.minimum(u, v), w)
+        plane = (det != 0) & (t > tmin[s0 : s0 + m, None]) & (t < tmax[s0 : s0 + m, None])
+        valid = plane & (bary >= 0)
+        tv = np.where(valid, t, np.inf)
+        best = np.argmin(tv, axis=1)
+        rows = np.arange(m)
+        tb = tv[rows, best]
+        hit = np.isfinite(tb)
+        tv[rows, best] = np.inf
+        sl = slice(s0, s0 + m)
+        out.t[sl] = tb
+        out.tri[sl] = np.where(hit, best, -1)
+        out.u[sl] = np.where(hit, u[rows, best], np.nan)
+        out.v[sl] = np.where(hit, v[rows, best], np.nan)
+        out.edge[sl] = np.where(hit, bary[rows, best], np.nan)
+        out.t2[sl] = tv.min(axis=1)
+        near = plane & ~valid & (t <= tb[:, None])
+        with np.errstate(invalid="ignore"):
+            out.graze[sl] = np.where(near, bary, -np.inf).max(axis=1)
+    return out
+
+
+@dataclass
+class HitDiff:
+    """Outcome of :func:`compare_hits`; each field is an int64 array of ray indices."""
+
+    bad: np.ndarray  # disagreements that are not explained by a tie or a graze
+    tie: np.ndarray  # different triangle, but the reference has two triangles at that t
+    grazing: np.ndarray  # hit/miss or id differs, and the ray passes within graze_tol of an edge
+    t_off: np.ndarray  # same triangle, t differs by more than t_rtol (included in bad)
+
+
+def compare_hits(t, tri, ref, t_rtol=1e-5, tie_rtol=1e-9, graze_tol=0.0):
+    """Compare engine hits (t (N,), tri (N,)) with a :class:`RefHits`.
+
+    A ray agrees when both miss, or both hit the same triangle with t within ``t_rtol`` (relative,
+    absolute near 0).  A ray with a different triangle is a *tie* when the reference's second
+    nearest triangle is within ``tie_rtol`` of the nearest one and the engine's t matches.  A ray
+    whose reference hit lies within ``graze_tol`` (barycentric) of an edge, or which passes within
+    ``graze_tol`` of some nearer triangle, may disagree and is reported as *grazing*.
+    """
+    t = np.asarray(t, np.float64)
+    tri = np.asarray(tri, np.int64)
+    rt = ref.t
+    both_miss = (tri < 0) & (ref.tri < 0)
+    same = (tri == ref.tri) & (tri >= 0)
+    scale = np.maximum(np.abs(rt), 1e-6)
+    with np.errstate(invalid="ignore"):
+        t_ok = np.abs(t - rt) <= t_rtol * scale
+        tie = (
+            (tri >= 0)
+            & (ref.tri >= 0)
+            & (tri != ref.tri)
+            & (np.abs(ref.t2 - rt) <= tie_rtol * scale)
+            & t_ok
+        )
+        graze = (np.nan_to_num(ref.edge, nan=np.inf) <= graze_tol) | (ref.graze >= -graze_tol)
+    ok = both_miss | (same & t_ok) | tie
+    t_off = np.flatnonzero(same & ~t_ok)
+    not_ok = ~ok
+    grazing = not_ok & graze & ~(same & ~t_ok)
+    bad = not_ok & ~grazing
+    return HitDiff(np.flatnonzero(bad), np.flatnonzero(tie), np.flatnonzero(grazing), t_off)
+
+
+# ----------------------------------------------------------------------------------------------
+# Camera and images
+# ----------------------------------------------------------------------------------------------
+
+
+def ref_camera_rays(eye, target, up, fov, width, height):
+    """Pinhole camera rays through pixel centres, row-major, pixel (0, 0) top-left.
+
+    ``fov`` is the vertical field of view in degrees; the image plane at distance 1 spans
+    ``2 tan(fov/2)`` vertically and ``aspect`` times that horizontally (aspect = width / height);
+    +x of the image is ``right = normalize(forward x up)``, +y (up the image) is
+    ``right x forward``.  Returns origins (H*W, 3) and unit directions (H*W, 3), float64.
+    """
+    eye = np.asarray(eye, np.float64)
+    fwd = np.asarray(target, np.float64) - eye
+    fwd = fwd / np.linalg.norm(fwd)
+    right = np.cross(fwd, np.asarray(up, np.float64))
+    right = right / np.linalg.norm(right)
+    upv = np.cross(right, fwd)
+    half_h = np.tan(np.radians(fov) / 2.0)
+    half_w = half_h * width / height
+    px = (np.arange(width) + 0.5) / width * 2.0 - 1.0
+    py = 1.0 - (np.arange(height) + 0.5) / height * 2.0
+    X, Y = np.meshgrid(px * half_w, py * half_h)
+    d = fwd + X.reshape(-1, 1) * right + Y.reshape(-1, 1) * upv
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    return np.broadcast_to(eye, d.shape).copy(), d
+
+
+#: Shading constants documented in engine/trace/render.py (re-typed here, not imported).
+BACKGROUND = (0.12, 0.13, 0.16)
+ALBEDO = (0.85, 0.78, 0.66)
+AMBIENT = 0.15
+
+
+def to_u8(c):
+    """Linear colour in [0, 1] -> uint8(round(255 c)), clamped (round half up)."""
+    return np.clip(np.floor(np.asarray(c, np.float64) * 255.0 + 0.5), 0, 255).astype(np.uint8)
+
+
+def ref_normals(tris):
+    """(F, 3) unit geometric normals normalize((v1 - v0) x (v2 - v0)), zero for degenerate."""
+    T = tris64(tris)
+    n = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
+    ln = np.linalg.norm(n, axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(ln > 0, n / ln, 0.0)
+
+
+@dataclass
+class RefImage:
+    """image (H, W, 4) uint8; t (H, W) float64 (inf: miss); tri (H, W) int64 (-1: miss);
+    hits: the underlying :class:`RefHits` (flattened, row-major)."""
+
+    image: np.ndarray
+    t: np.ndarray
+    tri: np.ndarray
+    hits: RefHits
+
+
+def ref_render(tris, camera, width, height, shading="lambert", light=None, shadow_offset=None):
+    """Reference image of ``tris`` seen through ``camera`` (anything with eye, target, up, fov).
+
+    Shading, as documented in engine/trace/render.py (linear colours, alpha 255):
+    miss -> BACKGROUND; with n_f the unit geometric normal turned towards the viewer (n_f . d <= 0),
+    ``lambert`` -> ALBEDO * (AMBIENT + (1 - AMBIENT) s) with s = |n . d| (headlight), or, when
+    ``light`` (3,) is given (shadows on), s = max(0, n_f . l) * visible, where visible = 0 when the
+    segment from p + n_f * shadow_offset to the light hits any triangle; ``normal`` -> (n_f + 1) / 2.
+    """
+    o, d = ref_camera_rays(camera.eye, camera.target, camera.up, camera.fov, width, height)
+    h = ref_cast(tris, o, d)
+    N = len(o)
+    col = np.empty((N, 3))
+    col[:] = BACKGROUND
+    hit = h.tri >= 0
+    n = ref_normals(tris)[h.tri[hit]]
+    dh = d[hit]
+    dn = (n * dh).sum(axis=1)
+    nf = np.where((dn > 0)[:, None], -n, n)
+    if shading == "normal":
+        col[hit] = (nf + 1.0) * 0.5
+    elif shading == "lambert":
+        if light is None:
+            s = np.abs(dn)
+        else:
+            p = o[hit] + h.t[hit, None] * dh
+            lv = np.asarray(light, np.float64) - p
+            ld = np.linalg.norm(lv, axis=1)
+            lu = lv / ld[:, None]
+            s = np.maximum((nf * lu).sum(axis=1), 0.0)
+            lit = s > 0
+            if lit.any():
+                po = p[lit] + nf[lit] * shadow_offset
+                shadowed = ref_cast(tris, po, lu[lit], 0.0, ld[lit]).tri >= 0
+                s[np.flatnonzero(lit)[shadowed]] = 0.0
+        col[hit] = np.asarray(ALBEDO) * (AMBIENT + (1.0 - AMBIENT) * s)[:, None]
+    else:
+        raise ValueError(f"ref_render has no reference for shading {shading!r}")
+    img = np.empty((N, 4), np.uint8)
+    img[:, :3] = to_u8(col)
+    img[:, 3] = 255
+    return RefImage(
+        image=img.reshape(height, width, 4),
+        t=h.t.reshape(height, width),
+        tri=h.tri.reshape(height, width),
+        hits=h,
+    )

@@ -1,0 +1,116 @@
+"""The headless frame dump, end to end through the real command line (a subprocess).
+
+Hit buffers are checked against the brute-force float64 caster over the scene's triangles
+(engine.scene is independent of the grid and the ray caster) and rays from the documented
+pinhole formula (tests/reference.py), not against anything the dump produced itself.
+"""
+
+import csv
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from reference import compare_hits, ref_camera_rays, ref_cast
+
+REPO = Path(__file__).resolve().parents[1]
+REQUIRED = ["frame", "t", "triangles", "cells", "references", "threads", "strategy", "clear_ms", "insert_ms",
+            "macro_ms", "build_ms", "render_ms", "frame_ms"]
+
+
+def gridrt(*args, env=None, timeout=600):
+    e = dict(os.environ)
+    e.update(env or {})
+    return subprocess.run([sys.executable, "-m", "app", *args], cwd=REPO, capture_output=True, text=True,
+                          env=e, timeout=timeout)
+
+
+def test_dump_all_options_and_buffers_match_brute_force(tmp_path):
+    out = tmp_path / "d"
+    eye, target, up, fov = (0.5, 4.0, 14.0), (0.0, 0.8, 0.0), (0.0, 1.0, 0.0), 50.0
+    W, H = 40, 30
+    r = gridrt("dump", "--scene", "marbles", "--count", "1000", "--frames", "2", "--size", f"{W}x{H}",
+               "--threads", "3", "--strategy", "serial", "--lambda", "3", "--macro", "2", "--insert", "exact",
+               "--shading", "normal", "--t0", "0.5", "--dt", "0.25",
+               "--eye", ",".join(map(str, eye)), "--target", ",".join(map(str, target)),
+               "--up", ",".join(map(str, up)), "--fov", str(fov), "--save-buffers", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "100%" in r.stderr, "no progress bar on stderr"
+    with open(out / "stats.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 2
+    assert set(REQUIRED) <= set(rows[0])
+    from engine.scene import make_scene
+
+    scene = make_scene("marbles", count=1000)
+    o, d = ref_camera_rays(eye, target, up, fov, W, H)
+    for i, row in enumerate(rows):
+        t = 0.5 + 0.25 * i
+        assert int(row["frame"]) == i and float(row["t"]) == pytest.approx(t)
+        assert int(row["triangles"]) == 1000 and int(row["threads"]) == 3 and row["strategy"] == "serial"
+        assert int(row["references"]) > 0 and int(row["cells"]) > 0
+        stages = sum(float(row[k]) for k in ("clear_ms", "insert_ms", "macro_ms"))
+        assert 0 < stages <= float(row["build_ms"]) <= float(row["frame_ms"])
+        img = np.asarray(Image.open(out / f"frame_{i:05d}.png"))
+        assert img.shape[:2] == (H, W)
+        tb = np.load(out / f"frame_{i:05d}_t.npy")
+        ib = np.load(out / f"frame_{i:05d}_id.npy")
+        assert tb.dtype == np.float32 and ib.dtype == np.int32 and tb.shape == ib.shape == (H, W)
+        tris = scene.triangles_at(t).copy()
+        ref = ref_cast(tris, o, d)
+        diff = compare_hits(tb.reshape(-1), ib.reshape(-1), ref, t_rtol=1e-6)
+        assert len(diff.bad) == 0, f"frame {i}: {len(diff.bad)} pixels differ from brute force"
+        assert (ib >= 0).any() and (ib < 0).any(), "camera should see both marbles and background"
+        miss = ib < 0
+        assert np.isinf(tb[miss]).all()
+        # normal shading: hit pixels differ from the background colour, misses equal it
+        bg = np.array([31, 33, 41], np.uint8)
+        assert (img[miss][:, :3] == bg).all()
+
+
+def test_dump_imports_no_gl(tmp_path):
+    code = (
+        "import sys; from app.__main__ import main; "
+        f"rc = main(['dump', '--frames', '1', '--size', '16x12', '--no-progress', '--out', r'{tmp_path}']); "
+        "print('GL', 'glfw' in sys.modules, 'moderngl' in sys.modules, 'imgui_bundle' in sys.modules, rc)"
+    )
+    r = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert "GL False False False 0" in r.stdout
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--scene", "no_such_scene"], "no_such_scene"),
+        (["--strategy", "quantum"], "unknown build strategy"),
+        (["--threads", "0"], "thread count"),
+        (["--frames", "0"], "--frames"),
+        (["--lambda", "-1"], "density"),
+        (["--eye", "1,2,3"], "--target"),
+        (["--scene", "/nonexistent/mesh.obj"], "mesh.obj"),
+    ],
+)
+def test_dump_bad_arguments_give_clear_errors(tmp_path, args, message):
+    r = gridrt("dump", "--frames", "1", "--size", "8x8", "--no-progress", "--out", str(tmp_path), *args)
+    assert r.returncode == 2
+    assert message in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_dump_bad_size_is_rejected_by_parser(tmp_path):
+    r = gridrt("dump", "--size", "0x10", "--out", str(tmp_path))
+    assert r.returncode == 2 and "image size must be positive" in r.stderr
+
+
+@pytest.mark.slow
+def test_cold_start_says_it_is_compiling(tmp_path):
+    """With an empty numba cache the dump announces compilation before the first frame."""
+    r = gridrt("dump", "--frames", "1", "--size", "8x8", "--no-progress", "--out", str(tmp_path / "d"),
+               env={"NUMBA_CACHE_DIR": str(tmp_path / "cache")})
+    assert r.returncode == 0, r.stderr
+    assert "Compiling numba kernels" in r.stderr
