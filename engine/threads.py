@@ -22,9 +22,18 @@ def configure_env():
     from another file it would load stale machine code; a cache folder per source hash avoids that.
     """
     os.environ.setdefault("NUMBA_NUM_THREADS", str(MAX_THREADS))
-    os.environ.setdefault("NUMBA_THREADING_LAYER", "omp")
+    if "NUMBA_THREADING_LAYER" not in os.environ and _have_gomp():
+        os.environ["NUMBA_THREADING_LAYER"] = "omp"
     if "NUMBA_CACHE_DIR" not in os.environ:
         os.environ["NUMBA_CACHE_DIR"] = _cache_dir()
+
+
+def _have_gomp():
+    """True when GNU OpenMP (libgomp, Debian package libgomp1) can be loaded; without it numba
+    falls back to its workqueue layer, which must not be entered from two threads at once."""
+    import ctypes.util
+
+    return ctypes.util.find_library("gomp") is not None
 
 
 def _cache_dir():
