@@ -21,16 +21,25 @@ from . import cli
 TITLE = "gridrt"
 #: UI frame cap (frames per second) when the display has no vsync (Xvfb)
 UI_FPS_CAP = 60.0
+#: after this many seconds without input (and no progress overlay), the loop sleeps until an input
+#: event or a worker result wakes it
+IDLE_AFTER_S = 0.5
+#: longest sleep of an idle loop (seconds): the state file and fps readouts still refresh
+IDLE_WAIT_S = 0.25
 #: a frame job shows the progress overlay once it has run this long (seconds)
-SLOW_FRAME_S = 0.5
+SLOW_FRAME_S = 1.5
 #: a scene load shows the overlay once it has run this long (seconds)
 SLOW_LOAD_S = 0.15
 
 
 def add_parser(sub):
+    from .input import KEY_HELP
+
     p = sub.add_parser("view", help="open the interactive viewer (needs a display)",
                        description="Interactive viewer: a window with the ray-traced animation and a control "
-                                   "panel.  Without a display, use `gridrt dump`.")
+                                   "panel.  --size is the initial window size; the render resolution follows "
+                                   "the window (times --scale).  Without a display, use `gridrt dump`.",
+                       epilog="keys: " + KEY_HELP)
     cli.add_scene_args(p)
     cli.add_grid_args(p)
     cli.add_render_args(p, default_size=(1024, 768))
@@ -64,8 +73,15 @@ def run(a):
         return 3
     from engine.errors import InputError
 
-    if not (0.1 <= a.scale <= 2.0) or not math.isfinite(a.scale):
-        raise InputError(f"--scale must be between 0.1 and 2, got {a.scale}")
+    from engine.scene import BUILTIN_SCENES
+
+    from .state import SCALE_MAX, SCALE_MIN
+
+    if not (SCALE_MIN <= a.scale <= SCALE_MAX):
+        raise InputError(f"--scale must be between {SCALE_MIN} and {SCALE_MAX}, got {a.scale}")
+    if str(a.scene).strip().lower() not in BUILTIN_SCENES and not Path(a.scene).is_file():
+        raise InputError(f"unknown scene {str(a.scene)!r}: not a built-in scene ({', '.join(BUILTIN_SCENES)}) "
+                         "and no such file")
     state = initial_state(a)
     viewer = Viewer(a, state)
     return viewer.run()
@@ -81,8 +97,13 @@ def initial_state(a):
     gp = cli.grid_params(a)   # validates strategy, lambda, macro, insert, threads
     w, h = a.size
     rp = cli.render_params(a)
+    from engine.scene import BUILTIN_SCENES
+
+    source = str(a.scene)
+    if source.strip().lower() in BUILTIN_SCENES:
+        source = source.strip().lower()
     st = ViewerState(
-        scene=SceneSpec(source=str(a.scene), count=a.count, animate=a.animate, amplitude=a.amplitude,
+        scene=SceneSpec(source=source, count=a.count, animate=a.animate, amplitude=a.amplitude,
                         speed=a.speed, seed=a.seed),
         playing=not a.paused,
     )
@@ -105,8 +126,8 @@ def initial_state(a):
     st.show_panel = not a.hide_panel
     st.window_size = (w, h)
     st.cold_cache = cache_is_cold()
-    if os.path.exists(str(a.scene)):
-        st.file_text = str(a.scene)
+    if source not in BUILTIN_SCENES:
+        st.file_text = source
     return st
 
 
@@ -130,6 +151,7 @@ class Viewer:
         self.state_file = Path(args.state_file) if args.state_file is not None else None
         self.image = None              # the frame on screen, (H, W, 4) uint8
         self.last_key = None           # parameters of the last submitted frame
+        self.generation = 0            # bumped by every scene load; older frame results are dropped
         self.glfw_error = ""
         self._last_state_write = 0.0
         self._last_result_time = None
@@ -171,14 +193,12 @@ class Viewer:
             self.input = InputHandler(glfw, win, st, self.strategies)
             ui = ImguiRuntime(win)
             blitter = Blitter(ctx)
-            worker = RenderWorker(self._make_pipeline)
+            worker = RenderWorker(self._make_pipeline, on_result=glfw.post_empty_event)
             self.ui, self.blitter, self.worker = ui, blitter, worker
             self._start_load(st.scene, keep_camera=True)
             self._loop()
             return 0
         finally:
-            if worker is not None and not worker.stop(timeout=15.0):
-                print("gridrt view: the render thread did not finish in time; exiting anyway", file=sys.stderr)
             if blitter is not None:
                 blitter.release()
             if ui is not None:
@@ -187,8 +207,24 @@ class Viewer:
                 ctx.release()
             if win is not None:
                 glfw.destroy_window(win)
+            stopped = worker is None or self._stop_worker(worker)
             glfw.terminate()
             self._write_state(force=True)
+            if not stopped:   # a kernel compile is still running: do not wait for it at exit
+                sys.stdout.flush()
+                sys.stderr.flush()
+                os._exit(0)
+
+    def _stop_worker(self, worker):
+        """Stop the render thread (the window is already gone); True when it finished."""
+        worker.detach()
+        if worker.stop(timeout=1.0):
+            return True
+        print("gridrt view: waiting for the render thread to finish its frame...", file=sys.stderr, flush=True)
+        if worker.stop(timeout=10.0):
+            return True
+        print("gridrt view: the render thread is still busy; exiting without it", file=sys.stderr, flush=True)
+        return False
 
     def _on_glfw_error(self, code, description):
         self.glfw_error = description.decode() if isinstance(description, bytes) else str(description)
@@ -202,11 +238,10 @@ class Viewer:
         from .worker import LoadJob
 
         st = self.state
-        if not keep_camera:
-            st.camera = st.home = None
+        self.generation += 1
         rw, rh = st.render_size_for(*self._fb_size())
-        st.busy_since = time.perf_counter()
-        self.worker.submit(LoadJob(spec, st.grid_params(), st.render_params(rw, rh), camera=st.camera,
+        self.worker.submit(LoadJob(spec, st.grid_params(), st.render_params(rw, rh),
+                                   camera=st.camera if keep_camera else None, keep_camera=keep_camera,
                                    fov=st.fov, up=st.up, label=f"loading {spec.label()}"))
         self.last_key = None
 
@@ -223,8 +258,12 @@ class Viewer:
         from .ui import draw_overlay, draw_panel
 
         last = time.perf_counter()
+        io = imgui.get_io()
         while not glfw.window_should_close(self.win) and not st.quit:
-            glfw.poll_events()
+            if st.busy or io.want_text_input or last - self.input.last_event < IDLE_AFTER_S:
+                glfw.poll_events()
+            else:
+                glfw.wait_events_timeout(IDLE_WAIT_S)   # woken by input or by a worker result
             now = time.perf_counter()
             dt, last = now - last, now
             if dt > 0:
@@ -238,7 +277,7 @@ class Viewer:
             st.window_size = tuple(glfw.get_window_size(self.win))
 
             self.ui.new_frame()
-            self.input.process(imgui.get_io(), dt)
+            self.input.process(io, dt)
             if st.scene_request is not None:
                 spec, st.scene_request = st.scene_request, None
                 st.scene_error = ""
@@ -283,6 +322,8 @@ class Viewer:
                         st.message = "no scene loaded: pick a built-in scene or open a file"
                     continue
                 st.scene = res.spec
+                if not res.keep_camera:
+                    st.camera = st.home = None   # frame the new scene
                 st.scene_name, st.triangles = res.scene_name, res.triangles
                 st.duration, st.static = res.duration, res.static
                 st.time = 0.0 if res.duration is None else math.fmod(st.time, res.duration)
@@ -291,6 +332,8 @@ class Viewer:
                 print(f"gridrt view: loaded {res.scene_name} ({res.triangles} triangles) in {res.seconds:.2f} s",
                       flush=True)
                 self.last_key = None
+            elif res.job.generation != self.generation:
+                continue                 # rendered for the scene that was just replaced
             elif res.error:
                 st.message = ""
                 st.scene_error = f"frame failed: {res.error}"
@@ -305,6 +348,8 @@ class Viewer:
                 st.scene_radius = res.radius
                 if st.camera is None:
                     st.camera = res.camera
+                    if self.last_key is not None and self.last_key[1] is None:
+                        self.last_key = (self.last_key[0], res.camera) + self.last_key[2:]
                 if st.home is None:
                     st.home = res.camera
                 if self._last_result_time is not None:
@@ -325,14 +370,9 @@ class Viewer:
         elif st.cold_cache:
             st.busy = "compiling numba kernels (first run only; cached for later runs)"
         elif elapsed >= SLOW_FRAME_S:
-            st.busy = ("building the grid and rendering (a strategy's first use compiles its kernels)"
-                       if st.rendered_frames < 3 or job.grid_params.strategy != self._last_strategy()
-                       else "rendering a slow frame")
+            st.busy = "building the grid and rendering (a strategy's first use compiles its kernels)"
         else:
             st.busy = None
-
-    def _last_strategy(self):
-        return self.state.stats.get("strategy")
 
     def _submit_frame(self):
         from engine.errors import InputError
@@ -355,7 +395,7 @@ class Viewer:
         if key == self.last_key:
             return
         self.last_key = key
-        self.worker.submit(FrameJob(st.time, st.camera, gp, rp))
+        self.worker.submit(FrameJob(st.time, st.camera, gp, rp, generation=self.generation))
 
     # ---- outputs --------------------------------------------------------------------------
     def _shot_folder(self):

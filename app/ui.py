@@ -1,0 +1,315 @@
+"""The imgui panel: widgets that change :class:`app.state.ViewerState` fields and nothing else
+(no kernels, no GL).  The panel sits at a fixed place in the top-left corner; the progress overlay
+is centred over the image while a slow operation runs.
+
+:class:`ImguiRuntime` owns the imgui + implot contexts and imgui's OpenGL 3 renderer (and, in a
+window, its glfw backend), for the windowed viewer and the headless panel test alike.
+"""
+
+import ctypes
+import os
+
+import numpy as np
+from imgui_bundle import imgui, implot
+
+from engine.config import INSERT_MODES, SHADING_MODES
+from engine.scene import BUILTIN_SCENES, DEFORM_KINDS, SUPPORTED_EXTENSIONS
+
+from .input import KEY_HELP
+from .state import SCALE_MAX, SCALE_MIN, SPEED_MAX, SPEED_MIN, SceneSpec
+
+PANEL_POS = (8.0, 8.0)
+PANEL_WIDTH = 320.0
+#: panel background (RGB 0..1) and opacity
+PANEL_BG = (0.09, 0.10, 0.12)
+PANEL_ALPHA = 0.92
+INTERSECTION_LABELS = ("watertight (Woop et al.)", "fast (Moller-Trumbore)")
+ERROR_COLOR = imgui.ImVec4(1.0, 0.45, 0.4, 1.0)
+DIM_COLOR = imgui.ImVec4(0.65, 0.68, 0.72, 1.0)
+_ANIMATE = ("none",) + tuple(DEFORM_KINDS)
+#: stage keys shown separately, not as build stages
+_NOT_BUILD_STAGES = {"build_ms", "render_ms", "frame_ms", "anim_ms"}
+
+
+class ImguiRuntime:
+    """imgui + implot contexts and the C++ OpenGL 3 renderer (imgui.backends).  Pass a glfw
+    window to also install imgui's glfw platform backend (its callbacks chain to any installed
+    before).  No imgui.ini or log file is ever written."""
+
+    def __init__(self, window=None):
+        self.window = window
+        self.ctx = imgui.create_context()
+        self.plot_ctx = implot.create_context()
+        io = imgui.get_io()
+        io.set_ini_filename(None)
+        io.set_log_filename("")
+        apply_style()
+        if window is not None:
+            imgui.backends.glfw_init_for_opengl(ctypes.cast(window, ctypes.c_void_p).value, True)
+        imgui.backends.opengl3_init("#version 330")
+
+    def new_frame(self, display_size=None, dt=None):
+        """Start a frame.  Headless: pass display_size (w, h) and dt seconds."""
+        imgui.backends.opengl3_new_frame()
+        if self.window is not None:
+            imgui.backends.glfw_new_frame()
+        else:
+            io = imgui.get_io()
+            io.display_size = imgui.ImVec2(*display_size)
+            io.delta_time = max(float(dt or 1 / 60), 1e-4)
+        imgui.new_frame()
+
+    def render(self):
+        """End the frame and draw it into the bound framebuffer."""
+        imgui.render()
+        imgui.backends.opengl3_render_draw_data(imgui.get_draw_data())
+
+    def shutdown(self):
+        imgui.backends.opengl3_shutdown()
+        if self.window is not None:
+            imgui.backends.glfw_shutdown()
+        implot.destroy_context(self.plot_ctx)
+        imgui.destroy_context(self.ctx)
+
+
+def apply_style():
+    imgui.style_colors_dark()
+    style = imgui.get_style()
+    style.window_rounding = 4.0
+    style.item_spacing = imgui.ImVec2(6.0, 3.0)
+    style.frame_padding = imgui.ImVec2(5.0, 2.0)
+    style.set_color_(imgui.Col_.window_bg, imgui.ImVec4(*PANEL_BG, PANEL_ALPHA))
+    style.set_color_(imgui.Col_.frame_bg, imgui.ImVec4(0.20, 0.25, 0.33, 1.0))
+    style.set_color_(imgui.Col_.frame_bg_hovered, imgui.ImVec4(0.26, 0.34, 0.46, 1.0))
+    style.set_color_(imgui.Col_.frame_bg_active, imgui.ImVec4(0.30, 0.40, 0.56, 1.0))
+
+
+def _rect(state, name, width=None):
+    """Record the last widget's rectangle (x, y, w, h) in window pixels under ``name``; ``width``
+    (from calc_item_width() before the widget) limits it to the widget's frame, without its label."""
+    p = imgui.get_item_rect_min()
+    s = imgui.get_item_rect_size()
+    w = float(s.x) if width is None else min(float(width), float(s.x))
+    state.widget_rects[name] = (float(p.x), float(p.y), w, float(s.y))
+
+
+def _combo(state, label, items, current):
+    i = items.index(current) if current in items else -1
+    w = imgui.calc_item_width()
+    changed, j = imgui.combo(label, i, list(items))
+    _rect(state, label, w)
+    return (items[j] if changed and 0 <= j < len(items) else None)
+
+
+def draw_panel(state, strategy_names):
+    """Draw the control panel for one frame; widgets write into ``state`` only (and record
+    their rectangles in ``state.widget_rects``)."""
+    io = imgui.get_io()
+    max_h = max(float(io.display_size.y) - 2 * PANEL_POS[1], 100.0)
+    imgui.set_next_window_pos(imgui.ImVec2(*PANEL_POS), imgui.Cond_.always)
+    imgui.set_next_window_size_constraints(imgui.ImVec2(PANEL_WIDTH, 0.0), imgui.ImVec2(PANEL_WIDTH, max_h))
+    flags = (imgui.WindowFlags_.always_auto_resize | imgui.WindowFlags_.no_move
+             | imgui.WindowFlags_.no_saved_settings | imgui.WindowFlags_.no_collapse)
+    imgui.begin("gridrt", None, flags)
+    p, s = imgui.get_window_pos(), imgui.get_window_size()
+    state.panel_rect = (float(p.x), float(p.y), float(s.x), float(s.y))
+    imgui.push_item_width(-90.0)
+
+    title = state.scene_name or state.scene.source
+    imgui.text(f"{title}: {state.triangles:,} triangles" if state.triangles else title)
+    if state.scene_error:
+        imgui.push_text_wrap_pos(0.0)
+        imgui.text_colored(ERROR_COLOR, state.scene_error)
+        imgui.pop_text_wrap_pos()
+    if state.message:
+        imgui.text_colored(DIM_COLOR, state.message)
+
+    opened = imgui.collapsing_header("Scene", imgui.TreeNodeFlags_.default_open)
+    _rect(state, "scene header")
+    if opened:
+        _draw_scene(state)
+
+    opened = imgui.collapsing_header("Animation", imgui.TreeNodeFlags_.default_open)
+    _rect(state, "animation header")
+    if opened:
+        if imgui.button("Pause" if state.playing else "Play", imgui.ImVec2(50, 0)):
+            state.playing = not state.playing
+        _rect(state, "play")
+        imgui.same_line()
+        span = state.time_span()
+        w = imgui.calc_item_width()
+        changed, t = imgui.slider_float("time", float(state.time), 0.0, float(span),
+                                        "static" if state.static else "%.2f s")
+        _rect(state, "time", w)
+        if changed:
+            state.time = min(max(t, 0.0), span)
+        w = imgui.calc_item_width()
+        changed, v = imgui.slider_float("speed", float(state.speed), SPEED_MIN, SPEED_MAX, "%.2fx")
+        _rect(state, "speed", w)
+        if changed:
+            state.speed = v
+
+    opened = imgui.collapsing_header("Grid", imgui.TreeNodeFlags_.default_open)
+    _rect(state, "grid header")
+    if opened:
+        v = _combo(state, "strategy", list(strategy_names), state.strategy)
+        if v is not None:
+            state.strategy = v
+        w = imgui.calc_item_width()
+        changed, n = imgui.slider_int("threads", int(state.threads), 1, int(state.max_threads))
+        _rect(state, "threads", w)
+        if changed:
+            state.threads = min(max(n, 1), state.max_threads)
+        w = imgui.calc_item_width()
+        changed, d = imgui.slider_float("lambda", float(state.density), 0.125, 64.0, "%.3g",
+                                        imgui.SliderFlags_.logarithmic)
+        _rect(state, "lambda", w)
+        if changed and d > 0:
+            state.density = d
+        w = imgui.calc_item_width()
+        changed, m = imgui.slider_int("macro cell", int(state.macro), 1, 16)
+        _rect(state, "macro cell", w)
+        if changed:
+            state.macro = min(max(m, 1), 16)
+        v = _combo(state, "insertion", list(INSERT_MODES), state.insert)
+        if v is not None:
+            state.insert = v
+
+    opened = imgui.collapsing_header("Render", imgui.TreeNodeFlags_.default_open)
+    _rect(state, "render header")
+    if opened:
+        v = _combo(state, "intersection", list(INTERSECTION_LABELS), INTERSECTION_LABELS[0 if state.watertight else 1])
+        if v is not None:
+            state.watertight = v == INTERSECTION_LABELS[0]
+        v = _combo(state, "shading", list(SHADING_MODES), state.shading)
+        if v is not None:
+            state.shading = v
+        changed, b = imgui.checkbox("shadows", bool(state.shadows))
+        _rect(state, "shadows")
+        if changed:
+            state.shadows = b
+        w = imgui.calc_item_width()
+        changed, sc = imgui.slider_float("resolution", float(state.scale), SCALE_MIN, SCALE_MAX, "%.2fx")
+        _rect(state, "resolution", w)
+        if changed:
+            state.scale = min(max(sc, SCALE_MIN), SCALE_MAX)
+        if imgui.button("Save image"):
+            state.want_shot = True
+        _rect(state, "save image")
+        imgui.same_line()
+        if imgui.button("Save window"):
+            state.want_window_shot = True
+        _rect(state, "save window")
+        imgui.same_line()
+        if imgui.button("Reset view"):
+            state.reset_view()
+        _rect(state, "reset view")
+
+    opened = imgui.collapsing_header("Stats", imgui.TreeNodeFlags_.default_open)
+    _rect(state, "stats header")
+    if opened:
+        _draw_stats(state)
+
+    imgui.separator()
+    imgui.push_text_wrap_pos(0.0)
+    imgui.text_colored(DIM_COLOR, KEY_HELP)
+    imgui.pop_text_wrap_pos()
+    imgui.pop_item_width()
+    imgui.end()
+
+
+def _draw_scene(state):
+    builtins = list(BUILTIN_SCENES)
+    is_builtin = state.scene.source in builtins
+    v = _combo(state, "built-in", builtins, state.scene.source if is_builtin else None)
+    if v is not None:
+        state.scene_request = SceneSpec(source=v)
+    if is_builtin:
+        w = imgui.calc_item_width()
+        changed, n = imgui.input_int("triangles", int(state.scene.count or state.triangles or 1), 1000, 10000,
+                                     imgui.InputTextFlags_.enter_returns_true)
+        _rect(state, "triangles", w)
+        if changed and n >= 1:
+            state.scene_request = SceneSpec(source=state.scene.source, count=int(n), seed=state.scene.seed)
+        if imgui.is_item_hovered():
+            imgui.set_tooltip("press Enter to rebuild the scene with this many triangles")
+    if state.scene.source != "marbles":
+        v = _combo(state, "deform", list(_ANIMATE), state.scene.animate or "none")
+        if v is not None:
+            s = state.scene
+            state.scene_request = SceneSpec(source=s.source, count=s.count,
+                                            animate=None if v == "none" else v, seed=s.seed)
+    w = imgui.calc_item_width()
+    enter, txt = imgui.input_text_with_hint("##file", "mesh file path", state.file_text,
+                                             imgui.InputTextFlags_.enter_returns_true)
+    _rect(state, "mesh file", w)
+    state.file_text = txt
+    if imgui.is_item_hovered():
+        imgui.set_tooltip("path of a " + " ".join(SUPPORTED_EXTENSIONS) + " file; Enter or Open loads it "
+                          "(or drop a file on the window)")
+    imgui.same_line()
+    if (imgui.button("Open file") or enter) and state.file_text.strip():
+        state.scene_request = SceneSpec(source=os.path.expanduser(state.file_text.strip()))
+    _rect(state, "open file")
+
+
+def _fmt_bytes(n):
+    n = float(n)
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.2f} {unit}"
+        n /= 1024
+
+
+def _dims(d):
+    if isinstance(d, (tuple, list, np.ndarray)):
+        return "x".join(str(int(v)) for v in d)
+    return str(d)
+
+
+def _draw_stats(state):
+    st = state.stats
+    if not st:
+        imgui.text_colored(DIM_COLOR, "no frame yet")
+        return
+    stages = [(k[:-3], v) for k, v in st.items() if k.endswith("_ms") and k not in _NOT_BUILD_STAGES]
+    if st.get("rebuilt", 1):
+        imgui.text(f"build  {st['build_ms']:8.2f} ms  {st['strategy']}, {st['threads']} thr")
+        imgui.push_text_wrap_pos(0.0)
+        imgui.text_colored(DIM_COLOR, "  " + "  ".join(f"{k} {v:.2f}" for k, v in stages))
+        imgui.pop_text_wrap_pos()
+    else:
+        imgui.text("build  reused (static scene)")
+    imgui.text(f"render {st['render_ms']:8.2f} ms  {st['width']}x{st['height']}, {st.get('mrays', 0):.1f} Mray/s")
+    imgui.text(f"frame  {st['frame_ms']:8.2f} ms  {state.render_fps:.1f} fps (window {state.ui_fps:.0f})")
+    imgui.text(f"triangles {st['triangles']:,}   cells {st['cells']:,}")
+    imgui.text(f"references {st['references']:,} ({st.get('refs_per_tri', 0):.2f}/tri)")
+    imgui.text(f"grid memory {_fmt_bytes(st.get('grid_bytes', 0))}   dims {_dims(st.get('dims', ''))}")
+    b, r = state.history.arrays()
+    if len(b) >= 2 and implot.begin_plot("##ms", imgui.ImVec2(-1, 130)):
+        fit = implot.AxisFlags_.auto_fit
+        implot.setup_axes("frame", "ms", fit, fit)
+        implot.plot_line("build", np.ascontiguousarray(b))
+        implot.plot_line("render", np.ascontiguousarray(r))
+        implot.end_plot()
+        _rect(state, "plot")
+
+
+def draw_overlay(state, elapsed):
+    """A centred box with the label of the slow operation in progress and an indeterminate
+    progress bar (only while ``state.busy`` is set)."""
+    if not state.busy:
+        return
+    io = imgui.get_io()
+    w, h = float(io.display_size.x), float(io.display_size.y)
+    imgui.set_next_window_pos(imgui.ImVec2(w * 0.5, h * 0.5), imgui.Cond_.always, imgui.ImVec2(0.5, 0.5))
+    imgui.set_next_window_bg_alpha(0.95)
+    flags = (imgui.WindowFlags_.no_decoration | imgui.WindowFlags_.always_auto_resize
+             | imgui.WindowFlags_.no_saved_settings | imgui.WindowFlags_.no_inputs
+             | imgui.WindowFlags_.no_focus_on_appearing | imgui.WindowFlags_.no_nav)
+    imgui.begin("##busy", None, flags)
+    imgui.text(state.busy)
+    imgui.progress_bar(-1.0 * float(imgui.get_time()), imgui.ImVec2(300, 0), f"{elapsed:.1f} s")
+    p, s = imgui.get_window_pos(), imgui.get_window_size()
+    state.widget_rects["busy overlay"] = (float(p.x), float(p.y), float(s.x), float(s.y))
+    imgui.end()

@@ -1,0 +1,171 @@
+"""Background thread that owns the FramePipeline, so a slow step (a big scene loading, the first
+numba compile, a heavy frame) never blocks the window's event loop.
+
+The window thread submits jobs and polls for results; the worker runs one job at a time.  A newly
+submitted job replaces one that has not started yet (only the latest request matters).  Results
+are plain objects handed over under a lock; the worker copies the image out of the renderer's
+reused buffer before publishing it.
+"""
+
+import threading
+import time
+import traceback
+from dataclasses import dataclass
+
+import numpy as np
+
+from engine.errors import GridrtError
+
+
+@dataclass
+class LoadJob:
+    """Load a scene and make a new pipeline for it."""
+
+    spec: object            # app.state.SceneSpec
+    grid_params: object
+    render_params: object
+    camera: object = None   # explicit camera, or None to frame the scene
+    keep_camera: bool = False  # keep the viewer's camera (else reframe once loaded)
+    fov: float = 45.0
+    up: tuple = (0.0, 1.0, 0.0)
+    label: str = "loading scene"
+
+
+@dataclass
+class FrameJob:
+    """Render one frame at time t with these parameters."""
+
+    t: float
+    camera: object
+    grid_params: object
+    render_params: object
+    generation: int = 0     # scene generation the frame belongs to (stale results are dropped)
+    label: str = "rendering"
+
+
+@dataclass
+class LoadResult:
+    spec: object
+    scene_name: str = ""
+    triangles: int = 0
+    duration: float | None = None
+    static: bool = False
+    keep_camera: bool = False
+    error: str | None = None
+    seconds: float = 0.0
+
+
+@dataclass
+class FrameResult:
+    image: np.ndarray
+    stats: dict
+    camera: object          # the camera the frame was rendered with
+    radius: float           # half the grid's diagonal (for fly speed)
+    job: FrameJob
+    error: str | None = None
+
+
+class RenderWorker:
+    """Runs LoadJob / FrameJob on one daemon thread.  Use :meth:`submit`, :meth:`take`,
+    :attr:`busy`, and :meth:`stop`."""
+
+    def __init__(self, pipeline_factory, on_result=None):
+        self._factory = pipeline_factory  # (scene, LoadJob) -> FramePipeline
+        self._on_result = on_result       # called on the worker thread after each result (wake the UI)
+        self._cond = threading.Condition()
+        self._pending = None
+        self._results = []
+        self._current = None
+        self._started_at = 0.0
+        self._stop = False
+        self.pipeline = None
+        self._thread = threading.Thread(target=self._run, name="gridrt-render", daemon=True)
+        self._thread.start()
+
+    # ---- window-thread API --------------------------------------------------------------
+    def submit(self, job):
+        with self._cond:
+            self._pending = job
+            self._cond.notify_all()
+
+    def take(self):
+        """All results finished since the last call (oldest first)."""
+        with self._cond:
+            out, self._results = self._results, []
+        return out
+
+    @property
+    def busy(self):
+        """True while a job runs or waits, or a result has not been taken yet."""
+        with self._cond:
+            return self._current is not None or self._pending is not None or bool(self._results)
+
+    def current(self):
+        """(job, seconds running) of the running job, or (None, 0)."""
+        with self._cond:
+            if self._current is None:
+                return None, 0.0
+            return self._current, time.perf_counter() - self._started_at
+
+    def detach(self):
+        """Stop calling on_result (before the window system shuts down)."""
+        self._on_result = None
+
+    def stop(self, timeout=10.0):
+        """Ask the thread to finish after its current job; True when it ended within timeout."""
+        with self._cond:
+            self._stop = True
+            self._pending = None
+            self._cond.notify_all()
+        self._thread.join(timeout)
+        return not self._thread.is_alive()
+
+    # ---- worker thread -------------------------------------------------------------------
+    def _run(self):
+        while True:
+            with self._cond:
+                while self._pending is None and not self._stop:
+                    self._cond.wait()
+                if self._stop:
+                    return
+                job, self._pending = self._pending, None
+                self._current = job
+                self._started_at = time.perf_counter()
+            try:
+                res = self._load(job) if isinstance(job, LoadJob) else self._frame(job)
+            except Exception as e:  # reported in the panel; the viewer keeps running
+                msg = str(e) if isinstance(e, GridrtError) else f"{type(e).__name__}: {e}"
+                if not isinstance(e, GridrtError):
+                    traceback.print_exc()
+                res = (LoadResult(job.spec, error=msg) if isinstance(job, LoadJob)
+                       else FrameResult(None, {}, job.camera, 1.0, job, error=msg))
+            with self._cond:
+                self._results.append(res)
+                self._current = None
+            notify = self._on_result
+            if notify is not None:
+                notify()
+
+    def _load(self, job):
+        from engine.scene import make_scene
+
+        t0 = time.perf_counter()
+        s = job.spec
+        scene = make_scene(s.source, count=s.count, animate=s.animate, amplitude=s.amplitude,
+                           speed=s.speed, seed=s.seed)
+        self.pipeline = self._factory(scene, job)
+        return LoadResult(s, scene_name=scene.name, triangles=int(scene.n_triangles), duration=scene.duration,
+                          static=bool(scene.static), keep_camera=job.keep_camera,
+                          seconds=time.perf_counter() - t0)
+
+    def _frame(self, job):
+        pipe = self.pipeline
+        if pipe is None:
+            raise GridrtError("no scene loaded")
+        pipe.grid_params = job.grid_params
+        pipe.render_params = job.render_params
+        fr = pipe.step(job.t, camera=job.camera)
+        cam = job.camera or pipe.camera
+        spec = getattr(fr.grid if fr.grid is not None else pipe.grid, "spec", None)
+        radius = 1.0 if spec is None else 0.5 * float(np.linalg.norm(np.asarray(spec.hi) - np.asarray(spec.lo)))
+        return FrameResult(fr.image.copy(), dict(fr.stats), cam, radius, job)

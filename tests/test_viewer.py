@@ -1,0 +1,548 @@
+"""The interactive viewer, for real: no mocks.
+
+* ``test_view_without_display``: no DISPLAY (or no X server) -> one-line message naming the
+  headless dump, status 3.
+* ``test_viewer_state_actions``: the clock, strategy/thread stepping and parameter building of
+  app.state.ViewerState.
+* ``test_panel_headless_egl``: the real panel (app.ui) and blit (app.blit, shaders/) drawn into an
+  EGL framebuffer: the image shows through pixel-exactly outside the panel, the panel's own pixels
+  are there, and synthetic mouse clicks on its widgets change the viewer state.
+* ``test_viewer_window_under_xvfb``: starts Xvfb, launches ``python -m app view`` on a small
+  marbles scene, drives it with xdotool (clicks on panel widgets, strategy and thread keys, mouse
+  drag and wheel, pause, screenshot, window resize, Esc) and checks the effects through the state
+  file the app writes, the screenshot files, an X root-window capture, and an independent headless
+  FramePipeline render of the same frame (the viewer has no renderer of its own).
+"""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+import engine  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
+
+REPO = Path(__file__).resolve().parents[1]
+W, H = 640, 480
+
+
+def _app_env(**extra):
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    env.update(extra)
+    return env
+
+
+# ---------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("display", [None, ":987"])
+def test_view_without_display(tmp_path, display):
+    env = _app_env()
+    env.pop("WAYLAND_DISPLAY", None)
+    if display is None:
+        env.pop("DISPLAY", None)
+    else:
+        env["DISPLAY"] = display   # no X server there
+    r = subprocess.run([sys.executable, "-m", "app", "view", "--scene", "marbles"], cwd=tmp_path, env=env,
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 3, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1, r.stderr
+    assert ("no display" if display is None else "cannot open an OpenGL 3.3 window") in lines[0]
+    assert "gridrt dump" in lines[0]
+    assert list(tmp_path.iterdir()) == []
+
+
+# ---------------------------------------------------------------------------------------------
+def test_viewer_state_actions():
+    from app.state import SCALE_MIN, ViewerState
+    from engine.config import GridParams, RenderParams
+
+    st = ViewerState(duration=8.0, time=7.9, speed=1.0, playing=True)
+    st.advance(0.2)
+    assert st.time == pytest.approx(0.1)
+    st.speed = 2.0
+    st.advance(0.5)
+    assert st.time == pytest.approx(1.1)
+    st.playing = False
+    st.advance(1.0)
+    assert st.time == pytest.approx(1.1)
+    st.playing, st.static = True, True
+    st.advance(1.0)
+    assert st.time == pytest.approx(1.1)
+
+    st.strategy = "c"
+    st.cycle_strategy(["a", "b", "c"], +1)
+    assert st.strategy == "a"
+    st.cycle_strategy(["a", "b", "c"], -1)
+    assert st.strategy == "c"
+    st.strategy = "gone"
+    st.cycle_strategy(["a", "b", "c"], +1)
+    assert st.strategy == "a"
+
+    st.threads, st.max_threads = 1, 3
+    st.change_threads(-1)
+    assert st.threads == 1
+    for _ in range(5):
+        st.change_threads(+1)
+    assert st.threads == 3
+
+    st.scale = 0.25
+    assert st.render_size_for(1000, 500) == (250, 125)
+    st.scale = SCALE_MIN
+    assert st.render_size_for(3, 3) == (1, 1)
+
+    st = ViewerState(strategy="serial", threads=1, density=2.5, macro=3, insert="exact", shading="normal",
+                     shadows=True, watertight=False)
+    assert st.grid_params() == GridParams(strategy="serial", threads=1, density=2.5, macro=3, insert="exact")
+    assert st.render_params(64, 48) == RenderParams(width=64, height=48, shading="normal", shadows=True,
+                                                    watertight=False, threads=1)
+
+
+# ---------------------------------------------------------------------------------------------
+def _pattern(w, h):
+    """A test image whose every row and column differs: (h, w, 4) uint8."""
+    y, x = np.mgrid[0:h, 0:w]
+    img = np.empty((h, w, 4), np.uint8)
+    img[..., 0] = x % 256
+    img[..., 1] = y % 256
+    img[..., 2] = (7 * x + 3 * y) % 256
+    img[..., 3] = 255
+    return img
+
+
+def _panel_blend(img_rgb):
+    """Expected panel background over img_rgb (float, 0..255): PANEL_BG at PANEL_ALPHA."""
+    from app.ui import PANEL_ALPHA, PANEL_BG
+
+    return np.asarray(PANEL_BG) * 255.0 * PANEL_ALPHA + img_rgb.astype(np.float64) * (1.0 - PANEL_ALPHA)
+
+
+def _rect_slice(rect, shrink=2):
+    x, y, w, h = (int(round(v)) for v in rect)
+    return slice(y + shrink, y + h - shrink), slice(x + shrink, x + w - shrink)
+
+
+def _outside_panel_mask(shape, rect):
+    m = np.ones(shape[:2], bool)
+    x, y, w, h = (int(round(v)) for v in rect)
+    m[max(y - 1, 0):y + h + 1, max(x - 1, 0):x + w + 1] = False
+    return m
+
+
+def test_panel_headless_egl(tmp_path, monkeypatch):
+    moderngl = pytest.importorskip("moderngl")
+    imgui_bundle = pytest.importorskip("imgui_bundle")
+    try:
+        ctx = moderngl.create_standalone_context(backend="egl")
+    except Exception as e:  # pragma: no cover - depends on the machine's GL
+        pytest.skip(f"no EGL OpenGL context: {e}")
+    monkeypatch.chdir(tmp_path)   # imgui must not write imgui.ini (or anything) here
+    from imgui_bundle import imgui
+
+    from app.blit import Blitter
+    from app.state import ViewerState
+    from app.ui import ImguiRuntime, draw_overlay, draw_panel
+
+    W, H = 640, 800   # tall enough for the whole panel (the viewer scrolls it in smaller windows)
+    fbo = ctx.simple_framebuffer((W, H), components=4)
+    ui = ImguiRuntime()
+    blit = Blitter(ctx)
+    img = _pattern(W, H)
+    blit.upload(img)
+    st = ViewerState(threads=2, max_threads=8, triangles=1234, scene_name="marbles")
+    st.stats = dict(frame=1, t=0.0, triangles=1234, cells=5000, references=8000, threads=2, strategy="serial",
+                    insert="bbox", clear_ms=0.1, insert_ms=1.5, macro_ms=0.2, build_ms=1.8, render_ms=4.0,
+                    frame_ms=6.5, anim_ms=0.1, rebuilt=1, refs_per_tri=6.5, dims="(20, 10, 25)", grid_bytes=65536,
+                    width=W, height=H, mrays=10.0)
+    for i in range(60):   # render time falls steadily, build time stays flat
+        st.history.add(dict(build_ms=1.0, render_ms=6.0 - 0.08 * i, frame_ms=7.0))
+    names = ["serial", "other"]
+    io = imgui.get_io()
+
+    def frame(events=(), overlay=False):
+        for ev in events:
+            ev()
+        ui.new_frame((W, H), 1 / 60)
+        st.widget_rects = {}
+        draw_panel(st, names)
+        if overlay:
+            draw_overlay(st, 2.5)
+        fbo.use()
+        ctx.clear(0.0, 0.0, 0.0, 1.0)
+        blit.draw((0, 0, W, H))
+        ui.render()
+        return np.frombuffer(fbo.read(components=3), np.uint8).reshape(H, W, 3)[::-1]
+
+    def click(name, fx=0.5):
+        """Move, press, release over widget ``name`` at fraction fx of its width (3 frames)."""
+        x, y, w, h = st.widget_rects[name]
+        px, py = x + min(max(fx * w, 2), w - 2), y + h / 2
+        frame([lambda: io.add_mouse_pos_event(px, py)])
+        frame([lambda: io.add_mouse_button_event(0, True)])
+        frame([lambda: io.add_mouse_button_event(0, False)])
+        return frame()
+
+    try:
+        for _ in range(3):
+            out = frame()
+        px, py, pw, ph = st.panel_rect
+        assert (px, py) == (8.0, 8.0) and 100 < pw <= W / 2 and 100 < ph <= H
+        # the image shows through, pixel-exact and the right way up, wherever the panel is not
+        outside = _outside_panel_mask(out.shape, st.panel_rect)
+        assert outside.mean() > 0.4
+        assert np.array_equal(out[outside], img[..., :3][outside])
+        # the panel: mostly its translucent background over the image, plus bright text
+        sy, sx = _rect_slice(st.panel_rect)
+        panel = out[sy, sx].astype(np.float64)
+        bg = np.all(np.abs(panel - _panel_blend(img[sy, sx, :3])) <= 3, axis=-1)
+        assert bg.mean() > 0.3, bg.mean()
+        assert (panel.mean(axis=-1) > 170).mean() > 0.01
+        for name in ("built-in", "triangles", "mesh file", "open file", "play", "time", "speed", "strategy",
+                     "threads", "lambda", "macro cell", "insertion", "intersection", "shading", "shadows",
+                     "resolution", "save image", "save window", "reset view", "plot"):
+            x, y, w, h = st.widget_rects[name]
+            assert px <= x and x + w <= px + pw and py <= y and y + h <= py + ph, name
+        assert not (tmp_path / "imgui.ini").exists()
+        # the implot plot draws the history: the "render" line (implot's second default colour,
+        # orange) falls from left to right
+        sy, sx = _rect_slice(st.widget_rects["plot"])
+        plot = out[sy, sx].astype(int)
+        orange = (plot[..., 0] > 170) & (plot[..., 1] > 90) & (plot[..., 1] < 170) & (plot[..., 2] < 120)
+        ys, xs = np.nonzero(orange)
+        mid = plot.shape[1] / 2
+        assert (xs < mid).sum() > 20 and (xs > mid).sum() > 20
+        assert ys[xs < mid].mean() < ys[xs > mid].mean() - 10   # image y grows downwards
+
+        # clicks on real widgets change the state (and the pixels)
+        sy, sx = _rect_slice(st.widget_rects["shadows"], 0)
+        before = out[sy, sx].copy()
+        assert st.shadows is False
+        out = click("shadows", 0.05)
+        assert st.shadows is True
+        assert (np.abs(out[sy, sx].astype(int) - before).sum(axis=-1) > 60).sum() > 5   # the check mark
+        assert st.playing is True
+        click("play")
+        assert st.playing is False
+        click("threads", 1.0)
+        assert st.threads == st.max_threads
+        click("threads", 0.0)
+        assert st.threads == 1
+        click("save window")
+        assert st.want_window_shot is True
+
+        # the progress overlay sits in the middle of the window
+        st.busy = "compiling numba kernels"
+        out = frame(overlay=True)
+        out = frame(overlay=True)
+        x, y, w, h = st.widget_rects["busy overlay"]
+        assert abs(x + w / 2 - W / 2) <= 1 and abs(y + h / 2 - H / 2) <= 1
+        sy, sx = _rect_slice((x, y, w, h))
+        assert not np.array_equal(out[sy, sx], img[sy, sx, :3])
+        assert list(tmp_path.iterdir()) == []
+    finally:
+        ui.shutdown()
+        blit.release()
+        fbo.release()
+        ctx.release()
+
+
+# ---------------------------------------------------------------------------------------------
+class _X:
+    """An Xvfb server on a free display number."""
+
+    def __init__(self):
+        r, w = os.pipe()
+        self.proc = subprocess.Popen(["Xvfb", "-displayfd", str(w), "-screen", "0", "1024x768x24", "-nolisten", "tcp"],
+                                     pass_fds=(w,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        os.close(w)
+        buf = b""
+        t0 = time.time()
+        while not buf.endswith(b"\n") and time.time() - t0 < 20:
+            chunk = os.read(r, 16)
+            if not chunk:
+                break
+            buf += chunk
+        os.close(r)
+        if not buf.strip():
+            self.proc.kill()
+            raise RuntimeError("Xvfb did not report a display number")
+        self.display = ":" + buf.decode().strip()
+
+    def close(self):
+        self.proc.terminate()
+        try:
+            self.proc.wait(10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+
+
+class _App:
+    def __init__(self, display, tmp):
+        self.display = display
+        self.cwd = tmp / "cwd"
+        self.cwd.mkdir()
+        self.shots = tmp / "shots"
+        self.state_file = tmp / "state.json"
+        self.log = open(tmp / "app.log", "w+")
+        cmd = [sys.executable, "-m", "app", "view", "--scene", "marbles", "--count", "2000", "--size", f"{W}x{H}",
+               "--state-file", str(self.state_file), "--screenshot-dir", str(self.shots)]
+        self.proc = subprocess.Popen(cmd, cwd=self.cwd, env=_app_env(DISPLAY=display), stdout=self.log,
+                                     stderr=subprocess.STDOUT, text=True)
+
+    def output(self):
+        self.log.flush()
+        self.log.seek(0)
+        return self.log.read()
+
+    def state(self):
+        try:
+            return json.loads(self.state_file.read_text())
+        except (FileNotFoundError, json.JSONDecodeError):
+            return None
+
+    def wait(self, pred, what, timeout=30.0):
+        t0 = time.time()
+        while time.time() - t0 < timeout:
+            s = self.state()
+            if s is not None and pred(s):
+                return s
+            if self.proc.poll() is not None:
+                raise AssertionError(f"viewer exited ({self.proc.returncode}) waiting for {what}:\n{self.output()}")
+            time.sleep(0.05)
+        raise AssertionError(f"timed out waiting for {what}; last state: {self.state()}\n{self.output()}")
+
+    def settled(self, what, quiet=0.6, timeout=30.0):
+        """Wait until no new frame has been rendered for ``quiet`` seconds; return the state."""
+        t0 = time.time()
+        last = self.wait(lambda s: True, what)
+        since = time.time()
+        while time.time() - t0 < timeout:
+            time.sleep(0.05)
+            s = self.state()
+            if s["rendered_frames"] != last["rendered_frames"] or s["busy"]:
+                last, since = s, time.time()
+            elif time.time() - since >= quiet:
+                return s
+        raise AssertionError(f"frames never settled ({what}): {self.state()}")
+
+    def xdo(self, *args):
+        r = subprocess.run(["xdotool", *map(str, args)], env=_app_env(DISPLAY=self.display), capture_output=True,
+                           text=True, timeout=30)
+        assert r.returncode == 0, r.stderr
+        return r.stdout
+
+    def click(self, state, name, fx=0.5):
+        x, y, w, h = state["widget_rects"][name]
+        px, py, pw, ph = state["panel_rect"]
+        assert px <= x and x + w <= px + pw and py <= y and y + h <= py + ph, f"{name} not visible in the panel"
+        self.xdo("mousemove", int(x + min(max(fx * w, 3), w - 3)), int(y + h / 2), "sleep", 0.15, "click", 1)
+
+    def close(self):
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(10)
+        self.log.close()
+
+
+def _dist(cam):
+    return float(np.linalg.norm(np.subtract(cam["eye"], cam["target"])))
+
+
+def _check_scene_image(img):
+    """A ray-traced marbles frame: background and lit geometry, many distinct colours."""
+    from engine.trace.render import BACKGROUND
+
+    bg = np.round(np.asarray(BACKGROUND) * 255).astype(np.uint8)
+    is_bg = np.all(img[..., :3] == bg, axis=-1)
+    assert 0.05 < is_bg.mean() < 0.95, is_bg.mean()
+    lum = img[~is_bg][:, :3].astype(float).mean(axis=-1)
+    assert lum.std() > 5
+    assert len(np.unique(img.reshape(-1, img.shape[-1]), axis=0)) > 50
+
+
+@pytest.mark.skipif(shutil.which("Xvfb") is None or shutil.which("xdotool") is None,
+                    reason="needs Xvfb and xdotool (apt-get install xvfb xauth xdotool)")
+def test_viewer_window_under_xvfb(tmp_path):
+    from engine.grid.registry import names
+
+    x = _X()
+    app = None
+    try:
+        app = _App(x.display, tmp_path)
+        s = app.wait(lambda s: s["rendered_frames"] >= 3 and s["camera"], "the first frames", timeout=120)
+        home = s["camera"]
+        assert s["render_size"] == [W, H] and s["window_size"] == [W, H]
+        assert s["playing"] and s["scene_name"] == "marbles" and s["triangles"] == 2000
+        # frames keep coming and the clock runs
+        s2 = app.wait(lambda q: q["rendered_frames"] >= s["rendered_frames"] + 3 and q["time"] != s["time"],
+                      "more frames")
+        assert s2["ui_frames"] > s["ui_frames"]
+
+        wid = app.xdo("search", "--sync", "--name", "^gridrt$").split()[0]
+        app.xdo("windowfocus", "--sync", wid)
+
+        # a real click on a panel widget: shadows on; the click does not move the camera
+        assert s2["shadows"] is False
+        app.click(s2, "shadows", 0.05)
+        s3 = app.wait(lambda q: q["shadows"], "shadows on")
+        assert s3["camera"] == home
+
+        # keys: next strategy, one thread fewer (or more); the pipeline reports using them
+        strategies = names()
+        want_strategy = strategies[(strategies.index(s3["strategy"]) + 1) % len(strategies)]
+        want_threads = s3["threads"] - 1 if s3["threads"] > 1 else s3["threads"] + 1
+        app.xdo("key", "bracketright")
+        app.xdo("key", "minus" if want_threads < s3["threads"] else "equal")
+        app.wait(lambda q: q["strategy"] == want_strategy and q["threads"] == want_threads
+                 and q["stats"].get("strategy") == want_strategy and q["stats"].get("threads") == want_threads,
+                 f"strategy {want_strategy} with {want_threads} threads", timeout=120)  # may compile
+
+        # left drag on the image orbits (same target and distance, new eye)
+        app.xdo("mousemove", 480, 300, "sleep", 0.2, "mousedown", 1, "sleep", 0.2, "mousemove", 540, 280,
+                "sleep", 0.2, "mouseup", 1)
+        s4 = app.wait(lambda q: q["camera"]["eye"] != home["eye"], "orbit")
+        assert s4["camera"]["target"] == home["target"]
+        assert _dist(s4["camera"]) == pytest.approx(_dist(home), rel=1e-9)
+        # wheel over the image zooms in; over the panel it goes to the panel
+        d0 = _dist(s4["camera"])
+        app.xdo("mousemove", 500, 240, "sleep", 0.2, "click", 4)
+        s5 = app.wait(lambda q: _dist(q["camera"]) < d0 * 0.999, "zoom")
+        from app.input import ZOOM_STEP
+
+        assert _dist(s5["camera"]) == pytest.approx(d0 * ZOOM_STEP, rel=1e-9)
+        px, py, pw, ph = s5["panel_rect"]
+        app.xdo("mousemove", int(px + pw / 2), int(py + ph - 20), "sleep", 0.2, "click", 5, "sleep", 0.3)
+        assert _dist(app.state()["camera"]) == pytest.approx(_dist(s5["camera"]), rel=1e-12)
+        # right drag pans: eye and target move together
+        c0 = s5["camera"]
+        app.xdo("mousemove", 480, 300, "sleep", 0.2, "mousedown", 3, "sleep", 0.2, "mousemove", 520, 330,
+                "sleep", 0.2, "mouseup", 3)
+        s_pan = app.wait(lambda q: q["camera"]["target"] != c0["target"], "pan")
+        np.testing.assert_allclose(np.subtract(s_pan["camera"]["eye"], s_pan["camera"]["target"]),
+                                   np.subtract(c0["eye"], c0["target"]), rtol=1e-9, atol=1e-9)
+        # holding W flies forward along the view direction
+        c1 = s_pan["camera"]
+        app.xdo("keydown", "w", "sleep", 0.4, "keyup", "w")
+        s_fly = app.wait(lambda q: q["camera"]["eye"] != c1["eye"], "fly")
+        move = np.subtract(s_fly["camera"]["eye"], c1["eye"])
+        view = np.subtract(c1["target"], c1["eye"])
+        assert move @ view / (np.linalg.norm(move) * np.linalg.norm(view)) > 0.999999
+        np.testing.assert_allclose(np.subtract(s_fly["camera"]["target"], c1["target"]), move, atol=1e-9)
+        # R resets the view
+        app.xdo("mousemove", 500, 240, "key", "r")
+        app.wait(lambda q: q["camera"] == home, "view reset")
+
+        # space pauses: the clock stops and frames stop changing
+        app.xdo("key", "space")
+        app.wait(lambda q: not q["playing"], "pause")
+        sp = app.settled("paused frames")
+        time.sleep(0.3)
+        assert app.state()["time"] == sp["time"]
+
+        # P saves the ray-traced image
+        app.xdo("key", "p")
+        s6 = app.wait(lambda q: q["last_screenshot"], "screenshot")
+        shot_path = Path(s6["last_screenshot"])
+        assert shot_path.parent == app.shots and shot_path.is_file()
+        shot = np.asarray(Image.open(shot_path).convert("RGB"))
+        assert shot.shape == (H, W, 3)
+        _check_scene_image(shot)
+        assert s6["rendered_frames"] == sp["rendered_frames"]
+
+        # the same frame from a headless FramePipeline (same time, camera, parameters) is identical
+        from engine.camera import Camera
+        from engine.config import GridParams, RenderParams
+        from engine.pipeline import FramePipeline
+        from engine.scene import make_scene
+
+        st = s6["stats"]
+        cam = s6["camera"]
+        pipe = FramePipeline(make_scene("marbles", count=2000),
+                             GridParams(strategy=st["strategy"], threads=st["threads"], density=s6["density"],
+                                        macro=s6["macro"], insert=s6["insert"]),
+                             RenderParams(width=W, height=H, shading=s6["shading"], shadows=True,
+                                          watertight=s6["watertight"], threads=st["threads"]))
+        ref = pipe.step(st["t"], camera=Camera(cam["eye"], cam["target"], cam["up"], cam["fov"]))
+        assert np.array_equal(shot, ref.image[..., :3])
+        no_shadow = FramePipeline(make_scene("marbles", count=2000), pipe.grid_params,
+                                  pipe.render_params.replace(shadows=False))
+        assert not np.array_equal(shot, no_shadow.step(st["t"], camera=pipe.camera).image[..., :3])
+
+        # a click on "Save window": the window as shown, panel included
+        app.click(s6, "save window")
+        s7 = app.wait(lambda q: q["last_window_shot"], "window screenshot")
+        win = np.asarray(Image.open(s7["last_window_shot"]).convert("RGB"))
+        assert win.shape == (H, W, 3)
+        outside = _outside_panel_mask(win.shape, s7["panel_rect"])
+        assert np.array_equal(win[outside], shot[outside])
+        sy, sx = _rect_slice(s7["panel_rect"])
+        bg = np.all(np.abs(win[sy, sx] - _panel_blend(shot[sy, sx])) <= 3, axis=-1)
+        assert bg.mean() > 0.3, bg.mean()
+        # and what the X server really shows agrees (when imagemagick's `import` is installed)
+        if shutil.which("import"):
+            root = tmp_path / "root.png"
+            subprocess.run(["import", "-window", "root", str(root)], env=_app_env(DISPLAY=x.display), check=True,
+                           timeout=30)
+            scr = np.asarray(Image.open(root).convert("RGB"))[:H, :W]
+            assert np.array_equal(scr[outside], shot[outside])
+            assert np.all(np.abs(scr[sy, sx] - _panel_blend(shot[sy, sx])) <= 3, axis=-1).mean() > 0.3
+
+        # the panel's file box: a missing file reports an error and the viewer carries on; a real
+        # file typed in and opened with the "Open file" button replaces the scene
+        tet = tmp_path / "tet.obj"
+        tet.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+        app.click(s7, "mesh file")
+        typed = str(tmp_path / "missing_phr.obj")   # p, h, r typed into the text box are not shortcuts
+        app.xdo("type", "--delay", 5, typed)
+        app.xdo("key", "Return")
+        s_err = app.wait(lambda q: q["scene_error"], "load error")
+        assert "missing_phr.obj" in s_err["scene_error"] and s_err["scene_name"] == "marbles"
+        assert s_err["show_panel"] and s_err["last_screenshot"] == str(shot_path) and s_err["camera"] == s7["camera"]
+        app.click(s_err, "mesh file")
+        app.xdo("sleep", 0.2, "keydown", "ctrl", "sleep", 0.1, "key", "a", "sleep", 0.1, "keyup", "ctrl", "sleep", 0.1,
+                "key", "BackSpace")
+        app.xdo("type", "--delay", 5, str(tet))
+        app.click(app.state(), "open file")
+        s_tet = app.wait(lambda q: q["triangles"] == 4 and q["stats"].get("triangles") == 4, "tetrahedron loaded")
+        assert s_tet["scene_error"] == "" and s_tet["camera"] != s7["camera"]   # reframed
+        app.xdo("mousemove", 500, 300, "sleep", 0.1, "key", "F12")
+        s_tet = app.wait(lambda q: q["last_screenshot"] != str(shot_path), "second screenshot (F12)")
+        assert Path(s_tet["last_screenshot"]) == app.shots / "gridrt_0001.png"   # never overwrites
+        from engine.trace.render import BACKGROUND
+
+        tet_img = np.asarray(Image.open(s_tet["last_screenshot"]).convert("RGB"))
+        fg = np.any(tet_img != np.round(np.asarray(BACKGROUND) * 255).astype(np.uint8), axis=-1)
+        assert 0.01 < fg.mean() < 0.9   # the reframed tetrahedron fills part of the view
+
+        # resizing the window: the render resolution follows (even while paused)
+        app.xdo("windowsize", wid, 520, 400)
+        s8 = app.wait(lambda q: q["framebuffer_size"] == [520, 400] and q["stats"].get("width") == 520
+                      and q["stats"].get("height") == 400, "resize")
+        assert s8["render_size"] == [520, 400]
+        # the resolution slider at its left end: render at SCALE_MIN of the window
+        from app.state import SCALE_MIN
+
+        app.click(s8, "resolution", 0.0)
+        want = [round(520 * SCALE_MIN), round(400 * SCALE_MIN)]
+        s9 = app.wait(lambda q: q["render_size"] == want and [q["stats"].get("width"), q["stats"].get("height")] == want,
+                      "render scale")
+        assert s9["framebuffer_size"] == [520, 400] and s9["scale"] == pytest.approx(SCALE_MIN)
+
+        # H hides the panel; Esc quits with status 0
+        app.xdo("key", "h")
+        app.wait(lambda q: not q["show_panel"] and not q["widget_rects"], "panel hidden")
+        app.xdo("key", "Escape")
+        assert app.proc.wait(30) == 0, app.output()
+        out = app.output()
+        assert f"saved screenshot {shot_path}" in out
+        assert list(app.cwd.iterdir()) == []   # nothing written where the viewer was started
+    finally:
+        if app is not None:
+            app.close()
+        x.close()
