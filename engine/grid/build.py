@@ -170,9 +170,12 @@ class GridBuilder:
         use_threads(threads)
 
         with timed(times, "bounds_ms"):
-            n_chunks = max(1, min(threads, F // 4096 + 1))
+            n_chunks = max(1, min(threads, F // 65536 + 1))
             bb = np.empty((n_chunks, 7), np.float64)
-            common.scene_bounds(tris, n_chunks, bb)
+            if n_chunks == 1:
+                common.scene_bounds_serial(tris, bb)
+            else:
+                common.scene_bounds(tris, n_chunks, bb)
         if bb[:, 6].sum() > 0:
             bad = np.argwhere(~(np.abs(tris) <= 1e30))[0]
             raise InputError(

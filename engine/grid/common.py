@@ -19,40 +19,47 @@ EPS = INSERT_EPS
 # scene bounds (+ the finiteness check that guards every later kernel)
 
 
+@njit(cache=True, _nrt=False)
+def _bounds_range(tris, a, b, out, row):
+    """Min/max over triangles a..b-1 into out[row] = [xmin, ymin, zmin, xmax, ymax, zmax, bad],
+    bad counting coordinates that are NaN, infinite or beyond 1e30 in magnitude."""
+    x0 = y0 = z0 = np.inf
+    x1 = y1 = z1 = -np.inf
+    bad = 0.0
+    for f in range(a, b):
+        for v in range(3):
+            x = np.float64(tris[f, v, 0])
+            y = np.float64(tris[f, v, 1])
+            z = np.float64(tris[f, v, 2])
+            if not (abs(x) <= 1e30 and abs(y) <= 1e30 and abs(z) <= 1e30):
+                bad += 1.0
+            x0 = min(x0, x)
+            y0 = min(y0, y)
+            z0 = min(z0, z)
+            x1 = max(x1, x)
+            y1 = max(y1, y)
+            z1 = max(z1, z)
+    out[row, 0] = x0
+    out[row, 1] = y0
+    out[row, 2] = z0
+    out[row, 3] = x1
+    out[row, 4] = y1
+    out[row, 5] = z1
+    out[row, 6] = bad
+
+
 @njit(cache=True, parallel=True)
 def scene_bounds(tris, n_chunks, out):
-    """Min/max over all vertices, per chunk of triangles.
-
-    tris (F,3,3) float32; out (n_chunks, 7) float64 receives per chunk
-    [xmin, ymin, zmin, xmax, ymax, zmax, bad] where bad > 0 when a NaN or inf was seen.
-    """
+    """Per-chunk bounds of tris (F,3,3) float32 into out (n_chunks, 7) float64, in parallel."""
     F = tris.shape[0]
     for ch in prange(n_chunks):
-        a = ch * F // n_chunks
-        b = (ch + 1) * F // n_chunks
-        x0 = y0 = z0 = np.inf
-        x1 = y1 = z1 = -np.inf
-        bad = 0.0
-        for f in range(a, b):
-            for v in range(3):
-                x = np.float64(tris[f, v, 0])
-                y = np.float64(tris[f, v, 1])
-                z = np.float64(tris[f, v, 2])
-                if not (abs(x) <= 1e30 and abs(y) <= 1e30 and abs(z) <= 1e30):
-                    bad += 1.0
-                x0 = min(x0, x)
-                y0 = min(y0, y)
-                z0 = min(z0, z)
-                x1 = max(x1, x)
-                y1 = max(y1, y)
-                z1 = max(z1, z)
-        out[ch, 0] = x0
-        out[ch, 1] = y0
-        out[ch, 2] = z0
-        out[ch, 3] = x1
-        out[ch, 4] = y1
-        out[ch, 5] = z1
-        out[ch, 6] = bad
+        _bounds_range(tris, ch * F // n_chunks, (ch + 1) * F // n_chunks, out, ch)
+
+
+@njit(cache=True)
+def scene_bounds_serial(tris, out):
+    """scene_bounds on one thread (small scenes: no parallel launch)."""
+    _bounds_range(tris, 0, tris.shape[0], out, 0)
 
 
 # ---------------------------------------------------------------------------------------------
