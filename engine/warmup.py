@@ -9,8 +9,8 @@ def _kernels():
     from .grid.strategies.serial import count_serial, scatter_serial
     from .trace.render import cast_kernel, render_kernel
 
-    return [render_kernel, cast_kernel, count_serial, scatter_serial, common.scene_bounds, common.scene_bounds_serial,
-            common.macro_build_range, common.clear_macro_range, _fill_rays]
+    return [render_kernel, count_serial, scatter_serial, common.scene_bounds, common.scene_bounds_serial,
+            common.macro_build_range, common.clear_macro_range]
 
 
 def cache_is_cold():
