@@ -39,6 +39,10 @@ def add_scene_args(p):
     g.add_argument("--amplitude", type=float, default=None, help="deformation amplitude in scene units")
     g.add_argument("--speed", type=float, default=1.0, help="animation speed factor")
     g.add_argument("--seed", type=int, default=0, help="random seed of procedural scenes")
+    g.add_argument("--clip", default=None, help="animation clip to play: glTF animation or MD2 clip, by name or index")
+    g.add_argument("--subdivide", type=int, default=None,
+                   help="split a static mesh's triangles 1->4 until at least this many (e.g. Lucy 100k -> 1.6M)")
+    g.add_argument("--fps", type=float, default=None, help="keyframe rate of MD2 models and frame folders")
 
 
 def add_grid_args(p):
@@ -52,6 +56,8 @@ def add_grid_args(p):
     g.add_argument("--insert", choices=INSERT_MODES, default="bbox",
                    help="triangle insertion test: bounding box (fast) or exact SAT (fewer references)")
     g.add_argument("--max-cells", type=int, default=None, help="ceiling on grid cells")
+    g.add_argument("--no-split", dest="split_static", action="store_false",
+                   help="rebuild the whole scene every frame (default: grid static parts once, moving parts per frame)")
 
 
 def add_render_args(p, default_size=(1024, 768)):
@@ -66,12 +72,18 @@ def add_render_args(p, default_size=(1024, 768)):
     g.add_argument("--target", type=vec3, default=None, help="camera look-at point X,Y,Z")
     g.add_argument("--up", type=vec3, default=None, help="camera up vector X,Y,Z (default 0,1,0)")
     g.add_argument("--fov", type=float, default=45.0, help="vertical field of view in degrees")
+    g.add_argument("--follow-camera", action="store_true",
+                   help="look through the scene's own animated camera (BART, glTF) where it has one")
 
 
 def scene_from_args(a):
     from engine.scene import make_scene
 
-    return make_scene(a.scene, count=a.count, animate=a.animate, amplitude=a.amplitude, speed=a.speed, seed=a.seed)
+    clip = a.clip
+    if clip is not None and clip.isdigit():
+        clip = int(clip)
+    return make_scene(a.scene, count=a.count, animate=a.animate, amplitude=a.amplitude, speed=a.speed, seed=a.seed,
+                      clip=clip, subdivide=a.subdivide, fps=a.fps)
 
 
 def grid_params(a):
@@ -102,4 +114,5 @@ def pipeline_from_args(a, scene=None):
 
     scene = scene if scene is not None else scene_from_args(a)
     return FramePipeline(scene, grid_params(a), render_params(a), camera=camera_from_args(a),
-                         fov=a.fov, up=a.up or (0.0, 1.0, 0.0))
+                         fov=a.fov, up=a.up or (0.0, 1.0, 0.0), split_static=a.split_static,
+                         follow_camera=a.follow_camera)

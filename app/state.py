@@ -31,6 +31,9 @@ class SceneSpec:
     amplitude: float | None = None
     speed: float = 1.0
     seed: int = 0
+    clip: int | str | None = None
+    subdivide: int | None = None
+    fps: float | None = None
 
     def label(self):
         return self.source if self.count is None else f"{self.source} ({self.count} triangles)"
@@ -88,6 +91,7 @@ class ViewerState:
     watertight: bool = True
     shading: str = "lambert"
     shadows: bool = False
+    follow_camera: bool = False  # look through the scene's animated camera (BART, glTF)
     light: tuple | None = None
     scale: float = 1.0
     # camera
@@ -186,6 +190,7 @@ class ViewerState:
             "watertight": self.watertight,
             "shading": self.shading,
             "shadows": self.shadows,
+            "follow_camera": self.follow_camera,
             "scale": self.scale,
             "show_panel": self.show_panel,
             "busy": self.busy,

@@ -188,6 +188,11 @@ def draw_panel(state, strategy_names):
         _rect(state, "shadows")
         if changed:
             state.shadows = b
+        imgui.same_line()
+        changed, b = imgui.checkbox("scene camera", bool(state.follow_camera))
+        _rect(state, "scene camera")
+        if changed:
+            state.follow_camera = b
         w = imgui.calc_item_width()
         changed, sc = imgui.slider_float("resolution", float(state.scale), SCALE_MIN, SCALE_MAX, "%.2fx")
         _rect(state, "resolution", w)

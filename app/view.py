@@ -104,8 +104,10 @@ def initial_state(a):
         source = source.strip().lower()
     st = ViewerState(
         scene=SceneSpec(source=source, count=a.count, animate=a.animate, amplitude=a.amplitude,
-                        speed=a.speed, seed=a.seed),
+                        speed=a.speed, seed=a.seed, clip=(int(a.clip) if a.clip and a.clip.isdigit() else a.clip),
+                        subdivide=a.subdivide, fps=a.fps),
         playing=not a.paused,
+        follow_camera=a.follow_camera,
     )
     st.strategy = gp.strategy
     st.threads = check_threads(gp.threads)
@@ -391,11 +393,12 @@ class Viewer:
         except InputError as e:
             st.scene_error = str(e)
             return
-        key = (st.time, st.camera, gp, rp)
+        key = (st.time, st.camera, gp, rp, st.follow_camera)
         if key == self.last_key:
             return
         self.last_key = key
-        self.worker.submit(FrameJob(st.time, st.camera, gp, rp, generation=self.generation))
+        self.worker.submit(FrameJob(st.time, st.camera, gp, rp, generation=self.generation,
+                                    follow_camera=st.follow_camera))
 
     # ---- outputs --------------------------------------------------------------------------
     def _shot_folder(self):

@@ -40,6 +40,7 @@ class FrameJob:
     grid_params: object
     render_params: object
     generation: int = 0     # scene generation the frame belongs to (stale results are dropped)
+    follow_camera: bool = False  # the scene's own animated camera overrides ``camera``
     label: str = "rendering"
 
 
@@ -152,7 +153,7 @@ class RenderWorker:
         t0 = time.perf_counter()
         s = job.spec
         scene = make_scene(s.source, count=s.count, animate=s.animate, amplitude=s.amplitude,
-                           speed=s.speed, seed=s.seed)
+                           speed=s.speed, seed=s.seed, clip=s.clip, subdivide=s.subdivide, fps=s.fps)
         self.pipeline = self._factory(scene, job)
         return LoadResult(s, scene_name=scene.name, triangles=int(scene.n_triangles), duration=scene.duration,
                           static=bool(scene.static), keep_camera=job.keep_camera,
@@ -164,8 +165,9 @@ class RenderWorker:
             raise GridrtError("no scene loaded")
         pipe.grid_params = job.grid_params
         pipe.render_params = job.render_params
+        pipe.follow_camera = job.follow_camera
         fr = pipe.step(job.t, camera=job.camera)
-        cam = job.camera or pipe.camera
+        cam = pipe.last_camera
         spec = getattr(fr.grid if fr.grid is not None else pipe.grid, "spec", None)
         radius = 1.0 if spec is None else 0.5 * float(np.linalg.norm(np.asarray(spec.hi) - np.asarray(spec.lo)))
         return FrameResult(fr.image.copy(), dict(fr.stats), cam, radius, job)

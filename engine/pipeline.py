@@ -39,6 +39,7 @@ class FramePipeline:
     render_params  RenderParams (size, shading, shadows, intersection test, threads)
     camera         Camera, or None to frame the scene's bounds at the first frame
                    (with vertical field of view ``fov`` and up vector ``up``)
+    follow_camera  use the scene's animated camera (``scene.camera_at(t)``) where it has one
 
     A static scene is gridded once and not rebuilt until the grid parameters change.  A scene
     whose ``static_mask`` marks some triangles as never moving is split (``split_static``): the
@@ -47,7 +48,7 @@ class FramePipeline:
     """
 
     def __init__(self, scene, grid_params=None, render_params=None, camera=None, fov=45.0, up=(0.0, 1.0, 0.0),
-                 split_static=True):
+                 split_static=True, follow_camera=False):
         self.scene = scene
         self.fov = fov
         self.up = up
@@ -60,6 +61,8 @@ class FramePipeline:
         self._built_params = None
         self.frame_index = 0
         self.split_static = split_static
+        self.follow_camera = follow_camera  # use the scene's own animated camera (BART, glTF)
+        self.last_camera = None
         self._split = None  # (ids_static, ids_moving, static tris, moving tris buffer, static builder)
         self.static_grid = None
         self._static_params = None
@@ -109,7 +112,10 @@ class FramePipeline:
         anim_ms = (time.perf_counter() - t0) * 1e3
         gp = self.grid_params
         grid, second, rebuild, static_ms = self._build(tris, gp)
-        cam = camera or self.camera
+        cam = None
+        if self.follow_camera:
+            cam = self.scene.camera_at(float(t))
+        cam = cam or camera or self.camera
         if cam is None:
             lo, hi = grid.spec.scene_lo, grid.spec.scene_hi
             if second is not None:
@@ -121,6 +127,7 @@ class FramePipeline:
             grid = second[0]
         else:
             res = self.renderer.render(grid, tris, cam, self.render_params)
+        self.last_camera = cam
         gs = grid.stats
         rp = self.render_params
         stats = {

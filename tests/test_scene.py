@@ -19,6 +19,7 @@ import engine  # noqa: F401  (sets numba's thread count before numba loads)
 from engine.errors import InputError, SceneFileError
 from engine.scene import (
     BUILTIN_SCENES,
+    SCENE_EXTENSIONS,
     SUPPORTED_EXTENSIONS,
     Animation,
     Deform,
@@ -27,8 +28,10 @@ from engine.scene import (
     StaticMesh,
     load_mesh,
     make_scene,
+    subdivide_mesh,
 )
 from engine.scene import mesh as mesh_module
+from engine.scene.animation import as_static_mask
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
@@ -313,14 +316,22 @@ def test_real_closed_mesh_has_no_boundary_edges():
     assert (counts == 2).all()
 
 
-def test_draco_glb_without_dracopy_is_refused_quickly():
+def hide_dracopy(monkeypatch):
+    """Make the loaders believe DracoPy is not installed."""
     import importlib.util
 
-    if importlib.util.find_spec("DracoPy") is not None:
-        pytest.skip("DracoPy is installed, so Draco files are readable")
+    real = importlib.util.find_spec
+    monkeypatch.setattr(mesh_module.importlib.util, "find_spec",
+                        lambda name, *a: None if name == "DracoPy" else real(name, *a))
+
+
+def test_draco_glb_without_dracopy_is_refused_quickly(monkeypatch):
+    hide_dracopy(monkeypatch)
     p = need_data("animated/littlest_tokyo/LittlestTokyo.glb")
-    with pytest.raises(SceneFileError, match="Draco"):
+    with pytest.raises(SceneFileError, match="DracoPy"):
         load_mesh(p)
+    with pytest.raises(SceneFileError, match="DracoPy"):
+        make_scene(p)
 
 
 # ----------------------------------------------------------------------------- file errors
@@ -432,11 +443,8 @@ def test_gltf_with_missing_buffer_file(tmp_path):
     _raises_file_error(p, "missing")
 
 
-def test_glb_requiring_draco_is_refused(tmp_path):
-    import importlib.util
-
-    if importlib.util.find_spec("DracoPy") is not None:
-        pytest.skip("DracoPy is installed")
+def test_glb_requiring_draco_is_refused(tmp_path, monkeypatch):
+    hide_dracopy(monkeypatch)
     p = tmp_path / "draco.glb"
     ext = ["KHR_draco_mesh_compression"]
     extra = {"extensionsRequired": ext, "extensionsUsed": ext}
@@ -881,3 +889,119 @@ def test_make_scene_unknown_name_lists_choices():
 def test_make_scene_bad_options(args, kwargs, word):
     with pytest.raises(InputError, match=word):
         make_scene(*args, **kwargs)
+
+
+def test_make_scene_new_options_are_checked(tmp_path):
+    p = tmp_path / "octa.obj"
+    write_obj(p, OCTA_V, OCTA_F)
+    for args, kwargs, word in [
+        (("marbles",), {"subdivide": 10_000}, "count"),
+        (("marbles",), {"clip": 0}, "clip"),
+        (("icosphere",), {"fps": 10}, "fps"),
+        ((p,), {"clip": "walk"}, "clip"),
+        ((p,), {"fps": 10}, "fps"),
+        ((p,), {"subdivide": 0}, "subdivide"),
+        ((p,), {"subdivide": 2.5}, "subdivide"),
+    ]:
+        with pytest.raises(InputError, match=word):
+            make_scene(*args, **kwargs)
+    with pytest.raises(InputError) as info:
+        make_scene("no-such-scene")
+    for ext in SCENE_EXTENSIONS:
+        assert ext in str(info.value)
+    assert ".aff" in SCENE_EXTENSIONS and ".md2" in SCENE_EXTENSIONS
+
+
+def test_make_scene_static_gltf_is_static_mesh(tmp_path):
+    p = tmp_path / "scene.glb"
+    write_gltf(p, [(OCTA_V, OCTA_F), (QUAD_V, QUAD_F)], GLTF_NODES, roots=[0, 1, 2])
+    s = make_scene(p)
+    assert isinstance(s, StaticMesh) and s.n_triangles == 18
+    np.testing.assert_allclose(canonical(s.triangles_at(0.0)), canonical(gltf_expected()), atol=1e-5)
+    w = make_scene(p, animate="wave", subdivide=72)
+    assert isinstance(w, Deform) and w.n_triangles == 72  # 18 triangles split once
+
+
+# ----------------------------------------------------------------------------- protocol additions
+
+
+def test_static_mask_and_camera_protocol(scene):
+    mask = scene.static_mask
+    assert scene.camera_at(0.5) is None
+    with pytest.raises(InputError):
+        scene.camera_at(float("nan"))
+    if mask is None:
+        assert scene.n_static == 0
+        return
+    assert mask.shape == (scene.n_triangles,) and mask.dtype == np.bool_ and not mask.flags.writeable
+    a = scene.triangles_at(0.3).copy()
+    b = scene.triangles_at(2.1)
+    np.testing.assert_array_equal(a[mask], b[mask])
+    assert scene.n_static == (scene.n_triangles if scene.static else int(mask.sum()))
+
+
+def test_marbles_static_mask_is_the_floor():
+    m = Marbles(8800)
+    assert m.static_mask[: m.n_floor].all() and not m.static_mask[m.n_floor:].any()
+    assert m.n_static == 160
+    assert StaticMesh(Mesh(OCTA_V, OCTA_F)).static_mask.all()
+    assert Deform(Mesh(OCTA_V, OCTA_F), "wave").static_mask is None
+
+
+def test_as_static_mask_validation():
+    assert as_static_mask(None, 3) is None
+    m = as_static_mask(np.array([True, False, True]), 3)
+    assert not m.flags.writeable
+    for bad in (np.ones(4, dtype=bool), np.ones(3), [[True] * 3]):
+        with pytest.raises(InputError):
+            as_static_mask(bad, 3)
+
+
+# ----------------------------------------------------------------------------- subdivision
+
+
+def test_subdivide_keeps_the_surface():
+    base = Mesh(OCTA_V, OCTA_F, name="octa")
+    sub = subdivide_mesh(base, 500)
+    assert sub.n_triangles == 8 * 4**3 and sub.name == "octa (subdivided x64)"
+    parent = OCTA_T.astype(np.float64)
+    tris = sub.triangles().astype(np.float64)
+    assert areas(tris).sum() == pytest.approx(areas(parent).sum(), rel=1e-6)
+    # children 64 f .. 64 f + 63 of triangle f lie inside it (barycentric coordinates in [0, 1])
+    # and keep its orientation
+    for f in range(8):
+        a, b, c = parent[f]
+        kids = tris[64 * f: 64 * (f + 1)].reshape(-1, 3)
+        m = np.stack([b - a, c - a], axis=1)
+        uv, *_ = np.linalg.lstsq(m, (kids - a).T, rcond=None)
+        assert (uv > -1e-6).all() and (uv.sum(axis=0) < 1 + 1e-6).all()
+        np.testing.assert_allclose(m @ uv + a[:, None], (kids).T, atol=1e-6)
+        n0 = np.cross(b - a, c - a)
+        kt = tris[64 * f: 64 * (f + 1)]
+        nk = np.cross(kt[:, 1] - kt[:, 0], kt[:, 2] - kt[:, 0])
+        assert (nk @ n0 > 0).all()
+    # closed stays closed: every undirected edge is shared by exactly two triangles
+    e = np.sort(sub.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1).astype(np.int64)
+    _, counts = np.unique(e[:, 0] * sub.n_vertices + e[:, 1], return_counts=True)
+    assert (counts == 2).all()
+    assert sub.n_vertices == sub.n_triangles // 2 + 2  # Euler, closed genus-0 mesh: V = F/2 + 2
+    assert subdivide_mesh(base, 8) is base
+    for bad in (0, -3, 2.0, True, 10**9):
+        with pytest.raises(InputError):
+            subdivide_mesh(base, bad)
+
+
+def test_make_scene_subdivides_lucy_to_1_6m():
+    p = need_data("static/lucy/Lucy100k.ply")
+    s = make_scene(p, subdivide=1_600_000, animate="twist")
+    assert isinstance(s, Deform) and s.n_triangles == 1_600_000
+    base = load_mesh(p)
+    tris = s.triangles_at(0.0)  # the twist is at rest at t = 0
+    assert areas(tris[:64_000]).sum() == pytest.approx(areas(base.triangles()[:4000]).sum(), rel=1e-5)
+
+
+@pytest.mark.slow
+def test_make_scene_subdivides_lucy_to_6_4m():
+    p = need_data("static/lucy/Lucy100k.ply")
+    s = make_scene(p, subdivide=6_400_000)
+    assert s.n_triangles == 6_400_000 and s.static

@@ -1,13 +1,22 @@
 """Scenes: triangles as a pure function of time.
 
-:func:`make_scene` turns a built-in scene name or a mesh file path into an
+:func:`make_scene` turns a built-in scene name, a scene file or a folder of frames into an
 :class:`Animation`, whose ``triangles_at(t)`` returns (F, 3, 3) float32 triangles:
 
 * ``"marbles"``: rigid marbles bouncing in a box (:class:`Marbles`), ``count`` = exact triangles;
 * ``"icosphere"``: a unit icosphere with about ``count`` triangles (static, or deformed with
   ``animate``);
-* a path to an .obj/.ply/.stl/.off/.glb/.gltf file: the mesh (:class:`StaticMesh`), or the mesh
-  deformed by ``animate="twist"|"wave"`` (:class:`Deform`).
+* a .gltf/.glb file with animations: :class:`GltfAnimation` (node animation, skinning, morph
+  targets); without animations it is static;
+* a BART .aff file: :class:`BartAnimation` (spline-animated transform hierarchy, ``tpa``
+  triangles, animated camera);
+* a Quake II .md2 file: :class:`Md2Model` (interpolated keyframes);
+* a folder of OBJ/PLY/OFF/STL frames (``f000.obj, f001.obj, ...``): :class:`KeyframeMesh`;
+* any other mesh file (.obj/.ply/.stl/.off): the mesh (:class:`StaticMesh`), or the mesh deformed
+  by ``animate="twist"|"wave"`` (:class:`Deform`).
+
+Static meshes (and the icosphere) can be split 1 -> 4 to a target triangle count with
+``subdivide`` (see :mod:`engine.scene.subdivide`).
 """
 
 import math
@@ -17,26 +26,43 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, SceneFileError
 from .animation import Animation, StaticMesh, gather_triangles
+from .bart import BartAnimation
 from .deform import DEFORM_KINDS, Deform
+from .frames import FRAME_EXTENSIONS, KeyframeMesh, check_fps, is_frame_folder, load_frame_folder
+from .gltf import DRACO_HINT, GltfAnimation
 from .marbles import Marbles
+from .md2 import Md2Model
 from .mesh import SUPPORTED_EXTENSIONS, Mesh, load_mesh, quiet_trimesh
+from .subdivide import subdivide_mesh
 
 __all__ = [
     "Animation",
     "BUILTIN_SCENES",
+    "BartAnimation",
     "DEFORM_KINDS",
+    "DRACO_HINT",
     "Deform",
+    "FRAME_EXTENSIONS",
+    "GltfAnimation",
+    "KeyframeMesh",
     "Marbles",
+    "Md2Model",
     "Mesh",
+    "SCENE_EXTENSIONS",
     "StaticMesh",
     "SUPPORTED_EXTENSIONS",
     "gather_triangles",
     "icosphere_mesh",
+    "load_frame_folder",
     "load_mesh",
     "make_scene",
+    "subdivide_mesh",
 ]
+
+#: Every file extension :func:`make_scene` accepts (static meshes, glTF, BART, MD2).
+SCENE_EXTENSIONS = SUPPORTED_EXTENSIONS + (".aff", ".md2")
 
 #: Built-in scene names and what ``count`` means for each.
 BUILTIN_SCENES = {
@@ -71,59 +97,126 @@ def _check_count(count):
     return int(count)
 
 
-def make_scene(name_or_path, count=None, animate=None, amplitude=None, speed=1.0, seed=0):
-    """Build an :class:`Animation` from a built-in scene name or a mesh file path.
+def _no(option, value, default, what):
+    if value is not default and value != default:
+        raise InputError(f"{option} does not apply to {what}")
+
+
+def make_scene(name_or_path, count=None, animate=None, amplitude=None, speed=1.0, seed=0, *,
+               clip=None, subdivide=None, fps=None):
+    """Build an :class:`Animation` from a built-in scene name, a scene file or a folder of frames.
 
     Parameters
     ----------
     name_or_path : str or os.PathLike
-        One of :data:`BUILTIN_SCENES` or a path to a mesh file with one of
-        :data:`SUPPORTED_EXTENSIONS`.
+        One of :data:`BUILTIN_SCENES`, a file with one of :data:`SCENE_EXTENSIONS`, or a folder
+        of frame meshes (``f000.obj, f001.obj, ...``).
     count : int, optional
         Built-in scenes only: triangle count (exact for marbles, nearest ``20*4^k`` for icosphere).
     animate : {"twist", "wave"}, optional
-        Deform a mesh (file or icosphere) over time; see :class:`Deform`.  Not for marbles.
+        Deform a static mesh (mesh file, glTF without animation, or icosphere) over time; see
+        :class:`Deform`.  Not for scenes that are animated already.
     amplitude : float, optional
         Deformation amplitude in scene units (default 5% of the bounding-box diagonal).
     speed : float
         Deformation oscillations per second, or the marbles' playback rate.
     seed : int
         Random seed of the marbles scene (ignored by the others).
+    clip : int or str, optional
+        glTF: the animation to play (index or name; default all animations when they do not
+        overlap, else the first).  MD2: a frame-name clip such as ``"run"`` (default all frames).
+    subdivide : int, optional
+        Static meshes and the icosphere: split every triangle 1 -> 4 until at least this many
+        triangles (e.g. Lucy 100k -> 1.6M -> 6.4M); combine with ``animate`` to move it.
+    fps : float, optional
+        Keyframe rate of MD2 models (default 10) and frame folders (default 30).
 
     Raises
     ------
     InputError
         Unknown scene name that is not an existing file (the message lists the built-in names
-        and the supported extensions), unknown ``animate`` kind (lists the kinds), or an option
-        that does not apply to the chosen scene.
+        and the supported extensions), unknown ``animate`` kind (lists the kinds), unknown clip
+        (lists the clips), or an option that does not apply to the chosen scene.
     SceneFileError
-        The file cannot be loaded (see :func:`load_mesh`).
+        The file cannot be loaded; the message names the file and the problem.
     """
     if not isinstance(name_or_path, (str, os.PathLike)):
         raise InputError(f"scene must be a built-in name or a file path, got {type(name_or_path).__name__}")
     if animate is not None and animate not in DEFORM_KINDS:
         raise InputError(f"unknown animation {animate!r}; choose one of: {', '.join(DEFORM_KINDS)}")
+    if fps is not None:
+        fps = check_fps(fps)
 
     key = name_or_path.strip().lower() if isinstance(name_or_path, str) else None
     if key == "marbles":
         if animate is not None or amplitude is not None:
             raise InputError("the marbles scene is already animated; animate= and amplitude= apply to meshes")
+        _no("clip", clip, None, "the marbles scene")
+        _no("fps", fps, None, "the marbles scene")
+        if subdivide is not None:
+            raise InputError("subdivide does not apply to the marbles scene: choose its size with count=")
         return Marbles(8800 if count is None else count, seed=seed, speed=speed)
     if animate is None and (amplitude is not None or speed != 1.0):
-        raise InputError("amplitude and speed apply only to animated scenes: pass animate='twist' or 'wave'")
+        raise InputError("amplitude and speed apply only to the marbles and to deformed meshes: pass "
+                         "animate='twist' or 'wave' (clip-based scenes play at their own rate)")
     if key == "icosphere":
+        _no("clip", clip, None, "the icosphere")
+        _no("fps", fps, None, "the icosphere")
         mesh = icosphere_mesh(_ICOSPHERE_DEFAULT if count is None else count)
+        return _static_or_deformed(mesh, subdivide, animate, amplitude, speed)
+
+    path = Path(name_or_path)
+    ext = path.suffix.lower()
+    if not path.exists() and ext not in SCENE_EXTENSIONS:
+        raise InputError(
+            f"unknown scene {str(name_or_path)!r}: not a built-in scene "
+            f"({', '.join(BUILTIN_SCENES)}) and not an existing file or folder; "
+            f"scene files may be {', '.join(SCENE_EXTENSIONS)}, or a folder of frames "
+            f"({', '.join(FRAME_EXTENSIONS)})"
+        )
+    if count is not None:
+        raise InputError("count applies to built-in scenes only, not to scene files")
+    what = f"{path.name}"
+    if path.is_dir():
+        if not is_frame_folder(path):
+            raise SceneFileError(path, f"folder holds no frame files ({', '.join(FRAME_EXTENSIONS)})")
+        _no("clip", clip, None, "a folder of frames")
+        _animated_only(what, animate, subdivide)
+        return load_frame_folder(path, fps=30.0 if fps is None else fps)
+    if ext == ".aff":
+        _no("clip", clip, None, "BART scenes")
+        _no("fps", fps, None, "BART scenes (their keys are in seconds)")
+        _animated_only(what, animate, subdivide)
+        return BartAnimation(path)
+    if ext == ".md2":
+        _animated_only(what, animate, subdivide)
+        return Md2Model(path, clip=clip, fps=10.0 if fps is None else fps)
+    _no("fps", fps, None, f"{ext or 'mesh'} files")
+    if ext in (".gltf", ".glb"):
+        if not path.exists():
+            raise SceneFileError(path, "file not found")
+        scene = GltfAnimation(path, clip=clip)
+        if not scene.static or (scene.clip is not None and animate is None and subdivide is None):
+            # animated, or only its camera moves: keep the clip
+            _animated_only(what, animate, subdivide)
+            return scene
+        mesh = scene.to_mesh()
     else:
-        path = Path(name_or_path)
-        if not path.exists() and path.suffix.lower() not in SUPPORTED_EXTENSIONS:
-            raise InputError(
-                f"unknown scene {str(name_or_path)!r}: not a built-in scene "
-                f"({', '.join(BUILTIN_SCENES)}) and not an existing file; "
-                f"mesh files may be {', '.join(SUPPORTED_EXTENSIONS)}"
-            )
-        if count is not None:
-            raise InputError("count applies to built-in scenes only, not to mesh files")
+        _no("clip", clip, None, f"{ext or 'mesh'} files (only glTF and MD2 have clips)")
         mesh = load_mesh(path)
+    return _static_or_deformed(mesh, subdivide, animate, amplitude, speed)
+
+
+def _animated_only(what, animate, subdivide):
+    if animate is not None:
+        raise InputError(f"{what} is animated already; animate= applies to static meshes")
+    if subdivide is not None:
+        raise InputError(f"subdivide applies to static meshes, not to the animated scene {what}")
+
+
+def _static_or_deformed(mesh, subdivide, animate, amplitude, speed):
+    if subdivide is not None:
+        mesh = subdivide_mesh(mesh, subdivide)
     if animate is None:
         return StaticMesh(mesh)
     return Deform(mesh, kind=animate, amplitude=amplitude, speed=speed)

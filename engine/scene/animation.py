@@ -12,6 +12,14 @@ Two rules hold for every subclass:
   it allocates once, so consecutive calls return the *same* array object (the previous frame is
   overwritten).  Pass ``out`` to keep frames apart.
 
+Beyond the triangles, every animation describes itself with:
+
+* ``duration`` and ``time_range``: the loop length and the span of the source clip's own clock
+  (``clip time = time_range[0] + (t mod duration)`` for clip-based scenes);
+* ``static_mask``: which triangles never move, so a renderer may grid them once and rebuild only
+  the moving ones every frame;
+* ``camera_at(t)``: the scene's own (possibly animated) camera, or None.
+
 Instances are not safe to share between Python threads (the internal buffers are shared).
 """
 
@@ -26,7 +34,7 @@ from ..arrays import TRI_DTYPE
 from ..errors import InputError
 from .mesh import Mesh
 
-__all__ = ["Animation", "StaticMesh", "check_time", "gather_triangles"]
+__all__ = ["Animation", "StaticMesh", "as_static_mask", "check_time", "gather_triangles"]
 
 
 def check_time(t):
@@ -53,6 +61,37 @@ def _gather_kernel(vertices, faces, out):
             out[f, j, 2] = vertices[v, 2]
 
 
+@njit(cache=True)
+def _gather_serial(vertices, faces, out):
+    for f in range(faces.shape[0]):
+        for j in range(3):
+            v = faces[f, j]
+            out[f, j, 0] = vertices[v, 0]
+            out[f, j, 1] = vertices[v, 1]
+            out[f, j, 2] = vertices[v, 2]
+
+
+#: Meshes with fewer triangles are gathered on the calling thread (a parallel launch costs more).
+GATHER_SERIAL_BELOW = 16384
+
+
+def as_static_mask(mask, n_triangles, what="static_mask"):
+    """Validate a static mask; return it as a read-only (F,) bool array, or None for None.
+
+    Raises InputError when ``mask`` is not a 1-d boolean array of length ``n_triangles``.
+    """
+    if mask is None:
+        return None
+    m = np.asarray(mask)
+    if m.dtype != np.bool_:
+        raise InputError(f"{what} must be a boolean array, got dtype {m.dtype}")
+    if m.shape != (n_triangles,):
+        raise InputError(f"{what} must have shape ({n_triangles},), got {m.shape}")
+    m = m.copy()
+    m.setflags(write=False)
+    return m
+
+
 def gather_triangles(vertices, faces, out):
     """Fill ``out`` (F,3,3) float32 with ``vertices[faces]``; return ``out``.
 
@@ -66,7 +105,7 @@ def gather_triangles(vertices, faces, out):
         raise InputError(f"faces must be (F, 3) int32, got {faces.shape} {faces.dtype}")
     if out.shape != (len(faces), 3, 3) or out.dtype != TRI_DTYPE:
         raise InputError(f"out must be ({len(faces)}, 3, 3) float32, got {out.shape} {out.dtype}")
-    _gather_kernel(vertices, faces, out)
+    (_gather_serial if len(faces) < GATHER_SERIAL_BELOW else _gather_kernel)(vertices, faces, out)
     return out
 
 
@@ -84,14 +123,40 @@ class Animation(ABC):
     duration : float or None
         Length in seconds of one loop (``triangles_at(t + duration)`` equals ``triangles_at(t)``
         up to float rounding), or None when the animation does not loop.
+    time_range : tuple of float or None
+        ``(start, end)`` of the source clip on its own clock (glTF clip, BART ``a`` line, frame
+        sequence), or None.  Clip-based scenes map ``t`` to clip time
+        ``start + (t mod duration)``, so ``t = 0`` is the first frame of the clip.
+    static_mask : ndarray or None
+        None when any triangle may move; else a read-only (F,) bool array, True for triangles
+        whose vertices are the same at every t (in the order of ``triangles_at``).  A renderer may
+        grid the True triangles once and rebuild only the others every frame.
     """
 
     n_triangles: int
     name: str
     static: bool = False
     duration: float | None = None
+    time_range: tuple | None = None
+    static_mask: np.ndarray | None = None
 
     _buffer: np.ndarray | None = None
+
+    def camera_at(self, t):
+        """The scene's own camera at time ``t`` (an :class:`engine.camera.Camera`), or None.
+
+        The base class has no camera and returns None; BART scenes return their (animated)
+        view and glTF scenes their first perspective camera, if any.
+        """
+        check_time(t)
+        return None
+
+    @property
+    def n_static(self):
+        """Number of triangles that never move (``static_mask.sum()``; F when ``static``, 0 when no mask)."""
+        if self.static:
+            return self.n_triangles
+        return 0 if self.static_mask is None else int(self.static_mask.sum())
 
     def triangles_at(self, t, out=None):
         """Return the triangles at time ``t`` seconds, shape (F, 3, 3) float32, C-contiguous.
@@ -158,6 +223,7 @@ class StaticMesh(Animation):
         self.n_triangles = int(len(mesh.faces))
         self._tris = mesh.triangles()
         self._tris.setflags(write=False)
+        self.static_mask = as_static_mask(np.ones(self.n_triangles, dtype=bool), self.n_triangles)
 
     def _fill(self, t, out):
         # Copied on every call: a caller may have scribbled on the previously returned buffer.

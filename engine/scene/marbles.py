@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import InputError
-from .animation import Animation, check_time
+from .animation import Animation, as_static_mask, check_time
 from .mesh import quiet_trimesh
 
 __all__ = ["Marbles"]
@@ -166,6 +166,8 @@ class Marbles(Animation):
         Downward acceleration of the marbles (scene units / s^2), including the ``speed^2`` factor.
     duration : float
         Loop length in seconds (``8 / |speed|``).
+    static_mask : ndarray
+        (F,) bool, True for the floor triangles ``[0, n_floor)``.
     """
 
     static = False
@@ -220,6 +222,9 @@ class Marbles(Animation):
 
         self._base = _icosphere_triangles(r)
         self._floor = floor_triangles(self.n_floor, half)
+        mask = np.zeros(n, dtype=bool)
+        mask[: self.n_floor] = True
+        self.static_mask = as_static_mask(mask, n)
 
     def _phase(self, t):
         return ((self.speed * t) % _LOOP_SECONDS) / _LOOP_SECONDS

@@ -1,0 +1,893 @@
+"""BART animated scenes: the AFF format of Lext, Assarsson and Moller (2000).
+
+"BART: A Benchmark for Animated Ray Tracing", IEEE Computer Graphics and Applications 21(2),
+2001 (Chalmers technical report 00-14, 2000).  AFF extends Eric Haines' NFF with:
+
+* ``m`` indexed triangle meshes (``vertices``, optional ``normals`` and ``texturecoords``,
+  ``triangles``), ``p``/``pp`` polygons (fan-triangulated), ``tt``/``ttp`` textured triangles;
+* ``i detail file.aff`` includes (skipped when ``detail`` exceeds the ``d`` detail level, 0);
+* ``xs sx sy sz  rx ry rz degrees  tx ty tz { ... }`` static transforms ``T * R * S`` and
+  ``x name { ... }`` transforms animated by the ``k name { ... }`` block of the same name;
+* ``k`` blocks of ``transl``, ``rot`` (axis + degrees) and ``scale`` keys interpolated by
+  Kochanek-Bartels splines (Kochanek and Bartels, SIGGRAPH 1984), positions by cubic Hermite
+  segments and rotations by squad of quaternions (after D. Eberly's magic-software code that BART
+  ships); the first and last keys only shape the end tangents, so the motion is clamped to the
+  keys in between; ``visibility`` keys switch an object on and off;
+* ``tpa`` animated triangles (vertex keyframes, interpolated linearly and clamped at the ends);
+* ``a start end frames`` (the animation's time span) and ``k camera`` (the animated viewpoint:
+  eye = translation, view direction = -z and up = +y of the rotation).
+
+Spheres (``s``) and cones (``c``) are not triangles; they are counted in
+:attr:`BartAnimation.skipped` and not rendered.  Lights, materials and textures do not affect
+geometry and are read over.
+"""
+
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+
+from ..arrays import TRI_DTYPE
+from ..errors import InputError, SceneFileError
+from . import kernels as K
+from .animation import Animation, as_static_mask, check_time, gather_triangles
+
+__all__ = ["BartAnimation", "kb_position_coefficients", "kb_rotation_segments"]
+
+_MAX_INCLUDE_DEPTH = 32
+
+
+# ------------------------------------------------------------------------------ splines
+
+
+def kb_position_coefficients(times, points, tcb):
+    """Kochanek-Bartels cubic segments through keys 1 .. n-2 of ``n >= 4`` keys.
+
+    times (n,) f64 non-decreasing, points (n,3) f64, tcb (n,3) f64 tension/continuity/bias.
+    Returns ``(tmin (n-3,), tmax (n-3,), coef (n-3, 4, 3))``: segment i runs from key i+1 to key
+    i+2 as ``P(u) = c0 + u (c1 + u (c2 + u c3))`` with ``u = (t - tmin) / (tmax - tmin)``.
+    """
+    t = np.asarray(times, np.float64)
+    P = np.asarray(points, np.float64)
+    T, C, B = (np.asarray(tcb, np.float64)[:, k] for k in range(3))
+    i0 = np.arange(len(t) - 3)
+    i1, i2, i3 = i0 + 1, i0 + 2, i0 + 3
+    dp = P[i2] - P[i1]
+    adj0 = (2.0 * (t[i2] - t[i1]) / (t[i2] - t[i0]))[:, None]
+    out0 = 0.5 * adj0 * ((1 - T[i1]) * (1 + C[i1]) * (1 + B[i1]))[:, None]
+    out1 = 0.5 * adj0 * ((1 - T[i1]) * (1 - C[i1]) * (1 - B[i1]))[:, None]
+    t_out = out1 * dp + out0 * (P[i1] - P[i0])
+    adj1 = (2.0 * (t[i2] - t[i1]) / (t[i3] - t[i1]))[:, None]
+    in0 = 0.5 * adj1 * ((1 - T[i2]) * (1 - C[i2]) * (1 + B[i2]))[:, None]
+    in1 = 0.5 * adj1 * ((1 - T[i2]) * (1 + C[i2]) * (1 - B[i2]))[:, None]
+    t_in = in1 * (P[i3] - P[i2]) + in0 * dp
+    coef = np.stack([P[i1], t_out, 3 * dp - 2 * t_out - t_in, -2 * dp + t_out + t_in], axis=1)
+    return t[i1].copy(), t[i2].copy(), coef
+
+
+def _qmul(a, b):
+    """Hamilton product of (..., 4) xyzw quaternions."""
+    ax, ay, az, aw = np.moveaxis(a, -1, 0)
+    bx, by, bz, bw = np.moveaxis(b, -1, 0)
+    return np.stack([
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+        aw * bw - ax * bx - ay * by - az * bz,
+    ], axis=-1)
+
+
+def _qconj(q):
+    return q * np.array([-1.0, -1.0, -1.0, 1.0])
+
+
+def _qlog(q):
+    """log of unit quaternions: (0, angle * axis) as (..., 4), angle = acos(w)."""
+    w = np.clip(q[..., 3], -1.0, 1.0)
+    ang = np.arccos(w)
+    sn = np.sin(ang)
+    coeff = np.where(np.abs(sn) > 1e-12, ang / np.where(sn == 0, 1.0, sn), 1.0)
+    out = np.zeros_like(q)
+    out[..., :3] = q[..., :3] * coeff[..., None]
+    return out
+
+
+def _qexp(q):
+    v = q[..., :3]
+    ang = np.linalg.norm(v, axis=-1)
+    sn = np.sin(ang)
+    coeff = np.where(ang > 1e-12, sn / np.where(ang == 0, 1.0, ang), 1.0)
+    out = np.empty_like(q)
+    out[..., :3] = v * coeff[..., None]
+    out[..., 3] = np.cos(ang)
+    return out
+
+
+def axis_angle_quaternions(axes, radians):
+    """(n,4) xyzw unit quaternions from (n,3) axes (normalized here; zero axes give identity)."""
+    axes = np.asarray(axes, np.float64)
+    n = np.linalg.norm(axes, axis=1, keepdims=True)
+    unit = np.divide(axes, n, out=np.zeros_like(axes), where=n > 0)
+    half = 0.5 * np.asarray(radians, np.float64)
+    half = np.where(n[:, 0] > 0, half, 0.0)
+    return np.concatenate([unit * np.sin(half)[:, None], np.cos(half)[:, None]], axis=1)
+
+
+def kb_rotation_segments(times, quats, tcb):
+    """Kochanek-Bartels squad segments through keys 1 .. n-2 of ``n >= 4`` rotation keys.
+
+    quats (n,4) xyzw unit quaternions; consecutive keys are first flipped into the same
+    hemisphere.  Returns ``(tmin, tmax, pabq (n-3, 4, 4))``: segment i evaluates
+    ``squad(u; p, a, b, q) = slerp(2u(1-u), slerp(u, p, q), slerp(u, a, b))`` with p = key i+1,
+    q = key i+2 and the inner control quaternions a, b built from the KB tangents in log space.
+    """
+    t = np.asarray(times, np.float64)
+    q = np.array(quats, np.float64)
+    for i in range(1, len(q)):
+        if np.dot(q[i - 1], q[i]) < 0:
+            q[i] = -q[i]
+    T, C, B = (np.asarray(tcb, np.float64)[:, k] for k in range(3))
+    i0 = np.arange(len(t) - 3)
+    i1, i2, i3 = i0 + 1, i0 + 2, i0 + 3
+    logdq = _qlog(_qmul(_qconj(q[i1]), q[i2]))
+    adj0 = (2.0 * (t[i2] - t[i1]) / (t[i2] - t[i0]))[:, None]
+    out0 = 0.5 * adj0 * ((1 - T[i1]) * (1 + C[i1]) * (1 + B[i1]))[:, None]
+    out1 = 0.5 * adj0 * ((1 - T[i1]) * (1 - C[i1]) * (1 - B[i1]))[:, None]
+    t_out = out1 * logdq + out0 * _qlog(_qmul(_qconj(q[i0]), q[i1]))
+    adj1 = (2.0 * (t[i2] - t[i1]) / (t[i3] - t[i1]))[:, None]
+    in0 = 0.5 * adj1 * ((1 - T[i2]) * (1 - C[i2]) * (1 + B[i2]))[:, None]
+    in1 = 0.5 * adj1 * ((1 - T[i2]) * (1 + C[i2]) * (1 - B[i2]))[:, None]
+    t_in = in1 * _qlog(_qmul(_qconj(q[i2]), q[i3])) + in0 * logdq
+    a = _qmul(q[i1], _qexp(0.5 * (t_out - logdq)))
+    b = _qmul(q[i2], _qexp(0.5 * (logdq - t_in)))
+    return t[i1].copy(), t[i2].copy(), np.stack([q[i1], a, b, q[i2]], axis=1)
+
+
+@njit(cache=True)
+def _segment(tmin, tmax, start, count, t):
+    """(segment index, u in [0,1]) of time t in segments [start, start+count), clamped at the ends.
+
+    As in BART's code the segment is the first one with ``t < tmax`` (a linear search, which also
+    gives the original's behaviour for the robots' non-monotonic keys); u is clamped to [0, 1].
+    """
+    if t <= tmin[start]:
+        return start, 0.0
+    last = start + count - 1
+    if t >= tmax[last]:
+        return last, 1.0
+    i = start
+    while i < last and not t < tmax[i]:
+        i += 1
+    span = tmax[i] - tmin[i]
+    u = (t - tmin[i]) / span if span != 0.0 else 0.0
+    return i, min(max(u, 0.0), 1.0)
+
+
+@njit(cache=True)
+def kb_position(tmin, tmax, coef, start, count, t, out):
+    """Evaluate position spline [start, start+count) at t into out (3,) f64."""
+    i, u = _segment(tmin, tmax, start, count, t)
+    for c in range(3):
+        out[c] = coef[i, 0, c] + u * (coef[i, 1, c] + u * (coef[i, 2, c] + u * coef[i, 3, c]))
+
+
+@njit(cache=True)
+def _slerp(u, p, q, out):
+    """Eberly's slerp (no shortest-path flip, as squad requires); p, q, out (4,) f64."""
+    cs = p[0] * q[0] + p[1] * q[1] + p[2] * q[2] + p[3] * q[3]
+    cs = min(max(cs, -1.0), 1.0)
+    ang = math.acos(cs)
+    if abs(ang) < 1e-6:
+        for c in range(4):
+            out[c] = p[c]
+        return
+    sn = math.sin(ang)
+    c0 = math.sin((1.0 - u) * ang) / sn
+    c1 = math.sin(u * ang) / sn
+    for c in range(4):
+        out[c] = c0 * p[c] + c1 * q[c]
+
+
+@njit(cache=True)
+def kb_rotation(tmin, tmax, pabq, start, count, t, out):
+    """Evaluate rotation spline [start, start+count) at t into out (4,) f64 xyzw unit quaternion."""
+    i, u = _segment(tmin, tmax, start, count, t)
+    s1 = np.empty(4)
+    s2 = np.empty(4)
+    _slerp(u, pabq[i, 0], pabq[i, 3], s1)
+    _slerp(u, pabq[i, 1], pabq[i, 2], s2)
+    _slerp(2.0 * u * (1.0 - u), s1, s2, out)
+    n = math.sqrt(out[0] * out[0] + out[1] * out[1] + out[2] * out[2] + out[3] * out[3])
+    for c in range(4):
+        out[c] /= n
+
+
+@njit(cache=True)
+def _animate_nodes(t, p_tmin, p_tmax, p_coef, p_start, p_count, r_tmin, r_tmax, r_pabq, r_start, r_count,
+                   anim_node, anim_t, anim_r, anim_s, node_matrix):
+    """node_matrix[anim_node[a]] = T * R * S of animated transform a at time t.
+
+    anim_t / anim_s index position splines (translation / scale), anim_r rotation splines; -1 means
+    identity for that part.
+    """
+    tr = np.zeros(3)
+    sc = np.ones(3)
+    q = np.zeros(4)
+    m = np.empty((4, 4))
+    for a in range(anim_node.shape[0]):
+        if anim_t[a] >= 0:
+            kb_position(p_tmin, p_tmax, p_coef, p_start[anim_t[a]], p_count[anim_t[a]], t, tr)
+        else:
+            tr[:] = 0.0
+        if anim_s[a] >= 0:
+            kb_position(p_tmin, p_tmax, p_coef, p_start[anim_s[a]], p_count[anim_s[a]], t, sc)
+        else:
+            sc[:] = 1.0
+        if anim_r[a] >= 0:
+            kb_rotation(r_tmin, r_tmax, r_pabq, r_start[anim_r[a]], r_count[anim_r[a]], t, q)
+        else:
+            q[0] = 0.0
+            q[1] = 0.0
+            q[2] = 0.0
+            q[3] = 1.0
+        K.trs_matrix(tr, q, sc, m)
+        n = anim_node[a]
+        for i in range(4):
+            for j in range(4):
+                node_matrix[n, i, j] = m[i, j]
+
+
+# ------------------------------------------------------------------------------ parser
+
+
+class _Tokens:
+    """Whitespace tokens of one AFF file with their line numbers; comments (# or %) removed."""
+
+    def __init__(self, path):
+        self.path = path
+        try:
+            raw = path.read_bytes()
+        except PermissionError as e:
+            raise SceneFileError(path, "permission denied: the file is not readable") from e
+        except OSError as e:
+            raise SceneFileError(path, f"cannot read the file ({e.strerror or e})") from e
+        if not raw.strip():
+            raise SceneFileError(path, "file is empty")
+        text = raw.decode("latin-1")
+        toks, lines = [], []
+        for ln, line in enumerate(text.splitlines(), 1):
+            for c in "#%":
+                k = line.find(c)
+                if k >= 0:
+                    line = line[:k]
+            parts = line.replace("{", " { ").replace("}", " } ").split()
+            if parts:
+                toks.extend(parts)
+                lines.extend([ln] * len(parts))
+        self.toks = toks
+        self.lines = lines
+        self.i = 0
+
+    def fail(self, problem, at=None):
+        k = self.i if at is None else at
+        where = f"line {self.lines[min(k, len(self.lines) - 1)]}" if self.lines else "line 1"
+        if k >= len(self.toks):
+            where = "end of file"
+        raise SceneFileError(self.path, f"{where}: {problem}")
+
+    def more(self):
+        return self.i < len(self.toks)
+
+    def next(self, what):
+        if self.i >= len(self.toks):
+            self.fail(f"unexpected end of file while reading {what}")
+        tok = self.toks[self.i]
+        self.i += 1
+        return tok
+
+    def peek(self):
+        return self.toks[self.i] if self.i < len(self.toks) else None
+
+    def peek_is_number(self):
+        tok = self.peek()
+        if tok is None:
+            return False
+        try:
+            float(tok)
+            return True
+        except ValueError:
+            return False
+
+    def numbers(self, n, what):
+        """The next n tokens as a float64 array (finite)."""
+        if n < 0:
+            self.fail(f"negative count while reading {what}")
+        if self.i + n > len(self.toks):
+            self.fail(f"unexpected end of file: {what} needs {n} numbers, only {len(self.toks) - self.i} tokens left")
+        chunk = self.toks[self.i:self.i + n]
+        try:
+            a = np.array(chunk, dtype=np.float64)
+        except ValueError:
+            for k, tok in enumerate(chunk):
+                try:
+                    float(tok)
+                except ValueError:
+                    self.fail(f"expected a number in {what}, got {tok!r}", at=self.i + k)
+            raise
+        if not np.isfinite(a).all():
+            k = int(np.argmin(np.isfinite(a)))
+            self.fail(f"{what} contains a non-finite number {chunk[k]!r}", at=self.i + k)
+        self.i += n
+        return a
+
+    def count(self, what, limit=50_000_000):
+        tok = self.next(what)
+        try:
+            n = int(tok)
+        except ValueError:
+            self.fail(f"expected a count for {what}, got {tok!r}", at=self.i - 1)
+        if not 0 <= n <= limit:
+            self.fail(f"{what} count {n} is out of range", at=self.i - 1)
+        return n
+
+    def expect(self, word, what):
+        tok = self.next(what)
+        if tok != word:
+            self.fail(f"expected '{word}' in {what}, got {tok!r}", at=self.i - 1)
+
+
+def _static_matrix(values):
+    """T * R * S from the 10 numbers of an ``xs`` transform (R: axis + degrees)."""
+    s, axis, deg, t = values[0:3], values[3:6], values[6], values[7:10]
+    q = axis_angle_quaternions(axis[None], [math.radians(deg)])[0]
+    m = np.empty((4, 4))
+    K.trs_matrix(t, q, s, m)
+    return m
+
+
+class _Parser:
+    def __init__(self, root):
+        self.root = root
+        self.node_parent = [-1]
+        self.node_matrix = [np.eye(4)]
+        self.node_name = [None]
+        self.stack = [0]
+        self.blocks = []  # (node, vertices (n,3), faces (m,3))
+        self.tpa = []  # (node, times (K,), vertices (K, 3, 3))
+        self.anims = {}
+        self.view = None
+        self.anim_params = None
+        self.detail = 0
+        self.skipped = {"spheres": 0, "cones": 0, "includes skipped by detail level": 0}
+        self.files = []
+
+    def parse_file(self, path, chain=()):
+        path = Path(path)
+        if len(chain) > _MAX_INCLUDE_DEPTH:
+            raise SceneFileError(path, f"includes nested deeper than {_MAX_INCLUDE_DEPTH} levels")
+        if path.resolve() in chain:
+            raise SceneFileError(path, "include cycle: the file includes itself")
+        self.files.append(path)
+        tk = _Tokens(path)
+        while tk.more():
+            at = tk.i
+            cmd = tk.next("a command")
+            handler = getattr(self, "_cmd_" + cmd, None) if cmd.isidentifier() else None
+            if cmd == "}":
+                if len(self.stack) <= 1:
+                    tk.fail("'}' without a matching transform '{'", at=at)
+                self.stack.pop()
+            elif handler is None:
+                tk.fail(f"unknown AFF command {cmd!r}", at=at)
+            else:
+                handler(tk, chain + (path.resolve(),))
+        if path == self.root and len(self.stack) != 1:
+            tk.fail(f"{len(self.stack) - 1} transform block(s) not closed with '}}'")
+
+    # --- scene description commands that do not produce geometry
+    def _cmd_v(self, tk, chain):
+        view = {}
+        for word, n in (("from", 3), ("at", 3), ("up", 3), ("angle", 1), ("hither", 1), ("resolution", 2)):
+            tk.expect(word, "the viewpoint (v)")
+            view[word] = tk.numbers(n, f"viewpoint '{word}'")
+        self.view = view
+
+    def _cmd_l(self, tk, chain):
+        tk.numbers(3, "light position")
+        if tk.peek_is_number():
+            tk.numbers(3, "light colour")
+
+    def _cmd_la(self, tk, chain):
+        tk.next("animated light name")
+        self._cmd_l(tk, chain)
+
+    def _cmd_b(self, tk, chain):
+        tk.numbers(3, "background colour")
+
+    def _cmd_f(self, tk, chain):
+        tk.numbers(8, "fill material (f)")
+
+    def _cmd_fm(self, tk, chain):
+        tk.numbers(12, "fill material (fm)")
+
+    def _cmd_am(self, tk, chain):
+        tk.numbers(3, "ambient light (am)")
+
+    def _cmd_a(self, tk, chain):
+        v = tk.numbers(3, "animation parameters (a start end frames)")
+        if not v[1] > v[0] or v[2] < 1 or v[2] != int(v[2]):
+            tk.fail(f"animation parameters need end > start and a positive frame count, got {v.tolist()}")
+        self.anim_params = (float(v[0]), float(v[1]), int(v[2]))
+
+    def _cmd_d(self, tk, chain):
+        self.detail = tk.count("detail level (d)")
+
+    def _cmd_s(self, tk, chain):
+        tk.numbers(4, "sphere")
+        self.skipped["spheres"] += 1
+
+    def _cmd_c(self, tk, chain):
+        tk.numbers(8, "cone")
+        self.skipped["cones"] += 1
+
+    def _cmd_i(self, tk, chain):
+        level = tk.count("include detail level")
+        at = tk.i
+        name = tk.next("include file name")
+        if level > self.detail:
+            self.skipped["includes skipped by detail level"] += 1
+            return
+        here = tk.path.parent
+        candidates = [here / name, self.root.parent / name]
+        for c in candidates:
+            if c.is_file():
+                self.parse_file(c, chain)
+                return
+        tk.fail(f"included file {name!r} not found (looked in {here})", at=at)
+
+    # --- transforms
+    def _open(self, tk, matrix, name):
+        tk.expect("{", "a transform")
+        self.node_parent.append(self.stack[-1])
+        self.node_matrix.append(matrix)
+        self.node_name.append(name)
+        self.stack.append(len(self.node_parent) - 1)
+
+    def _cmd_xs(self, tk, chain):
+        v = tk.numbers(10, "static transform (xs)")
+        if not np.any(v[3:6]) and v[6] != 0:
+            tk.fail("static transform (xs) rotates about a zero axis")
+        self._open(tk, _static_matrix(v), None)
+
+    def _cmd_x(self, tk, chain):
+        name = tk.next("transform name")
+        if name in ("{", "}"):
+            tk.fail("animated transform (x) needs a name")
+        self._open(tk, np.eye(4), name)
+
+    def _cmd_k(self, tk, chain):
+        name = tk.next("keyframe block name")
+        tk.expect("{", f"keyframes of {name!r}")
+        anim = {}
+        while True:
+            at = tk.i
+            motion = tk.next(f"keyframes of {name!r}")
+            if motion == "}":
+                break
+            n = tk.count(f"{motion} keys of {name!r}", limit=10_000_000)
+            what = f"{motion} keys of {name!r}"
+            if motion in ("transl", "scale", "rot"):
+                if n < 4:
+                    tk.fail(f"{what}: Kochanek-Bartels splines need at least 4 keys, got {n}", at=at)
+                width = 8 if motion == "rot" else 7
+                keys = tk.numbers(n * width, what).reshape(n, width)
+                t = keys[:, 0]
+                if not ((t[2:] != t[:-2]).all()):
+                    k = int(np.argmin(t[2:] != t[:-2]))
+                    tk.fail(f"{what}: keys {k} and {k + 2} have the same time {t[k]}, which leaves the "
+                            "spline tangent undefined", at=at)
+                if motion == "rot":
+                    axis = keys[:, 1:4]
+                    zero = ~axis.any(axis=1)
+                    if (zero & (keys[:, 4] != 0)).any():
+                        tk.fail(f"{what}: rotation about a zero axis", at=at)
+                anim[motion] = keys
+            elif motion == "visibility":
+                keys = tk.numbers(n * 2, what).reshape(n, 2)
+                if (np.diff(keys[:, 0]) < 0).any():
+                    tk.fail(f"{what}: key times decrease", at=at)
+                anim[motion] = keys
+            else:
+                tk.fail(f"unknown keyframe type {motion!r} in {name!r} (transl, rot, scale or visibility)", at=at)
+        self.anims[name] = anim
+
+    # --- geometry
+    def _add(self, vertices, faces):
+        self.blocks.append((self.stack[-1], vertices, faces))
+
+    def _polygon(self, tk, patch):
+        n = tk.count("polygon vertex count")
+        if n < 3:
+            tk.fail(f"a polygon needs at least 3 vertices, got {n}")
+        w = 6 if patch else 3
+        v = tk.numbers(n * w, "polygon vertices").reshape(n, w)[:, :3]
+        i = np.arange(1, n - 1)
+        self._add(v, np.stack([np.zeros(n - 2, dtype=np.int64), i, i + 1], axis=1))
+
+    def _cmd_p(self, tk, chain):
+        self._polygon(tk, False)
+
+    def _cmd_pp(self, tk, chain):
+        self._polygon(tk, True)
+
+    def _textured(self, tk, patch):
+        tk.next("texture name")
+        w = 8 if patch else 5
+        v = tk.numbers(3 * w, "textured triangle").reshape(3, w)[:, :3]
+        self._add(v, np.array([[0, 1, 2]]))
+
+    def _cmd_tt(self, tk, chain):
+        self._textured(tk, False)
+
+    def _cmd_ttp(self, tk, chain):
+        self._textured(tk, True)
+
+    def _cmd_tpa(self, tk, chain):
+        n = tk.count("tpa key count", limit=1_000_000)
+        if n < 1:
+            tk.fail("an animated triangle (tpa) needs at least one key")
+        rec = tk.numbers(n * 19, "animated triangle (tpa)").reshape(n, 19)
+        times = rec[:, 0]
+        if (np.diff(times) < 0).any():
+            tk.fail("animated triangle (tpa): key times decrease")
+        verts = rec[:, 1:].reshape(n, 3, 6)[:, :, :3]
+        self.tpa.append((self.stack[-1], times, verts))
+
+    def _cmd_m(self, tk, chain):
+        tk.expect("vertices", "mesh (m)")
+        nv = tk.count("mesh vertices")
+        v = tk.numbers(3 * nv, "mesh vertices").reshape(nv, 3)
+        word = tk.next("mesh")
+        has_n = has_t = False
+        if word == "normals":
+            nn = tk.count("mesh normals")
+            tk.numbers(3 * nn, "mesh normals")
+            has_n = True
+            word = tk.next("mesh")
+        if word == "texturecoords":
+            nt = tk.count("mesh texture coordinates")
+            tk.next("texture name")
+            tk.numbers(2 * nt, "mesh texture coordinates")
+            has_t = True
+            word = tk.next("mesh")
+        if word != "triangles":
+            tk.fail(f"expected 'triangles' in mesh, got {word!r}", at=tk.i - 1)
+        nf = tk.count("mesh triangles")
+        w = 3 * (1 + has_n + has_t)
+        at = tk.i
+        idx = tk.numbers(w * nf, "mesh triangle indices").reshape(nf, w)[:, :3]
+        if nf and ((idx != np.round(idx)).any() or idx.min() < 0 or idx.max() >= nv):
+            bad = int(np.argmax((idx < 0).any(1) | (idx >= nv).any(1) | (idx != np.round(idx)).any(1)))
+            tk.fail(f"mesh triangle {bad} has a vertex index out of range for {nv} vertices "
+                    f"({idx[bad].tolist()})", at=at + bad * w)
+        if nf:
+            self._add(v, idx.astype(np.int64))
+
+
+# ------------------------------------------------------------------------------ the scene
+
+
+class BartAnimation(Animation):
+    """A BART scene (.aff) posed at time t.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The root .aff file; includes are resolved relative to the including file's folder (then the
+        root's).
+
+    Attributes
+    ----------
+    time_range : tuple of float or None
+        ``(start, end)`` from the ``a`` line (else the span of the spline keys); ``t`` maps to BART
+        time ``start + (t mod (end - start))``.
+    n_frames : int or None
+        The ``a`` line's frame count; frame k is at ``t = k * duration / (n_frames - 1)``.
+    static_mask : ndarray
+        (F,) bool, True for triangles under no animated transform that are not ``tpa`` triangles
+        (a transform whose keys are all equal counts as not animated).
+    view : dict or None
+        The ``v`` block: from, at, up (3,) f64, angle (degrees), hither, resolution.
+    skipped : dict
+        Counts of primitives that are not triangles (spheres, cones) and of includes skipped by the
+        detail level.
+    files : list of Path
+        Every file read, root first.
+
+    Raises SceneFileError (naming the file and line) for missing, unreadable or malformed files.
+    """
+
+    def __init__(self, path):
+        if not isinstance(path, (str, os.PathLike)):
+            raise InputError(f"AFF path must be a str or path-like object, got {type(path).__name__}")
+        p = Path(path)
+        if not p.exists():
+            raise SceneFileError(p, "file not found")
+        if p.is_dir():
+            raise SceneFileError(p, "is a directory, not an .aff file")
+        ps = _Parser(p)
+        ps.parse_file(p)
+        if not ps.blocks and not ps.tpa:
+            raise SceneFileError(p, "the scene holds no triangles")
+        self.path = p
+        self.name = p.stem
+        self.view = ps.view
+        self.skipped = ps.skipped
+        self.files = ps.files
+        self._build(ps)
+
+    def _build(self, ps):
+        n_nodes = len(ps.node_parent)
+        parent = np.array(ps.node_parent, dtype=np.int32)
+        node_matrix = np.ascontiguousarray(np.stack(ps.node_matrix), dtype=np.float64)
+
+        # splines
+        p_tmin, p_tmax, p_coef, p_start, p_count = [], [], [], [], []
+        r_tmin, r_tmax, r_pabq, r_start, r_count = [], [], [], [], []
+        n_p = n_r = 0
+
+        def add_pos(keys):
+            nonlocal n_p
+            tmin, tmax, coef = kb_position_coefficients(keys[:, 0], keys[:, 1:4], keys[:, 4:7])
+            p_tmin.append(tmin), p_tmax.append(tmax), p_coef.append(coef)
+            p_start.append(n_p), p_count.append(len(tmin))
+            n_p += len(tmin)
+            return len(p_start) - 1
+
+        def add_rot(keys):
+            nonlocal n_r
+            q = axis_angle_quaternions(keys[:, 1:4], np.radians(keys[:, 4]))
+            tmin, tmax, pabq = kb_rotation_segments(keys[:, 0], q, keys[:, 5:8])
+            r_tmin.append(tmin), r_tmax.append(tmax), r_pabq.append(pabq)
+            r_start.append(n_r), r_count.append(len(tmin))
+            n_r += len(tmin)
+            return len(r_start) - 1
+
+        def constant(keys, cols):
+            return bool((np.ptp(keys[:, cols], axis=0) == 0).all())
+
+        anim_node, anim_t, anim_r, anim_s = [], [], [], []
+        self._transform_splines = {}
+        moved = set()
+        key_lo, key_hi = math.inf, -math.inf
+        self._visibility = []
+        for node, name in enumerate(ps.node_name):
+            if name is None or name not in ps.anims:
+                continue
+            an = ps.anims[name]
+            ids = [-1, -1, -1]
+            for k, motion in enumerate(("transl", "rot", "scale")):
+                if motion in an:
+                    keys = an[motion]
+                    ids[k] = add_rot(keys) if motion == "rot" else add_pos(keys)
+                    key_lo, key_hi = min(key_lo, keys[1, 0]), max(key_hi, keys[-2, 0])
+                    cols = [1, 2, 3, 4] if motion == "rot" else [1, 2, 3]
+                    if not constant(keys, cols):
+                        moved.add(node)
+            if "visibility" in an:
+                self._visibility.append((node, an["visibility"]))
+                if len(np.unique(an["visibility"][:, 1] != 0)) > 1 or not an["visibility"][0, 1]:
+                    moved.add(node)
+            self._transform_splines[name] = tuple(ids)
+            anim_node.append(node)
+            anim_t.append(ids[0])
+            anim_r.append(ids[1])
+            anim_s.append(ids[2])
+
+        cam = ps.anims.get("camera", {})
+        self._cam_t = add_pos(cam["transl"]) if "transl" in cam else -1
+        self._cam_r = add_rot(cam["rot"]) if "rot" in cam else -1
+
+        def cat(lst, shape):
+            return np.ascontiguousarray(np.concatenate(lst)) if lst else np.zeros(shape)
+
+        self._splines = (
+            cat(p_tmin, (1,)), cat(p_tmax, (1,)), cat(p_coef, (1, 4, 3)),
+            np.array(p_start or [0], np.int64), np.array(p_count or [1], np.int64),
+            cat(r_tmin, (1,)), cat(r_tmax, (1,)), cat(r_pabq, (1, 4, 4)),
+            np.array(r_start or [0], np.int64), np.array(r_count or [1], np.int64),
+        )
+        self._anim = tuple(np.array(a, dtype=np.int64) for a in (anim_node, anim_t, anim_r, anim_s))
+
+        if not all(np.isfinite(a).all() for a in self._splines):
+            raise SceneFileError(self.path, "keyframes give non-finite spline coefficients (repeated key times?)")
+
+        # which nodes move
+        moving = np.zeros(n_nodes, dtype=bool)
+        for i in range(n_nodes):  # parents are created before their children
+            moving[i] = i in moved or (parent[i] >= 0 and moving[parent[i]])
+
+        # geometry: static blocks first in file order, then tpa triangles grouped by key times
+        verts, faces, tri_moving, vnode = [], [], [], []
+        v0 = 0
+        for node, v, f in ps.blocks:
+            verts.append(v)
+            faces.append(f + v0)
+            tri_moving.append(np.full(len(f), moving[node]))
+            vnode.append(np.full(len(v), node, dtype=np.int32))
+            v0 += len(v)
+        groups = {}
+        for node, times, tv in ps.tpa:
+            groups.setdefault(times.tobytes(), (times, []))[1].append((node, tv))
+        self._tpa = []
+        for times, members in groups.values():
+            frames = np.concatenate([tv for _, tv in members], axis=1)  # (K, 3m, 3)
+            nodes = np.repeat([nd for nd, _ in members], 3).astype(np.int32)
+            n = frames.shape[1]
+            self._tpa.append((times, np.ascontiguousarray(frames, dtype=TRI_DTYPE), v0, v0 + n))
+            verts.append(frames[0])
+            faces.append(np.arange(v0, v0 + n).reshape(-1, 3))
+            moves = moving[nodes[::3]] | (np.ptp(frames, axis=0).reshape(-1, 9).max(axis=1) > 0)
+            tri_moving.append(moves)
+            vnode.append(nodes)
+            v0 += n
+            key_lo, key_hi = min(key_lo, times[0]), max(key_hi, times[-1])
+        local = np.ascontiguousarray(np.concatenate(verts), dtype=TRI_DTYPE)
+        if np.abs(local).max() > 1e30:
+            raise SceneFileError(self.path, "vertex coordinates beyond 1e30, too large for float32")
+        self._faces = np.ascontiguousarray(np.concatenate(faces), dtype=np.int32)
+        self._local = local
+        vnode = np.concatenate(vnode)
+        tri_moving = np.concatenate(tri_moving)
+        vert_moving = np.zeros(len(local), dtype=bool)
+        vert_moving[self._faces[tri_moving].ravel()] = True
+
+        # one rigid "instance" per node for the shared deform kernel
+        self._vinst = vnode
+        self._inst = (
+            np.zeros(n_nodes + 1, dtype=np.int64),  # unused: no morph targets
+            np.arange(n_nodes, dtype=np.int32),
+            np.zeros(n_nodes, dtype=np.bool_),
+            np.zeros(n_nodes, dtype=np.int64),
+            np.zeros(n_nodes, dtype=np.int32),
+            np.zeros(n_nodes, dtype=np.int64),
+        )
+        self._dummy = (np.zeros((1, 1), np.int32), np.zeros((1, 1), TRI_DTYPE), np.zeros((1, 3), TRI_DTYPE),
+                       np.zeros(1), np.zeros((1, 4, 4)))
+        self._parent = parent
+        self._order = np.arange(n_nodes, dtype=np.int32)
+        self._use_matrix = np.ones(n_nodes, dtype=np.bool_)
+        self._node_matrix = node_matrix
+        self._trs = (np.zeros((n_nodes, 3)), np.zeros((n_nodes, 4)), np.ones((n_nodes, 3)))
+        self._world = np.zeros((n_nodes, 4, 4))
+        self.n_nodes = n_nodes
+        self.n_animated_transforms = len(anim_node)
+        self.n_tpa = sum(len(m[1]) for m in groups.values())
+
+        self.n_triangles = int(len(self._faces))
+        mask = ~tri_moving
+        self.static = bool(mask.all())
+        self.static_mask = as_static_mask(mask, self.n_triangles)
+        if ps.anim_params is not None:
+            start, end, frames = ps.anim_params
+            self.time_range = (start, end)
+            self.n_frames = frames
+        elif key_hi > key_lo:
+            self.time_range = (float(key_lo), float(key_hi))
+            self.n_frames = None
+        else:
+            self.time_range = None
+            self.n_frames = None
+        self.duration = None
+        if self.time_range is not None:
+            self.duration = self.time_range[1] - self.time_range[0]
+        vid = np.arange(len(local), dtype=np.int64)
+        self._dynamic_vids = vid[vert_moving]
+        self._verts = np.zeros_like(local)
+        self._pose(self.bart_time(0.0), vid)
+        if not (np.isfinite(self._verts).all() and np.abs(self._verts).max() <= 1e30):
+            raise SceneFileError(self.path, "transformed vertex coordinates are not finite or exceed 1e30 "
+                                            "(check the xs scales and keyframes)")
+
+    # ---------------------------------------------------------------- evaluation
+
+    def bart_time(self, t):
+        """BART clock time of animation time ``t``: ``start + (t mod (end - start))``."""
+        t = check_time(t)
+        if self.time_range is None:
+            return 0.0
+        return self.time_range[0] + (t % self.duration)
+
+    def _update_world(self, tb):
+        _animate_nodes(tb, *self._splines, *self._anim, self._node_matrix)
+        for node, keys in self._visibility:
+            k = np.searchsorted(keys[:, 0], tb, side="right") - 1
+            visible = True if k < 0 else bool(keys[k, 1])
+            if not visible:
+                self._node_matrix[node, :3, :3] = 0.0
+        K.compose_world(self._order, self._parent, self._use_matrix, self._node_matrix, *self._trs, self._world)
+
+    def _pose(self, tb, vids):
+        for times, frames, a, b in self._tpa:
+            if tb <= times[0]:
+                k, s = 0, 0.0
+            elif tb >= times[-1]:
+                k, s = len(times) - 1, 0.0
+            else:
+                k = int(np.searchsorted(times, tb, side="right") - 1)
+                s = (tb - times[k]) / (times[k + 1] - times[k])
+            k1 = min(k + 1, len(times) - 1)
+            K.lerp_rows(frames[k], frames[k1], float(s), self._local[a:b])
+        self._update_world(tb)
+        first, node, skinned, mbase, mcount, woff = self._inst
+        j, jw, d, w, pal = self._dummy
+        K.deform_vertices(vids, self._local, self._vinst, first, node, skinned, j, jw, mbase, mcount, woff,
+                          d, w, self._world, pal, self._verts)
+
+    def _fill(self, t, out):
+        if len(self._dynamic_vids):
+            self._pose(self.bart_time(t), self._dynamic_vids)
+        gather_triangles(self._verts, self._faces, out)
+
+    def spline_value(self, kind, index, tb):
+        """Evaluate position spline (kind "position") or rotation spline ("rotation") ``index`` at
+        BART time ``tb``: (3,) translation/scale or (4,) xyzw quaternion, float64."""
+        sp = self._splines
+        if kind == "position":
+            out = np.zeros(3)
+            kb_position(sp[0], sp[1], sp[2], sp[3][index], sp[4][index], float(tb), out)
+        else:
+            out = np.zeros(4)
+            kb_rotation(sp[5], sp[6], sp[7], sp[8][index], sp[9][index], float(tb), out)
+        return out
+
+    @property
+    def animated_transforms(self):
+        """Names of the ``x`` transforms that have a ``k`` block (sorted)."""
+        return sorted(self._transform_splines)
+
+    def transform_at(self, name, t):
+        """Local 4x4 float64 matrix ``T * R * S`` of the animated transform ``name`` at time ``t``.
+
+        Raises InputError for a name that is not an animated transform of the scene.
+        """
+        if name not in self._transform_splines:
+            raise InputError(f"no animated transform {name!r}; the scene has {', '.join(self.animated_transforms)}")
+        tb = self.bart_time(t)
+        ti, ri, si = self._transform_splines[name]
+        tr = self.spline_value("position", ti, tb) if ti >= 0 else np.zeros(3)
+        q = self.spline_value("rotation", ri, tb) if ri >= 0 else np.array([0.0, 0.0, 0.0, 1.0])
+        sc = self.spline_value("position", si, tb) if si >= 0 else np.ones(3)
+        m = np.empty((4, 4))
+        K.trs_matrix(tr, q, sc, m)
+        return m
+
+    def camera_at(self, t):
+        """The BART viewpoint at time ``t`` (:class:`engine.camera.Camera`), or None without one.
+
+        With a ``k camera`` block the eye follows its translation and the view direction and up
+        vector are the rotation's -z and +y axes (BART's GetCamera); parts the block lacks come from
+        the ``v`` block.  The field of view is the ``v`` block's angle (45 degrees without one).
+        """
+        from ..camera import Camera
+
+        tb = self.bart_time(t)
+        fov = float(self.view["angle"][0]) if self.view else 45.0
+        if self.view is not None:
+            eye = self.view["from"]
+            fwd = self.view["at"] - self.view["from"]
+            up = self.view["up"]
+        elif self._cam_t < 0 and self._cam_r < 0:
+            return None
+        else:
+            eye, fwd, up = np.zeros(3), np.array([0.0, 0.0, -1.0]), np.array([0.0, 1.0, 0.0])
+        if self._cam_t >= 0:
+            eye = self.spline_value("position", self._cam_t, tb)
+        if self._cam_r >= 0:
+            q = self.spline_value("rotation", self._cam_r, tb)
+            m = np.empty((4, 4))
+            K.trs_matrix(np.zeros(3), q, np.ones(3), m)
+            fwd, up = -m[:3, 2], m[:3, 1]
+        return Camera(eye=tuple(eye), target=tuple(np.asarray(eye) + fwd), up=tuple(up), fov=fov)

@@ -1,0 +1,987 @@
+"""Animated glTF 2.0 scenes (.gltf and .glb): node TRS animation, skinning and morph targets.
+
+The file is read directly (JSON, GLB chunks, buffers, accessors including sparse and normalized
+integer accessors); Draco-compressed primitives (``KHR_draco_mesh_compression``) are decoded with
+DracoPy when it is installed.  Every scene node that holds a mesh contributes one instance per
+triangle primitive (modes TRIANGLES, TRIANGLE_STRIP, TRIANGLE_FAN; points and lines are skipped);
+triangles are ordered by node (depth-first from the scene roots) then primitive.
+
+Per frame (:meth:`GltfAnimation.triangles_at`):
+
+1. the clip's channels are sampled at clip time (LINEAR with slerp for rotations, STEP,
+   CUBICSPLINE; glTF 2.0 appendix C) into node translation/rotation/scale and morph weights;
+2. node world matrices are composed down the hierarchy;
+3. each skin's joint matrices ``world[joint] @ inverseBindMatrix`` are formed;
+4. vertices are morphed (``p + sum_k w_k d_k``) then skinned by linear blending of up to
+   4 * (number of JOINTS_n sets) joints, or moved rigidly by their node's world matrix.  As the
+   specification requires, a skinned mesh ignores its own node's transform.  Each vertex's joint
+   weights are divided by their sum (as three.js does: exporters that keep 4 influences leave sums
+   below 1, e.g. 210 vertices of CesiumMan); a vertex whose weights are all zero moves rigidly
+   with its node.
+
+Only vertices of instances that can move are recomputed; the others are posed once.  See
+:attr:`GltfAnimation.static_mask`.
+"""
+
+import base64
+import binascii
+import importlib.util
+import json
+import math
+import os
+import struct
+import urllib.parse
+from numbers import Integral, Real
+from pathlib import Path
+
+import numpy as np
+
+from ..arrays import TRI_DTYPE, as_mesh
+from ..errors import InputError, SceneFileError
+from . import kernels as K
+from .animation import Animation, as_static_mask, check_time, gather_triangles
+
+__all__ = ["GltfAnimation", "DRACO_HINT"]
+
+#: How to get Draco support, quoted in error messages.
+DRACO_HINT = "install DracoPy to read it (pip install DracoPy, or pip install 'gridrt[draco]')"
+
+_GLB_MAGIC = b"glTF"
+_CHUNK_JSON = 0x4E4F534A
+_CHUNK_BIN = 0x004E4942
+
+# componentType -> (little-endian dtype, normalization divisor)
+_COMPONENTS = {
+    5120: ("<i1", 127.0),
+    5121: ("<u1", 255.0),
+    5122: ("<i2", 32767.0),
+    5123: ("<u2", 65535.0),
+    5125: ("<u4", None),
+    5126: ("<f4", None),
+}
+_NCOMP = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+_PATHS = {"translation": (K.KIND_T, 3), "rotation": (K.KIND_R, 4), "scale": (K.KIND_S, 3), "weights": (K.KIND_W, 1)}
+_INTERP = {"LINEAR": K.INTERP_LINEAR, "STEP": K.INTERP_STEP, "CUBICSPLINE": K.INTERP_CUBIC}
+_GEOMETRY_EXTENSIONS_UNSUPPORTED = ("EXT_meshopt_compression", "KHR_meshopt_compression", "EXT_mesh_gpu_instancing")
+_MAX_JOINT_SETS = 4
+
+
+def _is_int(v):
+    return isinstance(v, (Integral, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
+class _Reader:
+    """The JSON tree, buffers and decoded accessors of one glTF file; every failure names the file."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self._bin = None
+        self._buffers = {}
+        self._accessors = {}
+        self.tree = self._read_tree()
+        if not isinstance(self.tree, dict):
+            self.fail("malformed glTF: the top-level JSON value is not an object")
+        asset = self.tree.get("asset")
+        if isinstance(asset, dict) and isinstance(asset.get("version"), str):
+            if not asset["version"].startswith("2"):
+                self.fail(f"glTF version {asset['version']!r} is not supported (only 2.x)")
+        required = self.tree.get("extensionsRequired") or []
+        if not isinstance(required, list):
+            self.fail("malformed glTF: extensionsRequired is not a list")
+        for ext in required:
+            if ext in _GEOMETRY_EXTENSIONS_UNSUPPORTED:
+                self.fail(f"geometry uses {ext}, which gridrt cannot decode")
+            if ext == "KHR_draco_mesh_compression" and importlib.util.find_spec("DracoPy") is None:
+                self.fail(f"geometry is Draco-compressed (KHR_draco_mesh_compression); {DRACO_HINT}")
+
+    def fail(self, problem):
+        raise SceneFileError(self.path, problem)
+
+    # ---------------------------------------------------------------- file containers
+
+    def _read_tree(self):
+        try:
+            raw = self.path.read_bytes()
+        except PermissionError as e:
+            raise SceneFileError(self.path, "permission denied: the file is not readable") from e
+        except OSError as e:
+            raise SceneFileError(self.path, f"cannot read the file ({e.strerror or e})") from e
+        if not raw:
+            self.fail("file is empty (0 bytes)")
+        if raw[:4] == _GLB_MAGIC:
+            return self._read_glb(raw)
+        if self.path.suffix.lower() == ".glb":
+            self.fail("malformed .glb file: missing the 'glTF' binary header")
+        try:
+            return json.loads(raw.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
+            self.fail(f"malformed .gltf file: not valid JSON ({e})")
+
+    def _read_glb(self, raw):
+        if len(raw) < 20:
+            self.fail(f"malformed .glb file: truncated header ({len(raw)} bytes)")
+        _, version, length = struct.unpack_from("<4sII", raw, 0)
+        if version != 2:
+            self.fail(f"malformed .glb file: container version {version}, expected 2")
+        if length > len(raw):
+            self.fail(f"truncated .glb file: the header says {length} bytes, the file has {len(raw)}")
+        pos = 12
+        tree = None
+        while pos + 8 <= length:
+            clen, ctype = struct.unpack_from("<II", raw, pos)
+            pos += 8
+            if pos + clen > length:
+                self.fail(f"truncated .glb file: a chunk of {clen} bytes at byte {pos} runs past the end")
+            data = raw[pos:pos + clen]
+            if tree is None:
+                if ctype != _CHUNK_JSON:
+                    self.fail("malformed .glb file: the first chunk is not JSON")
+                try:
+                    tree = json.loads(data.decode("utf-8"))
+                except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
+                    self.fail(f"malformed .glb file: JSON chunk is not valid JSON ({e})")
+            elif ctype == _CHUNK_BIN and self._bin is None:
+                self._bin = data
+            pos += clen + (-clen % 4)
+        if tree is None:
+            self.fail("malformed .glb file: no JSON chunk")
+        return tree
+
+    # ---------------------------------------------------------------- JSON access
+
+    def items(self, key):
+        v = self.tree.get(key, [])
+        if not isinstance(v, list):
+            self.fail(f"malformed glTF: '{key}' is not a list")
+        return v
+
+    def item(self, key, index, what):
+        arr = self.items(key)
+        if not _is_int(index) or not 0 <= index < len(arr):
+            self.fail(f"{what} refers to {key}[{index!r}], but the file has {len(arr)} {key}")
+        v = arr[index]
+        if not isinstance(v, dict):
+            self.fail(f"malformed glTF: {key}[{index}] is not an object")
+        return v
+
+    def uint(self, obj, key, what, default=None, lo=0):
+        v = obj.get(key, default)
+        if v is None:
+            self.fail(f"{what}: required property '{key}' is missing")
+        if not _is_int(v) or v < lo:
+            self.fail(f"{what}: '{key}' must be an integer >= {lo}, got {v!r}")
+        return int(v)
+
+    def floats(self, obj, key, n, default, what):
+        v = obj.get(key)
+        if v is None:
+            return np.array(default, dtype=np.float64)
+        if not isinstance(v, list) or len(v) != n or not all(
+            isinstance(x, (Real, np.floating, np.integer)) and not isinstance(x, bool) for x in v
+        ):
+            self.fail(f"{what}: '{key}' must be a list of {n} numbers")
+        a = np.array(v, dtype=np.float64)
+        if not np.isfinite(a).all():
+            self.fail(f"{what}: '{key}' contains NaN or infinity")
+        return a
+
+    # ---------------------------------------------------------------- binary data
+
+    def buffer(self, index, what):
+        if index in self._buffers:
+            return self._buffers[index]
+        b = self.item("buffers", index, what)
+        length = self.uint(b, "byteLength", f"buffer {index}")
+        uri = b.get("uri")
+        if uri is None:
+            if self._bin is None:
+                self.fail(f"buffer {index} has no uri and the file has no GLB binary chunk")
+            data = self._bin
+        elif not isinstance(uri, str):
+            self.fail(f"buffer {index}: uri is not a string")
+        elif uri.startswith("data:"):
+            head, _, payload = uri.partition(",")
+            if not head.endswith(";base64"):
+                self.fail(f"buffer {index}: only base64 data URIs are supported")
+            try:
+                data = base64.b64decode(payload, validate=True)
+            except (binascii.Error, ValueError) as e:
+                self.fail(f"buffer {index}: data URI is not valid base64 ({e})")
+        else:
+            if "://" in uri:
+                self.fail(f"buffer {index} refers to a remote URI ({uri}); only local files are supported")
+            p = self.path.parent / urllib.parse.unquote(uri)
+            try:
+                data = p.read_bytes()
+            except FileNotFoundError:
+                self.fail(f"buffer {index} refers to a missing file: {p}")
+            except OSError as e:
+                self.fail(f"buffer {index}: cannot read {p} ({e.strerror or e})")
+        if len(data) < length:
+            self.fail(f"buffer {index} is truncated: {len(data)} bytes, byteLength says {length}")
+        self._buffers[index] = data
+        return data
+
+    def view(self, index, what):
+        """(memoryview of the buffer view's bytes, byteStride or 0)."""
+        bv = self.item("bufferViews", index, what)
+        w = f"bufferView {index}"
+        buf = self.buffer(self.uint(bv, "buffer", w), w)
+        off = self.uint(bv, "byteOffset", w, default=0)
+        length = self.uint(bv, "byteLength", w, lo=1)
+        stride = self.uint(bv, "byteStride", w, default=0)
+        if off + length > len(buf):
+            self.fail(f"{w} (bytes {off}..{off + length}) runs past the end of its {len(buf)}-byte buffer")
+        return memoryview(buf)[off:off + length], stride
+
+    def accessor(self, index, what):
+        """Decoded accessor: (count, ncomp) array, float64 for float/normalized data, else int64."""
+        key = index
+        if _is_int(key) and key in self._accessors:
+            return self._accessors[key]
+        acc = self.item("accessors", index, what)
+        w = f"accessor {index} ({what})"
+        ct = acc.get("componentType")
+        if ct not in _COMPONENTS:
+            self.fail(f"{w}: unknown componentType {ct!r}")
+        typ = acc.get("type")
+        if typ not in _NCOMP:
+            self.fail(f"{w}: unknown type {typ!r}")
+        count = self.uint(acc, "count", w, lo=0)
+        dtype = np.dtype(_COMPONENTS[ct][0])
+        n = _NCOMP[typ]
+        if (typ == "MAT2" and dtype.itemsize == 1) or (typ == "MAT3" and dtype.itemsize < 4):
+            self.fail(f"{w}: padded {typ} matrices of {dtype.itemsize}-byte components are not supported")
+        elem = n * dtype.itemsize
+        if "bufferView" in acc:
+            data, stride = self.view(acc["bufferView"], w)
+            stride = stride or elem
+            if stride < elem:
+                self.fail(f"{w}: byteStride {stride} is smaller than one element ({elem} bytes)")
+            off = self.uint(acc, "byteOffset", w, default=0)
+            need = off + stride * (count - 1) + elem if count else off
+            if need > len(data):
+                self.fail(f"{w}: {count} elements need {need} bytes but its buffer view has {len(data)}")
+            if count:
+                out = np.ndarray((count, n), dtype=dtype, buffer=data, offset=off, strides=(stride, dtype.itemsize))
+                out = out.copy()
+            else:
+                out = np.zeros((0, n), dtype=dtype)
+        else:
+            if count * elem > 1 << 28:
+                self.fail(f"{w}: {count} elements ({count * elem} bytes) is too large for an accessor without data")
+            out = np.zeros((count, n), dtype=dtype)
+        sparse = acc.get("sparse")
+        if sparse is not None:
+            out = self._apply_sparse(out, sparse, w, dtype, n)
+        norm = _COMPONENTS[ct][1]
+        if acc.get("normalized") and norm is not None:
+            res = np.maximum(out.astype(np.float64) / norm, -1.0)
+        elif dtype.kind == "f":
+            with np.errstate(invalid="ignore"):  # signalling NaN payloads; rejected just below
+                res = out.astype(np.float64)
+            if not np.isfinite(res).all():
+                self.fail(f"{w} contains NaN or infinity")
+        else:
+            res = out.astype(np.int64)
+        res.setflags(write=False)
+        self._accessors[key] = res
+        return res
+
+    def _apply_sparse(self, out, sparse, w, dtype, n):
+        if not isinstance(sparse, dict):
+            self.fail(f"{w}: sparse is not an object")
+        sc = self.uint(sparse, "count", f"{w} sparse", lo=1)
+        idx, val = sparse.get("indices"), sparse.get("values")
+        if not isinstance(idx, dict) or not isinstance(val, dict):
+            self.fail(f"{w}: sparse needs 'indices' and 'values' objects")
+        ict = idx.get("componentType")
+        if ict not in (5121, 5123, 5125):
+            self.fail(f"{w}: sparse indices have an invalid componentType {ict!r}")
+        idt = np.dtype(_COMPONENTS[ict][0])
+        ii = self._raw(idx, sc, idt, 1, f"{w} sparse indices")[:, 0].astype(np.int64)
+        vv = self._raw(val, sc, dtype, n, f"{w} sparse values")
+        if len(ii) and (ii.max() >= len(out)):
+            self.fail(f"{w}: sparse index {int(ii.max())} out of range for {len(out)} elements")
+        out = out.copy()
+        out[ii] = vv
+        return out
+
+    def _raw(self, obj, count, dtype, n, w):
+        data, _ = self.view(obj.get("bufferView"), w)
+        off = self.uint(obj, "byteOffset", w, default=0)
+        need = off + count * n * dtype.itemsize
+        if need > len(data):
+            self.fail(f"{w}: needs {need} bytes but its buffer view has {len(data)}")
+        return np.frombuffer(data, dtype=dtype, count=count * n, offset=off).reshape(count, n)
+
+
+# ------------------------------------------------------------------------------ geometry
+
+
+def _triangles_from_indices(idx, mode, what, fail):
+    """(F,3) int64 triangles from a primitive's index list for modes 4 (list), 5 (strip), 6 (fan)."""
+    n = len(idx)
+    if mode == 4:
+        if n % 3:
+            fail(f"{what}: {n} indices is not a multiple of 3 for TRIANGLES")
+        return idx.reshape(-1, 3)
+    if n < 3:
+        return np.zeros((0, 3), dtype=np.int64)
+    i = np.arange(n - 2)
+    if mode == 5:  # glTF 2.0 section 3.7.2.1: p_i = {v_i, v_(i+1+i%2), v_(i+2-i%2)}
+        return np.stack([idx[i], idx[i + 1 + i % 2], idx[i + 2 - i % 2]], axis=1)
+    return np.stack([idx[i + 1], idx[i + 2], np.full(n - 2, idx[0])], axis=1)
+
+
+class _Primitive:
+    """Decoded geometry of one mesh primitive (shared by every node that instances the mesh)."""
+
+    __slots__ = ("positions", "faces", "joints", "weights", "targets")
+
+    def __init__(self, positions, faces, joints, weights, targets):
+        self.positions = positions  # (n,3) f64
+        self.faces = faces  # (f,3) int64 local
+        self.joints = joints  # (n,J) int64 or None
+        self.weights = weights  # (n,J) f64 or None
+        self.targets = targets  # (k,n,3) f64 (k may be 0)
+
+
+def _decode_draco(r, prim, ext, what):
+    try:
+        import DracoPy
+    except ImportError:
+        r.fail(f"{what} is Draco-compressed (KHR_draco_mesh_compression); {DRACO_HINT}")
+    if not isinstance(ext, dict):
+        r.fail(f"{what}: malformed KHR_draco_mesh_compression extension")
+    data, _ = r.view(ext.get("bufferView"), f"{what} Draco data")
+    try:
+        dm = DracoPy.decode(bytes(data))
+    except Exception as e:  # DracoPy raises its own error types for corrupt data
+        r.fail(f"{what}: Draco data cannot be decoded ({type(e).__name__}: {e})")
+    attrs = ext.get("attributes") or {}
+    if not isinstance(attrs, dict):
+        r.fail(f"{what}: Draco 'attributes' is not an object")
+
+    def attribute(name):
+        uid = attrs.get(name)
+        if uid is None:
+            return None
+        a = dm.get_attribute_by_unique_id(uid) if _is_int(uid) else None
+        if a is None:
+            r.fail(f"{what}: Draco data has no attribute with id {uid!r} ({name})")
+        arr = np.asarray(a["data"])
+        if arr.ndim == 1:
+            arr = arr[:, None]
+        acc_i = prim["attributes"].get(name)
+        if acc_i is not None:  # the accessor says how integers are to be read
+            acc = r.item("accessors", acc_i, f"{what} {name}")
+            norm = _COMPONENTS.get(acc.get("componentType"), (None, None))[1]
+            if acc.get("normalized") and norm is not None and arr.dtype.kind in "iu":
+                return np.maximum(arr.astype(np.float64) / norm, -1.0)
+        return arr.astype(np.float64) if arr.dtype.kind == "f" else arr.astype(np.int64)
+
+    pos = attribute("POSITION")
+    if pos is None:
+        pos = np.asarray(dm.points, dtype=np.float64).reshape(-1, 3)
+    faces = np.asarray(dm.faces, dtype=np.int64).reshape(-1, 3)
+    return pos, faces, attribute
+
+
+def _load_primitive(r, mesh_index, prim_index, prim):
+    what = f"mesh {mesh_index} primitive {prim_index}"
+    if not isinstance(prim, dict):
+        r.fail(f"malformed glTF: {what} is not an object")
+    attrs = prim.get("attributes")
+    if not isinstance(attrs, dict) or "POSITION" not in attrs:
+        r.fail(f"{what} has no POSITION attribute")
+    mode = prim.get("mode", 4)
+    if mode not in (0, 1, 2, 3, 4, 5, 6):
+        r.fail(f"{what}: unknown primitive mode {mode!r}")
+    if mode < 4:
+        return None
+    ext = (prim.get("extensions") or {}).get("KHR_draco_mesh_compression") if isinstance(
+        prim.get("extensions"), dict) else None
+    draco_attr = None
+    if ext is not None:
+        pos, faces, draco_attr = _decode_draco(r, prim, ext, what)
+        if mode != 4:
+            faces = _triangles_from_indices(faces.reshape(-1), mode, what, r.fail)
+    else:
+        pos = r.accessor(attrs["POSITION"], f"{what} POSITION")
+        if "indices" in prim:
+            idx = r.accessor(prim["indices"], f"{what} indices")
+            if idx.dtype.kind == "f" or idx.shape[1] != 1:
+                r.fail(f"{what}: indices must be an integer SCALAR accessor")
+            idx = idx[:, 0]
+        else:
+            idx = np.arange(len(pos), dtype=np.int64)
+        faces = _triangles_from_indices(idx, mode, what, r.fail)
+    if pos.ndim != 2 or pos.shape[1] != 3:
+        r.fail(f"{what}: POSITION must be VEC3, got {pos.shape[1]} components")
+    pos = np.asarray(pos, dtype=np.float64)
+    if not np.isfinite(pos).all():
+        r.fail(f"{what}: POSITION contains NaN or infinity")
+    nv = len(pos)
+    if len(faces) and (faces.min() < 0 or faces.max() >= nv):
+        r.fail(f"{what}: vertex index {int(faces.max())} out of range for {nv} vertices")
+
+    joints, weights = [], []
+    for s in range(_MAX_JOINT_SETS):
+        jn, wn = f"JOINTS_{s}", f"WEIGHTS_{s}"
+        if jn not in attrs and wn not in attrs:
+            break
+        if (jn in attrs) != (wn in attrs):
+            r.fail(f"{what}: {jn} and {wn} must come together")
+        if draco_attr is not None and draco_attr(jn) is not None:
+            j, w = draco_attr(jn), draco_attr(wn)
+        else:
+            j = r.accessor(attrs[jn], f"{what} {jn}")
+            w = r.accessor(attrs[wn], f"{what} {wn}")
+        if w is None or j.shape != (nv, 4) or w.shape != (nv, 4):
+            r.fail(f"{what}: {jn}/{wn} must be VEC4 with one entry per vertex ({nv})")
+        if j.dtype.kind == "f":
+            r.fail(f"{what}: {jn} must hold unsigned integers")
+        joints.append(j)
+        weights.append(w.astype(np.float64))
+    if joints:
+        joints = np.concatenate(joints, axis=1)
+        weights = np.concatenate(weights, axis=1)
+        if not np.isfinite(weights).all() or (weights < 0).any():
+            r.fail(f"{what}: joint weights must be finite and non-negative")
+    else:
+        joints = weights = None
+
+    targets = prim.get("targets") or []
+    if not isinstance(targets, list):
+        r.fail(f"{what}: 'targets' is not a list")
+    deltas = np.zeros((len(targets), nv, 3))
+    for k, tg in enumerate(targets):
+        if not isinstance(tg, dict):
+            r.fail(f"{what}: morph target {k} is not an object")
+        if "POSITION" in tg:
+            d = r.accessor(tg["POSITION"], f"{what} morph target {k} POSITION")
+            if d.shape != (nv, 3):
+                r.fail(f"{what}: morph target {k} POSITION must be VEC3 with {nv} entries, got {d.shape}")
+            deltas[k] = d
+    return _Primitive(pos, faces, joints, weights, deltas)
+
+
+# ------------------------------------------------------------------------------ the scene
+
+
+class _Instance:
+    __slots__ = ("node", "mesh", "prim", "skin", "n_targets")
+
+    def __init__(self, node, mesh, prim, skin, n_targets):
+        self.node, self.mesh, self.prim, self.skin, self.n_targets = node, mesh, prim, skin, n_targets
+
+
+class GltfAnimation(Animation):
+    """A glTF 2.0 scene posed at time t: node animation, skinning and morph targets.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A .gltf (with its .bin and other buffers) or .glb file.
+    clip : int or str, optional
+        The animation to play: its index in the file's ``animations`` or its name.  By default
+        all animations play together when they animate disjoint (node, property) pairs (exporters
+        such as COLLADA2GLTF split one clip into one animation per joint), else animation 0.
+    scene : int, optional
+        Index of the glTF scene to show (default: the file's ``scene``, else 0).
+
+    Attributes
+    ----------
+    clips : list of str
+        Names of the file's animations (``"animation <i>"`` when unnamed).
+    clip : str or None
+        The clip being played (``"all"`` when several animations are merged), None without one.
+    time_range : tuple of float or None
+        (first, last) key time of the clip's channels; ``t`` maps to clip time
+        ``first + (t mod (last - first))``.
+    static_mask : ndarray
+        (F,) bool; True for triangles of instances that cannot move: rigid meshes whose node and
+        ancestors are not animated, skinned meshes none of whose joints moves, and no animated
+        morph weights.  Channels whose keys are all equal count as not animated.
+    n_joints, n_nodes, n_instances, n_morph_targets : int
+        Sizes of the scene (for reports).
+
+    Raises
+    ------
+    SceneFileError
+        Missing, unreadable, truncated or malformed file (every index is checked); Draco geometry
+        without DracoPy; no triangles.
+    InputError
+        ``clip`` is not an index/name of the file's animations (the message lists them).
+    """
+
+    def __init__(self, path, clip=None, scene=None):
+        if not isinstance(path, (str, os.PathLike)):
+            raise InputError(f"glTF path must be a str or path-like object, got {type(path).__name__}")
+        p = Path(path)
+        if not p.exists():
+            raise SceneFileError(p, "file not found")
+        if p.is_dir():
+            raise SceneFileError(p, "is a directory, not a glTF file")
+        r = _Reader(p)
+        self.path = p
+        try:
+            self._build(r, clip, scene)
+        except (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError) as e:
+            if isinstance(e, (SceneFileError, InputError)):
+                raise
+            raise SceneFileError(p, f"malformed glTF ({type(e).__name__}: {e})") from e
+
+    # ---------------------------------------------------------------- construction
+
+    def _build(self, r, clip, scene_index):
+        nodes = r.items("nodes")
+        n_nodes = len(nodes)
+        for i, nd in enumerate(nodes):
+            if not isinstance(nd, dict):
+                r.fail(f"malformed glTF: nodes[{i}] is not an object")
+        parent = np.full(n_nodes, -1, dtype=np.int32)
+        for i, nd in enumerate(nodes):
+            ch = nd.get("children", [])
+            if not isinstance(ch, list):
+                r.fail(f"node {i}: 'children' is not a list")
+            for c in ch:
+                if not _is_int(c) or not 0 <= c < n_nodes:
+                    r.fail(f"node {i} has a child {c!r} that is not a node index (0..{n_nodes - 1})")
+                if parent[c] >= 0 or c == i:
+                    r.fail(f"node {c} has more than one parent (the node hierarchy must be a forest)")
+                parent[c] = i
+        order = []
+        for root in np.flatnonzero(parent < 0):
+            stack = [int(root)]
+            while stack:
+                i = stack.pop()
+                order.append(i)
+                stack.extend(reversed(nodes[i].get("children", [])))
+        if len(order) != n_nodes:
+            r.fail("the node hierarchy has a cycle")
+
+        # node rest transforms
+        node_t = np.zeros((n_nodes, 3))
+        node_r = np.zeros((n_nodes, 4))
+        node_r[:, 3] = 1.0
+        node_s = np.ones((n_nodes, 3))
+        use_matrix = np.zeros(n_nodes, dtype=np.bool_)
+        node_matrix = np.tile(np.eye(4), (n_nodes, 1, 1))
+        for i, nd in enumerate(nodes):
+            w = f"node {i}"
+            if "matrix" in nd:
+                use_matrix[i] = True
+                node_matrix[i] = r.floats(nd, "matrix", 16, np.eye(4).ravel(), w).reshape(4, 4).T
+            node_t[i] = r.floats(nd, "translation", 3, (0, 0, 0), w)
+            q = r.floats(nd, "rotation", 4, (0, 0, 0, 1), w)
+            nq = np.linalg.norm(q)
+            node_r[i] = q / nq if nq > 0 else (0, 0, 0, 1)
+            node_s[i] = r.floats(nd, "scale", 3, (1, 1, 1), w)
+
+        # scene roots
+        scenes = r.items("scenes")
+        if scene_index is None:
+            scene_index = r.tree.get("scene", 0) if scenes else None
+        if scenes:
+            sc = r.item("scenes", scene_index, "the default scene")
+            roots = sc.get("nodes", [])
+            if not isinstance(roots, list):
+                r.fail(f"scene {scene_index}: 'nodes' is not a list")
+            for n in roots:
+                if not _is_int(n) or not 0 <= n < n_nodes:
+                    r.fail(f"scene {scene_index} refers to node {n!r}, but the file has {n_nodes} nodes")
+        else:
+            roots = [int(i) for i in np.flatnonzero(parent < 0)]
+        visible = []
+        for root in roots:
+            stack = [int(root)]
+            while stack:
+                i = stack.pop()
+                visible.append(i)
+                stack.extend(reversed(nodes[i].get("children", [])))
+
+        # skins
+        skins = r.items("skins")
+        skin_offset, joint_node, ibm = [], [], []
+        total = 0
+        for s, sk in enumerate(skins):
+            if not isinstance(sk, dict):
+                r.fail(f"malformed glTF: skins[{s}] is not an object")
+            joints = sk.get("joints")
+            if not isinstance(joints, list) or not joints:
+                r.fail(f"skin {s} has no joints")
+            for j in joints:
+                if not _is_int(j) or not 0 <= j < n_nodes:
+                    r.fail(f"skin {s} refers to joint node {j!r}, but the file has {n_nodes} nodes")
+            if "inverseBindMatrices" in sk:
+                m = r.accessor(sk["inverseBindMatrices"], f"skin {s} inverseBindMatrices")
+                if m.shape[1] != 16 or len(m) < len(joints):
+                    r.fail(f"skin {s}: inverseBindMatrices must be {len(joints)} MAT4, got {m.shape}")
+                ibm.append(m[: len(joints)].reshape(-1, 4, 4).transpose(0, 2, 1))
+            else:
+                ibm.append(np.tile(np.eye(4), (len(joints), 1, 1)))
+            skin_offset.append(total)
+            joint_node.extend(int(j) for j in joints)
+            total += len(joints)
+        self.n_joints = total
+        joint_node = np.array(joint_node or [0], dtype=np.int32)
+        ibm = np.ascontiguousarray(np.concatenate(ibm) if ibm else np.eye(4)[None], dtype=np.float64)
+
+        # mesh instances, in depth-first scene order
+        meshes = r.items("meshes")
+        prim_cache = {}
+        instances = []
+        weight_offset = {}
+        weight_count = {}
+        init_weights = []
+        n_w = 0
+        for i in visible:
+            nd = nodes[i]
+            if "mesh" not in nd:
+                continue
+            mi = nd["mesh"]
+            mesh = r.item("meshes", mi, f"node {i}")
+            prims = mesh.get("primitives")
+            if not isinstance(prims, list) or not prims:
+                r.fail(f"mesh {mi} has no primitives")
+            skin = nd.get("skin")
+            if skin is not None and (not _is_int(skin) or not 0 <= skin < len(skins)):
+                r.fail(f"node {i} refers to skin {skin!r}, but the file has {len(skins)} skins")
+            n_targets = None
+            for pi, prim in enumerate(prims):
+                key = (mi, pi)
+                if key not in prim_cache:
+                    prim_cache[key] = _load_primitive(r, mi, pi, prim)
+                pr = prim_cache[key]
+                if pr is None or len(pr.faces) == 0:
+                    continue
+                if n_targets is None:
+                    n_targets = len(pr.targets)
+                elif n_targets != len(pr.targets):
+                    r.fail(f"mesh {mi}: primitives have different numbers of morph targets")
+                use_skin = skin if (skin is not None and pr.joints is not None) else None
+                if use_skin is not None:
+                    nj = len(skins[use_skin]["joints"])
+                    bad = (pr.joints >= nj) | (pr.joints < 0)
+                    if (bad & (pr.weights != 0)).any():
+                        r.fail(f"mesh {mi} primitive {pi}: joint index {int(pr.joints.max())} out of range "
+                               f"for skin {use_skin} with {nj} joints")
+                instances.append(_Instance(i, mi, pr, use_skin, len(pr.targets)))
+            if n_targets:
+                default = r.floats(mesh, "weights", n_targets, np.zeros(n_targets), f"mesh {mi}")
+                w0 = r.floats(nd, "weights", n_targets, default, f"node {i}")
+                weight_offset[i] = n_w
+                weight_count[i] = n_targets
+                init_weights.append(w0)
+                n_w += n_targets
+        if not instances:
+            r.fail("the scene holds no triangles (no mesh with a triangle primitive)")
+        self._weights = np.concatenate(init_weights) if init_weights else np.zeros(1)
+
+        # clip selection and channels
+        anims = r.items("animations")
+        self.clips = []
+        for a, an in enumerate(anims):
+            if not isinstance(an, dict):
+                r.fail(f"malformed glTF: animations[{a}] is not an object")
+            name = an.get("name")
+            self.clips.append(name if isinstance(name, str) and name else f"animation {a}")
+        chosen = self._choose_clips(r, anims, clip)
+        self.clip = None if not chosen else ("all" if len(chosen) > 1 else self.clips[chosen[0]])
+
+        times, values = [], []
+        ch = {k: [] for k in ("tstart", "tcount", "vstart", "ncomp", "interp", "kind", "target")}
+        moved_nodes = set()
+        moved_weights = set()
+        animated_trs = set()
+        t_lo, t_hi = math.inf, -math.inf
+        nt, nv = 0, 0
+        for a in chosen:
+            an = anims[a]
+            samplers = an.get("samplers", [])
+            channels = an.get("channels", [])
+            if not isinstance(samplers, list) or not isinstance(channels, list):
+                r.fail(f"animation {a}: 'samplers' and 'channels' must be lists")
+            for c, chan in enumerate(channels):
+                w = f"animation {a} channel {c}"
+                if not isinstance(chan, dict) or not isinstance(chan.get("target"), dict):
+                    r.fail(f"{w}: missing target")
+                tgt = chan["target"]
+                path_name = tgt.get("path")
+                node = tgt.get("node")
+                if path_name not in _PATHS or node is None:
+                    continue  # e.g. KHR_animation_pointer targets: not geometry
+                if not _is_int(node) or not 0 <= node < n_nodes:
+                    r.fail(f"{w} targets node {node!r}, but the file has {n_nodes} nodes")
+                si = chan.get("sampler")
+                if not _is_int(si) or not 0 <= si < len(samplers) or not isinstance(samplers[si], dict):
+                    r.fail(f"{w} refers to sampler {si!r}, but animation {a} has {len(samplers)} samplers")
+                smp = samplers[si]
+                interp = smp.get("interpolation", "LINEAR")
+                if interp not in _INTERP:
+                    r.fail(f"{w}: unknown interpolation {interp!r}")
+                kind, m = _PATHS[path_name]
+                if kind == K.KIND_W:
+                    if node not in weight_offset:
+                        continue  # weights of a node without morph targets move nothing
+                    m = weight_count[node]
+                elif use_matrix[node]:
+                    r.fail(f"{w} animates node {node}, which has a 'matrix' (animated nodes need TRS)")
+                tin = r.accessor(smp.get("input"), f"{w} input")
+                tout = r.accessor(smp.get("output"), f"{w} output")
+                if tin.shape[1] != 1 or tin.dtype.kind != "f" or len(tin) == 0:
+                    r.fail(f"{w}: sampler input must be a non-empty float SCALAR accessor")
+                tk = tin[:, 0]
+                if (np.diff(tk) < 0).any():
+                    r.fail(f"{w}: key times decrease")
+                per = 3 if interp == "CUBICSPLINE" else 1
+                vals = np.asarray(tout, dtype=np.float64).reshape(-1)
+                if len(vals) != len(tk) * per * m:
+                    r.fail(f"{w}: {len(tk)} keys need {len(tk) * per * m} output values, got {len(vals)}")
+                ch["tstart"].append(nt)
+                ch["tcount"].append(len(tk))
+                ch["vstart"].append(nv)
+                ch["ncomp"].append(m)
+                ch["interp"].append(_INTERP[interp])
+                ch["kind"].append(kind)
+                ch["target"].append(weight_offset[node] if kind == K.KIND_W else node)
+                times.append(tk)
+                values.append(vals)
+                nt += len(tk)
+                nv += len(vals)
+                t_lo, t_hi = min(t_lo, float(tk[0])), max(t_hi, float(tk[-1]))
+                recs = vals.reshape(len(tk), per, m)
+                constant = bool((np.ptp(recs[:, per // 2], axis=0) == 0).all())
+                if per == 3:
+                    constant = constant and not recs[:, [0, 2]].any()
+                if not constant:
+                    (moved_weights if kind == K.KIND_W else moved_nodes).add(node)
+                if kind != K.KIND_W:
+                    animated_trs.add(node)
+        self._times = np.concatenate(times) if times else np.zeros(1)
+        self._values = np.concatenate(values) if values else np.zeros(1)
+        self._ch = {k: np.array(v, dtype=np.int64 if k in ("tstart", "vstart") else np.int32)
+                    for k, v in ch.items()}
+        self.n_channels = len(ch["kind"])
+
+        # which nodes move: animated ones and everything below them
+        moving = np.zeros(n_nodes, dtype=bool)
+        for i in order:
+            moving[i] = (i in moved_nodes) or (parent[i] >= 0 and moving[parent[i]])
+
+        # flatten instances
+        V = sum(len(ins.prim.positions) for ins in instances)
+        J = max([ins.prim.joints.shape[1] for ins in instances if ins.skin is not None] or [1])
+        local = np.zeros((V, 3), dtype=TRI_DTYPE)
+        vinst = np.zeros(V, dtype=np.int32)
+        inst_first = np.zeros(len(instances) + 1, dtype=np.int64)
+        inst_node = np.zeros(len(instances), dtype=np.int32)
+        inst_skinned = np.zeros(len(instances), dtype=np.bool_)
+        inst_mbase = np.zeros(len(instances), dtype=np.int64)
+        inst_mcount = np.zeros(len(instances), dtype=np.int32)
+        inst_woff = np.zeros(len(instances), dtype=np.int64)
+        joints = np.zeros((V if any(ins.skin is not None for ins in instances) else 1, J), dtype=np.int32)
+        jweights = np.zeros(joints.shape, dtype=TRI_DTYPE)
+        faces, tri_moving, deltas = [], [], []
+        n_d = 0
+        v0 = 0
+        inst_moving = np.zeros(len(instances), dtype=bool)
+        for k, ins in enumerate(instances):
+            pr = ins.prim
+            n = len(pr.positions)
+            local[v0:v0 + n] = pr.positions
+            vinst[v0:v0 + n] = k
+            inst_first[k] = v0
+            inst_node[k] = ins.node
+            mv = False
+            if ins.skin is not None:
+                inst_skinned[k] = True
+                nj = len(skins[ins.skin]["joints"])
+                jj = np.where((pr.joints >= 0) & (pr.joints < nj), pr.joints, 0)
+                ww = pr.weights.copy()
+                sums = ww.sum(axis=1, keepdims=True)
+                ww = np.divide(ww, sums, out=np.zeros_like(ww), where=sums > 0)
+                joints[v0:v0 + n, : jj.shape[1]] = jj + skin_offset[ins.skin]
+                jweights[v0:v0 + n, : ww.shape[1]] = ww
+                skin_nodes = np.array(skins[ins.skin]["joints"])
+                mv = bool(moving[skin_nodes].any()) or (bool((sums == 0).any()) and moving[ins.node])
+            else:
+                mv = bool(moving[ins.node])
+            if ins.n_targets:
+                inst_mbase[k] = n_d
+                inst_mcount[k] = ins.n_targets
+                inst_woff[k] = weight_offset[ins.node]
+                deltas.append(pr.targets.reshape(-1, 3))
+                n_d += ins.n_targets * n
+                mv = mv or ins.node in moved_weights
+            inst_moving[k] = mv
+            faces.append(pr.faces + v0)
+            tri_moving.append(np.full(len(pr.faces), mv))
+            v0 += n
+        inst_first[-1] = V
+        try:
+            local32, faces32 = as_mesh(local, np.concatenate(faces), what=f"glTF scene {self.path.name}")
+        except InputError as e:
+            r.fail(str(e))
+        self._local = local32
+        self._faces = faces32
+        self._vinst = vinst
+        self._inst = (inst_first, inst_node, inst_skinned, inst_mbase, inst_mcount, inst_woff)
+        self._joints = joints
+        self._jweights = jweights
+        self._deltas = (np.ascontiguousarray(np.concatenate(deltas), dtype=TRI_DTYPE) if deltas
+                        else np.zeros((1, 3), dtype=TRI_DTYPE))
+        self._order = np.array(order, dtype=np.int32)
+        self._parent = parent
+        self._use_matrix = use_matrix
+        self._node_matrix = node_matrix
+        self._rest = (node_t, node_r, node_s)
+        self._node_t, self._node_r, self._node_s = node_t.copy(), node_r.copy(), node_s.copy()
+        self._world = np.zeros((n_nodes, 4, 4))
+        self._joint_node = joint_node
+        self._ibm = ibm
+        self._palette = np.zeros((len(joint_node), 4, 4))
+        self._nodes_json = nodes
+        self._cameras = r.items("cameras")
+        self._camera_node = self._find_camera(r, visible, nodes)
+
+        self.name = self.path.stem if self.clip in (None, "all") else f"{self.path.stem} ({self.clip})"
+        self.n_triangles = int(len(faces32))
+        self.n_nodes = n_nodes
+        self.n_instances = len(instances)
+        self.n_morph_targets = int(sum(ins.n_targets for ins in instances))
+        self.n_vertices = V
+        mask = ~np.concatenate(tri_moving)
+        self.static = bool(mask.all())
+        self.static_mask = as_static_mask(mask, self.n_triangles)
+        if self.n_channels and t_hi >= t_lo:
+            self.time_range = (t_lo, t_hi)
+            span = t_hi - t_lo
+            self.duration = span if span > 0 else None
+        else:
+            self.time_range = None
+            self.duration = None
+        vid = np.arange(V, dtype=np.int64)
+        dyn_v = inst_moving[vinst]
+        self._dynamic_vids = vid[dyn_v]
+        self._verts = np.zeros((V, 3), dtype=TRI_DTYPE)
+        self._pose(self._clip_time(0.0), vid)
+        if not (np.isfinite(self._verts).all() and np.abs(self._verts).max() <= 1e30):
+            r.fail("posed vertex coordinates are not finite or exceed 1e30 (check scales and matrices)")
+
+    def _choose_clips(self, r, anims, clip):
+        if not anims:
+            if clip is not None:
+                raise InputError(f"{self.path.name} has no animations, so clip={clip!r} cannot be chosen")
+            return []
+        listing = ", ".join(f"{i}: {n!r}" for i, n in enumerate(self.clips))
+        if clip is None:
+            seen = set()
+            for an in anims:
+                for chan in an.get("channels", []) if isinstance(an.get("channels"), list) else []:
+                    tgt = chan.get("target") if isinstance(chan, dict) else None
+                    if not isinstance(tgt, dict):
+                        continue
+                    key = (tgt.get("node"), tgt.get("path"))
+                    if key in seen:
+                        return [0]
+                    seen.add(key)
+            return list(range(len(anims)))
+        if _is_int(clip):
+            if not 0 <= clip < len(anims):
+                raise InputError(f"clip index {clip} out of range; {self.path.name} has clips {listing}")
+            return [int(clip)]
+        if isinstance(clip, str):
+            if clip in self.clips:
+                return [self.clips.index(clip)]
+            raise InputError(f"no clip named {clip!r} in {self.path.name}; clips: {listing}")
+        raise InputError(f"clip must be an animation index or name, got {clip!r}")
+
+    def _find_camera(self, r, visible, nodes):
+        for i in visible:
+            c = nodes[i].get("camera")
+            if c is None:
+                continue
+            cam = r.item("cameras", c, f"node {i}")
+            if cam.get("type") == "perspective" and isinstance(cam.get("perspective"), dict):
+                yfov = cam["perspective"].get("yfov")
+                if isinstance(yfov, (Real, np.floating)) and 0 < yfov < math.pi:
+                    return i, math.degrees(float(yfov))
+        return None
+
+    # ---------------------------------------------------------------- evaluation
+
+    def _clip_time(self, t):
+        if self.time_range is None:
+            return 0.0
+        t0 = self.time_range[0]
+        if self.duration is None:
+            return t0
+        return t0 + (t % self.duration)
+
+    def _update_world(self, tc):
+        c = self._ch
+        K.sample_channels(self._times, self._values, c["tstart"], c["tcount"], c["vstart"], c["ncomp"],
+                          c["interp"], c["kind"], c["target"], tc, self._node_t, self._node_r, self._node_s,
+                          self._weights)
+        K.compose_world(self._order, self._parent, self._use_matrix, self._node_matrix, self._node_t,
+                        self._node_r, self._node_s, self._world)
+
+    def _pose(self, tc, vids):
+        self._update_world(tc)
+        K.skin_palette(self._world, self._joint_node, self._ibm, self._palette)
+        first, node, skinned, mbase, mcount, woff = self._inst
+        K.deform_vertices(vids, self._local, self._vinst, first, node, skinned, self._joints, self._jweights,
+                          mbase, mcount, woff, self._deltas, self._weights, self._world, self._palette, self._verts)
+
+    def _fill(self, t, out):
+        if len(self._dynamic_vids):
+            self._pose(self._clip_time(t), self._dynamic_vids)
+        gather_triangles(self._verts, self._faces, out)
+
+    def vertices_at(self, t):
+        """A new (V, 3) float32 array of the posed vertices at time ``t`` (instances concatenated,
+        in triangle order); the triangle buffer is left alone."""
+        t = check_time(t)
+        if len(self._dynamic_vids):
+            self._pose(self._clip_time(t), self._dynamic_vids)
+        return self._verts.copy()
+
+    def bind_triangles(self):
+        """A new (F, 3, 3) float32 array: the rest pose, without animation, skinning or morphing.
+
+        Each instance's POSITION data moved by its node's rest world matrix (what static loaders
+        such as trimesh show).
+        """
+        world = np.zeros_like(self._world)
+        K.compose_world(self._order, self._parent, self._use_matrix, self._node_matrix, *self._rest, world)
+        first, node, *_ = self._inst
+        m = world[node[self._vinst]]
+        p = self._local.astype(np.float64)
+        v = np.einsum("vij,vj->vi", m[:, :3, :3], p) + m[:, :3, 3]
+        return np.ascontiguousarray(v.astype(TRI_DTYPE)[self._faces])
+
+    def to_mesh(self, t=0.0):
+        """The scene at time ``t`` as an indexed :class:`engine.scene.mesh.Mesh` (shared vertices kept)."""
+        from .mesh import Mesh
+
+        return Mesh(self.vertices_at(t), self._faces, name=self.path.stem, path=self.path)
+
+    def camera_at(self, t):
+        """The first perspective camera of the scene at time ``t`` (None when the file has none)."""
+        t = check_time(t)
+        if self._camera_node is None:
+            return None
+        from ..camera import Camera
+
+        node, fov = self._camera_node
+        self._update_world(self._clip_time(t))
+        m = self._world[node]
+        eye = m[:3, 3]
+        fwd = -m[:3, 2]
+        up = m[:3, 1]
+        if not (np.linalg.norm(fwd) > 0 and np.linalg.norm(up) > 0):
+            return None
+        return Camera(eye=tuple(eye), target=tuple(eye + fwd / np.linalg.norm(fwd)), up=tuple(up), fov=fov)

@@ -1,0 +1,564 @@
+"""Animated glTF 2.0: node animation, linear-blend skinning, morph targets, samplers, clips.
+
+References are independent of engine.scene.gltf:
+
+* small glTF files are written here with pygltflib and their poses are computed analytically
+  (a joint rotating about z by a known angle, a translation growing linearly in time, a morph
+  weight ramp, a STEP staircase and a cubic Hermite segment from the specification's formula);
+* the real files in ../shared/data are re-posed by a separate float64 numpy implementation that
+  reads them with pygltflib, and their bind poses are compared with trimesh's loads;
+* triangle counts come from ../shared/data/README.md.
+"""
+
+import importlib.util
+import json
+import math
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pygltflib as gl
+import pytest
+
+import engine  # noqa: F401  (sets numba's thread count before numba loads)
+from engine.errors import InputError, SceneFileError
+from engine.scene import GltfAnimation, StaticMesh, make_scene
+from engine.scene import gltf as gltf_module
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+HAVE_DRACO = importlib.util.find_spec("DracoPy") is not None
+
+
+def need_data(rel):
+    p = DATA / rel
+    if not p.exists():
+        pytest.skip(f"real test data {p} is absent (../shared/data not available)")
+    return p
+
+
+# ----------------------------------------------------------------------------- a glTF writer
+
+
+class Builder:
+    """Collects arrays into one binary buffer and writes a glTF 2.0 file with pygltflib."""
+
+    def __init__(self):
+        self.blob = bytearray()
+        self.g = gl.GLTF2(asset=gl.Asset(version="2.0"), scene=0, scenes=[gl.Scene(nodes=[])])
+
+    def view(self, arr):
+        while len(self.blob) % 4:
+            self.blob.append(0)
+        self.g.bufferViews.append(gl.BufferView(buffer=0, byteOffset=len(self.blob), byteLength=arr.nbytes))
+        self.blob.extend(arr.tobytes())
+        return len(self.g.bufferViews) - 1
+
+    def acc(self, data, ctype, typ, normalized=False):
+        dt = {gl.FLOAT: "<f4", gl.UNSIGNED_BYTE: "u1", gl.UNSIGNED_SHORT: "<u2", gl.UNSIGNED_INT: "<u4"}[ctype]
+        arr = np.ascontiguousarray(np.asarray(data), dtype=dt)
+        n = {"SCALAR": 1, "VEC3": 3, "VEC4": 4, "MAT4": 16}[typ]
+        count = arr.size // n
+        kw = {}
+        if typ == "VEC3" and ctype == gl.FLOAT:
+            a = arr.reshape(count, 3)
+            kw = {"min": a.min(0).tolist(), "max": a.max(0).tolist()}
+        self.g.accessors.append(gl.Accessor(bufferView=self.view(arr), componentType=ctype, count=count, type=typ,
+                                            normalized=normalized, **kw))
+        return len(self.g.accessors) - 1
+
+    def mesh(self, vertices, faces, targets=(), weights=None, joints=None, jweights=None, mode=gl.TRIANGLES):
+        attrs = gl.Attributes(POSITION=self.acc(vertices, gl.FLOAT, "VEC3"))
+        if joints is not None:
+            attrs.JOINTS_0 = self.acc(joints, gl.UNSIGNED_BYTE, "VEC4")
+            ct, norm = jweights
+            attrs.WEIGHTS_0 = self.acc(norm, ct, "VEC4", normalized=ct != gl.FLOAT)
+        prim = gl.Primitive(attributes=attrs, indices=self.acc(np.ravel(faces), gl.UNSIGNED_INT, "SCALAR"), mode=mode)
+        prim.targets = [gl.Attributes(POSITION=self.acc(d, gl.FLOAT, "VEC3")) for d in targets]
+        self.g.meshes.append(gl.Mesh(primitives=[prim], weights=weights))
+        return len(self.g.meshes) - 1
+
+    def node(self, root=False, **kw):
+        self.g.nodes.append(gl.Node(**kw))
+        i = len(self.g.nodes) - 1
+        if root:
+            self.g.scenes[0].nodes.append(i)
+        return i
+
+    def animation(self, name, channels):
+        """channels: list of (node, path, times, values (flat), interpolation)."""
+        an = gl.Animation(name=name, channels=[], samplers=[])
+        for node, path, times, values, interp in channels:
+            vals = np.asarray(values, dtype=np.float64)
+            typ = {"translation": "VEC3", "scale": "VEC3", "rotation": "VEC4", "weights": "SCALAR"}[path]
+            an.samplers.append(gl.AnimationSampler(input=self.acc(times, gl.FLOAT, "SCALAR"),
+                                                   output=self.acc(vals, gl.FLOAT, typ), interpolation=interp))
+            an.channels.append(gl.AnimationChannel(sampler=len(an.samplers) - 1,
+                                                   target=gl.AnimationChannelTarget(node=node, path=path)))
+        self.g.animations.append(an)
+
+    def save(self, path):
+        while len(self.blob) % 4:
+            self.blob.append(0)
+        self.g.buffers = [gl.Buffer(byteLength=len(self.blob))]
+        self.g.set_binary_blob(bytes(self.blob))
+        if path.suffix == ".glb":
+            self.g.save_binary(str(path))
+        else:
+            self.g.save_json(str(path))
+        return path
+
+
+def rot_z(theta):
+    c, s = math.cos(theta), math.sin(theta)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+# ----------------------------------------------------------------------------- skinning + node animation
+
+ARM_V = np.array([[0, 0, 0], [0.2, 0, 0], [0, 1, 0], [0.2, 1, 0], [0, 2, 0], [0.2, 2, 0]], dtype=np.float32)
+ARM_F = np.array([[0, 1, 3], [0, 3, 2], [2, 3, 5], [2, 5, 4]])
+TRI_V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=np.float32)
+TRI_F = np.array([[0, 1, 2]])
+H = math.sqrt(0.5)
+
+# joint weights of the arm's rows y = 0, 1, 2: all on joint 0, a blend, all on joint 1
+WEIGHT_KINDS = {
+    "u8": (gl.UNSIGNED_BYTE, [[255, 0], [128, 127], [0, 255]], 255.0),
+    "u16": (gl.UNSIGNED_SHORT, [[65535, 0], [30000, 35535], [0, 65535]], 65535.0),
+    "f32": (gl.FLOAT, [[1.0, 0.0], [0.25, 0.75], [0.0, 1.0]], 1.0),
+}
+
+
+def write_arm(path, kind):
+    """Root joint 0 slides along x (0 -> 2 over 2 s), elbow joint 1 at y=1 bends 90 deg about z
+    over the first second then holds; a skinned arm, a rigid triangle under the root, a static one."""
+    ct, rows, _ = WEIGHT_KINDS[kind]
+    b = Builder()
+    w = np.zeros((6, 4))
+    for v in range(6):
+        w[v, :2] = rows[v // 2]
+    j = np.tile([0, 1, 0, 0], (6, 1))
+    arm = b.mesh(ARM_V, ARM_F, joints=j, jweights=(ct, w))
+    tri = b.mesh(TRI_V, TRI_F)
+    b.node(root=True, name="root", children=[1, 4])  # 0
+    b.node(name="elbow", translation=[0.0, 1.0, 0.0])  # 1
+    b.node(root=True, name="arm", mesh=arm, skin=0, translation=[10.0, 0.0, 0.0])  # 2: ignored (skinned)
+    b.node(root=True, name="static", mesh=tri, translation=[5.0, 0.0, 0.0])  # 3
+    b.node(name="carried", mesh=tri, translation=[0.0, 0.0, 3.0])  # 4
+    ibm = np.stack([np.eye(4), np.eye(4)])
+    ibm[1, 1, 3] = -1.0  # inverse of the elbow's bind world matrix T(0, 1, 0)
+    b.g.skins.append(gl.Skin(joints=[0, 1], inverseBindMatrices=b.acc(ibm.transpose(0, 2, 1).ravel(), gl.FLOAT,
+                                                                       "MAT4")))
+    b.animation("walk", [
+        (0, "translation", [0.0, 2.0], [0, 0, 0, 2, 0, 0], "LINEAR"),
+        (1, "rotation", [0.0, 1.0], [0, 0, 0, 1, 0, 0, H, H], "LINEAR"),
+    ])
+    return b.save(path)
+
+
+def arm_expected(t, kind):
+    """Analytic triangles of write_arm's scene at time t in [0, 2)."""
+    _, rows, scale = WEIGHT_KINDS[kind]
+    x = t  # root translation 0 -> 2 over 2 s
+    theta = min(t, 1.0) * math.pi / 2  # slerp about a fixed axis: the angle grows linearly
+    out = np.empty((6, 3))
+    for v, p in enumerate(ARM_V.astype(np.float64)):
+        w0, w1 = (np.array(rows[v // 2], dtype=np.float64) / scale)
+        w0, w1 = w0 / (w0 + w1), w1 / (w0 + w1)
+        on0 = p + [x, 0, 0]
+        on1 = np.array([x, 1.0, 0.0]) + rot_z(theta) @ (p - [0, 1, 0])
+        out[v] = w0 * on0 + w1 * on1
+    arm = out[ARM_F]
+    static = (TRI_V + [5.0, 0, 0])[TRI_F]
+    carried = (TRI_V + [x, 0, 3.0])[TRI_F]
+    return np.concatenate([arm, static, carried])  # depth-first order: arm (node 2) before 3, 0 -> 4
+
+
+@pytest.mark.parametrize("kind", sorted(WEIGHT_KINDS))
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+def test_skinning_and_node_animation_match_analytic_pose(tmp_path, kind, ext):
+    p = write_arm(tmp_path / f"arm{ext}", kind)
+    s = GltfAnimation(p)
+    assert s.n_triangles == 6 and s.clips == ["walk"] and s.clip == "walk"
+    assert s.time_range == (0.0, 2.0) and s.duration == 2.0 and not s.static
+    for t in (0.0, 0.25, 0.5, 0.8, 1.0, 1.3, 1.99):
+        got = s.triangles_at(t).astype(np.float64)
+        # order: scene roots 0 (-> 1, 4), 2, 3 depth first -> carried (4), arm (2), static (3)
+        exp = arm_expected(t, kind)
+        exp = np.concatenate([exp[5:6], exp[:4], exp[4:5]])
+        np.testing.assert_allclose(got, exp, atol=2e-6, err_msg=f"t={t}")
+    # static mask: only the triangle under the non-animated node is static
+    np.testing.assert_array_equal(s.static_mask, [False, False, False, False, False, True])
+    assert s.n_static == 1
+    # the clip loops: t and t + 2 give the same pose
+    np.testing.assert_allclose(s.triangles_at(2.5), s.triangles_at(0.5), atol=1e-6)
+
+
+def test_joint_rotation_keeps_bone_lengths(tmp_path):
+    s = GltfAnimation(write_arm(tmp_path / "arm.glb", "f32"))
+    frame = s.triangles_at(0.5).copy()
+    s.vertices_at(1.5)  # poses the vertices without touching the returned triangle buffer
+    np.testing.assert_array_equal(s.triangles_at(0.5), frame)
+    for t in np.linspace(0, 1.9, 7):
+        v = s.vertices_at(t).astype(np.float64)
+        # the tip row (weights 100% on the elbow) stays 1 from the elbow (x, 1, 0)
+        elbow = np.array([t, 1.0, 0.0])
+        tip = v[[7, 8]]  # vertices 4, 5 of the arm (after the 3 vertices of the carried triangle)
+        np.testing.assert_allclose(np.linalg.norm(tip - elbow, axis=1), [1.0, math.hypot(1.0, 0.2)], atol=1e-6)
+
+
+def test_bind_pose_applies_node_transforms_only(tmp_path):
+    s = GltfAnimation(write_arm(tmp_path / "arm.glb", "u8"))
+    b = s.bind_triangles().astype(np.float64)
+    np.testing.assert_allclose(b[0], (TRI_V + [0, 0, 3.0])[TRI_F][0])  # carried, root at rest
+    np.testing.assert_allclose(b[1:5], (ARM_V + [10.0, 0, 0])[ARM_F])  # the arm node's own transform
+    np.testing.assert_allclose(b[5], (TRI_V + [5.0, 0, 0])[TRI_F][0])
+
+
+# ----------------------------------------------------------------------------- morph, STEP, CUBICSPLINE, clips
+
+MORPH_D0 = np.array([[0, 0, 1], [0, 0, 0], [0, 0, 0]], dtype=np.float32)
+MORPH_D1 = np.array([[0, 0, 0], [1, 0, 0], [0, 2, 0]], dtype=np.float32)
+CUBIC = {"v0": [0, 0, 0], "out0": [3, 0, 0], "in1": [0, 3, 0], "v1": [1, 1, 0]}
+
+
+def write_samplers(path, overlap=False):
+    b = Builder()
+    morph = b.mesh(TRI_V, TRI_F, targets=[MORPH_D0, MORPH_D1], weights=[0.0, 0.0])
+    tri = b.mesh(TRI_V, TRI_F)
+    b.node(root=True, name="morph", mesh=morph)  # 0
+    b.node(root=True, name="step", mesh=tri)  # 1
+    b.node(root=True, name="cubic", mesh=tri)  # 2
+    z = [0.0, 0.0, 0.0]
+    b.animation("main", [
+        (0, "weights", [0.0, 1.0], [0, 0, 1, 0.5], "LINEAR"),
+        (1, "translation", [0.0, 0.5, 1.0], [0, 0, 0, 1, 0, 0, 2, 0, 0], "STEP"),
+        (2, "translation", [0.0, 1.0], z + CUBIC["v0"] + CUBIC["out0"] + CUBIC["in1"] + CUBIC["v1"] + z, "CUBICSPLINE"),
+    ])
+    spin_path = "translation" if overlap else "rotation"
+    spin_vals = [0, 0, 0, 0, 5, 0] if overlap else [0, 0, 0, 1, 0, 0, 1, 0]
+    b.animation("spin", [(1, spin_path, [0.0, 4.0], spin_vals, "LINEAR")])
+    return b.save(path)
+
+
+def hermite(s, p0, m0, p1, m1, dt=1.0):
+    """Cubic Hermite segment, glTF 2.0 appendix C (written out independently)."""
+    p0, m0, p1, m1 = (np.asarray(a, dtype=np.float64) for a in (p0, m0, p1, m1))
+    return ((2 * s**3 - 3 * s**2 + 1) * p0 + (s**3 - 2 * s**2 + s) * dt * m0
+            + (-2 * s**3 + 3 * s**2) * p1 + (s**3 - s**2) * dt * m1)
+
+
+def test_morph_step_and_cubicspline_samplers(tmp_path):
+    s = GltfAnimation(write_samplers(tmp_path / "samplers.glb", overlap=True), clip="main")
+    assert s.clip == "main" and s.time_range == (0.0, 1.0)
+    base = TRI_V.astype(np.float64)
+    for t in (0.0, 0.2, 0.49, 0.5, 0.7, 0.999):
+        got = s.triangles_at(t).astype(np.float64)
+        w0, w1 = t, 0.5 * t
+        np.testing.assert_allclose(got[0], base + w0 * MORPH_D0 + w1 * MORPH_D1, atol=1e-6, err_msg=f"t={t}")
+        step = 0.0 if t < 0.5 else 1.0
+        np.testing.assert_allclose(got[1], base + [step, 0, 0], atol=1e-6, err_msg=f"t={t}")
+        cub = hermite(t, CUBIC["v0"], CUBIC["out0"], CUBIC["v1"], CUBIC["in1"])
+        np.testing.assert_allclose(got[2], base + cub, atol=1e-5, err_msg=f"t={t}")
+    assert s.n_static == 0
+
+
+def test_clip_selection(tmp_path):
+    p = write_samplers(tmp_path / "clips.gltf", overlap=True)
+    s = GltfAnimation(p)  # the clips overlap (node 1 translation): the first plays
+    assert s.clips == ["main", "spin"] and s.clip == "main"
+    spin = GltfAnimation(p, clip="spin")
+    assert spin.clip == "spin" and spin.time_range == (0.0, 4.0)
+    np.testing.assert_allclose(spin.triangles_at(1.0)[1].astype(np.float64), TRI_V + [0, 1.25, 0], atol=1e-6)
+    # morph and cubic nodes do not move in "spin"
+    assert spin.static_mask.tolist() == [True, False, True]
+    by_index = GltfAnimation(p, clip=1)
+    np.testing.assert_array_equal(by_index.triangles_at(1.0), spin.triangles_at(1.0))
+    for bad in ("run", 2, -1, 1.5):
+        with pytest.raises(InputError) as info:
+            GltfAnimation(p, clip=bad)
+        if isinstance(bad, str):
+            assert "'main'" in str(info.value) and "'spin'" in str(info.value)
+    with pytest.raises(InputError, match="clip"):
+        make_scene(p, clip="nope")
+
+
+def test_disjoint_animations_play_together(tmp_path):
+    s = GltfAnimation(write_samplers(tmp_path / "all.glb", overlap=False))
+    assert s.clip == "all" and s.time_range == (0.0, 4.0)
+    got = s.triangles_at(2.0).astype(np.float64)
+    # node 1: STEP translation holds its last key (2, 0, 0); the spin slerps from identity to
+    # 180 deg about z over 4 s, so at t = 2 it has turned 90 deg about z
+    np.testing.assert_allclose(got[1], (rot_z(math.pi / 2) @ TRI_V.T).T + [2, 0, 0], atol=1e-6)
+
+
+def test_static_gltf_with_node_weights_is_a_static_mesh(tmp_path):
+    b = Builder()
+    m = b.mesh(TRI_V, TRI_F, targets=[MORPH_D0, MORPH_D1], weights=[1.0, 1.0])
+    b.node(root=True, mesh=m, translation=[0.0, 1.0, 0.0])
+    p = b.save(tmp_path / "still.gltf")
+    tree = json.loads(p.read_text())
+    tree["nodes"][0]["weights"] = [0.25, 0.0]  # node weights override the mesh's (pygltflib lacks them)
+    p.write_text(json.dumps(tree))
+    s = make_scene(p)
+    assert isinstance(s, StaticMesh)
+    np.testing.assert_allclose(s.triangles_at(3.0)[0], TRI_V + 0.25 * MORPH_D0 + [0, 1, 0], atol=1e-6)
+    assert GltfAnimation(p).static and GltfAnimation(p).duration is None
+
+
+def test_strip_and_fan_primitives(tmp_path):
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [0, 2, 0]], dtype=np.float32)
+    b = Builder()
+    strip = b.mesh(v, np.arange(5), mode=gl.TRIANGLE_STRIP)
+    fan = b.mesh(v, [0, 1, 3, 4], mode=gl.TRIANGLE_FAN)
+    b.node(root=True, mesh=strip)
+    b.node(root=True, mesh=fan, translation=[5, 0, 0])
+    s = make_scene(b.save(tmp_path / "modes.glb"))
+    got = s.triangles_at(0.0).astype(np.float64)
+    # spec 3.7.2.1: strip triangle i = (v_i, v_(i+1+i%2), v_(i+2-i%2)); fan i = (v_(i+1), v_(i+2), v_0)
+    exp_strip = v[[[0, 1, 2], [1, 3, 2], [2, 3, 4]]]
+    exp_fan = v[[[1, 3, 0], [3, 4, 0]]] + [5, 0, 0]
+    np.testing.assert_allclose(got, np.concatenate([exp_strip, exp_fan]))
+
+
+def test_sparse_morph_target(tmp_path):
+    b = Builder()
+    m = b.mesh(TRI_V, TRI_F)
+    idx = b.view(np.array([2], dtype="<u2"))
+    val = b.view(np.array([0.0, 0.0, 4.0], dtype="<f4"))
+    b.g.accessors.append(gl.Accessor(componentType=gl.FLOAT, count=3, type="VEC3", sparse=gl.Sparse(
+        count=1, indices=gl.AccessorSparseIndices(bufferView=idx, componentType=gl.UNSIGNED_SHORT),
+        values=gl.AccessorSparseValues(bufferView=val))))
+    b.g.meshes[m].primitives[0].targets = [gl.Attributes(POSITION=len(b.g.accessors) - 1)]
+    b.node(root=True, mesh=m)
+    b.animation("grow", [(0, "weights", [0.0, 1.0], [0.0, 1.0], "LINEAR")])
+    s = GltfAnimation(b.save(tmp_path / "sparse.glb"))
+    exp = TRI_V.astype(np.float64).copy()
+    exp[2, 2] = 4.0 * 0.75
+    np.testing.assert_allclose(s.triangles_at(0.75)[0], exp, atol=1e-6)
+
+
+def test_animated_camera(tmp_path):
+    b = Builder()
+    tri = b.mesh(TRI_V, TRI_F)
+    b.node(root=True, mesh=tri)
+    b.g.cameras.append(gl.Camera(type="perspective", perspective=gl.Perspective(yfov=0.8, znear=0.1)))
+    b.node(root=True, camera=0, translation=[0.0, 0.0, 5.0])
+    b.animation("dolly", [(1, "translation", [0.0, 1.0], [0, 0, 5, 0, 0, 3], "LINEAR")])
+    s = GltfAnimation(b.save(tmp_path / "cam.glb"))
+    assert s.static  # the camera moves, no triangle does
+    cam = s.camera_at(0.5)
+    np.testing.assert_allclose(cam.eye, [0, 0, 4.0], atol=1e-12)
+    np.testing.assert_allclose(np.subtract(cam.target, cam.eye), [0, 0, -1.0], atol=1e-12)
+    assert cam.fov == pytest.approx(math.degrees(0.8))
+    assert GltfAnimation(write_arm(tmp_path / "arm.glb", "u8")).camera_at(0.0) is None
+
+
+# ----------------------------------------------------------------------------- real files
+
+
+def features(tris):
+    """Permutation-invariant summaries of a triangle set: sorted centroid and vertex coordinates, areas."""
+    t = np.asarray(tris, dtype=np.float64)
+    c = t.mean(axis=1)
+    area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+    return [np.sort(c[:, k]) for k in range(3)] + [np.sort(t[:, :, k].ravel()) for k in range(3)] + [np.sort(area)]
+
+
+REAL = {
+    "CesiumMan": ("animated/cesium_man/CesiumMan.glb", 4672),
+    "AnimatedMorphSphere": ("animated/animated_morph_sphere/AnimatedMorphSphere.gltf", 960),
+    "BrainStem": ("animated/brainstem/BrainStem.glb", 61666),
+    "LittlestTokyo": ("animated/littlest_tokyo/LittlestTokyo.glb", 141802),
+}
+
+
+def load_real(name):
+    rel, n = REAL[name]
+    p = need_data(rel)
+    if name == "LittlestTokyo" and not HAVE_DRACO:
+        pytest.skip("DracoPy is not installed: LittlestTokyo's Draco-compressed meshes cannot be decoded")
+    return p, n
+
+
+@pytest.mark.parametrize("name", sorted(REAL))
+def test_real_bind_pose_equals_trimesh(name):
+    import trimesh
+
+    p, n = load_real(name)
+    s = GltfAnimation(p)
+    assert s.n_triangles == n
+    bind = s.bind_triangles()
+    m = trimesh.load(str(p), force="mesh", process=False, skip_materials=True)
+    ref = np.asarray(m.vertices)[np.asarray(m.faces)]
+    assert len(ref) == n
+    scale = np.ptp(ref.reshape(-1, 3), axis=0).max()
+    fa, fb = features(bind), features(ref)
+    for a, b in zip(fa[:6], fb[:6]):
+        np.testing.assert_allclose(a, b, atol=2e-6 * scale, rtol=0)
+    np.testing.assert_allclose(fa[6], fb[6], atol=1e-9 * scale**2, rtol=1e-4)  # areas
+
+
+@pytest.mark.parametrize("name", sorted(REAL))
+def test_real_static_mask_and_loop(name):
+    p, _ = load_real(name)
+    s = GltfAnimation(p)
+    d = s.duration
+    assert d is not None and d > 0
+    frames = [s.triangles_at(t).copy() for t in (0.0, 0.31 * d, 0.77 * d)]
+    m = s.static_mask
+    for f in frames[1:]:
+        np.testing.assert_array_equal(f[m], frames[0][m])
+    moved = np.zeros(s.n_triangles, dtype=bool)
+    for f in frames[1:]:
+        moved |= (f != frames[0]).any(axis=(1, 2))
+    assert moved[~m].mean() > 0.5  # the triangles called moving do move
+    scale = np.ptp(frames[0].reshape(-1, 3), axis=0).max()
+    np.testing.assert_allclose(s.triangles_at(0.31 * d + d), frames[1], atol=2e-5 * scale)
+    if name == "LittlestTokyo":
+        assert 0 < s.n_static < s.n_triangles  # a static town with a few moving parts
+    else:
+        assert s.n_static == 0
+
+
+def reference_pose(path, t):
+    """The scene at clip time t, computed with pygltflib + numpy float64 (LINEAR samplers only)."""
+    g = gl.GLTF2().load(str(path))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # pygltflib warns that the .bin file is left "orphaned"
+        g.convert_buffers(gl.BufferFormat.BINARYBLOB)
+    blob = g.binary_blob()
+    comp = {5121: "u1", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
+    ncomp = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
+
+    def acc(i):
+        a = g.accessors[i]
+        bv = g.bufferViews[a.bufferView]
+        dt = np.dtype(comp[a.componentType])
+        n = ncomp[a.type]
+        stride = bv.byteStride or dt.itemsize * n
+        start = (bv.byteOffset or 0) + (a.byteOffset or 0)
+        raw = np.frombuffer(blob, np.uint8, count=stride * (a.count - 1) + dt.itemsize * n, offset=start)
+        out = np.lib.stride_tricks.as_strided(raw.view(dt), shape=(a.count, n), strides=(stride, dt.itemsize))
+        out = out.astype(np.float64)
+        if a.normalized:
+            out /= np.iinfo(dt).max
+        return out
+
+    trs = {i: [np.array(nd.translation or [0, 0, 0], float), np.array(nd.rotation or [0, 0, 0, 1], float),
+               np.array(nd.scale or [1, 1, 1], float)] for i, nd in enumerate(g.nodes)}
+    for an in g.animations:
+        for ch in an.channels:
+            smp = an.samplers[ch.sampler]
+            assert smp.interpolation == "LINEAR"
+            ts = acc(smp.input)[:, 0]
+            vs = acc(smp.output).reshape(len(ts), -1)
+            k = int(np.clip(np.searchsorted(ts, t, side="right") - 1, 0, len(ts) - 1))
+            if k == len(ts) - 1 or t <= ts[0]:
+                val = vs[k if t > ts[0] else 0]
+            else:
+                s = (t - ts[k]) / (ts[k + 1] - ts[k])
+                a, b = vs[k], vs[k + 1]
+                if ch.target.path == "rotation":
+                    if a @ b < 0:
+                        b = -b
+                    th = math.acos(min(1.0, a @ b))
+                    if th < 1e-6:
+                        val = a * (1 - s) + b * s
+                    else:
+                        val = (math.sin((1 - s) * th) * a + math.sin(s * th) * b) / math.sin(th)
+                    val = val / np.linalg.norm(val)
+                else:
+                    val = (1 - s) * a + s * b
+            if ch.target.path == "weights":
+                trs[ch.target.node].append(val)
+            else:
+                trs[ch.target.node][["translation", "rotation", "scale"].index(ch.target.path)] = val
+
+    def local(i):
+        nd = g.nodes[i]
+        if nd.matrix:
+            return np.array(nd.matrix, float).reshape(4, 4).T
+        tr, q, sc = trs[i][:3]
+        x, y, z, w = q
+        r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                      [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                      [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+        m = np.eye(4)
+        m[:3, :3] = r * sc
+        m[:3, 3] = tr
+        return m
+
+    world, order = {}, []
+
+    def walk(i, parent):
+        world[i] = parent @ local(i)
+        order.append(i)
+        for c in g.nodes[i].children or []:
+            walk(c, world[i])
+
+    for r in g.scenes[g.scene or 0].nodes:
+        walk(r, np.eye(4))
+    tris = []
+    for i in order:
+        nd = g.nodes[i]
+        if nd.mesh is None:
+            continue
+        mesh = g.meshes[nd.mesh]
+        for prim in mesh.primitives:
+            pos = acc(prim.attributes.POSITION)
+            weights = trs[i][3] if len(trs[i]) > 3 else np.array(mesh.weights or [0.0] * len(prim.targets or []))
+            for k, tg in enumerate(prim.targets or []):
+                pos = pos + weights[k] * acc(tg["POSITION"] if isinstance(tg, dict) else tg.POSITION)
+            ph = np.c_[pos, np.ones(len(pos))]
+            if nd.skin is not None:
+                sk = g.skins[nd.skin]
+                ibm = acc(sk.inverseBindMatrices).reshape(-1, 4, 4).transpose(0, 2, 1)
+                jm = np.array([world[j] for j in sk.joints]) @ ibm
+                joints = acc(prim.attributes.JOINTS_0).astype(int)
+                w = acc(prim.attributes.WEIGHTS_0)
+                w = w / w.sum(axis=1, keepdims=True)  # CesiumMan's rows do not all sum to 1
+                out = np.einsum("vk,vkij,vj->vi", w, jm[joints], ph)[:, :3]
+            else:
+                out = (ph @ world[i].T)[:, :3]
+            idx = acc(prim.indices).astype(int).reshape(-1, 3)
+            tris.append(out[idx])
+    return np.concatenate(tris)
+
+
+@pytest.mark.parametrize("name,times", [
+    ("CesiumMan", (0.0, 0.37, 1.21)),
+    ("AnimatedMorphSphere", (0.5, 2.2, 4.9)),
+    ("BrainStem", (3.3, 11.0, 17.0)),
+])
+def test_real_pose_equals_numpy_reference(name, times):
+    p, _ = load_real(name)
+    s = GltfAnimation(p)
+    for t in times:
+        ref = reference_pose(p, t)
+        got = s.triangles_at(t).astype(np.float64)
+        scale = np.ptp(ref.reshape(-1, 3), axis=0).max()
+        np.testing.assert_allclose(got, ref, atol=5e-6 * scale, rtol=0, err_msg=f"{name} t={t}")
+
+
+# ----------------------------------------------------------------------------- Draco
+
+
+def test_littlest_tokyo_with_dracopy():
+    p, n = load_real("LittlestTokyo")
+    s = make_scene(p)
+    assert isinstance(s, GltfAnimation) and s.n_triangles == n
+    assert s.clip == "Take 001" and s.time_range == (0.0, 10.0)
+    a = s.triangles_at(2.0)
+    assert np.isfinite(a).all()
+
+
+def test_draco_without_dracopy_says_how_to_get_it(monkeypatch):
+    p = need_data("animated/littlest_tokyo/LittlestTokyo.glb")
+    real_find_spec = importlib.util.find_spec
+    monkeypatch.setattr(gltf_module.importlib.util, "find_spec",
+                        lambda name, *a: None if name == "DracoPy" else real_find_spec(name, *a))
+    with pytest.raises(SceneFileError) as info:
+        GltfAnimation(p)
+    assert info.value.path == str(p)
+    assert "Draco" in info.value.problem and "pip install DracoPy" in info.value.problem
