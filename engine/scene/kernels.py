@@ -229,103 +229,72 @@ def skin_palette(world, joint_node, inverse_bind, out):
 SERIAL_BELOW = 16384
 
 
-# The serial and parallel kernels share one body, written out twice on purpose: numba compiles a
-# per-vertex helper function (even inline="always") about 3-10x slower than the loop body itself,
-# and palette[g] / world[n] views are avoided for the same reason (direct 3-index access).
+# The serial and parallel kernels share one per-vertex body.  It is compiled with _nrt=False:
+# numba would otherwise reference-count each of its array arguments on every call, which made a
+# per-vertex helper several times slower than writing the loop body out twice.
+
+
+@njit(cache=True, _nrt=False)
+def _deform_one(v, local, vinst, inst_first, inst_node, inst_skinned, joints, jweights,
+                inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, out):
+    """Pose vertex v: morph targets, then linear-blend skinning or its node's world matrix."""
+    i = vinst[v]
+    x = np.float64(local[v, 0])
+    y = np.float64(local[v, 1])
+    z = np.float64(local[v, 2])
+    mc = inst_mcount[i]
+    if mc > 0:
+        nv = inst_first[i + 1] - inst_first[i]
+        lv = v - inst_first[i]
+        wo = inst_woff[i]
+        mb = inst_mbase[i]
+        for k in range(mc):
+            mw = mweights[wo + k]
+            if mw != 0.0:
+                row = mb + k * nv + lv
+                x += mw * deltas[row, 0]
+                y += mw * deltas[row, 1]
+                z += mw * deltas[row, 2]
+    if inst_skinned[i]:
+        ox = 0.0
+        oy = 0.0
+        oz = 0.0
+        wsum = 0.0
+        for j in range(joints.shape[1]):
+            w = np.float64(jweights[v, j])
+            if w != 0.0:
+                g = joints[v, j]
+                ox += w * (palette[g, 0, 0] * x + palette[g, 0, 1] * y + palette[g, 0, 2] * z + palette[g, 0, 3])
+                oy += w * (palette[g, 1, 0] * x + palette[g, 1, 1] * y + palette[g, 1, 2] * z + palette[g, 1, 3])
+                oz += w * (palette[g, 2, 0] * x + palette[g, 2, 1] * y + palette[g, 2, 2] * z + palette[g, 2, 3])
+                wsum += w
+        if wsum != 0.0:
+            out[v, 0] = ox
+            out[v, 1] = oy
+            out[v, 2] = oz
+            return
+    n = inst_node[i]
+    out[v, 0] = world[n, 0, 0] * x + world[n, 0, 1] * y + world[n, 0, 2] * z + world[n, 0, 3]
+    out[v, 1] = world[n, 1, 0] * x + world[n, 1, 1] * y + world[n, 1, 2] * z + world[n, 1, 3]
+    out[v, 2] = world[n, 2, 0] * x + world[n, 2, 1] * y + world[n, 2, 2] * z + world[n, 2, 3]
 
 
 @njit(cache=True, parallel=True)
 def _deform_parallel(vids, local, vinst, inst_first, inst_node, inst_skinned, joints, jweights,
                      inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, out):
-    """Parallel body of :func:`deform_vertices` (identical to _deform_serial but for prange)."""
+    """:func:`_deform_one` over vids, in parallel."""
     for ii in prange(vids.shape[0]):
-        v = vids[ii]
-        i = vinst[v]
-        x = np.float64(local[v, 0])
-        y = np.float64(local[v, 1])
-        z = np.float64(local[v, 2])
-        mc = inst_mcount[i]
-        if mc > 0:
-            nv = inst_first[i + 1] - inst_first[i]
-            lv = v - inst_first[i]
-            wo = inst_woff[i]
-            mb = inst_mbase[i]
-            for k in range(mc):
-                mw = mweights[wo + k]
-                if mw != 0.0:
-                    row = mb + k * nv + lv
-                    x += mw * deltas[row, 0]
-                    y += mw * deltas[row, 1]
-                    z += mw * deltas[row, 2]
-        if inst_skinned[i]:
-            ox = 0.0
-            oy = 0.0
-            oz = 0.0
-            wsum = 0.0
-            for j in range(joints.shape[1]):
-                w = np.float64(jweights[v, j])
-                if w != 0.0:
-                    g = joints[v, j]
-                    ox += w * (palette[g, 0, 0] * x + palette[g, 0, 1] * y + palette[g, 0, 2] * z + palette[g, 0, 3])
-                    oy += w * (palette[g, 1, 0] * x + palette[g, 1, 1] * y + palette[g, 1, 2] * z + palette[g, 1, 3])
-                    oz += w * (palette[g, 2, 0] * x + palette[g, 2, 1] * y + palette[g, 2, 2] * z + palette[g, 2, 3])
-                    wsum += w
-            if wsum != 0.0:
-                out[v, 0] = ox
-                out[v, 1] = oy
-                out[v, 2] = oz
-                continue
-        n = inst_node[i]
-        out[v, 0] = world[n, 0, 0] * x + world[n, 0, 1] * y + world[n, 0, 2] * z + world[n, 0, 3]
-        out[v, 1] = world[n, 1, 0] * x + world[n, 1, 1] * y + world[n, 1, 2] * z + world[n, 1, 3]
-        out[v, 2] = world[n, 2, 0] * x + world[n, 2, 1] * y + world[n, 2, 2] * z + world[n, 2, 3]
+        _deform_one(vids[ii], local, vinst, inst_first, inst_node, inst_skinned, joints, jweights,
+                    inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, out)
 
 
 @njit(cache=True)
 def _deform_serial(vids, local, vinst, inst_first, inst_node, inst_skinned, joints, jweights,
-                     inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, out):
-    """Serial body of :func:`deform_vertices` (identical to _deform_parallel but for range)."""
+                   inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, out):
+    """:func:`_deform_one` over vids on the calling thread (small scenes)."""
     for ii in range(vids.shape[0]):
-        v = vids[ii]
-        i = vinst[v]
-        x = np.float64(local[v, 0])
-        y = np.float64(local[v, 1])
-        z = np.float64(local[v, 2])
-        mc = inst_mcount[i]
-        if mc > 0:
-            nv = inst_first[i + 1] - inst_first[i]
-            lv = v - inst_first[i]
-            wo = inst_woff[i]
-            mb = inst_mbase[i]
-            for k in range(mc):
-                mw = mweights[wo + k]
-                if mw != 0.0:
-                    row = mb + k * nv + lv
-                    x += mw * deltas[row, 0]
-                    y += mw * deltas[row, 1]
-                    z += mw * deltas[row, 2]
-        if inst_skinned[i]:
-            ox = 0.0
-            oy = 0.0
-            oz = 0.0
-            wsum = 0.0
-            for j in range(joints.shape[1]):
-                w = np.float64(jweights[v, j])
-                if w != 0.0:
-                    g = joints[v, j]
-                    ox += w * (palette[g, 0, 0] * x + palette[g, 0, 1] * y + palette[g, 0, 2] * z + palette[g, 0, 3])
-                    oy += w * (palette[g, 1, 0] * x + palette[g, 1, 1] * y + palette[g, 1, 2] * z + palette[g, 1, 3])
-                    oz += w * (palette[g, 2, 0] * x + palette[g, 2, 1] * y + palette[g, 2, 2] * z + palette[g, 2, 3])
-                    wsum += w
-            if wsum != 0.0:
-                out[v, 0] = ox
-                out[v, 1] = oy
-                out[v, 2] = oz
-                continue
-        n = inst_node[i]
-        out[v, 0] = world[n, 0, 0] * x + world[n, 0, 1] * y + world[n, 0, 2] * z + world[n, 0, 3]
-        out[v, 1] = world[n, 1, 0] * x + world[n, 1, 1] * y + world[n, 1, 2] * z + world[n, 1, 3]
-        out[v, 2] = world[n, 2, 0] * x + world[n, 2, 1] * y + world[n, 2, 2] * z + world[n, 2, 3]
+        _deform_one(vids[ii], local, vinst, inst_first, inst_node, inst_skinned, joints, jweights,
+                    inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, out)
 
 
 def deform_vertices(vids, local, vinst, inst_first, inst_node, inst_skinned, joints, jweights,
