@@ -41,7 +41,7 @@ def run(a):
     for name in ("t0", "dt"):
         if not math.isfinite(getattr(a, name)):
             raise InputError(f"--{name} must be finite")
-    cold = cache_is_cold()
+    cold = cache_is_cold(a.traversal)
     if cold:
         print("Compiling numba kernels (first run only, about 10-30 s; cached for later runs)...",
               file=sys.stderr, flush=True)

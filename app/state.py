@@ -92,6 +92,7 @@ class ViewerState:
     shading: str = "lambert"
     shadows: bool = False
     follow_camera: bool = False  # look through the scene's animated camera (BART, glTF)
+    traversal: str = "dda"  # "dda" single rays or "cgt" packets
     light: tuple | None = None
     scale: float = 1.0
     # camera
@@ -138,7 +139,8 @@ class ViewerState:
 
     def render_params(self, width, height):
         return RenderParams(width=width, height=height, shading=self.shading, shadows=self.shadows,
-                            light=self.light, watertight=self.watertight, threads=self.threads)
+                            light=self.light, watertight=self.watertight, threads=self.threads,
+                            traversal=self.traversal)
 
     # ---- animation -----------------------------------------------------------------------
     def time_span(self):
@@ -191,6 +193,7 @@ class ViewerState:
             "shading": self.shading,
             "shadows": self.shadows,
             "follow_camera": self.follow_camera,
+            "traversal": self.traversal,
             "scale": self.scale,
             "show_panel": self.show_panel,
             "busy": self.busy,

@@ -12,7 +12,7 @@ import os
 import numpy as np
 from imgui_bundle import imgui, implot
 
-from engine.config import INSERT_MODES, SHADING_MODES
+from engine.config import INSERT_MODES, SHADING_MODES, TRAVERSALS
 from engine.scene import BUILTIN_SCENES, DEFORM_KINDS, SUPPORTED_EXTENSIONS
 
 from .input import KEY_HELP
@@ -184,6 +184,9 @@ def draw_panel(state, strategy_names):
         v = _combo(state, "shading", list(SHADING_MODES), state.shading)
         if v is not None:
             state.shading = v
+        v = _combo(state, "traversal", list(TRAVERSALS), state.traversal)
+        if v is not None:
+            state.traversal = v
         changed, b = imgui.checkbox("shadows", bool(state.shadows))
         _rect(state, "shadows")
         if changed:

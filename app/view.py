@@ -119,6 +119,7 @@ def initial_state(a):
     st.watertight = rp.watertight
     st.shading = rp.shading
     st.shadows = rp.shadows
+    st.traversal = rp.traversal
     st.light = rp.light
     st.scale = float(a.scale)
     st.fov = a.fov
@@ -127,7 +128,7 @@ def initial_state(a):
     st.home = st.camera
     st.show_panel = not a.hide_panel
     st.window_size = (w, h)
-    st.cold_cache = cache_is_cold()
+    st.cold_cache = cache_is_cold(st.traversal)
     if source not in BUILTIN_SCENES:
         st.file_text = source
     return st

@@ -10,8 +10,12 @@ from .errors import InputError
 
 INSERT_MODES = ("bbox", "exact")
 SHADING_MODES = ("lambert", "normal", "cost")
+#: Ray traversal: single-ray 3D DDA, or coherent grid traversal of ray packets (engine.trace.cgt)
+TRAVERSALS = ("dda", "cgt")
 #: Default ceiling on grid cells (two int32 arrays of this size plus cell lists): 256 MiB.
 DEFAULT_MAX_CELLS = 1 << 25
+#: Default memory budget of one grid (cell arrays + references): 2 GiB.
+DEFAULT_MAX_BYTES = 1 << 31
 
 
 def _positive_int(name, v, lo=1, hi=None):
@@ -38,6 +42,8 @@ class GridParams:
     insert     "bbox" (triangle bounding box, fast) or "exact" (separating-axis test, fewer refs)
     threads    build thread count (None: all cores); may exceed the core count
     max_cells  ceiling on nx*ny*nz; a larger request is reduced to it with a warning
+    max_bytes  memory budget of the cell arrays plus references; a build that would need
+               more stops with an InputError before allocating
     """
 
     strategy: str = "serial"
@@ -46,6 +52,7 @@ class GridParams:
     insert: str = "bbox"
     threads: int | None = None
     max_cells: int = DEFAULT_MAX_CELLS
+    max_bytes: int = DEFAULT_MAX_BYTES
 
     def __post_init__(self):
         try:
@@ -58,7 +65,8 @@ class GridParams:
         object.__setattr__(self, "macro", _positive_int("macro cell size", self.macro, 1, 64))
         if self.insert not in INSERT_MODES:
             raise InputError(f"unknown insertion test {self.insert!r}; choose one of {', '.join(INSERT_MODES)}")
-        object.__setattr__(self, "max_cells", _positive_int("max_cells", self.max_cells, 1, 1 << 31 - 1))
+        object.__setattr__(self, "max_cells", _positive_int("max_cells", self.max_cells, 1, (1 << 31) - 2))
+        object.__setattr__(self, "max_bytes", _positive_int("max_bytes", self.max_bytes, 1))
         if self.threads is not None:
             from .threads import check_threads
 
@@ -85,6 +93,8 @@ class RenderParams:
                    Moller-Trumbore test (False)
     threads        render thread count (None: all cores)
     tile           square tile edge in pixels; tiles are the unit of parallel work
+    traversal      "dda" (one ray at a time) or "cgt" (packets of up to 8 x 8 rays, coherent grid
+                   traversal, Wald et al. 2006); same hits except at exact ties
     """
 
     width: int = 640
@@ -95,6 +105,7 @@ class RenderParams:
     watertight: bool = True
     threads: int | None = None
     tile: int = 16
+    traversal: str = "dda"
 
     def __post_init__(self):
         object.__setattr__(self, "width", _positive_int("image width", self.width, 1, 16384))
@@ -102,6 +113,8 @@ class RenderParams:
         object.__setattr__(self, "tile", _positive_int("tile size", self.tile, 1, 256))
         if self.shading not in SHADING_MODES:
             raise InputError(f"unknown shading mode {self.shading!r}; choose one of {', '.join(SHADING_MODES)}")
+        if self.traversal not in TRAVERSALS:
+            raise InputError(f"unknown traversal {self.traversal!r}; choose one of {', '.join(TRAVERSALS)}")
         if self.light is not None:
             try:
                 light = tuple(float(x) for x in self.light)

@@ -16,7 +16,7 @@ STATS_COLUMNS = (
     "frame", "t", "triangles", "cells", "references", "threads", "strategy", "insert",
     "clear_ms", "insert_ms", "macro_ms", "build_ms", "render_ms", "frame_ms",
     "anim_ms", "bounds_ms", "rebuilt", "refs_per_tri", "dims", "macro_full", "grid_bytes",
-    "width", "height", "shading", "mrays", "hit_fraction", "tests_per_ray", "cells_per_ray",
+    "width", "height", "shading", "traversal", "mrays", "hit_fraction", "tests_per_ray", "cells_per_ray",
 )
 
 
@@ -156,6 +156,8 @@ class FramePipeline:
             "width": rp.width,
             "height": rp.height,
             "shading": rp.shading,
+            "traversal": rp.traversal,
+            "fallback_rays": res.stats.get("fallback_rays", 0),
         }
         for k in ("mrays", "hit_fraction", "tests_per_ray", "cells_per_ray"):
             stats[k] = res.stats[k]

@@ -152,7 +152,10 @@ def _ref_pairs(tris, lo, cell, dims, exact, all_cells=False):
     cell = np.asarray(cell, np.float64)
     dims = np.asarray(dims, np.int64)
     got, amb = [], []
+    zero_area = ~np.cross(t64[:, 1] - t64[:, 0], t64[:, 2] - t64[:, 0]).any(axis=1)
     for f, ijk in _candidates(t64, lo, cell, dims, all_cells):
+        keep = ~zero_area[f]  # no surface: in no cell (exact test on float32 input, see layout.py)
+        f, ijk = f[keep], ijk[keep]
         m = _sat_margins(t64[f], ijk, lo, cell, exact).min(axis=1)
         c = cell_index(ijk, dims)
         rows = np.stack([c, f], axis=1)
@@ -167,6 +170,8 @@ def _ref_pairs(tris, lo, cell, dims, exact, all_cells=False):
 def ref_pairs_bbox(tris, lo, cell, dims, all_cells=False):
     """Bounding-box rule: triangle f is in cell (i, j, k) iff its axis-aligned bounding box grown
     by INSERT_EPS cell sizes on every side overlaps the closed cell box on all three axes.
+    Triangles of exactly zero area (float64 cross product of the float32 edges is zero) are in
+    no cell.
 
     tris (F, 3, 3); lo (3,) float64; cell (3,) float64; dims (3,) int.  Returns :class:`RefPairs`.
     """

@@ -93,6 +93,8 @@ class GridBuffers:
         self.start = self._start.reshape(0, 1)
         self.prev_spec = None  # spec and layers of the last build, for the next clear
         self.prev_layers = 0
+        self.generation = 0  # bumped by every build: grids of older builds are stale
+        self.max_bytes = None  # memory budget of the build in progress (GridParams.max_bytes)
 
     def prepare(self, spec, layers):
         """Size the views for this build. Returns True when count is known to be all zero."""
@@ -124,6 +126,14 @@ class GridBuffers:
                 f"the grid would hold {n} references, more than int32 offsets allow; lower the density "
                 f"(lambda) or use exact insertion"
             )
+        if self.max_bytes is not None:
+            need = 4 * n + self.count.nbytes + self.start.nbytes
+            if need > self.max_bytes:
+                raise InputError(
+                    f"the grid would need {need / 2**20:.0f} MiB ({n} references over {self.count.size} cells), "
+                    f"above the memory budget max_bytes={self.max_bytes / 2**20:.0f} MiB; lower the density "
+                    f"(lambda), use exact insertion or raise max_bytes"
+                )
         if self._refs.size < n:
             self._refs = np.empty(int(n * 1.5) + 16, np.int32)
         return self._refs[:n]
@@ -193,7 +203,25 @@ class GridBuilder:
                 stacklevel=2,
             )
         layers = strategy.layers(threads)
+        cell_bytes = layers * (2 * spec.n_cells + 1) * 4
+        if cell_bytes > p.max_bytes:
+            raise InputError(
+                f"{layers} layer(s) of {spec.n_cells} cells need {cell_bytes / 2**20:.0f} MiB, above the memory "
+                f"budget max_bytes={p.max_bytes / 2**20:.0f} MiB; lower the density (lambda) or max_cells"
+                + (" or the thread count (this strategy keeps one grid per thread)" if layers > 1 else "")
+            )
+        try:
+            return self._build(tris, p, strategy, threads, spec, layers, times, t_start)
+        except BaseException:
+            # a refused or interrupted build leaves counts the next clear would not know about
+            self.bufs = GridBuffers()
+            raise
+
+    def _build(self, tris, p, strategy, threads, spec, layers, times, t_start):
+        F = tris.shape[0]
         bufs = self.bufs
+        bufs.generation += 1
+        bufs.max_bytes = p.max_bytes
 
         # clear: only the cells of macro cells that were full in the previous build
         with timed(times, "clear_ms"):
@@ -246,6 +274,8 @@ class GridBuilder:
             references=int(refs),
             n_triangles=F,
             stats=stats,
+            generation=bufs.generation,
+            buffers=bufs,
         )
         stats["grid_bytes"] = grid.memory_bytes()
         return grid

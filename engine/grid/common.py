@@ -73,7 +73,13 @@ def _clampi(v, lo, hi):
 
 @njit(cache=True, _nrt=False)
 def tri_cell_range(tris, f, lo, inv_cell, dims):
-    """Inclusive cell index range (i0, j0, k0, i1, j1, k1) of triangle f's grown bounding box."""
+    """Inclusive cell index range (i0, j0, k0, i1, j1, k1) of triangle f's grown bounding box.
+
+    A triangle of exactly zero area (collinear or coincident vertices) gets the empty range
+    (0, 0, 0, -1, -1, -1): it has no surface to hit and goes into no cell.  The test is exact:
+    differences of float32 coordinates and their products are exact in float64, so the cross
+    product is exactly zero only for truly degenerate triangles.
+    """
     ax = np.float64(tris[f, 0, 0])
     bx = np.float64(tris[f, 1, 0])
     cx = np.float64(tris[f, 2, 0])
@@ -83,6 +89,10 @@ def tri_cell_range(tris, f, lo, inv_cell, dims):
     az = np.float64(tris[f, 0, 2])
     bz = np.float64(tris[f, 1, 2])
     cz = np.float64(tris[f, 2, 2])
+    ux, uy, uz = bx - ax, by - ay, bz - az
+    vx, vy, vz = cx - ax, cy - ay, cz - az
+    if uy * vz == uz * vy and uz * vx == ux * vz and ux * vy == uy * vx:
+        return 0, 0, 0, -1, -1, -1
     i0 = int(math.floor((min(ax, bx, cx) - lo[0]) * inv_cell[0] - EPS))
     i1 = int(math.floor((max(ax, bx, cx) - lo[0]) * inv_cell[0] + EPS))
     j0 = int(math.floor((min(ay, by, cy) - lo[1]) * inv_cell[1] - EPS))

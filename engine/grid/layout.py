@@ -12,7 +12,8 @@ non-empty or empty, so traversal can skip empty space (Parker et al. 1999; Wald 
 
 Membership rule (what "the same grid contents" means for every strategy and the tests):
 a triangle is in a cell when its axis-aligned bounding box, grown by ``INSERT_EPS`` cell sizes
-on every side, overlaps the closed cell box.  With exact insertion the triangle must also not be
+on every side, overlaps the closed cell box.  Triangles of exactly zero area (float64 cross
+product of their float32 edges exactly zero) are in no cell: they cannot be hit.  With exact insertion the triangle must also not be
 separated from the grown cell box by any of the 13 separating axes (Akenine-Möller 2001).
 The growth makes insertion conservative, so a ray that hits a triangle exactly on a cell face
 still finds it in the cell whose t-range contains the hit.
@@ -82,6 +83,11 @@ class Grid:
     n_triangles int               triangles the grid was built over
     stats       dict              stage timings in ms (clear_ms, insert_ms, macro_ms, build_ms,
                                   plus strategy-specific stages) and counts
+    generation  int               which build of ``buffers`` this grid is
+
+    The arrays are views of its GridBuilder's buffers, which the builder's next build reuses:
+    a grid is valid until then (:meth:`check_current` raises afterwards).  A grid from
+    ``build_grid`` owns its buffers.
     """
 
     spec: GridSpec
@@ -92,6 +98,18 @@ class Grid:
     references: int
     n_triangles: int
     stats: dict = field(default_factory=dict)
+    generation: int = 0
+    buffers: object = field(default=None, repr=False)
+
+    def check_current(self):
+        """Raise InputError when the builder that made this grid has built another since."""
+        from ..errors import InputError
+
+        if self.buffers is not None and self.buffers.generation != self.generation:
+            raise InputError(
+                "this grid is stale: its GridBuilder has built another grid since, reusing its buffers "
+                "(use the newest grid, or build_grid() for a grid that owns its arrays)"
+            )
 
     @property
     def layers(self) -> int:

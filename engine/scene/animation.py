@@ -95,16 +95,29 @@ def as_static_mask(mask, n_triangles, what="static_mask"):
 def gather_triangles(vertices, faces, out):
     """Fill ``out`` (F,3,3) float32 with ``vertices[faces]``; return ``out``.
 
-    ``vertices`` (V,3) float32 and ``faces`` (F,3) int32 must already be validated (for example by
-    :func:`engine.arrays.as_mesh`): the kernel does no bounds checks.  Only shapes and dtypes are
-    re-checked here.
+    Checks shapes, dtypes and that every face index lies in [0, V); InputError otherwise.
     """
-    if vertices.dtype != TRI_DTYPE or vertices.ndim != 2 or vertices.shape[1] != 3:
-        raise InputError(f"vertices must be (V, 3) float32, got {vertices.shape} {vertices.dtype}")
-    if faces.dtype != np.int32 or faces.ndim != 2 or faces.shape[1] != 3:
-        raise InputError(f"faces must be (F, 3) int32, got {faces.shape} {faces.dtype}")
-    if out.shape != (len(faces), 3, 3) or out.dtype != TRI_DTYPE:
-        raise InputError(f"out must be ({len(faces)}, 3, 3) float32, got {out.shape} {out.dtype}")
+    if not isinstance(vertices, np.ndarray) or vertices.dtype != TRI_DTYPE or vertices.ndim != 2 \
+            or vertices.shape[1] != 3:
+        raise InputError(f"vertices must be (V, 3) float32, got {getattr(vertices, 'shape', None)} "
+                         f"{getattr(vertices, 'dtype', type(vertices))}")
+    if not isinstance(faces, np.ndarray) or faces.dtype != np.int32 or faces.ndim != 2 or faces.shape[1] != 3:
+        raise InputError(f"faces must be (F, 3) int32, got {getattr(faces, 'shape', None)} "
+                         f"{getattr(faces, 'dtype', type(faces))}")
+    if not isinstance(out, np.ndarray) or out.shape != (len(faces), 3, 3) or out.dtype != TRI_DTYPE \
+            or not out.flags.c_contiguous or not out.flags.writeable:
+        raise InputError(f"out must be a writable C-contiguous ({len(faces)}, 3, 3) float32 array")
+    if len(faces):
+        lo, hi = int(faces.min()), int(faces.max())
+        if lo < 0 or hi >= len(vertices):
+            bad = lo if lo < 0 else hi
+            raise InputError(f"face index {bad} out of range for {len(vertices)} vertices")
+    return gather_unchecked(vertices, faces, out)
+
+
+def gather_unchecked(vertices, faces, out):
+    """gather_triangles for arrays validated once at load time (the per-frame path of the
+    loaders, whose faces never change): no checks at all."""
     (_gather_serial if len(faces) < GATHER_SERIAL_BELOW else _gather_kernel)(vertices, faces, out)
     return out
 

@@ -32,7 +32,7 @@ from numba import njit
 from ..arrays import TRI_DTYPE
 from ..errors import InputError, SceneFileError
 from . import kernels as K
-from .animation import Animation, as_static_mask, check_time, gather_triangles
+from .animation import Animation, as_static_mask, check_time, gather_unchecked
 
 __all__ = ["BartAnimation", "kb_position_coefficients", "kb_rotation_segments"]
 
@@ -829,7 +829,7 @@ class BartAnimation(Animation):
     def _fill(self, t, out):
         if len(self._dynamic_vids):
             self._pose(self.bart_time(t), self._dynamic_vids)
-        gather_triangles(self._verts, self._faces, out)
+        gather_unchecked(self._verts, self._faces, out)
 
     def spline_value(self, kind, index, tb):
         """Evaluate position spline (kind "position") or rotation spline ("rotation") ``index`` at

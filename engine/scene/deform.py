@@ -31,7 +31,7 @@ from numba import njit, prange
 
 from ..arrays import TRI_DTYPE
 from ..errors import InputError
-from .animation import Animation, check_time, gather_triangles
+from .animation import Animation, check_time, gather_unchecked
 from .mesh import Mesh
 
 __all__ = ["Deform", "DEFORM_KINDS", "DEFAULT_AMPLITUDE_FRACTION"]
@@ -181,4 +181,4 @@ class Deform(Animation):
         return out
 
     def _fill(self, t, out):
-        gather_triangles(self.vertices_at(t), self.mesh.faces, out)
+        gather_unchecked(self.vertices_at(t), self.mesh.faces, out)

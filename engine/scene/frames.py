@@ -17,7 +17,7 @@ import numpy as np
 from ..arrays import TRI_DTYPE, as_mesh
 from ..errors import InputError, SceneFileError
 from . import kernels as K
-from .animation import Animation, as_static_mask, gather_triangles
+from .animation import Animation, as_static_mask, gather_unchecked
 
 __all__ = ["KeyframeMesh", "FRAME_EXTENSIONS", "load_frame_folder", "frame_files"]
 
@@ -124,7 +124,7 @@ class KeyframeMesh(Animation):
     def _fill(self, t, out):
         k0, k1, s = self.frame_position(t)
         K.lerp_rows(self._frames[k0], self._frames[k1], s, self._verts)
-        gather_triangles(self._verts, self._faces, out)
+        gather_unchecked(self._verts, self._faces, out)
 
 
 def _natural_key(p):

@@ -39,7 +39,7 @@ import numpy as np
 from ..arrays import TRI_DTYPE, as_mesh
 from ..errors import InputError, SceneFileError
 from . import kernels as K
-from .animation import Animation, as_static_mask, check_time, gather_triangles
+from .animation import Animation, as_static_mask, check_time, gather_unchecked
 
 __all__ = ["GltfAnimation", "DRACO_HINT"]
 
@@ -939,7 +939,7 @@ class GltfAnimation(Animation):
     def _fill(self, t, out):
         if len(self._dynamic_vids):
             self._pose(self._clip_time(t), self._dynamic_vids)
-        gather_triangles(self._verts, self._faces, out)
+        gather_unchecked(self._verts, self._faces, out)
 
     def vertices_at(self, t):
         """A new (V, 3) float32 array of the posed vertices at time ``t`` (instances concatenated,

@@ -12,6 +12,13 @@ Shading (all colours linear in [0, 1], stored as ``uint8(round(255 * c))``, alph
 * ``normal``:          (n_f + 1) / 2
 * ``cost``:            heat map of h = min(1, tests / 64) (triangle tests of the primary ray),
                        blue (h = 0) -> green (0.5) -> red (1); also shown on background pixels.
+                       With ``traversal="cgt"`` a test is one of the packet's triangle tests
+                       made while the ray was active (engine.trace.cgt), so this image differs.
+
+Traversal (RenderParams.traversal): ``dda`` traces one ray at a time (render_kernel);
+``cgt`` traces 8x8-pixel packets and their shadow rays with coherent grid traversal
+(engine.trace.cgt.cgt_render_kernel): the same t, triangle and colour buffers except where two
+triangles are hit at exactly the same t.
 
 The unit geometric normal is normalize((v1 - v0) x (v2 - v0)).
 """
@@ -21,7 +28,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, parallel_chunksize, prange
 
 from ..arrays import as_rays
 from ..config import RenderParams
@@ -29,38 +36,15 @@ from ..errors import InputError
 from ..threads import check_threads, use_threads
 from .traverse import MAILBOX, trace_ray
 from ..camera import pixel_dir
+from .cgt import cgt_render_kernel
+from .shade import (  # noqa: F401  (the shading constants stay importable from here)
+    AMBIENT, ALBEDO, BACKGROUND, COST_SCALE, cost_rgb, facing_normal, lambert_rgb, normal_rgb, put_pixel, shadow_ray,
+)
 
-BACKGROUND = (0.12, 0.13, 0.16)
-ALBEDO = (0.85, 0.78, 0.66)
-AMBIENT = 0.15
-COST_SCALE = 64.0
 #: shadow-ray origins move off the surface by this fraction of the scene's bounding-box diagonal
 SHADOW_OFFSET = 1e-6
 _NO_IDS = np.zeros(0, np.int32)
 SHADING_CODES = {"lambert": 0, "normal": 1, "cost": 2}
-
-
-@njit(cache=True)
-def _u8(c):
-    v = int(c * 255.0 + 0.5)
-    return np.uint8(0 if v < 0 else (255 if v > 255 else v))
-
-
-@njit(cache=True, _nrt=False)
-def _normal(tris, f):
-    e1x = np.float64(tris[f, 1, 0]) - tris[f, 0, 0]
-    e1y = np.float64(tris[f, 1, 1]) - tris[f, 0, 1]
-    e1z = np.float64(tris[f, 1, 2]) - tris[f, 0, 2]
-    e2x = np.float64(tris[f, 2, 0]) - tris[f, 0, 0]
-    e2y = np.float64(tris[f, 2, 1]) - tris[f, 0, 1]
-    e2z = np.float64(tris[f, 2, 2]) - tris[f, 0, 2]
-    nx = e1y * e2z - e1z * e2y
-    ny = e1z * e2x - e1x * e2z
-    nz = e1x * e2y - e1y * e2x
-    n = math.sqrt(nx * nx + ny * ny + nz * nz)
-    if n == 0.0:
-        return 0.0, 0.0, 0.0
-    return nx / n, ny / n, nz / n
 
 
 @njit(cache=True, _nrt=False)
@@ -121,60 +105,30 @@ def render_kernel(
                     idbuf[y, x] = f
                 costbuf[y, x] = nt
                 cellbuf[y, x] = nc
-                r = BACKGROUND[0]
-                g = BACKGROUND[1]
-                b = BACKGROUND[2]
+                r, g, b = BACKGROUND[0], BACKGROUND[1], BACKGROUND[2]
                 if mode == 2:
-                    h = min(1.0, nt / COST_SCALE)
-                    if h < 0.5:
-                        r, g, b = 0.0, 2.0 * h, 1.0 - 2.0 * h
-                    else:
-                        r, g, b = 2.0 * h - 1.0, 2.0 - 2.0 * h, 0.0
+                    r, g, b = cost_rgb(nt)
                 elif f >= 0:
-                    if which == 1:
-                        nx, ny, nz = _normal(tris_b, f)
-                    else:
-                        nx, ny, nz = _normal(tris, f)
-                    dn = nx * dx + ny * dy + nz * dz
-                    if dn > 0.0:
-                        nx, ny, nz, dn = -nx, -ny, -nz, -dn
+                    nx, ny, nz, dn = facing_normal(tris, tris_b, which, f, dx, dy, dz)
                     if mode == 1:
-                        r, g, b = (nx + 1.0) * 0.5, (ny + 1.0) * 0.5, (nz + 1.0) * 0.5
+                        r, g, b = normal_rgb(nx, ny, nz)
                     else:
                         if not shadows:
                             s = -dn
                         else:
-                            px = ex + t * dx
-                            py = ey + t * dy
-                            pz = ez + t * dz
-                            lx = light[0] - px
-                            ly = light[1] - py
-                            lz = light[2] - pz
-                            ld = math.sqrt(lx * lx + ly * ly + lz * lz)
-                            s = 0.0
-                            if ld > 0.0:
-                                lx /= ld
-                                ly /= ld
-                                lz /= ld
-                                s = nx * lx + ny * ly + nz * lz
-                                if s > 0.0:
-                                    sw, sf, st, su, sv, snc, snt = trace_two(
-                                        tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims,
-                                        macro_full, tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b,
-                                        tri_ids_b, macro_b, mdims_b, macro_full_b, has_b,
-                                        px + nx * off, py + ny * off, pz + nz * off, lx, ly, lz,
-                                        0.0, ld, watertight, True, mb,
-                                    )
-                                    if sf >= 0:
-                                        s = 0.0
-                                else:
+                            need, sox, soy, soz, lx, ly, lz, ld, s = shadow_ray(
+                                ex, ey, ez, t, dx, dy, dz, nx, ny, nz, light, off)
+                            if need:
+                                sw, sf, st, su, sv, snc, snt = trace_two(
+                                    tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims,
+                                    macro_full, tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b,
+                                    tri_ids_b, macro_b, mdims_b, macro_full_b, has_b,
+                                    sox, soy, soz, lx, ly, lz, 0.0, ld, watertight, True, mb,
+                                )
+                                if sf >= 0:
                                     s = 0.0
-                        k = AMBIENT + (1.0 - AMBIENT) * s
-                        r, g, b = ALBEDO[0] * k, ALBEDO[1] * k, ALBEDO[2] * k
-                img[y, x, 0] = _u8(r)
-                img[y, x, 1] = _u8(g)
-                img[y, x, 2] = _u8(b)
-                img[y, x, 3] = np.uint8(255)
+                        r, g, b = lambert_rgb(s)
+                put_pixel(img, y, x, r, g, b)
 
 
 @njit(cache=True, parallel=True)
@@ -206,6 +160,11 @@ def _grid_args(grid):
 
 
 def _check_grid_tris(grid, tris):
+    from ..grid.layout import Grid
+
+    if not isinstance(grid, Grid):
+        raise InputError(f"expected a Grid (from build_grid or GridBuilder.build), got {type(grid).__name__}")
+    grid.check_current()
     if not isinstance(tris, np.ndarray) or tris.dtype != np.float32 or tris.ndim != 3 or tris.shape[1:] != (3, 3):
         raise InputError(f"triangles must be the (F,3,3) float32 array the grid was built from, got "
                          f"{getattr(tris, 'shape', None)} {getattr(tris, 'dtype', type(tris))}")
@@ -240,7 +199,28 @@ def cast_rays(grid, tris, origins, dirs, tmin=0.0, tmax=np.inf, watertight=True,
     u = np.empty(N)
     v = np.empty(N)
     if N:
+        # directions far from unit length are rescaled by exact powers of two (t scales back
+        # exactly), so the traversal never sees components whose inverse overflows
+        e = np.frexp(np.abs(d).max(axis=1))[1]
+        odd = (e < -100) | (e > 100)
+        if odd.any():
+            d = d.copy()
+            d[odd] = np.ldexp(d[odd], -e[odd, None])
         cast_kernel(tris, *_grid_args(grid), o, d, tmin, tmax, bool(watertight), bool(any_hit), 256, t, f, u, v)
+        for s in np.unique(e[odd]):
+            rows = np.flatnonzero(odd & (e == s))
+            # t = t' * 2**-s for d' = d * 2**-s; a hit beyond float64's range is no hit
+            lo_t, hi_t = np.ldexp(np.array([tmin, tmax]), int(s))
+            sub = [np.empty(len(rows)), np.empty(len(rows), np.int32), np.empty(len(rows)), np.empty(len(rows))]
+            cast_kernel(tris, *_grid_args(grid), np.ascontiguousarray(o[rows]), np.ascontiguousarray(d[rows]),
+                        float(lo_t), float(hi_t), bool(watertight), bool(any_hit), 256, *sub)
+            with np.errstate(over="ignore"):
+                ts = np.ldexp(sub[0], -int(s))
+            gone = ~np.isfinite(ts)
+            sub[1][gone] = -1
+            sub[2][gone] = 0.0
+            sub[3][gone] = 0.0
+            t[rows], f[rows], u[rows], v[rows] = np.where(gone, np.inf, ts), sub[1], sub[2], sub[3]
     return Hits(t, f, u, v)
 
 
@@ -302,12 +282,17 @@ class Renderer:
         else:
             light = default_light(diag, camera)
         use_threads(threads)
-        t0 = time.perf_counter()
-        render_kernel(
+        args = (
             tris, *_grid_args(grid), tris_b, *_grid_args(grid_b), second is not None, ids_a, ids_b,
             basis, W, H, params.tile, SHADING_CODES[params.shading], bool(params.shadows), light,
             SHADOW_OFFSET * diag, bool(params.watertight), img, tb, ib, cb, nb,
         )
+        t0 = time.perf_counter()
+        if params.traversal == "cgt":
+            with parallel_chunksize(1):  # dynamic scheduling of the kernel's chunks of tiles
+                sums = cgt_render_kernel(*args)
+        else:
+            render_kernel(*args)
         ms = (time.perf_counter() - t0) * 1e3
         n = W * H
         stats = dict(
@@ -317,6 +302,17 @@ class Renderer:
             tests_per_ray=float(cb.mean()),
             cells_per_ray=float(nb.mean()),
             render_threads=threads,
+            traversal=params.traversal,
+        ) if params.traversal == "dda" else dict(
+            # the CGT kernel sums (hits, costbuf, cellbuf, fallback rays) as it writes the buffers
+            render_ms=ms,
+            mrays=n / (ms * 1e3) if ms > 0 else float("nan"),
+            hit_fraction=int(sums[0]) / n,
+            tests_per_ray=int(sums[1]) / n,
+            cells_per_ray=int(sums[2]) / n,
+            render_threads=threads,
+            traversal=params.traversal,
+            fallback_rays=int(sums[3]),
         )
         return RenderResult(img, tb, ib, cb, nb, stats)
 

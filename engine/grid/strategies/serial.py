@@ -4,24 +4,28 @@ The clear and macro-cell stages are the shared ones in :mod:`engine.grid.common`
 cells of macro cells that were full last frame; flag a macro cell at its first non-empty cell).
 Insertion puts each triangle into every cell its bounding box overlaps (or, with exact
 insertion, every such cell the separating-axis test keeps).  Cells are stored compactly, so
-insertion runs as count -> prefix sum -> scatter; the scatter walks triangles backwards and
-fills each cell from its end, which leaves every cell's list in ascending triangle order.
+insertion runs as count -> prefix sum -> scatter over each triangle's cell range, computed once
+per build; the scatter walks triangles backwards and fills each cell from its end, which leaves
+every cell's list in ascending triangle order.
 """
 
 from numba import njit
 
-from ..common import cell_overlaps, scan_inclusive, tri_cell_range
+from ..common import cell_overlaps, scan_inclusive
 from ..registry import register
 from .base import Strategy, timed
+from .shared import ranges
 
 
 @njit(cache=True)
-def count_serial(tris, lo, inv_cell, cell, dims, exact, count):
-    """count[c] += 1 for every (cell, triangle) reference; count (C,) int32 starts at zero."""
+def count_serial(rng, tris, lo, cell, dims, exact, count):
+    """count[c] += 1 for every (cell, triangle) reference; count (C,) int32 starts at zero.
+
+    rng (F, 6) int32: each triangle's inclusive cell range (shared.cell_ranges)."""
     nx = dims[0]
     nxy = dims[0] * dims[1]
-    for f in range(tris.shape[0]):
-        i0, j0, k0, i1, j1, k1 = tri_cell_range(tris, f, lo, inv_cell, dims)
+    for f in range(rng.shape[0]):
+        i0, j0, k0, i1, j1, k1 = rng[f, 0], rng[f, 1], rng[f, 2], rng[f, 3], rng[f, 4], rng[f, 5]
         for k in range(k0, k1 + 1):
             for j in range(j0, j1 + 1):
                 base = k * nxy + j * nx
@@ -32,12 +36,12 @@ def count_serial(tris, lo, inv_cell, cell, dims, exact, count):
 
 
 @njit(cache=True)
-def scatter_serial(tris, lo, inv_cell, cell, dims, exact, start, tri_ids):
+def scatter_serial(rng, tris, lo, cell, dims, exact, start, tri_ids):
     """Write every reference; start holds inclusive ends on entry and CSR starts on exit."""
     nx = dims[0]
     nxy = dims[0] * dims[1]
-    for f in range(tris.shape[0] - 1, -1, -1):
-        i0, j0, k0, i1, j1, k1 = tri_cell_range(tris, f, lo, inv_cell, dims)
+    for f in range(rng.shape[0] - 1, -1, -1):
+        i0, j0, k0, i1, j1, k1 = rng[f, 0], rng[f, 1], rng[f, 2], rng[f, 3], rng[f, 4], rng[f, 5]
         for k in range(k0, k1 + 1):
             for j in range(j0, j1 + 1):
                 base = k * nxy + j * nx
@@ -52,7 +56,7 @@ def scatter_serial(tris, lo, inv_cell, cell, dims, exact, start, tri_ids):
 
 @register
 class Serial(Strategy):
-    """One thread: clear, insert (count, scan, scatter), macro build."""
+    """One thread: clear, insert (ranges, count, scan, scatter), macro build."""
 
     name = "serial"
     parallel_stages = False
@@ -60,11 +64,12 @@ class Serial(Strategy):
     def insert(self, tris, spec, bufs, threads, exact, times):
         count = bufs.count[0]
         start = bufs.start[0]
+        rng = ranges(tris, spec, bufs, 1, times)
         with timed(times, "count_ms"):
-            count_serial(tris, spec.lo, spec.inv_cell, spec.cell, spec.dims, exact, count)
+            count_serial(rng, tris, spec.lo, spec.cell, spec.dims, exact, count)
         with timed(times, "scan_ms"):
             refs = scan_inclusive(count, start)
         tri_ids = bufs.refs(refs)
         with timed(times, "scatter_ms"):
-            scatter_serial(tris, spec.lo, spec.inv_cell, spec.cell, spec.dims, exact, start, tri_ids)
+            scatter_serial(rng, tris, spec.lo, spec.cell, spec.dims, exact, start, tri_ids)
         return refs

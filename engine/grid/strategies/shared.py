@@ -1,0 +1,159 @@
+"""Pieces the parallel strategies share: the parallel prefix sum over the cell counts and the
+per-build scratch arrays some strategies keep next to the grid buffers.
+
+Kernels follow the engine's rule for thread counts: ``for t in prange(n_threads)`` with each
+iteration doing thread ``t``'s share, so the logical thread count is exact even with more
+threads than cores.  Scratch arrays are allocated with ``np.zeros`` (calloc: pages are mapped on
+first write), so each page is first touched by the thread that fills it, which is what a NUMA
+machine needs to place it on that thread's node (Ize et al. 2006, "Targeting NUMA").
+"""
+
+import weakref
+
+import numpy as np
+from numba import njit, prange
+
+from ...errors import InputError
+from ..common import scan_inclusive, tri_cell_range
+from .base import timed
+
+INT32_MAX = np.iinfo(np.int32).max
+
+
+@njit(cache=True)
+def part(n, t, T):
+    """First index of part t of n items split into T contiguous parts (part t is
+    ``part(n, t, T) .. part(n, t + 1, T) - 1``)."""
+    return t * n // T
+
+
+# ---------------------------------------------------------------------------------------------
+# triangle cell ranges, computed once per build
+
+
+@njit(cache=True, parallel=True)
+def cell_ranges(tris, lo, inv_cell, dims, n_threads, rng):
+    """rng[f] = (i0, j0, k0, i1, j1, k1), triangle f's inclusive cell range (tri_cell_range).
+
+    tris (F, 3, 3) float32; rng (F, 6) int32.  Thread t does its block of triangles.  The
+    count and scatter passes read these 24 bytes instead of recomputing six float64 floors from
+    the 36 bytes of vertices each time.
+    """
+    F = tris.shape[0]
+    for t in prange(n_threads):
+        for f in range(part(F, t, n_threads), part(F, t + 1, n_threads)):
+            i0, j0, k0, i1, j1, k1 = tri_cell_range(tris, f, lo, inv_cell, dims)
+            rng[f, 0] = i0
+            rng[f, 1] = j0
+            rng[f, 2] = k0
+            rng[f, 3] = i1
+            rng[f, 4] = j1
+            rng[f, 5] = k1
+
+
+def ranges(tris, spec, bufs, n_threads, times):
+    """(F, 6) int32 cell ranges of every triangle in a reused scratch array; times
+    ``ranges_ms``."""
+    F = tris.shape[0]
+    rng = scratch(bufs, "cell_ranges", 6 * F, np.int32).reshape(F, 6)
+    with timed(times, "ranges_ms"):
+        cell_ranges(tris, spec.lo, spec.inv_cell, spec.dims, n_threads, rng)
+    return rng
+
+
+# ---------------------------------------------------------------------------------------------
+# parallel prefix sum (per-thread block sums, exclusive scan of the sums, per-block scan)
+
+
+@njit(cache=True, parallel=True)
+def block_sums(count, n_threads, sums):
+    """sums[t] = sum of count over thread t's block of cells.  count (C,) int32, sums (T,) int64."""
+    C = count.shape[0]
+    for t in prange(n_threads):
+        s = 0
+        for c in range(part(C, t, n_threads), part(C, t + 1, n_threads)):
+            s += count[c]
+        sums[t] = s
+
+
+@njit(cache=True, parallel=True)
+def block_scan_inclusive(count, base, n_threads, start):
+    """start[c] = base[t] + inclusive sum of count over thread t's block up to c.
+
+    count (C,) int32, base (T,) int64 exclusive block offsets, start (C + 1,) int32 (start[C] is
+    left to the caller).  A scatter that pre-decrements start[c] leaves the CSR starts.
+    """
+    C = count.shape[0]
+    for t in prange(n_threads):
+        s = base[t]
+        for c in range(part(C, t, n_threads), part(C, t + 1, n_threads)):
+            s += count[c]
+            start[c] = s
+
+
+def check_total(total):
+    """The reference total as int; InputError when it does not fit the int32 CSR offsets."""
+    total = int(total)
+    if total > INT32_MAX:
+        raise InputError(
+            f"the grid would hold {total} references, more than int32 offsets allow; lower the density "
+            f"(lambda) or use exact insertion"
+        )
+    return total
+
+
+def exclusive(sums):
+    """Exclusive prefix sum of a small (T,) int64 array, plus the total."""
+    base = np.zeros(len(sums), np.int64)
+    np.cumsum(sums[:-1], out=base[1:])
+    return base, int(sums.sum())
+
+
+def parallel_scan(count, start, n_threads):
+    """Parallel inclusive scan of count (C,) int32 into start (C + 1,) int32; returns the total.
+
+    Two passes over the counts (reduce, then scan) instead of serial's one, so with one thread
+    it runs the one-pass serial scan: the same work, 2x less memory traffic."""
+    if n_threads == 1:
+        return check_total(scan_inclusive(count, start))
+    sums = np.empty(n_threads, np.int64)
+    block_sums(count, n_threads, sums)
+    base, total = exclusive(sums)
+    check_total(total)
+    block_scan_inclusive(count, base, n_threads, start)
+    start[count.shape[0]] = total
+    return total
+
+
+# ---------------------------------------------------------------------------------------------
+# scratch arrays kept per GridBuffers (so a GridBuilder reuses them frame to frame)
+
+_SCRATCH = weakref.WeakKeyDictionary()
+
+
+def scratch(bufs, name, n, dtype):
+    """A reusable (n,) array of ``dtype`` held alongside ``bufs``; contents are whatever the
+    previous user left, except that a newly allocated array is zero.  Grows by 1.25x."""
+    store = _SCRATCH.setdefault(bufs, {})
+    a = store.get(name)
+    if a is None or a.size < n or a.dtype != np.dtype(dtype):
+        a = np.zeros(int(n * 1.25) + 16, dtype)
+        store[name] = a
+    return a[:n]
+
+
+def zero_scratch(bufs, name, n, dtype):
+    """Like :func:`scratch` for an array that users keep all zero between builds (they zero
+    what they wrote when they consume it).  Call :func:`scratch_done` once it is zero again;
+    a build that stopped half-way leaves it marked dirty and the next call zeroes it."""
+    store = _SCRATCH.setdefault(bufs, {})
+    a = scratch(bufs, name, n, dtype)
+    if store.get(name + "/dirty", False):
+        store[name].fill(0)
+    store[name + "/dirty"] = True
+    return a
+
+
+def scratch_done(bufs, name):
+    """Mark a :func:`zero_scratch` array as all zero again."""
+    _SCRATCH.setdefault(bufs, {})[name + "/dirty"] = False

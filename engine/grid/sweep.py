@@ -1,0 +1,295 @@
+"""Build-time sweep over strategies and thread counts: the seed's "Comparison build methods" and
+"Individual steps" measurements (Ize, Wald, Robertson, Parker, RT 2006).
+
+For every scene, strategy and thread count one :class:`~engine.grid.GridBuilder` rebuilds the
+grid ``warmup + runs`` times (by default round-robin over the strategies, see ``interleave``) (animated scenes advance one frame, 1/30 s, per build, so the clear
+stage sees a real previous frame); the first ``warmup`` builds are dropped (numba compile, pool
+start-up, buffer growth) and each stage's median, min and max over the remaining ``runs`` are
+recorded.  :func:`run_build_sweep` writes ``build_sweep.csv`` plus two plots:
+
+* ``build_methods.png``: median total build ms against threads, one line per strategy, min-max
+  band, one panel per scene;
+* ``build_steps.png``: median ms of each stage (clear, insert, macro-cell build) against threads,
+  one line per strategy, a row of panels per scene.
+"""
+
+import csv
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..config import GridParams
+from ..errors import InputError
+from ..threads import check_threads
+from .build import GridBuilder
+from .registry import get_builder
+
+#: the seed's three stages, in plot order
+STAGES = ("clear_ms", "insert_ms", "macro_ms")
+#: seconds between the frames of an animated scene in the sweep
+FRAME_DT = 1.0 / 30.0
+
+
+def _scene_items(scenes):
+    """[(name, source)] from a mapping, a single scene, or an iterable of scenes / (name, scene)."""
+    if isinstance(scenes, dict):
+        items = list(scenes.items())
+    elif hasattr(scenes, "triangles_at") or isinstance(scenes, np.ndarray):
+        items = [scenes]
+    else:
+        try:
+            items = list(scenes)
+        except TypeError:
+            raise InputError(f"scenes must be a scene, a list of scenes or a dict name -> scene, got {scenes!r}") from None
+    out = []
+    for i, it in enumerate(items):
+        if isinstance(it, tuple) and len(it) == 2 and isinstance(it[0], str):
+            name, src = it
+        else:
+            src = it
+            name = getattr(src, "name", None) or f"scene{i}"
+        if not (hasattr(src, "triangles_at") or isinstance(src, np.ndarray)):
+            raise InputError(f"scene {name!r}: expected an Animation (engine.scene.make_scene) or an (F,3,3) array, got {type(src).__name__}")
+        out.append((str(name), src))
+    if not out:
+        raise InputError("scenes: need at least one scene")
+    names = [n for n, _ in out]
+    if len(set(names)) != len(names):
+        raise InputError(f"scene names must be unique, got {names}")
+    return out
+
+
+def _frame(src, i):
+    if isinstance(src, np.ndarray):
+        return src
+    t = 0.0 if getattr(src, "static", False) else i * FRAME_DT
+    return src.triangles_at(t)
+
+
+def _count(name, v, lo):
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+        raise InputError(f"{name} must be an integer >= {lo}, got {v!r}")
+    return int(v)
+
+
+def run_build_sweep(scenes, strategies, threads, runs=5, warmup=2, out_dir=None, progress=True, params=None, interleave=True):
+    """Time grid builds for every scene x strategy x thread count.
+
+    scenes      dict name -> Animation/(F,3,3) array, one scene, or a list of scenes or
+                (name, scene) pairs
+    strategies  registered strategy names (engine.grid.names())
+    threads     thread counts (each 1 .. engine.threads.max_threads())
+    runs        timed builds per configuration (>= 1; the medians are meant over >= 5)
+    warmup      untimed builds first (>= 0)
+    out_dir     folder for build_sweep.csv, build_methods.png, build_steps.png (None: no files)
+    params      GridParams for density, macro, insert (strategy and threads are overridden)
+    interleave  True: for each scene and thread count, keep one builder per strategy and take
+                the builds round-robin (build i of every strategy, then build i + 1 ...), so
+                load from other processes on a shared machine hits all strategies alike
+                (memory: all strategies' buffers at once).  False: each configuration's builds
+                back to back.
+
+    Returns one dict per configuration: scene, triangles, strategy, threads, cores,
+    oversubscribed, insert, density, macro, runs, cells, references, and for every timed stage
+    ``<stage>`` (median), ``<stage>_min``, ``<stage>_max`` in ms (build_ms, bounds_ms, clear_ms,
+    insert_ms, macro_ms and the strategy's sub-stages), plus lock_waits (median) when reported.
+    """
+    items = _scene_items(scenes)
+    if isinstance(strategies, str):
+        strategies = [strategies]
+    strategies = list(dict.fromkeys(strategies))
+    if not strategies:
+        raise InputError("strategies: need at least one strategy name")
+    for s in strategies:
+        get_builder(s)
+    if isinstance(threads, (int, np.integer)):
+        threads = [threads]
+    threads = list(dict.fromkeys(check_threads(t) for t in threads))
+    if not threads:
+        raise InputError("threads: need at least one thread count")
+    runs = _count("runs", runs, 1)
+    warmup = _count("warmup", warmup, 0)
+    base = params if params is not None else GridParams()
+    if not isinstance(base, GridParams):
+        raise InputError(f"params must be a GridParams, got {type(base).__name__}")
+
+    total = len(items) * len(strategies) * len(threads)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, desc="build sweep", unit="config")
+    cores = os.cpu_count() or 1
+    rows = []
+    try:
+        for scene_name, src in items:
+            if interleave:
+                by_key = {}
+                for T in threads:
+                    if bar is not None:
+                        bar.set_postfix_str(f"{scene_name} T={T}")
+                    group = [base.replace(strategy=s, threads=T) for s in strategies]
+                    for p, row in zip(group, _measure(scene_name, src, group, runs, warmup, cores)):
+                        by_key[(p.strategy, T)] = row
+                        if bar is not None:
+                            bar.update(1)
+                rows += [by_key[(s, T)] for s in strategies for T in threads]
+            else:
+                for strat in strategies:
+                    for T in threads:
+                        if bar is not None:
+                            bar.set_postfix_str(f"{scene_name} {strat} T={T}")
+                        rows += _measure(scene_name, src, [base.replace(strategy=strat, threads=T)], runs, warmup, cores)
+                        if bar is not None:
+                            bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
+    if out_dir is not None:
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        write_csv(rows, out / "build_sweep.csv")
+        plot_methods(rows, out / "build_methods.png")
+        plot_steps(rows, out / "build_steps.png")
+    return rows
+
+
+def _measure(scene_name, src, group, runs, warmup, cores):
+    """Rows for a group of configurations built round-robin on the same frames."""
+    builders = [GridBuilder(p) for p in group]
+    samples = [[] for _ in group]
+    for i in range(warmup + runs):
+        tris = _frame(src, i)
+        for b, smp in zip(builders, samples):
+            g = b.build(tris)
+            if i >= warmup:
+                smp.append(g.stats)
+    return [_row(scene_name, p, smp, runs, cores) for p, smp in zip(group, samples)]
+
+
+def _row(scene_name, p, samples, runs, cores):
+    last = samples[-1]
+    row = dict(
+        scene=scene_name,
+        triangles=int(last["triangles"]),
+        strategy=p.strategy,
+        threads=int(p.threads),
+        cores=cores,
+        oversubscribed=int(p.threads > cores),
+        insert=p.insert,
+        density=p.density,
+        macro=p.macro,
+        runs=runs,
+        cells=int(last["cells"]),
+        references=int(np.median([s["references"] for s in samples])),
+    )
+    keys = ["build_ms", "bounds_ms", *STAGES]
+    keys += sorted({k for s in samples for k in s if k.endswith("_ms") and k not in keys})
+    for k in keys:
+        v = np.array([s.get(k, 0.0) for s in samples], np.float64)
+        row[k] = float(np.median(v))
+        row[k + "_min"] = float(v.min())
+        row[k + "_max"] = float(v.max())
+    if any("lock_waits" in s for s in samples):
+        row["lock_waits"] = float(np.median([s.get("lock_waits", 0) for s in samples]))
+    return row
+
+
+def write_csv(rows, path):
+    """Write rows (dicts, possibly with different keys) to a CSV; missing cells are empty."""
+    cols = []
+    for r in rows:
+        for k in r:
+            if k not in cols:
+                cols.append(k)
+    with open(path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=cols, restval="")
+        w.writeheader()
+        for r in rows:
+            w.writerow(r)
+
+
+def _series(rows, scene, key):
+    """{strategy: (threads, median, min, max)} for one scene and one timed key."""
+    out = {}
+    for r in rows:
+        if r["scene"] != scene:
+            continue
+        out.setdefault(r["strategy"], []).append((r["threads"], r.get(key, np.nan), r.get(key + "_min", np.nan), r.get(key + "_max", np.nan)))
+    return {s: tuple(np.array(c) for c in zip(*sorted(v))) for s, v in out.items()}
+
+
+def _draw(ax, series, title, ylabel):
+    import matplotlib
+
+    colors = matplotlib.colormaps["tab10"]
+    styles = ("-", "--", "-.", ":")
+    for n, (s, (t, med, lo, hi)) in enumerate(series.items()):
+        c = colors(n % 10)
+        ax.plot(t, med, marker="o", linestyle=styles[n % 4], color=c, label=s, markersize=3, linewidth=1.3)
+        ax.fill_between(t, lo, hi, color=c, alpha=0.07, linewidth=0)
+    ax.set_title(title, fontsize=9)
+    ax.set_xlabel("threads")
+    ax.set_ylabel(ylabel)
+    ts = sorted({int(x) for v in series.values() for x in v[0]})
+    ax.set_xticks(ts)
+    vals = np.concatenate([v[1] for v in series.values()])
+    vals = vals[np.isfinite(vals) & (vals > 0)]
+    if len(vals) and vals.max() / vals.min() > 20:
+        ax.set_yscale("log")
+    ax.grid(True, alpha=0.3)
+
+
+def _figure(nrows, ncols, w=4.6, h=3.4):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(w * ncols, h * nrows))
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(nrows, ncols, squeeze=False)
+    return fig, axes
+
+
+def _legend(fig, axes):
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.tight_layout(rect=(0, 0, 0.85, 0.95))
+    fig.legend(handles, labels, loc="center right", fontsize=8, frameon=False)
+
+
+def _scenes(rows):
+    seen = []
+    for r in rows:
+        if r["scene"] not in seen:
+            seen.append(r["scene"])
+    return seen
+
+
+def plot_methods(rows, path):
+    """Median total build ms against threads, one line per strategy (min-max band), per scene."""
+    scenes = _scenes(rows)
+    ncols = min(len(scenes), 3)
+    nrows = math.ceil(len(scenes) / ncols)
+    fig, axes = _figure(nrows, ncols)
+    for n, sc in enumerate(scenes):
+        ax = axes[n // ncols, n % ncols]
+        tri = next(r["triangles"] for r in rows if r["scene"] == sc)
+        _draw(ax, _series(rows, sc, "build_ms"), f"{sc} ({tri:,} triangles)", "build ms (median)")
+    for n in range(len(scenes), nrows * ncols):
+        axes[n // ncols, n % ncols].set_visible(False)
+    _legend(fig, axes)
+    fig.suptitle("Comparison build methods (median of the timed builds, band: min..max)")
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+
+
+def plot_steps(rows, path):
+    """Median ms of each stage (clear, insert, macro) against threads, per strategy and scene."""
+    scenes = _scenes(rows)
+    fig, axes = _figure(len(scenes), len(STAGES))
+    for n, sc in enumerate(scenes):
+        for m, st in enumerate(STAGES):
+            _draw(axes[n, m], _series(rows, sc, st), f"{sc}: {st[:-3]}", "ms (median)")
+    _legend(fig, axes)
+    fig.suptitle("Individual steps (median, band: min..max)")
+    fig.savefig(path, dpi=110, bbox_inches="tight")

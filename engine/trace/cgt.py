@@ -1,0 +1,896 @@
+"""Coherent grid traversal (CGT): packets of rays walked through the grid slice by slice.
+
+Wald, Ize, Kensler, Knoll, Parker, "Ray Tracing Animated Scenes using Coherent Grid Traversal",
+ACM SIGGRAPH 2006.  A packet (up to PK x PK camera rays from a square block of pixels, or the
+shadow rays of such a block) is traversed along its major axis K, one slice of cells (fixed K
+index) at a time.  In each slice the cells overlapped by the packet's bounds are visited; each of
+their triangles passes a per-packet mailbox, a bounding-box cull against the packet's extent in
+the slice and a cull against the packet's four bounding planes (the paper's frustum culling), and
+is then intersected with every active ray in one loop over structure-of-arrays ray data that
+LLVM vectorizes (packed AVX2 / AVX-512VL double instructions on this machine).  Empty macro cells
+are skipped a whole macro-cell slab at a time.
+
+Packets: the rays must agree on the major axis of their direction and its sign (the watertight
+test's permutation, :func:`engine.trace.intersect.shear_setup`), so that all share the slicing
+axis and the permuted intersection arithmetic.  Packets that do not agree fall back to the
+single-ray DDA (:func:`engine.trace.traverse.trace_ray`).  Signs on the two minor axes may differ
+(the bounds below do not need them), so packets straddling a minor-axis sign change, e.g. at the
+centre of an axis-aligned view, stay packets.
+
+Bounds: along its segment ray i's minor coordinates are linear in the K coordinate x,
+u_i(x) = c_i + (x - xr) s_i.  With xr at one end of all the segments (the camera rays' common
+origin, or the end of shadow rays, which converge on the light), every ray lies within
+[min c + (x - xr) min s, max c + (x - xr) max s] on that side of xr (and likewise for v): four
+planes, evaluated in O(1) per slice and used for the cell range and the triangle culls; they are
+recomputed when rays leave the packet.
+
+Termination (same rule as the DDA): after a slice, ray i is final once its best t is at or before
+the t where it leaves the slice (or its segment ends there): insertion is conservative, so every
+triangle it could hit nearer has been tested against it.  Final rays leave the active set (the
+last survivors fill their places), so the loops always run over a contiguous prefix.
+
+Results equal the DDA's bit for bit (same intersection arithmetic: the packet loops repeat
+:func:`intersect_watertight` / :func:`intersect_fast` operation for operation, without fast-math
+contraction) except at exact ties, two triangles hit at the same t, where the first one tested
+wins and the two traversals test in different orders.
+
+Per-ray counters: ``tests`` counts the triangle tests made while the ray was active (each test
+of the packet loop covers every active ray), ``cells`` the cells the packet visited meanwhile.
+"""
+
+import math
+
+import numpy as np
+from llvmlite import ir
+from numba import njit, prange, types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+from .shade import BACKGROUND, _u8, cost_rgb, facing_normal, lambert_rgb, normal_rgb, shadow_ray
+from .traverse import MAILBOX, TINY_DIR, _floor_clamp, trace_ray
+
+#: packet edge in pixels (a packet holds up to PK * PK rays)
+PK = 8
+PN = PK * PK
+#: per-packet mailbox slots (direct-mapped by triangle id; a power of two)
+MBOX = 256
+#: the render kernel's parallel work items (runs of consecutive tiles sharing one scratch allocation)
+CHUNKS = 256
+#: bounds are grown by this many cell sizes before cells and triangles are picked (rounding slack;
+#: insertion itself grows triangles by INSERT_EPS = 1e-5 cells)
+EPS_CELL = 1e-5
+
+# rows of the flat per-packet scratch S (NS * PN float64) holding the active rays (structure of arrays)
+_R_OU, _R_OV, _R_OK = 0, 1, 2  # origin permuted to (kx, ky, kz): minor axes U = kx, V = ky; major K = kz
+_R_SU, _R_SV = 3, 4  # dU/dK, dV/dK
+_R_IDK, _R_T1 = 5, 6  # 1/dK, end of the ray's segment clipped to the grid box
+_R_BT, _R_BF, _R_J = 7, 8, 9  # best t (starts at tmax), best triangle (-1), packet-local ray index
+_R_SX, _R_SY, _R_SZ = 10, 11, 12  # watertight shear constants
+_R_OX, _R_OY, _R_OZ, _R_DX, _R_DY, _R_DZ = 13, 14, 15, 16, 17, 18  # origin, direction (Moller-Trumbore)
+_R_T0 = 19  # start of the clipped segment
+_R_CT0, _R_CT1 = 20, 21  # clip results of every packet ray (indexed by packet ray, before compaction)
+NS = 22
+O_OU, O_OV, O_OK = _R_OU * PN, _R_OV * PN, _R_OK * PN
+O_SX, O_SY, O_SZ = _R_SX * PN, _R_SY * PN, _R_SZ * PN
+O_OX, O_OY, O_OZ = _R_OX * PN, _R_OY * PN, _R_OZ * PN
+O_DX, O_DY, O_DZ = _R_DX * PN, _R_DY * PN, _R_DZ * PN
+O_SU, O_SV, O_T0, O_T1 = _R_SU * PN, _R_SV * PN, _R_T0 * PN, _R_T1 * PN
+O_IDK, O_BT, O_BF, O_J = _R_IDK * PN, _R_BT * PN, _R_BF * PN, _R_J * PN
+O_CT0, O_CT1 = _R_CT0 * PN, _R_CT1 * PN
+
+# rows of a packet's flat ray table io (NIO * PN float64), row r of ray j at io[r * PN + j]:
+# inputs (origin, direction, tmax), then results
+IO_OX, IO_OY, IO_OZ, IO_DX, IO_DY, IO_DZ, IO_TMAX = 0, 1, 2, 3, 4, 5, 6
+IO_T, IO_F, IO_NT, IO_NC, IO_W = 7, 8, 9, 10, 11  # t (inf: miss), triangle (-1), tests, cells, grid (0 A, 1 B)
+NIO = 12
+_U_OX, _U_OY, _U_OZ = np.uint64(IO_OX * PN), np.uint64(IO_OY * PN), np.uint64(IO_OZ * PN)
+_U_DX, _U_DY, _U_DZ = np.uint64(IO_DX * PN), np.uint64(IO_DY * PN), np.uint64(IO_DZ * PN)
+_U_TMAX = np.uint64(IO_TMAX * PN)
+_U_T, _U_F, _U_NT, _U_NC = np.uint64(IO_T * PN), np.uint64(IO_F * PN), np.uint64(IO_NT * PN), np.uint64(IO_NC * PN)
+_U_PN, _U_2PN = np.uint64(PN), np.uint64(2 * PN)
+
+
+@intrinsic
+def _prefetch_tri(typingctx, tris, f):
+    """Prefetch triangle f of tris (F, 3, 3) into the caches (llvm.prefetch: read, keep)."""
+    sig = types.void(tris, f)
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        zero = context.get_constant(types.intp, 0)
+        idx = context.cast(builder, args[1], signature.args[1], types.intp)
+        ptr = cgutils.get_item_pointer2(
+            context, builder, data=ary.data, shape=cgutils.unpack_tuple(builder, ary.shape),
+            strides=cgutils.unpack_tuple(builder, ary.strides), layout=aryty.layout,
+            inds=[idx, zero, zero], wraparound=False)
+        i8p = ir.PointerType(ir.IntType(8))
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+                                            "llvm.prefetch.p0")
+        builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def _prefetch_write(typingctx, arr, i):
+    """Prefetch element i of the 1D array arr for writing (llvm.prefetch: write, keep)."""
+    sig = types.void(arr, i)
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        idx = context.cast(builder, args[1], signature.args[1], types.intp)
+        ptr = cgutils.get_item_pointer2(
+            context, builder, data=ary.data, shape=cgutils.unpack_tuple(builder, ary.shape),
+            strides=cgutils.unpack_tuple(builder, ary.strides), layout=aryty.layout,
+            inds=[idx], wraparound=False)
+        i8p = ir.PointerType(ir.IntType(8))
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+                                            "llvm.prefetch.p0")
+        builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 1), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _clip_axis(io, n, S, r_o, r_d, lo, hi):
+    """traverse._slab of every packet ray on one axis, applied to the ranges in S rows CT0/CT1."""
+    for j in range(n):
+        o = io[r_o * PN + j]
+        d = io[r_d * PN + j]
+        t0 = S[O_CT0 + j]
+        t1 = S[O_CT1 + j]
+        inv = 1.0 / d
+        ta = (lo - o) * inv
+        tb = (hi - o) * inv
+        sw = ta > tb
+        ta2 = tb if sw else ta
+        tb2 = ta if sw else tb
+        a0 = max(t0, ta2)
+        a1 = min(t1, tb2)
+        tiny = abs(d) < TINY_DIR
+        outside = (o < lo) | (o > hi)
+        S[O_CT0 + j] = (np.inf if outside else t0) if tiny else a0
+        S[O_CT1 + j] = (-np.inf if outside else t1) if tiny else a1
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _setup(S, na, kx, ky, kz):
+    """Per-ray constants of the active rays (all permuted alike by (kx, ky, kz))."""
+    for i in range(na):
+        dx = S[O_DX + i]
+        dy = S[O_DY + i]
+        dz = S[O_DZ + i]
+        ox = S[O_OX + i]
+        oy = S[O_OY + i]
+        oz = S[O_OZ + i]
+        dkx = dx if kx == 0 else (dy if kx == 1 else dz)
+        dky = dx if ky == 0 else (dy if ky == 1 else dz)
+        dkz = dx if kz == 0 else (dy if kz == 1 else dz)
+        S[O_OU + i] = ox if kx == 0 else (oy if kx == 1 else oz)
+        S[O_OV + i] = ox if ky == 0 else (oy if ky == 1 else oz)
+        S[O_OK + i] = ox if kz == 0 else (oy if kz == 1 else oz)
+        S[O_SX + i] = dkx / dkz
+        S[O_SY + i] = dky / dkz
+        S[O_SZ + i] = 1.0 / dkz
+        idk = 1.0 / dkz
+        S[O_IDK + i] = idk
+        S[O_SU + i] = dkx * idk
+        S[O_SV + i] = dky * idk
+
+
+@njit(cache=True, _nrt=False)
+def _spread(S, na, xr):
+    """Bounding form of the active rays about the K coordinate xr: every ray's (U, V) at K = x is
+    within [cu0, cu1] + (x - xr) * [su0, su1] (and likewise for V).  Returns
+    (cu0, cu1, cv0, cv1, su0, su1, sv0, sv1)."""
+    cu0 = np.inf
+    cu1 = -np.inf
+    cv0 = np.inf
+    cv1 = -np.inf
+    su0 = np.inf
+    su1 = -np.inf
+    sv0 = np.inf
+    sv1 = -np.inf
+    for i in range(na):
+        h = xr - S[O_OK + i]
+        su = S[O_SU + i]
+        sv = S[O_SV + i]
+        u = S[O_OU + i] + h * su
+        v = S[O_OV + i] + h * sv
+        cu0 = min(cu0, u)
+        cu1 = max(cu1, u)
+        cv0 = min(cv0, v)
+        cv1 = max(cv1, v)
+        su0 = min(su0, su)
+        su1 = max(su1, su)
+        sv0 = min(sv0, sv)
+        sv1 = max(sv1, sv)
+    return cu0, cu1, cv0, cv1, su0, su1, sv0, sv1
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _test_wt(S, na, p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z, ff, tmin):
+    """intersect_watertight of one triangle (vertices permuted by the packet's kx, ky, kz) with
+    the active rays, operation for operation; a hit below the ray's best t replaces it.
+    Returns the number of rays hit."""
+    nh = 0
+    for i in range(na):
+        okx = S[O_OU + i]
+        oky = S[O_OV + i]
+        okz = S[O_OK + i]
+        Sx = S[O_SX + i]
+        Sy = S[O_SY + i]
+        Sz = S[O_SZ + i]
+        ax = p0x - okx
+        ay = p0y - oky
+        az = p0z - okz
+        bx = p1x - okx
+        by = p1y - oky
+        bz = p1z - okz
+        cx = p2x - okx
+        cy = p2y - oky
+        cz = p2z - okz
+        Ax = ax - Sx * az
+        Ay = ay - Sy * az
+        Bx = bx - Sx * bz
+        By = by - Sy * bz
+        Cx = cx - Sx * cz
+        Cy = cy - Sy * cz
+        U = Cx * By - Cy * Bx
+        V = Ax * Cy - Ay * Cx
+        W = Bx * Ay - By * Ax
+        det = U + V + W
+        T = U * (Sz * az) + V * (Sz * bz) + W * (Sz * cz)
+        t = T / det
+        bt = S[O_BT + i]
+        out = ((U < 0.0) | (V < 0.0) | (W < 0.0)) & ((U > 0.0) | (V > 0.0) | (W > 0.0))
+        hit = (not out) & (det != 0.0) & (t > tmin) & (t < bt)
+        S[O_BT + i] = t if hit else bt
+        S[O_BF + i] = ff if hit else S[O_BF + i]
+        nh += hit
+    return nh
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _test_mt(S, na, v0x, v0y, v0z, v1x, v1y, v1z, v2x, v2y, v2z, ff, tmin):
+    """intersect_fast (Moller-Trumbore) of one triangle with the active rays, operation for
+    operation.  Returns the number of rays hit."""
+    nh = 0
+    e1x = v1x - v0x
+    e1y = v1y - v0y
+    e1z = v1z - v0z
+    e2x = v2x - v0x
+    e2y = v2y - v0y
+    e2z = v2z - v0z
+    for i in range(na):
+        dx = S[O_DX + i]
+        dy = S[O_DY + i]
+        dz = S[O_DZ + i]
+        px = dy * e2z - dz * e2y
+        py = dz * e2x - dx * e2z
+        pz = dx * e2y - dy * e2x
+        det = e1x * px + e1y * py + e1z * pz
+        inv = 1.0 / det
+        sx = S[O_OX + i] - v0x
+        sy = S[O_OY + i] - v0y
+        sz = S[O_OZ + i] - v0z
+        u = (sx * px + sy * py + sz * pz) * inv
+        qx = sy * e1z - sz * e1y
+        qy = sz * e1x - sx * e1z
+        qz = sx * e1y - sy * e1x
+        v = (dx * qx + dy * qy + dz * qz) * inv
+        t = (e2x * qx + e2y * qy + e2z * qz) * inv
+        bt = S[O_BT + i]
+        hit = (det != 0.0) & (not ((u < 0.0) | (u > 1.0))) & (not ((v < 0.0) | (u + v > 1.0)))
+        hit = hit & (t > tmin) & (t < bt)
+        S[O_BT + i] = t if hit else bt
+        S[O_BF + i] = ff if hit else S[O_BF + i]
+        nh += hit
+    return nh
+
+
+@njit(cache=True)
+def _outside(p0u, p0v, p0k, p1u, p1v, p1k, p2u, p2v, p2k, xr, u0, u1, v0, v1, su0, su1, sv0, sv1):
+    """True when the triangle lies wholly beyond one of the packet's four bounding planes
+    u = u0 + (k - xr) su0 (below), u = u1 + (k - xr) su1 (above), and likewise for v."""
+    h0 = p0k - xr
+    h1 = p1k - xr
+    h2 = p2k - xr
+    if p0u < u0 + h0 * su0 and p1u < u0 + h1 * su0 and p2u < u0 + h2 * su0:
+        return True
+    if p0u > u1 + h0 * su1 and p1u > u1 + h1 * su1 and p2u > u1 + h2 * su1:
+        return True
+    if p0v < v0 + h0 * sv0 and p1v < v0 + h1 * sv0 and p2v < v0 + h2 * sv0:
+        return True
+    return p0v > v1 + h0 * sv1 and p1v > v1 + h1 * sv1 and p2v > v1 + h2 * sv1
+
+
+@njit(cache=True, _nrt=False)
+def _finish(S, a, io, tests, cells):
+    j = int(S[O_J + a])
+    bf = S[O_BF + a]
+    io[IO_T * PN + j] = S[O_BT + a] if bf >= 0.0 else np.inf
+    io[IO_F * PN + j] = bf
+    io[IO_NT * PN + j] = tests
+    io[IO_NC * PN + j] = cells
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _count_final(S, na, xp, any_hit):
+    """Flag (row CT0, free after setup) the active rays that are final once the packet has passed
+    the K plane xp: their best t is at or before the t where they cross xp, or their segment ends
+    there (or, any_hit, they have a hit).  Returns (final rays, rays with a hit that are not
+    final).  A loop that vectorizes."""
+    nf = 0
+    pend = 0
+    for i in range(na):
+        te = (xp - S[O_OK + i]) * S[O_IDK + i]
+        hit = S[O_BF + i] >= 0.0
+        fin = (S[O_BT + i] <= te) | (S[O_T1 + i] <= te) | (any_hit & hit)
+        S[O_CT0 + i] = 1.0 if fin else 0.0
+        nf += fin
+        pend += hit & (not fin)
+    return nf, pend
+
+
+@njit(cache=True, _nrt=False)
+def _retire(S, na, io, watertight, tests, cells):
+    """Write out the rays flagged by _count_final and remove them from the active set; survivors
+    from the end fill the gaps, so the active rays stay a contiguous prefix and each ray is moved
+    at most once.  Returns the number of active rays left."""
+    a = 0
+    while a < na:
+        if S[O_CT0 + a] == 0.0:
+            a += 1
+            continue
+        _finish(S, a, io, tests, cells)
+        na -= 1
+        while na > a and S[O_CT0 + na] != 0.0:
+            _finish(S, na, io, tests, cells)
+            na -= 1
+        if na > a:  # move the last surviving ray here: the rows read after setup
+            for r in range(_R_SX):
+                S[r * PN + a] = S[r * PN + na]
+            r0, r1 = (_R_SX, _R_OX) if watertight else (_R_OX, _R_T0)
+            for r in range(r0, r1):
+                S[r * PN + a] = S[r * PN + na]
+            S[O_CT0 + a] = 0.0
+            a += 1
+    return na
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _step(S, na, io, xp, any_hit, watertight, tests, cells):
+    """Retire the rays that are final at xp; returns (active rays, active rays with a hit)."""
+    nf, pend = _count_final(S, na, xp, any_hit)
+    if nf == 0:
+        return na, pend
+    return _retire(S, na, io, watertight, tests, cells), pend
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def trace_packet(
+    tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
+    n, io, tmin, watertight, any_hit, S, mb, mb1,
+):
+    """Trace rays 0..n-1 of the table io (NIO * PN,) float64 (origin, direction, tmax per ray)
+    through one grid.
+
+    Fills io's result rows (IO_T, IO_F, IO_NT, IO_NC) with the hits :func:`trace_ray` finds
+    (nearest, or with any_hit some hit, in (tmin, tmax)).  S (NS * PN,) float64 and mb (MBOX,)
+    int32 are scratch; mb1 (MAILBOX,) int32 is the fallback DDA's mailbox.  Returns the number of
+    rays traced by the single-ray fallback (0 when the packet was coherent).
+    """
+    for j in range(n):
+        S[O_CT0 + j] = tmin
+        S[O_CT1 + j] = io[IO_TMAX * PN + j]
+        io[IO_T * PN + j] = np.inf
+        io[IO_F * PN + j] = -1.0
+        io[IO_NT * PN + j] = 0.0
+        io[IO_NC * PN + j] = 0.0
+    _clip_axis(io, n, S, IO_OX, IO_DX, lo[0], hi[0])
+    _clip_axis(io, n, S, IO_OY, IO_DY, lo[1], hi[1])
+    _clip_axis(io, n, S, IO_OZ, IO_DZ, lo[2], hi[2])
+    # gather the rays that meet the grid box; the packet is coherent when they agree on the
+    # watertight test's permutation (major axis and its sign)
+    na = 0
+    K = -1
+    neg0 = False
+    uniform = True
+    for j in range(n):
+        t0 = S[O_CT0 + j]
+        t1 = S[O_CT1 + j]
+        if not (t0 <= t1):
+            continue
+        dx = io[IO_DX * PN + j]
+        dy = io[IO_DY * PN + j]
+        dz = io[IO_DZ * PN + j]
+        ax, ay, az = abs(dx), abs(dy), abs(dz)
+        if ax >= ay and ax >= az:
+            kz = 0
+            dk = dx
+        elif ay >= az:
+            kz = 1
+            dk = dy
+        else:
+            kz = 2
+            dk = dz
+        neg = dk < 0.0
+        if K < 0:
+            K = kz
+            neg0 = neg
+        elif kz != K or neg != neg0:
+            uniform = False
+        if not (abs(dk) >= TINY_DIR):
+            uniform = False
+        S[O_OX + na] = io[IO_OX * PN + j]
+        S[O_OY + na] = io[IO_OY * PN + j]
+        S[O_OZ + na] = io[IO_OZ * PN + j]
+        S[O_DX + na] = dx
+        S[O_DY + na] = dy
+        S[O_DZ + na] = dz
+        S[O_T0 + na] = t0
+        S[O_T1 + na] = t1
+        S[O_BT + na] = io[IO_TMAX * PN + j]
+        S[O_BF + na] = -1.0
+        S[O_J + na] = j
+        na += 1
+    if na == 0:
+        return 0
+    if not uniform:
+        for a in range(na):
+            j = int(S[O_J + a])
+            f, t, u, v, nc, nt = trace_ray(
+                tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
+                S[O_OX + a], S[O_OY + a], S[O_OZ + a], S[O_DX + a], S[O_DY + a], S[O_DZ + a],
+                tmin, S[O_BT + a], watertight, any_hit, mb1,
+            )
+            io[IO_T * PN + j] = t
+            io[IO_F * PN + j] = f
+            io[IO_NT * PN + j] = nt
+            io[IO_NC * PN + j] = nc
+        return na
+
+    # the permutation of shear_setup: kx = (kz + 1) % 3, ky = (kx + 1) % 3, swapped when d[kz] < 0
+    U = (K + 1) % 3
+    V = (U + 1) % 3
+    if neg0:
+        U, V = V, U
+    _setup(S, na, U, V, K)
+    loK, loU, loV = lo[K], lo[U], lo[V]
+    cK = cell[K]
+    icK, icU, icV = inv_cell[K], inv_cell[U], inv_cell[V]
+    nK, nU, nV = dims[K], dims[U], dims[V]
+    nx, ny = dims[0], dims[1]
+    stK = 1 if K == 0 else (nx if K == 1 else nx * ny)
+    stU = 1 if U == 0 else (nx if U == 1 else nx * ny)
+    stV = 1 if V == 0 else (nx if V == 1 else nx * ny)
+    mx, my = mdims[0], mdims[1]
+    mstK = 1 if K == 0 else (mx if K == 1 else mx * my)
+    mstU = 1 if U == 0 else (mx if U == 1 else mx * my)
+    mstV = 1 if V == 0 else (mx if V == 1 else mx * my)
+    M = macro
+    L = cell_start.shape[0]
+    eU = EPS_CELL * cell[U]
+    eV = EPS_CELL * cell[V]
+    oD = O_DX + K * PN  # row of d[K]
+    sK = 1 if S[O_IDK] > 0.0 else -1
+
+    # bounding form of the packet about a K coordinate xr beyond which (or before which) all ray
+    # segments lie: the near end (camera rays share their origin) or the far end (shadow rays
+    # converge on the light), whichever gives the tighter bounds.  On that one side the bounds
+    # are four planes, used to cull triangles (Wald et al. 2006, frustum culling).
+    xlo = np.inf
+    xhi = -np.inf
+    for a in range(na):
+        x0 = S[O_OK + a] + S[O_T0 + a] * S[oD + a]
+        x1 = S[O_OK + a] + S[O_T1 + a] * S[oD + a]
+        xlo = min(xlo, min(x0, x1))
+        xhi = max(xhi, max(x0, x1))
+    xr = xlo
+    side = 1.0
+    cu0, cu1, cv0, cv1, su0, su1, sv0, sv1 = _spread(S, na, xr)
+    e0, e1, e2, e3, e4, e5, e6, e7 = _spread(S, na, xhi)
+    if (e1 - e0) + (e3 - e2) < (cu1 - cu0) + (cv1 - cv0):
+        xr = xhi
+        side = -1.0
+        cu0, cu1, cv0, cv1, su0, su1, sv0, sv1 = e0, e1, e2, e3, e4, e5, e6, e7
+
+    # first slice: where the earliest ray (in traversal order) enters the grid
+    xs = xlo if sK > 0 else xhi
+    k = _floor_clamp((xs - loK) * icK - sK * EPS_CELL, nK)
+
+    for s in range(mb.shape[0]):
+        mb[s] = -1
+    mmask = mb.shape[0] - 1
+    tests = 0
+    cells = 0
+    pending = 0
+    xa = loK + (k if sK > 0 else k + 1) * cK
+    while na > 0 and 0 <= k < nK:
+        mk = k // M
+        if sK > 0:
+            kend = min((mk + 1) * M, nK) - 1
+            xm = loK + (kend + 1) * cK
+        else:
+            kend = mk * M
+            xm = loK + kend * cK
+        # skip the rest of this macro-cell slab when the packet overlaps only empty macro cells there
+        ha = xa - xr
+        hb = xm - xr
+        ulo = cu0 + min(min(ha * su0, ha * su1), min(hb * su0, hb * su1)) - eU
+        uhi = cu1 + max(max(ha * su0, ha * su1), max(hb * su0, hb * su1)) + eU
+        vlo = cv0 + min(min(ha * sv0, ha * sv1), min(hb * sv0, hb * sv1)) - eV
+        vhi = cv1 + max(max(ha * sv0, ha * sv1), max(hb * sv0, hb * sv1)) + eV
+        mu0 = _floor_clamp((ulo - loU) * icU, nU) // M
+        mu1 = _floor_clamp((uhi - loU) * icU, nU) // M
+        mv0 = _floor_clamp((vlo - loV) * icV, nV) // M
+        mv1 = _floor_clamp((vhi - loV) * icV, nV) // M
+        full = False
+        for mu in range(mu0, mu1 + 1):
+            for mv in range(mv0, mv1 + 1):
+                if macro_full[mk * mstK + mu * mstU + mv * mstV] != 0:
+                    full = True
+                    break
+            if full:
+                break
+        if full:
+            while True:
+                xb = loK + (k + 1 if sK > 0 else k) * cK
+                ha = xa - xr
+                hb = xb - xr
+                ulo = cu0 + min(min(ha * su0, ha * su1), min(hb * su0, hb * su1)) - eU
+                uhi = cu1 + max(max(ha * su0, ha * su1), max(hb * su0, hb * su1)) + eU
+                vlo = cv0 + min(min(ha * sv0, ha * sv1), min(hb * sv0, hb * sv1)) - eV
+                vhi = cv1 + max(max(ha * sv0, ha * sv1), max(hb * sv0, hb * sv1)) + eV
+                pl_u0 = cu0 - eU
+                pl_u1 = cu1 + eU
+                pl_v0 = cv0 - eV
+                pl_v1 = cv1 + eV
+                sl_u0 = su0 if side > 0 else su1
+                sl_u1 = su1 if side > 0 else su0
+                sl_v0 = sv0 if side > 0 else sv1
+                sl_v1 = sv1 if side > 0 else sv0
+                cu_0 = _floor_clamp((ulo - loU) * icU, nU)
+                cu_1 = _floor_clamp((uhi - loU) * icU, nU)
+                cv_0 = _floor_clamp((vlo - loV) * icV, nV)
+                cv_1 = _floor_clamp((vhi - loV) * icV, nV)
+                # start the loads of this slice's triangles (misses overlap instead of queueing)
+                for iu in range(cu_0, cu_1 + 1):
+                    for iv in range(cv_0, cv_1 + 1):
+                        c = k * stK + iu * stU + iv * stV
+                        for l in range(L):
+                            for r in range(cell_start[l, c], cell_start[l, c + 1]):
+                                _prefetch_tri(tris, tri_ids[r])
+                for iu in range(cu_0, cu_1 + 1):
+                    for iv in range(cv_0, cv_1 + 1):
+                        c = k * stK + iu * stU + iv * stV
+                        cells += 1
+                        for l in range(L):
+                            for r in range(cell_start[l, c], cell_start[l, c + 1]):
+                                f = tri_ids[r]
+                                slot = f & mmask
+                                if mb[slot] == f:
+                                    continue
+                                p0u = np.float64(tris[f, 0, U])
+                                p1u = np.float64(tris[f, 1, U])
+                                p2u = np.float64(tris[f, 2, U])
+                                if max(p0u, max(p1u, p2u)) < ulo or min(p0u, min(p1u, p2u)) > uhi:
+                                    continue
+                                p0v = np.float64(tris[f, 0, V])
+                                p1v = np.float64(tris[f, 1, V])
+                                p2v = np.float64(tris[f, 2, V])
+                                if max(p0v, max(p1v, p2v)) < vlo or min(p0v, min(p1v, p2v)) > vhi:
+                                    continue
+                                p0k = np.float64(tris[f, 0, K])
+                                p1k = np.float64(tris[f, 1, K])
+                                p2k = np.float64(tris[f, 2, K])
+                                mb[slot] = f
+                                if _outside(p0u, p0v, p0k, p1u, p1v, p1k, p2u, p2v, p2k, xr,
+                                            pl_u0, pl_u1, pl_v0, pl_v1, sl_u0, sl_u1, sl_v0, sl_v1):
+                                    continue  # the packet's bounds only shrink: it stays outside
+                                tests += 1
+                                if watertight:
+                                    pending += _test_wt(
+                                        S, na, p0u, p0v, p0k, p1u, p1v, p1k, p2u, p2v, p2k, np.float64(f), tmin)
+                                else:
+                                    pending += _test_mt(
+                                        S, na, np.float64(tris[f, 0, 0]), np.float64(tris[f, 0, 1]),
+                                        np.float64(tris[f, 0, 2]), np.float64(tris[f, 1, 0]),
+                                        np.float64(tris[f, 1, 1]), np.float64(tris[f, 1, 2]),
+                                        np.float64(tris[f, 2, 0]), np.float64(tris[f, 2, 1]),
+                                        np.float64(tris[f, 2, 2]), np.float64(f), tmin)
+                xa = xb
+                if pending > 0:
+                    nb, pending = _step(S, na, io, xb, any_hit, watertight, tests, cells)
+                    if nb != na:
+                        na = nb
+                        if na == 0:
+                            return 0
+                        cu0, cu1, cv0, cv1, su0, su1, sv0, sv1 = _spread(S, na, xr)
+                if k == kend:
+                    break
+                k += sK
+        else:
+            xa = xm
+        # once per macro slab: also retire rays whose segment has ended
+        nb, pending = _step(S, na, io, xa, any_hit, watertight, tests, cells)
+        if nb != na:
+            na = nb
+            if na == 0:
+                return 0
+            cu0, cu1, cv0, cv1, su0, su1, sv0, sv1 = _spread(S, na, xr)
+        k = kend + sK
+    for a in range(na):
+        _finish(S, a, io, tests, cells)
+    return 0
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def trace_packet_two(
+    tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
+    tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b, mdims_b, macro_full_b,
+    has_b, n, io, io2, tmin, watertight, any_hit, S, mb, mb1,
+):
+    """:func:`trace_packet` over grid A and, when has_b, grid B (as trace_two does for one ray):
+    B's rays end at A's hit (nearest), or are skipped where A found one (any_hit).  io's IO_W row
+    tells which grid the hit is in.  Returns the number of rays traced by the fallback."""
+    nf = trace_packet(tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
+                      n, io, tmin, watertight, any_hit, S, mb, mb1)
+    for j in range(n):
+        io[IO_W * PN + j] = 0.0
+    if not has_b:
+        return nf
+    for j in range(n):
+        for r in range(IO_TMAX):
+            io2[r * PN + j] = io[r * PN + j]
+        if io[IO_F * PN + j] >= 0.0:
+            io2[IO_TMAX * PN + j] = -np.inf if any_hit else io[IO_T * PN + j]
+        else:
+            io2[IO_TMAX * PN + j] = io[IO_TMAX * PN + j]
+    nf += trace_packet(tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b, mdims_b,
+                       macro_full_b, n, io2, tmin, watertight, any_hit, S, mb, mb1)
+    for j in range(n):
+        if io2[IO_F * PN + j] >= 0.0:
+            io[IO_T * PN + j] = io2[IO_T * PN + j]
+            io[IO_F * PN + j] = io2[IO_F * PN + j]
+            io[IO_W * PN + j] = 1.0
+        io[IO_NT * PN + j] += io2[IO_NT * PN + j]
+        io[IO_NC * PN + j] += io2[IO_NC * PN + j]
+    return nf
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _camera_rays(basis, W, H, px0, py0, pw, ph, io):
+    """Camera rays of the pw x ph pixels from (px0, py0) into io, row by row.
+
+    The directions are camera.pixel_dir's, operation for operation (so bit for bit; the tests
+    compare whole images with the DDA kernel, which calls pixel_dir), with the basis read into
+    locals first so that the loop vectorizes.
+    """
+    ex, ey, ez = basis[0, 0], basis[0, 1], basis[0, 2]
+    f0, f1, f2 = basis[1, 0], basis[1, 1], basis[1, 2]
+    r0, r1, r2 = basis[2, 0], basis[2, 1], basis[2, 2]
+    u0, u1, u2 = basis[3, 0], basis[3, 1], basis[3, 2]
+    th = basis[4, 0]
+    asp = W / H
+    for yy in range(ph):
+        sy = (1.0 - 2.0 * (py0 + yy + 0.5) / H) * th
+        row = np.uint64(yy * pw)  # unsigned indices: no wraparound test, so the loop vectorizes
+        for xx in range(pw):
+            j = row + np.uint64(xx)
+            sx = (2.0 * (px0 + xx + 0.5) / W - 1.0) * th * asp
+            dx = f0 + sx * r0 + sy * u0
+            dy = f1 + sx * r1 + sy * u1
+            dz = f2 + sx * r2 + sy * u2
+            n = math.sqrt(dx * dx + dy * dy + dz * dz)
+            io[_U_OX + j] = ex
+            io[_U_OY + j] = ey
+            io[_U_OZ + j] = ez
+            io[_U_DX + j] = dx / n
+            io[_U_DY + j] = dy / n
+            io[_U_DZ + j] = dz / n
+            io[_U_TMAX + j] = np.inf
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _write_out(io, col, W, px0, py0, pw, ph, has_b, ids_a, ids_b, img, tbuf, idbuf, costbuf, cellbuf):
+    """Write a packet's results (io) and colours (col, 3 * PN) into the image buffers, given
+    flat: img (H * W * 4,) uint8, tbuf (H * W,) float32, idbuf, costbuf, cellbuf (H * W,) int32.
+    Returns (hits, sum of tests, sum of cells).  Flat buffers and unsigned indices (no
+    wraparound tests) let the row loop vectorize."""
+    hits = 0
+    tests = 0
+    cells = 0
+    for yy in range(ph):
+        p0 = np.uint64((py0 + yy) * W + px0)
+        jr = np.uint64(yy * pw)
+        for xx in range(pw):
+            p = p0 + np.uint64(xx)
+            j = jr + np.uint64(xx)
+            f = int(io[_U_F + j])
+            nt = int(io[_U_NT + j])
+            nc = int(io[_U_NC + j])
+            tbuf[p] = np.float32(io[_U_T + j])
+            idbuf[p] = f
+            costbuf[p] = nt
+            cellbuf[p] = nc
+            q = np.uint64(4) * p
+            img[q] = _u8(col[j])
+            img[q + np.uint64(1)] = _u8(col[_U_PN + j])
+            img[q + np.uint64(2)] = _u8(col[_U_2PN + j])
+            img[q + np.uint64(3)] = np.uint8(255)
+            hits += f >= 0
+            tests += nt
+            cells += nc
+    if has_b and hits > 0:  # scene ids of the two grids' triangles
+        for yy in range(ph):
+            for xx in range(pw):
+                j = yy * pw + xx
+                f = int(io[IO_F * PN + j])
+                if f >= 0:
+                    idbuf[(py0 + yy) * W + px0 + xx] = ids_b[f] if io[IO_W * PN + j] == 1.0 else ids_a[f]
+    return hits, tests, cells
+
+
+@njit(cache=True, _nrt=False)
+def _prefetch_tile(ti, ntx, tile, W, H, img, tbuf, idbuf, costbuf, cellbuf):
+    """Prefetch (for writing) the lines of the flat output buffers that tile ti covers."""
+    tx0 = (ti % ntx) * tile
+    ty0 = (ti // ntx) * tile
+    tx1 = min(tx0 + tile, W)
+    for y in range(ty0, min(ty0 + tile, H)):
+        for x in range(tx0, tx1, 16):  # 16 pixels = one 64-byte line of a 4-byte buffer
+            p = y * W + x
+            _prefetch_write(tbuf, p)
+            _prefetch_write(idbuf, p)
+            _prefetch_write(costbuf, p)
+            _prefetch_write(cellbuf, p)
+            _prefetch_write(img, 4 * p)
+        p = y * W + tx1 - 1  # the last line of the row when the tile is not line-aligned
+        _prefetch_write(tbuf, p)
+        _prefetch_write(idbuf, p)
+        _prefetch_write(costbuf, p)
+        _prefetch_write(cellbuf, p)
+        _prefetch_write(img, 4 * p)
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _render_tiles(
+    tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
+    tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b, mdims_b, macro_full_b,
+    has_b, ids_a, ids_b, basis, W, H, tile, t0, t1, mode, shadows, light, off, watertight,
+    img, tbuf, idbuf, costbuf, cellbuf, S, io, io2, sio, sj, col, mb, mb1, acc,
+):
+    """Render tiles t0..t1-1 (row-major), each as packets of up to PK x PK pixels: trace and shade
+    each packet (and its shadow rays as another packet) into the flat buffers (see _write_out).
+    Adds (hits, triangle tests, cells, fallback rays) to acc (4,) int64.  (One function without
+    reference counting: numba would otherwise count references to every array argument of every
+    call.)"""
+    ntx = (W + tile - 1) // tile
+    ex, ey, ez = basis[0, 0], basis[0, 1], basis[0, 2]
+    if t0 < t1:
+        _prefetch_tile(t0, ntx, tile, W, H, img, tbuf, idbuf, costbuf, cellbuf)
+    for ti in range(t0, t1):
+        tx0 = (ti % ntx) * tile
+        ty0 = (ti // ntx) * tile
+        tx1 = min(tx0 + tile, W)
+        ty1 = min(ty0 + tile, H)
+        if ti + 1 < t1:  # the next tile's output lines load while this tile is traced
+            _prefetch_tile(ti + 1, ntx, tile, W, H, img, tbuf, idbuf, costbuf, cellbuf)
+        for py0 in range(ty0, ty1, PK):
+            for px0 in range(tx0, tx1, PK):
+                pw = min(PK, tx1 - px0)
+                ph = min(PK, ty1 - py0)
+                n = pw * ph
+                _camera_rays(basis, W, H, px0, py0, pw, ph, io)
+                nfb = trace_packet_two(
+                    tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
+                    tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b, mdims_b,
+                    macro_full_b, has_b, n, io, io2, 0.0, watertight, False, S, mb, mb1,
+                )
+                # colours into col (3 * PN), shadow rays of lit hits into sio
+                m = 0
+                for j in range(n):
+                    f = int(io[IO_F * PN + j])
+                    r, g, b = BACKGROUND[0], BACKGROUND[1], BACKGROUND[2]
+                    if mode == 2:
+                        r, g, b = cost_rgb(int(io[IO_NT * PN + j]))
+                    elif f >= 0:
+                        t = io[IO_T * PN + j]
+                        dx = io[IO_DX * PN + j]
+                        dy = io[IO_DY * PN + j]
+                        dz = io[IO_DZ * PN + j]
+                        nx, ny, nz, dn = facing_normal(tris, tris_b, int(io[IO_W * PN + j]), f, dx, dy, dz)
+                        if mode == 1:
+                            r, g, b = normal_rgb(nx, ny, nz)
+                        else:
+                            if not shadows:
+                                s = -dn
+                            else:
+                                need, sox, soy, soz, lx, ly, lz, ld, s = shadow_ray(
+                                    ex, ey, ez, t, dx, dy, dz, nx, ny, nz, light, off)
+                                if need:
+                                    sio[IO_OX * PN + m] = sox
+                                    sio[IO_OY * PN + m] = soy
+                                    sio[IO_OZ * PN + m] = soz
+                                    sio[IO_DX * PN + m] = lx
+                                    sio[IO_DY * PN + m] = ly
+                                    sio[IO_DZ * PN + m] = lz
+                                    sio[IO_TMAX * PN + m] = ld
+                                    sj[m] = j
+                                    col[j] = s  # lit unless the shadow ray hits something
+                                    m += 1
+                                    continue
+                            r, g, b = lambert_rgb(s)
+                    col[j] = r
+                    col[PN + j] = g
+                    col[2 * PN + j] = b
+                if m > 0:
+                    nfb += trace_packet_two(
+                        tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
+                        tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b,
+                        mdims_b, macro_full_b, has_b, m, sio, io2, 0.0, watertight, True, S, mb, mb1,
+                    )
+                    for q in range(m):
+                        j = sj[q]
+                        r, g, b = lambert_rgb(col[j] if sio[IO_F * PN + q] < 0.0 else 0.0)
+                        col[j] = r
+                        col[PN + j] = g
+                        col[2 * PN + j] = b
+                hits, tests, cells = _write_out(io, col, W, px0, py0, pw, ph, has_b, ids_a, ids_b,
+                                                img, tbuf, idbuf, costbuf, cellbuf)
+                acc[0] += hits
+                acc[1] += tests
+                acc[2] += cells
+                acc[3] += nfb
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def cgt_render_kernel(
+    tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
+    tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b, mdims_b, macro_full_b,
+    has_b, ids_a, ids_b, basis, W, H, tile, mode, shadows, light, off, watertight,
+    img, tbuf, idbuf, costbuf, cellbuf,
+):
+    """render_kernel (same arguments, same buffers, same shading) with primary and shadow rays
+    traced as packets of up to PK x PK pixels within each tile.  costbuf / cellbuf hold the CGT
+    counters (see the module docstring).  Returns (4,) int64: pixels hit, the sums of costbuf and
+    cellbuf, and the number of rays (primary and shadow) that took the single-ray fallback."""
+    ntx = (W + tile - 1) // tile
+    nty = (H + tile - 1) // tile
+    ntiles = ntx * nty
+    # scratch is allocated once per chunk (a run of consecutive tiles); call under
+    # numba.parallel_chunksize(1) so threads take chunks dynamically.  The result does not
+    # depend on the chunking or the scheduling.
+    nch = min(ntiles, CHUNKS)
+    per = (ntiles + nch - 1) // nch
+    acc = np.zeros((nch, 4), np.int64)
+    for ch in prange(nch):
+        S = np.empty(NS * PN)
+        io = np.empty(NIO * PN)
+        io2 = np.empty(NIO * PN)
+        sio = np.empty(NIO * PN)
+        sj = np.empty(PN, np.int64)
+        col = np.empty(3 * PN)
+        mb = np.empty(MBOX, np.int32)
+        mb1 = np.empty(MAILBOX, np.int32)
+        _render_tiles(
+            tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
+            tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b, mdims_b,
+            macro_full_b, has_b, ids_a, ids_b, basis, W, H, tile, ch * per, min((ch + 1) * per, ntiles),
+            mode, shadows, light, off, watertight, img.reshape(H * W * 4), tbuf.reshape(H * W),
+            idbuf.reshape(H * W), costbuf.reshape(H * W), cellbuf.reshape(H * W),
+            S, io, io2, sio, sj, col, mb, mb1, acc[ch],
+        )
+    out = np.zeros(4, np.int64)
+    for ch in range(nch):
+        for k in range(4):
+            out[k] += acc[ch, k]
+    return out

@@ -1,0 +1,107 @@
+"""Per-pixel shading shared by the single-ray (DDA) and the packet (CGT) render kernels, so both
+produce the same colours from the same hits.  The formulas are documented in
+:mod:`engine.trace.render`; colours are linear in [0, 1].
+"""
+
+import math
+
+import numpy as np
+from numba import njit
+
+BACKGROUND = (0.12, 0.13, 0.16)
+ALBEDO = (0.85, 0.78, 0.66)
+AMBIENT = 0.15
+COST_SCALE = 64.0
+
+
+@njit(cache=True)
+def _u8(c):
+    v = int(c * 255.0 + 0.5)
+    return np.uint8(0 if v < 0 else (255 if v > 255 else v))
+
+
+@njit(cache=True, _nrt=False)
+def put_pixel(img, y, x, r, g, b):
+    """img[y, x] = (r, g, b) as uint8(round(255 c)), alpha 255; img (H, W, 4) uint8."""
+    img[y, x, 0] = _u8(r)
+    img[y, x, 1] = _u8(g)
+    img[y, x, 2] = _u8(b)
+    img[y, x, 3] = np.uint8(255)
+
+
+@njit(cache=True, _nrt=False)
+def unit_normal(tris, f):
+    """normalize((v1 - v0) x (v2 - v0)) of triangle f of tris (F, 3, 3) float32; zero if degenerate."""
+    e1x = np.float64(tris[f, 1, 0]) - tris[f, 0, 0]
+    e1y = np.float64(tris[f, 1, 1]) - tris[f, 0, 1]
+    e1z = np.float64(tris[f, 1, 2]) - tris[f, 0, 2]
+    e2x = np.float64(tris[f, 2, 0]) - tris[f, 0, 0]
+    e2y = np.float64(tris[f, 2, 1]) - tris[f, 0, 1]
+    e2z = np.float64(tris[f, 2, 2]) - tris[f, 0, 2]
+    nx = e1y * e2z - e1z * e2y
+    ny = e1z * e2x - e1x * e2z
+    nz = e1x * e2y - e1y * e2x
+    n = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if n == 0.0:
+        return 0.0, 0.0, 0.0
+    return nx / n, ny / n, nz / n
+
+
+@njit(cache=True, _nrt=False)
+def facing_normal(tris, tris_b, which, f, dx, dy, dz):
+    """Unit geometric normal of the hit triangle (tris_b when which == 1) turned towards the
+    viewer, and its dot product with the ray direction (<= 0): (nx, ny, nz, dn)."""
+    if which == 1:
+        nx, ny, nz = unit_normal(tris_b, f)
+    else:
+        nx, ny, nz = unit_normal(tris, f)
+    dn = nx * dx + ny * dy + nz * dz
+    if dn > 0.0:
+        nx, ny, nz, dn = -nx, -ny, -nz, -dn
+    return nx, ny, nz, dn
+
+
+@njit(cache=True, _nrt=False)
+def shadow_ray(ex, ey, ez, t, dx, dy, dz, nx, ny, nz, light, off):
+    """Shadow ray of the hit at eye + t d with facing normal n: (need, ox, oy, oz, lx, ly, lz, ld, s).
+
+    s = n . l (l the unit vector to the light, ld the distance); need is True when s > 0, and then
+    the ray from p + n * off along l with tmax = ld decides visibility; otherwise s = 0.
+    """
+    px = ex + t * dx
+    py = ey + t * dy
+    pz = ez + t * dz
+    lx = light[0] - px
+    ly = light[1] - py
+    lz = light[2] - pz
+    ld = math.sqrt(lx * lx + ly * ly + lz * lz)
+    s = 0.0
+    if ld > 0.0:
+        lx /= ld
+        ly /= ld
+        lz /= ld
+        s = nx * lx + ny * ly + nz * lz
+        if s > 0.0:
+            return True, px + nx * off, py + ny * off, pz + nz * off, lx, ly, lz, ld, s
+        s = 0.0
+    return False, px, py, pz, lx, ly, lz, ld, s
+
+
+@njit(cache=True)
+def cost_rgb(nt):
+    """Heat map of h = min(1, nt / COST_SCALE): blue -> green -> red."""
+    h = min(1.0, nt / COST_SCALE)
+    if h < 0.5:
+        return 0.0, 2.0 * h, 1.0 - 2.0 * h
+    return 2.0 * h - 1.0, 2.0 - 2.0 * h, 0.0
+
+
+@njit(cache=True)
+def normal_rgb(nx, ny, nz):
+    return (nx + 1.0) * 0.5, (ny + 1.0) * 0.5, (nz + 1.0) * 0.5
+
+
+@njit(cache=True)
+def lambert_rgb(s):
+    k = AMBIENT + (1.0 - AMBIENT) * s
+    return ALBEDO[0] * k, ALBEDO[1] * k, ALBEDO[2] * k

@@ -1,0 +1,331 @@
+"""Coherent grid traversal (engine/trace/cgt.py) against the single-ray DDA and the brute force.
+
+``RenderParams(traversal="cgt")`` must give the DDA's image, hit distance and triangle buffers:
+t bit for bit everywhere, the triangle (and so the colour) everywhere except at exact ties, where
+two triangles are hit at the same t and each traversal keeps the one it tested first.  Every
+differing pixel is explained: the brute-force float64 caster (tests/reference.py) hits both
+triangles at that t (within 1e-9 relative).  Ties are counted and printed per case.
+
+Cases: random triangles, a closed icosphere, the Utah teapot (../shared/data), a height field
+seen at grazing angles, axis-aligned cubes (rays along lattice lines: many exact ties) and a scene
+with duplicated triangles (exact ties by construction); cameras outside, inside the grid with a
+wide field of view (packets whose rays disagree on the major axis take the single-ray fallback),
+grazing, exactly axis-aligned (direction components exactly zero, minor-axis signs flipping
+inside packets) and diagonal; odd image sizes and tiles smaller than, equal to and not a multiple
+of the 8x8 packet; shadows (shadow-ray packets), both intersection tests, the two-grid
+(static + moving) path, 1/2/3 threads.
+"""
+
+import argparse
+
+import numpy as np
+import pytest
+
+import reference as R
+from conftest import TEAPOT, icosphere_tris, load_tris, random_scene, random_triangles
+from engine.camera import Camera
+from engine.config import GridParams, RenderParams
+from engine.errors import InputError
+from engine.grid import build_grid
+from engine.trace import render
+from engine.trace.render import Renderer
+
+GRAZE = 1e-9
+TIE_RTOL = 1e-9
+
+
+# ----------------------------------------------------------------------------------------------
+# scenes
+
+
+def terrain(n=16, seed=3):
+    """Height field over [0, 1]^2 (y up), 2 n^2 triangles."""
+    rng = np.random.default_rng(seed)
+    h = rng.uniform(0.0, 0.08, (n + 1, n + 1))
+    xs = np.linspace(0.0, 1.0, n + 1)
+    v = np.stack(np.meshgrid(xs, xs, indexing="ij"), -1)
+    p = np.concatenate([v[..., :1], h[..., None], v[..., 1:]], -1)
+    a, b, c, d = p[:-1, :-1], p[1:, :-1], p[1:, 1:], p[:-1, 1:]
+    t = np.concatenate([np.stack([a, b, c], -2).reshape(-1, 3, 3), np.stack([a, c, d], -2).reshape(-1, 3, 3)])
+    return t.astype(np.float32)
+
+
+def cubes():
+    """Unit cubes at integer offsets (12 triangles each): axis-aligned faces and shared edges."""
+    c = np.array([[x, y, z] for z in (0, 1) for y in (0, 1) for x in (0, 1)], np.float32)
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    one = np.array([[c[q[0]], c[q[1]], c[q[2]]] for q in quads] + [[c[q[0]], c[q[2]], c[q[3]]] for q in quads])
+    offs = [(0, 0, 0), (1, 0, 0), (0, 2, 0), (2, 2, 1), (3, 0, 3), (1, 1, 2)]
+    return np.concatenate([one + np.float32(o) for o in offs]).astype(np.float32)
+
+
+def scene(name):
+    if name == "random":
+        return random_triangles(np.random.default_rng(7), 300, size=0.15)
+    if name == "icosphere":
+        return icosphere_tris(2, radius=1.0, center=(0.3, -0.2, 0.1))
+    if name == "teapot":
+        return load_tris(TEAPOT)
+    if name == "terrain":
+        return terrain()
+    if name == "cubes":
+        return cubes()
+    if name == "dups":
+        return random_scene(np.random.default_rng(13), 250, "mixed", None, dup_frac=0.3, degen_frac=0.1)
+    raise KeyError(name)
+
+
+def camera(kind, tris):
+    lo = tris.reshape(-1, 3).min(0).astype(np.float64)
+    hi = tris.reshape(-1, 3).max(0).astype(np.float64)
+    c = 0.5 * (lo + hi)
+    ext = float((hi - lo).max())
+    if kind == "framed":
+        return Camera.frame(lo, hi, fov=50.0)
+    if kind == "inside":  # wide view from inside the grid: packets straddle major-axis changes
+        return Camera(eye=tuple(c + 0.05 * ext), target=tuple(c + np.array([0.4, -0.3, 1.0]) * ext), fov=110.0)
+    if kind == "grazing":  # eye just above the top of the box, looking across it at a shallow angle
+        eye = np.array([lo[0] - 0.6 * ext, hi[1] + 0.01 * ext, c[2] + 0.1 * ext])
+        return Camera(eye=tuple(eye), target=(hi[0], hi[1] - 0.08 * ext, c[2]), fov=30.0)
+    if kind == "axis":  # straight down -z: zero direction components, minor signs flip in packets
+        return Camera(eye=(c[0], c[1], hi[2] + 2.0 * ext), target=(c[0], c[1], c[2]), up=(0, 1, 0), fov=40.0)
+    if kind == "diagonal":  # along (1, 1, 1): |dx| = |dy| = |dz| near the centre (major-axis ties)
+        return Camera(eye=tuple(c - 2.0 * ext), target=tuple(c), up=(0, 1, 0), fov=35.0)
+    if kind == "face":  # cubes: straight down onto the top face of the unit cube at the origin; in a
+        # square image the rays of pixels (x, W-1-x) have dx == dy and hit the face's diagonal edge
+        return Camera(eye=(0.5, 0.5, 1.8), target=(0.5, 0.5, 0.0), up=(0, 1, 0), fov=40.0)
+    raise KeyError(kind)
+
+
+_GRIDS = {}
+
+
+def grid_of(name):
+    if name not in _GRIDS:
+        tris = scene(name)
+        _GRIDS[name] = (tris, build_grid(tris, GridParams(density=4.0, macro=2 if name == "icosphere" else 4)))
+    return _GRIDS[name]
+
+
+# ----------------------------------------------------------------------------------------------
+# comparison
+
+
+def tie_pixels(a, b, tris, cam, label):
+    """Pixels whose triangle differs between results a and b; asserts each is an exact tie (the
+    brute force hits both triangles at the pixel's t) and returns their count."""
+    H, W = a.tri.shape
+    diff = np.flatnonzero((a.tri != b.tri).reshape(-1))
+    if len(diff) == 0:
+        return 0
+    o, d = R.ref_camera_rays(cam.eye, cam.target, cam.up, cam.fov, W, H)
+    assert (a.tri.reshape(-1)[diff] >= 0).all() and (b.tri.reshape(-1)[diff] >= 0).all(), \
+        f"{label}: a pixel is a hit in one traversal and a miss in the other"
+    for p in diff:
+        fa, fb = int(a.tri.reshape(-1)[p]), int(b.tri.reshape(-1)[p])
+        ta = R.ref_cast(tris[[fa]], o[p : p + 1], d[p : p + 1]).t[0]
+        tb = R.ref_cast(tris[[fb]], o[p : p + 1], d[p : p + 1]).t[0]
+        t = float(a.t.reshape(-1)[p])
+        assert np.isfinite(ta) and np.isfinite(tb) and abs(ta - tb) <= TIE_RTOL * max(ta, 1e-9) + 1e-12, \
+            f"{label}: pixel {p} differs (dda tri {fa} at {ta}, cgt tri {fb} at {tb}) without a tie"
+        assert abs(ta - t) <= 1e-5 * t, f"{label}: pixel {p}: t {t} is not the triangles' t {ta}"
+    return len(diff)
+
+
+def assert_same(a, b, tris, cam, label):
+    """CGT result b against DDA result a: identical t, triangles and image except at exact ties."""
+    assert np.array_equal(a.t, b.t), f"{label}: t differs at {int((a.t != b.t).sum())} pixels"
+    ties = tie_pixels(a, b, tris, cam, label)
+    other = (a.image != b.image).any(-1) & (a.tri == b.tri)
+    assert not other.any(), f"{label}: {int(other.sum())} pixels differ in colour with the same triangle"
+    print(f"{label}: {a.tri.size} pixels, {int((a.tri >= 0).sum())} hits, {ties} exact ties")
+    return ties
+
+
+def render_both(grid, tris, cam, **kw):
+    p = RenderParams(**kw)
+    return render(grid, tris, cam, p.replace(traversal="dda")), render(grid, tris, cam, p.replace(traversal="cgt"))
+
+
+# ----------------------------------------------------------------------------------------------
+# tests
+
+
+@pytest.mark.parametrize("view", ["framed", "inside", "grazing", "axis", "diagonal"])
+@pytest.mark.parametrize("name", ["random", "icosphere", "teapot", "terrain", "cubes", "dups"])
+def test_cgt_equals_dda(name, view):
+    """Primary and shadow rays, lambert with a point light: same t, triangles and colours."""
+    tris, grid = grid_of(name)
+    cam = camera(view, tris)
+    lo, hi = grid.spec.scene_lo, grid.spec.scene_hi
+    light = tuple(0.5 * (lo + hi) + np.array([0.3, 1.5, 0.8]) * float((hi - lo).max()))
+    a, b = render_both(grid, tris, cam, width=61, height=47, tile=16, shadows=True, light=light)
+    assert_same(a, b, tris, cam, f"{name}/{view}")
+    assert b.stats["traversal"] == "cgt" and a.stats["traversal"] == "dda"
+    if view == "framed" and name != "terrain":
+        assert (b.tri >= 0).mean() > 0.05  # the view really shows the scene
+    # shading "normal" (no shadow rays) on the same views
+    a, b = render_both(grid, tris, cam, width=61, height=47, tile=16, shading="normal")
+    assert_same(a, b, tris, cam, f"{name}/{view}/normal")
+
+
+@pytest.mark.parametrize("name", ["random", "icosphere", "cubes"])
+def test_cgt_matches_brute_force(name):
+    """Small scenes: CGT's t / triangle buffers agree with the float64 brute-force caster."""
+    tris, grid = grid_of(name)
+    for view in ("framed", "inside", "axis"):
+        cam = camera(view, tris)
+        res = render(grid, tris, cam, RenderParams(width=45, height=37, tile=8, shading="normal", traversal="cgt"))
+        ref = R.ref_render(tris, cam, 45, 37, "normal")
+        diff = R.compare_hits(res.t.reshape(-1).astype(np.float64), res.tri.reshape(-1), ref.hits,
+                              t_rtol=1e-6, graze_tol=GRAZE)
+        assert len(diff.bad) == 0, f"{name}/{view}: {len(diff.bad)} pixels differ from the brute force"
+        assert len(diff.grazing) <= 0.002 * res.tri.size + 1
+
+
+@pytest.mark.parametrize("size,tile", [((1, 1), 16), ((37, 23), 7), ((64, 5), 256), ((53, 41), 20), ((17, 64), 1)])
+def test_cgt_sizes_and_tiles(size, tile):
+    """Image borders with partial tiles and packets (tile < packet, tile not a multiple of it)."""
+    tris, grid = grid_of("teapot")
+    w, h = size
+    cam = camera("framed", tris)
+    a, b = render_both(grid, tris, cam, width=w, height=h, tile=tile, shadows=True,
+                       light=tuple(cam.eye + np.array([1.0, 3.0, 0.0])))
+    assert_same(a, b, tris, cam, f"teapot {w}x{h} tile {tile}")
+    assert (b.image[:, :, 3] == 255).all()
+
+
+def test_cgt_fast_intersect_and_cost_shading():
+    """Moller-Trumbore (watertight=False) packets equal the DDA's; "cost" shading shows the CGT
+    counters as the documented heat map."""
+    tris, grid = grid_of("random")
+    for view in ("framed", "inside", "axis"):
+        cam = camera(view, tris)
+        a, b = render_both(grid, tris, cam, width=57, height=43, watertight=False, shadows=True)
+        assert_same(a, b, tris, cam, f"random/{view}/fast")
+    cam = camera("framed", tris)
+    res = render(grid, tris, cam, RenderParams(width=57, height=43, shading="cost", traversal="cgt"))
+    h = np.minimum(1.0, res.cost / 64.0)
+    rgb = np.where((h < 0.5)[..., None], np.stack([0 * h, 2 * h, 1 - 2 * h], -1),
+                   np.stack([2 * h - 1, 2 - 2 * h, 0 * h], -1))
+    assert np.array_equal(res.image[:, :, :3], R.to_u8(rgb))
+    assert len(np.unique(res.cost)) > 3
+
+
+def test_cgt_counters_and_fallback():
+    """tests/cells per ray: 0 for rays that miss the grid box (checked with a numpy slab test),
+    at least 1 for every hit; the stats sum the buffers; a wide view from inside the grid takes
+    the single-ray fallback for some packets and still equals the DDA."""
+    tris, grid = grid_of("random")
+    cam = camera("inside", tris)
+    a, b = render_both(grid, tris, cam, width=64, height=48)
+    assert b.stats["fallback_rays"] > 0
+    assert_same(a, b, tris, cam, "random/inside fallback")
+    axis = render(grid, tris, camera("axis", tris), RenderParams(width=64, height=48, traversal="cgt"))
+    assert axis.stats["fallback_rays"] == 0  # one major axis (z) over the whole view
+    cam = camera("framed", tris)
+    res = render(grid, tris, cam, RenderParams(width=64, height=48, traversal="cgt"))
+    o, d = R.ref_camera_rays(cam.eye, cam.target, cam.up, cam.fov, 64, 48)
+    lo, hi = grid.spec.lo, grid.spec.hi
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta = (lo - o) / d
+        tb = (hi - o) / d
+    t0 = np.nanmax(np.minimum(ta, tb), axis=1)
+    t1 = np.nanmin(np.maximum(ta, tb), axis=1)
+    outside = (t0 > t1 + 1e-9 * np.abs(t1)).reshape(48, 64)
+    assert outside.sum() > 100
+    assert (res.cost[outside] == 0).all() and (res.cells[outside] == 0).all()
+    hit = res.tri >= 0
+    assert hit.sum() > 100 and (res.cost[hit] >= 1).all() and (res.cells[hit] >= 1).all()
+    assert res.stats["hit_fraction"] == pytest.approx(hit.mean(), abs=1e-12)
+    assert res.stats["tests_per_ray"] == pytest.approx(res.cost.mean(), abs=1e-9)
+    assert res.stats["cells_per_ray"] == pytest.approx(res.cells.mean(), abs=1e-9)
+
+
+def test_cgt_ties_counted_and_explained():
+    """Duplicated triangles and rays along cube edges give exact ties; every pixel where the two
+    traversals pick different triangles is one of them (asserted in assert_same), and the scenes
+    do produce ties for the brute force, so the check is not vacuous."""
+    total = 0
+    for name, view in (("dups", "framed"), ("dups", "inside"), ("cubes", "face")):
+        tris, grid = grid_of(name)
+        cam = camera(view, tris)
+        a, b = render_both(grid, tris, cam, width=72, height=72, shading="normal")
+        total += assert_same(a, b, tris, cam, f"ties {name}/{view}")
+        ref = R.ref_render(tris, cam, 72, 72, "normal").hits
+        with np.errstate(invalid="ignore"):
+            tied = ref.hit & (np.abs(ref.t2 - ref.t) <= TIE_RTOL * np.maximum(ref.t, 1e-9))
+        assert tied.sum() > 20, f"{name}/{view}: the scene should produce exact ties"
+    print(f"pixels that differ between DDA and CGT, all exact ties: {total}")
+
+
+def test_cgt_two_grids():
+    """Static + moving parts in two grids (Renderer.render(second=...)): same as the DDA, and the
+    same as one grid over the whole scene away from ties."""
+    tris = np.concatenate([scene("terrain"), icosphere_tris(1, radius=0.2, center=(0.5, 0.25, 0.5))])
+    moving = np.zeros(len(tris), bool)
+    moving[-80:] = True
+    ids_a = np.flatnonzero(~moving).astype(np.int32)
+    ids_b = np.flatnonzero(moving).astype(np.int32)
+    ga, gb = build_grid(tris[ids_a], GridParams()), build_grid(tris[ids_b], GridParams())
+    whole = build_grid(tris, GridParams())
+    for view in ("framed", "grazing", "inside"):
+        cam = camera(view, tris)
+        out = {}
+        for tv in ("dda", "cgt"):
+            p = RenderParams(width=59, height=41, shadows=True, light=(0.5, 3.0, 0.2), traversal=tv)
+            out[tv] = Renderer().render(ga, tris[ids_a], cam, p, second=(gb, tris[ids_b], ids_a, ids_b))
+        assert_same(out["dda"], out["cgt"], tris, cam, f"two grids/{view}")
+        one = render(whole, tris, cam, RenderParams(width=59, height=41, shadows=True, light=(0.5, 3.0, 0.2),
+                                                     traversal="cgt"))
+        assert np.array_equal(one.t, out["cgt"].t)
+        tie_pixels(one, out["cgt"], tris, cam, f"two grids vs one/{view}")
+
+
+def test_cgt_pipeline_marbles():
+    """The frame pipeline with --traversal cgt (marbles: static box + moving marbles, split into
+    two grids) renders the DDA's frames."""
+    from engine.pipeline import FramePipeline
+    from engine.scene import make_scene
+
+    frames = {}
+    for tv in ("dda", "cgt"):
+        sc = make_scene("marbles", count=2000)
+        p = FramePipeline(sc, GridParams(), RenderParams(width=80, height=60, shadows=True, traversal=tv))
+        frames[tv] = [p.step(t) for t in (0.0, 0.41)]
+        cam = p.camera
+    for fa, fb in zip(frames["dda"], frames["cgt"]):
+        assert np.array_equal(fa.t, fb.t)
+        assert np.array_equal(fa.tri, fb.tri) or tie_pixels(fa, fb, sc.triangles_at(fa.stats["t"]), cam, "marbles")
+        assert np.array_equal(fa.image[fa.tri == fb.tri], fb.image[fa.tri == fb.tri])
+        # the pipeline really used the packets: CGT counts its triangle tests per packet
+        assert fa.stats["tests_per_ray"] != fb.stats["tests_per_ray"]
+
+
+def test_cgt_threads_identical():
+    tris, grid = grid_of("teapot")
+    cam = camera("framed", tris)
+    outs = [render(grid, tris, cam, RenderParams(width=70, height=50, shadows=True, threads=n, traversal="cgt"))
+            for n in (1, 2, 3)]
+    for o in outs[1:]:
+        for f in ("image", "t", "tri", "cost", "cells"):
+            assert np.array_equal(getattr(o, f), getattr(outs[0], f)), f"{f} differs between thread counts"
+
+
+def test_traversal_parameter():
+    """RenderParams validates the traversal (API default dda); the CLI's --traversal reaches it
+    and defaults to cgt (same images, faster)."""
+    from app import cli
+
+    assert RenderParams().traversal == "dda"
+    assert RenderParams(traversal="cgt").traversal == "cgt"
+    with pytest.raises(InputError, match="traversal"):
+        RenderParams(traversal="bvh")
+    p = argparse.ArgumentParser()
+    cli.add_scene_args(p)
+    cli.add_grid_args(p)
+    cli.add_render_args(p)
+    assert cli.render_params(p.parse_args(["--traversal", "dda"])).traversal == "dda"
+    assert cli.render_params(p.parse_args([])).traversal == "cgt"
+    with pytest.raises(SystemExit):
+        p.parse_args(["--traversal", "bvh"])

@@ -1,0 +1,206 @@
+"""Watertightness at scale and a long-run soak (issue 7, parts 2 and 4).
+
+Watertightness: probe rays aimed exactly at shared vertices, edge midpoints and random points of
+shared edges of closed real meshes (Armadillo, dragon, Lucy from ../shared/data), each from an
+origin outside the mesh's bounding sphere and in front of every face touching its target (so the
+ray crosses the surface there, see tests/test_watertight.py).  On a closed mesh such a ray must
+hit no later than its target: a miss or a hit at t > |target - origin| (1 + 1e-6) is a *hole*.
+The grid of every build strategy is built once per mesh and the probes are cast in batches; the
+watertight test (Woop, Benthin, Wald, JCGT 2013) must give 0 holes for every strategy, and the
+fast Moller-Trumbore test's hole rate is printed.  Default: 40,000 probes per mesh and strategy
+(1.08M watertight casts in all); ``-m soak``: 10M probes per mesh and strategy
+(GRIDRT_SOAK_RAYS to change it).
+
+Soak: the Marbles scene (8,800 triangles) is rendered frame after frame (t = i / 30 s) by two
+pipelines: a reference (serial build, 1 build thread, 1 render thread, DDA) and one whose build
+strategy, build thread count (1..16, more than the cores), render thread count and traversal
+(DDA / CGT) change every frame, shadows on every third frame in both.  Every frame's image, t and
+triangle buffers must be bit-identical to the reference's (exact ties, two triangles at the same
+t, would be the only allowed difference and are counted), and the process's resident memory must
+stay flat after warm-up (sampled every 10 frames; growth and slope are printed).  Default: 300
+frames; ``-m soak``: 10,000 (GRIDRT_SOAK_FRAMES).
+"""
+
+import os
+import time
+
+import numpy as np
+import pytest
+
+from conftest import ARMADILLO, load_mesh_arrays
+from engine.config import GridParams, RenderParams
+from engine.grid import build_grid, names
+from engine.pipeline import FramePipeline
+from engine.scene import make_scene
+from engine.trace import cast_rays
+from test_watertight import face_normals, origins_in_front, targets_and_fans
+
+DRAGON = "static/stanford_dragon/dragon.obj"
+LUCY = "static/lucy/Lucy100k.ply"
+MESHES = [ARMADILLO, DRAGON, LUCY]
+STRATEGIES = names()
+REL = 1e-6
+BATCH = 200_000
+
+
+def soak_requested(config):
+    return "soak" in (config.getoption("markexpr") or "") or os.environ.get("GRIDRT_SOAK", "") not in ("", "0")
+
+
+def rss_mb():
+    """Resident set size of this process in MiB (Linux /proc)."""
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    pytest.skip("no /proc/self/status: cannot measure RSS on this platform")
+
+
+# ----------------------------------------------------------------------------------------------
+# watertightness at scale
+
+
+class Prober:
+    """A closed mesh, its grids (one per strategy) and a generator of probe batches."""
+
+    def __init__(self, relpath):
+        self.name = relpath.split("/")[-1]
+        self.v, self.f = load_mesh_arrays(relpath)
+        self.tris = np.ascontiguousarray(self.v[self.f])
+        self.normals = face_normals(self.v, self.f)
+        v64 = self.v.astype(np.float64)
+        self.centre = 0.5 * (v64.min(0) + v64.max(0))
+        self.radius = float(np.linalg.norm(v64 - self.centre, axis=1).max())
+        self.grids = {s: build_grid(self.tris, GridParams(strategy=s, threads=2, density=4.0)) for s in STRATEGIES}
+
+    def batch(self, seed, n):
+        """About n probes: (origins, unit directions, distance to target), float64."""
+        rng = np.random.default_rng(seed)
+        nv = min(n // 10, len(self.v))
+        tg, offs, fan = targets_and_fans(rng, self.v, self.f, nv, n // 10, n - nv - n // 10)
+        o, t, ok = origins_in_front(rng, tg, offs, fan, self.normals, self.centre, self.radius)
+        d = t - o
+        dist = np.linalg.norm(d, axis=1)
+        return o, d / dist[:, None], dist, int((~ok).sum())
+
+
+def holes(h, dist):
+    return int(((h.tri < 0) | (h.t > dist * (1 + REL))).sum())
+
+
+def probe(relpath, n_probes):
+    p = Prober(relpath)
+    t0 = time.perf_counter()
+    wt = {s: 0 for s in STRATEGIES}
+    fast = {s: 0 for s in STRATEGIES}
+    done = dropped = at_target = 0
+    seed = 0
+    while done < n_probes:
+        o, d, dist, drop = p.batch(1000 + seed, min(BATCH, n_probes - done + 64))
+        o, d, dist = o[: n_probes - done], d[: n_probes - done], dist[: n_probes - done]
+        seed += 1
+        dropped += drop
+        for s, g in p.grids.items():
+            h = cast_rays(g, p.tris, o, d, watertight=True)
+            wt[s] += holes(h, dist)
+            if s == "serial":
+                at_target += int((np.abs(h.t - dist) <= 1e-6 * dist).sum())
+                fast[s] += holes(cast_rays(g, p.tris, o, d, watertight=False), dist)
+        done += len(o)
+    secs = time.perf_counter() - t0
+    rate = fast["serial"] / done
+    print(f"FIGURE watertight {p.name}: {done} probes x {len(STRATEGIES)} strategies = {done * len(STRATEGIES)} casts "
+          f"in {secs:.1f} s; holes with the watertight test: {sum(wt.values())} ({wt}); {at_target} probes "
+          f"({100 * at_target / done:.1f}%) hit at their target; fast (Moller-Trumbore) test: {fast['serial']} holes, "
+          f"rate {100 * rate:.3f}%; {dropped} targets dropped (no origin in front of all their faces)")
+    assert sum(wt.values()) == 0, f"{p.name}: the watertight test let rays through: {wt}"
+    assert at_target > 0.5 * done  # the probes really reach their targets (most are not blocked earlier)
+    assert dropped < 0.01 * done
+    return done, rate
+
+
+@pytest.mark.parametrize("relpath", MESHES, ids=["armadillo", "dragon", "lucy"])
+def test_watertight_probes(relpath):
+    probe(relpath, 40_000)
+
+
+@pytest.mark.soak
+@pytest.mark.parametrize("relpath", MESHES, ids=["armadillo", "dragon", "lucy"])
+def test_watertight_probes_soak(relpath, request):
+    if not soak_requested(request.config):
+        pytest.skip("10M probes per mesh and strategy: run with -m soak (or GRIDRT_SOAK=1)")
+    probe(relpath, int(os.environ.get("GRIDRT_SOAK_RAYS", "10000000")))
+
+
+# ----------------------------------------------------------------------------------------------
+# soak: strategy and thread count changing every frame
+
+
+THREADS = (1, 2, 3, 4, 7, 16)
+
+
+def frame_settings(i):
+    """(strategy, build threads, render threads, traversal, shadows) of frame i: every strategy
+    and thread count combination comes round (9 and 6 are not coprime, hence the skew)."""
+    s = STRATEGIES[i % len(STRATEGIES)]
+    bt = THREADS[(i + i // len(STRATEGIES)) % len(THREADS)]
+    rt = THREADS[(5 * i + 1) % len(THREADS)]
+    return s, bt, rt, ("dda", "cgt")[i % 2], i % 3 == 0
+
+
+def soak(n_frames, warmup, report_at, width=64, height=48, count=8800):
+    ref = FramePipeline(make_scene("marbles", count=count), GridParams(strategy="serial", threads=1),
+                        RenderParams(width=width, height=height, threads=1))
+    var = FramePipeline(make_scene("marbles", count=count), GridParams(), RenderParams(width=width, height=height))
+    identical = tie_frames = 0
+    samples = []
+    at = {}
+    t0 = time.perf_counter()
+    for i in range(n_frames):
+        s, bt, rt, trav, shadows = frame_settings(i)
+        ref.render_params = RenderParams(width=width, height=height, threads=1, shadows=shadows)
+        var.grid_params = GridParams(strategy=s, threads=bt)
+        var.render_params = RenderParams(width=width, height=height, threads=rt, traversal=trav, shadows=shadows)
+        a = ref.step(i / 30.0)
+        b = var.step(i / 30.0)
+        if np.array_equal(a.image, b.image) and np.array_equal(a.tri, b.tri) and np.array_equal(a.t, b.t):
+            identical += 1
+        else:
+            px = (a.tri != b.tri) | (a.image != b.image).any(axis=2) | (a.t != b.t)
+            tie = np.array_equal(a.t[px], b.t[px]) and (a.tri[px] >= 0).all() and (b.tri[px] >= 0).all()
+            assert tie, (f"frame {i} ({s}, {bt} build / {rt} render threads, {trav}, shadows={shadows}): "
+                         f"{int(px.sum())} pixels differ from the serial reference")
+            tie_frames += 1
+        assert b.stats["strategy"] == s and b.stats["threads"] == bt
+        if i % 10 == 0 or i == n_frames - 1:
+            samples.append((i + 1, rss_mb()))
+        if i + 1 in report_at:
+            at[i + 1] = rss_mb()
+    secs = time.perf_counter() - t0
+    after = np.array([(f, m) for f, m in samples if f >= warmup])
+    slope_kb = float(np.polyfit(after[:, 0], after[:, 1], 1)[0] * 1024) if len(after) > 2 else 0.0
+    growth = float(after[-1, 1] - after[0, 1])
+    print(f"FIGURE soak: {n_frames} frames of {count} triangles at {width}x{height} in {secs:.1f} s "
+          f"({1e3 * secs / n_frames:.1f} ms per frame pair); {identical} frames bit-identical to the serial reference, "
+          f"{tie_frames} differing only at exact ties; RSS " + ", ".join(f"frame {k}: {v:.1f} MiB" for k, v in at.items())
+          + f"; growth after warm-up (frame {warmup}) {growth:+.2f} MiB, slope {slope_kb:+.3f} KiB/frame")
+    assert identical + tie_frames == n_frames
+    return growth, slope_kb
+
+
+def test_soak_short():
+    """300 frames, strategy / threads / traversal changing every frame: identical to serial, and
+    RSS flat after 100 frames of warm-up (growth < 8 MiB, slope < 20 KiB per frame)."""
+    growth, slope = soak(300, 100, (100, 200, 300))
+    assert growth < 8.0 and slope < 20.0
+
+
+@pytest.mark.soak
+def test_soak_long(request):
+    """10,000 frames: identical to serial, RSS flat after 500 frames (growth < 16 MiB, slope
+    < 1 KiB per frame: a leak of one small array per frame would show)."""
+    if not soak_requested(request.config):
+        pytest.skip("10,000 frames: run with -m soak (or GRIDRT_SOAK=1)")
+    n = int(os.environ.get("GRIDRT_SOAK_FRAMES", "10000"))
+    growth, slope = soak(n, min(500, n // 4), (500, n // 2, n))
+    assert growth < 16.0 and slope < 1.0
