@@ -451,11 +451,7 @@ def spanning_triangles(n, seed=1):
                      np.stack([u[:, 2], np.ones(n), np.zeros(n)], 1)], axis=1).astype(np.float32)
 
 
-@pytest.mark.parametrize("strategy", [
-    pytest.param(s, marks=pytest.mark.xfail(strict=True, reason="bug thread_grids_merge_budget: the per-thread "
-                                            "references are allocated and written before max_bytes is checked "
-                                            "(see ../notes/bugs/thread_grids_merge_budget.py)"))
-    if s == "thread_grids_merge" else s for s in STRATEGIES])
+@pytest.mark.parametrize("strategy", STRATEGIES)
 def test_guard_memory_budget_before_allocation(monkeypatch, strategy):
     """GridParams.max_bytes is enforced before the memory is committed: the cell arrays of all
     layers before any build stage runs, the references after the count pass and before any kernel

@@ -120,6 +120,18 @@ class GridBuffers:
         C = s.n_cells
         return self._count[: self.prev_layers * C].reshape(self.prev_layers, C)
 
+    def check_budget(self, extra, what):
+        """InputError when the cell arrays plus ``extra`` bytes exceed the build's max_bytes."""
+        if self.max_bytes is None:
+            return
+        need = extra + self.count.nbytes + self.start.nbytes
+        if need > self.max_bytes:
+            raise InputError(
+                f"the grid would need {need / 2**20:.0f} MiB ({what}), above the memory budget "
+                f"max_bytes={self.max_bytes / 2**20:.0f} MiB; lower the density (lambda), use exact insertion, "
+                f"fewer threads or raise max_bytes"
+            )
+
     def refs(self, n):
         if n > INT32_MAX:
             raise InputError(

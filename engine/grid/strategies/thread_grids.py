@@ -146,11 +146,16 @@ class ThreadGridsMerge(Strategy):
 
     def insert(self, tris, spec, bufs, threads, exact, times):
         C = spec.n_cells
+        layer_bytes = threads * (2 * C + 1) * 4
+        bufs.check_budget(layer_bytes, f"{threads} per-thread grids of {C} cells")
         tcount = zero_scratch(bufs, "tg_count", threads * C, np.int32).reshape(threads, C)
         tstart = scratch(bufs, "tg_start", threads * (C + 1), np.int32).reshape(threads, C + 1)
-        refs, trefs = _insert_layers(
-            tris, spec, bufs, tcount, tstart, threads, exact, times, lambda n: scratch(bufs, "tg_refs", n, np.int32)
-        )
+
+        def per_thread_refs(n):
+            bufs.check_budget(layer_bytes + 8 * n, f"{n} references, held twice while the per-thread grids merge")
+            return scratch(bufs, "tg_refs", n, np.int32)
+
+        refs, trefs = _insert_layers(tris, spec, bufs, tcount, tstart, threads, exact, times, per_thread_refs)
         count = bufs.count[0]
         start = bufs.start[0]
         with timed(times, "merge_ms"):
