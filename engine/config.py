@@ -42,8 +42,9 @@ class GridParams:
     insert     "bbox" (triangle bounding box, fast) or "exact" (separating-axis test, fewer refs)
     threads    build thread count (None: all cores); may exceed the core count
     max_cells  ceiling on nx*ny*nz; a larger request is reduced to it with a warning
-    max_bytes  memory budget of the cell arrays plus references; a build that would need
-               more stops with an InputError before allocating
+    max_bytes  memory budget of the cell arrays plus references (thread_grids_merge: plus the
+               per-thread grids it merges); a build that would need more stops with an
+               InputError before allocating
     """
 
     strategy: str = "serial"

@@ -755,7 +755,8 @@ def spanning_triangles(n, seed):
 
 def test_grid_memory_budget():
     """GridParams.max_bytes caps the grid's memory, documented as "the cell arrays plus
-    references": need = 4 B x references + layers x (2 cells + 1) x 4 B.  For every strategy at 1
+    references": need = 4 B x references + layers x (2 cells + 1) x 4 B (thread_grids_merge also
+    holds its per-thread grids and a second copy of the references while merging).  For every strategy at 1
     and 16 threads, a build with max_bytes = need succeeds and one with need - 1 is refused with an
     InputError naming max_bytes and lambda; 60 triangles spanning the scene at lambda 1e12 against
     an 8 MiB budget are refused.  The allocation of a build that fits is printed against its
@@ -771,6 +772,8 @@ def test_grid_memory_budget():
                 p = GridParams(strategy=s, threads=th, density=1e12, max_cells=cap)
                 g0 = build_grid(tris[:20], p)
                 need = 4 * g0.references + g0.layers * (2 * g0.spec.n_cells + 1) * 4
+                if s == "thread_grids_merge":  # its per-thread grids and references exist while merging
+                    need += th * (2 * g0.spec.n_cells + 1) * 4 + 4 * g0.references
                 g = build_grid(tris[:20], p.replace(max_bytes=need))
                 assert g.references == g0.references
                 ratios.append(g.memory_bytes() / need)
