@@ -1,161 +1,514 @@
-"""``gridrt bench``: benchmarks.  Every figure is a median of several runs after a warm-up run
-(numba compiles on the first call), with min and max, thread count, scene and resolution.
+"""``gridrt bench SUBCOMMAND``: benchmarks.  Each subcommand writes a CSV, PNG plots, a short
+``summary.md`` and ``machine.json`` (CPU model, cores, threads used, versions, commit, load
+average, effective cores) into ``--out``, and shows progress bars.  Every timing is the median of ``--runs`` runs
+after ``--warmup`` untimed runs (numba compiles, buffers grow), with min and max.
 
-* ``core``: serial grid build (bbox and exact insertion) and primary-ray throughput at 1 and 2
-  threads on a ~100k and a ~1M triangle mesh.
+* ``core``:  serial grid build (bbox and exact insertion) and primary-ray Mrays/s (DDA and CGT)
+  at 1 thread and all cores on a ~100k and a ~1M triangle mesh.
+* ``build``: build strategies x thread counts x scenes, total and per stage (the seed's
+  "Comparison build methods" and "Individual steps"; :func:`engine.grid.sweep.run_build_sweep`).
+* ``frame``: animation + rebuild + render per frame at 1024x1024 for each scene at 1 thread and
+  all cores (the seed's "Total performance", CGT's fps table); CGT traversal by default (DDA on
+  request), static/moving split on and off.
+* ``trade``: every knob that trades speed for accuracy against a brute-force float64 reference
+  (:mod:`app.bench_trade`).
+* ``peers``: the same animated mesh and rays through Intel Embree (embreex) side by side
+  (:mod:`app.bench_peers`).
 """
 
-import csv
 import math
-import os
-import platform
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
-import engine  # noqa: F401
-from engine.camera import Camera
-from engine.config import GridParams, RenderParams
+import engine  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
+from engine.config import TRAVERSALS, GridParams, RenderParams
+from engine.errors import InputError
 from engine.grid.build import GridBuilder
+from engine.threads import check_threads
 from engine.trace.render import Renderer
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+from .bench_util import (
+    SCENE_HELP, check_runs, facing_camera, figure, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress,
+    put_stat, resolve_scene, scene_list, stat, thread_list, write_csv, write_json, write_summary,
+)
+
+#: the seed's and CGT's figures quoted in summaries (DESIGN.md, "Numbers to keep in mind")
+SEED_FPS = ("Ize et al. 2006 (16 threads, 8 dual-core Opteron 880, rebuild + ray cast): Thai (~10M triangles) "
+            "0.78 -> 2.86 fps, Marbles 0.50 -> 1.97 fps, Hand (16k) 78 -> 150 fps.  CGT (Wald et al. 2006, "
+            "1024x1024, grid rebuilt every frame, dual 3.2 GHz Xeon, primary rays): Hand 34.5 fps, Marbles "
+            "57.1 fps, Fairy forest (174k) 3.4 fps.")
 
 
 def add_parser(sub):
-    p = sub.add_parser("bench", help="benchmarks (medians after warm-up)")
+    p = sub.add_parser("bench", help="benchmarks: CSV + PNG plots + summary.md (medians after warm-up)",
+                       description=__doc__.split("\n\n")[0])
     bsub = p.add_subparsers(dest="bench", required=True)
-    c = bsub.add_parser("core", help="serial build ms and primary-ray Mrays/s on ~100k and ~1M triangles")
-    c.add_argument("--runs", type=int, default=5, help="timed runs per figure (median reported)")
-    c.add_argument("--size", type=int, default=1024, help="square image edge for the ray figures")
-    c.add_argument("--scenes", default=None,
-                   help="comma-separated: lucy, bunny16 (bunny subdivided to 1.1M), ico82k, ico1m, or mesh paths")
-    c.add_argument("--out", type=Path, default=Path("out/bench_core"), help="folder for core.csv")
+
+    def common(q, out, runs=5, warmup=1, scenes=True):
+        q.add_argument("--runs", type=int, default=runs, help=f"timed runs per figure, median reported (default {runs})")
+        q.add_argument("--warmup", type=int, default=warmup, help=f"untimed runs first (default {warmup})")
+        q.add_argument("--out", default=f"out/bench_{out}", help=f"output folder (default out/bench_{out})")
+        q.add_argument("--quick", action="store_true", help="tiny scenes and sizes, one run (smoke test)")
+        q.add_argument("--no-progress", action="store_true", help="no progress bars")
+        if scenes:
+            q.add_argument("--scenes", default=None, help=SCENE_HELP)
+
+    c = bsub.add_parser("core", help="serial build ms (bbox, exact) and primary-ray Mrays/s on ~100k and ~1M triangles")
+    common(c, "core")
+    c.add_argument("--size", type=int, default=1024, help="square image edge for the ray figures (default 1024)")
+    c.add_argument("--threads", default=None, help="thread counts for the ray figures (default: 1 and all cores)")
+    c.add_argument("--traversal", default=",".join(TRAVERSALS), help=f"ray traversals, comma-separated of "
+                   f"{', '.join(TRAVERSALS)} (default {','.join(TRAVERSALS)}: DDA and CGT side by side)")
     c.set_defaults(func=run_core)
+
+    b = bsub.add_parser("build", help="build strategies x threads x scenes, total and per stage")
+    common(b, "build", warmup=2)
+    b.add_argument("--strategies", default=None, help="comma-separated strategy names (default: all)")
+    b.add_argument("--threads", default=None, help="thread counts (default: 1 .. all cores)")
+    b.add_argument("--insert", choices=("bbox", "exact"), default="bbox", help="insertion test (default bbox)")
+    b.add_argument("--lambda", dest="density", type=float, default=4.0, help="grid density (default 4)")
+    b.add_argument("--macro", type=int, default=4, help="macro-cell edge in cells (default 4)")
+    b.set_defaults(func=run_build)
+
+    f = bsub.add_parser("frame", help="rebuild + render per frame at 1024x1024 per scene, 1 thread and all cores")
+    common(f, "frame", warmup=2)
+    f.add_argument("--threads", default=None, help="thread counts (default: 1 and all cores)")
+    f.add_argument("--size", type=int, default=1024, help="square image edge (default 1024)")
+    f.add_argument("--strategy", default="auto",
+                   help="build strategy (default auto: serial at 1 thread, sort_middle above)")
+    f.add_argument("--traversal", default=FRAME_TRAVERSAL, help=f"comma-separated of {', '.join(TRAVERSALS)} (default "
+                   f"{FRAME_TRAVERSAL}: the packet traversal the seed's and CGT's fps figures used; single-ray DDA "
+                   "takes seconds per frame on some scenes)")
+    f.add_argument("--split", choices=("both", "on", "off"), default="both",
+                   help="static/moving split for scenes with static parts (default both: measure on and off)")
+    f.add_argument("--shading", choices=("lambert", "normal", "cost"), default="lambert")
+    f.add_argument("--dt", type=float, default=1.0 / 30.0, help="seconds between frames (default 1/30)")
+    f.set_defaults(func=run_frame)
+
+    from . import bench_peers, bench_trade
+
+    bench_trade.add_parser(bsub, common)
+    bench_peers.add_parser(bsub, common)
     return p
 
 
-def machine_info():
-    cpu = platform.processor() or ""
-    try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    import numba
+# ----------------------------------------------------------------------------------------------
+# core
+# ----------------------------------------------------------------------------------------------
 
-    return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(),
-            "numpy": np.__version__, "numba": numba.__version__,
-            "threading_layer": os.environ.get("NUMBA_THREADING_LAYER", "")}
+CORE_ALIASES = {"bunny16": "bunny:1000000", "ico82k": "icosphere:81920", "ico1m": "icosphere:1310720"}
 
 
-def timings(fn, runs):
-    fn()  # warm-up (compiles on a cold cache)
+def timings(fn, runs, warmup=1):
+    """(median, min, max) ms of ``runs`` calls of fn after ``warmup`` untimed calls."""
+    for _ in range(warmup):
+        fn()
     ts = []
     for _ in range(runs):
         t0 = time.perf_counter()
         fn()
         ts.append((time.perf_counter() - t0) * 1e3)
-    return float(np.median(ts)), float(np.min(ts)), float(np.max(ts))
-
-
-def subdivide(tris, times):
-    """Split every triangle into 4 (edge midpoints), ``times`` times: F -> F * 4**times."""
-    t = tris.astype(np.float64)
-    for _ in range(times):
-        a, b, c = t[:, 0], t[:, 1], t[:, 2]
-        ab, bc, ca = (a + b) / 2, (b + c) / 2, (c + a) / 2
-        t = np.concatenate([np.stack(x, 1) for x in ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))])
-    return np.ascontiguousarray(t, np.float32)
-
-
-def core_scene(name):
-    from engine.scene import icosphere_mesh, load_mesh
-
-    if name == "lucy":
-        m = load_mesh(DATA / "static" / "lucy" / "Lucy100k.ply")
-        return "Lucy100k", m.triangles()
-    if name == "bunny16":
-        m = load_mesh(DATA / "static" / "stanford_bunny" / "stanford-bunny.obj")
-        return "bunny x16", subdivide(m.triangles(), 2)
-    if name == "ico82k":
-        return "icosphere 82k", icosphere_mesh(81920).triangles()
-    if name == "ico1m":
-        return "icosphere 1.3M", icosphere_mesh(1310720).triangles()
-    m = load_mesh(name)
-    return m.name, m.triangles()
-
-
-def facing_camera(lo, hi, fov=45.0):
-    """Look along the box's thinnest axis (slightly tilted) so the mesh fills the view."""
-    ext = hi - lo
-    a = int(np.argmin(ext))
-    d = np.full(3, 0.15)
-    d[a] = 1.0
-    up = (0.0, 1.0, 0.0) if a != 1 else (0.0, 0.0, 1.0)
-    big = float(np.sort(ext)[1:].max())
-    dist = 0.5 * big / math.tan(math.radians(fov) / 2) * 1.05 + 0.5 * ext[a]
-    c = 0.5 * (lo + hi)
-    d = d / np.linalg.norm(d)
-    return Camera(eye=tuple(c + d * dist), target=tuple(c), up=up, fov=fov)
+    return stat(ts)
 
 
 def run_core(a):
-    if a.runs < 1:
-        raise engine.InputError("--runs must be at least 1")
-    if a.scenes:
-        names = [s.strip() for s in a.scenes.split(",") if s.strip()]
-    elif DATA.exists():
-        names = ["lucy", "bunny16"]
-    else:
-        print(f"note: {DATA} not found; using built-in icospheres", file=sys.stderr)
-        names = ["ico82k", "ico1m"]
-    info = machine_info()
-    print(f"machine: {info['cpu']}, {info['cores']} cores, numba {info['numba']}, numpy {info['numpy']}")
+    check_runs(a.runs, a.warmup)
+    if a.size < 1:
+        raise InputError(f"--size must be positive, got {a.size}")
+    size = 64 if a.quick else a.size
+    runs = 1 if a.quick else a.runs
+    text = ",".join(CORE_ALIASES.get(s.strip(), s.strip()) for s in a.scenes.split(",")) if a.scenes else None
+    specs, note = scene_list(text, ["lucy", "bunny:1000000"], ["icosphere:81920", "icosphere:1310720"],
+                             quick=["icosphere:1280"] if a.quick else None)
+    threads = thread_list(a.threads)
+    travs = [t.strip() for t in a.traversal.split(",") if t.strip()]
+    for t in travs:
+        if t not in TRAVERSALS:
+            raise InputError(f"unknown traversal {t!r}; choose from {', '.join(TRAVERSALS)}")
+    out = out_dir(a.out)
+    info = machine_info(threads)
+    print(f"machine: {info['cpu']}, {info['cores']} cores, numba {info['numba']}, numpy {info['numpy']}",
+          file=sys.stderr)
+    if note:
+        print(f"note: {note}", file=sys.stderr)
     rows = []
-    steps = len(names) * 4
-    bar = tqdm(total=steps, desc="bench core", file=sys.stderr)
-    for name in names:
-        label, tris = core_scene(name)
+    bar = progress(len(specs) * (2 + len(threads) * len(travs)), "bench core", a.no_progress)
+    for spec in specs:
+        sc = resolve_scene(spec)
+        tris = np.array(sc.scene.triangles_at(0.0))
+        label = f"{sc.label} ({sc.scene.name})" if sc.label != sc.scene.name else sc.label
         for ins in ("bbox", "exact"):
             b = GridBuilder(GridParams(strategy="serial", insert=ins, threads=1))
-            med, lo_, hi_ = timings(lambda: b.build(tris), a.runs)
+            med, lo_, hi_ = timings(lambda: b.build(tris), runs, a.warmup)
             g = b.build(tris)
             rows.append(dict(scene=label, triangles=len(tris), what=f"serial build {ins}", threads=1,
-                             median_ms=med, min_ms=lo_, max_ms=hi_, refs_per_tri=g.references / len(tris),
-                             cells=g.spec.n_cells, mrays=""))
+                             median_ms=med, min_ms=lo_, max_ms=hi_, references=g.references,
+                             refs_per_tri=g.references / len(tris), cells=g.spec.n_cells,
+                             mtris_per_s=len(tris) / med / 1e3, mrays=""))
             bar.update()
         g = GridBuilder(GridParams(strategy="serial", threads=1)).build(tris)
-        cam = facing_camera(g.spec.lo, g.spec.hi)
-        for th in (1, 2):
+        cam = facing_camera(g.spec.scene_lo, g.spec.scene_hi)
+        for th, tv in ((th, tv) for th in threads for tv in travs):
             r = Renderer()
-            rp = RenderParams(a.size, a.size, threads=th)
-            med, lo_, hi_ = timings(lambda: r.render(g, tris, cam, rp), a.runs)
+            rp = RenderParams(size, size, threads=th, traversal=tv)
+            med, lo_, hi_ = timings(lambda: r.render(g, tris, cam, rp), runs, a.warmup)
             res = r.render(g, tris, cam, rp)
-            rows.append(dict(scene=label, triangles=len(tris), what=f"primary rays {a.size}x{a.size}", threads=th,
-                             median_ms=med, min_ms=lo_, max_ms=hi_, refs_per_tri=g.references / len(tris),
-                             cells=g.spec.n_cells, mrays=a.size * a.size / med / 1e3,
-                             hit_fraction=res.stats["hit_fraction"], tests_per_ray=res.stats["tests_per_ray"]))
+            rows.append(dict(scene=label, triangles=len(tris), what=f"primary rays {size}x{size} {tv}", threads=th,
+                             traversal=tv,
+                             median_ms=med, min_ms=lo_, max_ms=hi_, references=g.references,
+                             refs_per_tri=g.references / len(tris), cells=g.spec.n_cells, mtris_per_s="",
+                             mrays=size * size / med / 1e3, hit_fraction=res.stats["hit_fraction"],
+                             tests_per_ray=res.stats["tests_per_ray"]))
             bar.update()
     bar.close()
-    a.out.mkdir(parents=True, exist_ok=True)
-    keys = list(dict.fromkeys(k for r in rows for k in r))
-    with open(a.out / "core.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=keys)
-        w.writeheader()
-        w.writerows(rows)
-    print(f"{'scene':16s} {'tris':>9s} {'what':28s} {'thr':>3s} {'median ms':>10s} {'min':>8s} {'max':>8s} "
+    finish_machine(info)
+    write_csv(rows, out / "core.csv")
+    write_json(info, out / "machine.json")
+    _plot_core(rows, out / "core.png")
+    table = []
+    for r in rows:
+        extra = (f"{r['mtris_per_s']:.1f} Mtri/s" if r["mtris_per_s"] != "" else
+                 f"{r['mrays']:.2f} Mrays/s (hit fraction {r['hit_fraction']:.2f}, {r['tests_per_ray']:.1f} tests/ray)")
+        table.append([r["scene"], f"{r['triangles']:,}", r["what"], r["threads"],
+                      f"{r['median_ms']:.1f} [{r['min_ms']:.1f}-{r['max_ms']:.1f}]", f"{r['refs_per_tri']:.2f}", extra])
+    body = md_table(["scene", "triangles", "what", "threads", "ms median [min-max]", "refs/tri", "rate"], table)
+    body += ["", f"Medians of {runs} runs after {a.warmup} warm-up run(s).  Build: strategy serial, 1 thread, "
+             "lambda 4, macro 4.  Rays: one primary ray per pixel, camera along the mesh's thinnest axis, "
+             "lambert shading, watertight test; dda: single-ray 3D DDA, cgt: coherent grid traversal of 8x8 "
+             "ray packets (Wald et al. 2006), same image.  The seed's serial bounding-box build of the 282k Conference "
+             "took 82 ms on one 2006 Opteron core (about 3.4M triangles/s)."]
+    if note:
+        body += ["", f"Note: {note}."]
+    write_summary(out / "summary.md", "gridrt bench core", info, [("Results", body), ("Figures", ["![core](core.png)"])])
+    print(f"{'scene':24s} {'tris':>9s} {'what':28s} {'thr':>3s} {'median ms':>10s} {'min':>8s} {'max':>8s} "
           f"{'refs/tri':>8s} {'Mrays/s':>8s}")
     for r in rows:
         mr = f"{r['mrays']:.2f}" if r["mrays"] != "" else ""
-        print(f"{r['scene']:16s} {r['triangles']:9d} {r['what']:28s} {r['threads']:3d} {r['median_ms']:10.2f} "
-              f"{r['min_ms']:8.2f} {r['max_ms']:8.2f} {r['refs_per_tri']:8.2f} {mr:>8s}"
-              + (f"  (hit fraction {r['hit_fraction']:.2f})" if "hit_fraction" in r else ""))
-    print(f"medians of {a.runs} runs after 1 warm-up; wrote {a.out / 'core.csv'}")
+        print(f"{r['scene'][:24]:24s} {r['triangles']:9d} {r['what']:28s} {r['threads']:3d} {r['median_ms']:10.2f} "
+              f"{r['min_ms']:8.2f} {r['max_ms']:8.2f} {r['refs_per_tri']:8.2f} {mr:>8s}")
+    print(f"medians of {runs} runs after {a.warmup} warm-up; wrote {out}/core.csv, core.png, summary.md")
     return 0
+
+
+def _plot_core(rows, path):
+    fig, ax = figure(1, 2)
+    scenes = list(dict.fromkeys(r["scene"] for r in rows))
+    x = np.arange(len(scenes))
+    for k, ins in enumerate(("bbox", "exact")):
+        ms = [next(r["median_ms"] for r in rows if r["scene"] == s and r["what"] == f"serial build {ins}") for s in scenes]
+        ax[0, 0].bar(x + (k - 0.5) * 0.38, ms, 0.38, label=ins)
+    ax[0, 0].set_xticks(x, [s[:22] for s in scenes], fontsize=7)
+    ax[0, 0].set_ylabel("serial build ms (median)")
+    ax[0, 0].set_yscale("log")
+    ax[0, 0].legend(fontsize=8)
+    ray = [r for r in rows if r["mrays"] != ""]
+    variants = list(dict.fromkeys((r["threads"], r.get("traversal", "dda")) for r in ray))
+    for k, (th, tv) in enumerate(variants):
+        mr = [next((r["mrays"] for r in ray if r["scene"] == s and (r["threads"], r.get("traversal", "dda")) == (th, tv)),
+                   0) for s in scenes]
+        w = 0.8 / len(variants)
+        ax[0, 1].bar(x + (k - (len(variants) - 1) / 2) * w, mr, w, label=f"{th} thread(s) {tv}")
+    ax[0, 1].set_xticks(x, [s[:22] for s in scenes], fontsize=7)
+    ax[0, 1].set_ylabel("primary Mrays/s (median)")
+    ax[0, 1].legend(fontsize=8)
+    fig.suptitle("bench core")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+# ----------------------------------------------------------------------------------------------
+# build
+# ----------------------------------------------------------------------------------------------
+
+BUILD_SCENES = ["marbles", "cesium", "lucy", "kitchen", "lucy:1600000"]
+BUILD_FALLBACK = ["marbles", "icosphere:81920", "icosphere:1310720"]
+
+
+def memory_bandwidth_gbs(mib=128, runs=5):
+    """Single-thread numpy copy bandwidth (read + write bytes / s), median of ``runs``, in GB/s."""
+    src = np.ones(mib * 2**20 // 8)
+    dst = np.empty_like(src)
+    ts = []
+    for _ in range(runs + 1):
+        t0 = time.perf_counter()
+        np.copyto(dst, src)
+        ts.append(time.perf_counter() - t0)
+    return 2 * src.nbytes / float(np.median(ts[1:])) / 1e9
+
+
+def run_build(a):
+    from engine.grid.registry import get_builder, names
+    from engine.grid.sweep import run_build_sweep
+
+    check_runs(a.runs, a.warmup)
+    runs, warmup = (1, 1) if a.quick else (a.runs, a.warmup)
+    specs, note = scene_list(a.scenes, BUILD_SCENES, BUILD_FALLBACK, quick=["icosphere:1280"] if a.quick else None)
+    if a.strategies:
+        strategies = [s.strip() for s in a.strategies.split(",") if s.strip()]
+        for s in strategies:
+            get_builder(s)
+    else:
+        strategies = names()
+    cores = check_threads(None)
+    threads = thread_list(a.threads) if a.threads else list(range(1, cores + 1))
+    params = GridParams(density=a.density, macro=a.macro, insert=a.insert)
+    out = out_dir(a.out)
+    info = machine_info(threads)
+    if note:
+        print(f"note: {note}", file=sys.stderr)
+    scenes = {}
+    for spec in specs:
+        sc = resolve_scene(spec)
+        scenes[sc.label] = sc.scene
+    rows = run_build_sweep(scenes, strategies, threads, runs=runs, warmup=warmup, out_dir=out,
+                           progress=not a.no_progress, params=params)
+    bw = memory_bandwidth_gbs(16 if a.quick else 128)
+    info["memory_copy_gbs_1thread"] = round(bw, 2)
+    finish_machine(info)
+    write_json(info, out / "machine.json")
+    body = _build_summary(rows, scenes, strategies, threads, runs, warmup, params, bw)
+    if note:
+        body += ["", f"Note: {note}."]
+    write_summary(out / "summary.md", "gridrt bench build", info,
+                  [("Results", body), ("Figures", ["![build methods](build_methods.png)", "",
+                                                   "![build steps](build_steps.png)"])])
+    for line in body:
+        if line.startswith("|") or line.startswith("###"):
+            print(line)
+    print(f"wrote {out}/build_sweep.csv, build_methods.png, build_steps.png, summary.md")
+    return 0
+
+
+def _build_summary(rows, scenes, strategies, threads, runs, warmup, params, bw):
+    body = [f"Grid builds per configuration: {warmup} warm-up + {runs} timed (animated scenes advance 1/30 s "
+            f"per build; strategies interleaved round-robin); insertion {params.insert}, lambda {params.density:g}, "
+            f"macro {params.macro}.  Cells: build ms median [min-max].  Speed-up: serial at 1 thread / this.", ""]
+    for sc in scenes:
+        rs = [r for r in rows if r["scene"] == sc]
+        if not rs:
+            continue
+        tri = rs[0]["triangles"]
+        base = next((r["build_ms"] for r in rs if r["strategy"] == "serial" and r["threads"] == 1), float("nan"))
+        body.append(f"### {sc} ({tri:,} triangles, {rs[0]['references']:,} references, {rs[0]['cells']:,} cells)")
+        body.append("")
+        table = []
+        for s in strategies:
+            cells = [s]
+            for t in threads:
+                r = next((r for r in rs if r["strategy"] == s and r["threads"] == t), None)
+                cells.append(fmt_ms(r, "build_ms") + (f" ({base / r['build_ms']:.2f}x)" if r and r["build_ms"] > 0 else ""))
+            table.append(cells)
+        body += md_table(["strategy"] + [f"{t} thread(s)" for t in threads], table)
+        tmax = max(threads)
+        best = min((r for r in rs if r["threads"] == tmax), key=lambda r: r["build_ms"])
+        body += ["", f"Fastest at {tmax} thread(s): {best['strategy']} ({best['build_ms']:.1f} ms, "
+                 f"{tri / best['build_ms'] / 1e3:.1f} M triangles/s).  Serial at 1 thread: {base:.1f} ms "
+                 f"({tri / base / 1e3:.1f} M triangles/s).  Stages at {tmax} thread(s), ms median:", ""]
+        stage = []
+        for s in strategies:
+            r = next((r for r in rs if r["strategy"] == s and r["threads"] == tmax), None)
+            if r:
+                stage.append([s, f"{r['bounds_ms']:.2f}", f"{r['clear_ms']:.2f}", f"{r['insert_ms']:.2f}",
+                              f"{r['macro_ms']:.2f}", f"{r['build_ms']:.2f}"])
+        body += md_table(["strategy", "bounds", "clear", "insert", "macro", "total"], stage) + [""]
+    body += [f"Memory floor: a single-thread numpy copy moves {bw:.1f} GB/s (read + write) on this machine; a "
+             "grid build writes each reference (4 bytes) and counts (4 bytes per cell) and reads the triangles "
+             "(36 bytes each) at least once, so it cannot beat that rate by much."]
+    return body
+
+
+# ----------------------------------------------------------------------------------------------
+# frame
+# ----------------------------------------------------------------------------------------------
+
+FRAME_TRAVERSAL = "cgt" if "cgt" in TRAVERSALS else "dda"
+FRAME_SCENES = ["marbles", "cesium", "robots", "kitchen", "lucy:twist", "lucy:1600000:twist"]
+FRAME_FALLBACK = ["marbles", "icosphere:20480:twist", "icosphere:1310720:twist"]
+
+
+def _has_split(scene):
+    m = getattr(scene, "static_mask", None)
+    if m is None or getattr(scene, "static", False):
+        return False
+    m = np.asarray(m, bool)
+    return bool(m.any() and not m.all())
+
+
+def frame_strategy(name, threads):
+    if name == "auto":
+        return "serial" if threads == 1 else "sort_middle"
+    return name
+
+
+def run_frame(a):
+    from engine.grid.registry import get_builder
+    from engine.pipeline import FramePipeline
+
+    check_runs(a.runs, a.warmup)
+    if a.size < 1:
+        raise InputError(f"--size must be positive, got {a.size}")
+    if not (math.isfinite(a.dt) and a.dt > 0):
+        raise InputError(f"--dt must be a positive number of seconds, got {a.dt}")
+    if a.strategy != "auto":
+        get_builder(a.strategy)
+    travs = [t.strip() for t in a.traversal.split(",") if t.strip()]
+    for t in travs:
+        if t not in TRAVERSALS:
+            raise InputError(f"unknown traversal {t!r}; choose from {', '.join(TRAVERSALS)}")
+    size = 64 if a.quick else a.size
+    runs, warmup = (1, 1) if a.quick else (a.runs, a.warmup)
+    specs, note = scene_list(a.scenes, FRAME_SCENES, FRAME_FALLBACK, quick=["marbles:500"] if a.quick else None)
+    threads = thread_list(a.threads)
+    out = out_dir(a.out)
+    info = machine_info(threads)
+    if note:
+        print(f"note: {note}", file=sys.stderr)
+    scenes = [resolve_scene(s) for s in specs]
+    plan = []
+    for sc in scenes:
+        splits = [True]
+        if _has_split(sc.scene):
+            splits = {"both": [True, False], "on": [True], "off": [False]}[a.split]
+        for th in threads:
+            for tr in travs:
+                for sp in splits:
+                    plan.append((sc, th, tr, sp))
+    rows = []
+    bar = progress(len(plan) * (runs + warmup), "bench frame", a.no_progress)
+    for sc in scenes:
+        # all variants of one scene advance frame by frame together (round-robin), so load from
+        # other processes hits them alike
+        variants = [(th, tr, sp) for s2, th, tr, sp in plan if s2 is sc]
+        pipes = [FramePipeline(sc.scene, GridParams(strategy=frame_strategy(a.strategy, th), threads=th),
+                               RenderParams(size, size, shading=a.shading, threads=th, traversal=tr),
+                               split_static=sp, follow_camera=True) for th, tr, sp in variants]
+        samples = [[] for _ in variants]
+        bar.set_postfix_str(sc.label)
+        for i in range(warmup + runs):
+            for pipe, smp in zip(pipes, samples):
+                fr = pipe.step(i * a.dt)
+                if i >= warmup:
+                    smp.append(fr.stats)
+                bar.update()
+        for (th, tr, sp), smp in zip(variants, samples):
+            s = smp[-1]
+            row = dict(scene=sc.label, name=sc.scene.name, triangles=s["triangles"],
+                       moving_triangles=s.get("moving_triangles", s["triangles"]), threads=th,
+                       strategy=frame_strategy(a.strategy, th), traversal=tr, split=int(sp and _has_split(sc.scene)),
+                       static=int(bool(sc.scene.static)), size=size, frames=runs, references=s["references"],
+                       cells=s["cells"])
+            for k in ("frame_ms", "build_ms", "render_ms", "anim_ms"):
+                put_stat(row, k, [x[k] for x in smp])
+            put_stat(row, "build_render_ms", [x["build_ms"] + x["render_ms"] for x in smp])
+            row["fps"] = 1e3 / row["frame_ms"]
+            row["fps_build_render"] = 1e3 / row["build_render_ms"]
+            row["mrays"] = float(np.median([x["mrays"] for x in smp]))
+            row["hit_fraction"] = float(np.median([x["hit_fraction"] for x in smp]))
+            row["rebuilt"] = float(np.mean([x["rebuilt"] for x in smp]))
+            row["tests_per_ray"] = float(np.median([x["tests_per_ray"] for x in smp]))
+            row["cells_per_ray"] = float(np.median([x["cells_per_ray"] for x in smp]))
+            rows.append(row)
+        del pipes
+    bar.close()
+    finish_machine(info)
+    write_csv(rows, out / "frame.csv")
+    write_json(info, out / "machine.json")
+    _plot_frame(rows, out / "frame.png")
+    body = _frame_summary(rows, size, runs, warmup, a.strategy)
+    if note:
+        body += ["", f"Note: {note}."]
+    write_summary(out / "summary.md", "gridrt bench frame", info, [("Results", body), ("Figures", ["![frame](frame.png)"])])
+    for line in body:
+        if line.startswith("|"):
+            print(line)
+    print(f"wrote {out}/frame.csv, frame.png, summary.md")
+    return 0
+
+
+def _frame_summary(rows, size, runs, warmup, strategy):
+    body = [f"Per frame: the scene at t = i/30 s, grid rebuild (only the moving part when the static/moving split "
+            f"is on; nothing for a static scene), one primary ray per pixel at {size}x{size}, lambert shading, "
+            f"watertight test.  {warmup} warm-up + {runs} timed frames; ms median [min-max].  Strategy "
+            f"{'auto = serial at 1 thread, sort_middle above' if strategy == 'auto' else strategy}.  fps = 1000 / "
+            "median frame ms (frame = animation + rebuild + render); the seed's figure counts rebuild + ray cast "
+            "(fps b+r).", ""]
+    table = []
+    for r in rows:
+        table.append([r["scene"], f"{r['triangles']:,}", f"{r['moving_triangles']:,}", r["threads"], r["traversal"],
+                      "on" if r["split"] else "-", fmt_ms(r, "anim_ms"), fmt_ms(r, "build_ms"), fmt_ms(r, "render_ms"),
+                      fmt_ms(r, "frame_ms"), f"{r['fps']:.2f}", f"{r['fps_build_render']:.2f}",
+                      f"{r['hit_fraction']:.2f}", f"{r['tests_per_ray']:.1f}"])
+    body += md_table(["scene", "triangles", "rebuilt", "threads", "traversal", "split", "anim ms", "build ms",
+                      "render ms", "frame ms", "fps", "fps b+r", "hit fraction", "tests/ray"], table)
+    ths = sorted({r["threads"] for r in rows})
+    if len(ths) > 1:
+        body += ["", f"Scaling, frame ms at 1 thread / at {ths[-1]} threads:", ""]
+        sc_rows = []
+        for key in dict.fromkeys((r["scene"], r["traversal"], r["split"]) for r in rows):
+            one = next((r for r in rows if (r["scene"], r["traversal"], r["split"]) == key and r["threads"] == ths[0]), None)
+            many = next((r for r in rows if (r["scene"], r["traversal"], r["split"]) == key and r["threads"] == ths[-1]), None)
+            if one and many:
+                sc_rows.append([key[0], key[1], "on" if key[2] else "-", f"{one['build_ms'] / max(many['build_ms'], 1e-9):.2f}x"
+                                if many["build_ms"] > 0 else "-", f"{one['render_ms'] / many['render_ms']:.2f}x",
+                                f"{one['frame_ms'] / many['frame_ms']:.2f}x"])
+        body += md_table(["scene", "traversal", "split", "build", "render", "frame"], sc_rows)
+    split_rows = []
+    for r in rows:
+        if r["split"]:
+            off = next((x for x in rows if x["scene"] == r["scene"] and x["threads"] == r["threads"]
+                        and x["traversal"] == r["traversal"] and not x["split"]), None)
+            if off:
+                split_rows.append([r["scene"], r["threads"], r["traversal"], f"{r['moving_triangles']:,} of {r['triangles']:,}",
+                                   fmt_ms(r, "build_ms"), fmt_ms(off, "build_ms"), fmt_ms(r, "render_ms"),
+                                   fmt_ms(off, "render_ms")])
+    if split_rows:
+        body += ["", "Static/moving split (static triangles gridded once, moving ones rebuilt per frame; the ray "
+                 "caster traverses both grids) against a full rebuild:", ""]
+        body += md_table(["scene", "threads", "traversal", "moving", "build ms split", "build ms full",
+                          "render ms split", "render ms full"], split_rows)
+    travs = sorted({r["traversal"] for r in rows})
+    if len(travs) > 1:
+        body += ["", "Render ms by traversal (DDA: one ray at a time; CGT: 8x8 packets, coherent grid traversal):", ""]
+        tr_rows = []
+        for key in dict.fromkeys((r["scene"], r["threads"], r["split"]) for r in rows):
+            sel = {r["traversal"]: r for r in rows if (r["scene"], r["threads"], r["split"]) == key}
+            if len(sel) == len(travs):
+                base = sel[travs[0]]["render_ms"]
+                tr_rows.append([key[0], key[1], "on" if key[2] else "-"]
+                               + [f"{fmt_ms(sel[t], 'render_ms')} ({base / sel[t]['render_ms']:.2f}x)" for t in travs])
+        body += md_table(["scene", "threads", "split"] + [f"render ms {t}" for t in travs], tr_rows)
+    body += ["", "For reference, on 2006 hardware: " + SEED_FPS]
+    return body
+
+
+def _plot_frame(rows, path):
+    scenes = list(dict.fromkeys(r["scene"] for r in rows))
+    variants = list(dict.fromkeys((r["threads"], r["traversal"], r["split"]) for r in rows))
+    fig, ax = figure(1, 2, w=6.0)
+    x = np.arange(len(scenes))
+    w = 0.8 / max(len(variants), 1)
+    for k, v in enumerate(variants):
+        fps = [next((r["fps"] for r in rows if r["scene"] == s and (r["threads"], r["traversal"], r["split"]) == v), 0)
+               for s in scenes]
+        ax[0, 0].bar(x + (k - (len(variants) - 1) / 2) * w, fps, w,
+                     label=f"{v[0]}T {v[1]}{' split' if v[2] else ''}")
+    ax[0, 0].set_xticks(x, [s[:18] for s in scenes], fontsize=7, rotation=20)
+    ax[0, 0].set_ylabel("fps (1000 / median frame ms)")
+    ax[0, 0].set_yscale("log")
+    ax[0, 0].legend(fontsize=6)
+    tmax = max(r["threads"] for r in rows)
+    sel = [min((r for r in rows if r["scene"] == s and r["threads"] == tmax), key=lambda r: r["frame_ms"])
+           for s in scenes]
+    bottom = np.zeros(len(scenes))
+    for key, lab in (("anim_ms", "animation"), ("build_ms", "rebuild"), ("render_ms", "render")):
+        vals = np.array([r[key] for r in sel])
+        ax[0, 1].bar(x, vals, 0.6, bottom=bottom, label=lab)
+        bottom += vals
+    ax[0, 1].set_xticks(x, [s[:18] for s in scenes], fontsize=7, rotation=20)
+    ax[0, 1].set_ylabel(f"ms per frame at {tmax} thread(s), fastest variant")
+    ax[0, 1].legend(fontsize=7)
+    fig.suptitle(f"bench frame: {sel[0]['size']}x{sel[0]['size']}, median of {sel[0]['frames']} frames")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)

@@ -1,0 +1,336 @@
+"""``gridrt bench peers``: gridrt against Intel Embree (PyPI ``embreex``) on the same animated
+mesh, the same rays and the same cores, in one run.
+
+Per frame (t = i/30 s) both rebuild from scratch and cast one ray per pixel of a size x size
+camera image (the rays are rounded to float32 once and given to both):
+
+* gridrt: ``GridBuilder.build`` + ``cast_rays`` (DDA, watertight test), ``threads`` threads;
+* Embree: a new ``EmbreeScene`` + ``TriangleMesh`` (the "upload": embreex copies the vertices
+  element by element in Python-level code, so it is reported apart), ``rtcCommitScene`` (the BVH
+  build; triggered by a zero-ray ``run``) and ``run(origins, dirs, output=1)`` on chunks of the
+  rays in a thread pool of ``threads`` threads (``run`` releases the GIL around the traversal:
+  the measured pool speed-up is reported).  embreex gives no way to set Embree's own thread
+  count, so the process is pinned to ``threads`` CPUs with sched_setaffinity for both engines.
+
+Also: static cast throughput (Mrays/s, cast only, on the last frame) and hit agreement (same
+triangle id and t within 1e-4 relative, or both miss); disagreeing rays are checked against the
+brute-force float64 caster to tell which side is right.
+"""
+
+import math
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+import engine  # noqa: F401
+from engine.config import GridParams
+from engine.errors import GridrtError, InputError
+from engine.grid.build import GridBuilder
+from engine.grid.registry import get_builder
+from engine.trace.render import cast_rays
+
+from .bench_util import (
+    Affinity, check_runs, figure, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress, put_stat,
+    resolve_scene, scene_camera, scene_list, thread_list, write_csv, write_json, write_summary, SCENE_HELP,
+)
+from .benchref import brute_cast
+
+INSTALL_HINT = ("embreex is not installed; `gridrt bench peers` needs it: pip install embreex "
+                "(or pip install 'gridrt[peers]')")
+PEER_SCENES = ["cesium", "lucy:twist", "kitchen"]
+PEER_FALLBACK = ["marbles", "icosphere:81920:twist"]
+#: relative t tolerance of hit agreement
+T_REL = 1e-4
+#: disagreeing rays checked against brute force, at most
+CHECK_MAX = 256
+
+
+class MissingPeer(GridrtError):
+    """The optional peer library is not installed."""
+
+
+def add_parser(bsub, common):
+    p = bsub.add_parser("peers", help="the same animated mesh and rays through Embree (embreex) side by side",
+                        description=__doc__.split("\n\n")[0])
+    common(p, "peers", warmup=2, scenes=False)
+    p.add_argument("--scenes", default=None, help=SCENE_HELP + f" (default {','.join(PEER_SCENES)})")
+    p.add_argument("--threads", default=None, help="thread counts (default: 1 and all cores)")
+    p.add_argument("--size", type=int, default=1024, help="camera image edge: size x size rays (default 1024)")
+    p.add_argument("--strategy", default="auto",
+                   help="gridrt build strategy (default auto: serial at 1 thread, sort_middle above)")
+    p.add_argument("--embree-fast", action="store_true",
+                   help="Embree without RTC_SCENE_FLAG_ROBUST (default robust, like gridrt's watertight test)")
+    p.add_argument("--dt", type=float, default=1.0 / 30.0, help="seconds between frames (default 1/30)")
+    p.set_defaults(func=run_peers)
+
+
+def import_embreex():
+    """(rtcore, rtcore_scene, mesh_construction, version) or MissingPeer with the install hint."""
+    try:
+        import embreex
+        from embreex import mesh_construction, rtcore, rtcore_scene
+    except ImportError:
+        raise MissingPeer(INSTALL_HINT) from None
+    return rtcore, rtcore_scene, mesh_construction, getattr(embreex, "__version__", "?")
+
+
+class EmbreeSide:
+    """One Embree device for the whole run (created before any affinity change, so Embree's
+    task scheduler sees every core) and the per-frame rebuild + pooled cast."""
+
+    def __init__(self, robust):
+        self.rtc, self.rs, self.mc, self.version = import_embreex()
+        self.device = self.rtc.EmbreeDevice()
+        self.robust = robust
+        self.scene = None
+        self._zero = np.zeros((0, 3), np.float32)
+        tiny = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], np.float32)
+        self.build(tiny)
+
+    def build(self, tris):
+        """New scene over tris (F,3,3) float32: returns (upload ms, commit ms)."""
+        t0 = time.perf_counter()
+        scene = self.rs.EmbreeScene(self.device, robust=self.robust)
+        self.mc.TriangleMesh(scene, tris)
+        t1 = time.perf_counter()
+        scene.run(self._zero, self._zero)  # commits the scene (rtcCommitScene: the BVH build)
+        t2 = time.perf_counter()
+        self.scene = scene
+        return (t1 - t0) * 1e3, (t2 - t1) * 1e3
+
+    def cast(self, pool, o32, d32, threads):
+        """(t (N,) float64 [inf: miss], prim (N,) int64 [-1: miss]) over chunks in the pool."""
+        N = len(o32)
+        n_chunks = max(1, min(threads * 8, N // 4096 or 1))
+        bounds = np.linspace(0, N, n_chunks + 1).astype(np.int64)
+        sc = self.scene
+
+        def job(k):
+            return sc.run(o32[bounds[k]:bounds[k + 1]], d32[bounds[k]:bounds[k + 1]], output=1)
+
+        parts = list(pool.map(job, range(n_chunks))) if threads > 1 else [job(k) for k in range(n_chunks)]
+        prim = np.concatenate([p["primID"] for p in parts]).astype(np.int64)
+        t = np.concatenate([p["tfar"] for p in parts]).astype(np.float64)
+        miss = prim < 0
+        t[miss] = np.inf
+        prim[miss] = -1
+        return t, prim
+
+
+def agreement(t_o, f_o, t_e, f_e):
+    """Counts: both_miss, same (same id and |dt| <= T_REL relative), id_differs (both hit other
+    triangles), hit_miss (one side misses), t_off (same id, t differs)."""
+    both_miss = (f_o < 0) & (f_e < 0)
+    both_hit = (f_o >= 0) & (f_e >= 0)
+    same_id = both_hit & (f_o == f_e)
+    with np.errstate(invalid="ignore"):
+        t_ok = np.abs(t_o - t_e) <= T_REL * np.maximum(np.abs(t_o), 1e-30)
+    return dict(both_miss=int(both_miss.sum()), same=int((same_id & t_ok).sum()),
+                id_differs=int((both_hit & (f_o != f_e)).sum()), hit_miss=int(((f_o < 0) != (f_e < 0)).sum()),
+                t_off=int((same_id & ~t_ok).sum()))
+
+
+def _judge(tris, o, d, idx, t_o, f_o, t_e, f_e, threads):
+    """Of the disagreeing rays idx (first CHECK_MAX), how many each side got right against
+    brute force (same triangle, or a tie, or both miss)."""
+    idx = idx[:CHECK_MAX]
+    if not len(idx):
+        return dict(checked=0, ours_right=0, embree_right=0)
+    rt, rf, rt2 = brute_cast(tris, o[idx], d[idx], threads=threads)
+
+    def right(t, f):
+        scale = np.maximum(np.abs(rt), 1e-30)
+        with np.errstate(invalid="ignore"):
+            tie = (f >= 0) & (rf >= 0) & (np.abs(rt2 - rt) <= 1e-9 * scale) & (np.abs(t - rt) <= 1e-6 * scale)
+        return int(((f == rf) | tie).sum())
+
+    return dict(checked=len(idx), ours_right=right(t_o[idx], f_o[idx]), embree_right=right(t_e[idx], f_e[idx]))
+
+
+def run_peers(a):
+    check_runs(a.runs, a.warmup)
+    if a.size < 1:
+        raise InputError(f"--size must be positive, got {a.size}")
+    if not (math.isfinite(a.dt) and a.dt > 0):
+        raise InputError(f"--dt must be a positive number of seconds, got {a.dt}")
+    if a.strategy != "auto":
+        get_builder(a.strategy)
+    emb = EmbreeSide(robust=not a.embree_fast)  # raises MissingPeer with the install hint
+    size = 64 if a.quick else a.size
+    runs, warmup = (1, 1) if a.quick else (a.runs, a.warmup)
+    specs, note = scene_list(a.scenes, PEER_SCENES, PEER_FALLBACK, quick=["icosphere:1280:twist"] if a.quick else None)
+    threads = thread_list(a.threads)
+    out = out_dir(a.out)
+    info = machine_info(threads)
+    info["embree"] = repr(emb.device)
+    if note:
+        print(f"note: {note}", file=sys.stderr)
+    from .bench import frame_strategy
+
+    scenes = [resolve_scene(s) for s in specs]
+    rows = []
+    bar = progress(len(scenes) * len(threads) * (warmup + runs + 1), "bench peers", a.no_progress)
+    affinity_ok = True
+    for sc in scenes:
+        tris0 = np.array(sc.scene.triangles_at(0.0))
+        cam = scene_camera(sc.scene, tris0)
+        o, d = cam.rays(size, size)
+        o32 = np.ascontiguousarray(o, np.float32)
+        d32 = np.ascontiguousarray(d, np.float32)
+        o = o32.astype(np.float64)
+        d = d32.astype(np.float64)
+        N = len(o)
+        for T in threads:
+            bar.set_postfix_str(f"{sc.label} T={T}")
+            strat = frame_strategy(a.strategy, T)
+            builder = GridBuilder(GridParams(strategy=strat, threads=T))
+            smp = {k: [] for k in ("o_build", "o_cast", "o_frame", "e_upload", "e_commit", "e_cast", "e_frame",
+                                   "e_frame_noupload")}
+            with Affinity(T) as aff, ThreadPoolExecutor(T) as pool:
+                affinity_ok &= aff.applied
+                for i in range(warmup + runs):
+                    tris = sc.scene.triangles_at(i * a.dt)
+                    t0 = time.perf_counter()
+                    g = builder.build(tris)
+                    t1 = time.perf_counter()
+                    ho = cast_rays(g, tris, o, d, threads=T)
+                    t2 = time.perf_counter()
+                    up, cm = emb.build(tris)
+                    t3 = time.perf_counter()
+                    te, fe = emb.cast(pool, o32, d32, T)
+                    t4 = time.perf_counter()
+                    if i >= warmup:
+                        smp["o_build"].append((t1 - t0) * 1e3)
+                        smp["o_cast"].append((t2 - t1) * 1e3)
+                        smp["o_frame"].append((t2 - t0) * 1e3)
+                        smp["e_upload"].append(up)
+                        smp["e_commit"].append(cm)
+                        smp["e_cast"].append((t4 - t3) * 1e3)
+                        smp["e_frame"].append(up + cm + (t4 - t3) * 1e3)
+                        smp["e_frame_noupload"].append(cm + (t4 - t3) * 1e3)
+                    bar.update()
+                # static cast throughput on the last frame
+                so, se = [], []
+                for _ in range(runs):
+                    t0 = time.perf_counter()
+                    cast_rays(g, tris, o, d, threads=T)
+                    t1 = time.perf_counter()
+                    emb.cast(pool, o32, d32, T)
+                    t2 = time.perf_counter()
+                    so.append((t1 - t0) * 1e3)
+                    se.append((t2 - t1) * 1e3)
+                bar.update()
+                last = np.array(tris)
+            ag = agreement(ho.t, ho.tri.astype(np.int64), te, fe)
+            with np.errstate(invalid="ignore"):
+                bad = np.flatnonzero(~(((ho.tri < 0) & (fe < 0)) | ((ho.tri == fe) & (ho.tri >= 0) & (
+                    np.abs(ho.t - te) <= T_REL * np.maximum(np.abs(ho.t), 1e-30)))))
+            judge = _judge(last, o, d, bad, ho.t, ho.tri.astype(np.int64), te, fe, T)
+            row = dict(scene=sc.label, name=sc.scene.name, triangles=len(last), threads=T, strategy=strat,
+                       cpus=T if aff.applied else "", rays=N, size=size, frames=runs,
+                       embree_robust=int(emb.robust))
+            for k, v in smp.items():
+                put_stat(row, k + "_ms", v)
+            put_stat(row, "o_static_cast_ms", so)
+            put_stat(row, "e_static_cast_ms", se)
+            row["o_mrays"] = N / row["o_static_cast_ms"] / 1e3
+            row["e_mrays"] = N / row["e_static_cast_ms"] / 1e3
+            row["o_fps"] = 1e3 / row["o_frame_ms"]
+            row["e_fps"] = 1e3 / row["e_frame_ms"]
+            row["e_fps_noupload"] = 1e3 / row["e_frame_noupload_ms"]
+            row.update(ag)
+            row["agree"] = (ag["both_miss"] + ag["same"]) / N
+            row.update(judge)
+            rows.append(row)
+    bar.close()
+    finish_machine(info)
+    write_csv(rows, out / "peers.csv")
+    write_json(info, out / "machine.json")
+    _plot(rows, out / "peers.png")
+    body = _summary(rows, emb, runs, warmup, affinity_ok)
+    if note:
+        body += ["", f"Note: {note}."]
+    write_summary(out / "summary.md", "gridrt bench peers: gridrt against Embree", info,
+                  [("Results", body), ("Figures", ["![peers](peers.png)"])])
+    for line in body:
+        if line.startswith("|"):
+            print(line)
+    print(f"wrote {out}/peers.csv, peers.png, summary.md")
+    return 0
+
+
+def _summary(rows, emb, runs, warmup, affinity_ok):
+    body = [
+        f"{emb.version and 'embreex ' + emb.version}, {repr(emb.device)}; scene flag "
+        f"{'RTC_SCENE_FLAG_ROBUST' if emb.robust else 'none (fast)'}.  Per frame both rebuild from scratch and cast "
+        f"the same float32-rounded camera rays (one per pixel); {warmup} warm-up + {runs} timed frames, ms median "
+        "[min-max].  gridrt: build + `cast_rays` (DDA, watertight).  Embree: upload (embreex's `TriangleMesh` "
+        "copies vertices element by element in Python-level code; native Embree would share the buffer) + commit "
+        "(BVH build) + `run(..., output=1)` on ray chunks in a thread pool.",
+        "",
+        ("Threads: gridrt gets the thread count directly; Embree's build threads cannot be set through embreex, so "
+         "the whole process was pinned to that many CPUs with sched_setaffinity (both engines)." if affinity_ok else
+         "Threads: this OS has no sched_setaffinity, so Embree's build used every core at every thread count."),
+        "",
+    ]
+    table = []
+    for r in rows:
+        table.append([r["scene"], f"{r['triangles']:,}", r["threads"], fmt_ms(r, "o_build_ms"), fmt_ms(r, "o_cast_ms"),
+                      fmt_ms(r, "o_frame_ms"), fmt_ms(r, "e_upload_ms"), fmt_ms(r, "e_commit_ms"), fmt_ms(r, "e_cast_ms"),
+                      fmt_ms(r, "e_frame_ms"), f"{r['o_frame_ms'] / r['e_frame_noupload_ms']:.2f}"])
+    body += md_table(["scene", "triangles", "threads", "gridrt build", "gridrt cast", "gridrt frame", "Embree upload",
+                      "Embree commit", "Embree cast", "Embree frame", "gridrt / Embree without upload"], table)
+    body += ["", "Static cast throughput (cast only, last frame) and hit agreement (same triangle and t within "
+             f"{T_REL:g} relative, or both miss); disagreements checked against brute force (up to {CHECK_MAX}):", ""]
+    t2 = []
+    for r in rows:
+        t2.append([r["scene"], r["threads"], f"{r['o_mrays']:.2f}", f"{r['e_mrays']:.2f}", f"{100 * r['agree']:.4f}%",
+                   r["id_differs"], r["hit_miss"], r["t_off"],
+                   f"{r['ours_right']}/{r['checked']}" if r["checked"] else "-",
+                   f"{r['embree_right']}/{r['checked']}" if r["checked"] else "-"])
+    body += md_table(["scene", "threads", "gridrt Mrays/s", "Embree Mrays/s", "agree", "other triangle",
+                      "hit vs miss", "t differs", "gridrt right", "Embree right"], t2)
+    ths = sorted({r["threads"] for r in rows})
+    if len(ths) > 1:
+        sc_lines = []
+        for sc in dict.fromkeys(r["scene"] for r in rows):
+            one = next(r for r in rows if r["scene"] == sc and r["threads"] == ths[0])
+            many = next(r for r in rows if r["scene"] == sc and r["threads"] == ths[-1])
+            sc_lines.append(f"- {sc}: Embree cast {one['e_static_cast_ms'] / many['e_static_cast_ms']:.2f}x, commit "
+                            f"{one['e_commit_ms'] / many['e_commit_ms']:.2f}x; gridrt cast "
+                            f"{one['o_static_cast_ms'] / many['o_static_cast_ms']:.2f}x, build "
+                            f"{one['o_build_ms'] / many['o_build_ms']:.2f}x")
+        body += ["", f"Speed-up from {ths[0]} to {ths[-1]} threads (a pool speed-up above 1 shows that embreex's "
+                 "`run` releases the GIL):", ""] + sc_lines
+    return body
+
+
+def _plot(rows, path):
+    labels = [f"{r['scene'][:16]}\n{r['threads']}T" for r in rows]
+    x = np.arange(len(rows))
+    fig, ax = figure(1, 2, w=6.0)
+    a = ax[0, 0]
+    b1 = np.array([r["o_build_ms"] for r in rows])
+    c1 = np.array([r["o_cast_ms"] for r in rows])
+    a.bar(x - 0.2, b1, 0.4, label="gridrt build", color="C0")
+    a.bar(x - 0.2, c1, 0.4, bottom=b1, label="gridrt cast", color="C9")
+    u = np.array([r["e_upload_ms"] for r in rows])
+    cm = np.array([r["e_commit_ms"] for r in rows])
+    ce = np.array([r["e_cast_ms"] for r in rows])
+    a.bar(x + 0.2, u, 0.4, label="Embree upload (embreex)", color="C7")
+    a.bar(x + 0.2, cm, 0.4, bottom=u, label="Embree commit", color="C3")
+    a.bar(x + 0.2, ce, 0.4, bottom=u + cm, label="Embree cast", color="C1")
+    a.set_xticks(x, labels, fontsize=6)
+    a.set_ylabel("ms per frame (median)")
+    a.legend(fontsize=6)
+    a = ax[0, 1]
+    a.bar(x - 0.2, [r["o_mrays"] for r in rows], 0.4, label="gridrt", color="C0")
+    a.bar(x + 0.2, [r["e_mrays"] for r in rows], 0.4, label="Embree", color="C3")
+    a.set_xticks(x, labels, fontsize=6)
+    a.set_ylabel("static cast Mrays/s (median)")
+    a.legend(fontsize=7)
+    fig.suptitle("gridrt against Embree: rebuild + cast per frame, and cast throughput")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)

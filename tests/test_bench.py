@@ -1,0 +1,230 @@
+"""Smoke tests of ``gridrt bench`` (every subcommand on a tiny scene with --quick) and checks of
+the benchmark's own references (app/benchref.py) against tests/reference.py.
+
+The bench's error figures are recomputed here independently: the engine's image at the sampled
+pixels against ``reference.ref_cast`` on ``reference.ref_camera_rays``.
+"""
+
+import csv
+import json
+import sys
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from conftest import icosphere, icosphere_tris, random_triangles
+from reference import compare_hits, ref_camera_rays, ref_cast
+
+from app.__main__ import main
+from app.bench_util import facing_camera, pareto_front, parse_scene_spec
+from app.benchref import brute_cast, compare_to_reference, count_holes, pixel_rays, probe_rays, sample_pixels
+
+
+def read_csv(path):
+    with open(path) as fh:
+        return list(csv.DictReader(fh))
+
+
+def check_outputs(out, csv_name, pngs):
+    rows = read_csv(out / csv_name)
+    assert rows
+    for name in pngs:
+        with Image.open(out / name) as im:
+            assert im.size[0] > 200 and im.size[1] > 150
+    info = json.loads((out / "machine.json").read_text())
+    for k in ("cpu", "cores", "threads_used", "python", "numpy", "numba", "embreex", "commit", "date"):
+        assert k in info, k
+    summary = (out / "summary.md").read_text()
+    assert "## Machine" in summary and info["cpu"] in summary
+    return rows, summary
+
+
+# ----------------------------------------------------------------------------------------------
+# the bench's references
+
+
+def test_brute_cast_matches_reference(rng):
+    tris = np.concatenate([random_triangles(rng, 150, size=0.3), icosphere_tris(2, 0.4, (0.5, 0.5, 0.5))])
+    o = rng.uniform(-1.0, 2.0, (300, 3))
+    d = rng.uniform(0.2, 0.8, (300, 3)) - o + rng.normal(0, 0.2, (300, 3))
+    t, f, t2 = brute_cast(tris, o, d, threads=1)
+    ref = ref_cast(tris, o, d)
+    diff = compare_hits(t, f, ref, t_rtol=1e-12)
+    assert len(diff.bad) == 0 and len(diff.t_off) == 0
+    assert (f >= 0).sum() > 100
+    hit = f >= 0
+    assert np.allclose(t2[hit], ref.t2[hit], rtol=1e-12)
+    # tmin / tmax are open bounds, as in the reference
+    t_lim, f_lim, _ = brute_cast(tris, o, d, tmin=0.5, tmax=1.5)
+    ref = ref_cast(tris, o, d, 0.5, 1.5)
+    assert len(compare_hits(t_lim, f_lim, ref, t_rtol=1e-12).bad) == 0
+
+
+def test_pixel_rays_match_reference_camera():
+    cam = facing_camera(np.array([-1.0, -2.0, -0.5]), np.array([1.0, 2.0, 0.25]))
+    xs, ys = sample_pixels(40, 30, 200, seed=3)
+    assert len(set(zip(xs.tolist(), ys.tolist()))) == 200 and xs.max() < 40 and ys.max() < 30
+    o, d = pixel_rays(cam.eye, cam.target, cam.up, cam.fov, 40, 30, xs, ys)
+    ro, rd = ref_camera_rays(cam.eye, cam.target, cam.up, cam.fov, 40, 30)
+    assert np.allclose(o, ro[ys * 40 + xs]) and np.allclose(d, rd[ys * 40 + xs], atol=1e-14)
+
+
+def test_probe_rays_enter_a_closed_mesh_at_their_target():
+    v, f = icosphere(2, 1.3, (0.2, -0.1, 0.4))
+    o, d, dist = probe_rays(v, f, 1200, seed=5)
+    assert len(o) > 1100
+    assert np.allclose(np.linalg.norm(d, axis=1), 1.0)
+    centre = v.astype(np.float64).mean(axis=0)
+    assert (np.linalg.norm(o - centre, axis=1) > 1.3).all()
+    target = o + d * dist[:, None]
+    # every target lies on an edge or vertex: distance to the nearest vertex or edge line ~ 0
+    vv = v.astype(np.float64)
+    ea, eb = vv[f[:, [0, 1, 2]]].reshape(-1, 3), vv[f[:, [1, 2, 0]]].reshape(-1, 3)
+    ab = eb - ea
+    s = np.clip(np.einsum("nkc,kc->nk", target[:, None] - ea, ab) / (ab * ab).sum(1), 0, 1)
+    near = np.linalg.norm(target[:, None] - (ea + s[..., None] * ab), axis=2).min(axis=1)
+    assert near.max() < 1e-6
+    # independent float64 brute force: nothing before the surface is missed; a ray either hits no
+    # later than its target or passes within rounding of an edge (Moller-Trumbore is not watertight)
+    ref = ref_cast(v[f], o, d)
+    ok = (ref.tri >= 0) & (ref.t <= dist * (1 + 1e-6))
+    assert (ok | (ref.graze >= -1e-9)).all()
+    assert ok.mean() > 0.5
+    assert count_holes(ref.t, ref.tri, dist) == int((~ok).sum())
+
+
+def test_probe_rays_reject_an_open_mesh():
+    from engine.errors import InputError
+
+    v, f = icosphere(1)
+    with pytest.raises(InputError, match="not closed"):
+        probe_rays(v, f[1:], 100)
+
+
+def test_compare_to_reference_counts_by_hand():
+    ref_t = np.array([1.0, 2.0, np.inf, 3.0, 4.0])
+    ref_f = np.array([0, 1, -1, 2, 3])
+    ref_t2 = np.array([5.0, 2.0, np.inf, np.inf, 4.5])  # sample 1: two triangles at t = 2 (a tie)
+    tri = np.array([0, 7, -1, -1, 4])
+    t = np.array([1.0 + 1e-7, 2.0, np.inf, np.inf, 4.25])
+    c = compare_to_reference(tri, t, ref_f, ref_t, ref_t2)
+    assert (c["differs"], c["ties"], c["both_hit"]) == (2, 1, 3)
+    assert c["dt_max"] == pytest.approx(0.25) and c["dt_mean"] == pytest.approx((1e-7 + 0 + 0.25) / 3)
+
+
+def test_pareto_front_by_hand():
+    pts = [(10.0, 0.0, 0.0), (5.0, 0.1, 0.0), (20.0, 0.0, 0.0), (5.1, 0.1, 0.0), (4.0, 0.0, 5.0), (30.0, 0.5, 0.0)]
+    # 2 is slower than 0 at the same error; 5 is worse than 0 in both; 3 ties 1 within 3%
+    assert pareto_front(pts) == [0, 1, 3, 4]
+    assert pareto_front(pts, rel_tol=0.0) == [0, 1, 4]
+
+
+def test_scene_specs():
+    assert parse_scene_spec("marbles:2k") == ("marbles", {"count": 2000})
+    assert parse_scene_spec("icosphere:1.3M:twist") == ("icosphere", {"count": 1300000, "animate": "twist"})
+    from engine.errors import InputError
+
+    with pytest.raises(InputError, match="neither"):
+        parse_scene_spec("marbles:lots")
+
+
+# ----------------------------------------------------------------------------------------------
+# the subcommands
+
+
+def test_bench_core_quick(tmp_path):
+    out = tmp_path / "core"
+    assert main(["bench", "core", "--quick", "--no-progress", "--out", str(out), "--threads", "1",
+                 "--traversal", "dda"]) == 0
+    rows, summary = check_outputs(out, "core.csv", ["core.png"])
+    builds = [r for r in rows if r["what"].startswith("serial build")]
+    assert {r["what"] for r in builds} == {"serial build bbox", "serial build exact"}
+    bbox, exact = (next(r for r in builds if r["what"].endswith(k)) for k in ("bbox", "exact"))
+    assert int(exact["references"]) < int(bbox["references"])  # exact insertion drops references
+    for r in rows:
+        assert float(r["min_ms"]) <= float(r["median_ms"]) <= float(r["max_ms"])
+
+
+def test_bench_build_quick(tmp_path):
+    out = tmp_path / "build"
+    assert main(["bench", "build", "--quick", "--no-progress", "--out", str(out), "--strategies",
+                 "serial,sort_middle", "--threads", "1,2"]) == 0
+    rows, summary = check_outputs(out, "build_sweep.csv", ["build_methods.png", "build_steps.png"])
+    assert {(r["strategy"], r["threads"]) for r in rows} == {(s, t) for s in ("serial", "sort_middle") for t in "12"}
+    assert len({r["references"] for r in rows}) == 1
+    assert "sort_middle" in summary and "Memory floor" in summary
+
+
+def test_bench_frame_quick(tmp_path):
+    out = tmp_path / "frame"
+    assert main(["bench", "frame", "--quick", "--no-progress", "--out", str(out), "--threads", "1",
+                 "--traversal", "dda"]) == 0
+    rows, summary = check_outputs(out, "frame.csv", ["frame.png"])
+    # marbles have static walls: the split is measured on and off
+    assert {r["split"] for r in rows} == {"0", "1"}
+    on, off = (next(r for r in rows if r["split"] == s) for s in "10")
+    assert int(on["moving_triangles"]) < int(on["triangles"]) == int(off["moving_triangles"])
+    for r in rows:
+        assert float(r["fps"]) == pytest.approx(1000.0 / float(r["frame_ms"]))
+        assert float(r["frame_ms"]) >= float(r["build_ms"]) + float(r["render_ms"]) - 1e-6
+    assert "Static/moving split" in summary
+
+
+def test_bench_trade_quick_matches_an_independent_recount(tmp_path):
+    from engine import GridParams, RenderParams, build_grid, render
+
+    out = tmp_path / "trade"
+    assert main(["bench", "trade", "--quick", "--no-progress", "--out", str(out), "--threads", "1"]) == 0
+    rows, summary = check_outputs(out, "trade.csv", ["trade.png", "trade_knobs.png"])
+    knobs = {r["knob"] for r in rows}
+    assert knobs == {"insert", "lambda", "macro", "intersect", "resolution", "precision"}
+    by = {(r["knob"], r["value"]): r for r in rows}
+    # the watertight test leaves no hole at shared edges; bbox insertion holds more references
+    assert by[("intersect", "watertight")]["holes"] == "0"
+    assert int(by[("insert", "exact")]["references"]) < int(by[("insert", "bbox")]["references"])
+    assert any(r["pareto"] == "1" for r in rows) and by[("precision", "float32 storage")]["pareto"] == ""
+    # recount the pixel error of the half-resolution row with tests/reference.py
+    from engine.scene import make_scene
+
+    tris = make_scene("icosphere", count=1280).triangles_at(0.0)
+    v = tris.reshape(-1, 3)
+    cam = facing_camera(v.min(axis=0), v.max(axis=0))
+    xs, ys = sample_pixels(64, 64, 256, seed=0)
+    _, rd = ref_camera_rays(cam.eye, cam.target, cam.up, cam.fov, 64, 64)
+    ref = ref_cast(tris, np.broadcast_to(np.asarray(cam.eye), (256, 3)), rd[ys * 64 + xs])
+    img = render(build_grid(tris, GridParams()), tris, cam, RenderParams(32, 32, threads=1))
+    tri = img.tri[ys // 2, xs // 2]
+    expect = int((tri != ref.tri).sum())
+    assert expect > 0
+    assert int(by[("resolution", "32x32")]["pixels_differ"]) == expect
+    assert "Conference point" in summary and "Pareto front" in summary
+
+
+def test_bench_peers_quick(tmp_path):
+    pytest.importorskip("embreex", reason="embreex (optional extra 'peers') is not installed")
+    out = tmp_path / "peers"
+    assert main(["bench", "peers", "--quick", "--no-progress", "--out", str(out), "--threads", "1"]) == 0
+    rows, summary = check_outputs(out, "peers.csv", ["peers.png"])
+    r = rows[0]
+    assert int(r["rays"]) == 64 * 64
+    assert float(r["agree"]) >= 0.999  # two watertight-grade engines on a closed sphere
+    assert "sched_setaffinity" in summary
+
+
+def test_bench_peers_says_how_to_install_embreex(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "embreex", None)  # import embreex -> ImportError
+    assert main(["bench", "peers", "--quick", "--no-progress", "--out", str(tmp_path / "p")]) == 2
+    assert "pip install embreex" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("args,message", [
+    (["trade", "--knobs", "insert,colour"], "unknown knob"),
+    (["frame", "--runs", "0"], "--runs"),
+    (["build", "--strategies", "serial,fastest"], "unknown build strategy"),
+    (["frame", "--scenes", "marbles:lots"], "neither a triangle count"),
+    (["frame", "--traversal", "bvh"], "unknown traversal"),
+])
+def test_bench_bad_arguments(tmp_path, capsys, args, message):
+    assert main(["bench", *args, "--quick", "--no-progress", "--out", str(tmp_path / "x")]) == 2
+    assert message in capsys.readouterr().err
