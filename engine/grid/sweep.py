@@ -2,10 +2,11 @@
 "Individual steps" measurements (Ize, Wald, Robertson, Parker, RT 2006).
 
 For every scene, strategy and thread count one :class:`~engine.grid.GridBuilder` rebuilds the
-grid ``warmup + runs`` times (by default round-robin over the strategies, see ``interleave``) (animated scenes advance one frame, 1/30 s, per build, so the clear
-stage sees a real previous frame); the first ``warmup`` builds are dropped (numba compile, pool
-start-up, buffer growth) and each stage's median, min and max over the remaining ``runs`` are
-recorded.  :func:`run_build_sweep` writes ``build_sweep.csv`` plus two plots:
+grid ``warmup + runs`` times, by default round-robin over the strategies (see ``interleave``).
+Animated scenes advance one frame (1/30 s) per build, so the clear stage sees a real previous
+frame.  The first ``warmup`` builds are dropped (numba compile, pool start-up, buffer growth)
+and each stage's median, min and max over the remaining ``runs`` are recorded.
+:func:`run_build_sweep` writes ``build_sweep.csv`` plus two plots:
 
 * ``build_methods.png``: median total build ms against threads, one line per strategy, min-max
   band, one panel per scene;
@@ -42,7 +43,9 @@ def _scene_items(scenes):
         try:
             items = list(scenes)
         except TypeError:
-            raise InputError(f"scenes must be a scene, a list of scenes or a dict name -> scene, got {scenes!r}") from None
+            raise InputError(
+                f"scenes must be a scene, a list of scenes or a dict name -> scene, got {scenes!r}"
+            ) from None
     out = []
     for i, it in enumerate(items):
         if isinstance(it, tuple) and len(it) == 2 and isinstance(it[0], str):
@@ -51,7 +54,10 @@ def _scene_items(scenes):
             src = it
             name = getattr(src, "name", None) or f"scene{i}"
         if not (hasattr(src, "triangles_at") or isinstance(src, np.ndarray)):
-            raise InputError(f"scene {name!r}: expected an Animation (engine.scene.make_scene) or an (F,3,3) array, got {type(src).__name__}")
+            raise InputError(
+                f"scene {name!r}: expected an Animation (engine.scene.make_scene) or an (F,3,3) array, "
+                f"got {type(src).__name__}"
+            )
         out.append((str(name), src))
     if not out:
         raise InputError("scenes: need at least one scene")
@@ -74,7 +80,9 @@ def _count(name, v, lo):
     return int(v)
 
 
-def run_build_sweep(scenes, strategies, threads, runs=5, warmup=2, out_dir=None, progress=True, params=None, interleave=True):
+def run_build_sweep(
+    scenes, strategies, threads, runs=5, warmup=2, out_dir=None, progress=True, params=None, interleave=True
+):
     """Time grid builds for every scene x strategy x thread count.
 
     scenes      dict name -> Animation/(F,3,3) array, one scene, or a list of scenes or
@@ -141,7 +149,8 @@ def run_build_sweep(scenes, strategies, threads, runs=5, warmup=2, out_dir=None,
                     for T in threads:
                         if bar is not None:
                             bar.set_postfix_str(f"{scene_name} {strat} T={T}")
-                        rows += _measure(scene_name, src, [base.replace(strategy=strat, threads=T)], runs, warmup, cores)
+                        p = base.replace(strategy=strat, threads=T)
+                        rows += _measure(scene_name, src, [p], runs, warmup, cores)
                         if bar is not None:
                             bar.update(1)
     finally:
@@ -217,7 +226,8 @@ def _series(rows, scene, key):
     for r in rows:
         if r["scene"] != scene:
             continue
-        out.setdefault(r["strategy"], []).append((r["threads"], r.get(key, np.nan), r.get(key + "_min", np.nan), r.get(key + "_max", np.nan)))
+        vals = (r.get(key, np.nan), r.get(key + "_min", np.nan), r.get(key + "_max", np.nan))
+        out.setdefault(r["strategy"], []).append((r["threads"], *vals))
     return {s: tuple(np.array(c) for c in zip(*sorted(v))) for s, v in out.items()}
 
 

@@ -47,8 +47,8 @@ def _lock_id(kind, c, i, j, k, macro, mdims):
 def count_locked(tris, rng, lo, cell, dims, exact, n_threads, kind, macro, mdims, locks, count, waits):
     """count[c] += 1 under lock ``_lock_id(kind, c, ...)``; thread t takes its triangle block.
 
-    rng (F, 6) int32 cell ranges; count (C,) int32 zero on entry; locks int32 all zero (free); waits (T,) int64 receives each
-    thread's failed lock looks.
+    rng (F, 6) int32 cell ranges; count (C,) int32 zero on entry; locks int32 all zero (free);
+    waits (T,) int64 receives each thread's failed lock looks.
     """
     F = tris.shape[0]
     nx = dims[0]
