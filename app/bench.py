@@ -468,9 +468,10 @@ def _frame_summary(rows, size, runs, warmup, strategy):
                  "caster traverses both grids) against a full rebuild:", ""]
         body += md_table(["scene", "threads", "traversal", "moving", "build ms split", "build ms full",
                           "render ms split", "render ms full"], split_rows)
-    travs = sorted({r["traversal"] for r in rows})
+    travs = [t for t in TRAVERSALS if any(r["traversal"] == t for r in rows)]
     if len(travs) > 1:
-        body += ["", "Render ms by traversal (DDA: one ray at a time; CGT: 8x8 packets, coherent grid traversal):", ""]
+        body += ["", f"Render ms by traversal (DDA: one ray at a time; CGT: 8x8 packets, coherent grid traversal); "
+                 f"in brackets the speed-up over {travs[0]}:", ""]
         tr_rows = []
         for key in dict.fromkeys((r["scene"], r["threads"], r["split"]) for r in rows):
             sel = {r["traversal"]: r for r in rows if (r["scene"], r["threads"], r["split"]) == key}

@@ -25,11 +25,11 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 import engine  # noqa: F401
-from engine.config import GridParams
+from engine.config import TRAVERSALS, GridParams, RenderParams
 from engine.errors import GridrtError, InputError
 from engine.grid.build import GridBuilder
 from engine.grid.registry import get_builder
-from engine.trace.render import cast_rays
+from engine.trace.render import Renderer, cast_rays
 
 from .bench_util import (
     Affinity, check_runs, figure, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress, put_stat,
@@ -41,6 +41,7 @@ INSTALL_HINT = ("embreex is not installed; `gridrt bench peers` needs it: pip in
                 "(or pip install 'gridrt[peers]')")
 PEER_SCENES = ["cesium", "lucy:twist", "kitchen"]
 PEER_FALLBACK = ["marbles", "icosphere:81920:twist"]
+HAVE_CGT = "cgt" in TRAVERSALS
 #: relative t tolerance of hit agreement
 T_REL = 1e-4
 #: disagreeing rays checked against brute force, at most
@@ -186,8 +187,10 @@ def run_peers(a):
             bar.set_postfix_str(f"{sc.label} T={T}")
             strat = frame_strategy(a.strategy, T)
             builder = GridBuilder(GridParams(strategy=strat, threads=T))
-            smp = {k: [] for k in ("o_build", "o_cast", "o_frame", "e_upload", "e_commit", "e_cast", "e_frame",
-                                   "e_frame_noupload")}
+            smp = {k: [] for k in ("o_build", "o_cast", "o_frame", "o_render_cgt", "o_frame_cgt", "e_upload",
+                                   "e_commit", "e_cast", "e_frame", "e_frame_noupload")}
+            renderer = Renderer()
+            rp = RenderParams(size, size, threads=T, traversal="cgt") if HAVE_CGT else None
             with Affinity(T) as aff, ThreadPoolExecutor(T) as pool:
                 affinity_ok &= aff.applied
                 for i in range(warmup + runs):
@@ -197,6 +200,9 @@ def run_peers(a):
                     t1 = time.perf_counter()
                     ho = cast_rays(g, tris, o, d, threads=T)
                     t2 = time.perf_counter()
+                    if rp is not None:
+                        img = renderer.render(g, tris, cam, rp)
+                    t2c = time.perf_counter()
                     up, cm = emb.build(tris)
                     t3 = time.perf_counter()
                     te, fe = emb.cast(pool, o32, d32, T)
@@ -205,6 +211,9 @@ def run_peers(a):
                         smp["o_build"].append((t1 - t0) * 1e3)
                         smp["o_cast"].append((t2 - t1) * 1e3)
                         smp["o_frame"].append((t2 - t0) * 1e3)
+                        if rp is not None:
+                            smp["o_render_cgt"].append((t2c - t2) * 1e3)
+                            smp["o_frame_cgt"].append((t1 - t0 + t2c - t2) * 1e3)
                         smp["e_upload"].append(up)
                         smp["e_commit"].append(cm)
                         smp["e_cast"].append((t4 - t3) * 1e3)
@@ -212,15 +221,19 @@ def run_peers(a):
                         smp["e_frame_noupload"].append(cm + (t4 - t3) * 1e3)
                     bar.update()
                 # static cast throughput on the last frame
-                so, se = [], []
+                so, se, sr = [], [], []
                 for _ in range(runs):
                     t0 = time.perf_counter()
                     cast_rays(g, tris, o, d, threads=T)
                     t1 = time.perf_counter()
                     emb.cast(pool, o32, d32, T)
                     t2 = time.perf_counter()
+                    if rp is not None:
+                        img = renderer.render(g, tris, cam, rp)
+                    t3 = time.perf_counter()
                     so.append((t1 - t0) * 1e3)
                     se.append((t2 - t1) * 1e3)
+                    sr.append((t3 - t2) * 1e3)
                 bar.update()
                 last = np.array(tris)
             ag = agreement(ho.t, ho.tri.astype(np.int64), te, fe)
@@ -235,6 +248,12 @@ def run_peers(a):
                 put_stat(row, k + "_ms", v)
             put_stat(row, "o_static_cast_ms", so)
             put_stat(row, "e_static_cast_ms", se)
+            if rp is not None:
+                put_stat(row, "o_static_render_cgt_ms", sr)
+                row["o_mrays_cgt"] = N / row["o_static_render_cgt_ms"] / 1e3
+                row["o_fps_cgt"] = 1e3 / row["o_frame_cgt_ms"]
+                agc = agreement(img.t.ravel().astype(np.float64), img.tri.ravel().astype(np.int64), te, fe)
+                row["agree_cgt"] = (agc["both_miss"] + agc["same"]) / N
             row["o_mrays"] = N / row["o_static_cast_ms"] / 1e3
             row["e_mrays"] = N / row["e_static_cast_ms"] / 1e3
             row["o_fps"] = 1e3 / row["o_frame_ms"]
@@ -282,16 +301,30 @@ def _summary(rows, emb, runs, warmup, affinity_ok):
                       fmt_ms(r, "e_frame_ms"), f"{r['o_frame_ms'] / r['e_frame_noupload_ms']:.2f}"])
     body += md_table(["scene", "triangles", "threads", "gridrt build", "gridrt cast", "gridrt frame", "Embree upload",
                       "Embree commit", "Embree cast", "Embree frame", "gridrt / Embree without upload"], table)
+    if any("o_frame_cgt_ms" in r for r in rows):
+        body += ["", "gridrt's packet traversal (CGT) exists only inside `render` (camera rays generated in the kernel, "
+                 "the same pixel-centre rays before their float32 rounding, plus lambert shading); `cast_rays` takes "
+                 "arbitrary rays and uses DDA.  Frame = build + CGT render:", ""]
+        body += md_table(["scene", "threads", "gridrt CGT render", "gridrt frame (CGT)", "Embree frame without upload",
+                          "Embree frame", "gridrt CGT / Embree without upload"],
+                         [[r["scene"], r["threads"], fmt_ms(r, "o_render_cgt_ms"), fmt_ms(r, "o_frame_cgt_ms"),
+                           fmt_ms(r, "e_frame_noupload_ms"), fmt_ms(r, "e_frame_ms"),
+                           f"{r['o_frame_cgt_ms'] / r['e_frame_noupload_ms']:.2f}"] for r in rows if "o_frame_cgt_ms" in r])
     body += ["", "Static cast throughput (cast only, last frame) and hit agreement (same triangle and t within "
              f"{T_REL:g} relative, or both miss); disagreements checked against brute force (up to {CHECK_MAX}):", ""]
     t2 = []
     for r in rows:
-        t2.append([r["scene"], r["threads"], f"{r['o_mrays']:.2f}", f"{r['e_mrays']:.2f}", f"{100 * r['agree']:.4f}%",
+        t2.append([r["scene"], r["threads"], f"{r['o_mrays']:.2f}",
+                   f"{r['o_mrays_cgt']:.2f}" if "o_mrays_cgt" in r else "-", f"{r['e_mrays']:.2f}",
+                   f"{100 * r['agree']:.4f}%", f"{100 * r['agree_cgt']:.4f}%" if "agree_cgt" in r else "-",
                    r["id_differs"], r["hit_miss"], r["t_off"],
                    f"{r['ours_right']}/{r['checked']}" if r["checked"] else "-",
                    f"{r['embree_right']}/{r['checked']}" if r["checked"] else "-"])
-    body += md_table(["scene", "threads", "gridrt Mrays/s", "Embree Mrays/s", "agree", "other triangle",
-                      "hit vs miss", "t differs", "gridrt right", "Embree right"], t2)
+    body += md_table(["scene", "threads", "gridrt cast Mrays/s", "gridrt CGT render Mrays/s", "Embree Mrays/s",
+                      "agree (cast)", "agree (CGT render)", "other triangle", "hit vs miss", "t differs",
+                      "gridrt right", "Embree right"], t2)
+    body += ["", "'other triangle', 'hit vs miss', 't differs', 'right': for `cast_rays` against Embree; 'right' "
+             "counts the disagreeing rays on which each side matches the brute-force float64 caster."]
     ths = sorted({r["threads"] for r in rows})
     if len(ths) > 1:
         sc_lines = []
@@ -326,8 +359,9 @@ def _plot(rows, path):
     a.set_ylabel("ms per frame (median)")
     a.legend(fontsize=6)
     a = ax[0, 1]
-    a.bar(x - 0.2, [r["o_mrays"] for r in rows], 0.4, label="gridrt", color="C0")
-    a.bar(x + 0.2, [r["e_mrays"] for r in rows], 0.4, label="Embree", color="C3")
+    a.bar(x - 0.27, [r["o_mrays"] for r in rows], 0.27, label="gridrt cast_rays (DDA)", color="C0")
+    a.bar(x, [r.get("o_mrays_cgt", 0) for r in rows], 0.27, label="gridrt render (CGT)", color="C2")
+    a.bar(x + 0.27, [r["e_mrays"] for r in rows], 0.27, label="Embree", color="C3")
     a.set_xticks(x, labels, fontsize=6)
     a.set_ylabel("static cast Mrays/s (median)")
     a.legend(fontsize=7)

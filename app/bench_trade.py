@@ -344,7 +344,8 @@ def _summary(rows, c):
     ray_ms = c["ref_ms"] / c["n_samples"]
     body = [
         f"Scene `{sc.label}` ({sc.scene.name}, {F:,} triangles, bounding-box diagonal {c['diag']:.4g}), "
-        f"{c['camera']}, full image {size}x{size}, {100 * c['hit_fraction']:.0f}% of the pixels cover geometry.  Build: strategy {c['strategy']}"
+        f"{c['camera']}, full image {size}x{size}, {100 * c['hit_fraction']:.0f}% of the pixels cover geometry.  "
+        f"Build: strategy {c['strategy']}"
         f"{' (one thread)' if c['strategy'] == 'serial' else ''}; render: {c['threads']} thread(s), lambert shading.  "
         f"Times: median [min-max] of {c['runs']} runs after {c['warmup']} warm-up.",
         "",
@@ -420,10 +421,10 @@ def _summary(rows, c):
         else:
             body += ["", f"Precision: the default render compared with brute force over the float64 source geometry: "
                      f"{100 * p['pixel_error']:.3f}% of sampled pixels differ, max |dt| {_g(p['dt_max'])} "
-                     f"(relative {_g(p['dt_rel_max'])})"
-                     + (f"; probe rays aimed at the float64 source vertices: {_g(p['holes_per_million'], 4)} holes "
-                        "per million" if p["holes"] != "" else "")
-                     + (f" ({c['src_why']})" if c["src_why"] else "") + ".  The engine has no float64-storage "
+                     f"(relative {_g(p['dt_rel_max'])})" + (f" ({c['src_why']})" if c["src_why"] else "")
+                     + (f"; probe rays aimed at the float64 source vertices of the probe mesh: "
+                        f"{_g(p['holes_per_million'], 4)} holes per million" if p["holes"] != "" else "")
+                     + ".  The engine has no float64-storage "
                      "mode, so this row is not a choice and is left out of the Pareto front."]
     return body
 
