@@ -177,7 +177,6 @@ class GridBuilder:
     def __init__(self, params: GridParams | None = None):
         self.params = params or GridParams()
         self.bufs = GridBuffers()
-        self.warm = False
 
     def build(self, tris, params: GridParams | None = None) -> Grid:
         if params is not None:
@@ -302,6 +301,4 @@ def build_grid(tris, params: GridParams | None = None, **kw) -> Grid:
     from ..arrays import as_triangles
 
     tris = as_triangles(tris, allow_degenerate=False)
-    grid = GridBuilder(params).build(tris)
-    # a one-shot grid owns its arrays
-    return grid
+    return GridBuilder(params).build(tris)  # the builder is dropped: the grid owns its buffers

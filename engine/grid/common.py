@@ -285,11 +285,3 @@ def scan_inclusive(count, start):
         start[c] = s
     start[C] = s
     return s
-
-
-@njit(cache=True)
-def total_count(count):
-    s = 0
-    for c in range(count.shape[0]):
-        s += count[c]
-    return s

@@ -62,13 +62,6 @@ class GridSpec:
     def n_macro(self) -> int:
         return int(np.prod(self.mdims))
 
-    def same_shape(self, other) -> bool:
-        return (
-            other is not None
-            and np.array_equal(self.dims, other.dims)
-            and self.macro == other.macro
-        )
-
 
 @dataclass
 class Grid:
