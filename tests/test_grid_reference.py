@@ -312,3 +312,42 @@ def test_builder_reuse_across_frames(strategy):
             tris = np.ascontiguousarray(tris, dtype=np.float32)
             g = builder.build(tris)
             _check_pairs(g, tris, mode, f"{strategy} frame {k} {mode}")
+
+
+# ---------------------------------------------------------------------------------------------
+# the scene-bounds pass (SIMD lanes) against numpy, including the bad-value flag
+
+
+@pytest.mark.parametrize("F", [1, 2, 5, 16, 17, 33, 1000, 70_001])
+@pytest.mark.parametrize("chunks", [1, 2, 3, 7])
+def test_scene_bounds_equal_numpy(F, chunks):
+    """Per-chunk bounds reduce to numpy's min/max; every chunk count (including chunks with no
+    whole 48-lane row) and sizes with a tail of leftover coordinates.  A NaN, an infinity or a
+    coordinate beyond 1e30 at the first, a middle, the last-full-row and the very last position
+    sets the bad flag."""
+    from engine.grid import common
+
+    rng = np.random.default_rng(F * 31 + chunks)
+    t = (rng.standard_normal((F, 3, 3)) * 10.0 ** rng.integers(-3, 4, size=(F, 1, 3))).astype(np.float32)
+    t += np.float32(rng.uniform(-1e4, 1e4))
+
+    def run(x):
+        out = np.empty((chunks, 7))
+        if chunks == 1:
+            common.scene_bounds_serial(x, out)
+        else:
+            common.scene_bounds(x, chunks, out)
+        return out
+
+    out = run(t)
+    flat = t.reshape(-1, 3)
+    assert np.array_equal(out[:, 0:3].min(axis=0), flat.min(axis=0).astype(np.float64))
+    assert np.array_equal(out[:, 3:6].max(axis=0), flat.max(axis=0).astype(np.float64))
+    assert not out[:, 6].any()
+    n = t.size
+    positions = sorted({0, n // 2, max(0, n // 48 * 48 - 1), n - 1})
+    for value in (np.nan, np.inf, -np.inf, 2e30, -3e30):
+        for pos in positions:
+            u = t.copy().reshape(-1)
+            u[pos] = value
+            assert run(u.reshape(F, 3, 3))[:, 6].any(), (value, pos)

@@ -191,14 +191,16 @@ class GridBuilder:
         use_threads(threads)
 
         with timed(times, "bounds_ms"):
-            n_chunks = max(1, min(threads, F // 65536 + 1))
+            # one chunk per thread from a quarter million triangles on (below that, the SIMD pass
+            # takes about as long as a parallel launch); serial keeps to one thread throughout
+            n_chunks = max(1, min(threads, F // 262144 + 1)) if strategy.parallel_stages else 1
             bb = np.empty((n_chunks, 7), np.float64)
             if n_chunks == 1:
                 common.scene_bounds_serial(tris, bb)
             else:
                 common.scene_bounds(tris, n_chunks, bb)
         if bb[:, 6].sum() > 0:
-            bad = np.argwhere(~(np.abs(tris) <= 1e30))[0]
+            bad = np.argwhere(~(np.abs(tris) <= common.BAD_MAGNITUDE))[0]
             raise InputError(
                 f"triangles contain NaN, infinity or coordinates beyond 1e30 "
                 f"(first at triangle {bad[0]}, vertex {bad[1]}, axis {bad[2]})"

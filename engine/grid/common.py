@@ -19,47 +19,78 @@ EPS = INSERT_EPS
 # scene bounds (+ the finiteness check that guards every later kernel)
 
 
+BOUNDS_LANES = 48  # 16 vertices x 3 axes: lane l of a row holds axis l % 3
+BAD_MAGNITUDE = 1e30  # coordinates beyond this are refused (cell arithmetic would overflow)
+
+
 @njit(cache=True, _nrt=False)
-def _bounds_range(tris, a, b, out, row):
-    """Min/max over triangles a..b-1 into out[row] = [xmin, ymin, zmin, xmax, ymax, zmax, bad],
-    bad counting coordinates that are NaN, infinite or beyond 1e30 in magnitude."""
-    x0 = y0 = z0 = np.inf
-    x1 = y1 = z1 = -np.inf
+def _bounds_lanes(flat, e0, e1, mn, mx, nan):
+    """Lane-wise min/max of flat[e0:e1] (e0 a multiple of BOUNDS_LANES) into mn, mx (W,) float32,
+    and nan (W,) float32 += x - x, which turns NaN exactly when a NaN or infinity went by.
+
+    Every lane is independent of the others, so LLVM turns the inner loop into SIMD min/max
+    (a scalar min/max chain over the triangles runs at about a tenth of the speed).
+    """
+    W = BOUNDS_LANES
+    rows = (e1 - e0) // W
+    full = e0 + rows * W
+    for r in range(rows):
+        b = e0 + r * W
+        for l in range(W):
+            x = flat[b + l]
+            mn[l] = min(mn[l], x)
+            mx[l] = max(mx[l], x)
+            nan[l] += x - x
+    for e in range(full, e1):
+        x = flat[e]
+        l = e - full
+        mn[l] = min(mn[l], x)
+        mx[l] = max(mx[l], x)
+        nan[l] += x - x
+
+
+@njit(cache=True)
+def _bounds_chunk(flat, e0, e1, out, row):
+    """out[row] = [xmin, ymin, zmin, xmax, ymax, zmax, bad] over the coordinates flat[e0:e1],
+    bad = 1 when one of them is NaN, infinite or beyond BAD_MAGNITUDE."""
+    W = BOUNDS_LANES
+    mn = np.full(W, np.inf, np.float32)
+    mx = np.full(W, -np.inf, np.float32)
+    nan = np.zeros(W, np.float32)
+    _bounds_lanes(flat, e0, e1, mn, mx, nan)
     bad = 0.0
-    for f in range(a, b):
-        for v in range(3):
-            x = np.float64(tris[f, v, 0])
-            y = np.float64(tris[f, v, 1])
-            z = np.float64(tris[f, v, 2])
-            if not (abs(x) <= 1e30 and abs(y) <= 1e30 and abs(z) <= 1e30):
-                bad += 1.0
-            x0 = min(x0, x)
-            y0 = min(y0, y)
-            z0 = min(z0, z)
-            x1 = max(x1, x)
-            y1 = max(y1, y)
-            z1 = max(z1, z)
-    out[row, 0] = x0
-    out[row, 1] = y0
-    out[row, 2] = z0
-    out[row, 3] = x1
-    out[row, 4] = y1
-    out[row, 5] = z1
+    for a in range(3):
+        lo = np.inf
+        hi = -np.inf
+        for l in range(a, W, 3):
+            lo = min(lo, np.float64(mn[l]))
+            hi = max(hi, np.float64(mx[l]))
+            if not (nan[l] == 0.0):
+                bad = 1.0
+        if e1 > e0 and not (abs(lo) <= BAD_MAGNITUDE and abs(hi) <= BAD_MAGNITUDE):
+            bad = 1.0
+        out[row, a] = lo
+        out[row, 3 + a] = hi
     out[row, 6] = bad
 
 
 @njit(cache=True, parallel=True)
 def scene_bounds(tris, n_chunks, out):
-    """Per-chunk bounds of tris (F,3,3) float32 into out (n_chunks, 7) float64, in parallel."""
-    F = tris.shape[0]
+    """Per-chunk bounds of tris (F,3,3) float32 (C-contiguous) into out (n_chunks, 7) float64,
+    in parallel: out[ch] = [xmin, ymin, zmin, xmax, ymax, zmax, bad] (see _bounds_chunk)."""
+    flat = tris.reshape(tris.size)
+    n_rows = flat.size // BOUNDS_LANES
     for ch in prange(n_chunks):
-        _bounds_range(tris, ch * F // n_chunks, (ch + 1) * F // n_chunks, out, ch)
+        e0 = ch * n_rows // n_chunks * BOUNDS_LANES
+        e1 = (ch + 1) * n_rows // n_chunks * BOUNDS_LANES if ch < n_chunks - 1 else flat.size
+        _bounds_chunk(flat, e0, e1, out, ch)
 
 
 @njit(cache=True)
 def scene_bounds_serial(tris, out):
     """scene_bounds on one thread (small scenes: no parallel launch)."""
-    _bounds_range(tris, 0, tris.shape[0], out, 0)
+    flat = tris.reshape(tris.size)
+    _bounds_chunk(flat, 0, flat.size, out, 0)
 
 
 # ---------------------------------------------------------------------------------------------
