@@ -24,26 +24,25 @@ BAD_MAGNITUDE = 1e30  # coordinates beyond this are refused (cell arithmetic wou
 
 
 @njit(cache=True, _nrt=False)
-def _bounds_lanes(flat, e0, e1, mn, mx, nan):
-    """Lane-wise min/max of flat[e0:e1] (e0 a multiple of BOUNDS_LANES) into mn, mx (W,) float32,
+def _bounds_lanes(flat, mn, mx, nan):
+    """Lane-wise min/max of flat (a slice starting on a row boundary) into mn, mx (W,) float32,
     and nan (W,) float32 += x - x, which turns NaN exactly when a NaN or infinity went by.
 
     Every lane is independent of the others, so LLVM turns the inner loop into SIMD min/max
-    (a scalar min/max chain over the triangles runs at about a tenth of the speed).
+    (a scalar min/max chain over the triangles runs at about a tenth of the speed).  Loops
+    start at 0 on a slice, not at a signed offset: numba wraps negative indices, and with an
+    offset of unknown sign LLVM keeps that check and vectorizes with gathers, 3-4x slower.
     """
     W = BOUNDS_LANES
-    rows = (e1 - e0) // W
-    full = e0 + rows * W
+    rows = flat.shape[0] // W
     for r in range(rows):
-        b = e0 + r * W
         for l in range(W):
-            x = flat[b + l]
+            x = flat[r * W + l]
             mn[l] = min(mn[l], x)
             mx[l] = max(mx[l], x)
             nan[l] += x - x
-    for e in range(full, e1):
-        x = flat[e]
-        l = e - full
+    for l in range(flat.shape[0] - rows * W):
+        x = flat[rows * W + l]
         mn[l] = min(mn[l], x)
         mx[l] = max(mx[l], x)
         nan[l] += x - x
@@ -57,7 +56,7 @@ def _bounds_chunk(flat, e0, e1, out, row):
     mn = np.full(W, np.inf, np.float32)
     mx = np.full(W, -np.inf, np.float32)
     nan = np.zeros(W, np.float32)
-    _bounds_lanes(flat, e0, e1, mn, mx, nan)
+    _bounds_lanes(flat[e0:e1], mn, mx, nan)
     bad = 0.0
     for a in range(3):
         lo = np.inf
@@ -310,9 +309,25 @@ def scan_inclusive(count, start):
     start[c] at the first slot of cell c: the CSR offsets.
     """
     C = count.shape[0]
-    s = 0
-    for c in range(C):
-        s += count[c]
-        start[c] = s
+    s = scan_into(count, 0, start)
     start[C] = s
+    return s
+
+
+@njit(cache=True, _nrt=False)
+def scan_into(count, s, out):
+    """out[c] = s + count[0] + ... + count[c] over the slices count, out; returns the last sum.
+    Callers pass slices so the loop index starts at 0 (see _bounds_lanes on signed offsets)."""
+    for c in range(count.shape[0]):
+        s += count[c]
+        out[c] = s
+    return s
+
+
+@njit(cache=True, _nrt=False)
+def sum_of(count):
+    """Sum of an int32 slice as int64 (vectorized)."""
+    s = 0
+    for c in range(count.shape[0]):
+        s += count[c]
     return s

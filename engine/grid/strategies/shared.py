@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit, prange
 
 from ...errors import InputError
-from ..common import scan_inclusive, tri_cell_range
+from ..common import scan_inclusive, scan_into, sum_of, tri_cell_range
 from .base import timed
 
 INT32_MAX = np.iinfo(np.int32).max
@@ -70,10 +70,7 @@ def block_sums(count, n_threads, sums):
     """sums[t] = sum of count over thread t's block of cells.  count (C,) int32, sums (T,) int64."""
     C = count.shape[0]
     for t in prange(n_threads):
-        s = 0
-        for c in range(part(C, t, n_threads), part(C, t + 1, n_threads)):
-            s += count[c]
-        sums[t] = s
+        sums[t] = sum_of(count[part(C, t, n_threads):part(C, t + 1, n_threads)])
 
 
 @njit(cache=True, parallel=True)
@@ -85,10 +82,9 @@ def block_scan_inclusive(count, base, n_threads, start):
     """
     C = count.shape[0]
     for t in prange(n_threads):
-        s = base[t]
-        for c in range(part(C, t, n_threads), part(C, t + 1, n_threads)):
-            s += count[c]
-            start[c] = s
+        a = part(C, t, n_threads)
+        b = part(C, t + 1, n_threads)
+        scan_into(count[a:b], base[t], start[a:b])
 
 
 def check_total(total):
