@@ -351,3 +351,30 @@ def test_scene_bounds_equal_numpy(F, chunks):
             u = t.copy().reshape(-1)
             u[pos] = value
             assert run(u.reshape(F, 3, 3))[:, 6].any(), (value, pos)
+
+
+@pytest.mark.parametrize("F", [1, 15, 16, 17, 1001])
+@pytest.mark.parametrize("threads", [1, 2, 3, 16])
+def test_cell_ranges_equal_scalar_definition(F, threads):
+    """The vectorized cell-range pass (16-triangle blocks, clamp-then-truncate) equals the scalar
+    tri_cell_range (floor-then-clamp) for every triangle: random ones, degenerate ones (repeated
+    and collinear vertices), ones outside the grid on both sides (clamped), and vertices exactly
+    on cell faces, where the EPS growth decides."""
+    from engine.grid.common import tri_cell_range
+    from engine.grid.strategies.shared import cell_ranges
+
+    rng = np.random.default_rng(F * 7 + threads)
+    lo = np.array([-1.0, -2.0, 0.5])
+    dims = np.array([7, 5, 9], np.int64)
+    cell = np.array([0.25, 0.5, 0.125])
+    inv_cell = 1.0 / cell
+    t = (lo + rng.uniform(-0.3, 1.3, size=(F, 3, 3)) * dims * cell).astype(np.float32)
+    on_face = rng.random(F) < 0.2
+    t[on_face] = (lo + rng.integers(0, 10, size=(int(on_face.sum()), 3, 3)) * cell).astype(np.float32)
+    t[::5, 1] = t[::5, 0]  # repeated vertex
+    t[::7, 2] = 2 * t[::7, 1] - t[::7, 0]  # collinear (exact in float32 for these values or not: both paths agree)
+    out = np.full((F, 6), 99, np.int32)
+    cell_ranges(t, lo, inv_cell, dims, threads, out)
+    want = np.array([tri_cell_range(t, f, lo, inv_cell, dims) for f in range(F)], np.int32)
+    assert np.array_equal(out, want)
+    assert (want[::5, 3] == -1).all()  # the repeated-vertex triangles really are degenerate

@@ -140,6 +140,63 @@ def tri_cell_range(tris, f, lo, inv_cell, dims):
     )
 
 
+RANGE_LANES = 16  # triangles per block of the vectorized cell-range pass
+
+
+@njit(cache=True, _nrt=False)
+def _ranges_block(flat, n, lx, ly, lz, ix, iy, iz, mx, my, mz, out):
+    """tri_cell_range for n <= RANGE_LANES triangles: flat (9n,) float32 slice, out (6n,) int32.
+
+    Branch-free over a short loop that starts at 0, so LLVM vectorizes it across triangles
+    (about 4x the scalar speed).  Clamping the float cell coordinate to [0, dims-1] and then
+    truncating gives the same integer as flooring and clamping the integer: the float is finite,
+    and on [0, dims-1] truncation is floor.
+    """
+    for l in range(n):
+        ax = np.float64(flat[9 * l + 0])
+        ay = np.float64(flat[9 * l + 1])
+        az = np.float64(flat[9 * l + 2])
+        bx = np.float64(flat[9 * l + 3])
+        by = np.float64(flat[9 * l + 4])
+        bz = np.float64(flat[9 * l + 5])
+        cx = np.float64(flat[9 * l + 6])
+        cy = np.float64(flat[9 * l + 7])
+        cz = np.float64(flat[9 * l + 8])
+        ux, uy, uz = bx - ax, by - ay, bz - az
+        vx, vy, vz = cx - ax, cy - ay, cz - az
+        degen = (uy * vz == uz * vy) & (uz * vx == ux * vz) & (ux * vy == uy * vx)
+        i0 = min(max((min(ax, bx, cx) - lx) * ix - EPS, 0.0), mx)
+        j0 = min(max((min(ay, by, cy) - ly) * iy - EPS, 0.0), my)
+        k0 = min(max((min(az, bz, cz) - lz) * iz - EPS, 0.0), mz)
+        i1 = min(max((max(ax, bx, cx) - lx) * ix + EPS, 0.0), mx)
+        j1 = min(max((max(ay, by, cy) - ly) * iy + EPS, 0.0), my)
+        k1 = min(max((max(az, bz, cz) - lz) * iz + EPS, 0.0), mz)
+        out[6 * l + 0] = 0 if degen else np.int32(i0)
+        out[6 * l + 1] = 0 if degen else np.int32(j0)
+        out[6 * l + 2] = 0 if degen else np.int32(k0)
+        out[6 * l + 3] = -1 if degen else np.int32(i1)
+        out[6 * l + 4] = -1 if degen else np.int32(j1)
+        out[6 * l + 5] = -1 if degen else np.int32(k1)
+
+
+@njit(cache=True, _nrt=False)
+def cell_ranges_into(flat, lo, inv_cell, dims, out):
+    """Cell ranges of the triangles in flat (9n,) float32 into out (6n,) int32, each six values
+    equal to tri_cell_range's (i0, j0, k0, i1, j1, k1).  Pass slices: loops start at 0."""
+    F = flat.shape[0] // 9
+    lx, ly, lz = lo[0], lo[1], lo[2]
+    ix, iy, iz = inv_cell[0], inv_cell[1], inv_cell[2]
+    mx = np.float64(dims[0] - 1)
+    my = np.float64(dims[1] - 1)
+    mz = np.float64(dims[2] - 1)
+    B = RANGE_LANES
+    nb = F // B
+    for b in range(nb):
+        _ranges_block(flat[9 * B * b:9 * B * (b + 1)], B, lx, ly, lz, ix, iy, iz, mx, my, mz,
+                      out[6 * B * b:6 * B * (b + 1)])
+    _ranges_block(flat[9 * B * nb:], F - nb * B, lx, ly, lz, ix, iy, iz, mx, my, mz, out[6 * B * nb:])
+
+
 @njit(cache=True)
 def _axis_test(p0, p1, p2, r):
     """True when the projections p0..p2 of the triangle are separated from [-r, r]."""

@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit, prange
 
 from ...errors import InputError
-from ..common import scan_inclusive, scan_into, sum_of, tri_cell_range
+from ..common import cell_ranges_into, scan_inclusive, scan_into, sum_of
 from .base import timed
 
 INT32_MAX = np.iinfo(np.int32).max
@@ -35,20 +35,18 @@ def part(n, t, T):
 def cell_ranges(tris, lo, inv_cell, dims, n_threads, rng):
     """rng[f] = (i0, j0, k0, i1, j1, k1), triangle f's inclusive cell range (tri_cell_range).
 
-    tris (F, 3, 3) float32; rng (F, 6) int32.  Thread t does its block of triangles.  The
-    count and scatter passes read these 24 bytes instead of recomputing six float64 floors from
-    the 36 bytes of vertices each time.
+    tris (F, 3, 3) float32 C-contiguous; rng (F, 6) int32 C-contiguous.  Thread t does its
+    block of triangles with the vectorized common.cell_ranges_into.  The count and scatter
+    passes read these 24 bytes instead of recomputing six float64 floors from the 36 bytes of
+    vertices each time.
     """
     F = tris.shape[0]
+    flat = tris.reshape(tris.size)
+    out = rng.reshape(rng.size)
     for t in prange(n_threads):
-        for f in range(part(F, t, n_threads), part(F, t + 1, n_threads)):
-            i0, j0, k0, i1, j1, k1 = tri_cell_range(tris, f, lo, inv_cell, dims)
-            rng[f, 0] = i0
-            rng[f, 1] = j0
-            rng[f, 2] = k0
-            rng[f, 3] = i1
-            rng[f, 4] = j1
-            rng[f, 5] = k1
+        a = part(F, t, n_threads)
+        b = part(F, t + 1, n_threads)
+        cell_ranges_into(flat[9 * a:9 * b], lo, inv_cell, dims, out[6 * a:6 * b])
 
 
 def ranges(tris, spec, bufs, n_threads, times):
@@ -119,6 +117,39 @@ def parallel_scan(count, start, n_threads):
     block_scan_inclusive(count, base, n_threads, start)
     start[count.shape[0]] = total
     return total
+
+
+def parallel_scan_exclusive(count, start, n_threads):
+    """CSR offsets in one go: start[0] = 0, start[c + 1] = count[0] + ... + count[c] (start
+    (C + 1,) int32), in parallel as :func:`parallel_scan`; returns the total."""
+    C = count.shape[0]
+    start[0] = 0
+    if n_threads == 1:
+        return check_total(scan_into(count, 0, start[1:]))
+    sums = np.empty(n_threads, np.int64)
+    block_sums(count, n_threads, sums)
+    base, total = exclusive(sums)
+    check_total(total)
+    block_scan_inclusive(count, base, n_threads, start[1:])
+    return total
+
+
+@njit(cache=True, _nrt=False)
+def _volume_sum(rng):
+    """Sum over the rows of rng (n, 6) int32 of the cell-range volumes (0 for empty ranges)."""
+    s = 0
+    for r in range(rng.shape[0]):
+        s += (rng[r, 3] - rng[r, 0] + 1) * (rng[r, 4] - rng[r, 1] + 1) * (rng[r, 5] - rng[r, 2] + 1)
+    return s
+
+
+@njit(cache=True, parallel=True)
+def range_volumes(rng, n_threads, sums):
+    """sums[t] = cells in the ranges of thread t's block of triangles: the references a bbox
+    insertion makes and an upper bound for an exact one.  rng (F, 6) int32, sums (T,) int64."""
+    F = rng.shape[0]
+    for t in prange(n_threads):
+        sums[t] = _volume_sum(rng[part(F, t, n_threads):part(F, t + 1, n_threads)])
 
 
 # ---------------------------------------------------------------------------------------------
