@@ -222,20 +222,8 @@ def _plot_core(rows, path):
 # build
 # ----------------------------------------------------------------------------------------------
 
-BUILD_SCENES = ["marbles", "cesium", "lucy", "kitchen", "lucy:1600000"]
+BUILD_SCENES = ["marbles", "cesium", "lucy", "kitchen", "marbles:1000000", "lucy:1600000"]
 BUILD_FALLBACK = ["marbles", "icosphere:81920", "icosphere:1310720"]
-
-
-def memory_bandwidth_gbs(mib=128, runs=5):
-    """Single-thread numpy copy bandwidth (read + write bytes / s), median of ``runs``, in GB/s."""
-    src = np.ones(mib * 2**20 // 8)
-    dst = np.empty_like(src)
-    ts = []
-    for _ in range(runs + 1):
-        t0 = time.perf_counter()
-        np.copyto(dst, src)
-        ts.append(time.perf_counter() - t0)
-    return 2 * src.nbytes / float(np.median(ts[1:])) / 1e9
 
 
 def run_build(a):
@@ -243,7 +231,7 @@ def run_build(a):
     from engine.grid.sweep import run_build_sweep
 
     check_runs(a.runs, a.warmup)
-    runs, warmup = (1, 1) if a.quick else (a.runs, a.warmup)
+    runs, warmup = (1, 2) if a.quick else (a.runs, a.warmup)  # 2: a builder's first build clears nothing
     specs, note = scene_list(a.scenes, BUILD_SCENES, BUILD_FALLBACK, quick=["icosphere:1280"] if a.quick else None)
     if a.strategies:
         strategies = [s.strip() for s in a.strategies.split(",") if s.strip()]
@@ -264,11 +252,14 @@ def run_build(a):
         scenes[sc.label] = sc.scene
     rows = run_build_sweep(scenes, strategies, threads, runs=runs, warmup=warmup, out_dir=out,
                            progress=not a.no_progress, params=params)
-    bw = memory_bandwidth_gbs(16 if a.quick else 128)
-    info["memory_copy_gbs_1thread"] = round(bw, 2)
+    from engine.grid.traffic import stream_bandwidth
+
+    mib = 16 if a.quick else 256
+    bw = stream_bandwidth(mib, threads, runs=3 if a.quick else 5)
+    info["stream_gbs"] = {str(t): {k: round(v, 2) for k, v in d.items()} for t, d in bw.items()}
     finish_machine(info)
     write_json(info, out / "machine.json")
-    body = _build_summary(rows, scenes, strategies, threads, runs, warmup, params, bw)
+    body = _build_summary(rows, scenes, strategies, threads, runs, warmup, params, bw, mib)
     if note:
         body += ["", f"Note: {note}."]
     write_summary(out / "summary.md", "gridrt bench build", info,
@@ -281,7 +272,7 @@ def run_build(a):
     return 0
 
 
-def _build_summary(rows, scenes, strategies, threads, runs, warmup, params, bw):
+def _build_summary(rows, scenes, strategies, threads, runs, warmup, params, bw, mib):
     body = [f"Grid builds per configuration: {warmup} warm-up + {runs} timed (animated scenes advance 1/30 s "
             f"per build; strategies interleaved round-robin); insertion {params.insert}, lambda {params.density:g}, "
             f"macro {params.macro}.  Cells: build ms median [min-max].  Speed-up: serial at 1 thread / this.", ""]
@@ -313,9 +304,63 @@ def _build_summary(rows, scenes, strategies, threads, runs, warmup, params, bw):
                 stage.append([s, f"{r['bounds_ms']:.2f}", f"{r['clear_ms']:.2f}", f"{r['insert_ms']:.2f}",
                               f"{r['macro_ms']:.2f}", f"{r['build_ms']:.2f}"])
         body += md_table(["strategy", "bounds", "clear", "insert", "macro", "total"], stage) + [""]
-    body += [f"Memory floor: a single-thread numpy copy moves {bw:.1f} GB/s (read + write) on this machine; a "
-             "grid build writes each reference (4 bytes) and counts (4 bytes per cell) and reads the triangles "
-             "(36 bytes each) at least once, so it cannot beat that rate by much."]
+    body += _traffic_section(rows, threads, bw, mib)
+    return body
+
+
+def _traffic_section(rows, threads, bw, mib):
+    """Bytes moved per build (engine.grid.traffic model) against measured streaming bandwidth."""
+    body = ["### Memory traffic: bytes moved per build against streaming bandwidth", "",
+            f"Sequential streaming bandwidth over {mib} MiB, numba kernels, each thread its own part (GB/s):", ""]
+    body += md_table(["threads", "read", "write", "copy (read + write)"],
+                     [[str(t), f"{bw[t]['read']:.1f}", f"{bw[t]['write']:.1f}", f"{bw[t]['copy']:.1f}"]
+                      for t in threads])
+    modelled = [r for r in rows if r.get("model_mb")]
+    if not modelled:
+        return body + ["", "No modelled build in this sweep (model: serial, counting, sort_middle, bbox insertion)."]
+    big = max(r["triangles"] for r in modelled)
+    for sc in dict.fromkeys(r["scene"] for r in modelled if r["triangles"] >= min(big, 500_000)):
+        body += _traffic_scene(rows, sc, threads, bw)
+    return body
+
+
+def _traffic_scene(rows, sc, threads, bw):
+    from engine.grid.traffic import MODELLED
+
+    body = ["", f"#### {sc}", "", "Bytes each stage reads and writes (engine/grid/traffic.py counts every array "
+            "element once per pass that touches it, so it is a floor), the time measured, and the rate that "
+            "makes.  'floor ms' = bytes / the copy bandwidth at that thread count: the time the stage would take "
+            "if memory bandwidth were its only limit.", ""]
+    table = []
+    for s in MODELLED:
+        for t in threads:
+            r = next((r for r in rows if r["scene"] == sc and r["strategy"] == s and r["threads"] == t), None)
+            if r is None or not r.get("model_mb"):
+                continue
+            stages = [k[:-3] for k in r if k.endswith("_mb") and k != "model_mb"]
+            for st in stages + ["build"]:
+                mb = r["model_mb"] if st == "build" else r[st + "_mb"]
+                ms = r[st + "_ms"] if st != "build" else r["build_ms"]
+                floor = mb / 1e3 / bw[t]["copy"] * 1e3
+                table.append([s if st == stages[0] else "", str(t) if st == stages[0] else "",
+                              "**total**" if st == "build" else st, f"{mb:.1f}", f"{ms:.2f}",
+                              f"{mb / ms:.1f}" if ms > 0 else "-", f"{floor:.2f}"])
+    body += md_table(["strategy", "threads", "stage", "MB moved", "ms", "GB/s achieved", "floor ms"], table)
+    tmax = max(threads)
+    ser = next((r for r in rows if r["scene"] == sc and r["strategy"] == "serial" and r["threads"] == 1), None)
+    lines = []
+    for s in ("counting", "sort_middle"):
+        r = next((r for r in rows if r["scene"] == sc and r["strategy"] == s and r["threads"] == tmax), None)
+        if r is None or ser is None or not r.get("model_mb"):
+            continue
+        lines.append(f"{s} at {tmax} threads: {ser['build_ms'] / r['build_ms']:.2f}x serial, moving "
+                     f"{r['model_mb']:.0f} MB in {r['build_ms']:.1f} ms = {r['model_mb'] / r['build_ms']:.1f} GB/s "
+                     f"against {bw[tmax]['copy']:.1f} GB/s of copy bandwidth ({r['model_mb'] / r['build_ms'] / bw[tmax]['copy'] * 100:.0f}%).")
+    if ser is not None and ser.get("model_mb"):
+        lines.insert(0, f"serial at 1 thread moves {ser['model_mb']:.0f} MB in {ser['build_ms']:.1f} ms = "
+                        f"{ser['model_mb'] / ser['build_ms']:.1f} GB/s against {bw[1]['copy']:.1f} GB/s of copy bandwidth "
+                        f"({ser['model_mb'] / ser['build_ms'] / bw[1]['copy'] * 100:.0f}%)." if 1 in bw else "")
+    body += [""] + [f"- {x}" for x in lines if x]
     return body
 
 

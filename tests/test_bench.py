@@ -153,7 +153,12 @@ def test_bench_build_quick(tmp_path):
     rows, summary = check_outputs(out, "build_sweep.csv", ["build_methods.png", "build_steps.png"])
     assert {(r["strategy"], r["threads"]) for r in rows} == {(s, t) for s in ("serial", "sort_middle") for t in "12"}
     assert len({r["references"] for r in rows}) == 1
-    assert "sort_middle" in summary and "Memory floor" in summary
+    assert "sort_middle" in summary and "Memory traffic" in summary
+    # the traffic model's columns ride along in the CSV; its total is the sum of its stages
+    for r in rows:
+        stages = [k for k in r if k.endswith("_mb") and k != "model_mb" and r[k] != ""]
+        assert {"bounds_mb", "count_mb", "scatter_mb", "macro_mb"} <= set(stages)
+        assert abs(float(r["model_mb"]) - sum(float(r[k]) for k in stages)) < 1e-6 * float(r["model_mb"]) + 1e-9
 
 
 def test_bench_frame_quick(tmp_path):

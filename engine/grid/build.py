@@ -258,8 +258,10 @@ class GridBuilder:
             if strategy.parallel_stages and threads > 1:
                 looked = np.zeros(threads, np.int64)
                 common.macro_build_parallel(bufs.count, spec.dims, spec.macro, spec.mdims, bufs.macro_full, threads, looked)
+                inspected = int(looked.sum())
             else:
-                common.macro_build_range(bufs.count, spec.dims, spec.macro, spec.mdims, bufs.macro_full, 0, spec.n_macro)
+                inspected = common.macro_build_range(bufs.count, spec.dims, spec.macro, spec.mdims, bufs.macro_full, 0,
+                                                     spec.n_macro)
         bufs.prev_spec = spec
         bufs.prev_layers = layers
 
@@ -274,6 +276,7 @@ class GridBuilder:
             references=int(refs),
             refs_per_tri=refs / F,
             cells_cleared=cleared,
+            cells_inspected=inspected,
             macro_cells=spec.n_macro,
             macro_full=int(bufs.macro_full.sum()),
             dims="x".join(str(int(d)) for d in spec.dims),

@@ -26,6 +26,7 @@ from ..errors import InputError
 from ..threads import check_threads
 from .build import GridBuilder
 from .registry import get_builder
+from .traffic import stage_bytes
 
 #: the seed's three stages, in plot order
 STAGES = ("clear_ms", "insert_ms", "macro_ms")
@@ -203,6 +204,14 @@ def _row(scene_name, p, samples, runs, cores):
         row[k + "_max"] = float(v.max())
     if any("lock_waits" in s for s in samples):
         row["lock_waits"] = float(np.median([s.get("lock_waits", 0) for s in samples]))
+    for k in ("cells_cleared", "cells_inspected", "macro_cells", "bucket_entries"):
+        if any(k in s for s in samples):
+            row[k] = int(np.median([s.get(k, 0) for s in samples]))
+    model = stage_bytes(row)
+    if model is not None:
+        row["model_mb"] = sum(model.values()) / 1e6
+        for k, v in model.items():
+            row[k[:-3] + "_mb"] = v / 1e6
     return row
 
 

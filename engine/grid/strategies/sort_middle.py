@@ -89,13 +89,15 @@ def _count_bucket(tris, rng, lo, cell, dims, exact, T, zmod, jt, bucket, count):
         f = bucket[r]
         i0, j0, k0, i1, j1, k1 = rng[f, 0], rng[f, 1], rng[f, 2], rng[f, 3], rng[f, 4], rng[f, 5]
         d = jt - zmod[k0]
-        for k in range(k0 + (d + T if d < 0 else d), k1 + 1, T):
+        k = k0 + (d + T if d < 0 else d)  # first owned layer; a while loop: range(.., T) divides
+        while k <= k1:
             for j in range(j0, j1 + 1):
                 base = k * nxy + j * nx
                 for i in range(i0, i1 + 1):
                     if exact and not cell_overlaps(tris, f, i, j, k, lo, cell):
                         continue
                     count[base + i] += 1
+            k += T
 
 
 @njit(cache=True, parallel=True)
@@ -119,7 +121,8 @@ def _scatter_bucket(tris, rng, lo, cell, dims, exact, T, zmod, jt, bucket, start
         f = bucket[r]
         i0, j0, k0, i1, j1, k1 = rng[f, 0], rng[f, 1], rng[f, 2], rng[f, 3], rng[f, 4], rng[f, 5]
         d = jt - zmod[k0]
-        for k in range(k0 + (d + T if d < 0 else d), k1 + 1, T):
+        k = k0 + (d + T if d < 0 else d)
+        while k <= k1:
             for j in range(j0, j1 + 1):
                 base = k * nxy + j * nx
                 for i in range(i0, i1 + 1):
@@ -129,6 +132,7 @@ def _scatter_bucket(tris, rng, lo, cell, dims, exact, T, zmod, jt, bucket, start
                     p = start[c] - 1
                     start[c] = p
                     tri_ids[p] = f
+            k += T
 
 
 @njit(cache=True, parallel=True)
@@ -161,6 +165,7 @@ class SortMiddle(Strategy):
             lcount = np.empty((T, T), np.int64)
             zmod = np.arange(spec.dims[2], dtype=np.int64) % T
             ranges_and_buckets(tris, spec.lo, spec.inv_cell, spec.dims, T, zmod, rng, lists, lcount)
+        times["bucket_entries"] = int(lcount.sum())  # a count riding along with the stage times
         with timed(times, "count_ms"):
             count_owned(tris, rng, spec.lo, spec.cell, spec.dims, exact, T, zmod, lists, lcount, count)
         with timed(times, "scan_ms"):
