@@ -146,8 +146,13 @@ BOUNDARIES = {
                                                            ["test_guard_reference_overflow_tripwire"]),
     "engine.grid.strategies.sort_last_locks:_SortLastLocked.insert": (
         "internal: lock arrays sized by the lock granularity", ["test_guard_reference_overflow_tripwire"]),
+    "engine.grid.strategies.shared:parallel_scan_exclusive": ("internal: guards the int32 total (check_total)",
+                                                              ["test_guard_reference_overflow_tripwire"]),
     "engine.grid.strategies.sort_middle:SortMiddle.insert": (
-        "internal: bucket entries checked against int32", ["test_guard_reference_overflow_tripwire"]),
+        "internal: (T, F) bucket lists checked against max_bytes; the z % T table sized dims[2]",
+        ["test_guard_reference_overflow_tripwire", "test_guard_memory_budget_before_allocation"]),
+    "engine.grid.traffic:stream_bandwidth": ("mib, runs and thread counts checked; streams buffers it allocates",
+                                             ["test_guard_stream_bandwidth"]),
     "engine.grid.strategies.thread_grids:_insert_layers": ("internal, as serial, one layer per thread",
                                                            ["test_guard_reference_overflow_tripwire"]),
     "engine.grid.strategies.thread_grids:ThreadGridsMerge.insert": (
@@ -233,6 +238,7 @@ def install_tripwires(mp, allow=()):
     import engine.scene  # noqa: F401  (load every module that binds a kernel)
     import engine.grid.strategies  # noqa: F401
     import engine.trace.render  # noqa: F401
+    import engine.grid.traffic  # noqa: F401
 
     patched = []
     for name in entry_kernels():
@@ -370,7 +376,7 @@ def test_guard_build_params(tripwires):
 #: strategy -> (module, count kernel, [kernels that run after the total is known])
 COUNT_STAGE = {
     "serial": ("engine.grid.strategies.serial", "count_serial", ["scatter_serial"]),
-    "counting": ("engine.grid.strategies.counting", "count_atomic", ["scatter_atomic"]),
+    "counting": ("engine.grid.strategies.counting", "count_atomic", ["scatter_ranked"]),
     "global_lock": ("engine.grid.strategies.sort_last_locks", "count_locked", ["scatter_locked"]),
     "cell_locks": ("engine.grid.strategies.sort_last_locks", "count_locked", ["scatter_locked"]),
     "lock_pool": ("engine.grid.strategies.sort_last_locks", "count_locked", ["scatter_locked"]),
@@ -400,7 +406,7 @@ def test_guard_reference_overflow_tripwire(monkeypatch, strategy):
 
     def fake_count(*args):
         count = args[-2] if count_name in ("count_slabs", "count_layers") else args[-1]
-        if count_name == "count_locked":
+        if count_name in ("count_locked", "count_atomic"):  # count_atomic(..., count, ranks)
             count = args[-2]
         flat = count.reshape(-1)
         flat[0] = (1 << 30) + 7
@@ -472,6 +478,15 @@ def test_guard_memory_budget_before_allocation(monkeypatch, strategy):
         monkeypatch.setattr(mod, k, lambda *a, _k=k, **kw: (_ for _ in ()).throw(KernelCalled(f"{_k} ran")))
     with pytest.raises(InputError, match="max_bytes"):  # 60 x 64000 references x 4 B = 14.6 MiB
         build_grid(tris, GridParams(strategy=strategy, threads=2, density=1e12, max_cells=1 << 16, max_bytes=8 << 20))
+
+
+@pytest.mark.parametrize("kw,match", [(dict(mib=0), "mib"), (dict(mib=1.5), "mib"), (dict(mib=1, runs=0), "runs"),
+                                      (dict(mib=1, threads=(0,)), "thread"), (dict(mib=1, threads=(10**6,)), "thread")])
+def test_guard_stream_bandwidth(tripwires, kw, match):
+    from engine.grid.traffic import stream_bandwidth
+
+    with pytest.raises(InputError, match=match):
+        stream_bandwidth(**kw)
 
 
 def test_guard_cast_rays(good_grid, tripwires):
