@@ -70,6 +70,10 @@ def add_parser(sub):
     b.add_argument("--insert", choices=("bbox", "exact"), default="bbox", help="insertion test (default bbox)")
     b.add_argument("--lambda", dest="density", type=float, default=4.0, help="grid density (default 4)")
     b.add_argument("--macro", type=int, default=4, help="macro-cell edge in cells (default 4)")
+    b.add_argument("--back-to-back", action="store_true",
+                   help="build each configuration's frames in a row, as a viewer rebuilds with one builder (its "
+                        "buffers stay in cache); default: strategies round-robin, fairer under host noise but "
+                        "every build of a large scene starts with its buffers out of cache")
     b.set_defaults(func=run_build)
 
     f = bsub.add_parser("frame", help="rebuild + render per frame at 1024x1024 per scene, 1 thread and all cores")
@@ -251,7 +255,7 @@ def run_build(a):
         sc = resolve_scene(spec)
         scenes[sc.label] = sc.scene
     rows = run_build_sweep(scenes, strategies, threads, runs=runs, warmup=warmup, out_dir=out,
-                           progress=not a.no_progress, params=params)
+                           progress=not a.no_progress, params=params, interleave=not a.back_to_back)
     from engine.grid.traffic import stream_bandwidth
 
     mib = 16 if a.quick else 256
@@ -259,7 +263,7 @@ def run_build(a):
     info["stream_gbs"] = {str(t): {k: round(v, 2) for k, v in d.items()} for t, d in bw.items()}
     finish_machine(info)
     write_json(info, out / "machine.json")
-    body = _build_summary(rows, scenes, strategies, threads, runs, warmup, params, bw, mib)
+    body = _build_summary(rows, scenes, strategies, threads, runs, warmup, params, bw, mib, a.back_to_back)
     if note:
         body += ["", f"Note: {note}."]
     write_summary(out / "summary.md", "gridrt bench build", info,
@@ -272,9 +276,11 @@ def run_build(a):
     return 0
 
 
-def _build_summary(rows, scenes, strategies, threads, runs, warmup, params, bw, mib):
+def _build_summary(rows, scenes, strategies, threads, runs, warmup, params, bw, mib, back_to_back=False):
+    order = ("each configuration's builds back to back, one builder, as in a viewer" if back_to_back
+             else "strategies interleaved round-robin, so a large scene's buffers are out of cache at each build")
     body = [f"Grid builds per configuration: {warmup} warm-up + {runs} timed (animated scenes advance 1/30 s "
-            f"per build; strategies interleaved round-robin); insertion {params.insert}, lambda {params.density:g}, "
+            f"per build; {order}); insertion {params.insert}, lambda {params.density:g}, "
             f"macro {params.macro}.  Cells: build ms median [min-max].  Speed-up: serial at 1 thread / this.", ""]
     for sc in scenes:
         rs = [r for r in rows if r["scene"] == sc]
@@ -333,7 +339,7 @@ def _traffic_scene(rows, sc, threads, bw):
             "if memory bandwidth were its only limit.", ""]
     table = []
     for s in MODELLED:
-        for t in threads:
+        for t in threads if s != "serial" else threads[:1]:  # serial runs one thread whatever it is given
             r = next((r for r in rows if r["scene"] == sc and r["strategy"] == s and r["threads"] == t), None)
             if r is None or not r.get("model_mb"):
                 continue

@@ -26,39 +26,45 @@ from .shared import parallel_scan, part, scratch
 
 
 @njit(cache=True, _nrt=False)
-def _bucket_rows(rng, f0, T, zmod, lists, n):
-    """Bucket the triangles f0.. (rng: their rows) into lists[j, c0 + n[j]], n (T,) int64 the
-    running counts of this thread's buckets, c0 its first column.
+def _bucket_rows(rng, f0, T, zmod, flat_lists, pos):
+    """Bucket the triangles f0.. (rng: their rows): triangle f goes to flat_lists[pos[j]] for
+    every bucket j it belongs to; pos (T,) int64 holds each bucket's next slot (flat index into
+    the (T, F) buffer) and moves on by one per entry.
 
-    Branch-free: every bucket j gets a store and its count moves on only when the range's
-    layers k0..k1 include one with z % T == j, so a mix of one- and two-layer triangles costs no
-    mispredictions.  The store lands inside the thread's block of columns (count <= triangles
+    Branch-free: every bucket j gets a store and its slot moves on only when the range's layers
+    k0..k1 include one with z % T == j, so a mix of one- and two-layer triangles costs no
+    mispredictions.  The store lands inside the thread's block of the row (entries <= triangles
     so far).  zmod[z] = z % T: an integer division per triangle would cost more than the rest."""
     for r in range(rng.shape[0]):
         k0 = rng[r, 2]
         span = rng[r, 5] - k0 + 1  # 0 for an empty range
         km = zmod[k0]
+        f = np.int32(f0 + r)
         for j in range(T):
             d = j - km
             d = d + T if d < 0 else d
-            lists[j, n[T + 0] + n[j]] = f0 + r
-            n[j] += 1 if d < span else 0
+            p = pos[j]
+            flat_lists[p] = f
+            pos[j] = p + (1 if d < span else 0)
 
 
 @njit(cache=True)
 def _ranges_buckets_block(flat, f0, f1, lo, inv_cell, dims, T, zmod, rng, lists, lcount, t):
     """Cell ranges of triangles f0..f1-1 (flat: all coordinates) into rng, and their buckets,
     16 triangles at a time so the bucket pass reads ranges still in L1; lcount[:, t] = sizes."""
-    n = np.zeros(T + 1, np.int64)  # T running counts, then the block's first column
-    n[T] = f0
+    F = lists.shape[1]
+    pos = np.empty(T, np.int64)
+    for j in range(T):
+        pos[j] = j * F + f0
+    flat_lists = lists.reshape(lists.size)
     out = rng.reshape(rng.size)
     B = RANGE_LANES
     for g0 in range(f0, f1, B):
         g1 = min(g0 + B, f1)
         cell_ranges_into(flat[9 * g0:9 * g1], lo, inv_cell, dims, out[6 * g0:6 * g1])
-        _bucket_rows(rng[g0:g1], g0, T, zmod, lists, n)
+        _bucket_rows(rng[g0:g1], g0, T, zmod, flat_lists, pos)
     for j in range(T):
-        lcount[j, t] = n[j]
+        lcount[j, t] = pos[j] - (j * F + f0)
 
 
 @njit(cache=True, parallel=True)
