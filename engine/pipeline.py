@@ -9,6 +9,7 @@ import numpy as np
 from .camera import Camera
 from .config import GridParams, RenderParams
 from .grid.build import GridBuilder
+from .threads import use_threads
 from .trace.render import Renderer
 
 #: columns every stats row has, in this order (the dump's stats.csv header starts with them)
@@ -108,6 +109,9 @@ class FramePipeline:
         """Render the scene at time t; returns a Frame. ``camera`` overrides the pipeline's."""
         t_frame = time.perf_counter()
         t0 = time.perf_counter()
+        # the animation's parallel kernels run at the rebuild's thread count, not at whatever count
+        # the last kernel anywhere in the process left behind (another pipeline's render, say)
+        use_threads(self.grid_params.threads)
         tris = self.scene.triangles_at(float(t))
         anim_ms = (time.perf_counter() - t0) * 1e3
         gp = self.grid_params

@@ -1005,3 +1005,32 @@ def test_make_scene_subdivides_lucy_to_6_4m():
     p = need_data("static/lucy/Lucy100k.ply")
     s = make_scene(p, subdivide=6_400_000)
     assert s.n_triangles == 6_400_000 and s.static
+
+
+def test_pipeline_animates_at_its_own_thread_count():
+    """Two pipelines of one scene at 1 and 3 threads, stepped in turn (as `gridrt bench frame`
+    does): each pipeline's animation step runs at its own thread count, not at the count the
+    other pipeline's render left behind (which made a 2-thread twist look slower than 1 thread)."""
+    import numba
+
+    from engine.config import GridParams, RenderParams
+    from engine.pipeline import FramePipeline
+    from engine.scene import make_scene
+
+    scene = make_scene("icosphere", animate="twist")
+    seen = []
+    fill = scene.triangles_at
+
+    def spy(t, out=None):
+        seen.append(numba.get_num_threads())
+        return fill(t, out)
+
+    scene.triangles_at = spy
+    pipes = {T: FramePipeline(scene, GridParams(threads=T), RenderParams(width=16, height=12, threads=T))
+             for T in (1, 3)}
+    order = []
+    for i in range(3):
+        for T in (3, 1):
+            pipes[T].step(i / 30)
+            order.append(T)
+    assert seen == order
