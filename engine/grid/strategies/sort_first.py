@@ -14,7 +14,7 @@ Threads beyond nz get empty slabs.  Cell lists come out in ascending triangle or
 import numpy as np
 from numba import njit, prange
 
-from ..common import cell_overlaps
+from ..common import cell_overlaps, scan_into
 from ..registry import register
 from .base import Strategy, timed
 from .shared import check_total, exclusive, part, ranges
@@ -62,10 +62,9 @@ def scan_scatter_slabs(tris, rng, lo, cell, dims, exact, n_threads, base_t, coun
         z1 = part(nz, t + 1, n_threads) - 1
         if z0 > z1:
             continue
-        s = base_t[t]
-        for c in range(z0 * nxy, (z1 + 1) * nxy):
-            s += count[c]
-            start[c] = s
+        a = z0 * nxy
+        b = (z1 + 1) * nxy
+        scan_into(count[a:b], base_t[t], start[a:b])  # slices: the loop starts at 0 and vectorizes
         for f in range(F - 1, -1, -1):
             if rng[f, 5] < z0 or rng[f, 2] > z1:
                 continue
