@@ -337,36 +337,37 @@ def _traffic_scene(rows, sc, threads, bw):
             "element once per pass that touches it, so it is a floor), the time measured, and the rate that "
             "makes.  'floor ms' = bytes / the copy bandwidth at that thread count: the time the stage would take "
             "if memory bandwidth were its only limit.", ""]
+    def row(strategy, t):
+        return next((r for r in rows if r["scene"] == sc and r["strategy"] == strategy and r["threads"] == t
+                     and r.get("model_mb")), None)
+
+    def rate(r, t):
+        gbs = r["model_mb"] / r["build_ms"]
+        return (f"moving {r['model_mb']:.0f} MB in {r['build_ms']:.1f} ms = {gbs:.1f} GB/s against "
+                f"{bw[t]['copy']:.1f} GB/s of copy bandwidth ({gbs / bw[t]['copy'] * 100:.0f}%)")
+
     table = []
     for s in MODELLED:
         for t in threads if s != "serial" else threads[:1]:  # serial runs one thread whatever it is given
-            r = next((r for r in rows if r["scene"] == sc and r["strategy"] == s and r["threads"] == t), None)
-            if r is None or not r.get("model_mb"):
+            r = row(s, t)
+            if r is None:
                 continue
             stages = [k[:-3] for k in r if k.endswith("_mb") and k != "model_mb"]
             for st in stages + ["build"]:
                 mb = r["model_mb"] if st == "build" else r[st + "_mb"]
-                ms = r[st + "_ms"] if st != "build" else r["build_ms"]
-                floor = mb / 1e3 / bw[t]["copy"] * 1e3
+                ms = r[st + "_ms"]
                 table.append([s if st == stages[0] else "", str(t) if st == stages[0] else "",
                               "**total**" if st == "build" else st, f"{mb:.1f}", f"{ms:.2f}",
-                              f"{mb / ms:.1f}" if ms > 0 else "-", f"{floor:.2f}"])
+                              f"{mb / ms:.1f}" if ms > 0 else "-", f"{mb / bw[t]['copy']:.2f}"])
     body += md_table(["strategy", "threads", "stage", "MB moved", "ms", "GB/s achieved", "floor ms"], table)
     tmax = max(threads)
-    ser = next((r for r in rows if r["scene"] == sc and r["strategy"] == "serial" and r["threads"] == 1), None)
-    lines = []
+    ser = row("serial", 1)
+    lines = [f"serial at 1 thread: {rate(ser, 1)}."] if ser is not None else []
     for s in ("counting", "sort_middle"):
-        r = next((r for r in rows if r["scene"] == sc and r["strategy"] == s and r["threads"] == tmax), None)
-        if r is None or ser is None or not r.get("model_mb"):
-            continue
-        lines.append(f"{s} at {tmax} threads: {ser['build_ms'] / r['build_ms']:.2f}x serial, moving "
-                     f"{r['model_mb']:.0f} MB in {r['build_ms']:.1f} ms = {r['model_mb'] / r['build_ms']:.1f} GB/s "
-                     f"against {bw[tmax]['copy']:.1f} GB/s of copy bandwidth ({r['model_mb'] / r['build_ms'] / bw[tmax]['copy'] * 100:.0f}%).")
-    if ser is not None and ser.get("model_mb"):
-        lines.insert(0, f"serial at 1 thread moves {ser['model_mb']:.0f} MB in {ser['build_ms']:.1f} ms = "
-                        f"{ser['model_mb'] / ser['build_ms']:.1f} GB/s against {bw[1]['copy']:.1f} GB/s of copy bandwidth "
-                        f"({ser['model_mb'] / ser['build_ms'] / bw[1]['copy'] * 100:.0f}%)." if 1 in bw else "")
-    body += [""] + [f"- {x}" for x in lines if x]
+        r = row(s, tmax)
+        if r is not None and ser is not None:
+            lines.append(f"{s} at {tmax} threads: {ser['build_ms'] / r['build_ms']:.2f}x serial, {rate(r, tmax)}.")
+    body += [""] + [f"- {x}" for x in lines]
     return body
 
 

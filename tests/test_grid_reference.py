@@ -356,12 +356,22 @@ def test_scene_bounds_equal_numpy(F, chunks):
 @pytest.mark.parametrize("F", [1, 15, 16, 17, 1001])
 @pytest.mark.parametrize("threads", [1, 2, 3, 16])
 def test_cell_ranges_equal_scalar_definition(F, threads):
-    """The vectorized cell-range pass (16-triangle blocks, clamp-then-truncate) equals the scalar
-    tri_cell_range (floor-then-clamp) for every triangle: random ones, degenerate ones (repeated
-    and collinear vertices), ones outside the grid on both sides (clamped), and vertices exactly
-    on cell faces, where the EPS growth decides."""
-    from engine.grid.common import tri_cell_range
+    """The vectorized cell-range pass (16-triangle blocks, clamp-then-truncate) equals the range's
+    written definition, computed here one triangle at a time in numpy float64: floor((x - lo) *
+    inv_cell -/+ EPS) of the bounding box, clamped to the grid, and the empty range
+    (0, 0, 0, -1, -1, -1) for a triangle of exactly zero area.  Random triangles, degenerate ones
+    (repeated and collinear vertices), ones outside the grid on both sides (clamped), and vertices
+    exactly on cell faces, where the EPS growth decides."""
+    from engine.grid.layout import INSERT_EPS
     from engine.grid.strategies.shared import cell_ranges
+
+    def scalar_range(tri):
+        v = tri.astype(np.float64)
+        if not np.cross(v[1] - v[0], v[2] - v[0]).any():
+            return [0, 0, 0, -1, -1, -1]
+        r0 = np.floor((v.min(axis=0) - lo) * inv_cell - INSERT_EPS).astype(np.int64)
+        r1 = np.floor((v.max(axis=0) - lo) * inv_cell + INSERT_EPS).astype(np.int64)
+        return list(np.clip(r0, 0, dims - 1)) + list(np.clip(r1, 0, dims - 1))
 
     rng = np.random.default_rng(F * 7 + threads)
     lo = np.array([-1.0, -2.0, 0.5])
@@ -375,6 +385,6 @@ def test_cell_ranges_equal_scalar_definition(F, threads):
     t[::7, 2] = 2 * t[::7, 1] - t[::7, 0]  # collinear (exact in float32 for these values or not: both paths agree)
     out = np.full((F, 6), 99, np.int32)
     cell_ranges(t, lo, inv_cell, dims, threads, out)
-    want = np.array([tri_cell_range(t, f, lo, inv_cell, dims) for f in range(F)], np.int32)
+    want = np.array([scalar_range(t[f]) for f in range(F)], np.int32)
     assert np.array_equal(out, want)
     assert (want[::5, 3] == -1).all()  # the repeated-vertex triangles really are degenerate

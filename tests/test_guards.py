@@ -132,22 +132,20 @@ BOUNDARIES = {
         ["test_guard_build_nonfinite_every_strategy", "test_refused_build_leaves_builder_usable",
          "test_guard_memory_budget_before_allocation"]),
     "engine.grid.strategies.serial:Serial.insert": (
-        "internal: cell ranges clamped to dims in tri_cell_range; tri_ids sized by the counted total, which must "
-        "fit int32; assumes the count buffer is zero", ["test_guard_reference_overflow_tripwire",
+        "internal: cell ranges clamped to dims in the range pass (common._ranges_block); tri_ids sized by the "
+        "counted total, which must fit int32; assumes the count buffer is zero", ["test_guard_reference_overflow_tripwire",
                                                         "test_guard_reference_overflow_real",
                                                         "test_refused_build_leaves_builder_usable"]),
     "engine.grid.strategies.counting:Counting.insert": ("internal, as serial",
                                                         ["test_guard_reference_overflow_tripwire"]),
     "engine.grid.strategies.shared:ranges": ("internal: rng scratch sized (F, 6)",
                                              ["test_guard_reference_overflow_tripwire"]),
-    "engine.grid.strategies.shared:parallel_scan": ("internal: guards the int32 total (check_total)",
-                                                    ["test_guard_reference_overflow_tripwire"]),
+    "engine.grid.strategies.shared:_scan": ("internal: guards the int32 total (check_total)",
+                                            ["test_guard_reference_overflow_tripwire"]),
     "engine.grid.strategies.sort_first:SortFirst.insert": ("internal, as serial",
                                                            ["test_guard_reference_overflow_tripwire"]),
     "engine.grid.strategies.sort_last_locks:_SortLastLocked.insert": (
         "internal: lock arrays sized by the lock granularity", ["test_guard_reference_overflow_tripwire"]),
-    "engine.grid.strategies.shared:parallel_scan_exclusive": ("internal: guards the int32 total (check_total)",
-                                                              ["test_guard_reference_overflow_tripwire"]),
     "engine.grid.strategies.sort_middle:SortMiddle.insert": (
         "internal: (T, F) bucket lists checked against max_bytes; the z % T table sized dims[2]",
         ["test_guard_reference_overflow_tripwire", "test_guard_memory_budget_before_allocation"]),

@@ -28,9 +28,8 @@ from engine.config import GridParams, RenderParams
 from engine.errors import InputError
 from engine.grid import GridBuilder, get_builder, names
 from engine.grid.build import GridBuffers, make_spec
-from engine.grid.common import tri_cell_range
 from engine.grid.strategies.base import Strategy
-from engine.grid.strategies.shared import parallel_scan, part
+from engine.grid.strategies.shared import parallel_scan, part, ranges
 from engine.threads import max_threads, use_threads
 from engine.trace import render
 
@@ -406,13 +405,13 @@ def lost_updates(result, want_counts, want_pairs):
 
 
 @njit(parallel=True)
-def _racy_count(tris, lo, inv_cell, dims, n_threads, count):
-    F = tris.shape[0]
+def _racy_count(rng, dims, n_threads, count):
+    F = rng.shape[0]
     nx = dims[0]
     nxy = dims[0] * dims[1]
     for t in prange(n_threads):
         for f in range(part(F, t, n_threads), part(F, t + 1, n_threads)):
-            i0, j0, k0, i1, j1, k1 = tri_cell_range(tris, f, lo, inv_cell, dims)
+            i0, j0, k0, i1, j1, k1 = rng[f, 0], rng[f, 1], rng[f, 2], rng[f, 3], rng[f, 4], rng[f, 5]
             for k in range(k0, k1 + 1):
                 for j in range(j0, j1 + 1):
                     for i in range(i0, i1 + 1):
@@ -420,14 +419,14 @@ def _racy_count(tris, lo, inv_cell, dims, n_threads, count):
 
 
 @njit(parallel=True)
-def _racy_scatter(tris, lo, inv_cell, dims, n_threads, start, tri_ids):
-    F = tris.shape[0]
+def _racy_scatter(rng, dims, n_threads, start, tri_ids):
+    F = rng.shape[0]
     R_ = tri_ids.shape[0]
     nx = dims[0]
     nxy = dims[0] * dims[1]
     for t in prange(n_threads):
         for f in range(part(F, t, n_threads), part(F, t + 1, n_threads)):
-            i0, j0, k0, i1, j1, k1 = tri_cell_range(tris, f, lo, inv_cell, dims)
+            i0, j0, k0, i1, j1, k1 = rng[f, 0], rng[f, 1], rng[f, 2], rng[f, 3], rng[f, 4], rng[f, 5]
             for k in range(k0, k1 + 1):
                 for j in range(j0, j1 + 1):
                     for i in range(i0, i1 + 1):
@@ -446,9 +445,10 @@ class RacyInsert(Strategy):
     def insert(self, tris, spec, bufs, threads, exact, times):
         count = bufs.count[0]
         start = bufs.start[0]
-        _racy_count(tris, spec.lo, spec.inv_cell, spec.dims, threads, count)
+        rng = ranges(tris, spec, bufs, threads, times)  # the engine's (tested) cell-range pass
+        _racy_count(rng, spec.dims, threads, count)
         refs = parallel_scan(count, start, threads)
-        _racy_scatter(tris, spec.lo, spec.inv_cell, spec.dims, threads, start, bufs.refs(refs))
+        _racy_scatter(rng, spec.dims, threads, start, bufs.refs(refs))
         return refs
 
 

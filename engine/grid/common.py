@@ -5,8 +5,6 @@ All kernels take arrays and scalars only and write into buffers they are given. 
 coordinates are computed in float64 from the float32 triangles.
 """
 
-import math
-
 import numpy as np
 from numba import njit, prange
 
@@ -96,56 +94,19 @@ def scene_bounds_serial(tris, out):
 # triangle -> cells
 
 
-@njit(cache=True)
-def _clampi(v, lo, hi):
-    return lo if v < lo else (hi if v > hi else v)
-
-
-@njit(cache=True, _nrt=False)
-def tri_cell_range(tris, f, lo, inv_cell, dims):
-    """Inclusive cell index range (i0, j0, k0, i1, j1, k1) of triangle f's grown bounding box.
-
-    A triangle of exactly zero area (collinear or coincident vertices) gets the empty range
-    (0, 0, 0, -1, -1, -1): it has no surface to hit and goes into no cell.  The test is exact:
-    differences of float32 coordinates and their products are exact in float64, so the cross
-    product is exactly zero only for truly degenerate triangles.
-    """
-    ax = np.float64(tris[f, 0, 0])
-    bx = np.float64(tris[f, 1, 0])
-    cx = np.float64(tris[f, 2, 0])
-    ay = np.float64(tris[f, 0, 1])
-    by = np.float64(tris[f, 1, 1])
-    cy = np.float64(tris[f, 2, 1])
-    az = np.float64(tris[f, 0, 2])
-    bz = np.float64(tris[f, 1, 2])
-    cz = np.float64(tris[f, 2, 2])
-    ux, uy, uz = bx - ax, by - ay, bz - az
-    vx, vy, vz = cx - ax, cy - ay, cz - az
-    if uy * vz == uz * vy and uz * vx == ux * vz and ux * vy == uy * vx:
-        return 0, 0, 0, -1, -1, -1
-    i0 = int(math.floor((min(ax, bx, cx) - lo[0]) * inv_cell[0] - EPS))
-    i1 = int(math.floor((max(ax, bx, cx) - lo[0]) * inv_cell[0] + EPS))
-    j0 = int(math.floor((min(ay, by, cy) - lo[1]) * inv_cell[1] - EPS))
-    j1 = int(math.floor((max(ay, by, cy) - lo[1]) * inv_cell[1] + EPS))
-    k0 = int(math.floor((min(az, bz, cz) - lo[2]) * inv_cell[2] - EPS))
-    k1 = int(math.floor((max(az, bz, cz) - lo[2]) * inv_cell[2] + EPS))
-    nx, ny, nz = dims[0], dims[1], dims[2]
-    return (
-        _clampi(i0, 0, nx - 1),
-        _clampi(j0, 0, ny - 1),
-        _clampi(k0, 0, nz - 1),
-        _clampi(i1, 0, nx - 1),
-        _clampi(j1, 0, ny - 1),
-        _clampi(k1, 0, nz - 1),
-    )
-
-
 RANGE_LANES = 16  # triangles per block of the vectorized cell-range pass
 
 
 @njit(cache=True, _nrt=False)
 def _ranges_block(flat, n, lx, ly, lz, ix, iy, iz, mx, my, mz, out):
-    """tri_cell_range for n <= RANGE_LANES triangles: flat (9n,) float32 slice, out (6n,) int32.
+    """Cell ranges of n <= RANGE_LANES triangles: flat (9n,) float32 slice, out (6n,) int32, six
+    values per triangle, (i0, j0, k0, i1, j1, k1), the inclusive range of cells its bounding box
+    overlaps, grown by EPS cells and clamped to the grid: floor((x - lo) * inv_cell -/+ EPS).
+
+    A triangle of exactly zero area (collinear or coincident vertices) gets the empty range
+    (0, 0, 0, -1, -1, -1): it has no surface to hit and goes into no cell.  The test is exact:
+    differences of float32 coordinates and their products are exact in float64, so the cross
+    product is exactly zero only for truly degenerate triangles.
 
     Branch-free over a short loop that starts at 0, so LLVM vectorizes it across triangles
     (about 4x the scalar speed).  Clamping the float cell coordinate to [0, dims-1] and then
@@ -181,8 +142,8 @@ def _ranges_block(flat, n, lx, ly, lz, ix, iy, iz, mx, my, mz, out):
 
 @njit(cache=True, _nrt=False)
 def cell_ranges_into(flat, lo, inv_cell, dims, out):
-    """Cell ranges of the triangles in flat (9n,) float32 into out (6n,) int32, each six values
-    equal to tri_cell_range's (i0, j0, k0, i1, j1, k1).  Pass slices: loops start at 0."""
+    """Cell ranges of the triangles in flat (9n,) float32 into out (6n,) int32, six values each
+    (see _ranges_block).  Pass slices: loops start at 0."""
     F = flat.shape[0] // 9
     lx, ly, lz = lo[0], lo[1], lo[2]
     ix, iy, iz = inv_cell[0], inv_cell[1], inv_cell[2]

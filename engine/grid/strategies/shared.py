@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit, prange
 
 from ...errors import InputError
-from ..common import cell_ranges_into, scan_inclusive, scan_into, sum_of
+from ..common import cell_ranges_into, scan_into, sum_of
 from .base import timed
 
 INT32_MAX = np.iinfo(np.int32).max
@@ -33,7 +33,7 @@ def part(n, t, T):
 
 @njit(cache=True, parallel=True)
 def cell_ranges(tris, lo, inv_cell, dims, n_threads, rng):
-    """rng[f] = (i0, j0, k0, i1, j1, k1), triangle f's inclusive cell range (tri_cell_range).
+    """rng[f] = (i0, j0, k0, i1, j1, k1), triangle f's inclusive cell range (common._ranges_block).
 
     tris (F, 3, 3) float32 C-contiguous; rng (F, 6) int32 C-contiguous.  Thread t does its
     block of triangles with the vectorized common.cell_ranges_into.  The count and scatter
@@ -72,17 +72,16 @@ def block_sums(count, n_threads, sums):
 
 
 @njit(cache=True, parallel=True)
-def block_scan_inclusive(count, base, n_threads, start):
-    """start[c] = base[t] + inclusive sum of count over thread t's block up to c.
+def block_scan_inclusive(count, base, n_threads, out):
+    """out[c] = base[t] + inclusive sum of count over thread t's block up to c.
 
-    count (C,) int32, base (T,) int64 exclusive block offsets, start (C + 1,) int32 (start[C] is
-    left to the caller).  A scatter that pre-decrements start[c] leaves the CSR starts.
-    """
+    count (C,) int32, base (T,) int64 exclusive block offsets, out (C,) int32 (a view of the
+    CSR offsets, shifted by one for exclusive starts)."""
     C = count.shape[0]
     for t in prange(n_threads):
         a = part(C, t, n_threads)
         b = part(C, t + 1, n_threads)
-        scan_into(count[a:b], base[t], start[a:b])
+        scan_into(count[a:b], base[t], out[a:b])
 
 
 def check_total(total):
@@ -103,35 +102,35 @@ def exclusive(sums):
     return base, int(sums.sum())
 
 
-def parallel_scan(count, start, n_threads):
-    """Parallel inclusive scan of count (C,) int32 into start (C + 1,) int32; returns the total.
-
-    Two passes over the counts (reduce, then scan) instead of serial's one, so with one thread
-    it runs the one-pass serial scan: the same work, 2x less memory traffic."""
+def _scan(count, out, n_threads):
+    """Inclusive scan of count (C,) int32 into out (C,) int32 (a view into the CSR offsets), in
+    parallel: per-thread block sums, then per-block scans from the blocks' offsets.  Two passes
+    over the counts instead of one, so one thread runs the one-pass serial scan.  Returns the
+    total after checking it fits int32."""
     if n_threads == 1:
-        return check_total(scan_inclusive(count, start))
+        return check_total(scan_into(count, 0, out))
     sums = np.empty(n_threads, np.int64)
     block_sums(count, n_threads, sums)
     base, total = exclusive(sums)
     check_total(total)
-    block_scan_inclusive(count, base, n_threads, start)
-    start[count.shape[0]] = total
+    block_scan_inclusive(count, base, n_threads, out)
+    return total
+
+
+def parallel_scan(count, start, n_threads):
+    """Inclusive ends for a pre-decrementing scatter: start[c] = count[0] + ... + count[c],
+    start[C] = total (start (C + 1,) int32); returns the total."""
+    C = count.shape[0]
+    total = _scan(count, start[:C], n_threads)
+    start[C] = total
     return total
 
 
 def parallel_scan_exclusive(count, start, n_threads):
     """CSR offsets in one go: start[0] = 0, start[c + 1] = count[0] + ... + count[c] (start
-    (C + 1,) int32), in parallel as :func:`parallel_scan`; returns the total."""
-    C = count.shape[0]
+    (C + 1,) int32); returns the total."""
     start[0] = 0
-    if n_threads == 1:
-        return check_total(scan_into(count, 0, start[1:]))
-    sums = np.empty(n_threads, np.int64)
-    block_sums(count, n_threads, sums)
-    base, total = exclusive(sums)
-    check_total(total)
-    block_scan_inclusive(count, base, n_threads, start[1:])
-    return total
+    return _scan(count, start[1:], n_threads)
 
 
 @njit(cache=True, _nrt=False)
