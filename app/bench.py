@@ -16,7 +16,6 @@ after ``--warmup`` untimed runs (numba compiles, buffers grow), with min and max
   (:mod:`app.bench_peers`).
 """
 
-import math
 import sys
 import time
 
@@ -30,7 +29,7 @@ from engine.threads import check_threads
 from engine.trace.render import Renderer
 
 from .bench_util import (
-    SCENE_HELP, check_runs, facing_camera, figure, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress,
+    SCENE_HELP, check_frame_args, check_runs, facing_camera, figure, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress,
     put_stat, resolve_scene, scene_list, stat, thread_list, write_csv, write_json, write_summary,
 )
 
@@ -395,16 +394,9 @@ def frame_strategy(name, threads):
 
 
 def run_frame(a):
-    from engine.grid.registry import get_builder
     from engine.pipeline import FramePipeline
 
-    check_runs(a.runs, a.warmup)
-    if a.size < 1:
-        raise InputError(f"--size must be positive, got {a.size}")
-    if not (math.isfinite(a.dt) and a.dt > 0):
-        raise InputError(f"--dt must be a positive number of seconds, got {a.dt}")
-    if a.strategy != "auto":
-        get_builder(a.strategy)
+    check_frame_args(a)
     travs = [t.strip() for t in a.traversal.split(",") if t.strip()]
     for t in travs:
         if t not in TRAVERSALS:

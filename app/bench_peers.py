@@ -17,7 +17,6 @@ triangle id and t within 1e-4 relative, or both miss); disagreeing rays are chec
 brute-force float64 caster to tell which side is right.
 """
 
-import math
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -26,13 +25,12 @@ import numpy as np
 
 import engine  # noqa: F401
 from engine.config import TRAVERSALS, GridParams, RenderParams
-from engine.errors import GridrtError, InputError
+from engine.errors import GridrtError
 from engine.grid.build import GridBuilder
-from engine.grid.registry import get_builder
 from engine.trace.render import Renderer, cast_rays
 
 from .bench_util import (
-    Affinity, check_runs, figure, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress, put_stat,
+    Affinity, check_frame_args, figure, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress, put_stat,
     resolve_scene, scene_camera, scene_list, thread_list, write_csv, write_json, write_summary, SCENE_HELP,
 )
 from .benchref import brute_cast
@@ -151,13 +149,7 @@ def _judge(tris, o, d, idx, t_o, f_o, t_e, f_e, threads):
 
 
 def run_peers(a):
-    check_runs(a.runs, a.warmup)
-    if a.size < 1:
-        raise InputError(f"--size must be positive, got {a.size}")
-    if not (math.isfinite(a.dt) and a.dt > 0):
-        raise InputError(f"--dt must be a positive number of seconds, got {a.dt}")
-    if a.strategy != "auto":
-        get_builder(a.strategy)
+    check_frame_args(a)
     emb = EmbreeSide(robust=not a.embree_fast)  # raises MissingPeer with the install hint
     size = 64 if a.quick else a.size
     runs, warmup = (1, 1) if a.quick else (a.runs, a.warmup)

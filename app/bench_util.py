@@ -1,7 +1,6 @@
 """Shared plumbing of ``gridrt bench``: scene specs, medians, the machine record, CSV /
 markdown / plot output, the Pareto front and CPU affinity."""
 
-import csv
 import datetime
 import json
 import math
@@ -18,6 +17,7 @@ import numpy as np
 import engine  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from engine.camera import Camera
 from engine.errors import InputError
+from engine.grid.sweep import write_csv  # noqa: F401  (one CSV writer for every benchmark)
 from engine.threads import check_threads
 
 #: ../shared/data beside the repository (real meshes; absent in a user's fresh clone)
@@ -170,6 +170,19 @@ def check_runs(runs, warmup):
         raise InputError(f"--runs must be at least 1, got {runs}")
     if warmup < 0:
         raise InputError(f"--warmup must be >= 0, got {warmup}")
+
+
+def check_frame_args(a):
+    """The options the frame-by-frame benchmarks share: --runs/--warmup, --size, --dt, --strategy."""
+    from engine.grid.registry import get_builder
+
+    check_runs(a.runs, a.warmup)
+    if a.size < 1:
+        raise InputError(f"--size must be positive, got {a.size}")
+    if not (math.isfinite(a.dt) and a.dt > 0):
+        raise InputError(f"--dt must be a positive number of seconds, got {a.dt}")
+    if a.strategy != "auto":
+        get_builder(a.strategy)
 
 
 def out_dir(path):
@@ -410,17 +423,7 @@ def machine_md(info):
 # ----------------------------------------------------------------------------------------------
 
 
-def write_csv(rows, path):
-    """Rows (dicts, possibly with different keys) to CSV; missing cells are empty."""
-    cols = []
-    for r in rows:
-        for k in r:
-            if k not in cols:
-                cols.append(k)
-    with open(path, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=cols, restval="")
-        w.writeheader()
-        w.writerows(rows)
+
 
 
 def write_json(obj, path):

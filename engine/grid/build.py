@@ -1,7 +1,6 @@
 """build_grid / GridBuilder: validate, compute the grid geometry, then clear, insert and build
 macro cells with the chosen strategy, reusing buffers from frame to frame."""
 
-import math
 import time
 import warnings
 
