@@ -2,6 +2,7 @@
 
 import argparse
 import sys
+import warnings
 
 import engine  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from engine.errors import GridrtError
@@ -32,15 +33,26 @@ def _list_strategies(a):
     return 0
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """Warnings as one line, ``gridrt: warning: ...``, without Python's source line and location."""
+    text = " ".join(str(message).split())
+    try:
+        print(f"gridrt: warning: {text}", file=sys.stderr if file is None else file, flush=True)
+    except (OSError, ValueError):  # stderr closed: as warnings.showwarning, drop it
+        pass
+
+
 def main(argv=None):
     args = build_parser().parse_args(argv)
-    try:
-        return args.func(args) or 0
-    except GridrtError as e:
-        print(f"gridrt: error: {e}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        return 130
+    with warnings.catch_warnings():  # restores the formatter when main returns (main may run in-process)
+        warnings.showwarning = _show_warning
+        try:
+            return args.func(args) or 0
+        except GridrtError as e:
+            print(f"gridrt: error: {e}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:
+            return 130
 
 
 if __name__ == "__main__":

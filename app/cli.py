@@ -3,7 +3,7 @@
 import argparse
 
 import engine  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
-from engine.camera import Camera
+from engine.camera import Camera, check_fov
 from engine.config import INSERT_MODES, SHADING_MODES, TRAVERSALS, GridParams, RenderParams
 from engine.errors import InputError
 from engine.threads import MAX_THREADS
@@ -106,6 +106,7 @@ def render_params(a):
 def camera_from_args(a):
     """An explicit camera when --eye/--target are given, else None (the pipeline frames the
     scene with --fov and --up)."""
+    check_fov(a.fov)  # also when the pipeline frames the scene: refused before the scene is loaded
     if a.eye is None and a.target is None:
         return None
     if a.eye is None or a.target is None:
@@ -116,7 +117,8 @@ def camera_from_args(a):
 def pipeline_from_args(a, scene=None):
     from engine.pipeline import FramePipeline
 
+    camera = camera_from_args(a)
     scene = scene if scene is not None else scene_from_args(a)
-    return FramePipeline(scene, grid_params(a), render_params(a), camera=camera_from_args(a),
+    return FramePipeline(scene, grid_params(a), render_params(a), camera=camera,
                          fov=a.fov, up=a.up or (0.0, 1.0, 0.0), split_static=a.split_static,
                          follow_camera=a.follow_camera)

@@ -18,14 +18,53 @@ from .errors import InputError
 FRAME_DIR = (0.55, 0.45, 1.0)
 
 
+#: largest eye/target coordinate magnitude (the scenes' own limit, engine.grid.common.BAD_MAGNITUDE)
+COORD_LIMIT = 1e30
+
+
 def _vec3(v, name):
     try:
         a = np.asarray(v, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError):
         raise InputError(f"camera {name} must be 3 numbers, got {v!r}") from None
     if a.shape != (3,) or not np.isfinite(a).all():
-        raise InputError(f"camera {name} must be 3 finite numbers, got {v!r}")
+        raise InputError(f"camera {name} must be 3 finite numbers, got {_plain(v)}")
     return a
+
+
+def _plain(v):
+    """``v`` as text with plain numbers (no ``np.float64(...)``)."""
+    try:
+        return "(" + ", ".join(f"{float(x):g}" for x in np.asarray(v, dtype=np.float64).reshape(-1)) + ")"
+    except (TypeError, ValueError):
+        return repr(v)
+
+
+def check_fov(fov):
+    """``fov`` (vertical field of view, degrees) as a float in (0, 180); InputError naming the fov otherwise."""
+    if isinstance(fov, (bool, np.bool_)):
+        raise InputError(f"camera fov must be a number of degrees, got {fov!r}")
+    try:
+        f = float(fov)
+    except (TypeError, ValueError):
+        raise InputError(f"camera fov must be a number of degrees, got {fov!r}") from None
+    if not (0.0 < f < 180.0):
+        raise InputError(f"camera fov must be between 0 and 180 degrees (exclusive), got {f:g}")
+    return f
+
+
+def _unit(v):
+    """``v / |v|``, also where ``|v|`` would overflow or underflow (then ``v`` is first scaled by its
+    largest component); None for the zero vector."""
+    with np.errstate(over="ignore", under="ignore"):
+        n = float(np.linalg.norm(v))
+    if 1e-150 < n < 1e150:
+        return v / n
+    m = float(np.abs(v).max())
+    if not m > 0:
+        return None
+    w = v / m
+    return w / float(np.linalg.norm(w))
 
 
 @njit(cache=True, _nrt=False)
@@ -69,18 +108,18 @@ class Camera:
         eye = _vec3(self.eye, "eye")
         target = _vec3(self.target, "target")
         up = _vec3(self.up, "up")
-        try:
-            fov = float(self.fov)
-        except (TypeError, ValueError):
-            raise InputError(f"camera fov must be a number of degrees, got {self.fov!r}") from None
-        if not (0.0 < fov < 180.0):
-            raise InputError(f"camera fov must be between 0 and 180 degrees (exclusive), got {fov}")
-        fwd = target - eye
-        if not np.linalg.norm(fwd) > 0:
+        fov = check_fov(self.fov)
+        for name, p in (("eye", eye), ("target", target)):
+            if np.abs(p).max() > COORD_LIMIT:
+                raise InputError(f"camera {name} {_plain(p)} is beyond the coordinate limit of "
+                                 f"{COORD_LIMIT:g} (the limit for scene coordinates too)")
+        fwd = _unit(target - eye)
+        if fwd is None:
             raise InputError("camera eye and target coincide")
-        if not np.linalg.norm(up) > 0:
+        u = _unit(up)
+        if u is None:
             raise InputError("camera up vector is zero")
-        if np.linalg.norm(np.cross(fwd / np.linalg.norm(fwd), up / np.linalg.norm(up))) < 1e-9:
+        if np.linalg.norm(np.cross(fwd, u)) < 1e-9:
             raise InputError("camera up vector is parallel to the viewing direction")
         object.__setattr__(self, "eye", tuple(eye.tolist()))
         object.__setattr__(self, "target", tuple(target.tolist()))
@@ -91,24 +130,32 @@ class Camera:
     def frame(cls, lo, hi, fov=45.0, direction=FRAME_DIR, up=(0.0, 1.0, 0.0)):
         """A camera looking at the centre of the box [lo, hi] from ``direction``, far enough
         that the box's bounding sphere fits the vertical field of view (with a 5% margin)."""
+        fov = check_fov(fov)
         lo = np.asarray(lo, np.float64)
         hi = np.asarray(hi, np.float64)
         c = 0.5 * (lo + hi)
         r = 0.5 * float(np.linalg.norm(hi - lo))
         if r == 0:
             r = max(1e-6 * float(np.abs(c).max()), 1e-12)
-        d = np.asarray(direction, np.float64)
-        d = d / np.linalg.norm(d)
+        d = _unit(np.asarray(direction, np.float64))
+        if d is None:
+            raise InputError("camera framing direction is the zero vector")
         dist = r / math.sin(math.radians(fov) / 2) * 1.05
-        return cls(eye=tuple(c + d * dist), target=tuple(c), up=tuple(up), fov=fov)
+        eye = c + d * dist
+        if not np.abs(eye).max() <= COORD_LIMIT:
+            raise InputError(f"camera fov {fov:g} is too narrow to frame a scene {2 * r:.3g} across: the camera "
+                             f"would stand {dist:.3g} away, beyond the coordinate limit of {COORD_LIMIT:g}")
+        return cls(eye=tuple(eye.tolist()), target=tuple(c.tolist()), up=tuple(up), fov=fov)
 
     def basis(self):
         """(5, 3) float64: eye, fwd, right, up, [tan(fov/2), 0, 0] for the kernels."""
         eye = np.asarray(self.eye)
-        fwd = np.asarray(self.target) - eye
-        fwd /= np.linalg.norm(fwd)
-        right = np.cross(fwd, np.asarray(self.up))
-        right /= np.linalg.norm(right)
+        fwd = _unit(np.asarray(self.target) - eye)
+        up = np.asarray(self.up)
+        with np.errstate(over="ignore", under="ignore"):
+            if not 1e-150 < np.linalg.norm(up) < 1e150:  # a huge or tiny up vector: scale it first
+                up = _unit(up)
+        right = _unit(np.cross(fwd, up))
         up = np.cross(right, fwd)
         b = np.zeros((5, 3))
         b[0], b[1], b[2], b[3] = eye, fwd, right, up

@@ -285,6 +285,59 @@ def test_bad_camera(kw, match):
         Camera(**kw)
 
 
+@pytest.mark.parametrize("fov", [0.0, -30.0, 180.0, float("inf"), float("-inf"), float("nan"), True, "wide"])
+def test_bad_fov_is_named_by_camera_and_automatic_framing(no_kernels, fov):
+    """Both the explicit camera and automatic framing refuse a bad fov, naming the fov (automatic
+    framing once divided by sin(0) or took sin(inf): ZeroDivisionError / math domain error; a NaN fov
+    made a NaN eye, and the error blamed the eye)."""
+    for make in (lambda: Camera(fov=fov), lambda: Camera.frame((0, 0, 0), (1, 1, 1), fov=fov)):
+        with pytest.raises(InputError) as info:
+            make()
+        msg = str(info.value)
+        assert msg.startswith("camera fov") and "eye" not in msg, msg
+
+
+def test_fov_too_narrow_to_frame_the_scene_names_the_fov(no_kernels):
+    with pytest.raises(InputError, match=r"camera fov 1e-300 is too narrow to frame a scene 1\.73 across"):
+        Camera.frame((0, 0, 0), (1, 1, 1), fov=1e-300)
+    cam = Camera.frame((0, 0, 0), (1, 1, 1), fov=1e-20)  # 1e22 away: still inside the coordinate limit
+    dist = 0.5 * np.sqrt(3.0) / np.sin(np.radians(1e-20) / 2) * 1.05
+    assert np.linalg.norm(np.subtract(cam.eye, cam.target)) == pytest.approx(dist, rel=1e-12) and dist > 1e22
+
+
+@pytest.mark.parametrize("name", ["eye", "target"])
+def test_camera_beyond_the_coordinate_limit_names_the_point_not_the_up_vector(no_kernels, name):
+    """An eye at 1e308 once overflowed the viewing direction's norm, and the error said the up vector
+    was parallel to the viewing direction."""
+    kw = {"eye": (0.0, 0.0, 5.0), "target": (0.0, 0.0, 0.0), name: (1e308, 0.0, 0.0)}
+    with pytest.raises(InputError) as info:
+        Camera(**kw)
+    msg = str(info.value)
+    assert msg.startswith(f"camera {name} (1e+308, 0, 0) is beyond the coordinate limit of 1e+30"), msg
+    assert "up" not in msg
+    Camera(**{**kw, name: (1e30, 0.0, 0.0)})  # at the limit: accepted
+
+
+def test_camera_basis_is_exact_and_survives_extreme_vectors():
+    """Ordinary cameras keep the documented formula bit for bit; a huge or tiny up vector and eye and
+    target 1e30 apart (whose squared norms overflow / underflow) give the same basis as a unit one."""
+    eye, target, up = np.array([0.5, 4.0, 14.0]), np.array([0.0, 0.8, 0.0]), np.array([0.0, 1.0, 0.0])
+    b = Camera(eye=tuple(eye), target=tuple(target), up=tuple(up), fov=50.0).basis()
+    fwd = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(fwd, up) / np.linalg.norm(np.cross(fwd, up))
+    np.testing.assert_array_equal(b[:4], [eye, fwd, right, np.cross(right, fwd)])
+    assert b[4, 0] == np.tan(np.radians(50.0) / 2)
+    unit = Camera(eye=(3.0, 0.0, 0.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 1.0)).basis()
+    for up_ in [(0.0, 1e300, 1e300), (0.0, 1e-300, 1e-300)]:
+        np.testing.assert_allclose(Camera(eye=(3.0, 0.0, 0.0), target=(0.0, 0.0, 0.0), up=up_).basis(), unit,
+                                   rtol=0, atol=1e-15)
+    far = Camera(eye=(1e30, 0.0, 0.0), target=(-1e30, 0.0, 0.0), up=(0.0, 1e300, 1e300)).basis()
+    np.testing.assert_allclose(far[1:4], [[-1, 0, 0], [0, _H, -_H], [0, _H, _H]], rtol=0, atol=1e-15)
+
+
+_H = np.sqrt(0.5)
+
+
 # ----------------------------------------------------------------------------------------------
 # rays
 

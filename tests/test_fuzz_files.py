@@ -1,13 +1,16 @@
 """Malformed, truncated and mutated scene files: every failure is a SceneFileError naming the file.
 
 Hand-written broken files check the message for each kind of problem; hypothesis then truncates
-and mutates valid files of every animated format (glTF .glb/.gltf, BART .aff, MD2, OBJ frame
-folders): each mutant either loads into finite triangles or raises SceneFileError whose path is the
-file (or a file it refers to), never another exception, within a time bound per example.
+and mutates valid files of every format (glTF .glb/.gltf, BART .aff, MD2, OBJ frame folders, static
+OBJ/OFF/PLY/STL): each mutant either loads into finite triangles or raises SceneFileError whose path
+is the file (or a file it refers to), never another exception, within a time bound per example, and
+without a numpy RuntimeWarning (the command line would print it before its one-line error).
 """
 
 import json
+import re
 import struct
+import warnings
 
 import numpy as np
 import pytest
@@ -20,6 +23,8 @@ from engine.scene import make_scene
 
 from test_gltf import Builder, write_arm, TRI_V, TRI_F  # noqa: E402
 from test_md2_frames import write_md2, write_obj, grid_frame, GRID_F  # noqa: E402
+from test_scene import OCTA_F, OCTA_T, OCTA_V, write_off, write_ply_ascii, write_ply_binary, write_stl_ascii  # noqa: E402
+from test_scene import write_stl_binary  # noqa: E402
 
 FUZZ = settings(max_examples=40, deadline=3000, derandomize=True,
                 suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
@@ -234,6 +239,15 @@ def seed_files(tmp):
     for k in range(3):
         write_obj(frames / f"f{k:03d}.obj", grid_frame(k), GRID_F)
     out["frames"] = (frames, [frames / "f001.obj"])
+    static = tmp / "static"
+    static.mkdir()
+    for name, write in (("obj", lambda q: write_obj(q, OCTA_V, OCTA_F)), ("off", lambda q: write_off(q, OCTA_V, OCTA_F)),
+                        ("ply", lambda q: write_ply_ascii(q, OCTA_V, OCTA_F)),
+                        ("PLY", lambda q: write_ply_binary(q, OCTA_V, OCTA_F)),
+                        ("stl", lambda q: write_stl_ascii(q, OCTA_T)), ("STL", lambda q: write_stl_binary(q, OCTA_T))):
+        q = static / f"octa_{name}.{name}"
+        write(q)
+        out[f"{name}-{'binary' if name.isupper() else 'text'}"] = (q, [q])
     return out
 
 
@@ -247,19 +261,29 @@ def seeds(tmp_path_factory):
 
 
 def check_outcome(path, targets):
-    try:
-        s = make_scene(path)
-        tris = s.triangles_at(0.37)
-        assert np.isfinite(tris).all()
-    except SceneFileError as e:
-        allowed = {str(path)} | {str(t) for t in targets}
-        if path.is_dir():
-            allowed |= {str(q) for q in path.iterdir()}
-        assert e.path in allowed, (e.path, allowed)
-        assert e.problem
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            s = make_scene(path)
+            tris = s.triangles_at(0.37)
+            assert np.isfinite(tris).all()
+        except SceneFileError as e:
+            allowed = {str(path)} | {str(t) for t in targets}
+            if path.is_dir():
+                allowed |= {str(q) for q in path.iterdir()}
+            assert e.path in allowed, (e.path, allowed)
+            assert e.problem
+    numpy_warnings = [f"{w.category.__name__}: {w.message} ({w.filename}:{w.lineno})" for w in caught
+                      if issubclass(w.category, RuntimeWarning)]
+    assert not numpy_warnings, numpy_warnings
 
 
-@pytest.mark.parametrize("name", ["glb", "gltf-json", "gltf-bin", "aff", "aff-include", "md2", "frames"])
+NUMBER = re.compile(rb"-?\d+(\.\d*)?([eE][-+]?\d+)?")
+EXTREMES = [b"1e300", b"-1e300", b"1e39", b"3.4e38", b"nan", b"inf", b"-1", b"0", b"1e-320", b"4294967296"]
+
+
+@pytest.mark.parametrize("name", ["glb", "gltf-json", "gltf-bin", "aff", "aff-include", "md2", "frames", "obj-text",
+                                  "off-text", "ply-text", "PLY-binary", "stl-text", "STL-binary"])
 @FUZZ
 @given(data=st.data())
 def test_truncated_or_mutated_files(seeds, name, data):
@@ -267,8 +291,14 @@ def test_truncated_or_mutated_files(seeds, name, data):
     originals = {t: t.read_bytes() for t in targets}
     try:
         for t, raw in originals.items():
-            mode = data.draw(st.sampled_from(["truncate", "flip", "splice"]), label="mode")
-            if mode == "truncate":
+            mode = data.draw(st.sampled_from(["truncate", "flip", "splice", "numbers"]), label="mode")
+            if mode == "numbers":  # numeric tokens of a text file (or digits in a binary one) made extreme
+                spans = [m.span() for m in NUMBER.finditer(raw)]
+                new = raw
+                for a, b in sorted(data.draw(st.lists(st.sampled_from(spans), min_size=1, max_size=4, unique=True),
+                                             label="tokens") if spans else [], reverse=True):
+                    new = new[:a] + data.draw(st.sampled_from(EXTREMES), label="value") + new[b:]
+            elif mode == "truncate":
                 cut = data.draw(st.integers(0, max(len(raw) - 1, 0)), label="cut")
                 new = raw[:cut]
             elif mode == "flip":

@@ -13,6 +13,7 @@ References are independent of engine.scene.gltf:
 import importlib.util
 import json
 import math
+import struct
 import warnings
 from pathlib import Path
 
@@ -319,6 +320,92 @@ def test_strip_and_fan_primitives(tmp_path):
     exp_strip = v[[[0, 1, 2], [1, 3, 2], [2, 3, 4]]]
     exp_fan = v[[[1, 3, 0], [3, 4, 0]]] + [5, 0, 0]
     np.testing.assert_allclose(got, np.concatenate([exp_strip, exp_fan]))
+
+
+def _without_indices(path):
+    tree = json.loads(path.read_text())
+    for mesh in tree["meshes"]:
+        for prim in mesh["primitives"]:
+            del prim["indices"]
+    path.write_text(json.dumps(tree))
+    return path
+
+
+def test_non_indexed_primitives(tmp_path):
+    """A primitive without indices uses its vertices in order; when they do not make whole triangles
+    the error counts vertices, not indices."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [0, 2, 0], [2, 2, 0]], dtype=np.float32)
+    b = Builder()
+    b.node(root=True, mesh=b.mesh(v, [0]))
+    b.node(root=True, mesh=b.mesh(v[:5], [0], mode=gl.TRIANGLE_STRIP), translation=[5, 0, 0])
+    s = make_scene(_without_indices(b.save(tmp_path / "plain.gltf")))
+    exp = np.concatenate([v[[[0, 1, 2], [3, 4, 5]]], v[[[0, 1, 2], [1, 3, 2], [2, 3, 4]]] + [5, 0, 0]])
+    np.testing.assert_allclose(s.triangles_at(0.0).astype(np.float64), exp)
+    b = Builder()
+    b.node(root=True, mesh=b.mesh(v[:4], [0]))
+    with pytest.raises(SceneFileError) as info:
+        make_scene(_without_indices(b.save(tmp_path / "ragged.gltf")))
+    assert info.value.problem.startswith("mesh 0 primitive 0: 4 vertices is not a multiple of 3 for TRIANGLES")
+    assert "indices" not in info.value.problem
+
+
+@pytest.mark.parametrize("asset,layout,problem", [
+    ({"version": 1.0}, None, "glTF 1.0 is not supported (asset.version is 1.0)"),
+    ({"version": 1}, None, "glTF 1.0 is not supported (asset.version is 1)"),
+    ({"version": "1.0"}, None, "glTF 1.0 is not supported (asset.version is '1.0')"),
+    ({}, "nodes", "glTF 1.0 is not supported (the file has no asset.version and 'nodes' is an object keyed by id"),
+    (None, "scene", "glTF 1.0 is not supported (the file has no asset.version and 'scene' is a name"),
+    ({"version": "3.0"}, None, "glTF version '3.0' is not supported; gridrt reads glTF 2.x only"),
+], ids=["number-1.0", "number-1", "string", "keyed-nodes", "named-scene", "3.0"])
+@pytest.mark.parametrize("ext", [".gltf", ".glb"])
+def test_gltf_version_is_checked_by_every_loader(tmp_path, asset, layout, problem, ext):
+    """A numeric asset.version (as some glTF 1.0 exporters write) once passed the check and ended in
+    "'nodes' is not a list"; load_mesh (trimesh) said "NotImplementedError: only GLTF 2 is supported"."""
+    from engine.scene import load_mesh
+
+    b = Builder()
+    b.node(root=True, mesh=b.mesh(TRI_V, TRI_F))
+    p = b.save(tmp_path / f"tri{ext}")
+    tree = json.loads(b.g.to_json() if ext == ".glb" else p.read_text())
+
+    def write(tree):
+        if ext == ".gltf":
+            p.write_text(json.dumps(tree))
+            return
+        blob = b.g.binary_blob()
+        js = json.dumps(tree).encode()
+        js += b" " * (-len(js) % 4)
+        p.write_bytes(struct.pack("<4sII", b"glTF", 2, 28 + len(js) + len(blob)) + struct.pack("<II", len(js), 0x4E4F534A)
+                      + js + struct.pack("<II", len(blob), 0x004E4942) + blob)
+
+    write({**tree, "asset": {"version": 2}})  # a numeric 2 is read as glTF 2
+    assert make_scene(p).n_triangles == load_mesh(p).n_triangles == 1
+    old = {k: v for k, v in tree.items() if k != "asset"}
+    if asset is not None:
+        old["asset"] = asset
+    if layout == "nodes":
+        old["nodes"] = {"n0": tree["nodes"][0]}
+    elif layout == "scene":
+        old["scene"] = "default"
+    write(old)
+    for load in (make_scene, load_mesh):
+        with pytest.raises(SceneFileError) as info:
+            load(p)
+        assert info.value.path == str(p) and info.value.problem.startswith(problem), (load, info.value.problem)
+
+
+def test_binary_gltf_1_is_named(tmp_path):
+    """Binary glTF 1.0 (KHR_binary_glTF): container version 1."""
+    from engine.scene import load_mesh
+
+    js = json.dumps({"asset": {"version": "1.0"}, "nodes": {"n": {}}, "scene": "s", "scenes": {"s": {}}}).encode()
+    js += b" " * (-len(js) % 4)
+    p = tmp_path / "old.glb"
+    p.write_bytes(struct.pack("<4sIIII", b"glTF", 1, 20 + len(js), len(js), 0) + js)
+    for load in (make_scene, load_mesh):
+        with pytest.raises(SceneFileError, match=r"glTF 1\.0 is not supported \(binary glTF 1\.0: \.glb container "
+                                                 r"version 1\)"):
+            load(p)
 
 
 def test_sparse_morph_target(tmp_path):

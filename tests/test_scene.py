@@ -334,6 +334,110 @@ def test_draco_glb_without_dracopy_is_refused_quickly(monkeypatch):
         make_scene(p)
 
 
+# ----------------------------------------------------------------------------- text encodings
+
+ENC_V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 0.5, 1.25]])
+ENC_F = np.array([[0, 1, 2], [0, 2, 3], [0, 1, 4], [1, 2, 4]])
+MTL_NAME = "matériaux.mtl"
+MTL_TEXT = "# bibliothèque de matériaux\nnewmtl matériau_é\nKd 0.8 0.1 0.1\nnewmtl grün\nKd 0.1 0.8 0.1\n"
+#: name -> (codec, byte-order mark written before the text)
+ENCODINGS = {
+    "utf-8": ("utf-8", b""),
+    "utf-8-bom": ("utf-8", b"\xef\xbb\xbf"),
+    "latin-1": ("latin-1", b""),
+    "windows-1252": ("cp1252", b""),
+    "utf-16-le-bom": ("utf-16-le", b"\xff\xfe"),
+    "utf-16-be-bom": ("utf-16-be", b"\xfe\xff"),
+    "utf-16-le-no-bom": ("utf-16-le", b""),
+}
+
+
+def encoded_obj_text(codec):
+    """An OBJ file with a material library, two non-ASCII material names, a non-ASCII object name and
+    comments (the euro sign only where the codec has one)."""
+    euro = " (5 €)" if codec != "latin-1" else ""
+    lines = [f"# modèle créé à Zürich: façade, Größe{euro}", f"mtllib {MTL_NAME}", "o objét_ü"]
+    lines += [f"v {x!r} {y!r} {z!r}" for x, y, z in ENC_V.tolist()]
+    lines += ["usemtl matériau_é", "f 1 2 3", "f 1 3 4", "usemtl grün", "f 1 2 5", "f 2 3 5"]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("enc", list(ENCODINGS))
+def test_obj_and_mtl_load_in_any_common_encoding(tmp_path, enc):
+    """Latin-1 and UTF-16 files once failed with "No module named 'charset_normalizer'" (trimesh's
+    guess at non-UTF-8 text); a UTF-8 byte-order mark must not hide the first line."""
+    import trimesh
+
+    from engine.scene.textenc import utf8_source
+
+    codec, bom = ENCODINGS[enc]
+    text = encoded_obj_text(codec)
+    (tmp_path / MTL_NAME).write_bytes(bom + MTL_TEXT.encode(codec))
+    p = tmp_path / "modèle.obj"
+    p.write_bytes(bom + text.encode(codec))
+    m = load_mesh(p)
+    # trimesh groups an OBJ's faces by material: compare the triangles (coordinates, winding kept)
+    assert m.n_triangles == len(ENC_F)
+    np.testing.assert_array_equal(canonical(m.triangles()), canonical(ENC_V[ENC_F]))
+    # the text trimesh reads is the text written; the MTL file it asks for too; and the materials
+    # the faces name are the ones the library defines
+    src, kw = utf8_source(p)
+    assert src.read().decode("utf-8") == text
+    assert kw["resolver"].get(MTL_NAME).decode("utf-8") == MTL_TEXT
+    src.seek(0)
+    scene = trimesh.load(src, file_type="obj", process=False, force="scene", **kw)
+    assert sorted(g.visual.material.name for g in scene.geometry.values()) == ["grün", "matériau_é"]
+
+
+@pytest.mark.parametrize("codec,bom", [("latin-1", b""), ("utf-16-le", b"\xff\xfe"), ("utf-8", b"\xef\xbb\xbf")],
+                         ids=["latin-1", "utf-16-bom", "utf-8-bom"])
+@pytest.mark.parametrize("ext", [".off", ".ply", ".stl"])
+def test_other_text_formats_load_in_any_common_encoding(tmp_path, ext, codec, bom):
+    """A Latin-1 comment in an OFF or ASCII PLY file, or a Latin-1 solid name in an ASCII STL file."""
+    p = tmp_path / f"octa{ext}"
+    {".off": lambda: write_off(p, OCTA_V, OCTA_F.tolist()), ".ply": lambda: write_ply_ascii(p, OCTA_V, OCTA_F),
+     ".stl": lambda: write_stl_ascii(p, OCTA_T)}[ext]()
+    text = p.read_text()
+    text = {".off": lambda: text.replace("OFF\n", "OFF\n# modèle créé à Zürich\n", 1),
+            ".ply": lambda: text.replace("format ascii 1.0\n", "format ascii 1.0\ncomment modèle ü\n", 1),
+            ".stl": lambda: text.replace("solid test", "solid Pièce1", 1).replace("endsolid test", "endsolid Pièce1")}[ext]()
+    p.write_bytes(bom + text.encode(codec))
+    np.testing.assert_array_equal(canonical(load_mesh(p).triangles()), canonical(OCTA_T))
+
+
+def test_binary_files_with_latin1_headers_are_left_binary(tmp_path):
+    """Only a binary PLY's header is text; a binary STL header may hold any bytes, even 'solid ...'."""
+    p = tmp_path / "octa.ply"
+    write_ply_binary(p, OCTA_V, OCTA_F)
+    raw = p.read_bytes()
+    p.write_bytes(raw.replace(b"format binary_little_endian 1.0\n",
+                              "format binary_little_endian 1.0\ncomment modèle ü\n".encode("latin-1"), 1))
+    np.testing.assert_array_equal(canonical(load_mesh(p).triangles()), canonical(OCTA_T))
+    s = tmp_path / "octa.stl"
+    write_stl_binary(s, OCTA_T)
+    raw = bytearray(s.read_bytes())
+    raw[:20] = "solid Pièce ü ".encode("latin-1").ljust(20, b" ")
+    s.write_bytes(bytes(raw))
+    np.testing.assert_array_equal(canonical(load_mesh(s).triangles()), canonical(OCTA_T))
+
+
+def test_text_decoding_rule():
+    from engine.scene.textenc import decode_text
+
+    assert decode_text("é€".encode("utf-8")) == ("é€", "UTF-8")
+    assert decode_text(b"\xef\xbb\xbfv 1 2 3") == ("v 1 2 3", "UTF-8")
+    assert decode_text("é€".encode("cp1252")) == ("é€", "Windows-1252")
+    assert decode_text(b"caf\xe9 \x81") == ("café \x81", "Latin-1")  # 0x81: undefined in Windows-1252
+    assert decode_text("v 1 é".encode("utf-16-be")) == ("v 1 é", "UTF-16-BE")
+    assert decode_text(b"\xff\xfe\x00\x00" + "v é".encode("utf-32-le")) == ("v é", "UTF-32-LE")
+
+
+def test_truncated_utf16_obj_is_a_clear_error(tmp_path):
+    p = tmp_path / "cut.obj"
+    p.write_bytes(b"\xff\xfe" + "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n".encode("utf-16-le")[:-1])
+    _raises_file_error(p, "not valid UTF-16-LE")
+
+
 # ----------------------------------------------------------------------------- file errors
 
 
@@ -849,6 +953,23 @@ def test_make_scene_builtins():
     np.testing.assert_allclose(np.linalg.norm(tris, axis=2), 1.0, rtol=1e-6)
     tw = make_scene("icosphere", animate="twist", amplitude=0.1, speed=2.0)
     assert isinstance(tw, Deform) and tw.kind == "twist" and tw.amplitude == 0.1 and tw.duration == 0.5
+
+
+def test_icosphere_count_beyond_the_largest_warns_with_the_count_made(monkeypatch):
+    """The icosphere caps at 20 x 4^9 triangles; a larger count once gave that silently."""
+    import warnings
+
+    import engine.scene as scene_module
+
+    monkeypatch.setattr(scene_module, "_ICOSPHERE_MAX_SUBDIVISIONS", 2)  # a small cap keeps the test fast
+    with pytest.warns(scene_module.SceneCountWarning) as caught:
+        assert make_scene("icosphere", count=100_000).n_triangles == 320
+    assert [str(w.message) for w in caught] == [
+        "icosphere: count 100,000 is beyond the largest icosphere (20 x 4^2); made 320 triangles"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # within the range (or below it: 20 is the nearest), no warning
+        assert make_scene("icosphere", count=400).n_triangles == 320
+        assert make_scene("icosphere", count=1).n_triangles == 20
 
 
 def test_make_scene_paths(tmp_path):

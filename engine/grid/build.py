@@ -210,7 +210,8 @@ class GridBuilder:
         if spec.capped:
             warnings.warn(
                 f"grid resolution capped at max_cells={p.max_cells} "
-                f"(density {p.density:g} x {F} triangles asked for more); using dims {tuple(spec.dims)}",
+                f"(density {p.density:g} x {F} triangles asked for more); using dims "
+                f"{' x '.join(str(int(d)) for d in spec.dims)}",
                 GridCapWarning,
                 stacklevel=2,
             )

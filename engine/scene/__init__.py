@@ -21,6 +21,7 @@ Static meshes (and the icosphere) can be split 1 -> 4 to a target triangle count
 
 import math
 import os
+import warnings
 from numbers import Integral
 from pathlib import Path
 
@@ -51,6 +52,7 @@ __all__ = [
     "Md2Model",
     "Mesh",
     "SCENE_EXTENSIONS",
+    "SceneCountWarning",
     "StaticMesh",
     "SUPPORTED_EXTENSIONS",
     "gather_triangles",
@@ -74,13 +76,22 @@ _ICOSPHERE_DEFAULT = 5120
 _ICOSPHERE_MAX_SUBDIVISIONS = 9
 
 
+class SceneCountWarning(UserWarning):
+    """A built-in scene could not make the triangle count asked for; the message says what it made."""
+
+
 def icosphere_mesh(count=_ICOSPHERE_DEFAULT):
     """A unit icosphere centred at the origin with ``20 * 4**k`` triangles closest to ``count``.
 
-    ``k`` is ``round(log4(count / 20))`` clamped to [0, 9] (20 to 5,242,880 triangles).
+    ``k`` is ``round(log4(count / 20))`` clamped to [0, 9] (20 to 5,242,880 triangles); a count
+    beyond the largest icosphere warns (:class:`SceneCountWarning`) with the count made.
     """
     count = _check_count(count)
     k = int(round(math.log(count / 20.0, 4))) if count > 20 else 0
+    if k > _ICOSPHERE_MAX_SUBDIVISIONS:
+        made = 20 * 4**_ICOSPHERE_MAX_SUBDIVISIONS
+        warnings.warn(f"icosphere: count {count:,} is beyond the largest icosphere (20 x 4^"
+                      f"{_ICOSPHERE_MAX_SUBDIVISIONS}); made {made:,} triangles", SceneCountWarning, stacklevel=2)
     k = min(max(k, 0), _ICOSPHERE_MAX_SUBDIVISIONS)
     with quiet_trimesh():
         import trimesh

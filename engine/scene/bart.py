@@ -108,6 +108,8 @@ def _qexp(q):
 def axis_angle_quaternions(axes, radians):
     """(n,4) xyzw unit quaternions from (n,3) axes (normalized here; zero axes give identity)."""
     axes = np.asarray(axes, np.float64)
+    big = np.abs(axes).max(axis=1, keepdims=True) if len(axes) else np.ones((0, 1))
+    axes = np.divide(axes, big, out=axes.copy(), where=big > 1e150)  # an axis of 1e300 must not overflow the norm
     n = np.linalg.norm(axes, axis=1, keepdims=True)
     unit = np.divide(axes, n, out=np.zeros_like(axes), where=n > 0)
     half = 0.5 * np.asarray(radians, np.float64)
@@ -638,18 +640,27 @@ class BartAnimation(Animation):
         r_tmin, r_tmax, r_pabq, r_start, r_count = [], [], [], [], []
         n_p = n_r = 0
 
-        def add_pos(keys):
+        def finite_spline(what, *arrays):
+            if not all(np.isfinite(a).all() for a in arrays):
+                raise SceneFileError(self.path, f"{what}: the spline through these keys is not finite "
+                                                "(key values or tension/continuity/bias too large)")
+
+        def add_pos(keys, what):
             nonlocal n_p
-            tmin, tmax, coef = kb_position_coefficients(keys[:, 0], keys[:, 1:4], keys[:, 4:7])
+            with np.errstate(all="ignore"):  # overflow is reported below, as an error naming the keys
+                tmin, tmax, coef = kb_position_coefficients(keys[:, 0], keys[:, 1:4], keys[:, 4:7])
+            finite_spline(what, tmin, tmax, coef)
             p_tmin.append(tmin), p_tmax.append(tmax), p_coef.append(coef)
             p_start.append(n_p), p_count.append(len(tmin))
             n_p += len(tmin)
             return len(p_start) - 1
 
-        def add_rot(keys):
+        def add_rot(keys, what):
             nonlocal n_r
-            q = axis_angle_quaternions(keys[:, 1:4], np.radians(keys[:, 4]))
-            tmin, tmax, pabq = kb_rotation_segments(keys[:, 0], q, keys[:, 5:8])
+            with np.errstate(all="ignore"):
+                q = axis_angle_quaternions(keys[:, 1:4], np.radians(keys[:, 4]))
+                tmin, tmax, pabq = kb_rotation_segments(keys[:, 0], q, keys[:, 5:8])
+            finite_spline(what, tmin, tmax, pabq)
             r_tmin.append(tmin), r_tmax.append(tmax), r_pabq.append(pabq)
             r_start.append(n_r), r_count.append(len(tmin))
             n_r += len(tmin)
@@ -671,7 +682,8 @@ class BartAnimation(Animation):
             for k, motion in enumerate(("transl", "rot", "scale")):
                 if motion in an:
                     keys = an[motion]
-                    ids[k] = add_rot(keys) if motion == "rot" else add_pos(keys)
+                    what = f"{motion} keys of {name!r}"
+                    ids[k] = add_rot(keys, what) if motion == "rot" else add_pos(keys, what)
                     key_lo, key_hi = min(key_lo, keys[1, 0]), max(key_hi, keys[-2, 0])
                     cols = [1, 2, 3, 4] if motion == "rot" else [1, 2, 3]
                     if not constant(keys, cols):
@@ -687,8 +699,8 @@ class BartAnimation(Animation):
             anim_s.append(ids[2])
 
         cam = ps.anims.get("camera", {})
-        self._cam_t = add_pos(cam["transl"]) if "transl" in cam else -1
-        self._cam_r = add_rot(cam["rot"]) if "rot" in cam else -1
+        self._cam_t = add_pos(cam["transl"], "transl keys of 'camera'") if "transl" in cam else -1
+        self._cam_r = add_rot(cam["rot"], "rot keys of 'camera'") if "rot" in cam else -1
 
         def cat(lst, shape):
             return np.ascontiguousarray(np.concatenate(lst)) if lst else np.zeros(shape)
@@ -700,9 +712,6 @@ class BartAnimation(Animation):
             np.array(r_start or [0], np.int64), np.array(r_count or [1], np.int64),
         )
         self._anim = tuple(np.array(a, dtype=np.int64) for a in (anim_node, anim_t, anim_r, anim_s))
-
-        if not all(np.isfinite(a).all() for a in self._splines):
-            raise SceneFileError(self.path, "keyframes give non-finite spline coefficients (repeated key times?)")
 
         # which nodes move
         moving = np.zeros(n_nodes, dtype=bool)

@@ -70,6 +70,48 @@ def _is_int(v):
     return isinstance(v, (Integral, np.integer)) and not isinstance(v, (bool, np.bool_))
 
 
+_GLTF2_ONLY = "gridrt reads glTF 2.x only"
+_GLTF1_HINT = "gridrt reads glTF 2.x only (convert it first, e.g. with gltf-pipeline)"
+# top-level collections: lists in glTF 2.0, objects keyed by id in glTF 1.0
+_COLLECTIONS = ("accessors", "animations", "bufferViews", "buffers", "cameras", "images", "materials", "meshes",
+                "nodes", "samplers", "scenes", "skins", "textures")
+
+
+def gltf_version_problem(tree):
+    """Why the glTF JSON ``tree`` (a dict) is refused as not glTF 2.x, or None.
+
+    ``asset.version`` may be a string (as glTF 2.0 requires) or a number (written by some glTF 1.0
+    exporters); without a version, a glTF 1.0 layout (collections that are objects keyed by id, a
+    ``scene`` given by name) is recognized as glTF 1.0 too."""
+    asset = tree.get("asset")
+    version = asset.get("version") if isinstance(asset, dict) else None
+    if isinstance(version, Real) and not isinstance(version, (bool, np.bool_)):
+        major = str(math.floor(version)) if math.isfinite(version) else None
+    elif isinstance(version, str):
+        major = version.strip().split(".")[0]
+    else:
+        major = "2"  # no version: judged by the layout below
+        keyed = [k for k in _COLLECTIONS if isinstance(tree.get(k), dict)]
+        if keyed or isinstance(tree.get("scene"), str):
+            what = f"'{keyed[0]}' is an object keyed by id" if keyed else "'scene' is a name"
+            return f"glTF 1.0 is not supported (the file has no asset.version and {what}, as in glTF 1.0); " \
+                   + _GLTF1_HINT
+    if major == "1":
+        return f"glTF 1.0 is not supported (asset.version is {version!r}); " + _GLTF1_HINT
+    if major != "2":
+        return f"glTF version {version!r} is not supported; " + _GLTF2_ONLY
+    return None
+
+
+def glb_version_problem(version):
+    """Why a .glb container of header version ``version`` is refused, or None (version 2)."""
+    if version == 1:
+        return "glTF 1.0 is not supported (binary glTF 1.0: .glb container version 1); " + _GLTF1_HINT
+    if version != 2:
+        return f"malformed .glb file: container version {version}, expected 2"
+    return None
+
+
 class _Reader:
     """The JSON tree, buffers and decoded accessors of one glTF file; every failure names the file."""
 
@@ -81,10 +123,9 @@ class _Reader:
         self.tree = self._read_tree()
         if not isinstance(self.tree, dict):
             self.fail("malformed glTF: the top-level JSON value is not an object")
-        asset = self.tree.get("asset")
-        if isinstance(asset, dict) and isinstance(asset.get("version"), str):
-            if not asset["version"].startswith("2"):
-                self.fail(f"glTF version {asset['version']!r} is not supported (only 2.x)")
+        problem = gltf_version_problem(self.tree)
+        if problem:
+            self.fail(problem)
         required = self.tree.get("extensionsRequired") or []
         if not isinstance(required, list):
             self.fail("malformed glTF: extensionsRequired is not a list")
@@ -121,8 +162,8 @@ class _Reader:
         if len(raw) < 20:
             self.fail(f"malformed .glb file: truncated header ({len(raw)} bytes)")
         _, version, length = struct.unpack_from("<4sII", raw, 0)
-        if version != 2:
-            self.fail(f"malformed .glb file: container version {version}, expected 2")
+        if glb_version_problem(version):
+            self.fail(glb_version_problem(version))
         if length > len(raw):
             self.fail(f"truncated .glb file: the header says {length} bytes, the file has {len(raw)}")
         pos = 12
@@ -319,12 +360,16 @@ class _Reader:
 # ------------------------------------------------------------------------------ geometry
 
 
-def _triangles_from_indices(idx, mode, what, fail):
-    """(F,3) int64 triangles from a primitive's index list for modes 4 (list), 5 (strip), 6 (fan)."""
+def _triangles_from_indices(idx, mode, what, fail, indexed=True):
+    """(F,3) int64 triangles from a primitive's index list for modes 4 (list), 5 (strip), 6 (fan);
+    ``indexed=False``: ``idx`` is 0..n-1 for a primitive without indices (its vertices in order)."""
     n = len(idx)
     if mode == 4:
         if n % 3:
-            fail(f"{what}: {n} indices is not a multiple of 3 for TRIANGLES")
+            if indexed:
+                fail(f"{what}: {n} indices is not a multiple of 3 for TRIANGLES")
+            fail(f"{what}: {n} vertices is not a multiple of 3 for TRIANGLES (the primitive is not indexed: "
+                 f"every 3 vertices in order make a triangle)")
         return idx.reshape(-1, 3)
     if n < 3:
         return np.zeros((0, 3), dtype=np.int64)
@@ -416,7 +461,7 @@ def _load_primitive(r, mesh_index, prim_index, prim):
             idx = idx[:, 0]
         else:
             idx = np.arange(len(pos), dtype=np.int64)
-        faces = _triangles_from_indices(idx, mode, what, r.fail)
+        faces = _triangles_from_indices(idx, mode, what, r.fail, indexed="indices" in prim)
     if pos.ndim != 2 or pos.shape[1] != 3:
         r.fail(f"{what}: POSITION must be VEC3, got {pos.shape[1]} components")
     pos = np.asarray(pos, dtype=np.float64)
@@ -576,6 +621,8 @@ class GltfAnimation(Animation):
                 node_matrix[i] = r.floats(nd, "matrix", 16, np.eye(4).ravel(), w).reshape(4, 4).T
             node_t[i] = r.floats(nd, "translation", 3, (0, 0, 0), w)
             q = r.floats(nd, "rotation", 4, (0, 0, 0, 1), w)
+            if np.abs(q).max() > 1e150:  # scaled first: a huge quaternion must not overflow the norm
+                q = q / np.abs(q).max()
             nq = np.linalg.norm(q)
             node_r[i] = q / nq if nq > 0 else (0, 0, 0, 1)
             node_s[i] = r.floats(nd, "scale", 3, (1, 1, 1), w)

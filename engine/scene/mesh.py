@@ -20,6 +20,7 @@ import numpy as np
 
 from ..arrays import as_mesh
 from ..errors import InputError, SceneFileError
+from .textenc import TEXT_EXTENSIONS, utf8_source
 
 __all__ = ["Mesh", "load_mesh", "quiet_trimesh", "SUPPORTED_EXTENSIONS"]
 
@@ -118,7 +119,11 @@ def _gltf_json(path, ext):
         header = fh.read(20)
         if len(header) < 20 or header[:4] != _GLB_MAGIC:
             raise SceneFileError(path, "malformed .glb file: missing the 'glTF' binary header")
-        _, _, _, chunk_len, chunk_type = struct.unpack("<4sIIII", header)
+        _, version, _, chunk_len, chunk_type = struct.unpack("<4sIIII", header)
+        from .gltf import glb_version_problem
+
+        if glb_version_problem(version):
+            raise SceneFileError(path, glb_version_problem(version))
         if chunk_type != _GLB_JSON_CHUNK:
             raise SceneFileError(path, "malformed .glb file: the first chunk is not JSON")
         raw = fh.read(chunk_len)
@@ -135,6 +140,10 @@ def _check_gltf(path, ext):
     tree = _gltf_json(path, ext)
     if not isinstance(tree, dict):
         raise SceneFileError(path, f"malformed {ext} file: top-level JSON is not an object")
+    from .gltf import gltf_version_problem  # here: gltf imports this module (through animation)
+
+    if gltf_version_problem(tree):
+        raise SceneFileError(path, gltf_version_problem(tree))
     required = set(tree.get("extensionsRequired") or ())
     if "KHR_draco_mesh_compression" in required and importlib.util.find_spec("DracoPy") is None:
         raise SceneFileError(
@@ -192,11 +201,16 @@ def load_mesh(path):
     if ext in (".glb", ".gltf"):
         _check_gltf(p, ext)
 
-    with quiet_trimesh():
+    # np.errstate: trimesh's arithmetic on a malformed file's values (overflowing casts, normals of
+    # huge or NaN vertices) must not print numpy RuntimeWarnings; the values are validated below
+    with quiet_trimesh(), np.errstate(all="ignore"):
         import trimesh
 
         try:
-            loaded = trimesh.load(str(p), file_type=ext[1:], force="mesh", process=False)
+            # text (OBJ/MTL, OFF, ASCII STL, PLY headers) in UTF-16, Latin-1, ...: decoded by textenc, as
+            # trimesh would need the optional charset_normalizer (and guess)
+            src, kw = utf8_source(p) if ext in TEXT_EXTENSIONS else (str(p), {})
+            loaded = trimesh.load(src, file_type=ext[1:], force="mesh", process=False, **kw)
         except SceneFileError:
             raise
         except FileNotFoundError as e:
