@@ -432,6 +432,15 @@ def test_text_decoding_rule():
     assert decode_text(b"\xff\xfe\x00\x00" + "v é".encode("utf-32-le")) == ("v é", "UTF-32-LE")
 
 
+def test_utf8_byte_order_mark_does_not_hide_the_first_vertex(tmp_path):
+    """trimesh kept the mark as part of the first line: 'v 0 0 0' was lost and face 'f 1 2 4' refused."""
+    p = tmp_path / "bom.obj"
+    p.write_bytes(b"\xef\xbb\xbf" + b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\n")
+    m = load_mesh(p)
+    np.testing.assert_array_equal(m.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    np.testing.assert_array_equal(m.faces, [[0, 1, 2], [0, 1, 3]])
+
+
 def test_truncated_utf16_obj_is_a_clear_error(tmp_path):
     p = tmp_path / "cut.obj"
     p.write_bytes(b"\xff\xfe" + "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n".encode("utf-16-le")[:-1])
