@@ -12,7 +12,7 @@ from tqdm import tqdm
 
 from engine.errors import InputError
 from engine.pipeline import STATS_COLUMNS
-from engine.warmup import cache_is_cold
+from engine.warmup import compile_notice
 
 from . import cli
 
@@ -41,10 +41,22 @@ def run(a):
     for name in ("t0", "dt"):
         if not math.isfinite(getattr(a, name)):
             raise InputError(f"--{name} must be finite")
-    cold = cache_is_cold(a.traversal)
-    if cold:
-        print("Compiling numba kernels (first run only, about 10-30 s; cached for later runs)...",
-              file=sys.stderr, flush=True)
+    # the notice appears when numba really starts compiling (a cold cache, or settings whose kernels
+    # this machine has not compiled yet), not when every kernel loads from the cache
+    with compile_notice(_say_compiling):
+        return _dump(a)
+
+
+#: printed (once, on stderr) when the first kernel of a dump starts compiling
+COMPILING = "Compiling numba kernels (about 10-60 s the first time; cached for later runs)..."
+
+
+def _say_compiling():
+    tqdm.write(COMPILING, file=sys.stderr)  # above the progress bar, if one is showing
+    sys.stderr.flush()
+
+
+def _dump(a):
     pipe = cli.pipeline_from_args(a)
     out = Path(a.out)
     try:
