@@ -11,6 +11,15 @@ fast Moller-Trumbore test's hole rate is printed.  Default: 40,000 probes per me
 (1.08M watertight casts in all); ``-m soak``: 10M probes per mesh and strategy
 (GRIDRT_SOAK_RAYS to change it).
 
+The same meshes through the packet traversal (CGT), with the two probe sets of
+tests/test_watertight.py (see its docstring): star packets (up to 8 x 8 rays from one eye, aimed
+at a vertex, its one-ring vertices and points of its spokes and link edges, traced by the
+packet kernel cgt.trace_packet) and camera rows (512 x 1 images through Renderer.render with
+traversal="cgt", every pixel ray crossing one shared edge).  Same criterion, 0 holes with the
+watertight test; the fast test's hole rate is printed.  Default: about 190,000 packet probes and
+65,536 row rays per mesh; ``-m soak``: at least 10M rays traced as packets (single-ray fallbacks
+not counted) and 10M row rays per mesh (GRIDRT_SOAK_RAYS).
+
 Soak: the Marbles scene (8,800 triangles) is rendered frame after frame (t = i / 30 s) by two
 pipelines: a reference (serial build, 1 build thread, 1 render thread, DDA) and one whose build
 strategy, build thread count (1..16, more than the cores), render thread count and traversal
@@ -29,11 +38,12 @@ import pytest
 
 from conftest import ARMADILLO, load_mesh_arrays
 from engine.config import GridParams, RenderParams
-from engine.grid import build_grid, names
+from engine.grid import GridBuilder, build_grid, names
 from engine.pipeline import FramePipeline
 from engine.scene import make_scene
 from engine.trace import cast_rays
-from test_watertight import face_normals, origins_in_front, targets_and_fans
+from test_watertight import (ROW_WIDTH, ProbeMesh, add_counts, cgt_report, face_normals, origins_in_front,
+                             packet_counts, row_counts, targets_and_fans)
 
 DRAGON = "static/stanford_dragon/dragon.obj"
 LUCY = "static/lucy/Lucy100k.ply"
@@ -130,6 +140,37 @@ def test_watertight_probes_soak(relpath, request):
     if not soak_requested(request.config):
         pytest.skip("10M probes per mesh and strategy: run with -m soak (or GRIDRT_SOAK=1)")
     probe(relpath, int(os.environ.get("GRIDRT_SOAK_RAYS", "10000000")))
+
+
+def cgt_probe(relpath, n_rays, n_row_rays):
+    """Packet probes until n_rays were traced as packets, camera rows until n_row_rays, in
+    batches of about BATCH rays; one FIGURE line (test_watertight.cgt_report checks it)."""
+    m = ProbeMesh(*load_mesh_arrays(relpath))
+    grid = GridBuilder(GridParams(threads=2, density=4.0)).build(m.tris)
+    rng = np.random.default_rng(2024)
+    t0 = time.perf_counter()
+    pk = rows = {}
+    while not pk or pk["probes"] - pk["wt_fallback"] < n_rays:
+        left = n_rays - (pk["probes"] - pk["wt_fallback"] if pk else 0)
+        pk = add_counts(pk, packet_counts(m, grid, rng, min(BATCH, left) // 60 + 1))  # ~63 rays a packet
+    while not rows or rows["rays"] < n_row_rays:
+        left = n_row_rays - (rows["rays"] if rows else 0)
+        rows = add_counts(rows, row_counts(m, grid, rng, -(-min(BATCH, left) // ROW_WIDTH)))
+    cgt_report(relpath.split("/")[-1], pk, rows, time.perf_counter() - t0)
+
+
+@pytest.mark.parametrize("relpath", MESHES, ids=["armadillo", "dragon", "lucy"])
+def test_cgt_watertight_probes(relpath):
+    cgt_probe(relpath, 180_000, 128 * ROW_WIDTH)
+
+
+@pytest.mark.soak
+@pytest.mark.parametrize("relpath", MESHES, ids=["armadillo", "dragon", "lucy"])
+def test_cgt_watertight_probes_soak(relpath, request):
+    if not soak_requested(request.config):
+        pytest.skip("10M packet probes and 10M camera-row rays per mesh: run with -m soak (or GRIDRT_SOAK=1)")
+    n = int(os.environ.get("GRIDRT_SOAK_RAYS", "10000000"))
+    cgt_probe(relpath, n, n)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -12,16 +12,51 @@ counted and printed (it gives no such guarantee; nothing is asserted about it).
 Meshes: an icosphere (trimesh.creation), a radially jittered icosphere shot from inside, and the
 closed Armadillo from ../shared/data (skipped when absent).  This is pbrt-v4's
 ``Triangle.Watertight`` property, done on shared edges instead of random points.
+
+The packet traversal (CGT, engine/trace/cgt.py) gets the same kind of probes, with the same
+criterion (a hole: a miss, or a hit beyond the target), two ways:
+
+* Star packets, traced by ``cgt.trace_packet``, the packet kernel the renderer runs for every
+  8 x 8 block of pixels (a small parallel driver below fills its ray table, as the renderer fills
+  it with camera rays).  A packet belongs to a random vertex v and has up to 64 rays from one eye,
+  as a camera packet does, the eye being in front of all of v's faces: a ray at v, at each vertex
+  of v's one-ring, at the midpoint of each spoke (v, w) and of each link edge (w, w') (the edges
+  opposite v in its fan), then at random points along the spokes and link edges.  Ring vertices
+  and link-edge points whose own faces do not all face the eye are left out.  The rays at the
+  ring and its link edges bound the packet, so triangles beyond them are the ones the packet's
+  frustum culling and cell ranges decide about.
+* Camera rows, through the renderer (``Renderer.render``, ``RenderParams(traversal="cgt")``): for a
+  random shared edge and an eye in front of both its faces, a camera whose ROW_WIDTH x 1 image
+  lies in the plane through the eye and the edge (up vector: that plane's normal, view direction:
+  the bisector of the directions to the edge's ends, field of view: the edge less 0.1 %).  Every
+  pixel-centre ray of the row crosses the edge; where, and how far along the ray, is computed
+  here in float64 from the documented pinhole formula (tests/reference.py), and checked.  The
+  renderer traces the row as 8 x 1 packets.
+
+Both print the fast test's hole rate, which is also required to be non-zero: probes that were not
+at the edges within float64 rounding would not find its leaks.  (Removing the 1e-5-cell margin of
+the packet's culling planes in cgt.py makes both probe sets report holes.)  tests/test_soak.py
+runs the same on the Armadillo, the dragon and Lucy, with 10M rays of each kind under ``-m soak``.
 """
+
+import time
 
 import numpy as np
 import pytest
+from numba import njit, prange
 
 from conftest import ARMADILLO, icosphere, load_mesh_arrays
-from engine.grid import GridParams, build_grid
-from engine.trace import cast_rays
+from engine.camera import Camera
+from engine.config import RenderParams
+from engine.grid import GridBuilder, GridParams, build_grid
+from engine.trace import cast_rays, cgt
+from engine.trace.render import Renderer, _grid_args
+from engine.trace.traverse import MAILBOX
+from reference import ref_camera_rays
 
 REL = 1e-6
+#: pixels of a camera-row probe image (one row)
+ROW_WIDTH = 512
 
 
 def edge_table(faces):
@@ -168,3 +203,246 @@ def test_armadillo_shared_edges():
     print(f"armadillo: {ok.mean():.3f} of the targets have an origin in front of all their faces")
     assert ok.sum() > 25000
     shoot(v, f, o, t, "armadillo (outside)")
+
+
+# ----------------------------------------------------------------------------------------------
+# the same probes through the packet traversal (CGT)
+
+
+@njit(cache=True, parallel=True)
+def _trace_packets(tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
+                   eyes, dirs, offs, watertight, t_out, f_out, fallback):
+    """Packet p (rays offs[p]..offs[p+1]-1, from eyes[p] along unit dirs, at most 64) traced by
+    cgt.trace_packet, as cgt._render_tiles traces a block of pixels (its ray table filled from
+    dirs instead of the camera).  fallback[p]: rays of packet p the single-ray DDA traced."""
+    for p in prange(len(offs) - 1):
+        S = np.empty(cgt.NS * cgt.PN)
+        io = np.empty(cgt.NIO * cgt.PN)
+        mb = np.empty(cgt.MBOX, np.int32)
+        mb1 = np.empty(MAILBOX, np.int32)
+        a = offs[p]
+        n = offs[p + 1] - a
+        for j in range(n):
+            io[cgt.IO_OX * cgt.PN + j] = eyes[p, 0]
+            io[cgt.IO_OY * cgt.PN + j] = eyes[p, 1]
+            io[cgt.IO_OZ * cgt.PN + j] = eyes[p, 2]
+            io[cgt.IO_DX * cgt.PN + j] = dirs[a + j, 0]
+            io[cgt.IO_DY * cgt.PN + j] = dirs[a + j, 1]
+            io[cgt.IO_DZ * cgt.PN + j] = dirs[a + j, 2]
+            io[cgt.IO_TMAX * cgt.PN + j] = np.inf
+        fallback[p] = cgt.trace_packet(tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims,
+                                       macro_full, n, io, 0.0, watertight, False, S, mb, mb1)
+        for j in range(n):
+            t_out[a + j] = io[cgt.IO_T * cgt.PN + j]
+            f_out[a + j] = int(io[cgt.IO_F * cgt.PN + j])
+
+
+def _unit(x):
+    return x / np.linalg.norm(x, axis=-1, keepdims=True)
+
+
+class ProbeMesh:
+    """A closed mesh with the tables the packet probes need: unique edges and their two faces,
+    vertex fans (CSR), outward unit normals, bounding sphere."""
+
+    def __init__(self, v, faces):
+        self.v, self.faces = v, faces
+        self.tris = np.ascontiguousarray(v[faces])
+        self.v64 = v.astype(np.float64)
+        self.edges, self.ef = edge_table(faces)
+        self.keys = self.edges[:, 0] * len(v) + self.edges[:, 1]  # sorted (np.unique's order)
+        self.normals = face_normals(v, faces)
+        vf = faces.reshape(-1)
+        order = np.argsort(vf, kind="stable")
+        self.vf_f = np.repeat(np.arange(len(faces)), 3)[order]
+        self.vstart = np.searchsorted(vf[order], np.arange(len(v) + 1))
+        self.centre = 0.5 * (self.v64.min(0) + self.v64.max(0))
+        self.radius = float(np.linalg.norm(self.v64 - self.centre, axis=1).max())
+
+    def fans(self, vids):
+        """Fans of vertices vids as CSR: (offsets (len(vids)+1,), face ids, owner index per face)."""
+        k = self.vstart[vids + 1] - self.vstart[vids]
+        offs = np.concatenate([[0], np.cumsum(k)])
+        owner = np.repeat(np.arange(len(vids)), k)
+        return offs, self.vf_f[np.arange(offs[-1]) - offs[owner] + self.vstart[vids][owner]], owner
+
+    def edge_ids(self, a, b):
+        key = np.minimum(a, b) * len(self.v) + np.maximum(a, b)
+        i = np.searchsorted(self.keys, key)
+        assert (self.keys[i] == key).all()
+        return i
+
+    def in_front(self, eyes, targets, faces, offs, min_cos):
+        """Per target: the unit vector to its eye makes cos > min_cos with the normal of every
+        face of its fan (faces[offs[i]:offs[i+1]])."""
+        u = _unit(eyes - targets)
+        dots = np.einsum("kc,kc->k", np.repeat(u, np.diff(offs), axis=0), self.normals[faces])
+        return np.minimum.reduceat(dots, offs[:-1]) > min_cos
+
+    def star_packets(self, rng, n_packets, min_cos=0.1):
+        """Packets of up to cgt.PN probes around random vertices, one eye each.
+
+        Packet of vertex v: v, then each vertex w of its one-ring, the midpoint of each spoke
+        (v, w) and of each link edge (w, w') (the edges opposite v in its fan), then random points
+        along the spokes and link edges; the eye is in front of all of v's faces, and ring vertices
+        and link-edge points whose own faces do not all face the eye are left out.  Returns eyes
+        (P, 3), unit directions (N, 3), distances to the targets (N,), packet offsets (P+1,) and
+        the kind of each probe (N,): 0 v, 1 a ring vertex, 2 a spoke point, 3 a link-edge point;
+        and how many slots were left out.
+        """
+        used = np.flatnonzero(np.diff(self.vstart) > 0)
+        vids = used[rng.integers(0, len(used), n_packets)]
+        offs, fan, owner = self.fans(vids)
+        eyes, _, ok = origins_in_front(rng, self.v64[vids], offs, fan, self.normals, self.centre, self.radius,
+                                       min_cos)
+        eye = np.zeros((n_packets, 3))
+        eye[ok] = eyes
+        fv = self.faces[fan]  # fan face (v, w, w') in winding order from v
+        pos = np.argmax(fv == vids[owner][:, None], axis=1)
+        r = np.arange(len(fv))
+        ring, opp = fv[r, (pos + 1) % 3], fv[r, (pos + 2) % 3]
+        spoke, link = self.edge_ids(vids[owner], ring), self.edge_ids(ring, opp)
+        k = np.diff(offs)
+        # slots 1..PN-1: ring vertex, spoke and link midpoints of each fan face, then random edge points
+        j = np.tile(np.arange(cgt.PN - 1), n_packets)
+        p = np.repeat(np.arange(n_packets), cgt.PN - 1)
+        first = j < 3 * k[p]
+        jj = np.where(first, j, j - 3 * k[p])
+        face = offs[p] + np.where(first, jj // 3, (jj // 2) % k[p])
+        kind = np.where(first, 1 + jj % 3, 2 + jj % 2)
+        e = np.where(kind == 2, spoke[face], link[face])
+        s = np.where(first, 0.5, rng.uniform(0.0, 1.0, len(j)))[:, None]
+        a, b = self.v64[self.edges[e, 0]], self.v64[self.edges[e, 1]]
+        tg = np.where((kind == 1)[:, None], self.v64[ring[face]], a + s * (b - a))
+        good = ok[p].copy()
+        isv = kind == 1
+        foffs, ffaces, _ = self.fans(ring[face[isv]])
+        good[isv] &= self.in_front(eye[p[isv]], tg[isv], ffaces, foffs, min_cos)
+        good[~isv] &= self.in_front(eye[p[~isv]], tg[~isv], self.ef[e[~isv]].reshape(-1),
+                                    np.arange(0, 2 * int((~isv).sum()) + 1, 2), min_cos)
+        dropped = int((ok[p] & ~good).sum())
+        # packet by packet: v first, then the kept slots
+        pk = np.concatenate([np.flatnonzero(ok), p[good]])
+        order = np.argsort(pk, kind="stable")
+        tgt = np.concatenate([self.v64[vids[ok]], tg[good]])[order]
+        kinds = np.concatenate([np.zeros(int(ok.sum()), np.int64), kind[good]])[order]
+        live = np.cumsum(ok) - 1
+        pk = live[pk[order]]
+        poffs = np.concatenate([[0], np.cumsum(np.bincount(pk, minlength=int(ok.sum())))])
+        d = tgt - eyes[pk]
+        dist = np.linalg.norm(d, axis=1)
+        return eyes, d / dist[:, None], dist, poffs, kinds, dropped
+
+    def edge_rows(self, rng, n, width, min_cos=0.1, margin=1e-3):
+        """Cameras whose width x 1 images lie on random shared edges.
+
+        For edge (a, b) and an eye in front of both its faces: the camera looks along the bisector
+        of the directions to a and b (target as far away as the edge, so that target - eye keeps its
+        precision), up is the normal of the plane through the eye and the edge, and the field of
+        view spans the edge less ``margin``: with height 1 every pixel-centre ray lies in that
+        plane and crosses the edge.  Returns the cameras and, per camera and pixel, the distance
+        along the ray to the crossing (rays from the documented pinhole formula, reference.py's
+        ref_camera_rays), checked to pass within float64 rounding of the edge line (1e-13 of the
+        eye's largest coordinate plus the mesh's radius) and to cross it strictly inside the edge.
+        """
+        eids = rng.integers(0, len(self.edges), n)
+        a, b = self.v64[self.edges[eids, 0]], self.v64[self.edges[eids, 1]]
+        mid = 0.5 * (a + b)
+        eyes, _, ok = origins_in_front(rng, mid, np.arange(0, 2 * n + 1, 2), self.ef[eids].reshape(-1),
+                                       self.normals, self.centre, self.radius, min_cos)
+        a, b, mid = a[ok], b[ok], mid[ok]
+        ua, ub = _unit(a - eyes), _unit(b - eyes)
+        fwd = _unit(ua + ub)
+        target = eyes + np.linalg.norm(mid - eyes, axis=1, keepdims=True) * fwd
+        up = np.cross(a - eyes, b - a)
+        half = 0.5 * np.arctan2(np.linalg.norm(np.cross(ua, ub), axis=1), np.einsum("kc,kc->k", ua, ub))
+        fov = np.degrees(2.0 * np.arctan(np.tan(half) * (1.0 - margin) / (width - 1)))
+        cams = [Camera(eye=tuple(eyes[i]), target=tuple(target[i]), up=tuple(up[i]), fov=float(fov[i]))
+                for i in range(len(eyes))]
+        d = np.stack([ref_camera_rays(c.eye, c.target, c.up, c.fov, width, 1)[1] for c in cams])
+        # closest points of the ray o + t d and the edge line a + s (b - a)
+        e = (b - a)[:, None, :]
+        w = (a - eyes)[:, None, :]
+        n_ = np.cross(d, e)
+        nn = np.einsum("cwk,cwk->cw", n_, n_)
+        t = np.einsum("cwk,cwk->cw", np.cross(w, e), n_) / nn
+        s = np.einsum("cwk,cwk->cw", np.cross(w, d), n_) / nn
+        gap = np.abs(np.einsum("cwk,cwk->cw", w, n_)) / np.sqrt(nn)
+        scale = np.abs(eyes).max(axis=1, keepdims=True) + self.radius
+        assert (gap <= 1e-13 * scale).all(), f"row rays miss their edge line by up to {(gap / scale).max():.2e}"
+        assert ((s > 0.0) & (s < 1.0)).all(), "a row ray crosses the edge line outside the edge"
+        return cams, t
+
+
+def packet_counts(m, grid, rng, n_packets):
+    """Star packets traced by the packet kernel with both tests: counts (see cgt_report)."""
+    eyes, d, dist, offs, kinds, _ = m.star_packets(rng, n_packets)
+    c = {"packets": len(eyes), "probes": len(d), "kinds": np.bincount(kinds, minlength=4)}
+    for wt, key in ((True, "wt"), (False, "fast")):
+        t = np.empty(len(d))
+        f = np.empty(len(d), np.int64)
+        fb = np.empty(len(eyes), np.int64)
+        _trace_packets(m.tris, *_grid_args(grid), eyes, d, offs, wt, t, f, fb)
+        hole = (f < 0) | (t > dist * (1 + REL))
+        c[key + "_holes"] = np.bincount(kinds[hole], minlength=4)
+        c[key + "_at"] = int((np.abs(t - dist) <= REL * dist).sum())
+        c[key + "_fallback"] = int(fb.sum())
+    return c
+
+
+def row_counts(m, grid, rng, n_cameras, width=ROW_WIDTH):
+    """Edge-row cameras rendered by Renderer.render with traversal="cgt" and both tests: counts
+    (see cgt_report)."""
+    cams, tref = m.edge_rows(rng, n_cameras, width)
+    r = Renderer()
+    c = {"edges": len(cams), "rays": len(cams) * width}
+    for wt, key in ((True, "wt"), (False, "fast")):
+        holes = at = fb = 0
+        rp = RenderParams(width=width, height=1, traversal="cgt", watertight=wt, shading="normal")
+        for cam, tr in zip(cams, tref):
+            out = r.render(grid, m.tris, cam, rp)
+            t = out.t.reshape(-1).astype(np.float64)  # a float32 buffer: rounding 6e-8 < REL
+            holes += int(((out.tri.reshape(-1) < 0) | (t > tr * (1 + REL))).sum())
+            at += int((np.abs(t - tr) <= REL * tr).sum())
+            fb += out.stats["fallback_rays"]
+        c[key + "_holes"], c[key + "_at"], c[key + "_fallback"] = holes, at, fb
+    return c
+
+
+def add_counts(a, b):
+    return {k: a[k] + b[k] for k in b} if a else b
+
+
+def cgt_report(label, pk, rows, secs, width=ROW_WIDTH):
+    """Print the FIGURE line of packet counts pk and camera-row counts rows and check them:
+    0 holes with the watertight test; most probes hit at their target (nothing blocks them
+    earlier); at most a quarter of the rays took the single-ray fallback (the packets really are
+    traced as packets); and the fast test leaks somewhere (the probes are close enough to the
+    edges to catch a test that is not watertight)."""
+    hw, hf, n_pk, n_rows = pk["wt_holes"], pk["fast_holes"], pk["probes"], rows["rays"]
+    k = pk["kinds"]
+    print(f"FIGURE cgt holes {label}: {n_pk + n_rows} CGT rays in {secs:.1f} s. Packets: {n_pk} probes in "
+          f"{pk['packets']} packets ({k[0]} vertices, {k[1]} ring vertices, {k[2]} spoke and {k[3]} link-edge "
+          f"points; {pk['wt_fallback']} rays took the single-ray fallback); watertight: {int(hw.sum())} holes, "
+          f"{pk['wt_at']} probes hit at their target; fast (Moller-Trumbore): {int(hf.sum())} holes, rate "
+          f"{100 * hf.sum() / n_pk:.3f}% (by kind {hf.tolist()}). Camera rows (Renderer, cgt, {width}x1 images): "
+          f"{n_rows} pixel rays on {rows['edges']} edges ({rows['wt_fallback']} fallback); watertight: "
+          f"{rows['wt_holes']} holes, {rows['wt_at']} at their target; fast: {rows['fast_holes']} holes, rate "
+          f"{100 * rows['fast_holes'] / n_rows:.3f}%")
+    assert hw.sum() == 0, f"{label}: the watertight test let packet probes through: {hw.tolist()} (by kind)"
+    assert rows["wt_holes"] == 0, f"{label}: the watertight test let {rows['wt_holes']} camera-row rays through"
+    for n, c in ((n_pk, pk), (n_rows, rows)):
+        assert c["wt_at"] > 0.5 * n and c["wt_fallback"] <= 0.25 * n, (
+            f"{label}: {c['wt_at']} of {n} probes hit at their target, {c['wt_fallback']} took the fallback")
+    assert hf.sum() > 0 and rows["fast_holes"] > 0, f"{label}: the probes do not find the fast test's leaks"
+
+
+@pytest.mark.parametrize("density,macro", [(4.0, 4), (0.5, 1), (12.0, 8)])
+def test_icosphere_cgt(rng, density, macro):
+    """Packet traversal on an icosphere: star packets and camera rows, 0 holes on any grid."""
+    m = ProbeMesh(*icosphere(3, radius=1.0, center=(0.1, -0.2, 0.3)))
+    grid = GridBuilder(GridParams(density=density, macro=macro)).build(m.tris)
+    t0 = time.perf_counter()
+    pk = packet_counts(m, grid, rng, 1500)
+    rows = row_counts(m, grid, rng, 50)
+    cgt_report(f"icosphere density={density} macro={macro}", pk, rows, time.perf_counter() - t0)
