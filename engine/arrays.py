@@ -94,8 +94,9 @@ def as_mesh(vertices, faces, what="mesh"):
     return v32, f32
 
 
-def as_rays(origins, directions):
-    """Validate ray arrays; return C-contiguous (N, 3) float64 origins and directions."""
+def check_rays(origins, directions):
+    """Check the shape and dtype of ray arrays without copying them; return them as arrays
+    (any strides, any real dtype).  :func:`check_ray_values` checks their values."""
     o = np.asarray(origins)
     d = np.asarray(directions)
     for a, name in ((o, "ray origins"), (d, "ray directions")):
@@ -105,11 +106,40 @@ def as_rays(origins, directions):
             raise InputError(f"{name} must be real numbers, got dtype {a.dtype}")
     if o.shape != d.shape:
         raise InputError(f"ray origins {o.shape} and directions {d.shape} differ in shape")
-    o = np.ascontiguousarray(o, dtype=np.float64)
-    d = np.ascontiguousarray(d, dtype=np.float64)
-    _finite_check(o, "ray origins")
-    _finite_check(d, "ray directions")
-    if len(d) and not ((d != 0).any(axis=1)).all():
-        i = int(np.argmin((d != 0).any(axis=1)))
-        raise InputError(f"ray direction {i} is the zero vector")
     return o, d
+
+
+def check_ray_values(o, d, first=0, frame=None):
+    """InputError for NaN/inf origins or directions, or a zero direction, in rays ``o``, ``d``
+    (N, 3) as returned by :func:`check_rays`: a slice of a batch whose first ray is number
+    ``first`` (the messages give batch indices).  ``frame``: (3,) float64 origin of the frame the
+    rays will be moved into (``o - frame`` must be finite too).  Allocates (N, 3) booleans (and
+    for a dtype wider than float64 or a frame beyond 2**969, one (N, 3) float64 array)."""
+    for a, name in ((o, "ray origins"), (d, "ray directions")):
+        if a.dtype.kind != "f":
+            continue
+        with np.errstate(over="ignore"):
+            finite = np.isfinite(a if a.dtype.itemsize <= 8 else a.astype(np.float64))
+        if not finite.all():
+            bad = np.argwhere(~finite)[0]
+            raise InputError(f"{name} contain NaN or infinity (first at index ({int(bad[0]) + first}, {int(bad[1])}))")
+    if frame is not None and float(np.abs(frame).max()) >= 2.0**969:
+        # (a frame within 2**969, under half an ulp of float64's largest value, cannot make a
+        # finite o - frame overflow)
+        with np.errstate(over="ignore"):
+            moved = np.subtract(o, frame, dtype=np.float64)
+        if not np.isfinite(moved).all():
+            bad = np.argwhere(~np.isfinite(moved))[0]
+            raise InputError(f"ray origin {int(bad[0]) + first} is beyond float64 range once moved into the frame "
+                             f"centred at {tuple(float(x) for x in frame)}")
+    nonzero = (d[:, 0] != 0) | (d[:, 1] != 0) | (d[:, 2] != 0)  # (4x faster than an axis-1 any)
+    if not nonzero.all():
+        raise InputError(f"ray direction {int(np.argmin(nonzero)) + first} is the zero vector")
+
+
+def as_rays(origins, directions):
+    """Validate ray arrays; return C-contiguous (N, 3) float64 origins and directions (copies
+    unless they already are; batch casts check and convert chunk by chunk instead)."""
+    o, d = check_rays(origins, directions)
+    check_ray_values(o, d)
+    return np.ascontiguousarray(o, dtype=np.float64), np.ascontiguousarray(d, dtype=np.float64)

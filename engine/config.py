@@ -44,7 +44,9 @@ class GridParams:
     max_cells  ceiling on nx*ny*nz; a larger request is reduced to it with a warning
     max_bytes  memory budget of the cell arrays plus references (thread_grids_merge: plus the
                per-thread grids it merges); a build that would need more stops with an
-               InputError before allocating
+               InputError before allocating.  RayCaster.cast holds a batch's results plus its
+               scratch to the same budget (cast_rays: the default one), refusing a batch before
+               allocating
     """
 
     strategy: str = "serial"

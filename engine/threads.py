@@ -6,7 +6,9 @@ thread count up to MAX_THREADS (also above the core count, for scaling experimen
 ``engine/__init__.py`` calls :func:`configure_env` before anything imports numba.
 """
 
+import contextlib
 import os
+import threading
 
 #: Largest thread count a user may ask for (the viewer slider, ``--threads``).
 MAX_THREADS = max(16, os.cpu_count() or 1)
@@ -92,3 +94,30 @@ def use_threads(n):
     import numba
 
     numba.set_num_threads(check_threads(n))
+
+
+
+#: threading layers that tolerate parallel kernels launched from several Python threads at once
+#: (numba's workqueue layer aborts the process: "Concurrent access has been detected")
+_CONCURRENT_LAYERS = ("omp", "tbb")
+_CONCURRENT_CONFIGS = ("omp", "tbb", "threadsafe", "safe")
+_LAUNCH_LOCK = threading.RLock()
+_NO_LOCK = contextlib.nullcontext()
+
+
+def concurrent_launches_ok():
+    """True when the threading layer in use (or, before the first parallel kernel has run, the
+    one configured) lets several Python threads run parallel kernels at the same time."""
+    import numba
+
+    try:
+        return numba.threading_layer() in _CONCURRENT_LAYERS
+    except ValueError:  # no parallel kernel has run yet: numba has not picked a layer
+        return str(numba.config.THREADING_LAYER) in _CONCURRENT_CONFIGS
+
+
+def launch_guard():
+    """Context manager to hold while launching parallel kernels that other Python threads may
+    launch too: nothing with the omp or tbb layers; one process-wide lock otherwise (workqueue,
+    the layer numba falls back to without libgomp), which serialises those launches."""
+    return _NO_LOCK if concurrent_launches_ok() else _LAUNCH_LOCK

@@ -1,5 +1,7 @@
 """The batch ray-casting API (engine.RayCaster) against the brute-force float64 caster."""
 
+import sys
+
 import numpy as np
 import pytest
 
@@ -82,3 +84,164 @@ def test_bad_meshes_rejected():
         caster.cast([[0, 0, 5.0]], [[0, 0, 0.0]])
     with pytest.raises(engine.InputError, match="tmin"):
         caster.cast([[0, 0, 5.0]], [[0, 0, -1.0]], tmin=2.0, tmax=1.0)
+
+
+def _local_ref(verts, f, o, d, **kw):
+    """Brute-force hits over the triangles as the caster stores them: float32 in a frame centred
+    on the vertices' bounds (its documented frame), the rays moved alike, in float64."""
+    c = 0.5 * (verts.min(axis=0) + verts.max(axis=0))
+    return ref_cast((verts - c)[f], o - c, d, **kw)
+
+
+def test_update_refuses_all_degenerate_mesh_keeping_old(rng):
+    """update() refuses a mesh whose triangles all have zero area, as the constructor does, and
+    the caster keeps casting against its previous mesh."""
+    v, f = icosphere(2)
+    v = v.astype(np.float64) + 50.0
+    caster = engine.RayCaster(v, f)
+    o, d = _rays(rng, 1500)
+    o = o + 50.0
+    flat = v.copy()
+    flat[:, 2] = 7.0  # every triangle in one plane ...
+    flat[:, 1] = 2.0 * flat[:, 0]  # ... and on one line: zero area
+    with pytest.raises(engine.InputError, match=f"all {len(f)} triangles are degenerate") as made:
+        engine.RayCaster(flat, f)
+    with pytest.raises(engine.InputError, match=f"all {len(f)} triangles are degenerate") as updated:
+        caster.update(flat)
+    assert str(updated.value).startswith("update") and str(made.value).endswith("(zero area)")
+    hits = caster.cast(o, d)
+    ref = _local_ref(v, f, o, d)
+    assert (ref.tri >= 0).sum() > 500
+    assert len(compare_hits(hits.t, hits.tri, ref).bad) == 0
+
+
+def test_user_errors_never_mention_internals(rng):
+    """What a RayCaster user can get wrong is reported in their terms: no stale grid, no builder,
+    no internal function (the caster's grids are never stale: see test_caster_threads)."""
+    v, f = icosphere(1)
+    caster = engine.RayCaster(v, f)
+    o, d = _rays(rng, 10)
+    huge = np.broadcast_to(o[:1], (10**11, 3))
+    calls = [
+        lambda: caster.cast(o[:, :2], d[:, :2]), lambda: caster.cast(o, d[:5]),
+        lambda: caster.cast(np.where(o > 1, np.nan, o), d), lambda: caster.cast(o, d * 0),
+        lambda: caster.cast(o, d, tmin=3, tmax=1), lambda: caster.cast(o, d, threads=0),
+        lambda: caster.cast(huge, np.broadcast_to(d[:1], huge.shape)), lambda: caster.cast(o, d, max_bytes=10),
+        lambda: caster.update(v[:-1]), lambda: caster.update(np.full(v.shape, np.inf)),
+        lambda: caster.update(np.zeros(v.shape)), lambda: caster.update(v * 1e31),
+        lambda: caster.update(np.full(v.shape, "x")),
+    ]
+    for call in calls:
+        with pytest.raises(engine.InputError) as e:
+            call()
+        msg = str(e.value)
+        for word in ("stale", "GridBuilder", "cast_batch", "build_grid", "_check", "kernel"):
+            assert word not in msg, msg
+    for _ in range(5):  # many updates later the caster still casts (its grid is never stale)
+        caster.update(v * 1.1)
+        caster.update(v)
+    assert len(compare_hits(caster.cast(o, d).t, caster.cast(o, d).tri, _local_ref(v, f, o, d)).bad) == 0
+
+
+def _odd_rays(rng, n, offset):
+    """Rays through an icosphere at ``offset``, every fifth with a direction scaled far from unit
+    length (2**-300 or 2**200: the caster rescales those), as (origins, directions, scale)."""
+    o, d = _rays(rng, n)
+    scale = np.ones(n)
+    scale[::5] = 2.0**-300
+    scale[2::10] = 2.0**200
+    return o + offset, d * scale[:, None], scale
+
+
+def test_chunk_boundaries_change_nothing(rng, monkeypatch):
+    """A batch cast in chunks (of 1, 7, 1000 rays) gives exactly the hits of one cast, for
+    RayCaster.cast and cast_rays, from float64, strided and float32 inputs, with rays of odd
+    direction lengths on both sides of chunk boundaries; and those hits are the reference's."""
+    from engine.trace import cast_rays
+
+    render_mod = sys.modules["engine.trace.render"]
+    offset = np.array([300.0, -20.0, 7.0])
+    v, f = icosphere(3)
+    v = v.astype(np.float64) + offset
+    caster = engine.RayCaster(v, f)
+    tris32 = v[f].astype(np.float32)
+    grid = engine.build_grid(tris32)
+    o, d, scale = _odd_rays(rng, 3001, offset)
+    wide = np.zeros((len(o), 7))
+    wide[:, 1:7:2] = d
+    variants = {"float64": (o, d), "strided": (o, wide[:, 1:7:2]),
+                "float32": (o.astype(np.float32), (d / scale[:, None]).astype(np.float32))}
+    assert not variants["strided"][1].flags.c_contiguous
+    for name, (oo, dd) in variants.items():
+        whole = [caster.cast(oo, dd), cast_rays(grid, tris32, oo, dd)]
+        for chunk in (1, 7, 1000):
+            monkeypatch.setattr(render_mod, "CAST_CHUNK", chunk)
+            parts = [caster.cast(oo, dd), cast_rays(grid, tris32, oo, dd)]
+            monkeypatch.undo()
+            for a, b in zip(whole, parts):
+                for field in ("t", "tri", "u", "v"):
+                    assert np.array_equal(getattr(a, field), getattr(b, field)), (name, chunk, field)
+        if name != "float32":
+            ref = _local_ref(v, f, o, d / scale[:, None])
+            assert (ref.tri >= 0).sum() > 1000
+            # t is in units of the direction as given: scale it to the unit-length one's
+            assert len(compare_hits(whole[0].t * scale, whole[0].tri, ref).bad) == 0, name
+
+
+def test_cast_memory_is_bounded(rng, monkeypatch):
+    """A cast allocates its results plus one chunk's scratch, not copies of its inputs: float32,
+    strided rays, all with odd direction lengths (the costliest case), cast 8192 at a time."""
+    import tracemalloc
+
+    render_mod = sys.modules["engine.trace.render"]
+    v, f = icosphere(2)
+    caster = engine.RayCaster(v.astype(np.float64) + 40.0, f)
+    n, chunk = 300_000, 8192
+    o, d = _rays(rng, n)
+    o_in = np.asfortranarray((o + 40.0).astype(np.float32))
+    d_in = np.asfortranarray((d * 2.0**-110).astype(np.float32))  # representable, rescaled by the caster
+    monkeypatch.setattr(render_mod, "CAST_CHUNK", chunk)
+    plain = caster.cast(o_in, np.asfortranarray(d.astype(np.float32)))
+    bound = render_mod.cast_bytes(n, chunk)
+    # the bound is well below the results plus even one float64 copy of the origins
+    assert bound < 28 * n + 24 * n // 2
+    tracemalloc.start()
+    try:
+        tracemalloc.reset_peak()
+        base = tracemalloc.get_traced_memory()[0]
+        hits = caster.cast(o_in, d_in)
+        peak = tracemalloc.get_traced_memory()[1] - base
+    finally:
+        tracemalloc.stop()
+    mib = 1 / 2**20
+    print(f"FIGURE cast memory: {n} rays, chunk {chunk}: peak {peak * mib:.2f} MiB allocated, results "
+          f"{28 * n * mib:.2f} MiB, declared bound {bound * mib:.2f} MiB, "
+          f"inputs {(o_in.nbytes + d_in.nbytes) * mib:.2f} MiB")
+    assert 28 * n <= peak <= bound, (peak, bound)
+    # a direction scaled by a power of two gives the same hits, t scaled back
+    assert (plain.tri >= 0).sum() > n // 4
+    assert np.array_equal(hits.tri, plain.tri)
+    hit = plain.tri >= 0
+    assert np.allclose(hits.t[hit], np.ldexp(plain.t[hit], 110), rtol=1e-9, atol=0)
+
+
+def test_batch_beyond_the_budget_is_refused_before_allocating(rng):
+    """A RayCaster's casts share its params' memory budget (max_bytes): a batch whose results do
+    not fit is refused with a message naming the rays and the budget, allocating nothing."""
+    import tracemalloc
+
+    v, f = icosphere(1)
+    caster = engine.RayCaster(v, f, engine.GridParams(max_bytes=1 << 20))
+    o, d = _rays(rng, 3000)
+    assert len(compare_hits(caster.cast(o, d).t, caster.cast(o, d).tri, _local_ref(v, f, o, d)).bad) == 0
+    n = 1_000_000
+    big_o, big_d = np.broadcast_to(o[:1], (n, 3)), np.broadcast_to(d[:1], (n, 3))
+    tracemalloc.start()
+    try:
+        with pytest.raises(engine.InputError, match=rf"casting {n} rays at once needs \d+ MiB .*max_bytes=1 MiB"):
+            caster.cast(big_o, big_d)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1 << 16, peak
+    assert caster.cast(big_o, big_d, max_bytes=1 << 30).tri.shape == (n,)

@@ -155,9 +155,11 @@ BOUNDARIES = {
                                                            ["test_guard_reference_overflow_tripwire"]),
     "engine.grid.strategies.thread_grids:ThreadGridsMerge.insert": (
         "internal: merged grid sized by the layers' total", ["test_guard_reference_overflow_tripwire"]),
-    "engine.trace.render:cast_rays": (
-        "walks grid cell lists and reads tris[tri_ids[r]]: tris must be the grid's; rays shape/finite/non-zero",
-        ["test_guard_cast_rays", "test_stale_grid_is_refused"]),
+    "engine.trace.render:cast_batch": (
+        "walks grid cell lists and reads tris[tri_ids[r]]: tris must be the grid's own float32 array (cast_rays "
+        "checks it, RayCaster holds it); rays shape/dtype, t range, threads and the memory budget, then every "
+        "chunk's values (finite, non-zero directions), all before the first chunk is cast",
+        ["test_guard_cast_rays", "test_stale_grid_is_refused", "test_guard_cast_batch"]),
     "engine.trace.render:Renderer.render": (
         "as cast_rays, plus the second grid's tris and id maps; image buffers sized W x H",
         ["test_guard_render", "test_stale_grid_is_refused"]),
@@ -513,6 +515,58 @@ def test_guard_cast_rays(good_grid, tripwires):
                         (GOOD.astype(np.float64), "float32"), (GOOD.reshape(2, 9), "float32"),
                         (GOOD.tolist(), "float32")):
         expect_guard(lambda: cast_rays(grid, tris, o, d), match)
+
+
+@pytest.fixture(scope="module")
+def good_caster():
+    from engine.api import RayCaster
+
+    return RayCaster(GOOD.reshape(-1, 3), np.arange(6).reshape(2, 3))
+
+
+def test_guard_cast_batch(good_grid, good_caster, tripwires, monkeypatch):
+    """The chunked caster behind cast_rays and RayCaster.cast checks every chunk's rays before it
+    casts the first one (a bad ray in the last chunk reaches no kernel), refuses a batch beyond
+    its memory budget before allocating, and checks its own arguments."""
+    import tracemalloc
+
+    render_mod = import_module("engine.trace.render")  # (engine.trace.render is also a function's name)
+    grid, caster = good_grid, good_caster
+    monkeypatch.setattr(render_mod, "CAST_CHUNK", 4)
+    o = np.tile([[0.2, 0.2, 2.0]], (50, 1))
+    d = np.tile([[0.0, 0.0, -1.0]], (50, 1))
+    for col, value, which, match in ((0, np.nan, "o", r"origins contain NaN or infinity \(first at index \(47, 0\)"),
+                                     (2, -np.inf, "d", r"directions contain NaN or infinity \(first at index \(47, 2"),
+                                     (None, 0.0, "d", "ray direction 47 is the zero vector")):
+        oo, dd = o.copy(), d.copy()
+        target = oo if which == "o" else dd
+        if col is None:
+            target[47] = value
+        else:
+            target[47, col] = value
+        for cast in (lambda: render_mod.cast_rays(grid, GOOD, oo, dd), lambda: caster.cast(oo, dd),
+                     lambda: render_mod.cast_batch(grid, GOOD, oo, dd, chunk=4)):
+            expect_guard(cast, match)
+    huge = 10**12
+    ob, db = np.broadcast_to(o[:1], (huge, 3)), np.broadcast_to(d[:1], (huge, 3))  # costs no memory
+    tracemalloc.start()
+    try:
+        for cast in (lambda: render_mod.cast_rays(grid, GOOD, ob, db), lambda: caster.cast(ob, db)):
+            expect_guard(cast, f"casting {huge} rays at once needs .* above the memory budget")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1 << 20, f"a refused batch allocated {peak} bytes"
+    expect_guard(lambda: render_mod.cast_rays(grid, GOOD, o, d, max_bytes=28 * 50 - 1), "memory budget")
+    expect_guard(lambda: render_mod.cast_rays(grid, GOOD, o, d, max_bytes=0), "max_bytes")
+    for kw, match in ((dict(chunk=0), "chunk"), (dict(origin=[0, np.nan, 0]), "origin"),
+                      (dict(origin=[1, 2]), "origin")):
+        expect_guard(lambda: render_mod.cast_batch(grid, GOOD, o, d, **kw), match)
+    for tris in (GOOD.astype(np.float64), GOOD[:1], np.asfortranarray(GOOD)):
+        expect_guard(lambda: render_mod.cast_batch(grid, tris, o, d), "own C-contiguous")
+    far = np.array([[1.79e308, 0, 0]])
+    expect_guard(lambda: render_mod.cast_batch(grid, GOOD, far, d[:1], origin=[-1e307, 0, 0]),
+                 "beyond float64 range")
 
 
 def test_guard_render(good_grid, tripwires):

@@ -30,10 +30,10 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, parallel_chunksize, prange
 
-from ..arrays import as_rays
-from ..config import RenderParams
+from ..arrays import check_ray_values, check_rays
+from ..config import DEFAULT_MAX_BYTES, RenderParams, _positive_int
 from ..errors import InputError
-from ..threads import check_threads, use_threads
+from ..threads import check_threads, launch_guard, use_threads
 from .traverse import MAILBOX, trace_ray
 from ..camera import pixel_dir
 from .cgt import cgt_render_kernel
@@ -183,45 +183,116 @@ class Hits:
     v: np.ndarray
 
 
-def cast_rays(grid, tris, origins, dirs, tmin=0.0, tmax=np.inf, watertight=True, any_hit=False, threads=None):
-    """Cast rays through a built grid. Returns Hits. Directions need not be unit length
-    (t is then in units of the given direction)."""
-    tris = _check_grid_tris(grid, tris)
-    o, d = as_rays(origins, dirs)
+#: rays per chunk of a batch cast: a batch's rays are checked, converted to float64, moved into
+#: the grid's frame and cast this many at a time, so the scratch is bounded whatever the batch size
+CAST_CHUNK = 1 << 18
+#: bytes per ray of a cast's results: t, u, v float64 and tri int32
+HIT_BYTES = 28
+#: scratch bytes per ray of a chunk, an upper bound: float64 origins and directions and the
+#: largest components with their temporaries (72), then with odd directions their indices and
+#: exponents (12) and the re-cast of those rays (origins, directions, results, temporaries: 93)
+CAST_SCRATCH_BYTES = 192
+
+
+def cast_bytes(n, chunk=None):
+    """Bytes a cast of ``n`` rays allocates: its results plus the scratch of one chunk."""
+    return HIT_BYTES * n + CAST_SCRATCH_BYTES * min(n, CAST_CHUNK if chunk is None else chunk)
+
+
+def cast_batch(grid, tris, origins, dirs, origin=None, tmin=0.0, tmax=np.inf, watertight=True, any_hit=False,
+               threads=None, max_bytes=None, chunk=None) -> Hits:
+    """Cast a batch of rays through ``grid`` over ``tris``, its own C-contiguous (F,3,3) float32
+    triangles in the grid's frame (what :func:`_check_grid_tris` returns); ray origins are moved
+    into that frame by subtracting ``origin`` ((3,) float64; None: the frame is the world's) in
+    float64.  The implementation behind :func:`cast_rays` and ``RayCaster.cast``.
+
+    Memory: the results (:data:`HIT_BYTES` a ray) plus a scratch of one chunk of ``chunk``
+    (default :data:`CAST_CHUNK`) rays; the caller's arrays are read in place, chunk by chunk.  A
+    batch whose results and scratch exceed ``max_bytes`` (default: GridParams' max_bytes default)
+    is refused before anything is allocated.  Every check, including the values of every ray (a
+    streaming pass, one chunk at a time), is made before the first kernel runs."""
+    from ..grid.layout import Grid
+
+    if not isinstance(grid, Grid):
+        raise InputError(f"expected a Grid (from build_grid or GridBuilder.build), got {type(grid).__name__}")
+    grid.check_current()
+    if not (isinstance(tris, np.ndarray) and tris.dtype == np.float32 and tris.flags.c_contiguous
+            and tris.shape == (grid.n_triangles, 3, 3)):
+        raise InputError("cast_batch needs the grid's own C-contiguous (F,3,3) float32 triangles (see cast_rays)")
+    o, d = check_rays(origins, dirs)
     tmin = float(tmin)
     tmax = float(tmax)
     if math.isnan(tmin) or math.isnan(tmax) or tmin < 0 or tmax < tmin:
         raise InputError(f"need 0 <= tmin <= tmax, got tmin={tmin}, tmax={tmax}")
-    use_threads(check_threads(threads))
+    threads = check_threads(threads)
+    frame = None
+    if origin is not None:  # (RayCaster's frame, or grid.origin: both engine-made)
+        frame = np.asarray(origin, dtype=np.float64)
+        if frame.shape != (3,) or not np.isfinite(frame).all():
+            raise InputError(f"frame origin must be 3 finite numbers, got {origin!r}")
+        frame = frame if frame.any() else None
+    chunk = CAST_CHUNK if chunk is None else _positive_int("chunk", chunk)
+    budget = DEFAULT_MAX_BYTES if max_bytes is None else _positive_int("max_bytes", max_bytes)
     N = len(o)
-    t = np.empty(N)
-    f = np.empty(N, np.int32)
-    u = np.empty(N)
-    v = np.empty(N)
-    if N:
-        # directions far from unit length are rescaled by exact powers of two (t scales back
-        # exactly), so the traversal never sees components whose inverse overflows
-        e = np.frexp(np.abs(d).max(axis=1))[1]
-        odd = (e < -100) | (e > 100)
-        if odd.any():
-            d = d.copy()
-            d[odd] = np.ldexp(d[odd], -e[odd, None])
-        cast_kernel(tris, *_grid_args(grid), o, d, tmin, tmax, bool(watertight), bool(any_hit), 256, t, f, u, v)
-        for s in np.unique(e[odd]):
-            rows = np.flatnonzero(odd & (e == s))
-            # t = t' * 2**-s for d' = d * 2**-s; a hit beyond float64's range is no hit
-            lo_t, hi_t = np.ldexp(np.array([tmin, tmax]), int(s))
-            sub = [np.empty(len(rows)), np.empty(len(rows), np.int32), np.empty(len(rows)), np.empty(len(rows))]
-            cast_kernel(tris, *_grid_args(grid), np.ascontiguousarray(o[rows]), np.ascontiguousarray(d[rows]),
-                        float(lo_t), float(hi_t), bool(watertight), bool(any_hit), 256, *sub)
-            with np.errstate(over="ignore"):
-                ts = np.ldexp(sub[0], -int(s))
-            gone = ~np.isfinite(ts)
-            sub[1][gone] = -1
-            sub[2][gone] = 0.0
-            sub[3][gone] = 0.0
-            t[rows], f[rows], u[rows], v[rows] = np.where(gone, np.inf, ts), sub[1], sub[2], sub[3]
-    return Hits(t, f, u, v)
+    need = cast_bytes(N, chunk)
+    if need > budget:
+        raise InputError(
+            f"casting {N} rays at once needs {need / 2**20:.0f} MiB ({HIT_BYTES} bytes a ray for the hits, plus "
+            f"scratch), above the memory budget max_bytes={budget / 2**20:.0f} MiB; cast fewer rays at a time "
+            f"or raise max_bytes")
+    for s in range(0, N, chunk):
+        check_ray_values(o[s : s + chunk], d[s : s + chunk], s, frame)
+    hits = Hits(np.empty(N), np.empty(N, np.int32), np.empty(N), np.empty(N))
+    use_threads(threads)
+    g = _grid_args(grid)
+    wt, ah = bool(watertight), bool(any_hit)
+    with launch_guard():
+        for s in range(0, N, chunk):
+            e = min(N, s + chunk)
+            if frame is None:
+                oc = np.ascontiguousarray(o[s:e], dtype=np.float64)
+            else:
+                oc = np.subtract(o[s:e], frame, dtype=np.float64)
+            dc = np.ascontiguousarray(d[s:e], dtype=np.float64)
+            out = (hits.t[s:e], hits.tri[s:e], hits.u[s:e], hits.v[s:e])
+            # directions far from unit length are rescaled by exact powers of two (t scales back
+            # exactly), so the traversal never sees components whose inverse overflows:
+            # frexp exponent < -100 or > 100, i.e. a largest component below 2**-101 or from 2**100
+            big = np.maximum(np.maximum(np.abs(dc[:, 0]), np.abs(dc[:, 1])), np.abs(dc[:, 2]))  # 6x an axis-1 max
+            odd = np.flatnonzero((big < 2.0**-101) | (big >= 2.0**100))
+            ex = np.frexp(big[odd])[1]
+            del big
+            if len(odd):
+                if np.may_share_memory(dc, d):
+                    dc = dc.copy()  # (never write to the caller's array)
+                dc[odd] = np.ldexp(dc[odd], -ex[:, None])
+            cast_kernel(tris, *g, oc, dc, tmin, tmax, wt, ah, 256, *out)
+            for x in np.unique(ex):
+                rows = odd[ex == x]
+                # t = t' * 2**-x for d' = d * 2**-x; a hit beyond float64's range is no hit
+                lo_t, hi_t = np.ldexp(np.array([tmin, tmax]), int(x))
+                sub = [np.empty(len(rows)), np.empty(len(rows), np.int32), np.empty(len(rows)), np.empty(len(rows))]
+                cast_kernel(tris, *g, oc[rows], dc[rows], float(lo_t), float(hi_t), wt, ah, 256, *sub)
+                with np.errstate(over="ignore"):
+                    ts = np.ldexp(sub[0], -int(x))
+                gone = ~np.isfinite(ts)
+                out[0][rows] = np.where(gone, np.inf, ts)
+                out[1][rows] = np.where(gone, -1, sub[1])
+                out[2][rows] = np.where(gone, 0.0, sub[2])
+                out[3][rows] = np.where(gone, 0.0, sub[3])
+    return hits
+
+
+def cast_rays(grid, tris, origins, dirs, tmin=0.0, tmax=np.inf, watertight=True, any_hit=False, threads=None,
+              max_bytes=None):
+    """Cast rays through a built grid. Returns Hits. Directions need not be unit length
+    (t is then in units of the given direction).  Rays are cast in chunks of CAST_CHUNK, so the
+    memory needed is the results (28 bytes a ray) plus a bounded scratch; a batch above
+    ``max_bytes`` (default 2 GiB, GridParams' default budget) is refused before anything is
+    allocated (see :func:`cast_batch`)."""
+    tris = _check_grid_tris(grid, tris)
+    return cast_batch(grid, tris, origins, dirs, getattr(grid, "origin", None), tmin, tmax, watertight, any_hit,
+                      threads, max_bytes)
 
 
 @dataclass
