@@ -43,6 +43,10 @@ def _have_gomp():
     return ctypes.util.find_library("gomp") is not None
 
 
+#: numba cache folders of other source versions kept beside the current one (see _cache_dir)
+CACHE_KEEP = 3
+
+
 def _cache_dir():
     import hashlib
     import shutil
@@ -56,9 +60,17 @@ def _cache_dir():
     base = root / "__pycache__"
     here = base / f"numba-{h.hexdigest()[:16]}"
     try:
-        for old in base.glob("numba-*"):
-            if old != here:
-                shutil.rmtree(old, ignore_errors=True)
+        # caches of older sources go, but not one another process may still be compiling into (an
+        # edit while a run is under way): the newest few stay, and none touched in the last hour goes
+        import time
+
+        def touched(p):  # numba writes into one sub-folder per source folder
+            return max([p.stat().st_mtime] + [q.stat().st_mtime for q in p.iterdir()])
+
+        old = sorted(((touched(p), p) for p in base.glob("numba-*") if p != here), reverse=True)
+        for when, p in old[CACHE_KEEP:]:
+            if time.time() - when > 3600:
+                shutil.rmtree(p, ignore_errors=True)
     except OSError:
         pass
     return str(here)
