@@ -140,7 +140,7 @@ def run_core(a):
     bar = progress(len(specs) * (2 + len(threads) * len(travs)), "bench core", a.no_progress)
     for spec in specs:
         sc = resolve_scene(spec)
-        tris = np.array(sc.scene.triangles_at(0.0))
+        tris = np.array(sc.scene.triangles_at(0.0, origin=sc.scene.frame_origin(0.0)))  # as the pipeline grids it
         label = f"{sc.label} ({sc.scene.name})" if sc.label != sc.scene.name else sc.label
         for ins in ("bbox", "exact"):
             b = GridBuilder(GridParams(strategy="serial", insert=ins, threads=1))

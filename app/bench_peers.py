@@ -167,8 +167,9 @@ def run_peers(a):
     bar = progress(len(scenes) * len(threads) * (warmup + runs + 1), "bench peers", a.no_progress)
     affinity_ok = True
     for sc in scenes:
-        tris0 = np.array(sc.scene.triangles_at(0.0))
-        cam = scene_camera(sc.scene, tris0)
+        origin = sc.scene.frame_origin(0.0)  # both tracers get the scene in the frame the pipeline uses
+        tris0 = np.array(sc.scene.triangles_at(0.0, origin=origin))
+        cam = scene_camera(sc.scene, tris0, origin=origin)
         o, d = cam.rays(size, size)
         o32 = np.ascontiguousarray(o, np.float32)
         d32 = np.ascontiguousarray(d, np.float32)
@@ -186,7 +187,7 @@ def run_peers(a):
             with Affinity(T) as aff, ThreadPoolExecutor(T) as pool:
                 affinity_ok &= aff.applied
                 for i in range(warmup + runs):
-                    tris = sc.scene.triangles_at(i * a.dt)
+                    tris = sc.scene.triangles_at(i * a.dt, origin=origin)
                     t0 = time.perf_counter()
                     g = builder.build(tris)
                     t1 = time.perf_counter()

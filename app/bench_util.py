@@ -210,15 +210,18 @@ def facing_camera(lo, hi, fov=45.0):
     return Camera(eye=tuple(c + d * dist), target=tuple(c), up=up, fov=fov)
 
 
-def scene_camera(scene, tris, t=0.0):
+def scene_camera(scene, tris, t=0.0, origin=None):
     """The scene's own camera at time t (BART, glTF) where it has one, else facing_camera over
-    the bounds of tris (F,3,3)."""
+    the bounds of tris (F,3,3); ``origin``: the frame tris are in (the scene's camera is moved
+    there)."""
     cam = None
     if hasattr(scene, "camera_at"):
         try:
             cam = scene.camera_at(float(t))
         except (AttributeError, NotImplementedError):
             cam = None
+        if cam is not None and origin is not None:
+            cam = cam.moved(-np.asarray(origin, np.float64))
     if cam is None:
         v = np.asarray(tris).reshape(-1, 3)
         cam = facing_camera(v.min(axis=0), v.max(axis=0))

@@ -21,6 +21,7 @@ builder's buffers (about the grid's memory) and two short lock acquisitions per 
 """
 
 import threading
+import warnings
 
 import numpy as np
 
@@ -28,6 +29,7 @@ from .arrays import as_mesh, as_triangles, triangle_areas2
 from .config import GridParams
 from .errors import InputError
 from .grid.build import GridBuilder
+from .precision import PrecisionWarning, detail_warning, warn_detail
 from .threads import launch_guard
 from .trace.render import Hits, cast_batch
 
@@ -84,6 +86,7 @@ class RayCaster:
         origin = self._centre(v64)
         verts, self.faces = as_mesh(v64 - origin, faces)
         tris = np.take(verts, self.faces, axis=0)
+        self.precision_warning = warn_detail(tris, "RayCaster mesh")
         builder = GridBuilder(self.params)
         with launch_guard():
             grid = builder.build(tris, self.params)
@@ -127,6 +130,14 @@ class RayCaster:
         tris = np.take(verts, self.faces, axis=0)
         if not _has_area(tris):
             raise InputError(f"update: all {len(tris)} triangles are degenerate (zero area)")
+        # a cheap look (1024 triangles' edges, the extent from the vertices): warn when the mesh has
+        # just become too fine for float32 at its size, not on every update of such a mesh
+        if len(verts):
+            big = max(abs(float(verts.min())), abs(float(verts.max())))
+            msg = detail_warning(tris, "RayCaster mesh", sample=1024, big=big)
+            if msg is not None and self.precision_warning is None:
+                warnings.warn(msg, PrecisionWarning, stacklevel=2)
+            self.precision_warning = msg
         with self._update_lock:
             with self._lock:
                 builder, self._spare = self._spare, None

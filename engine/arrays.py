@@ -35,8 +35,14 @@ def as_triangles(tris, what="triangles", allow_degenerate=True):
     """Return ``tris`` as a validated C-contiguous (F, 3, 3) float32 array.
 
     Raises InputError for a wrong shape, an empty array, non-finite values, values too large
-    for float32, or (unless ``allow_degenerate``) a scene whose triangles all have zero area.
+    for float32, or (unless ``allow_degenerate``) a scene whose triangles all have zero area
+    (judged in a frame centred on the scene).
     """
+    return np.ascontiguousarray(as_triangles64(tris, what, allow_degenerate), dtype=TRI_DTYPE)
+
+
+def as_triangles64(tris, what="triangles", allow_degenerate=True):
+    """:func:`as_triangles`, but the triangles are returned as given, in float64."""
     a = np.asarray(tris)
     if a.dtype == object or not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
         raise InputError(f"{what} must be a numeric array, got dtype {a.dtype}")
@@ -47,18 +53,17 @@ def as_triangles(tris, what="triangles", allow_degenerate=True):
     _finite_check(a, what)
     if np.abs(a).max() > 1e30:
         raise InputError(f"{what} have coordinates beyond 1e30, too large for float32")
-    out = np.ascontiguousarray(a, dtype=TRI_DTYPE)
-    if not allow_degenerate and not (triangle_areas2(out) > 0).any():
-        raise InputError(f"{what}: all {len(out)} triangles are degenerate (zero area)")
+    out = np.ascontiguousarray(a, dtype=np.float64)
+    if not allow_degenerate:
+        local = (out - bounds_centre(out)).astype(TRI_DTYPE)
+        if not (triangle_areas2(local) > 0).any():
+            raise InputError(f"{what}: all {len(out)} triangles are degenerate (zero area)")
     return out
 
 
-def as_mesh(vertices, faces, what="mesh"):
-    """Validate an indexed mesh; return ``(vertices (V,3) float32, faces (F,3) int32)``.
-
-    Checks shapes, emptiness, NaN/inf vertices, negative or out-of-range face indices and
-    meshes whose triangles all have zero area.
-    """
+def as_mesh64(vertices, faces, what="mesh"):
+    """Validate an indexed mesh; return ``(vertices (V,3) float64, faces (F,3) int32)``, the
+    vertices exactly as given (see :func:`as_mesh`)."""
     v = np.asarray(vertices)
     f = np.asarray(faces)
     if v.ndim != 2 or v.shape[1] != 3:
@@ -87,11 +92,59 @@ def as_mesh(vertices, faces, what="mesh"):
         )
     if len(v) > np.iinfo(np.int32).max or len(f) > np.iinfo(np.int32).max:
         raise InputError(f"{what}: too many vertices or faces for int32 indices")
-    v32 = np.ascontiguousarray(v, dtype=TRI_DTYPE)
+    v64 = np.ascontiguousarray(v, dtype=np.float64)
     f32 = np.ascontiguousarray(f, dtype=INDEX_DTYPE)
-    if not (triangle_areas2(v32[f32]) > 0).any():
+    # degeneracy is judged in a frame centred on the mesh (as every renderer sees it), so a mesh far
+    # from the world origin is not refused because float32 world coordinates would collapse it
+    local = (v64 - bounds_centre(v64)).astype(TRI_DTYPE)
+    if not (triangle_areas2(local[f32]) > 0).any():
         raise InputError(f"{what}: all {len(f32)} triangles are degenerate (zero area)")
-    return v32, f32
+    return v64, f32
+
+
+def as_mesh(vertices, faces, what="mesh"):
+    """Validate an indexed mesh; return ``(vertices (V,3) float32, faces (F,3) int32)``.
+
+    Checks shapes, emptiness, NaN/inf vertices, negative or out-of-range face indices and
+    meshes whose triangles all have zero area (in a frame centred on the mesh).
+    """
+    v64, f32 = as_mesh64(vertices, faces, what)
+    return v64.astype(TRI_DTYPE), f32
+
+
+def bounds_centre(points):
+    """Float64 centre of the axis-aligned bounds of (..., 3) points ((3,) zeros when empty)."""
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    if len(p) == 0:
+        return np.zeros(3)
+    return 0.5 * (p.min(axis=0) + p.max(axis=0))
+
+
+def storage_centre(points):
+    """Where to centre float32 storage of float64 ``points`` (..., 3): (3,) zeros when the points'
+    bounds reach within one extent of the world origin (float32 world coordinates then keep the
+    precision of the scene's own size), else the bounds' centre (far away: store ``p - centre``)."""
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    if len(p) == 0:
+        return np.zeros(3)
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    c = 0.5 * (lo + hi)
+    if np.abs(c).max() <= float((hi - lo).max()):
+        return np.zeros(3)
+    return c
+
+
+def as_origin(origin):
+    """Validate a frame origin: None -> (3,) zeros; else 3 finite numbers as (3,) float64."""
+    if origin is None:
+        return np.zeros(3)
+    try:
+        o = np.asarray(origin, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise InputError(f"frame origin must be 3 numbers, got {origin!r}") from None
+    if o.shape != (3,) or not np.isfinite(o).all():
+        raise InputError(f"frame origin must be 3 finite numbers, got {origin!r}")
+    return o
 
 
 def check_rays(origins, directions):

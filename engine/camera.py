@@ -173,6 +173,16 @@ class Camera:
         _fill_rays(self.basis(), W, H, o, d)
         return o, d
 
+    def moved(self, offset):
+        """The same view with eye and target moved by ``offset`` (3 floats), in float64: the camera
+        in a frame whose origin lies at ``-offset`` (e.g. ``cam.moved(-origin)`` for a scene
+        rendered in world - origin)."""
+        o = np.asarray(offset, np.float64)
+        if not o.any():
+            return self
+        return Camera(eye=tuple(np.asarray(self.eye) + o), target=tuple(np.asarray(self.target) + o),
+                      up=self.up, fov=self.fov)
+
     def replace(self, **kw):
         from dataclasses import replace
 

@@ -9,6 +9,7 @@ import numpy as np
 from .camera import Camera
 from .config import GridParams, RenderParams
 from .grid.build import GridBuilder
+from .precision import warn_detail
 from .threads import use_threads
 from .trace.render import Renderer
 
@@ -21,15 +22,25 @@ STATS_COLUMNS = (
 )
 
 
+#: The pipeline chooses its frame again when the centre of the scene's bounds has drifted from the
+#: frame's origin by more than this many times the bounds' largest extent.
+RECENTRE_DRIFT = 1.0
+
+
 @dataclass
 class Frame:
-    """One rendered frame: image (H,W,4) uint8, t (H,W) float32, tri (H,W) int32, stats dict."""
+    """One rendered frame: image (H,W,4) uint8, t (H,W) float32, tri (H,W) int32, stats dict.
+
+    ``grid`` is the frame's grid and ``origin`` ((3,) float64) the world position of the frame it
+    was built in: the grid covers the scene's triangles moved by ``-origin`` (see FramePipeline).
+    """
 
     image: np.ndarray
     t: np.ndarray
     tri: np.ndarray
     stats: dict
     grid: object = None
+    origin: np.ndarray = None
 
 
 class FramePipeline:
@@ -41,6 +52,17 @@ class FramePipeline:
     camera         Camera, or None to frame the scene's bounds at the first frame
                    (with vertical field of view ``fov`` and up vector ``up``)
     follow_camera  use the scene's animated camera (``scene.camera_at(t)``) where it has one
+
+    The scene is evaluated, gridded and ray cast in a frame centred on it, so a scene far from the
+    world origin keeps float32's precision of its own size: :attr:`origin` (float64) is the centre
+    of the scene's bounds at the first frame, or 0 when those bounds reach within one extent of the
+    world origin (``Animation.frame_origin``; world coordinates are then as precise), the scene gives its
+    triangles in ``world - origin`` (computed in float64 before rounding) and the camera (explicit,
+    automatic or the scene's own, all in world coordinates) is moved by ``-origin`` in float64.
+    The frame follows a moving scene: when the centre of a frame's bounds has drifted from the
+    origin by more than RECENTRE_DRIFT times the bounds' extent, the origin moves to the scene's
+    centre and that frame is evaluated again.  Hit distances, triangle ids and images are those of
+    the world-space scene.
 
     A static scene is gridded once and not rebuilt until the grid parameters change.  A scene
     whose ``static_mask`` marks some triangles as never moving is split (``split_static``): the
@@ -67,6 +89,32 @@ class FramePipeline:
         self._split = None  # (ids_static, ids_moving, static tris, moving tris buffer, static builder)
         self.static_grid = None
         self._static_params = None
+        self.origin = None  # (3,) float64 world position of the frame the scene is gridded in
+        self._local_camera = (None, None, None)  # (world camera, origin, the camera in that frame)
+        self.recentred = 0  # how often the frame was chosen again after the first frame
+        self.precision_warning = None  # the PrecisionWarning message of the first frame, if any
+
+    def _set_origin(self, origin):
+        """Work in the frame of ``origin`` from now on: every grid is rebuilt in it."""
+        self.origin = np.asarray(origin, np.float64).copy()
+        self.grid = None
+        self.static_grid = None
+
+    def _in_frame(self, cam):
+        """``cam`` (world) in the pipeline's frame, in float64 (cached for a camera reused)."""
+        w, o, local = self._local_camera
+        if w is cam and o is self.origin:
+            return local
+        local = cam.moved(-self.origin)
+        self._local_camera = (cam, self.origin, local)
+        return local
+
+    def _frame_bounds(self, grid, second):
+        lo, hi = grid.spec.scene_lo, grid.spec.scene_hi
+        if second is not None:
+            lo = np.minimum(lo, second[0].spec.scene_lo)
+            hi = np.maximum(hi, second[0].spec.scene_hi)
+        return lo, hi
 
     def _split_parts(self):
         """The static/moving split of the scene, or None when it does not apply."""
@@ -112,25 +160,43 @@ class FramePipeline:
         # the animation's parallel kernels run at the rebuild's thread count, not at whatever count
         # the last kernel anywhere in the process left behind (another pipeline's render, say)
         use_threads(self.grid_params.threads)
-        tris = self.scene.triangles_at(float(t))
+        first = self.origin is None
+        if first:
+            self._set_origin(self.scene.frame_origin(float(t)))
+        tris = self.scene.triangles_at(float(t), origin=self.origin)
+        if first:
+            self.precision_warning = warn_detail(tris, f"scene {self.scene.name!r}")
         anim_ms = (time.perf_counter() - t0) * 1e3
         gp = self.grid_params
         grid, second, rebuild, static_ms = self._build(tris, gp)
+        lo, hi = self._frame_bounds(grid, second)
+        drift = 0.5 * (lo + hi)
+        if np.abs(drift).max() > RECENTRE_DRIFT * max(float((hi - lo).max()), 1e-300):
+            # the scene has moved away from the frame: centre the frame on it again
+            t0 = time.perf_counter()
+            self._set_origin(self.origin + drift)
+            self.recentred += 1
+            tris = self.scene.triangles_at(float(t), origin=self.origin)
+            anim_ms += (time.perf_counter() - t0) * 1e3
+            grid, second, rebuild, static_ms = self._build(tris, gp)
+            lo, hi = self._frame_bounds(grid, second)
         cam = None
         if self.follow_camera:
             cam = self.scene.camera_at(float(t))
         cam = cam or camera or self.camera
         if cam is None:
-            lo, hi = grid.spec.scene_lo, grid.spec.scene_hi
-            if second is not None:
-                lo = np.minimum(lo, second[0].spec.scene_lo)
-                hi = np.maximum(hi, second[0].spec.scene_hi)
-            cam = self.camera = Camera.frame(lo, hi, fov=self.fov, up=self.up)
+            local = Camera.frame(lo, hi, fov=self.fov, up=self.up)
+            cam = self.camera = local.moved(self.origin)
+            self._local_camera = (cam, self.origin, local)
+        local_cam = self._in_frame(cam)
+        rp = self.render_params
+        if rp.light is not None and self.origin.any():
+            rp = rp.replace(light=tuple(np.asarray(rp.light, np.float64) - self.origin))
         if second is not None:
-            res = self.renderer.render(self.static_grid, self._split[2], cam, self.render_params, second=second)
+            res = self.renderer.render(self.static_grid, self._split[2], local_cam, rp, second=second)
             grid = second[0]
         else:
-            res = self.renderer.render(grid, tris, cam, self.render_params)
+            res = self.renderer.render(grid, tris, local_cam, rp)
         self.last_camera = cam
         gs = grid.stats
         rp = self.render_params
@@ -170,4 +236,4 @@ class FramePipeline:
                 stats[k] = v if rebuild else 0.0
         stats["frame_ms"] = (time.perf_counter() - t_frame) * 1e3
         self.frame_index += 1
-        return Frame(res.image, res.t, res.tri, stats, grid)
+        return Frame(res.image, res.t, res.tri, stats, grid, self.origin)

@@ -267,7 +267,8 @@ def test_cgt_two_grids():
     moving[-80:] = True
     ids_a = np.flatnonzero(~moving).astype(np.int32)
     ids_b = np.flatnonzero(moving).astype(np.int32)
-    ga, gb = build_grid(tris[ids_a], GridParams()), build_grid(tris[ids_b], GridParams())
+    ga = build_grid(tris[ids_a], GridParams())
+    gb = build_grid(tris[ids_b], GridParams(), origin=ga.origin)  # both parts in one frame
     whole = build_grid(tris, GridParams())
     for view in ("framed", "grazing", "inside"):
         cam = camera(view, tris)

@@ -512,8 +512,10 @@ def test_guard_cast_rays(good_grid, tripwires):
         expect_guard(lambda: cast_rays(grid, GOOD, o, d, tmin=tmin, tmax=tmax), "tmin")
     expect_guard(lambda: cast_rays(grid, GOOD, o, d, threads=max_threads() + 1), "thread count")
     for tris, match in ((GOOD[:1], "built over 2 triangles but 1"), (np.concatenate([GOOD] * 2), "but 4"),
-                        (GOOD.astype(np.float64), "float32"), (GOOD.reshape(2, 9), "float32"),
-                        (GOOD.tolist(), "float32")):
+                        (GOOD.astype(complex), "array the grid was built from"),
+                        (np.where(np.arange(18).reshape(2, 3, 3) == 4, np.nan, GOOD.astype(np.float64)), "NaN"),
+                        (GOOD.reshape(2, 9), "array the grid was built from"),
+                        (GOOD.tolist(), "array the grid was built from")):
         expect_guard(lambda: cast_rays(grid, tris, o, d), match)
 
 
@@ -579,7 +581,8 @@ def test_guard_render(good_grid, tripwires):
     for trav in ("dda", "cgt"):
         p = RenderParams(width=4, height=4, traversal=trav)
         expect_guard(lambda: render(grid, GOOD[:1], cam, p), "built over 2 triangles")
-        expect_guard(lambda: render(grid, GOOD.astype(np.float64), cam, p), "float32")
+        expect_guard(lambda: render(grid, GOOD.astype(complex), cam, p), "array the grid was built from")
+        expect_guard(lambda: render(grid, np.full((2, 3, 3), np.inf), cam, p), "NaN or infinity")
         r = Renderer()
         expect_guard(lambda: r.render(grid, GOOD, cam, p, second=(grid, GOOD[:1], [0, 1], [0, 1])), "built over")
         expect_guard(lambda: r.render(grid, GOOD, cam, p, second=(grid, GOOD, [0], [0, 1])), "id maps")

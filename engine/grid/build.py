@@ -297,13 +297,27 @@ class GridBuilder:
         return grid
 
 
-def build_grid(tris, params: GridParams | None = None, **kw) -> Grid:
-    """One-shot build. ``kw`` are GridParams fields (e.g. strategy="serial", density=4)."""
+def build_grid(tris, params: GridParams | None = None, *, origin=None, **kw) -> Grid:
+    """One-shot build. ``kw`` are GridParams fields (e.g. strategy="serial", density=4).
+
+    ``tris`` (F,3,3) float64 or float32 world coordinates.  The grid is built in the frame of
+    ``origin`` (3 floats, stored as ``grid.origin``): by default the centre of the triangles'
+    bounds when they lie farther from the world origin than their own extent, else 0.  Pass the
+    origin of another grid to build grids that are traversed together (``Renderer.render(second=)``).
+    """
     if params is None:
         params = GridParams(**kw)
     elif kw:
         params = params.replace(**kw)
-    from ..arrays import as_triangles
+    from ..arrays import as_origin, as_triangles64, storage_centre
+    from ..precision import warn_detail
 
-    tris = as_triangles(tris, allow_degenerate=False)
-    return GridBuilder(params).build(tris)  # the builder is dropped: the grid owns its buffers
+    tris64 = as_triangles64(tris, allow_degenerate=False)
+    # a scene far from the world origin is gridded in a frame centred on it (grid.origin), from its
+    # float64 coordinates, so float32 keeps the precision of the scene's own size
+    origin = storage_centre(tris64) if origin is None else as_origin(origin)
+    local = np.ascontiguousarray(tris64 - origin if origin.any() else tris64, dtype=np.float32)
+    warn_detail(local, "the triangles")
+    grid = GridBuilder(params).build(local)  # the builder is dropped: the grid owns its buffers
+    grid.origin = origin
+    return grid

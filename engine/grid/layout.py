@@ -77,6 +77,10 @@ class Grid:
     stats       dict              stage timings in ms (clear_ms, insert_ms, macro_ms, build_ms,
                                   plus strategy-specific stages) and counts
     generation  int               which build of ``buffers`` this grid is
+    origin      (3,) float64      world position of the grid's coordinate origin: the grid and
+                                  the triangles it was built over live in ``world - origin``
+                                  (:func:`build_grid` centres a scene far from the world origin;
+                                  render and cast_rays take world inputs and move them)
 
     The arrays are views of its GridBuilder's buffers, which the builder's next build reuses:
     a grid is valid until then (:meth:`check_current` raises afterwards).  A grid from
@@ -93,6 +97,7 @@ class Grid:
     stats: dict = field(default_factory=dict)
     generation: int = 0
     buffers: object = field(default=None, repr=False)
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def check_current(self):
         """Raise InputError when the builder that made this grid has built another since."""

@@ -68,11 +68,12 @@ def _scene_items(scenes):
     return out
 
 
-def _frame(src, i):
+def _frame(src, i, origin=None):
+    """Frame i of a scene (in the frame of ``origin``, as the frame pipeline grids it), or the array."""
     if isinstance(src, np.ndarray):
         return src
     t = 0.0 if getattr(src, "static", False) else i * FRAME_DT
-    return src.triangles_at(t)
+    return src.triangles_at(t, origin=origin)
 
 
 def _count(name, v, lo):
@@ -170,8 +171,9 @@ def _measure(scene_name, src, group, runs, warmup, cores):
     """Rows for a group of configurations built round-robin on the same frames."""
     builders = [GridBuilder(p) for p in group]
     samples = [[] for _ in group]
+    origin = None if isinstance(src, np.ndarray) else src.frame_origin(0.0)
     for i in range(warmup + runs):
-        tris = _frame(src, i)
+        tris = _frame(src, i, origin)
         for b, smp in zip(builders, samples):
             g = b.build(tris)
             if i >= warmup:

@@ -30,11 +30,11 @@ from numbers import Real
 import numpy as np
 from numba import njit, prange
 
-from ..arrays import TRI_DTYPE
+from ..arrays import TRI_DTYPE, as_origin
 from ..errors import InputError
 from .mesh import Mesh
 
-__all__ = ["Animation", "StaticMesh", "as_static_mask", "check_time", "gather_triangles"]
+__all__ = ["Animation", "StaticMesh", "as_static_mask", "check_time", "gather_triangles", "pose_moving_vertices"]
 
 
 def check_time(t):
@@ -122,6 +122,17 @@ def gather_unchecked(vertices, faces, out):
     return out
 
 
+def pose_moving_vertices(scene, clip_time, origin):
+    """Bring ``scene._verts`` to ``clip_time`` in the frame of ``origin`` for the posed loaders
+    (glTF, BART): only the moving vertices (``scene._dynamic_vids``) when the frame is the one the
+    buffer is already in, else every vertex (the static ones move with the frame)."""
+    if not np.array_equal(origin, scene._posed_origin):
+        scene._posed_origin = origin.copy()
+        scene._pose(clip_time, np.arange(len(scene._verts), dtype=np.int64))
+    elif len(scene._dynamic_vids):
+        scene._pose(clip_time, scene._dynamic_vids)
+
+
 class Animation(ABC):
     """Base class of every scene: triangles as a pure function of time.
 
@@ -171,7 +182,7 @@ class Animation(ABC):
             return self.n_triangles
         return 0 if self.static_mask is None else int(self.static_mask.sum())
 
-    def triangles_at(self, t, out=None):
+    def triangles_at(self, t, out=None, origin=None):
         """Return the triangles at time ``t`` seconds, shape (F, 3, 3) float32, C-contiguous.
 
         Parameters
@@ -182,13 +193,41 @@ class Animation(ABC):
             A writeable C-contiguous (F, 3, 3) float32 array to fill.  When omitted, the
             animation's single internal buffer is filled and returned (the same object on
             every call, so the previous frame is overwritten).
+        origin : (3,) float, optional
+            The frame to return the triangles in: ``world - origin``, computed in float64 and
+            rounded to float32 only then, so a scene far from the world origin keeps its detail
+            in a frame centred on it.  Default: world coordinates (origin 0).
 
-        Raises InputError for a bad ``t`` or a badly shaped/typed ``out``.
+        Raises InputError for a bad ``t``, a badly shaped/typed ``out`` or a bad ``origin``.
         """
         t = check_time(t)
         buf = self._output(out)
-        self._fill(t, buf)
+        self._fill(t, buf, as_origin(origin))
         return buf
+
+    def bounds_at(self, t=0.0):
+        """``(centre, extent)``: the float64 centre of the scene's bounds at time ``t`` and their
+        largest side, measured in a frame centred on a first estimate (so float32 rounding of
+        world coordinates far from the origin does not blur them)."""
+        c = np.zeros(3)
+        buf = np.empty((self.n_triangles, 3, 3), TRI_DTYPE)
+        for _ in range(4):  # each pass measures in the previous estimate's frame; 2 suffice in practice
+            pts = self.triangles_at(t, out=buf, origin=c).reshape(-1, 3)
+            lo = pts.min(axis=0).astype(np.float64)
+            hi = pts.max(axis=0).astype(np.float64)
+            step = 0.5 * (lo + hi)
+            c = c + step
+            extent = float((hi - lo).max())
+            if np.abs(step).max() <= 1e-3 * max(extent, 1e-300):
+                break
+        return c, extent
+
+    def frame_origin(self, t=0.0):
+        """The origin of the frame a renderer should work in at time ``t``: (3,) float64 zeros when
+        the scene's bounds reach within one extent of the world origin (world coordinates then keep
+        float32's precision of the scene's own size), else the centre of its bounds."""
+        c, extent = self.bounds_at(t)
+        return np.zeros(3) if np.abs(c).max() <= extent else c
 
     def _output(self, out):
         shape = (self.n_triangles, 3, 3)
@@ -209,8 +248,9 @@ class Animation(ABC):
         return out
 
     @abstractmethod
-    def _fill(self, t, out):
-        """Write the triangles at validated time ``t`` (float) into validated ``out`` (F,3,3) f32."""
+    def _fill(self, t, out, origin):
+        """Write the triangles at validated time ``t`` (float) into validated ``out`` (F,3,3) f32,
+        in the frame of ``origin`` ((3,) float64): ``float32(world - origin)``."""
 
     def __repr__(self):
         return f"{type(self).__name__}(name={self.name!r}, n_triangles={self.n_triangles})"
@@ -236,8 +276,14 @@ class StaticMesh(Animation):
         self.n_triangles = int(len(mesh.faces))
         self._tris = mesh.triangles()
         self._tris.setflags(write=False)
+        self._local = (np.zeros(3), self._tris)  # (origin, triangles in its frame), last frame asked for
         self.static_mask = as_static_mask(np.ones(self.n_triangles, dtype=bool), self.n_triangles)
 
-    def _fill(self, t, out):
+    def _fill(self, t, out, origin):
         # Copied on every call: a caller may have scribbled on the previously returned buffer.
-        np.copyto(out, self._tris)
+        o, tris = self._local
+        if not np.array_equal(o, origin):
+            tris = self.mesh.triangles(origin)
+            tris.setflags(write=False)
+            self._local = (origin.copy(), tris)
+        np.copyto(out, tris)

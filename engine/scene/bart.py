@@ -29,10 +29,10 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from ..arrays import TRI_DTYPE
+from ..arrays import TRI_DTYPE, storage_centre
 from ..errors import InputError, SceneFileError
 from . import kernels as K
-from .animation import Animation, as_static_mask, check_time, gather_unchecked
+from .animation import Animation, as_static_mask, check_time, gather_unchecked, pose_moving_vertices
 
 __all__ = ["BartAnimation", "kb_position_coefficients", "kb_rotation_segments"]
 
@@ -727,6 +727,9 @@ class BartAnimation(Animation):
             tri_moving.append(np.full(len(f), moving[node]))
             vnode.append(np.full(len(v), node, dtype=np.int32))
             v0 += len(v)
+        # float32 storage relative to a float64 centre when the scene lies far from the origin
+        centre = storage_centre(np.concatenate([b[1] for b in ps.blocks] + [tv[0] for _, _, tv in ps.tpa])
+                                if ps.blocks or ps.tpa else np.zeros((0, 3)))
         groups = {}
         for node, times, tv in ps.tpa:
             groups.setdefault(times.tobytes(), (times, []))[1].append((node, tv))
@@ -735,7 +738,7 @@ class BartAnimation(Animation):
             frames = np.concatenate([tv for _, tv in members], axis=1)  # (K, 3m, 3)
             nodes = np.repeat([nd for nd, _ in members], 3).astype(np.int32)
             n = frames.shape[1]
-            self._tpa.append((times, np.ascontiguousarray(frames, dtype=TRI_DTYPE), v0, v0 + n))
+            self._tpa.append((times, np.ascontiguousarray(frames - centre, dtype=TRI_DTYPE), v0, v0 + n))
             verts.append(frames[0])
             faces.append(np.arange(v0, v0 + n).reshape(-1, 3))
             moves = moving[nodes[::3]] | (np.ptp(frames, axis=0).reshape(-1, 9).max(axis=1) > 0)
@@ -743,11 +746,13 @@ class BartAnimation(Animation):
             vnode.append(nodes)
             v0 += n
             key_lo, key_hi = min(key_lo, times[0]), max(key_hi, times[-1])
-        local = np.ascontiguousarray(np.concatenate(verts), dtype=TRI_DTYPE)
-        if np.abs(local).max() > 1e30:
+        local64 = np.concatenate(verts).astype(np.float64)
+        if np.abs(local64).max() > 1e30:
             raise SceneFileError(self.path, "vertex coordinates beyond 1e30, too large for float32")
         self._faces = np.ascontiguousarray(np.concatenate(faces), dtype=np.int32)
+        local = np.ascontiguousarray(local64 - centre, dtype=TRI_DTYPE)
         self._local = local
+        self._centre = centre
         vnode = np.concatenate(vnode)
         tri_moving = np.concatenate(tri_moving)
         vert_moving = np.zeros(len(local), dtype=bool)
@@ -795,6 +800,7 @@ class BartAnimation(Animation):
         vid = np.arange(len(local), dtype=np.int64)
         self._dynamic_vids = vid[vert_moving]
         self._verts = np.zeros_like(local)
+        self._posed_origin = np.zeros(3)  # the frame self._verts is in
         self._pose(self.bart_time(0.0), vid)
         if not (np.isfinite(self._verts).all() and np.abs(self._verts).max() <= 1e30):
             raise SceneFileError(self.path, "transformed vertex coordinates are not finite or exceed 1e30 "
@@ -833,11 +839,10 @@ class BartAnimation(Animation):
         first, node, skinned, mbase, mcount, woff = self._inst
         j, jw, d, w, pal = self._dummy
         K.deform_vertices(vids, self._local, self._vinst, first, node, skinned, j, jw, mbase, mcount, woff,
-                          d, w, self._world, pal, self._verts)
+                          d, w, self._world, pal, self._centre, self._posed_origin, self._verts)
 
-    def _fill(self, t, out):
-        if len(self._dynamic_vids):
-            self._pose(self.bart_time(t), self._dynamic_vids)
+    def _fill(self, t, out, origin):
+        pose_moving_vertices(self, self.bart_time(t), origin)
         gather_unchecked(self._verts, self._faces, out)
 
     def spline_value(self, kind, index, tb):

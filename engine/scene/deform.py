@@ -29,7 +29,7 @@ from numbers import Real
 import numpy as np
 from numba import njit, prange
 
-from ..arrays import TRI_DTYPE
+from ..arrays import TRI_DTYPE, as_origin
 from ..errors import InputError
 from .animation import Animation, check_time, gather_unchecked
 from .mesh import Mesh
@@ -44,31 +44,34 @@ DEFAULT_AMPLITUDE_FRACTION = 0.05
 
 
 @njit(cache=True, parallel=True)
-def _twist_kernel(rest, cx, cz, y0, inv_height, angle, out):
-    """Twist (V,3) f32 ``rest`` into (V,3) f32 ``out``: rotate about (cx, cz) by angle*(y-y0)*inv_height."""
+def _twist_kernel(rest, cx, cz, y0, inv_height, angle, origin, out):
+    """Twist (V,3) f64 ``rest`` into (V,3) f32 ``out``: rotate about (cx, cz) by angle*(y-y0)*inv_height,
+    then move by -origin ((3,) f64) before rounding."""
+    ox, oy, oz = origin[0], origin[1], origin[2]
     for v in prange(rest.shape[0]):
-        x = np.float64(rest[v, 0])
-        y = np.float64(rest[v, 1])
-        z = np.float64(rest[v, 2])
+        x = rest[v, 0]
+        y = rest[v, 1]
+        z = rest[v, 2]
         th = angle * (y - y0) * inv_height
         c = math.cos(th) - 1.0
         s = math.sin(th)
         dx = x - cx
         dz = z - cz
-        out[v, 0] = x + (dx * c - dz * s)
-        out[v, 1] = y
-        out[v, 2] = z + (dx * s + dz * c)
+        out[v, 0] = (x - ox) + (dx * c - dz * s)
+        out[v, 1] = y - oy
+        out[v, 2] = (z - oz) + (dx * s + dz * c)
 
 
 @njit(cache=True, parallel=True)
-def _wave_kernel(rest, amplitude, inv_wavelength, phase, out):
-    """Wave (V,3) f32 ``rest`` into (V,3) f32 ``out``: y += amplitude*sin(2pi(x*inv_wavelength + phase))."""
+def _wave_kernel(rest, amplitude, inv_wavelength, phase, origin, out):
+    """Wave (V,3) f64 ``rest`` into (V,3) f32 ``out``: y += amplitude*sin(2pi(x*inv_wavelength + phase)),
+    then move by -origin ((3,) f64) before rounding."""
     two_pi = 2.0 * math.pi
     for v in prange(rest.shape[0]):
-        x = np.float64(rest[v, 0])
-        out[v, 0] = rest[v, 0]
-        out[v, 1] = np.float64(rest[v, 1]) + amplitude * math.sin(two_pi * (x * inv_wavelength + phase))
-        out[v, 2] = rest[v, 2]
+        x = rest[v, 0]
+        out[v, 0] = x - origin[0]
+        out[v, 1] = (rest[v, 1] - origin[1]) + amplitude * math.sin(two_pi * (x * inv_wavelength + phase))
+        out[v, 2] = rest[v, 2] - origin[2]
 
 
 def _finite_real(value, what):
@@ -136,7 +139,7 @@ class Deform(Animation):
         self.axis = None
         self.max_angle = None
 
-        v = mesh.vertices.astype(np.float64)
+        v = mesh.vertices64
         if kind == "twist":
             cx, cz = 0.5 * (lo[0] + hi[0]), 0.5 * (lo[2] + hi[2])
             height = hi[1] - lo[1]
@@ -159,26 +162,28 @@ class Deform(Animation):
 
         self._vertices = np.zeros(mesh.vertices.shape, dtype=TRI_DTYPE)
 
-    def vertices_at(self, t, out=None):
-        """Deformed vertices at time ``t``: (V, 3) float32.
+    def vertices_at(self, t, out=None, origin=None):
+        """Deformed vertices at time ``t``: (V, 3) float32 (in the frame of ``origin``, as
+        :meth:`triangles_at`).
 
         Written into ``out`` ((V,3) float32 C-contiguous) when given, else into an internal
         scratch buffer that is reused on every call.
         """
         t = check_time(t)
+        origin = as_origin(origin)
         if out is None:
             out = self._vertices
         elif not (isinstance(out, np.ndarray) and out.shape == self._vertices.shape
                   and out.dtype == TRI_DTYPE and out.flags.c_contiguous and out.flags.writeable):
             raise InputError(f"out must be a writeable C-contiguous {self._vertices.shape} float32 array")
-        rest = self.mesh.vertices
+        rest = self.mesh.vertices64
         if self.kind == "twist":
             swing = math.sin(2.0 * math.pi * ((self.speed * t) % 1.0))
             cx, cz = self.axis
-            _twist_kernel(rest, cx, cz, self._y0, self._inv_height, self.max_angle * swing, out)
+            _twist_kernel(rest, cx, cz, self._y0, self._inv_height, self.max_angle * swing, origin, out)
         else:
-            _wave_kernel(rest, self.amplitude, 1.0 / self.wavelength, (self.speed * t) % 1.0, out)
+            _wave_kernel(rest, self.amplitude, 1.0 / self.wavelength, (self.speed * t) % 1.0, origin, out)
         return out
 
-    def _fill(self, t, out):
-        gather_unchecked(self.vertices_at(t), self.mesh.faces, out)
+    def _fill(self, t, out, origin):
+        gather_unchecked(self.vertices_at(t, origin=origin), self.mesh.faces, out)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..arrays import TRI_DTYPE, as_mesh
+from ..arrays import TRI_DTYPE, as_mesh, as_origin, storage_centre
 from ..errors import InputError, SceneFileError
 from . import kernels as K
 from .animation import Animation, as_static_mask, gather_unchecked
@@ -76,7 +76,11 @@ class KeyframeMesh(Animation):
             raise InputError(f"{name}: frame {int(np.argmin(finite))} contains NaN or infinity")
         if np.abs(fr).max() > 1e30:
             raise InputError(f"{name}: vertex coordinates beyond 1e30, too large for float32")
-        self._frames = np.ascontiguousarray(fr, dtype=TRI_DTYPE)
+        # float32 storage of each frame relative to a float64 centre of its own when it lies far from
+        # the origin (a mesh that travels far keeps its detail in every frame)
+        self._centres = np.stack([storage_centre(f_k) for f_k in fr])
+        self._frames = np.ascontiguousarray(fr.astype(np.float64) - self._centres[:, None, :]
+                                            if self._centres.any() else fr, dtype=TRI_DTYPE)
         self._faces = f
         self.fps = fps
         self.wrap = bool(wrap)
@@ -85,7 +89,7 @@ class KeyframeMesh(Animation):
         self.frame_names = list(frame_names) if frame_names is not None else [str(k) for k in range(self.n_frames)]
         self.n_triangles = int(len(f))
         span = (self.n_frames if self.wrap else self.n_frames - 1) / fps
-        moving_v = np.ptp(self._frames, axis=0).max(axis=1) > 0
+        moving_v = np.ptp(fr, axis=0).max(axis=1) > 0
         tri_static = ~moving_v[self._faces].any(axis=1)
         self.static = self.n_frames == 1 or bool(tri_static.all())
         self.duration = None if (self.static or span <= 0) else span
@@ -93,9 +97,13 @@ class KeyframeMesh(Animation):
         self.static_mask = as_static_mask(tri_static, self.n_triangles)
         self._verts = np.zeros(self._frames.shape[1:], dtype=TRI_DTYPE)
 
-    def frame_vertices(self, k):
-        """A copy of frame k's (V, 3) float32 vertices."""
-        return self._frames[k].copy()
+    def frame_vertices(self, k, origin=None):
+        """A copy of frame k's (V, 3) float32 vertices (in the frame of ``origin``, as
+        :meth:`triangles_at`)."""
+        shift = self._centres[k] - as_origin(origin)
+        if not shift.any():
+            return self._frames[k].copy()
+        return (self._frames[k] + shift).astype(TRI_DTYPE)
 
     @property
     def faces(self):
@@ -121,9 +129,10 @@ class KeyframeMesh(Animation):
                 s = 0.0
         return k0, k1, float(min(max(s, 0.0), 1.0))
 
-    def _fill(self, t, out):
+    def _fill(self, t, out, origin):
         k0, k1, s = self.frame_position(t)
-        K.lerp_rows(self._frames[k0], self._frames[k1], s, self._verts)
+        shift = (1.0 - s) * self._centres[k0] + s * self._centres[k1] - origin
+        K.lerp_rows(self._frames[k0], self._frames[k1], s, self._verts, shift)
         gather_unchecked(self._verts, self._faces, out)
 
 
@@ -162,8 +171,8 @@ def load_frame_folder(folder, fps=30.0):
     fps = check_fps(fps)
     files = frame_files(folder)
     first = load_mesh(files[0])
-    frames = np.empty((len(files),) + first.vertices.shape, dtype=TRI_DTYPE)
-    frames[0] = first.vertices
+    frames = np.empty((len(files),) + first.vertices.shape, dtype=np.float64)
+    frames[0] = first.vertices64
     for k, p in enumerate(files[1:], 1):
         m = load_mesh(p)
         if m.vertices.shape != first.vertices.shape or not np.array_equal(m.faces, first.faces):
@@ -171,7 +180,7 @@ def load_frame_folder(folder, fps=30.0):
                 p, f"frame has {m.n_vertices} vertices and {m.n_triangles} faces but {files[0].name} has "
                    f"{first.n_vertices} and {first.n_triangles} (or different faces): all frames must share "
                    "one connectivity")
-        frames[k] = m.vertices
+        frames[k] = m.vertices64
     return KeyframeMesh(frames, first.faces, fps, wrap=False, name=folder.name,
                         frame_names=[p.name for p in files])
 

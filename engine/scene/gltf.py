@@ -36,10 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..arrays import TRI_DTYPE, as_mesh
+from ..arrays import TRI_DTYPE, as_mesh, as_origin
 from ..errors import InputError, SceneFileError
 from . import kernels as K
-from .animation import Animation, as_static_mask, check_time, gather_unchecked
+from .animation import Animation, as_static_mask, check_time, gather_unchecked, pose_moving_vertices
 
 __all__ = ["GltfAnimation", "DRACO_HINT"]
 
@@ -914,6 +914,8 @@ class GltfAnimation(Animation):
         dyn_v = inst_moving[vinst]
         self._dynamic_vids = vid[dyn_v]
         self._verts = np.zeros((V, 3), dtype=TRI_DTYPE)
+        self._centre = np.zeros(3)  # POSITION data is float32 in the file: stored as it is
+        self._posed_origin = np.zeros(3)  # the frame self._verts is in
         self._pose(self._clip_time(0.0), vid)
         if not (np.isfinite(self._verts).all() and np.abs(self._verts).max() <= 1e30):
             r.fail("posed vertex coordinates are not finite or exceed 1e30 (check scales and matrices)")
@@ -981,19 +983,19 @@ class GltfAnimation(Animation):
         K.skin_palette(self._world, self._joint_node, self._ibm, self._palette)
         first, node, skinned, mbase, mcount, woff = self._inst
         K.deform_vertices(vids, self._local, self._vinst, first, node, skinned, self._joints, self._jweights,
-                          mbase, mcount, woff, self._deltas, self._weights, self._world, self._palette, self._verts)
+                          mbase, mcount, woff, self._deltas, self._weights, self._world, self._palette,
+                          self._centre, self._posed_origin, self._verts)
 
-    def _fill(self, t, out):
-        if len(self._dynamic_vids):
-            self._pose(self._clip_time(t), self._dynamic_vids)
+    def _fill(self, t, out, origin):
+        pose_moving_vertices(self, self._clip_time(t), origin)
         gather_unchecked(self._verts, self._faces, out)
 
-    def vertices_at(self, t):
+    def vertices_at(self, t, origin=None):
         """A new (V, 3) float32 array of the posed vertices at time ``t`` (instances concatenated,
-        in triangle order); the triangle buffer is left alone."""
+        in triangle order; in the frame of ``origin``, as :meth:`triangles_at`); the triangle
+        buffer is left alone."""
         t = check_time(t)
-        if len(self._dynamic_vids):
-            self._pose(self._clip_time(t), self._dynamic_vids)
+        pose_moving_vertices(self, self._clip_time(t), as_origin(origin))
         return self._verts.copy()
 
     def bind_triangles(self):
@@ -1014,7 +1016,11 @@ class GltfAnimation(Animation):
         """The scene at time ``t`` as an indexed :class:`engine.scene.mesh.Mesh` (shared vertices kept)."""
         from .mesh import Mesh
 
-        return Mesh(self.vertices_at(t), self._faces, name=self.path.stem, path=self.path)
+        # posed in a frame centred on the scene, then moved back in float64: far from the origin the
+        # mesh keeps the detail that float32 world coordinates would round away
+        origin = self.frame_origin(t)
+        v = self.vertices_at(t, origin=origin).astype(np.float64) + origin
+        return Mesh(v, self._faces, name=self.path.stem, path=self.path)
 
     def camera_at(self, t):
         """The first perspective camera of the scene at time ``t`` (None when the file has none)."""

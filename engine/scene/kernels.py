@@ -236,12 +236,13 @@ SERIAL_BELOW = 16384
 
 @njit(cache=True, _nrt=False)
 def _deform_one(v, local, vinst, inst_first, inst_node, inst_skinned, joints, jweights,
-                inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, out):
-    """Pose vertex v: morph targets, then linear-blend skinning or its node's world matrix."""
+                inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, centre, origin, out):
+    """Pose vertex v: morph targets, then linear-blend skinning or its node's world matrix; the
+    rest position is local[v] + centre, the result is written as world - origin."""
     i = vinst[v]
-    x = np.float64(local[v, 0])
-    y = np.float64(local[v, 1])
-    z = np.float64(local[v, 2])
+    x = np.float64(local[v, 0]) + centre[0]
+    y = np.float64(local[v, 1]) + centre[1]
+    z = np.float64(local[v, 2]) + centre[2]
     mc = inst_mcount[i]
     if mc > 0:
         nv = inst_first[i + 1] - inst_first[i]
@@ -269,36 +270,36 @@ def _deform_one(v, local, vinst, inst_first, inst_node, inst_skinned, joints, jw
                 oz += w * (palette[g, 2, 0] * x + palette[g, 2, 1] * y + palette[g, 2, 2] * z + palette[g, 2, 3])
                 wsum += w
         if wsum != 0.0:
-            out[v, 0] = ox
-            out[v, 1] = oy
-            out[v, 2] = oz
+            out[v, 0] = ox - origin[0]
+            out[v, 1] = oy - origin[1]
+            out[v, 2] = oz - origin[2]
             return
     n = inst_node[i]
-    out[v, 0] = world[n, 0, 0] * x + world[n, 0, 1] * y + world[n, 0, 2] * z + world[n, 0, 3]
-    out[v, 1] = world[n, 1, 0] * x + world[n, 1, 1] * y + world[n, 1, 2] * z + world[n, 1, 3]
-    out[v, 2] = world[n, 2, 0] * x + world[n, 2, 1] * y + world[n, 2, 2] * z + world[n, 2, 3]
+    out[v, 0] = world[n, 0, 0] * x + world[n, 0, 1] * y + world[n, 0, 2] * z + (world[n, 0, 3] - origin[0])
+    out[v, 1] = world[n, 1, 0] * x + world[n, 1, 1] * y + world[n, 1, 2] * z + (world[n, 1, 3] - origin[1])
+    out[v, 2] = world[n, 2, 0] * x + world[n, 2, 1] * y + world[n, 2, 2] * z + (world[n, 2, 3] - origin[2])
 
 
 @njit(cache=True, parallel=True)
 def _deform_parallel(vids, local, vinst, inst_first, inst_node, inst_skinned, joints, jweights,
-                     inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, out):
+                     inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, centre, origin, out):
     """:func:`_deform_one` over vids, in parallel."""
     for ii in prange(vids.shape[0]):
         _deform_one(vids[ii], local, vinst, inst_first, inst_node, inst_skinned, joints, jweights,
-                    inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, out)
+                    inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, centre, origin, out)
 
 
 @njit(cache=True)
 def _deform_serial(vids, local, vinst, inst_first, inst_node, inst_skinned, joints, jweights,
-                   inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, out):
+                   inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, centre, origin, out):
     """:func:`_deform_one` over vids on the calling thread (small scenes)."""
     for ii in range(vids.shape[0]):
         _deform_one(vids[ii], local, vinst, inst_first, inst_node, inst_skinned, joints, jweights,
-                    inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, out)
+                    inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, centre, origin, out)
 
 
 def deform_vertices(vids, local, vinst, inst_first, inst_node, inst_skinned, joints, jweights,
-                    inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, out):
+                    inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, centre, origin, out):
     """Pose the vertices listed in ``vids``: morph, then skin or transform rigidly.
 
     vids (n,) int64 vertex ids; local (V,3) f32 rest positions; vinst (V,) int32 instance of each
@@ -307,33 +308,40 @@ def deform_vertices(vids, local, vinst, inst_first, inst_node, inst_skinned, joi
     ``inst_mbase[i] + k * n_i + local_index`` for k < inst_mcount[i] (n_i = vertex count of the
     instance) weighted by ``mweights[inst_woff[i] + k]``.  Skinned vertices blend
     ``palette[joints[v, j]]`` (G,4,4) with jweights[v, j] (V,J) f32; a skinned vertex whose weights
-    are all zero, and every rigid vertex, uses world[inst_node[i]].  Writes out (V,3) f32.
+    are all zero, and every rigid vertex, uses world[inst_node[i]].  The rest position of v is
+    ``local[v] + centre`` (centre (3,) f64: float32 storage relative to it); writes
+    ``world - origin`` (origin (3,) f64) into out (V,3) f32.
     The callers validate every index; this wrapper only picks the serial or parallel kernel.
     """
     kernel = _deform_serial if vids.shape[0] < SERIAL_BELOW else _deform_parallel
     kernel(vids, local, vinst, inst_first, inst_node, inst_skinned, joints, jweights,
-           inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, out)
+           inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, centre, origin, out)
 
 
 @njit(cache=True, parallel=True)
-def _lerp_parallel(a, b, s, out):
+def _lerp_parallel(a, b, s, shift, out):
     r = 1.0 - s
     for v in prange(a.shape[0]):
         for c in range(3):
-            out[v, c] = r * np.float64(a[v, c]) + s * np.float64(b[v, c])
+            out[v, c] = (r * np.float64(a[v, c]) + s * np.float64(b[v, c])) + shift[c]
 
 
 @njit(cache=True)
-def _lerp_serial(a, b, s, out):
+def _lerp_serial(a, b, s, shift, out):
     r = 1.0 - s
     for v in range(a.shape[0]):
         for c in range(3):
-            out[v, c] = r * np.float64(a[v, c]) + s * np.float64(b[v, c])
+            out[v, c] = (r * np.float64(a[v, c]) + s * np.float64(b[v, c])) + shift[c]
 
 
-def lerp_rows(a, b, s, out):
-    """out = (1 - s) * a + s * b row by row, computed in float64; a, b, out (V,3) f32, s float.
+_NO_SHIFT = np.zeros(3)
 
-    s = 0 gives a and s = 1 gives b bit for bit.
+
+def lerp_rows(a, b, s, out, shift=None):
+    """out = (1 - s) * a + s * b + shift row by row, computed in float64; a, b, out (V,3) f32,
+    s float, shift (3,) float64 (default 0).
+
+    s = 0 gives a and s = 1 gives b bit for bit (with no shift).
     """
-    (_lerp_serial if a.shape[0] < SERIAL_BELOW else _lerp_parallel)(a, b, float(s), out)
+    shift = _NO_SHIFT if shift is None else np.ascontiguousarray(shift, np.float64)
+    (_lerp_serial if a.shape[0] < SERIAL_BELOW else _lerp_parallel)(a, b, float(s), shift, out)

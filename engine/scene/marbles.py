@@ -97,23 +97,24 @@ def floor_triangles(count, half):
 
 
 @njit(cache=True, parallel=True)
-def _marbles_kernel(base, rot, centre, floor, out):
-    """Write floor then rigidly moved marbles into ``out``.
+def _marbles_kernel(base, rot, centre, floor, origin, out):
+    """Write floor then rigidly moved marbles into ``out``, in the frame of ``origin``.
 
     base (B,3,3) f64 marble triangles about the origin; rot (M,3,3) f64 rotations; centre (M,3) f64;
-    floor (N,3,3) f64; out (N + M*B, 3, 3) f32.  Marble i occupies out[N + i*B : N + (i+1)*B].
+    floor (N,3,3) f64; origin (3,) f64; out (N + M*B, 3, 3) f32 = world - origin.  Marble i
+    occupies out[N + i*B : N + (i+1)*B].
     """
     nf = floor.shape[0]
     nb = base.shape[0]
     for f in range(nf):
         for j in range(3):
             for c in range(3):
-                out[f, j, c] = floor[f, j, c]
+                out[f, j, c] = floor[f, j, c] - origin[c]
     for i in prange(rot.shape[0]):
         r00, r01, r02 = rot[i, 0, 0], rot[i, 0, 1], rot[i, 0, 2]
         r10, r11, r12 = rot[i, 1, 0], rot[i, 1, 1], rot[i, 1, 2]
         r20, r21, r22 = rot[i, 2, 0], rot[i, 2, 1], rot[i, 2, 2]
-        cx, cy, cz = centre[i, 0], centre[i, 1], centre[i, 2]
+        cx, cy, cz = centre[i, 0] - origin[0], centre[i, 1] - origin[1], centre[i, 2] - origin[2]
         o = nf + i * nb
         for k in range(nb):
             for j in range(3):
@@ -247,5 +248,5 @@ class Marbles(Animation):
         angle = self._spin_phase + 2.0 * math.pi * ((self._spin_cycles * s) % 1.0)
         return _rotations(self._spin_axis, angle)
 
-    def _fill(self, t, out):
-        _marbles_kernel(self._base, self.rotations_at(t), self.centers_at(t), self._floor, out)
+    def _fill(self, t, out, origin):
+        _marbles_kernel(self._base, self.rotations_at(t), self.centers_at(t), self._floor, origin, out)

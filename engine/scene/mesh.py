@@ -13,12 +13,12 @@ import json
 import logging
 import os
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..arrays import as_mesh
+from ..arrays import TRI_DTYPE, as_mesh64, as_origin, bounds_centre
 from ..errors import InputError, SceneFileError
 from .textenc import TEXT_EXTENSIONS, utf8_source
 
@@ -38,7 +38,10 @@ class Mesh:
     Attributes
     ----------
     vertices : ndarray
-        (V, 3) float32, read-only.
+        (V, 3) float32 world coordinates, read-only (rounded: far from the origin, use
+        :meth:`triangles` with ``origin`` or :attr:`vertices64`).
+    vertices64 : ndarray
+        (V, 3) float64, read-only: the vertices exactly as given.
     faces : ndarray
         (F, 3) int32 indices into ``vertices``, read-only.
     name : str
@@ -56,13 +59,17 @@ class Mesh:
     name: str = "mesh"
     path: Path | None = None
 
+    vertices64: np.ndarray = field(default=None, init=False, repr=False)
+
     def __post_init__(self):
-        v, f = as_mesh(self.vertices, self.faces, what=f"mesh {self.name!r}")
-        v = v.copy()
+        v64, f = as_mesh64(self.vertices, self.faces, what=f"mesh {self.name!r}")
+        v64 = v64.copy() if v64 is self.vertices else v64
         f = f.copy()
-        v.setflags(write=False)
-        f.setflags(write=False)
+        v = v64.astype(TRI_DTYPE)
+        for a in (v, v64, f):
+            a.setflags(write=False)
         object.__setattr__(self, "vertices", v)
+        object.__setattr__(self, "vertices64", v64)
         object.__setattr__(self, "faces", f)
         if self.path is not None:
             object.__setattr__(self, "path", Path(self.path))
@@ -77,14 +84,22 @@ class Mesh:
         """Number of vertices V."""
         return int(len(self.vertices))
 
-    def triangles(self):
-        """A new (F, 3, 3) float32 C-contiguous array ``vertices[faces]``."""
-        return np.ascontiguousarray(self.vertices[self.faces])
+    def triangles(self, origin=None):
+        """A new (F, 3, 3) float32 C-contiguous array ``vertices[faces]``; with ``origin`` ((3,)
+        float64) the vertices are moved by ``-origin`` in float64 before rounding to float32."""
+        if origin is None:
+            return np.ascontiguousarray(self.vertices[self.faces])
+        local = (self.vertices64 - as_origin(origin)).astype(TRI_DTYPE)
+        return np.ascontiguousarray(local[self.faces])
 
     def bounds(self):
         """Axis-aligned bounding box ``(lo (3,) float64, hi (3,) float64)`` of the vertices."""
-        v = self.vertices.astype(np.float64)
-        return v.min(axis=0), v.max(axis=0)
+        return self.vertices64.min(axis=0), self.vertices64.max(axis=0)
+
+    @property
+    def centre(self):
+        """(3,) float64 centre of :meth:`bounds`."""
+        return bounds_centre(self.vertices64)
 
     def __repr__(self):
         return f"Mesh(name={self.name!r}, vertices={self.n_vertices}, faces={self.n_triangles})"

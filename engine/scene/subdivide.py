@@ -17,7 +17,7 @@ from numbers import Integral
 
 import numpy as np
 
-from ..arrays import TRI_DTYPE
+from ..arrays import TRI_DTYPE, storage_centre
 from ..errors import InputError
 from .mesh import Mesh
 
@@ -28,10 +28,11 @@ MAX_SUBDIVIDED_TRIANGLES = 100_000_000
 
 
 def split_once(vertices, faces):
-    """One 1 -> 4 midpoint split: ``(vertices (V + E, 3) float32, faces (4F, 3) int32)``.
+    """One 1 -> 4 midpoint split: ``(vertices (V + E, 3), faces (4F, 3) int32)``.
 
-    vertices (V,3) float32 and faces (F,3) int32 must be valid (see :class:`Mesh`).  New vertex
-    ``V + e`` is the midpoint (computed in float64) of the e-th distinct undirected edge.
+    vertices (V,3) float32 or float64 and faces (F,3) int32 must be valid (see :class:`Mesh`).
+    New vertex ``V + e`` is the midpoint (computed in float64, returned in the dtype of
+    ``vertices``) of the e-th distinct undirected edge.
     """
     v = np.asarray(vertices)
     f = np.asarray(faces, dtype=np.int64)
@@ -41,7 +42,8 @@ def split_once(vertices, faces):
     hi = edges.max(axis=1)
     uniq, inv = np.unique(lo * nv + hi, return_inverse=True)
     a, b = uniq // nv, uniq % nv
-    mid = (0.5 * (v[a].astype(np.float64) + v[b].astype(np.float64))).astype(TRI_DTYPE)
+    dtype = np.float64 if v.dtype == np.float64 else TRI_DTYPE
+    mid = (0.5 * (v[a].astype(np.float64) + v[b].astype(np.float64))).astype(dtype)
     m = (inv.reshape(-1, 3) + nv).astype(np.int64)
     m_ab, m_bc, m_ca = m[:, 0], m[:, 1], m[:, 2]
     c0, c1, c2 = f[:, 0], f[:, 1], f[:, 2]
@@ -51,7 +53,7 @@ def split_once(vertices, faces):
         np.stack([m_ca, m_bc, c2], axis=1),
         np.stack([m_ab, m_bc, m_ca], axis=1),
     ], axis=1).reshape(-1, 3)
-    return np.concatenate([v.astype(TRI_DTYPE), mid]), children.astype(np.int32)
+    return np.concatenate([v.astype(dtype), mid]), children.astype(np.int32)
 
 
 def subdivide_mesh(mesh, target):
@@ -67,7 +69,9 @@ def subdivide_mesh(mesh, target):
         raise InputError(f"subdivide target must be an integer triangle count, got {target!r}")
     if not 1 <= target <= MAX_SUBDIVIDED_TRIANGLES:
         raise InputError(f"subdivide target must be between 1 and {MAX_SUBDIVIDED_TRIANGLES:,}, got {target}")
-    v, f = mesh.vertices, mesh.faces
+    # far from the origin the split runs on the exact float64 vertices (float32 world coordinates
+    # would round every new vertex); near it, as before, on float32 vertices
+    v, f = (mesh.vertices64 if storage_centre(mesh.vertices64).any() else mesh.vertices), mesh.faces
     passes = 0
     while len(f) < target:
         v, f = split_once(v, f)

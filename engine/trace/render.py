@@ -30,12 +30,12 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, parallel_chunksize, prange
 
-from ..arrays import check_ray_values, check_rays
+from ..arrays import as_origin, check_ray_values, check_rays
 from ..config import DEFAULT_MAX_BYTES, RenderParams, _positive_int
 from ..errors import InputError
 from ..threads import check_threads, launch_guard, use_threads
 from .traverse import MAILBOX, trace_ray
-from ..camera import pixel_dir
+from ..camera import Camera, pixel_dir
 from .cgt import cgt_render_kernel
 from .shade import (  # noqa: F401  (the shading constants stay importable from here)
     AMBIENT, ALBEDO, BACKGROUND, COST_SCALE, cost_rgb, facing_normal, lambert_rgb, normal_rgb, put_pixel, shadow_ray,
@@ -165,12 +165,19 @@ def _check_grid_tris(grid, tris):
     if not isinstance(grid, Grid):
         raise InputError(f"expected a Grid (from build_grid or GridBuilder.build), got {type(grid).__name__}")
     grid.check_current()
-    if not isinstance(tris, np.ndarray) or tris.dtype != np.float32 or tris.ndim != 3 or tris.shape[1:] != (3, 3):
-        raise InputError(f"triangles must be the (F,3,3) float32 array the grid was built from, got "
+    if not isinstance(tris, np.ndarray) or tris.dtype.kind not in "fiu" or tris.ndim != 3 or tris.shape[1:] != (3, 3):
+        raise InputError(f"triangles must be the (F,3,3) array the grid was built from, got "
                          f"{getattr(tris, 'shape', None)} {getattr(tris, 'dtype', type(tris))}")
     if tris.shape[0] != grid.n_triangles:
         raise InputError(f"the grid was built over {grid.n_triangles} triangles but {tris.shape[0]} were given")
-    return np.ascontiguousarray(tris)
+    if tris.dtype == np.float32 and not grid.origin.any():
+        return np.ascontiguousarray(tris)  # the grid's own triangles (the frame pipeline's path)
+    if tris.dtype.kind == "f" and not np.isfinite(tris).all():
+        raise InputError("triangles contain NaN or infinity")
+    if grid.origin.any():
+        # the grid lives in a frame centred on the scene: move the (world) triangles there in float64
+        return np.ascontiguousarray(tris.astype(np.float64) - grid.origin, dtype=np.float32)
+    return np.ascontiguousarray(tris, dtype=np.float32)
 
 
 @dataclass
@@ -225,12 +232,8 @@ def cast_batch(grid, tris, origins, dirs, origin=None, tmin=0.0, tmax=np.inf, wa
     if math.isnan(tmin) or math.isnan(tmax) or tmin < 0 or tmax < tmin:
         raise InputError(f"need 0 <= tmin <= tmax, got tmin={tmin}, tmax={tmax}")
     threads = check_threads(threads)
-    frame = None
-    if origin is not None:  # (RayCaster's frame, or grid.origin: both engine-made)
-        frame = np.asarray(origin, dtype=np.float64)
-        if frame.shape != (3,) or not np.isfinite(frame).all():
-            raise InputError(f"frame origin must be 3 finite numbers, got {origin!r}")
-        frame = frame if frame.any() else None
+    frame = as_origin(origin)  # (RayCaster's frame, or grid.origin: both engine-made)
+    frame = frame if frame.any() else None
     chunk = CAST_CHUNK if chunk is None else _positive_int("chunk", chunk)
     budget = DEFAULT_MAX_BYTES if max_bytes is None else _positive_int("max_bytes", max_bytes)
     N = len(o)
@@ -328,11 +331,21 @@ class Renderer:
     def render(self, grid, tris, camera, params: RenderParams | None = None, second=None) -> RenderResult:
         """Render ``grid`` over ``tris``; ``second`` = (grid_b, tris_b, ids_a, ids_b) adds a second
         grid traversed together with the first (static and moving parts of one scene); the tri
-        buffer then holds scene ids through ids_a / ids_b ((F_a,), (F_b,) int32)."""
+        buffer then holds scene ids through ids_a / ids_b ((F_a,), (F_b,) int32).
+
+        ``tris``, ``camera`` and ``params.light`` are in world coordinates; a grid built in a
+        frame centred on the scene (``grid.origin``, see build_grid) gets them moved there."""
         params = params or RenderParams()
         tris = _check_grid_tris(grid, tris)
+        if not isinstance(camera, Camera):
+            raise InputError(f"camera must be an engine.Camera, got {type(camera).__name__}")
+        camera = camera.moved(-grid.origin)  # world -> the grid's frame (a no-op at origin 0)
         if second is not None:
             grid_b, tris_b, ids_a, ids_b = second
+            if not np.array_equal(grid_b.origin, grid.origin):
+                raise InputError(f"the two grids were built in different frames (grid.origin {grid.origin.tolist()} "
+                                 f"and {grid_b.origin.tolist()}): build the second with "
+                                 "build_grid(..., origin=first.origin)")
             tris_b = _check_grid_tris(grid_b, tris_b)
             ids_a = np.ascontiguousarray(ids_a, np.int32)
             ids_b = np.ascontiguousarray(ids_b, np.int32)
@@ -349,7 +362,7 @@ class Renderer:
         basis = camera.basis()
         diag = float(np.linalg.norm(hi_s - lo_s))
         if params.light is not None:
-            light = np.asarray(params.light, np.float64)
+            light = np.asarray(params.light, np.float64) - grid.origin  # world -> the grid's frame
         else:
             light = default_light(diag, camera)
         use_threads(threads)
