@@ -1,11 +1,11 @@
-"""``gridrt`` / ``python -m app``: view | dump | bench | strategies."""
+"""``gridrt`` / ``python -m gridrt``: view | dump | bench | strategies."""
 
 import argparse
 import sys
 import warnings
 
-import engine  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
-from engine.errors import GridrtError
+import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
+from gridrt.errors import GridrtError
 
 from . import dump
 
@@ -25,7 +25,7 @@ def build_parser():
 
 
 def _list_strategies(a):
-    from engine.grid.registry import BUILDERS, names
+    from gridrt.grid.registry import BUILDERS, names
 
     for n in names():
         doc = (BUILDERS[n].__doc__ or "").strip().splitlines()

@@ -6,7 +6,7 @@ after ``--warmup`` untimed runs (numba compiles, buffers grow), with min and max
 * ``core``:  serial grid build (bbox and exact insertion) and primary-ray Mrays/s (DDA and CGT)
   at 1 thread and all cores on a ~100k and a ~1M triangle mesh.
 * ``build``: build strategies x thread counts x scenes, total and per stage (the seed's
-  "Comparison build methods" and "Individual steps"; :func:`engine.grid.sweep.run_build_sweep`).
+  "Comparison build methods" and "Individual steps"; :func:`gridrt.grid.sweep.run_build_sweep`).
 * ``frame``: animation + rebuild + render per frame at 1024x1024 for each scene at 1 thread and
   all cores (the seed's "Total performance", CGT's fps table); CGT traversal by default (DDA on
   request), static/moving split on and off.
@@ -21,12 +21,12 @@ import time
 
 import numpy as np
 
-import engine  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
-from engine.config import TRAVERSALS, GridParams, RenderParams
-from engine.errors import InputError
-from engine.grid.build import GridBuilder
-from engine.threads import check_threads
-from engine.trace.render import Renderer
+import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
+from gridrt.config import TRAVERSALS, GridParams, RenderParams
+from gridrt.errors import InputError
+from gridrt.grid.build import GridBuilder
+from gridrt.threads import check_threads
+from gridrt.trace.render import Renderer
 
 from .bench_util import (
     SCENE_HELP, check_frame_args, check_runs, facing_camera, figure, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress,
@@ -230,8 +230,8 @@ BUILD_FALLBACK = ["marbles", "icosphere:81920", "icosphere:1310720"]
 
 
 def run_build(a):
-    from engine.grid.registry import get_builder, names
-    from engine.grid.sweep import run_build_sweep
+    from gridrt.grid.registry import get_builder, names
+    from gridrt.grid.sweep import run_build_sweep
 
     check_runs(a.runs, a.warmup)
     runs, warmup = (1, 2) if a.quick else (a.runs, a.warmup)  # 2: a builder's first build clears nothing
@@ -255,7 +255,7 @@ def run_build(a):
         scenes[sc.label] = sc.scene
     rows = run_build_sweep(scenes, strategies, threads, runs=runs, warmup=warmup, out_dir=out,
                            progress=not a.no_progress, params=params, interleave=not a.back_to_back)
-    from engine.grid.traffic import stream_bandwidth
+    from gridrt.grid.traffic import stream_bandwidth
 
     mib = 16 if a.quick else 256
     bw = stream_bandwidth(mib, threads, runs=3 if a.quick else 5)
@@ -314,7 +314,7 @@ def _build_summary(rows, scenes, strategies, threads, runs, warmup, params, bw, 
 
 
 def _traffic_section(rows, threads, bw, mib):
-    """Bytes moved per build (engine.grid.traffic model) against measured streaming bandwidth."""
+    """Bytes moved per build (gridrt.grid.traffic model) against measured streaming bandwidth."""
     body = ["### Memory traffic: bytes moved per build against streaming bandwidth", "",
             f"Sequential streaming bandwidth over {mib} MiB, numba kernels, each thread its own part (GB/s):", ""]
     body += md_table(["threads", "read", "write", "copy (read + write)"],
@@ -330,7 +330,7 @@ def _traffic_section(rows, threads, bw, mib):
 
 
 def _traffic_scene(rows, sc, threads, bw):
-    from engine.grid.traffic import MODELLED
+    from gridrt.grid.traffic import MODELLED
 
     body = ["", f"#### {sc}", "", "Bytes each stage reads and writes (engine/grid/traffic.py counts every array "
             "element once per pass that touches it, so it is a floor), the time measured, and the rate that "
@@ -394,7 +394,7 @@ def frame_strategy(name, threads):
 
 
 def run_frame(a):
-    from engine.pipeline import FramePipeline
+    from gridrt.pipeline import FramePipeline
 
     check_frame_args(a)
     travs = [t.strip() for t in a.traversal.split(",") if t.strip()]

@@ -23,11 +23,11 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-import engine  # noqa: F401
-from engine.config import TRAVERSALS, GridParams, RenderParams
-from engine.errors import GridrtError
-from engine.grid.build import GridBuilder
-from engine.trace.render import Renderer, cast_rays
+import gridrt  # noqa: F401
+from gridrt.config import TRAVERSALS, GridParams, RenderParams
+from gridrt.errors import GridrtError
+from gridrt.grid.build import GridBuilder
+from gridrt.trace.render import Renderer, cast_rays
 
 from .bench_util import (
     Affinity, check_frame_args, figure, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress, put_stat,

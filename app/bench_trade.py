@@ -25,13 +25,13 @@ import time
 
 import numpy as np
 
-import engine  # noqa: F401
-from engine.config import TRAVERSALS, GridParams, RenderParams
-from engine.errors import InputError
-from engine.grid.build import GridBuilder
-from engine.grid.registry import get_builder
-from engine.threads import check_threads
-from engine.trace.render import Renderer, cast_rays
+import gridrt  # noqa: F401
+from gridrt.config import TRAVERSALS, GridParams, RenderParams
+from gridrt.errors import InputError
+from gridrt.grid.build import GridBuilder
+from gridrt.grid.registry import get_builder
+from gridrt.threads import check_threads
+from gridrt.trace.render import Renderer, cast_rays
 
 from .bench_util import (
     check_runs, figure, finish_machine, float_list, int_list, machine_info, md_table, out_dir,
@@ -84,8 +84,8 @@ def source_f64(sc, tris32, origin=None):
     """
     import trimesh
 
-    from engine.scene import StaticMesh
-    from engine.scene.mesh import quiet_trimesh
+    from gridrt.scene import StaticMesh
+    from gridrt.scene.mesh import quiet_trimesh
 
     if not isinstance(sc.scene, StaticMesh) or sc.kwargs.get("subdivide") or sc.kwargs.get("animate"):
         return None, "precision needs a static, unsubdivided mesh file or icosphere"

@@ -14,11 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-import engine  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
-from engine.camera import Camera
-from engine.errors import InputError
-from engine.grid.sweep import write_csv  # noqa: F401  (one CSV writer for every benchmark)
-from engine.threads import check_threads
+import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
+from gridrt.camera import Camera
+from gridrt.errors import InputError
+from gridrt.grid.sweep import write_csv  # noqa: F401  (one CSV writer for every benchmark)
+from gridrt.threads import check_threads
 
 #: ../shared/data beside the repository (real meshes; absent in a user's fresh clone)
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -112,7 +112,7 @@ def parse_scene_spec(spec):
 
 def resolve_scene(spec):
     """SceneSpec for a spec string (see SCENE_HELP)."""
-    from engine.scene import make_scene
+    from gridrt.scene import make_scene
 
     src, kw = parse_scene_spec(spec)
     scene = make_scene(src, **kw)
@@ -174,7 +174,7 @@ def check_runs(runs, warmup):
 
 def check_frame_args(a):
     """The options the frame-by-frame benchmarks share: --runs/--warmup, --size, --dt, --strategy."""
-    from engine.grid.registry import get_builder
+    from gridrt.grid.registry import get_builder
 
     check_runs(a.runs, a.warmup)
     if a.size < 1:

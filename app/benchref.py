@@ -21,9 +21,9 @@ import math
 import numpy as np
 from numba import njit, prange
 
-import engine  # noqa: F401  (sets NUMBA_NUM_THREADS before numba compiles anything)
-from engine.errors import InputError
-from engine.threads import check_threads, use_threads
+import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba compiles anything)
+from gridrt.errors import InputError
+from gridrt.threads import check_threads, use_threads
 
 #: a probe ray is a hole when it misses or hits farther than (1 + HOLE_REL) x its target distance
 HOLE_REL = 1e-6

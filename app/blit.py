@@ -2,7 +2,6 @@
 loaded from ``shaders/blit.vert`` and ``shaders/blit.frag``.  numpy row 0 (the image's top row)
 is drawn at the top of the viewport."""
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -10,11 +9,13 @@ import numpy as np
 
 def _shader_dir():
     """The repository's shaders/ (source checkout, editable install), else the copy a wheel
-    install puts in <prefix>/share/gridrt/shaders (pyproject data-files)."""
+    install puts inside the package, gridrt/shaders (pyproject package-data)."""
     here = Path(__file__).resolve().parents[1] / "shaders"
     if here.is_dir():
         return here
-    return Path(sys.prefix) / "share" / "gridrt" / "shaders"
+    import gridrt
+
+    return Path(gridrt.__file__).resolve().parent / "shaders"
 
 
 #: folder holding blit.vert / blit.frag

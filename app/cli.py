@@ -2,11 +2,11 @@
 
 import argparse
 
-import engine  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
-from engine.camera import Camera, check_fov
-from engine.config import INSERT_MODES, SHADING_MODES, TRAVERSALS, GridParams, RenderParams
-from engine.errors import InputError
-from engine.threads import MAX_THREADS
+import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
+from gridrt.camera import Camera, check_fov
+from gridrt.config import INSERT_MODES, SHADING_MODES, TRAVERSALS, GridParams, RenderParams
+from gridrt.errors import InputError
+from gridrt.threads import MAX_THREADS
 
 
 def vec3(text):
@@ -80,7 +80,7 @@ def add_render_args(p, default_size=(1024, 768)):
 
 
 def scene_from_args(a):
-    from engine.scene import make_scene
+    from gridrt.scene import make_scene
 
     clip = a.clip
     if clip is not None and clip.isdigit():
@@ -115,7 +115,7 @@ def camera_from_args(a):
 
 
 def pipeline_from_args(a, scene=None):
-    from engine.pipeline import FramePipeline
+    from gridrt.pipeline import FramePipeline
 
     camera = camera_from_args(a)
     scene = scene if scene is not None else scene_from_args(a)

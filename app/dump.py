@@ -10,9 +10,9 @@ import numpy as np
 from PIL import Image
 from tqdm import tqdm
 
-from engine.errors import InputError
-from engine.pipeline import STATS_COLUMNS
-from engine.warmup import compile_notice
+from gridrt.errors import InputError
+from gridrt.pipeline import STATS_COLUMNS
+from gridrt.warmup import compile_notice
 
 from . import cli
 

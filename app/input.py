@@ -15,7 +15,7 @@ fewer/more threads, Esc quit.
 import time
 from collections import deque
 
-from engine import camera_control as cc
+from gridrt import camera_control as cc
 
 from .state import SceneSpec
 

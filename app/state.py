@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from engine.camera import Camera
-from engine.config import GridParams, RenderParams
+from gridrt.camera import Camera
+from gridrt.config import GridParams, RenderParams
 
 #: frames kept for the live build/render plots
 HISTORY = 300

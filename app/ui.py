@@ -1,4 +1,4 @@
-"""The imgui panel: widgets that change :class:`app.state.ViewerState` fields and nothing else
+"""The imgui panel: widgets that change :class:`gridrt.app.state.ViewerState` fields and nothing else
 (no kernels, no GL).  The panel sits at a fixed place in the top-left corner; the progress overlay
 is centred over the image while a slow operation runs.
 
@@ -12,8 +12,8 @@ import os
 import numpy as np
 from imgui_bundle import imgui, implot
 
-from engine.config import INSERT_MODES, SHADING_MODES, TRAVERSALS
-from engine.scene import BUILTIN_SCENES, DEFORM_KINDS, SUPPORTED_EXTENSIONS
+from gridrt.config import INSERT_MODES, SHADING_MODES, TRAVERSALS
+from gridrt.scene import BUILTIN_SCENES, DEFORM_KINDS, SUPPORTED_EXTENSIONS
 
 from .input import KEY_HELP
 from .state import SCALE_MAX, SCALE_MIN, SPEED_MAX, SPEED_MIN, SceneSpec

@@ -71,9 +71,9 @@ def run(a):
     if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         print(no_display_message(), file=sys.stderr)
         return 3
-    from engine.errors import InputError
+    from gridrt.errors import InputError
 
-    from engine.scene import BUILTIN_SCENES
+    from gridrt.scene import BUILTIN_SCENES
 
     from .state import SCALE_MAX, SCALE_MIN
 
@@ -89,15 +89,15 @@ def run(a):
 
 def initial_state(a):
     """A ViewerState from the parsed arguments (validating them the same way dump does)."""
-    from engine.threads import check_threads, max_threads
-    from engine.warmup import cache_is_cold
+    from gridrt.threads import check_threads, max_threads
+    from gridrt.warmup import cache_is_cold
 
     from .state import SceneSpec, ViewerState
 
     gp = cli.grid_params(a)   # validates strategy, lambda, macro, insert, threads
     w, h = a.size
     rp = cli.render_params(a)
-    from engine.scene import BUILTIN_SCENES
+    from gridrt.scene import BUILTIN_SCENES
 
     source = str(a.scene)
     if source.strip().lower() in BUILTIN_SCENES:
@@ -165,7 +165,7 @@ class Viewer:
         import glfw
         import moderngl
 
-        from engine.grid.registry import names
+        from gridrt.grid.registry import names
 
         from .blit import Blitter
         from .input import InputHandler
@@ -233,7 +233,7 @@ class Viewer:
         self.glfw_error = description.decode() if isinstance(description, bytes) else str(description)
 
     def _make_pipeline(self, scene, job):
-        from engine.pipeline import FramePipeline
+        from gridrt.pipeline import FramePipeline
 
         return FramePipeline(scene, job.grid_params, job.render_params, camera=job.camera, fov=job.fov, up=job.up)
 
@@ -378,7 +378,7 @@ class Viewer:
             st.busy = None
 
     def _submit_frame(self):
-        from engine.errors import InputError
+        from gridrt.errors import InputError
 
         from .worker import FrameJob
 

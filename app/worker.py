@@ -14,14 +14,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from engine.errors import GridrtError
+from gridrt.errors import GridrtError
 
 
 @dataclass
 class LoadJob:
     """Load a scene and make a new pipeline for it."""
 
-    spec: object            # app.state.SceneSpec
+    spec: object            # gridrt.app.state.SceneSpec
     grid_params: object
     render_params: object
     camera: object = None   # explicit camera, or None to frame the scene
@@ -148,7 +148,7 @@ class RenderWorker:
                 notify()
 
     def _load(self, job):
-        from engine.scene import make_scene
+        from gridrt.scene import make_scene
 
         t0 = time.perf_counter()
         s = job.spec

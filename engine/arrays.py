@@ -7,7 +7,7 @@ Conventions used throughout the engine:
 * rays: origins and directions ``(N, 3) float64``.
 
 Every function here either returns arrays that kernels may trust or raises
-:class:`engine.errors.InputError` naming the problem.
+:class:`gridrt.errors.InputError` naming the problem.
 """
 
 import numpy as np

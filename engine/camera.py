@@ -18,7 +18,7 @@ from .errors import InputError
 FRAME_DIR = (0.55, 0.45, 1.0)
 
 
-#: largest eye/target coordinate magnitude (the scenes' own limit, engine.grid.common.BAD_MAGNITUDE)
+#: largest eye/target coordinate magnitude (the scenes' own limit, gridrt.grid.common.BAD_MAGNITUDE)
 COORD_LIMIT = 1e30
 
 

@@ -1,8 +1,8 @@
-"""Interactive camera moves as pure functions: each takes an :class:`engine.camera.Camera` and
+"""Interactive camera moves as pure functions: each takes an :class:`gridrt.camera.Camera` and
 returns a new one (cameras are frozen).  The viewer maps mouse and keys onto these; they need no
 window and are unit-tested on their own.
 
-Conventions (matching :mod:`engine.camera`: pixel (0, 0) is the top-left pixel, x grows to the
+Conventions (matching :mod:`gridrt.camera`: pixel (0, 0) is the top-left pixel, x grows to the
 right, y grows downwards):
 
 * ``fwd = normalize(target - eye)``, ``right = normalize(fwd x up)``, ``up' = right x fwd``.

@@ -10,7 +10,7 @@ from .errors import InputError
 
 INSERT_MODES = ("bbox", "exact")
 SHADING_MODES = ("lambert", "normal", "cost")
-#: Ray traversal: single-ray 3D DDA, or coherent grid traversal of ray packets (engine.trace.cgt)
+#: Ray traversal: single-ray 3D DDA, or coherent grid traversal of ray packets (gridrt.trace.cgt)
 TRAVERSALS = ("dda", "cgt")
 #: Default ceiling on grid cells (two int32 arrays of this size plus cell lists): 256 MiB.
 DEFAULT_MAX_CELLS = 1 << 25
@@ -36,7 +36,7 @@ def _positive_int(name, v, lo=1, hi=None):
 class GridParams:
     """How to build the grid each frame.
 
-    strategy   name of a registered build strategy (engine.grid.registry)
+    strategy   name of a registered build strategy (gridrt.grid.registry)
     density    lambda: target cells ~ density * triangles, shaped by the scene bounds
     macro      macro-cell edge k in cells (a macro cell is k**3 cells); 1 disables skipping gain
     insert     "bbox" (triangle bounding box, fast) or "exact" (separating-axis test, fewer refs)

@@ -46,7 +46,7 @@ class Frame:
 class FramePipeline:
     """Per frame: triangles_at(t) -> grid rebuild -> primary rays (+ shadows) -> image.
 
-    scene          an engine.scene Animation (triangles_at(t) reuses one buffer)
+    scene          an gridrt.scene Animation (triangles_at(t) reuses one buffer)
     grid_params    GridParams (strategy, lambda, macro size, insertion test, threads)
     render_params  RenderParams (size, shading, shadows, intersection test, threads)
     camera         Camera, or None to frame the scene's bounds at the first frame

@@ -1,7 +1,7 @@
 """Where float32 still has a floor, and the warning a renderer gives there.
 
-Every entry point works in a frame centred on the scene (see :class:`engine.FramePipeline`,
-:func:`engine.build_grid`, :class:`engine.RayCaster`), so a scene's position in the world costs no
+Every entry point works in a frame centred on the scene (see :class:`gridrt.FramePipeline`,
+:func:`gridrt.build_grid`, :class:`gridrt.RayCaster`), so a scene's position in the world costs no
 precision.  What remains is float32's relative precision *within* the scene: a coordinate of
 magnitude M in the scene's frame is stored to within ``M * 2**-24``.  A scene whose triangles are
 small against its own size (a city 1e7 across with millimetre detail) loses that detail: with a

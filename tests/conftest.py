@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import engine  # noqa: F401  (sets NUMBA_NUM_THREADS before anything imports numba)
+import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before anything imports numba)
 
 #: ../shared/data relative to the repository (present on the development machines only).
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"

@@ -1,11 +1,11 @@
-"""The batch ray-casting API (engine.RayCaster) against the brute-force float64 caster."""
+"""The batch ray-casting API (gridrt.RayCaster) against the brute-force float64 caster."""
 
 import sys
 
 import numpy as np
 import pytest
 
-import engine
+import gridrt
 from conftest import icosphere
 from reference import compare_hits, ref_cast
 
@@ -19,7 +19,7 @@ def _rays(rng, n, r=3.0):
 
 def test_cast_and_update_match_brute_force(rng):
     v, f = icosphere(3)
-    caster = engine.RayCaster(v, f)
+    caster = gridrt.RayCaster(v, f)
     o, d = _rays(rng, 3000)
     for frame in range(3):
         verts = v * (1.0 + 0.3 * frame) + np.array([0.1 * frame, 0.0, -0.2 * frame], np.float32)
@@ -43,14 +43,14 @@ def test_cast_and_update_match_brute_force(rng):
 def test_from_triangles_any_hit_and_thread_counts(rng):
     v, f = icosphere(2)
     tris = v[f]
-    caster = engine.RayCaster.from_triangles(tris)
+    caster = gridrt.RayCaster.from_triangles(tris)
     o, d = _rays(rng, 2000)
     ref = ref_cast(tris, o, d, tmax=2.5)
     base = caster.cast(o, d, tmax=2.5, threads=1)
     assert len(compare_hits(base.t, base.tri, ref).bad) == 0
     anyh = caster.cast(o, d, tmax=2.5, any_hit=True)
     assert np.array_equal(anyh.tri >= 0, ref.tri >= 0)
-    for n in (2, 3, 8, engine.threads.max_threads()):
+    for n in (2, 3, 8, gridrt.threads.max_threads()):
         h = caster.cast(o, d, tmax=2.5, threads=n)
         assert np.array_equal(h.tri, base.tri) and np.array_equal(h.t, base.t)
 
@@ -64,25 +64,25 @@ def test_from_triangles_any_hit_and_thread_counts(rng):
 )
 def test_update_rejects_bad_vertices(bad, message):
     v, f = icosphere(1)
-    caster = engine.RayCaster(v, f)
-    with pytest.raises(engine.InputError, match=message):
+    caster = gridrt.RayCaster(v, f)
+    with pytest.raises(gridrt.InputError, match=message):
         caster.update(bad(v))
 
 
 def test_bad_meshes_rejected():
     v, f = icosphere(1)
-    with pytest.raises(engine.InputError, match="out of range"):
-        engine.RayCaster(v, f + len(v))
-    with pytest.raises(engine.InputError, match="negative"):
-        engine.RayCaster(v, f - 1)
-    with pytest.raises(engine.InputError, match="empty"):
-        engine.RayCaster(v[:0], f[:0])
-    with pytest.raises(engine.InputError, match="degenerate"):
-        engine.RayCaster(np.zeros((3, 3)), [[0, 1, 2]])
-    caster = engine.RayCaster(v, f)
-    with pytest.raises(engine.InputError, match="zero vector"):
+    with pytest.raises(gridrt.InputError, match="out of range"):
+        gridrt.RayCaster(v, f + len(v))
+    with pytest.raises(gridrt.InputError, match="negative"):
+        gridrt.RayCaster(v, f - 1)
+    with pytest.raises(gridrt.InputError, match="empty"):
+        gridrt.RayCaster(v[:0], f[:0])
+    with pytest.raises(gridrt.InputError, match="degenerate"):
+        gridrt.RayCaster(np.zeros((3, 3)), [[0, 1, 2]])
+    caster = gridrt.RayCaster(v, f)
+    with pytest.raises(gridrt.InputError, match="zero vector"):
         caster.cast([[0, 0, 5.0]], [[0, 0, 0.0]])
-    with pytest.raises(engine.InputError, match="tmin"):
+    with pytest.raises(gridrt.InputError, match="tmin"):
         caster.cast([[0, 0, 5.0]], [[0, 0, -1.0]], tmin=2.0, tmax=1.0)
 
 
@@ -98,15 +98,15 @@ def test_update_refuses_all_degenerate_mesh_keeping_old(rng):
     the caster keeps casting against its previous mesh."""
     v, f = icosphere(2)
     v = v.astype(np.float64) + 50.0
-    caster = engine.RayCaster(v, f)
+    caster = gridrt.RayCaster(v, f)
     o, d = _rays(rng, 1500)
     o = o + 50.0
     flat = v.copy()
     flat[:, 2] = 7.0  # every triangle in one plane ...
     flat[:, 1] = 2.0 * flat[:, 0]  # ... and on one line: zero area
-    with pytest.raises(engine.InputError, match=f"all {len(f)} triangles are degenerate") as made:
-        engine.RayCaster(flat, f)
-    with pytest.raises(engine.InputError, match=f"all {len(f)} triangles are degenerate") as updated:
+    with pytest.raises(gridrt.InputError, match=f"all {len(f)} triangles are degenerate") as made:
+        gridrt.RayCaster(flat, f)
+    with pytest.raises(gridrt.InputError, match=f"all {len(f)} triangles are degenerate") as updated:
         caster.update(flat)
     assert str(updated.value).startswith("update") and str(made.value).endswith("(zero area)")
     hits = caster.cast(o, d)
@@ -119,7 +119,7 @@ def test_user_errors_never_mention_internals(rng):
     """What a RayCaster user can get wrong is reported in their terms: no stale grid, no builder,
     no internal function (the caster's grids are never stale: see test_caster_threads)."""
     v, f = icosphere(1)
-    caster = engine.RayCaster(v, f)
+    caster = gridrt.RayCaster(v, f)
     o, d = _rays(rng, 10)
     huge = np.broadcast_to(o[:1], (10**11, 3))
     calls = [
@@ -132,7 +132,7 @@ def test_user_errors_never_mention_internals(rng):
         lambda: caster.update(np.full(v.shape, "x")),
     ]
     for call in calls:
-        with pytest.raises(engine.InputError) as e:
+        with pytest.raises(gridrt.InputError) as e:
             call()
         msg = str(e.value)
         for word in ("stale", "GridBuilder", "cast_batch", "build_grid", "_check", "kernel"):
@@ -157,15 +157,15 @@ def test_chunk_boundaries_change_nothing(rng, monkeypatch):
     """A batch cast in chunks (of 1, 7, 1000 rays) gives exactly the hits of one cast, for
     RayCaster.cast and cast_rays, from float64, strided and float32 inputs, with rays of odd
     direction lengths on both sides of chunk boundaries; and those hits are the reference's."""
-    from engine.trace import cast_rays
+    from gridrt.trace import cast_rays
 
-    render_mod = sys.modules["engine.trace.render"]
+    render_mod = sys.modules["gridrt.trace.render"]
     offset = np.array([300.0, -20.0, 7.0])
     v, f = icosphere(3)
     v = v.astype(np.float64) + offset
-    caster = engine.RayCaster(v, f)
+    caster = gridrt.RayCaster(v, f)
     tris32 = v[f].astype(np.float32)
-    grid = engine.build_grid(tris32)
+    grid = gridrt.build_grid(tris32)
     o, d, scale = _odd_rays(rng, 3001, offset)
     wide = np.zeros((len(o), 7))
     wide[:, 1:7:2] = d
@@ -193,9 +193,9 @@ def test_cast_memory_is_bounded(rng, monkeypatch):
     strided rays, all with odd direction lengths (the costliest case), cast 8192 at a time."""
     import tracemalloc
 
-    render_mod = sys.modules["engine.trace.render"]
+    render_mod = sys.modules["gridrt.trace.render"]
     v, f = icosphere(2)
-    caster = engine.RayCaster(v.astype(np.float64) + 40.0, f)
+    caster = gridrt.RayCaster(v.astype(np.float64) + 40.0, f)
     n, chunk = 300_000, 8192
     o, d = _rays(rng, n)
     o_in = np.asfortranarray((o + 40.0).astype(np.float32))
@@ -231,14 +231,14 @@ def test_batch_beyond_the_budget_is_refused_before_allocating(rng):
     import tracemalloc
 
     v, f = icosphere(1)
-    caster = engine.RayCaster(v, f, engine.GridParams(max_bytes=1 << 20))
+    caster = gridrt.RayCaster(v, f, gridrt.GridParams(max_bytes=1 << 20))
     o, d = _rays(rng, 3000)
     assert len(compare_hits(caster.cast(o, d).t, caster.cast(o, d).tri, _local_ref(v, f, o, d)).bad) == 0
     n = 1_000_000
     big_o, big_d = np.broadcast_to(o[:1], (n, 3)), np.broadcast_to(d[:1], (n, 3))
     tracemalloc.start()
     try:
-        with pytest.raises(engine.InputError, match=rf"casting {n} rays at once needs \d+ MiB .*max_bytes=1 MiB"):
+        with pytest.raises(gridrt.InputError, match=rf"casting {n} rays at once needs \d+ MiB .*max_bytes=1 MiB"):
             caster.cast(big_o, big_d)
         peak = tracemalloc.get_traced_memory()[1]
     finally:

@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import engine  # noqa: F401  (sets numba's thread count before numba loads)
-from engine.errors import InputError
-from engine.scene import BartAnimation, make_scene
-from engine.scene.bart import (
+import gridrt  # noqa: F401  (sets numba's thread count before numba loads)
+from gridrt.errors import InputError
+from gridrt.scene import BartAnimation, make_scene
+from gridrt.scene.bart import (
     axis_angle_quaternions,
     kb_position,
     kb_position_coefficients,

@@ -16,9 +16,9 @@ from PIL import Image
 from conftest import icosphere, icosphere_tris, random_triangles
 from reference import compare_hits, ref_camera_rays, ref_cast
 
-from app.__main__ import main
-from app.bench_util import facing_camera, pareto_front, parse_scene_spec
-from app.benchref import brute_cast, compare_to_reference, count_holes, pixel_rays, probe_rays, sample_pixels
+from gridrt.app.__main__ import main
+from gridrt.app.bench_util import facing_camera, pareto_front, parse_scene_spec
+from gridrt.app.benchref import brute_cast, compare_to_reference, count_holes, pixel_rays, probe_rays, sample_pixels
 
 
 def read_csv(path):
@@ -95,7 +95,7 @@ def test_probe_rays_enter_a_closed_mesh_at_their_target():
 
 
 def test_probe_rays_reject_an_open_mesh():
-    from engine.errors import InputError
+    from gridrt.errors import InputError
 
     v, f = icosphere(1)
     with pytest.raises(InputError, match="not closed"):
@@ -123,7 +123,7 @@ def test_pareto_front_by_hand():
 def test_scene_specs():
     assert parse_scene_spec("marbles:2k") == ("marbles", {"count": 2000})
     assert parse_scene_spec("icosphere:1.3M:twist") == ("icosphere", {"count": 1300000, "animate": "twist"})
-    from engine.errors import InputError
+    from gridrt.errors import InputError
 
     with pytest.raises(InputError, match="neither"):
         parse_scene_spec("marbles:lots")
@@ -177,7 +177,7 @@ def test_bench_frame_quick(tmp_path):
 
 
 def test_bench_trade_quick_matches_an_independent_recount(tmp_path):
-    from engine import GridParams, RenderParams, build_grid, render
+    from gridrt import GridParams, RenderParams, build_grid, render
 
     out = tmp_path / "trade"
     assert main(["bench", "trade", "--quick", "--no-progress", "--out", str(out), "--threads", "1"]) == 0
@@ -190,7 +190,7 @@ def test_bench_trade_quick_matches_an_independent_recount(tmp_path):
     assert int(by[("insert", "exact")]["references"]) < int(by[("insert", "bbox")]["references"])
     assert any(r["pareto"] == "1" for r in rows) and by[("precision", "float32 storage")]["pareto"] == ""
     # recount the pixel error of the half-resolution row with tests/reference.py
-    from engine.scene import make_scene
+    from gridrt.scene import make_scene
 
     tris = make_scene("icosphere", count=1280).triangles_at(0.0)
     v = tris.reshape(-1, 3)

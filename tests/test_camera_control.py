@@ -1,4 +1,4 @@
-"""engine.camera_control: orbit / pan / dolly / fly as pure functions on Camera.
+"""gridrt.camera_control: orbit / pan / dolly / fly as pure functions on Camera.
 
 References are analytic (spherical coordinates, rigid translations) or come from the rays the
 engine's own Camera casts (pan: the pixel whose ray passes nearest a world point), so each move
@@ -10,9 +10,9 @@ import math
 import numpy as np
 import pytest
 
-from engine import camera_control as cc
-from engine.camera import Camera
-from engine.errors import InputError
+from gridrt import camera_control as cc
+from gridrt.camera import Camera
+from gridrt.errors import InputError
 
 
 def _cams(rng, n=20):

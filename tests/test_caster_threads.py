@@ -57,12 +57,12 @@ def stress(seconds, casters=4, updaters=2):
     """Run the threads on one caster; return a summary dict (also what the subprocess prints)."""
     import numba
 
-    import engine
+    import gridrt
 
     a, b, f, o, d = meshes()
     refs = {"A": reference(a, f, o, d), "B": reference(b, f, o, d)}
     differ = int((refs["A"].tri != refs["B"].tri).sum())
-    caster = engine.RayCaster(a, f)
+    caster = gridrt.RayCaster(a, f)
     single = {}
     for name, verts in (("B", b), ("A", a)):
         caster.update(verts)
@@ -99,7 +99,7 @@ def stress(seconds, casters=4, updaters=2):
                 if i % 7 == 0:
                     try:
                         caster.update(bad_update)
-                    except engine.InputError:
+                    except gridrt.InputError:
                         note("refused_updates")
                     continue
                 caster.update(a if (i + k) % 2 else b)

@@ -23,12 +23,12 @@ import pytest
 
 import reference as R
 from conftest import TEAPOT, icosphere_tris, load_tris, random_scene, random_triangles
-from engine.camera import Camera
-from engine.config import GridParams, RenderParams
-from engine.errors import InputError
-from engine.grid import build_grid
-from engine.trace import render
-from engine.trace.render import Renderer
+from gridrt.camera import Camera
+from gridrt.config import GridParams, RenderParams
+from gridrt.errors import InputError
+from gridrt.grid import build_grid
+from gridrt.trace import render
+from gridrt.trace.render import Renderer
 
 GRAZE = 1e-9
 TIE_RTOL = 1e-9
@@ -286,8 +286,8 @@ def test_cgt_two_grids():
 def test_cgt_pipeline_marbles():
     """The frame pipeline with --traversal cgt (marbles: static box + moving marbles, split into
     two grids) renders the DDA's frames."""
-    from engine.pipeline import FramePipeline
-    from engine.scene import make_scene
+    from gridrt.pipeline import FramePipeline
+    from gridrt.scene import make_scene
 
     frames = {}
     for tv in ("dda", "cgt"):
@@ -316,7 +316,7 @@ def test_cgt_threads_identical():
 def test_traversal_parameter():
     """RenderParams validates the traversal (API default dda); the CLI's --traversal reaches it
     and defaults to cgt (same images, faster)."""
-    from app import cli
+    from gridrt.app import cli
 
     assert RenderParams().traversal == "dda"
     assert RenderParams(traversal="cgt").traversal == "cgt"

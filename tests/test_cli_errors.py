@@ -138,7 +138,7 @@ def test_cell_cap_warning_is_one_plain_line(tmp_path):
 
 def test_main_restores_the_warning_format():
     """The CLI's one-line format is installed only while main() runs (main may be called in-process)."""
-    from app.__main__ import main
+    from gridrt.app.__main__ import main
 
     before = warnings.showwarning
     assert main(["strategies"]) == 0

@@ -1,7 +1,7 @@
 """The headless frame dump, end to end through the real command line (a subprocess).
 
 Hit buffers are checked against the brute-force float64 caster over the scene's triangles
-(engine.scene is independent of the grid and the ray caster) and rays from the documented
+(gridrt.scene is independent of the grid and the ray caster) and rays from the documented
 pinhole formula (tests/reference.py), not against anything the dump produced itself.
 """
 
@@ -25,7 +25,7 @@ REQUIRED = ["frame", "t", "triangles", "cells", "references", "threads", "strate
 def gridrt(*args, env=None, timeout=600):
     e = dict(os.environ)
     e.update(env or {})
-    return subprocess.run([sys.executable, "-m", "app", *args], cwd=REPO, capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "gridrt", *args], cwd=REPO, capture_output=True, text=True,
                           env=e, timeout=timeout)
 
 
@@ -44,7 +44,7 @@ def test_dump_all_options_and_buffers_match_brute_force(tmp_path):
         rows = list(csv.DictReader(fh))
     assert len(rows) == 2
     assert set(REQUIRED) <= set(rows[0])
-    from engine.scene import make_scene
+    from gridrt.scene import make_scene
 
     scene = make_scene("marbles", count=1000)
     o, d = ref_camera_rays(eye, target, up, fov, W, H)
@@ -74,7 +74,7 @@ def test_dump_all_options_and_buffers_match_brute_force(tmp_path):
 
 def test_dump_imports_no_gl(tmp_path):
     code = (
-        "import sys; from app.__main__ import main; "
+        "import sys; from gridrt.app.__main__ import main; "
         f"rc = main(['dump', '--frames', '1', '--size', '16x12', '--no-progress', '--out', r'{tmp_path}']); "
         "print('GL', 'glfw' in sys.modules, 'moderngl' in sys.modules, 'imgui_bundle' in sys.modules, rc)"
     )
@@ -114,8 +114,8 @@ def cache_files(folder):
 
 
 def cold_render_kernels(env):
-    """engine.warmup.cache_is_cold for both traversals, in a fresh process with env."""
-    r = subprocess.run([sys.executable, "-c", "from engine.warmup import cache_is_cold; "
+    """gridrt.warmup.cache_is_cold for both traversals, in a fresh process with env."""
+    r = subprocess.run([sys.executable, "-c", "from gridrt.warmup import cache_is_cold; "
                         "print(cache_is_cold('cgt'), cache_is_cold('dda'))"],
                        cwd=REPO, capture_output=True, text=True, env={**os.environ, **env}, timeout=600)
     assert r.returncode == 0, r.stderr
@@ -154,7 +154,7 @@ def test_compile_notice_fires_once_and_only_on_a_compile():
     dispatcher signatures tell independently when one happened), and never outside it."""
     from numba import njit
 
-    from engine.warmup import compile_notice
+    from gridrt.warmup import compile_notice
 
     calls = []
 

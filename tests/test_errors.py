@@ -1,6 +1,6 @@
 """Bad input raises a clear error naming the problem, before any numba kernel runs.
 
-Each case checks the exception type (engine.errors.InputError) and a message fragment; the
+Each case checks the exception type (gridrt.errors.InputError) and a message fragment; the
 ``no_kernels`` fixture replaces the engine's kernels with tripwires, so a check that happens too
 late (inside or after a kernel) fails the test.  The last tests check that a flat scene (zero
 extent along an axis) is not an error and renders correctly (brute-force reference).
@@ -11,13 +11,13 @@ import pytest
 
 import reference as R
 from conftest import random_rays, random_triangles
-from engine.arrays import as_mesh
-from engine.camera import Camera
-from engine.config import GridParams, RenderParams
-from engine.errors import InputError
-from engine.grid import GridBuilder, build_grid
-from engine.threads import max_threads
-from engine.trace import cast_rays, render
+from gridrt.arrays import as_mesh
+from gridrt.camera import Camera
+from gridrt.config import GridParams, RenderParams
+from gridrt.errors import InputError
+from gridrt.grid import GridBuilder, build_grid
+from gridrt.threads import max_threads
+from gridrt.trace import cast_rays, render
 
 GOOD = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0, 1], [1, 0, 1], [0, 1, 1]]], np.float32)
 
@@ -35,13 +35,13 @@ def no_kernels(monkeypatch):
 def install_kernel_tripwires(monkeypatch):
     from importlib import import_module
 
-    from engine.grid.registry import BUILDERS, get_builder
+    from gridrt.grid.registry import BUILDERS, get_builder
 
-    # import_module: engine.trace.render is also the name of a function in engine.trace
-    cam_mod = import_module("engine.camera")
-    build_mod = import_module("engine.grid.build")
-    common = import_module("engine.grid.common")
-    render_mod = import_module("engine.trace.render")
+    # import_module: gridrt.trace.render is also the name of a function in gridrt.trace
+    cam_mod = import_module("gridrt.camera")
+    build_mod = import_module("gridrt.grid.build")
+    common = import_module("gridrt.grid.common")
+    render_mod = import_module("gridrt.trace.render")
 
     get_builder("serial")  # make sure every strategy is registered
 
@@ -72,10 +72,10 @@ def no_insert(monkeypatch):
 def install_insert_tripwires(monkeypatch):
     from importlib import import_module
 
-    from engine.grid.registry import BUILDERS, get_builder
+    from gridrt.grid.registry import BUILDERS, get_builder
 
     get_builder("serial")
-    common = import_module("engine.grid.common")
+    common = import_module("gridrt.grid.common")
 
     def trip(*a, **k):
         raise KernelCalled("a grid build stage ran before the input was rejected")
@@ -161,7 +161,7 @@ def test_bad_face_indices(no_kernels, faces, match):
 
 
 def test_bad_face_indices_scene_mesh(no_kernels):
-    from engine.scene import Mesh
+    from gridrt.scene import Mesh
 
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
     with pytest.raises(InputError, match="out of range"):

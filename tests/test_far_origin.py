@@ -32,7 +32,7 @@ AXIS = np.array([1.0, -0.7, 0.3])
 
 
 def gridrt(*args, timeout=600):
-    return subprocess.run([sys.executable, "-m", "app", *args], cwd=REPO, capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "gridrt", *args], cwd=REPO, capture_output=True, text=True,
                           timeout=timeout, env=dict(os.environ))
 
 
@@ -99,7 +99,7 @@ def view_of(lo, hi, dist=1.3):
 
 @pytest.fixture(scope="module")
 def teapot():
-    from engine.scene import load_mesh
+    from gridrt.scene import load_mesh
 
     m = load_mesh(shared_data_path("static/utah_teapot/teapot.obj"))
     return m.vertices64, m.faces.astype(np.int64)
@@ -122,7 +122,7 @@ def test_dump_mesh_far_from_origin(teapot, tmp_path):
 
 def test_dump_mesh_far_from_origin_dda_and_deformed(teapot, tmp_path):
     """The single-ray traversal, and a twisted mesh (the deformer evaluates in the scene's frame)."""
-    from engine.scene import Deform, Mesh
+    from gridrt.scene import Deform, Mesh
 
     v, f = teapot
     X = 1e7
@@ -177,7 +177,7 @@ def _gltf_moved(src, dst, offset):
 
 
 def test_dump_animated_gltf_far_from_origin(tmp_path):
-    from engine.scene import make_scene
+    from gridrt.scene import make_scene
 
     src = shared_data_path("animated/animated_morph_sphere/AnimatedMorphSphere.gltf")
     t_anim = 1.3
@@ -197,7 +197,7 @@ def test_dump_animated_gltf_far_from_origin(tmp_path):
 def test_static_gltf_far_from_origin(tmp_path):
     """A glTF without animation becomes a static mesh (GltfAnimation.to_mesh): posed in float64 far
     from the origin, not through float32 world coordinates."""
-    from engine.scene import make_scene
+    from gridrt.scene import make_scene
 
     src = shared_data_path("animated/animated_morph_sphere/AnimatedMorphSphere.gltf")
     doc = json.loads(Path(src).read_text())
@@ -221,7 +221,7 @@ def test_static_gltf_far_from_origin(tmp_path):
 
 
 def test_dump_bart_far_from_origin(tmp_path):
-    from engine.scene import make_scene
+    from gridrt.scene import make_scene
 
     root = shared_data_path("animated/bart/museum/aff/museum5.aff")
     t_anim, w, h = 0.7, 96, 72
@@ -245,7 +245,7 @@ def test_dump_bart_far_from_origin(tmp_path):
 def test_build_grid_render_cast_rays_far_from_origin(teapot):
     """build_grid centres a far scene (grid.origin) from its float64 triangles; render and
     cast_rays take world inputs; both agree with the brute force at offset 0."""
-    import engine
+    import gridrt
 
     v, f = teapot
     eye, target = view_of(v.min(axis=0), v.max(axis=0))
@@ -255,14 +255,14 @@ def test_build_grid_render_cast_rays_far_from_origin(teapot):
     for X in (0.0, 1e7, 1e9):
         off = X * AXIS
         tris = v[f] + off  # float64 world triangles
-        grid = engine.build_grid(tris)
+        grid = gridrt.build_grid(tris)
         centre = 0.5 * (v.min(axis=0) + v.max(axis=0)) + off
         assert (grid.origin == 0).all() if X == 0 else np.allclose(grid.origin, centre, rtol=1e-12)
-        img = engine.render(grid, tris, engine.Camera(tuple(eye + off), tuple(target + off)),
-                            engine.RenderParams(w, h))
+        img = gridrt.render(grid, tris, gridrt.Camera(tuple(eye + off), tuple(target + off)),
+                            gridrt.RenderParams(w, h))
         flips, rel = agreement(img.t.reshape(-1), img.tri.reshape(-1), ref)
         assert flips <= 0.0005 * w * h and rel < 1e-6, X
-        hits = engine.cast_rays(grid, tris, o + off, d)
+        hits = gridrt.cast_rays(grid, tris, o + off, d)
         flips, rel = agreement(hits.t, hits.tri, ref)
         assert flips <= 0.0005 * w * h and rel < 1e-6, X
 
@@ -270,11 +270,11 @@ def test_build_grid_render_cast_rays_far_from_origin(teapot):
 def test_viewer_worker_far_from_origin(teapot, tmp_path):
     """The viewer's render worker after a frame: the camera it reports is the world camera, and the
     frame it rendered is the brute force's image of the scene at offset 0."""
-    from app.state import SceneSpec
-    from app.worker import FrameJob, LoadJob, RenderWorker
-    from engine.camera import Camera
-    from engine.config import GridParams, RenderParams
-    from engine.pipeline import FramePipeline
+    from gridrt.app.state import SceneSpec
+    from gridrt.app.worker import FrameJob, LoadJob, RenderWorker
+    from gridrt.camera import Camera
+    from gridrt.config import GridParams, RenderParams
+    from gridrt.pipeline import FramePipeline
 
     v, f = teapot
     X = 1e9
@@ -329,10 +329,10 @@ def _wait(worker, n, timeout=300):
 def test_pipeline_frame_follows_a_moving_scene():
     """A scene that travels 1e8 units over its animation: the pipeline's frame follows it
     (re-centred when the scene drifted by more than its extent) and every frame stays exact."""
-    from engine.camera import Camera
-    from engine.config import GridParams, RenderParams
-    from engine.pipeline import FramePipeline
-    from engine.scene import KeyframeMesh, icosphere_mesh
+    from gridrt.camera import Camera
+    from gridrt.config import GridParams, RenderParams
+    from gridrt.pipeline import FramePipeline
+    from gridrt.scene import KeyframeMesh, icosphere_mesh
 
     ico = icosphere_mesh(320)
     v = ico.vertices64
@@ -357,11 +357,11 @@ def test_pipeline_frame_follows_a_moving_scene():
 def test_float32_floor_warns():
     """Detail under FLOOR_STEPS float32 steps of the scene's own size is warned about (by the
     pipeline and by build_grid); an ordinary scene far from the origin is not."""
-    import engine
-    from engine.config import RenderParams
-    from engine.pipeline import FramePipeline
-    from engine.precision import FLOOR_STEPS, PrecisionWarning, detail_steps
-    from engine.scene import Mesh, StaticMesh, icosphere_mesh
+    import gridrt
+    from gridrt.config import RenderParams
+    from gridrt.pipeline import FramePipeline
+    from gridrt.precision import FLOOR_STEPS, PrecisionWarning, detail_steps
+    from gridrt.scene import Mesh, StaticMesh, icosphere_mesh
 
     ico = icosphere_mesh(1280)
     v = ico.vertices64
@@ -369,7 +369,7 @@ def test_float32_floor_warns():
     with warnings.catch_warnings():
         warnings.simplefilter("error", PrecisionWarning)
         FramePipeline(StaticMesh(Mesh(far_away, ico.faces)), render_params=RenderParams(8, 6)).step(0.0)
-        engine.build_grid(far_away[ico.faces])
+        gridrt.build_grid(far_away[ico.faces])
     # the same sphere with one triangle 1e7 radii away: the frame is 1e7 across, the sphere's edges are
     # a few float32 steps of it
     D = 1e7
@@ -382,13 +382,13 @@ def test_float32_floor_warns():
         pipe.step(0.0)
     assert "median triangle edge" in pipe.precision_warning
     with pytest.warns(PrecisionWarning):
-        engine.build_grid(V[F])
+        gridrt.build_grid(V[F])
     # RayCaster: at construction, and when an update makes the mesh too fine (once, not every update)
     with pytest.warns(PrecisionWarning):
-        assert engine.RayCaster(V, F).precision_warning is not None
+        assert gridrt.RayCaster(V, F).precision_warning is not None
     with warnings.catch_warnings():
         warnings.simplefilter("error", PrecisionWarning)
-        caster = engine.RayCaster(far_away, ico.faces)
+        caster = gridrt.RayCaster(far_away, ico.faces)
     stretched = far_away.copy()
     stretched[0] += 1e7 * AXIS  # one vertex 1e7 away: the mesh's frame is 1e7 across, its edges tiny
     with pytest.warns(PrecisionWarning):
@@ -402,18 +402,18 @@ def test_float32_floor_warns():
 
 def test_two_grids_in_different_frames_refused():
     """Grids traversed together must share a frame: a clear error naming the fix."""
-    import engine
+    import gridrt
     from conftest import icosphere_tris
 
     near = icosphere_tris(1, 0.5)
     far = icosphere_tris(1, 0.5, center=(30.0, 0.0, 0.0))  # centred by build_grid: 30 > its extent
-    ga, gb = engine.build_grid(near), engine.build_grid(far)
-    cam = engine.Camera((0, 0, 1.5), (0, 0, 0))
+    ga, gb = gridrt.build_grid(near), gridrt.build_grid(far)
+    cam = gridrt.Camera((0, 0, 1.5), (0, 0, 0))
     ids_a, ids_b = np.arange(len(near), dtype=np.int32), np.arange(len(far), dtype=np.int32) + len(near)
-    with pytest.raises(engine.InputError, match="origin=first.origin"):
-        engine.Renderer().render(ga, near, cam, engine.RenderParams(8, 6), second=(gb, far, ids_a, ids_b))
-    gb = engine.build_grid(far, origin=ga.origin)
-    res = engine.Renderer().render(ga, near, cam, engine.RenderParams(8, 6), second=(gb, far, ids_a, ids_b))
+    with pytest.raises(gridrt.InputError, match="origin=first.origin"):
+        gridrt.Renderer().render(ga, near, cam, gridrt.RenderParams(8, 6), second=(gb, far, ids_a, ids_b))
+    gb = gridrt.build_grid(far, origin=ga.origin)
+    res = gridrt.Renderer().render(ga, near, cam, gridrt.RenderParams(8, 6), second=(gb, far, ids_a, ids_b))
     assert (res.tri >= 0).any()
 
 

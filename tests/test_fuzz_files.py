@@ -17,9 +17,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import engine  # noqa: F401  (sets numba's thread count before numba loads)
-from engine.errors import SceneFileError
-from engine.scene import make_scene
+import gridrt  # noqa: F401  (sets numba's thread count before numba loads)
+from gridrt.errors import SceneFileError
+from gridrt.scene import make_scene
 
 from test_gltf import Builder, write_arm, TRI_V, TRI_F  # noqa: E402
 from test_md2_frames import write_md2, write_obj, grid_frame, GRID_F  # noqa: E402

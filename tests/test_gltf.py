@@ -1,6 +1,6 @@
 """Animated glTF 2.0: node animation, linear-blend skinning, morph targets, samplers, clips.
 
-References are independent of engine.scene.gltf:
+References are independent of gridrt.scene.gltf:
 
 * small glTF files are written here with pygltflib and their poses are computed analytically
   (a joint rotating about z by a known angle, a translation growing linearly in time, a morph
@@ -21,10 +21,10 @@ import numpy as np
 import pygltflib as gl
 import pytest
 
-import engine  # noqa: F401  (sets numba's thread count before numba loads)
-from engine.errors import InputError, SceneFileError
-from engine.scene import GltfAnimation, StaticMesh, make_scene
-from engine.scene import gltf as gltf_module
+import gridrt  # noqa: F401  (sets numba's thread count before numba loads)
+from gridrt.errors import InputError, SceneFileError
+from gridrt.scene import GltfAnimation, StaticMesh, make_scene
+from gridrt.scene import gltf as gltf_module
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 HAVE_DRACO = importlib.util.find_spec("DracoPy") is not None
@@ -361,7 +361,7 @@ def test_non_indexed_primitives(tmp_path):
 def test_gltf_version_is_checked_by_every_loader(tmp_path, asset, layout, problem, ext):
     """A numeric asset.version (as some glTF 1.0 exporters write) once passed the check and ended in
     "'nodes' is not a list"; load_mesh (trimesh) said "NotImplementedError: only GLTF 2 is supported"."""
-    from engine.scene import load_mesh
+    from gridrt.scene import load_mesh
 
     b = Builder()
     b.node(root=True, mesh=b.mesh(TRI_V, TRI_F))
@@ -396,7 +396,7 @@ def test_gltf_version_is_checked_by_every_loader(tmp_path, asset, layout, proble
 
 def test_binary_gltf_1_is_named(tmp_path):
     """Binary glTF 1.0 (KHR_binary_glTF): container version 1."""
-    from engine.scene import load_mesh
+    from gridrt.scene import load_mesh
 
     js = json.dumps({"asset": {"version": "1.0"}, "nodes": {"n": {}}, "scene": "s", "scenes": {"s": {}}}).encode()
     js += b" " * (-len(js) % 4)

@@ -23,10 +23,10 @@ from PIL import Image
 
 import reference as R
 from conftest import icosphere_tris, random_triangles
-from engine.camera import Camera
-from engine.config import RenderParams
-from engine.grid import GridParams, build_grid
-from engine.trace import render
+from gridrt.camera import Camera
+from gridrt.config import RenderParams
+from gridrt.grid import GridParams, build_grid
+from gridrt.trace import render
 
 GOLDEN = Path(__file__).resolve().parent / "golden"
 SIZE = 64

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 import reference as R
 from conftest import ARMADILLO, TEAPOT, load_tris, random_scene
-from engine.grid import GridBuilder, GridCapWarning, GridParams, build_grid
+from gridrt.grid import GridBuilder, GridCapWarning, GridParams, build_grid
 
 # ----------------------------------------------------------------------------------------------
 # the reference itself, on hand-computed cases
@@ -262,7 +262,7 @@ def test_grid_equals_reference_real_mesh(relpath, density, macro):
 
 
 def _strategy_names():
-    from engine.grid import names
+    from gridrt.grid import names
 
     return names()
 
@@ -328,7 +328,7 @@ def test_scene_bounds_equal_numpy(F, chunks):
     whole 48-lane row) and sizes with a tail of leftover coordinates.  A NaN, an infinity or a
     coordinate beyond 1e30 at the first, a middle, the last-full-row and the very last position
     sets the bad flag."""
-    from engine.grid import common
+    from gridrt.grid import common
 
     rng = np.random.default_rng(F * 31 + chunks)
     t = (rng.standard_normal((F, 3, 3)) * 10.0 ** rng.integers(-3, 4, size=(F, 1, 3))).astype(np.float32)
@@ -365,8 +365,8 @@ def test_cell_ranges_equal_scalar_definition(F, threads):
     (0, 0, 0, -1, -1, -1) for a triangle of exactly zero area.  Random triangles, degenerate ones
     (repeated and collinear vertices), ones outside the grid on both sides (clamped), and vertices
     exactly on cell faces, where the EPS growth decides."""
-    from engine.grid.layout import INSERT_EPS
-    from engine.grid.strategies.shared import cell_ranges
+    from gridrt.grid.layout import INSERT_EPS
+    from gridrt.grid.strategies.shared import cell_ranges
 
     def scalar_range(tri):
         v = tri.astype(np.float64)

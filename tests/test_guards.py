@@ -48,11 +48,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from conftest import SHARED_DATA
-from engine.camera import Camera
-from engine.config import GridParams, RenderParams
-from engine.errors import InputError
-from engine.grid import GridBuilder, build_grid, names
-from engine.threads import max_threads
+from gridrt.camera import Camera
+from gridrt.config import GridParams, RenderParams
+from gridrt.errors import InputError
+from gridrt.grid import GridBuilder, build_grid, names
+from gridrt.threads import max_threads
 
 REPO = Path(__file__).resolve().parents[1]
 ENGINE = REPO / "engine"
@@ -80,7 +80,7 @@ def kernel_inventory():
     kernel) refers to a kernel by name -- the boundaries."""
     trees = {}
     for p in sorted(ENGINE.rglob("*.py")):
-        mod = ".".join(p.relative_to(REPO).with_suffix("").parts)
+        mod = ".".join(("gridrt",) + p.relative_to(ENGINE).with_suffix("").parts)  # engine/ is the gridrt package
         trees[mod] = ast.parse(p.read_text())
     kernels = {}
     for mod, tree in trees.items():
@@ -121,76 +121,76 @@ def kernel_inventory():
 #: and the tests below that prove the guard.  "internal" boundaries only pass arrays the engine made
 #: and sized itself (covered by the guards of the public function that reaches them).
 BOUNDARIES = {
-    "engine.camera:Camera.rays": ("writes W*H rays into buffers it allocates; W, H validated",
+    "gridrt.camera:Camera.rays": ("writes W*H rays into buffers it allocates; W, H validated",
                                   ["test_guard_camera_rays"]),
-    "engine.grid.build:GridBuilder.build": (
+    "gridrt.grid.build:GridBuilder.build": (
         "bounds pass reads tris (shape/dtype checked first; it is itself the NaN/inf/1e30 guard)",
         ["test_guard_build_triangles", "test_guard_build_nonfinite_every_strategy", "test_guard_build_params"]),
-    "engine.grid.build:GridBuilder._build": (
+    "gridrt.grid.build:GridBuilder._build": (
         "internal: clear and macro stages index count/macro arrays sized from the spec; reached only after the "
         "triangles, params and memory budget passed; buffers reset when a build fails",
         ["test_guard_build_nonfinite_every_strategy", "test_refused_build_leaves_builder_usable",
          "test_guard_memory_budget_before_allocation"]),
-    "engine.grid.strategies.serial:Serial.insert": (
+    "gridrt.grid.strategies.serial:Serial.insert": (
         "internal: cell ranges clamped to dims in the range pass (common._ranges_block); tri_ids sized by the "
         "counted total, which must fit int32; assumes the count buffer is zero", ["test_guard_reference_overflow_tripwire",
                                                         "test_guard_reference_overflow_real",
                                                         "test_refused_build_leaves_builder_usable"]),
-    "engine.grid.strategies.counting:Counting.insert": ("internal, as serial",
+    "gridrt.grid.strategies.counting:Counting.insert": ("internal, as serial",
                                                         ["test_guard_reference_overflow_tripwire"]),
-    "engine.grid.strategies.shared:ranges": ("internal: rng scratch sized (F, 6)",
+    "gridrt.grid.strategies.shared:ranges": ("internal: rng scratch sized (F, 6)",
                                              ["test_guard_reference_overflow_tripwire"]),
-    "engine.grid.strategies.shared:_scan": ("internal: guards the int32 total (check_total)",
+    "gridrt.grid.strategies.shared:_scan": ("internal: guards the int32 total (check_total)",
                                             ["test_guard_reference_overflow_tripwire"]),
-    "engine.grid.strategies.sort_first:SortFirst.insert": ("internal, as serial",
+    "gridrt.grid.strategies.sort_first:SortFirst.insert": ("internal, as serial",
                                                            ["test_guard_reference_overflow_tripwire"]),
-    "engine.grid.strategies.sort_last_locks:_SortLastLocked.insert": (
+    "gridrt.grid.strategies.sort_last_locks:_SortLastLocked.insert": (
         "internal: lock arrays sized by the lock granularity", ["test_guard_reference_overflow_tripwire"]),
-    "engine.grid.strategies.sort_middle:SortMiddle.insert": (
+    "gridrt.grid.strategies.sort_middle:SortMiddle.insert": (
         "internal: (T, F) bucket lists checked against max_bytes; the z % T table sized dims[2]",
         ["test_guard_reference_overflow_tripwire", "test_guard_memory_budget_before_allocation"]),
-    "engine.grid.traffic:stream_bandwidth": ("mib, runs and thread counts checked; streams buffers it allocates",
+    "gridrt.grid.traffic:stream_bandwidth": ("mib, runs and thread counts checked; streams buffers it allocates",
                                              ["test_guard_stream_bandwidth"]),
-    "engine.grid.strategies.thread_grids:_insert_layers": ("internal, as serial, one layer per thread",
+    "gridrt.grid.strategies.thread_grids:_insert_layers": ("internal, as serial, one layer per thread",
                                                            ["test_guard_reference_overflow_tripwire"]),
-    "engine.grid.strategies.thread_grids:ThreadGridsMerge.insert": (
+    "gridrt.grid.strategies.thread_grids:ThreadGridsMerge.insert": (
         "internal: merged grid sized by the layers' total", ["test_guard_reference_overflow_tripwire"]),
-    "engine.trace.render:cast_batch": (
+    "gridrt.trace.render:cast_batch": (
         "walks grid cell lists and reads tris[tri_ids[r]]: tris must be the grid's own float32 array (cast_rays "
         "checks it, RayCaster holds it); rays shape/dtype, t range, threads and the memory budget, then every "
         "chunk's values (finite, non-zero directions), all before the first chunk is cast",
         ["test_guard_cast_rays", "test_stale_grid_is_refused", "test_guard_cast_batch"]),
-    "engine.trace.render:Renderer.render": (
+    "gridrt.trace.render:Renderer.render": (
         "as cast_rays, plus the second grid's tris and id maps; image buffers sized W x H",
         ["test_guard_render", "test_stale_grid_is_refused"]),
-    "engine.scene.animation:gather_unchecked": (
+    "gridrt.scene.animation:gather_unchecked": (
         "reads vertices[faces] unchecked: reached from gather_triangles after its shape, dtype and index checks, "
         "and from the loaders' per-frame paths whose faces were validated at load time",
         ["test_guard_gather_shapes", "test_gather_triangles_checks_indices", "test_guard_keyframes",
          "test_fuzz_real_files"]),
-    "engine.scene.deform:Deform.vertices_at": ("rest and out (V,3): out validated",
+    "gridrt.scene.deform:Deform.vertices_at": ("rest and out (V,3): out validated",
                                                ["test_guard_scene_buffers"]),
-    "engine.scene.marbles:Marbles._fill": ("internal arrays sized at construction; out validated by triangles_at",
+    "gridrt.scene.marbles:Marbles._fill": ("internal arrays sized at construction; out validated by triangles_at",
                                            ["test_guard_scene_buffers"]),
-    "engine.scene.kernels:lerp_rows": ("internal: KeyframeMesh frames validated (K, V, 3) at construction",
+    "gridrt.scene.kernels:lerp_rows": ("internal: KeyframeMesh frames validated (K, V, 3) at construction",
                                        ["test_guard_keyframes", "test_fuzz_real_files"]),
-    "engine.scene.kernels:deform_vertices": ("internal: glTF indices (joints, nodes, morph rows) validated by the "
+    "gridrt.scene.kernels:deform_vertices": ("internal: glTF indices (joints, nodes, morph rows) validated by the "
                                              "loader", ["test_fuzz_real_files"]),
-    "engine.scene.gltf:GltfAnimation._update_world": ("internal: channel/node tables validated by the loader",
+    "gridrt.scene.gltf:GltfAnimation._update_world": ("internal: channel/node tables validated by the loader",
                                                       ["test_fuzz_real_files"]),
-    "engine.scene.gltf:GltfAnimation._pose": ("internal: joint tables validated by the loader",
+    "gridrt.scene.gltf:GltfAnimation._pose": ("internal: joint tables validated by the loader",
                                               ["test_fuzz_real_files"]),
-    "engine.scene.gltf:GltfAnimation.bind_triangles": ("internal: node tables validated by the loader",
+    "gridrt.scene.gltf:GltfAnimation.bind_triangles": ("internal: node tables validated by the loader",
                                                        ["test_fuzz_real_files"]),
-    "engine.scene.bart:_static_matrix": ("4x4 output it allocates", ["test_fuzz_real_files"]),
-    "engine.scene.bart:BartAnimation._update_world": ("internal: spline/node tables validated by the parser",
+    "gridrt.scene.bart:_static_matrix": ("4x4 output it allocates", ["test_fuzz_real_files"]),
+    "gridrt.scene.bart:BartAnimation._update_world": ("internal: spline/node tables validated by the parser",
                                                       ["test_fuzz_real_files"]),
-    "engine.scene.bart:BartAnimation.spline_value": ("internal: spline index from the parser's tables",
+    "gridrt.scene.bart:BartAnimation.spline_value": ("internal: spline index from the parser's tables",
                                                      ["test_fuzz_real_files"]),
-    "engine.scene.bart:BartAnimation.transform_at": ("internal, by transform name (KeyError checked)",
+    "gridrt.scene.bart:BartAnimation.transform_at": ("internal, by transform name (KeyError checked)",
                                                      ["test_fuzz_real_files"]),
-    "engine.scene.bart:BartAnimation.camera_at": ("internal: camera keys from the parser", ["test_fuzz_real_files"]),
-    "engine.warmup:_kernels": ("no call: inspects the kernels' compile cache files", []),
+    "gridrt.scene.bart:BartAnimation.camera_at": ("internal: camera keys from the parser", ["test_fuzz_real_files"]),
+    "gridrt.warmup:_kernels": ("no call: inspects the kernels' compile cache files", []),
 }
 
 
@@ -235,17 +235,18 @@ def entry_kernels():
 
 def install_tripwires(mp, allow=()):
     """Replace every entry kernel, in every loaded engine module that binds it, with a tripwire."""
-    import engine.scene  # noqa: F401  (load every module that binds a kernel)
-    import engine.grid.strategies  # noqa: F401
-    import engine.trace.render  # noqa: F401
-    import engine.grid.traffic  # noqa: F401
+    import gridrt.scene  # noqa: F401  (load every module that binds a kernel)
+    import gridrt.grid.strategies  # noqa: F401
+    import gridrt.trace.render  # noqa: F401
+    import gridrt.grid.traffic  # noqa: F401
 
     patched = []
     for name in entry_kernels():
         if name in allow:
             continue
         for modname, mod in list(sys.modules.items()):
-            if not modname.startswith("engine") or mod is None:
+            if not (modname == "gridrt" or modname.startswith("gridrt.")) or modname.startswith("gridrt.app") \
+                    or mod is None:
                 continue
             obj = getattr(mod, name, None)
             if obj is not None and hasattr(obj, "py_func"):
@@ -271,10 +272,10 @@ def expect_guard(call, match):
 
 def test_tripwires_cover_the_boundaries():
     """Positive controls: with good input every guarded boundary reaches a tripwire."""
-    from engine.scene import Mesh, gather_triangles, make_scene
-    from engine.scene.deform import Deform
-    from engine.scene.frames import KeyframeMesh
-    from engine.trace import cast_rays, render
+    from gridrt.scene import Mesh, gather_triangles, make_scene
+    from gridrt.scene.deform import Deform
+    from gridrt.scene.frames import KeyframeMesh
+    from gridrt.trace import cast_rays, render
 
     grid = build_grid(GOOD)
     v = GOOD.reshape(-1, 3)
@@ -375,15 +376,15 @@ def test_guard_build_params(tripwires):
 
 #: strategy -> (module, count kernel, [kernels that run after the total is known])
 COUNT_STAGE = {
-    "serial": ("engine.grid.strategies.serial", "count_serial", ["scatter_serial"]),
-    "counting": ("engine.grid.strategies.counting", "count_atomic", ["scatter_ranked"]),
-    "global_lock": ("engine.grid.strategies.sort_last_locks", "count_locked", ["scatter_locked"]),
-    "cell_locks": ("engine.grid.strategies.sort_last_locks", "count_locked", ["scatter_locked"]),
-    "lock_pool": ("engine.grid.strategies.sort_last_locks", "count_locked", ["scatter_locked"]),
-    "sort_first": ("engine.grid.strategies.sort_first", "count_slabs", ["scan_scatter_slabs"]),
-    "sort_middle": ("engine.grid.strategies.sort_middle", "count_owned", ["scatter_owned"]),
-    "thread_grids": ("engine.grid.strategies.thread_grids", "count_layers", ["scan_scatter_layers"]),
-    "thread_grids_merge": ("engine.grid.strategies.thread_grids", "count_layers",
+    "serial": ("gridrt.grid.strategies.serial", "count_serial", ["scatter_serial"]),
+    "counting": ("gridrt.grid.strategies.counting", "count_atomic", ["scatter_ranked"]),
+    "global_lock": ("gridrt.grid.strategies.sort_last_locks", "count_locked", ["scatter_locked"]),
+    "cell_locks": ("gridrt.grid.strategies.sort_last_locks", "count_locked", ["scatter_locked"]),
+    "lock_pool": ("gridrt.grid.strategies.sort_last_locks", "count_locked", ["scatter_locked"]),
+    "sort_first": ("gridrt.grid.strategies.sort_first", "count_slabs", ["scan_scatter_slabs"]),
+    "sort_middle": ("gridrt.grid.strategies.sort_middle", "count_owned", ["scatter_owned"]),
+    "thread_grids": ("gridrt.grid.strategies.thread_grids", "count_layers", ["scan_scatter_layers"]),
+    "thread_grids_merge": ("gridrt.grid.strategies.thread_grids", "count_layers",
                            ["scan_scatter_layers", "merge_counts", "merge_copy"]),
 }
 
@@ -429,7 +430,7 @@ def test_guard_reference_overflow_real(strategy):
     the build stops with the int32 message after counting, without allocating the references."""
     import warnings
 
-    from engine.grid import GridCapWarning
+    from gridrt.grid import GridCapWarning
 
     rng = np.random.default_rng(1)
     F = 1100
@@ -462,7 +463,7 @@ def test_guard_memory_budget_before_allocation(monkeypatch, strategy):
     """GridParams.max_bytes is enforced before the memory is committed: the cell arrays of all
     layers before any build stage runs, the references after the count pass and before any kernel
     writes them (the scatter kernels are tripwires; the count and scan run for real)."""
-    from engine.grid import GridCapWarning
+    from gridrt.grid import GridCapWarning
 
     tris = spanning_triangles(60)
     warnings.filterwarnings("ignore", category=GridCapWarning)  # undone by pytest's per-test warnings capture
@@ -483,7 +484,7 @@ def test_guard_memory_budget_before_allocation(monkeypatch, strategy):
 @pytest.mark.parametrize("kw,match", [(dict(mib=0), "mib"), (dict(mib=1.5), "mib"), (dict(mib=1, runs=0), "runs"),
                                       (dict(mib=1, threads=(0,)), "thread"), (dict(mib=1, threads=(10**6,)), "thread")])
 def test_guard_stream_bandwidth(tripwires, kw, match):
-    from engine.grid.traffic import stream_bandwidth
+    from gridrt.grid.traffic import stream_bandwidth
 
     with pytest.raises(InputError, match=match):
         stream_bandwidth(**kw)
@@ -491,7 +492,7 @@ def test_guard_stream_bandwidth(tripwires, kw, match):
 
 def test_guard_cast_rays(good_grid, tripwires):
     """Rays, t range, threads and the triangle array are checked before cast_kernel."""
-    from engine.trace import cast_rays
+    from gridrt.trace import cast_rays
 
     grid = good_grid
     o, d = np.array([[0.2, 0.2, 2.0]]), np.array([[0.0, 0.0, -1.0]])
@@ -521,7 +522,7 @@ def test_guard_cast_rays(good_grid, tripwires):
 
 @pytest.fixture(scope="module")
 def good_caster():
-    from engine.api import RayCaster
+    from gridrt.api import RayCaster
 
     return RayCaster(GOOD.reshape(-1, 3), np.arange(6).reshape(2, 3))
 
@@ -532,7 +533,7 @@ def test_guard_cast_batch(good_grid, good_caster, tripwires, monkeypatch):
     its memory budget before allocating, and checks its own arguments."""
     import tracemalloc
 
-    render_mod = import_module("engine.trace.render")  # (engine.trace.render is also a function's name)
+    render_mod = import_module("gridrt.trace.render")  # (gridrt.trace.render is also a function's name)
     grid, caster = good_grid, good_caster
     monkeypatch.setattr(render_mod, "CAST_CHUNK", 4)
     o = np.tile([[0.2, 0.2, 2.0]], (50, 1))
@@ -574,7 +575,7 @@ def test_guard_cast_batch(good_grid, good_caster, tripwires, monkeypatch):
 def test_guard_render(good_grid, tripwires):
     """render / Renderer.render check the triangles of both grids and the id maps before either
     render kernel (DDA or CGT); the camera and parameters validate themselves."""
-    from engine.trace import Renderer, render
+    from gridrt.trace import Renderer, render
 
     grid = good_grid
     cam = Camera()
@@ -603,7 +604,7 @@ def test_guard_camera_rays(tripwires):
 
 def test_guard_gather_shapes(tripwires):
     """gather_triangles checks shapes and dtypes of vertices, faces and out before the kernel."""
-    from engine.scene import gather_triangles
+    from gridrt.scene import gather_triangles
 
     v = GOOD.reshape(-1, 3)
     f = np.arange(6).reshape(2, 3).astype(np.int32)
@@ -616,8 +617,8 @@ def test_guard_gather_shapes(tripwires):
 
 def test_guard_scene_buffers(tripwires):
     """Animations refuse a bad time or output buffer before their kernels run."""
-    from engine.scene import Mesh, make_scene
-    from engine.scene.deform import Deform
+    from gridrt.scene import Mesh, make_scene
+    from gridrt.scene.deform import Deform
 
     v = GOOD.reshape(-1, 3)
     f = np.arange(6).reshape(2, 3)
@@ -642,7 +643,7 @@ def test_guard_scene_buffers(tripwires):
 
 def test_guard_keyframes(tripwires):
     """KeyframeMesh refuses frames that its lerp and gather kernels would misread."""
-    from engine.scene.frames import KeyframeMesh
+    from gridrt.scene.frames import KeyframeMesh
 
     v = GOOD.reshape(-1, 3)
     f = np.arange(6).reshape(2, 3)
@@ -660,7 +661,7 @@ def test_guard_keyframes(tripwires):
 
 def test_guard_raycaster():
     """RayCaster validates its mesh (indices, NaN, sizes) and the shape of updates."""
-    from engine.api import RayCaster
+    from gridrt.api import RayCaster
 
     v = GOOD.reshape(-1, 3)
     f = np.arange(6).reshape(2, 3)
@@ -675,7 +676,7 @@ def test_guard_raycaster():
 def test_raycaster_update_is_atomic():
     """An update refused with InputError leaves the caster as it was (same hits as before);
     regression test of ../notes/bugs/raycaster_update_partial.py."""
-    from engine.api import RayCaster
+    from gridrt.api import RayCaster
 
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [0, 1, 1]], np.float64)
     c = RayCaster(v, np.array([[0, 1, 2], [3, 4, 5]]))
@@ -709,8 +710,8 @@ def test_gather_triangles_checks_indices():
     ../notes/bugs/gather_triangles_oob.py: this segfaulted)."""
     r = run_python("""
         import numpy as np, engine
-        from engine.errors import InputError
-        from engine.scene import gather_triangles
+        from gridrt.errors import InputError
+        from gridrt.scene import gather_triangles
         v = np.zeros((3, 3), np.float32)
         out = np.empty((1, 3, 3), np.float32)
         for bad in ([[0, 1, 50_000_000]], [[0, -7, 1]]):
@@ -730,11 +731,11 @@ def test_stale_grid_is_refused():
     ../notes/bugs/stale_grid_oob.py: this returned triangle ids out of bounds)."""
     r = run_python("""
         import numpy as np, engine
-        from engine.camera import Camera
-        from engine.config import RenderParams
-        from engine.errors import InputError
-        from engine.grid import GridBuilder, GridParams
-        from engine.trace import cast_rays, render
+        from gridrt.camera import Camera
+        from gridrt.config import RenderParams
+        from gridrt.errors import InputError
+        from gridrt.grid import GridBuilder, GridParams
+        from gridrt.trace import cast_rays, render
         rng = np.random.default_rng(0)
         A = rng.random((10, 3, 3)).astype(np.float32)
         B = (rng.random((3000, 1, 3)) + rng.normal(0, 0.01, (3000, 3, 3))).astype(np.float32)
@@ -766,8 +767,8 @@ def test_refused_build_leaves_builder_usable():
     ../notes/bugs/failed_build_corrupts_builder.py: corrupt grids and a segfault)."""
     r = run_python("""
         import warnings, numpy as np, engine
-        from engine.errors import InputError
-        from engine.grid import GridBuilder, GridCapWarning, GridParams, build_grid
+        from gridrt.errors import InputError
+        from gridrt.grid import GridBuilder, GridCapWarning, GridParams, build_grid
         warnings.simplefilter("ignore", GridCapWarning)
         rng = np.random.default_rng(1)
         F = 1100
@@ -800,11 +801,11 @@ def test_refused_build_leaves_builder_usable():
 WORKER = r"""
 import json, sys, traceback, warnings
 import numpy as np
-import engine
-from engine.errors import SceneFileError
-from engine.grid import GridBuilder, GridParams
-from engine.scene import make_scene
-from engine.trace import cast_rays
+import gridrt
+from gridrt.errors import SceneFileError
+from gridrt.grid import GridBuilder, GridParams
+from gridrt.scene import make_scene
+from gridrt.trace import cast_rays
 
 def load(path):
     s = make_scene(path)

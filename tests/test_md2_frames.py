@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import engine  # noqa: F401  (sets numba's thread count before numba loads)
-from engine.errors import InputError, SceneFileError
-from engine.scene import KeyframeMesh, Md2Model, make_scene
-from engine.scene.frames import load_frame_folder
+import gridrt  # noqa: F401  (sets numba's thread count before numba loads)
+from gridrt.errors import InputError, SceneFileError
+from gridrt.scene import KeyframeMesh, Md2Model, make_scene
+from gridrt.scene.frames import load_frame_folder
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 

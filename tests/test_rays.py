@@ -15,10 +15,10 @@ import pytest
 
 import reference as R
 from conftest import TEAPOT, icosphere_tris, load_tris, random_rays, random_triangles
-from engine.camera import Camera
-from engine.config import RenderParams
-from engine.grid import GridParams, build_grid
-from engine.trace import cast_rays, render
+from gridrt.camera import Camera
+from gridrt.config import RenderParams
+from gridrt.grid import GridParams, build_grid
+from gridrt.trace import cast_rays, render
 
 GRAZE = 1e-9  # barycentric distance from an edge under which a disagreement is tolerated
 MAX_GRAZING = 1e-3  # ... and the largest tolerated fraction of such rays
@@ -250,7 +250,7 @@ def test_cast_rays_grid_params(density, macro, insert):
 
 
 def _strategy_names():
-    from engine.grid import names
+    from gridrt.grid import names
 
     return names()
 

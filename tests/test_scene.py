@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import engine  # noqa: F401  (sets numba's thread count before numba loads)
-from engine.errors import InputError, SceneFileError
-from engine.scene import (
+import gridrt  # noqa: F401  (sets numba's thread count before numba loads)
+from gridrt.errors import InputError, SceneFileError
+from gridrt.scene import (
     BUILTIN_SCENES,
     SCENE_EXTENSIONS,
     SUPPORTED_EXTENSIONS,
@@ -30,8 +30,8 @@ from engine.scene import (
     make_scene,
     subdivide_mesh,
 )
-from engine.scene import mesh as mesh_module
-from engine.scene.animation import as_static_mask
+from gridrt.scene import mesh as mesh_module
+from gridrt.scene.animation import as_static_mask
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
@@ -368,7 +368,7 @@ def test_obj_and_mtl_load_in_any_common_encoding(tmp_path, enc):
     guess at non-UTF-8 text); a UTF-8 byte-order mark must not hide the first line."""
     import trimesh
 
-    from engine.scene.textenc import utf8_source
+    from gridrt.scene.textenc import utf8_source
 
     codec, bom = ENCODINGS[enc]
     text = encoded_obj_text(codec)
@@ -422,7 +422,7 @@ def test_binary_files_with_latin1_headers_are_left_binary(tmp_path):
 
 
 def test_text_decoding_rule():
-    from engine.scene.textenc import decode_text
+    from gridrt.scene.textenc import decode_text
 
     assert decode_text("é€".encode("utf-8")) == ("é€", "UTF-8")
     assert decode_text(b"\xef\xbb\xbfv 1 2 3") == ("v 1 2 3", "UTF-8")
@@ -968,7 +968,7 @@ def test_icosphere_count_beyond_the_largest_warns_with_the_count_made(monkeypatc
     """The icosphere caps at 20 x 4^9 triangles; a larger count once gave that silently."""
     import warnings
 
-    import engine.scene as scene_module
+    import gridrt.scene as scene_module
 
     monkeypatch.setattr(scene_module, "_ICOSPHERE_MAX_SUBDIVISIONS", 2)  # a small cap keeps the test fast
     with pytest.warns(scene_module.SceneCountWarning) as caught:
@@ -1143,9 +1143,9 @@ def test_pipeline_animates_at_its_own_thread_count():
     other pipeline's render left behind (which made a 2-thread twist look slower than 1 thread)."""
     import numba
 
-    from engine.config import GridParams, RenderParams
-    from engine.pipeline import FramePipeline
-    from engine.scene import make_scene
+    from gridrt.config import GridParams, RenderParams
+    from gridrt.pipeline import FramePipeline
+    from gridrt.scene import make_scene
 
     scene = make_scene("icosphere", animate="twist")
     seen = []

@@ -37,11 +37,11 @@ import numpy as np
 import pytest
 
 from conftest import ARMADILLO, load_mesh_arrays
-from engine.config import GridParams, RenderParams
-from engine.grid import GridBuilder, build_grid, names
-from engine.pipeline import FramePipeline
-from engine.scene import make_scene
-from engine.trace import cast_rays
+from gridrt.config import GridParams, RenderParams
+from gridrt.grid import GridBuilder, build_grid, names
+from gridrt.pipeline import FramePipeline
+from gridrt.scene import make_scene
+from gridrt.trace import cast_rays
 from test_watertight import (ROW_WIDTH, ProbeMesh, add_counts, cgt_report, face_normals, origins_in_front,
                              packet_counts, row_counts, targets_and_fans)
 

@@ -28,12 +28,12 @@ import pytest
 
 import reference as R
 from conftest import icosphere_tris, random_rays, random_scene, random_triangles
-from engine.api import RayCaster
-from engine.camera import Camera
-from engine.config import GridParams, RenderParams
-from engine.errors import InputError
-from engine.grid import GridBuilder, GridCapWarning, build_grid, names
-from engine.trace import cast_rays, render
+from gridrt.api import RayCaster
+from gridrt.camera import Camera
+from gridrt.config import GridParams, RenderParams
+from gridrt.errors import InputError
+from gridrt.grid import GridBuilder, GridCapWarning, build_grid, names
+from gridrt.trace import cast_rays, render
 
 #: barycentric distance from an edge under which the reference calls a ray ambiguous
 GRAZE = 1e-9

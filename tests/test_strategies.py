@@ -23,15 +23,15 @@ from hypothesis import strategies as st
 from numba import njit, prange
 
 from conftest import BUNNY, TEAPOT, load_tris, random_scene
-from engine.camera import Camera
-from engine.config import GridParams, RenderParams
-from engine.errors import InputError
-from engine.grid import GridBuilder, get_builder, names
-from engine.grid.build import GridBuffers, make_spec
-from engine.grid.strategies.base import Strategy
-from engine.grid.strategies.shared import parallel_scan, part, ranges
-from engine.threads import max_threads, use_threads
-from engine.trace import render
+from gridrt.camera import Camera
+from gridrt.config import GridParams, RenderParams
+from gridrt.errors import InputError
+from gridrt.grid import GridBuilder, get_builder, names
+from gridrt.grid.build import GridBuffers, make_spec
+from gridrt.grid.strategies.base import Strategy
+from gridrt.grid.strategies.shared import parallel_scan, part, ranges
+from gridrt.threads import max_threads, use_threads
+from gridrt.trace import render
 
 try:  # the shared brute-force reference (another module of the test suite)
     import reference as R
@@ -306,7 +306,7 @@ def test_animated_scene_switching_every_frame():
     """One GridBuilder, one animated scene; every frame a different strategy, thread count and
     insertion test (so layer counts change between frames and the clear must cope).  Each grid
     equals a fresh serial build of the same frame, and renders the same image."""
-    from engine.scene import make_scene
+    from gridrt.scene import make_scene
 
     scene = make_scene("marbles", count=1400, seed=7)
     builder = GridBuilder(GridParams())
@@ -505,7 +505,7 @@ def test_global_lock_really_contends(crowded):
 
 
 # ----------------------------------------------------------------------------------------------
-# the benchmark sweep (engine.grid.sweep, behind `gridrt bench build`)
+# the benchmark sweep (gridrt.grid.sweep, behind `gridrt bench build`)
 
 
 def test_build_sweep_writes_rows_csv_and_plots(tmp_path):
@@ -513,8 +513,8 @@ def test_build_sweep_writes_rows_csv_and_plots(tmp_path):
 
     from PIL import Image
 
-    from engine.grid.sweep import run_build_sweep
-    from engine.scene import make_scene
+    from gridrt.grid.sweep import run_build_sweep
+    from gridrt.scene import make_scene
 
     scenes = {
         "marbles": make_scene("marbles", count=700, seed=1),
@@ -545,7 +545,7 @@ def test_build_sweep_writes_rows_csv_and_plots(tmp_path):
 
 
 def test_build_sweep_rejects_bad_arguments(tmp_path):
-    from engine.grid.sweep import run_build_sweep
+    from gridrt.grid.sweep import run_build_sweep
 
     tris = random_scene(np.random.default_rng(9), 20)
     with pytest.raises(InputError, match="unknown build strategy"):

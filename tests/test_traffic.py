@@ -8,10 +8,10 @@ known; the streaming kernels against numpy on arrays whose sizes do not split ev
 import numpy as np
 import pytest
 
-from engine.errors import InputError
-from engine.grid import GridParams, build_grid
-from engine.grid.traffic import stage_bytes, stream_bandwidth, stream_copy, stream_read, stream_write
-from engine.threads import use_threads
+from gridrt.errors import InputError
+from gridrt.grid import GridParams, build_grid
+from gridrt.grid.traffic import stage_bytes, stream_bandwidth, stream_copy, stream_read, stream_write
+from gridrt.threads import use_threads
 
 
 def _two_cell_scene():

@@ -3,11 +3,11 @@
 * ``test_view_without_display``: no DISPLAY (or no X server) -> one-line message naming the
   headless dump, status 3.
 * ``test_viewer_state_actions``: the clock, strategy/thread stepping and parameter building of
-  app.state.ViewerState.
-* ``test_panel_headless_egl``: the real panel (app.ui) and blit (app.blit, shaders/) drawn into an
+  gridrt.app.state.ViewerState.
+* ``test_panel_headless_egl``: the real panel (gridrt.app.ui) and blit (gridrt.app.blit, shaders/) drawn into an
   EGL framebuffer: the image shows through pixel-exactly outside the panel, the panel's own pixels
   are there, and synthetic mouse clicks on its widgets change the viewer state.
-* ``test_viewer_window_under_xvfb``: starts Xvfb, launches ``python -m app view`` on a small
+* ``test_viewer_window_under_xvfb``: starts Xvfb, launches ``python -m gridrt view`` on a small
   marbles scene, drives it with xdotool (clicks on panel widgets, strategy and thread keys, mouse
   drag and wheel, pause, screenshot, window resize, Esc) and checks the effects through the state
   file the app writes, the screenshot files, an X root-window capture, and an independent headless
@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-import engine  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
+import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 
 REPO = Path(__file__).resolve().parents[1]
 W, H = 640, 480
@@ -48,7 +48,7 @@ def test_view_without_display(tmp_path, display):
         env.pop("DISPLAY", None)
     else:
         env["DISPLAY"] = display   # no X server there
-    r = subprocess.run([sys.executable, "-m", "app", "view", "--scene", "marbles"], cwd=tmp_path, env=env,
+    r = subprocess.run([sys.executable, "-m", "gridrt", "view", "--scene", "marbles"], cwd=tmp_path, env=env,
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 3, r.stderr
     lines = r.stderr.strip().splitlines()
@@ -60,8 +60,8 @@ def test_view_without_display(tmp_path, display):
 
 # ---------------------------------------------------------------------------------------------
 def test_viewer_state_actions():
-    from app.state import SCALE_MIN, ViewerState
-    from engine.config import GridParams, RenderParams
+    from gridrt.app.state import SCALE_MIN, ViewerState
+    from gridrt.config import GridParams, RenderParams
 
     st = ViewerState(duration=8.0, time=7.9, speed=1.0, playing=True)
     st.advance(0.2)
@@ -118,7 +118,7 @@ def _pattern(w, h):
 
 def _panel_blend(img_rgb):
     """Expected panel background over img_rgb (float, 0..255): PANEL_BG at PANEL_ALPHA."""
-    from app.ui import PANEL_ALPHA, PANEL_BG
+    from gridrt.app.ui import PANEL_ALPHA, PANEL_BG
 
     return np.asarray(PANEL_BG) * 255.0 * PANEL_ALPHA + img_rgb.astype(np.float64) * (1.0 - PANEL_ALPHA)
 
@@ -145,9 +145,9 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)   # imgui must not write imgui.ini (or anything) here
     from imgui_bundle import imgui
 
-    from app.blit import Blitter
-    from app.state import ViewerState
-    from app.ui import ImguiRuntime, draw_overlay, draw_panel
+    from gridrt.app.blit import Blitter
+    from gridrt.app.state import ViewerState
+    from gridrt.app.ui import ImguiRuntime, draw_overlay, draw_panel
 
     W, H = 640, 800   # tall enough for the whole panel (the viewer scrolls it in smaller windows)
     fbo = ctx.simple_framebuffer((W, H), components=4)
@@ -290,7 +290,7 @@ class _App:
         self.shots = tmp / "shots"
         self.state_file = tmp / "state.json"
         self.log = open(tmp / "app.log", "w+")
-        cmd = [sys.executable, "-m", "app", "view", "--scene", "marbles", "--count", "2000", "--size", f"{W}x{H}",
+        cmd = [sys.executable, "-m", "gridrt", "view", "--scene", "marbles", "--count", "2000", "--size", f"{W}x{H}",
                "--state-file", str(self.state_file), "--screenshot-dir", str(self.shots)]
         self.proc = subprocess.Popen(cmd, cwd=self.cwd, env=_app_env(DISPLAY=display), stdout=self.log,
                                      stderr=subprocess.STDOUT, text=True)
@@ -356,7 +356,7 @@ def _dist(cam):
 
 def _check_scene_image(img):
     """A ray-traced marbles frame: background and lit geometry, many distinct colours."""
-    from engine.trace.render import BACKGROUND
+    from gridrt.trace.render import BACKGROUND
 
     bg = np.round(np.asarray(BACKGROUND) * 255).astype(np.uint8)
     is_bg = np.all(img[..., :3] == bg, axis=-1)
@@ -369,7 +369,7 @@ def _check_scene_image(img):
 @pytest.mark.skipif(shutil.which("Xvfb") is None or shutil.which("xdotool") is None,
                     reason="needs Xvfb and xdotool (apt-get install xvfb xauth xdotool)")
 def test_viewer_window_under_xvfb(tmp_path):
-    from engine.grid.registry import names
+    from gridrt.grid.registry import names
 
     x = _X()
     app = None
@@ -413,7 +413,7 @@ def test_viewer_window_under_xvfb(tmp_path):
         d0 = _dist(s4["camera"])
         app.xdo("mousemove", 500, 240, "sleep", 0.2, "click", 4)
         s5 = app.wait(lambda q: _dist(q["camera"]) < d0 * 0.999, "zoom")
-        from app.input import ZOOM_STEP
+        from gridrt.app.input import ZOOM_STEP
 
         assert _dist(s5["camera"]) == pytest.approx(d0 * ZOOM_STEP, rel=1e-9)
         px, py, pw, ph = s5["panel_rect"]
@@ -456,10 +456,10 @@ def test_viewer_window_under_xvfb(tmp_path):
         assert s6["rendered_frames"] == sp["rendered_frames"]
 
         # the same frame from a headless FramePipeline (same time, camera, parameters) is identical
-        from engine.camera import Camera
-        from engine.config import GridParams, RenderParams
-        from engine.pipeline import FramePipeline
-        from engine.scene import make_scene
+        from gridrt.camera import Camera
+        from gridrt.config import GridParams, RenderParams
+        from gridrt.pipeline import FramePipeline
+        from gridrt.scene import make_scene
 
         st = s6["stats"]
         cam = s6["camera"]
@@ -514,7 +514,7 @@ def test_viewer_window_under_xvfb(tmp_path):
         app.xdo("mousemove", 500, 300, "sleep", 0.1, "key", "F12")
         s_tet = app.wait(lambda q: q["last_screenshot"] != str(shot_path), "second screenshot (F12)")
         assert Path(s_tet["last_screenshot"]) == app.shots / "gridrt_0001.png"   # never overwrites
-        from engine.trace.render import BACKGROUND
+        from gridrt.trace.render import BACKGROUND
 
         tet_img = np.asarray(Image.open(s_tet["last_screenshot"]).convert("RGB"))
         fg = np.any(tet_img != np.round(np.asarray(BACKGROUND) * 255).astype(np.uint8), axis=-1)
@@ -526,7 +526,7 @@ def test_viewer_window_under_xvfb(tmp_path):
                       and q["stats"].get("height") == 400, "resize")
         assert s8["render_size"] == [520, 400]
         # the resolution slider at its left end: render at SCALE_MIN of the window
-        from app.state import SCALE_MIN
+        from gridrt.app.state import SCALE_MIN
 
         app.click(s8, "resolution", 0.0)
         want = [round(520 * SCALE_MIN), round(400 * SCALE_MIN)]

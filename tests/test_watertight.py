@@ -46,12 +46,12 @@ import pytest
 from numba import njit, prange
 
 from conftest import ARMADILLO, icosphere, load_mesh_arrays
-from engine.camera import Camera
-from engine.config import RenderParams
-from engine.grid import GridBuilder, GridParams, build_grid
-from engine.trace import cast_rays, cgt
-from engine.trace.render import Renderer, _grid_args
-from engine.trace.traverse import MAILBOX
+from gridrt.camera import Camera
+from gridrt.config import RenderParams
+from gridrt.grid import GridBuilder, GridParams, build_grid
+from gridrt.trace import cast_rays, cgt
+from gridrt.trace.render import Renderer, _grid_args
+from gridrt.trace.traverse import MAILBOX
 from reference import ref_camera_rays
 
 REL = 1e-6

@@ -1,7 +1,7 @@
 """Registry of grid build strategies, chosen by name.
 
 A strategy is a class with a ``name`` and a ``build(tris, spec, bufs, threads, exact)``
-method filling a :class:`engine.grid.buffers.GridBuffers`; see ``strategies/serial.py`` for the
+method filling a :class:`gridrt.grid.buffers.GridBuffers`; see ``strategies/serial.py`` for the
 contract.  Strategy modules register themselves with :func:`register`.
 """
 

@@ -1,7 +1,7 @@
 """Build-time sweep over strategies and thread counts: the seed's "Comparison build methods" and
 "Individual steps" measurements (Ize, Wald, Robertson, Parker, RT 2006).
 
-For every scene, strategy and thread count one :class:`~engine.grid.GridBuilder` rebuilds the
+For every scene, strategy and thread count one :class:`~gridrt.grid.GridBuilder` rebuilds the
 grid ``warmup + runs`` times, by default round-robin over the strategies (see ``interleave``).
 Animated scenes advance one frame (1/30 s) per build, so the clear stage sees a real previous
 frame.  The first ``warmup`` builds are dropped (numba compile, pool start-up, buffer growth)
@@ -56,7 +56,7 @@ def _scene_items(scenes):
             name = getattr(src, "name", None) or f"scene{i}"
         if not (hasattr(src, "triangles_at") or isinstance(src, np.ndarray)):
             raise InputError(
-                f"scene {name!r}: expected an Animation (engine.scene.make_scene) or an (F,3,3) array, "
+                f"scene {name!r}: expected an Animation (gridrt.scene.make_scene) or an (F,3,3) array, "
                 f"got {type(src).__name__}"
             )
         out.append((str(name), src))
@@ -89,8 +89,8 @@ def run_build_sweep(
 
     scenes      dict name -> Animation/(F,3,3) array, one scene, or a list of scenes or
                 (name, scene) pairs
-    strategies  registered strategy names (engine.grid.names())
-    threads     thread counts (each 1 .. engine.threads.max_threads())
+    strategies  registered strategy names (gridrt.grid.names())
+    threads     thread counts (each 1 .. gridrt.threads.max_threads())
     runs        timed builds per configuration (>= 1; the medians are meant over >= 5)
     warmup      untimed builds first (>= 0)
     out_dir     folder for build_sweep.csv, build_methods.png, build_steps.png (None: no files)

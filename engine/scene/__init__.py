@@ -16,7 +16,7 @@
   by ``animate="twist"|"wave"`` (:class:`Deform`).
 
 Static meshes (and the icosphere) can be split 1 -> 4 to a target triangle count with
-``subdivide`` (see :mod:`engine.scene.subdivide`).
+``subdivide`` (see :mod:`gridrt.scene.subdivide`).
 """
 
 import math

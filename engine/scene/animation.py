@@ -167,7 +167,7 @@ class Animation(ABC):
     _buffer: np.ndarray | None = None
 
     def camera_at(self, t):
-        """The scene's own camera at time ``t`` (an :class:`engine.camera.Camera`), or None.
+        """The scene's own camera at time ``t`` (an :class:`gridrt.camera.Camera`), or None.
 
         The base class has no camera and returns None; BART scenes return their (animated)
         view and glTF scenes their first perspective camera, if any.
@@ -261,7 +261,7 @@ class StaticMesh(Animation):
 
     Parameters
     ----------
-    mesh : engine.scene.mesh.Mesh
+    mesh : gridrt.scene.mesh.Mesh
         The validated indexed mesh ((V,3) float32 vertices, (F,3) int32 faces).
     """
 
@@ -270,7 +270,7 @@ class StaticMesh(Animation):
 
     def __init__(self, mesh):
         if not isinstance(mesh, Mesh):
-            raise InputError(f"StaticMesh needs an engine.scene.Mesh, got {type(mesh).__name__}")
+            raise InputError(f"StaticMesh needs an gridrt.scene.Mesh, got {type(mesh).__name__}")
         self.mesh = mesh
         self.name = mesh.name
         self.n_triangles = int(len(mesh.faces))

@@ -879,7 +879,7 @@ class BartAnimation(Animation):
         return m
 
     def camera_at(self, t):
-        """The BART viewpoint at time ``t`` (:class:`engine.camera.Camera`), or None without one.
+        """The BART viewpoint at time ``t`` (:class:`gridrt.camera.Camera`), or None without one.
 
         With a ``k camera`` block the eye follows its translation and the view direction and up
         vector are the rotation's -z and +y axes (BART's GetCamera); parts the block lacks come from

@@ -88,7 +88,7 @@ class Deform(Animation):
 
     Parameters
     ----------
-    mesh : engine.scene.Mesh
+    mesh : gridrt.scene.Mesh
         The rest pose: (V,3) float32 vertices, (F,3) int32 faces.
     kind : str
         ``"twist"`` or ``"wave"``.
@@ -115,7 +115,7 @@ class Deform(Animation):
 
     def __init__(self, mesh, kind="twist", amplitude=None, speed=1.0):
         if not isinstance(mesh, Mesh):
-            raise InputError(f"Deform needs an engine.scene.Mesh, got {type(mesh).__name__}")
+            raise InputError(f"Deform needs an gridrt.scene.Mesh, got {type(mesh).__name__}")
         if kind not in DEFORM_KINDS:
             raise InputError(f"unknown deformation kind {kind!r}; choose one of: {', '.join(DEFORM_KINDS)}")
         lo, hi = mesh.bounds()

@@ -1013,7 +1013,7 @@ class GltfAnimation(Animation):
         return np.ascontiguousarray(v.astype(TRI_DTYPE)[self._faces])
 
     def to_mesh(self, t=0.0):
-        """The scene at time ``t`` as an indexed :class:`engine.scene.mesh.Mesh` (shared vertices kept)."""
+        """The scene at time ``t`` as an indexed :class:`gridrt.scene.mesh.Mesh` (shared vertices kept)."""
         from .mesh import Mesh
 
         # posed in a frame centred on the scene, then moved back in float64: far from the origin the

@@ -4,7 +4,7 @@ Static meshes are read with trimesh (OBJ, PLY, STL, OFF, glTF 2.0 as .glb or .gl
 (quads, pentagons, ...) are triangulated by trimesh; a glTF file with several meshes is
 flattened into one mesh with every node transform applied, in its bind pose (skins, morph
 targets and animation clips are ignored here).  Every failure raises
-:class:`engine.errors.SceneFileError` naming the file and the problem.
+:class:`gridrt.errors.SceneFileError` naming the file and the problem.
 """
 
 import contextlib
@@ -49,7 +49,7 @@ class Mesh:
     path : pathlib.Path or None
         The file the mesh came from, None for generated meshes.
 
-    Construction validates with :func:`engine.arrays.as_mesh` (shapes, NaN/inf, index range,
+    Construction validates with :func:`gridrt.arrays.as_mesh` (shapes, NaN/inf, index range,
     all-degenerate) and raises InputError; the arrays are copied, so the caller's arrays are
     never frozen or aliased.
     """

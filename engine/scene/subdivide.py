@@ -64,7 +64,7 @@ def subdivide_mesh(mesh, target):
     :data:`MAX_SUBDIVIDED_TRIANGLES` (or one the int32 vertex indices cannot reach).
     """
     if not isinstance(mesh, Mesh):
-        raise InputError(f"subdivide needs an engine.scene.Mesh, got {type(mesh).__name__}")
+        raise InputError(f"subdivide needs an gridrt.scene.Mesh, got {type(mesh).__name__}")
     if isinstance(target, (bool, np.bool_)) or not isinstance(target, (Integral, np.integer)):
         raise InputError(f"subdivide target must be an integer triangle count, got {target!r}")
     if not 1 <= target <= MAX_SUBDIVIDED_TRIANGLES:

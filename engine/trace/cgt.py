@@ -11,9 +11,9 @@ LLVM vectorizes (packed AVX2 / AVX-512VL double instructions on this machine).  
 are skipped a whole macro-cell slab at a time.
 
 Packets: the rays must agree on the major axis of their direction and its sign (the watertight
-test's permutation, :func:`engine.trace.intersect.shear_setup`), so that all share the slicing
+test's permutation, :func:`gridrt.trace.intersect.shear_setup`), so that all share the slicing
 axis and the permuted intersection arithmetic.  Packets that do not agree fall back to the
-single-ray DDA (:func:`engine.trace.traverse.trace_ray`).  Signs on the two minor axes may differ
+single-ray DDA (:func:`gridrt.trace.traverse.trace_ray`).  Signs on the two minor axes may differ
 (the bounds below do not need them), so packets straddling a minor-axis sign change, e.g. at the
 centre of an axis-aligned view, stay packets.
 

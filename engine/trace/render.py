@@ -13,11 +13,11 @@ Shading (all colours linear in [0, 1], stored as ``uint8(round(255 * c))``, alph
 * ``cost``:            heat map of h = min(1, tests / 64) (triangle tests of the primary ray),
                        blue (h = 0) -> green (0.5) -> red (1); also shown on background pixels.
                        With ``traversal="cgt"`` a test is one of the packet's triangle tests
-                       made while the ray was active (engine.trace.cgt), so this image differs.
+                       made while the ray was active (gridrt.trace.cgt), so this image differs.
 
 Traversal (RenderParams.traversal): ``dda`` traces one ray at a time (render_kernel);
 ``cgt`` traces 8x8-pixel packets and their shadow rays with coherent grid traversal
-(engine.trace.cgt.cgt_render_kernel): the same t, triangle and colour buffers except where two
+(gridrt.trace.cgt.cgt_render_kernel): the same t, triangle and colour buffers except where two
 triangles are hit at exactly the same t.
 
 The unit geometric normal is normalize((v1 - v0) x (v2 - v0)).
@@ -338,7 +338,7 @@ class Renderer:
         params = params or RenderParams()
         tris = _check_grid_tris(grid, tris)
         if not isinstance(camera, Camera):
-            raise InputError(f"camera must be an engine.Camera, got {type(camera).__name__}")
+            raise InputError(f"camera must be an gridrt.Camera, got {type(camera).__name__}")
         camera = camera.moved(-grid.origin)  # world -> the grid's frame (a no-op at origin 0)
         if second is not None:
             grid_b, tris_b, ids_a, ids_b = second

@@ -1,6 +1,6 @@
 """Per-pixel shading shared by the single-ray (DDA) and the packet (CGT) render kernels, so both
 produce the same colours from the same hits.  The formulas are documented in
-:mod:`engine.trace.render`; colours are linear in [0, 1].
+:mod:`gridrt.trace.render`; colours are linear in [0, 1].
 """
 
 import math

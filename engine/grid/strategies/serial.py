@@ -1,6 +1,6 @@
 """``serial``: the seed's single-threaded rebuild (Ize et al. 2006, "Serial grid rebuild").
 
-The clear and macro-cell stages are the shared ones in :mod:`engine.grid.common` (clear only
+The clear and macro-cell stages are the shared ones in :mod:`gridrt.grid.common` (clear only
 cells of macro cells that were full last frame; flag a macro cell at its first non-empty cell).
 Insertion puts each triangle into every cell its bounding box overlaps (or, with exact
 insertion, every such cell the separating-axis test keeps).  Cells are stored compactly, so

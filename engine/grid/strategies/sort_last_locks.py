@@ -16,7 +16,7 @@ take the lock: the count pass around ``count[c] += 1``, the scatter around claim
 (``p = start[c] - 1; start[c] = p``); the triangle id is written after the unlock, into a slot
 no other thread owns.  Both passes read the triangles' cell ranges from a parallel pre-pass
 (:func:`shared.cell_ranges`).  The locks are the compare-and-swap spin locks of
-:mod:`engine.grid.atomics`.  ``insert`` adds ``lock_waits`` (failed looks at a held lock, summed
+:mod:`gridrt.grid.atomics`.  ``insert`` adds ``lock_waits`` (failed looks at a held lock, summed
 over threads and both passes) to the stage times: the contention figure.  Cell lists come out in
 no particular order.
 """

@@ -1,0 +1,52 @@
+"""One installed package named gridrt: a wheel built from the repository holds no other top-level
+name, carries its shaders, and runs from its own files (``import gridrt``, ``python -m gridrt``)."""
+
+import os
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory):
+    out = tmp_path_factory.mktemp("wheel")
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(out), str(REPO)],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    (whl,) = out.glob("gridrt-*.whl")
+    return whl
+
+
+def test_wheel_installs_only_gridrt(wheel):
+    names = zipfile.ZipFile(wheel).namelist()
+    top = {n.split("/")[0] for n in names}
+    assert {t for t in top if not t.endswith(".dist-info")} == {"gridrt"}, sorted(top)
+    for want in ("gridrt/__init__.py", "gridrt/__main__.py", "gridrt/app/__main__.py", "gridrt/grid/build.py",
+                 "gridrt/trace/cgt.py", "gridrt/scene/gltf.py", "gridrt/shaders/blit.vert",
+                 "gridrt/shaders/blit.frag"):
+        assert want in names, want
+    entry = [n for n in names if n.endswith("entry_points.txt")]
+    assert entry and "gridrt = gridrt.app.__main__:main" in zipfile.ZipFile(wheel).read(entry[0]).decode()
+
+
+def test_wheel_runs_from_its_own_files(wheel, tmp_path):
+    """Unpacked alone on the path (no repository): the package, its shaders and -m gridrt."""
+    site = tmp_path / "site"
+    zipfile.ZipFile(wheel).extractall(site)
+    env = dict(os.environ, PYTHONPATH=str(site))
+    code = ("import gridrt, gridrt.app.blit as b; print(gridrt.__file__); print(b.SHADER_DIR); "
+            "print(gridrt.RayCaster.__module__)")
+    r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
+    init, shaders, module = r.stdout.split()
+    assert Path(init).is_relative_to(site) and Path(shaders).is_relative_to(site) and module == "gridrt.api"
+    assert (Path(shaders) / "blit.vert").is_file()
+    r = subprocess.run([sys.executable, "-m", "gridrt", "strategies"], cwd=tmp_path, env=env, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0 and "serial" in r.stdout, r.stderr
