@@ -15,7 +15,8 @@ def build_parser():
                                 "animated triangle scenes (Ize, Wald, Robertson, Parker, RT 2006).")
     sub = p.add_subparsers(dest="command", required=True)
     dump.add_parser(sub)
-    from . import bench, view
+    from .bench import main as bench
+    from .viewer import view
 
     view.add_parser(sub)
     bench.add_parser(sub)

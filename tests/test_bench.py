@@ -17,8 +17,8 @@ from conftest import icosphere, icosphere_tris, random_triangles
 from reference import compare_hits, ref_camera_rays, ref_cast
 
 from gridrt.app.__main__ import main
-from gridrt.app.bench_util import facing_camera, pareto_front, parse_scene_spec
-from gridrt.app.benchref import brute_cast, compare_to_reference, count_holes, pixel_rays, probe_rays, sample_pixels
+from gridrt.app.bench.util import facing_camera, pareto_front, parse_scene_spec
+from gridrt.app.bench.reference import brute_cast, compare_to_reference, count_holes, pixel_rays, probe_rays, sample_pixels
 
 
 def read_csv(path):

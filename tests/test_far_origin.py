@@ -270,8 +270,8 @@ def test_build_grid_render_cast_rays_far_from_origin(teapot):
 def test_viewer_worker_far_from_origin(teapot, tmp_path):
     """The viewer's render worker after a frame: the camera it reports is the world camera, and the
     frame it rendered is the brute force's image of the scene at offset 0."""
-    from gridrt.app.state import SceneSpec
-    from gridrt.app.worker import FrameJob, LoadJob, RenderWorker
+    from gridrt.app.viewer.state import SceneSpec
+    from gridrt.app.viewer.worker import FrameJob, LoadJob, RenderWorker
     from gridrt.camera import Camera
     from gridrt.config import GridParams, RenderParams
     from gridrt.pipeline import FramePipeline

@@ -39,7 +39,7 @@ def test_wheel_runs_from_its_own_files(wheel, tmp_path):
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
     env = dict(os.environ, PYTHONPATH=str(site))
-    code = ("import gridrt, gridrt.app.blit as b; print(gridrt.__file__); print(b.SHADER_DIR); "
+    code = ("import gridrt, gridrt.app.viewer.blit as b; print(gridrt.__file__); print(b.SHADER_DIR); "
             "print(gridrt.RayCaster.__module__)")
     r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True,
                        timeout=300)

@@ -505,7 +505,7 @@ def test_global_lock_really_contends(crowded):
 
 
 # ----------------------------------------------------------------------------------------------
-# the benchmark sweep (gridrt.grid.sweep, behind `gridrt bench build`)
+# the benchmark sweep (gridrt.app.bench.sweep, behind `gridrt bench build`)
 
 
 def test_build_sweep_writes_rows_csv_and_plots(tmp_path):
@@ -513,7 +513,7 @@ def test_build_sweep_writes_rows_csv_and_plots(tmp_path):
 
     from PIL import Image
 
-    from gridrt.grid.sweep import run_build_sweep
+    from gridrt.app.bench.sweep import run_build_sweep
     from gridrt.scene import make_scene
 
     scenes = {
@@ -545,7 +545,7 @@ def test_build_sweep_writes_rows_csv_and_plots(tmp_path):
 
 
 def test_build_sweep_rejects_bad_arguments(tmp_path):
-    from gridrt.grid.sweep import run_build_sweep
+    from gridrt.app.bench.sweep import run_build_sweep
 
     tris = random_scene(np.random.default_rng(9), 20)
     with pytest.raises(InputError, match="unknown build strategy"):

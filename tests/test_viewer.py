@@ -3,8 +3,8 @@
 * ``test_view_without_display``: no DISPLAY (or no X server) -> one-line message naming the
   headless dump, status 3.
 * ``test_viewer_state_actions``: the clock, strategy/thread stepping and parameter building of
-  gridrt.app.state.ViewerState.
-* ``test_panel_headless_egl``: the real panel (gridrt.app.ui) and blit (gridrt.app.blit, shaders/) drawn into an
+  gridrt.app.viewer.state.ViewerState.
+* ``test_panel_headless_egl``: the real panel (gridrt.app.viewer.ui) and blit (gridrt.app.viewer.blit, shaders/) drawn into an
   EGL framebuffer: the image shows through pixel-exactly outside the panel, the panel's own pixels
   are there, and synthetic mouse clicks on its widgets change the viewer state.
 * ``test_viewer_window_under_xvfb``: starts Xvfb, launches ``python -m gridrt view`` on a small
@@ -60,7 +60,7 @@ def test_view_without_display(tmp_path, display):
 
 # ---------------------------------------------------------------------------------------------
 def test_viewer_state_actions():
-    from gridrt.app.state import SCALE_MIN, ViewerState
+    from gridrt.app.viewer.state import SCALE_MIN, ViewerState
     from gridrt.config import GridParams, RenderParams
 
     st = ViewerState(duration=8.0, time=7.9, speed=1.0, playing=True)
@@ -118,7 +118,7 @@ def _pattern(w, h):
 
 def _panel_blend(img_rgb):
     """Expected panel background over img_rgb (float, 0..255): PANEL_BG at PANEL_ALPHA."""
-    from gridrt.app.ui import PANEL_ALPHA, PANEL_BG
+    from gridrt.app.viewer.ui import PANEL_ALPHA, PANEL_BG
 
     return np.asarray(PANEL_BG) * 255.0 * PANEL_ALPHA + img_rgb.astype(np.float64) * (1.0 - PANEL_ALPHA)
 
@@ -145,9 +145,9 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)   # imgui must not write imgui.ini (or anything) here
     from imgui_bundle import imgui
 
-    from gridrt.app.blit import Blitter
-    from gridrt.app.state import ViewerState
-    from gridrt.app.ui import ImguiRuntime, draw_overlay, draw_panel
+    from gridrt.app.viewer.blit import Blitter
+    from gridrt.app.viewer.state import ViewerState
+    from gridrt.app.viewer.ui import ImguiRuntime, draw_overlay, draw_panel
 
     W, H = 640, 800   # tall enough for the whole panel (the viewer scrolls it in smaller windows)
     fbo = ctx.simple_framebuffer((W, H), components=4)
@@ -413,7 +413,7 @@ def test_viewer_window_under_xvfb(tmp_path):
         d0 = _dist(s4["camera"])
         app.xdo("mousemove", 500, 240, "sleep", 0.2, "click", 4)
         s5 = app.wait(lambda q: _dist(q["camera"]) < d0 * 0.999, "zoom")
-        from gridrt.app.input import ZOOM_STEP
+        from gridrt.app.viewer.input import ZOOM_STEP
 
         assert _dist(s5["camera"]) == pytest.approx(d0 * ZOOM_STEP, rel=1e-9)
         px, py, pw, ph = s5["panel_rect"]
@@ -526,7 +526,7 @@ def test_viewer_window_under_xvfb(tmp_path):
                       and q["stats"].get("height") == 400, "resize")
         assert s8["render_size"] == [520, 400]
         # the resolution slider at its left end: render at SCALE_MIN of the window
-        from gridrt.app.state import SCALE_MIN
+        from gridrt.app.viewer.state import SCALE_MIN
 
         app.click(s8, "resolution", 0.0)
         want = [round(520 * SCALE_MIN), round(400 * SCALE_MIN)]

@@ -21,12 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import GridParams
-from ..errors import InputError
-from ..threads import check_threads
-from .build import GridBuilder
-from .registry import get_builder
-from .traffic import stage_bytes
+from gridrt.config import GridParams
+from gridrt.errors import InputError
+from gridrt.grid.build import GridBuilder
+from gridrt.grid.registry import get_builder
+from gridrt.grid.traffic import stage_bytes
+from gridrt.threads import check_threads
 
 #: the seed's three stages, in plot order
 STAGES = ("clear_ms", "insert_ms", "macro_ms")

@@ -10,7 +10,7 @@ import numpy as np
 def _shader_dir():
     """The repository's shaders/ (source checkout, editable install), else the copy a wheel
     install puts inside the package, gridrt/shaders (pyproject package-data)."""
-    here = Path(__file__).resolve().parents[1] / "shaders"
+    here = Path(__file__).resolve().parents[2] / "shaders"
     if here.is_dir():
         return here
     import gridrt

@@ -29,11 +29,11 @@ from gridrt.errors import GridrtError
 from gridrt.grid.build import GridBuilder
 from gridrt.trace.render import Renderer, cast_rays
 
-from .bench_util import (
+from .util import (
     Affinity, check_frame_args, figure, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress, put_stat,
     resolve_scene, scene_camera, scene_list, thread_list, write_csv, write_json, write_summary, SCENE_HELP,
 )
-from .benchref import brute_cast
+from .reference import brute_cast
 
 INSTALL_HINT = ("embreex is not installed; `gridrt bench peers` needs it: pip install embreex "
                 "(or pip install 'gridrt[peers]')")
@@ -160,7 +160,7 @@ def run_peers(a):
     info["embree"] = repr(emb.device)
     if note:
         print(f"note: {note}", file=sys.stderr)
-    from .bench import frame_strategy
+    from .main import frame_strategy
 
     scenes = [resolve_scene(s) for s in specs]
     rows = []

@@ -6,7 +6,7 @@ after ``--warmup`` untimed runs (numba compiles, buffers grow), with min and max
 * ``core``:  serial grid build (bbox and exact insertion) and primary-ray Mrays/s (DDA and CGT)
   at 1 thread and all cores on a ~100k and a ~1M triangle mesh.
 * ``build``: build strategies x thread counts x scenes, total and per stage (the seed's
-  "Comparison build methods" and "Individual steps"; :func:`gridrt.grid.sweep.run_build_sweep`).
+  "Comparison build methods" and "Individual steps"; :func:`gridrt.app.bench.sweep.run_build_sweep`).
 * ``frame``: animation + rebuild + render per frame at 1024x1024 for each scene at 1 thread and
   all cores (the seed's "Total performance", CGT's fps table); CGT traversal by default (DDA on
   request), static/moving split on and off.
@@ -28,7 +28,7 @@ from gridrt.grid.build import GridBuilder
 from gridrt.threads import check_threads
 from gridrt.trace.render import Renderer
 
-from .bench_util import (
+from .util import (
     SCENE_HELP, check_frame_args, check_runs, facing_camera, figure, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress,
     put_stat, resolve_scene, scene_list, stat, thread_list, write_csv, write_json, write_summary,
 )
@@ -90,7 +90,7 @@ def add_parser(sub):
     f.add_argument("--dt", type=float, default=1.0 / 30.0, help="seconds between frames (default 1/30)")
     f.set_defaults(func=run_frame)
 
-    from . import bench_peers, bench_trade
+    from . import peers as bench_peers, trade as bench_trade
 
     bench_trade.add_parser(bsub, common)
     bench_peers.add_parser(bsub, common)
@@ -231,7 +231,7 @@ BUILD_FALLBACK = ["marbles", "icosphere:81920", "icosphere:1310720"]
 
 def run_build(a):
     from gridrt.grid.registry import get_builder, names
-    from gridrt.grid.sweep import run_build_sweep
+    from .sweep import run_build_sweep
 
     check_runs(a.runs, a.warmup)
     runs, warmup = (1, 2) if a.quick else (a.runs, a.warmup)  # 2: a builder's first build clears nothing

@@ -16,7 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-from . import cli
+from .. import cli
 
 TITLE = "gridrt"
 #: UI frame cap (frames per second) when the display has no vsync (Xvfb)

@@ -21,7 +21,7 @@ from gridrt.errors import GridrtError
 class LoadJob:
     """Load a scene and make a new pipeline for it."""
 
-    spec: object            # gridrt.app.state.SceneSpec
+    spec: object            # gridrt.app.viewer.state.SceneSpec
     grid_params: object
     render_params: object
     camera: object = None   # explicit camera, or None to frame the scene

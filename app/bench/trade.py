@@ -33,11 +33,11 @@ from gridrt.grid.registry import get_builder
 from gridrt.threads import check_threads
 from gridrt.trace.render import Renderer, cast_rays
 
-from .bench_util import (
+from .util import (
     check_runs, figure, finish_machine, float_list, int_list, machine_info, md_table, out_dir,
     pareto_front, progress, put_stat, resolve_scene, scene_available, scene_camera, write_csv, write_json, write_summary,
 )
-from .benchref import HOLE_REL, brute_cast, compare_to_reference, count_holes, pixel_rays, probe_rays, sample_pixels
+from .reference import HOLE_REL, brute_cast, compare_to_reference, count_holes, pixel_rays, probe_rays, sample_pixels
 
 KNOBS = ("insert", "lambda", "macro", "intersect", "traversal", "resolution", "precision")
 DEFAULT_LAMBDAS = "0.5,1,2,3,4,6,8,12"
@@ -354,7 +354,7 @@ def _summary(rows, c):
         f"Times: median [min-max] of {c['runs']} runs after {c['warmup']} warm-up.",
         "",
         f"Reference: a brute-force double-sided Moller-Trumbore caster in float64 over all triangles "
-        f"(`app/benchref.py`, independent of the engine's kernels) on a sample of {c['n_samples']} pixels drawn "
+        f"(`app/bench/reference.py`, independent of the engine's kernels) on a sample of {c['n_samples']} pixels drawn "
         f"uniformly without replacement from the {size}x{size} image (numpy default_rng(seed={c['seed']})); "
         f"{c['ref_hits']} of them hit the mesh.  Brute force took {c['ref_ms']:.0f} ms for the sample "
         f"({ray_ms:.2f} ms per ray, about {ray_ms * size * size / 1e3:.0f} s for a whole frame), which is why "

@@ -1,4 +1,4 @@
-"""The imgui panel: widgets that change :class:`gridrt.app.state.ViewerState` fields and nothing else
+"""The imgui panel: widgets that change :class:`gridrt.app.viewer.state.ViewerState` fields and nothing else
 (no kernels, no GL).  The panel sits at a fixed place in the top-left corner; the progress overlay
 is centred over the image while a slow operation runs.
 

@@ -17,11 +17,11 @@ import numpy as np
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from gridrt.camera import Camera
 from gridrt.errors import InputError
-from gridrt.grid.sweep import write_csv  # noqa: F401  (one CSV writer for every benchmark)
+from .sweep import write_csv  # noqa: F401  (one CSV writer for every benchmark)
 from gridrt.threads import check_threads
 
 #: ../shared/data beside the repository (real meshes; absent in a user's fresh clone)
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 
 #: short names for the real scenes in ../shared/data
 SHORTCUTS = {
@@ -289,7 +289,7 @@ def pareto_front(points, rel_tol=0.03):
 
 def git_commit():
     """Short commit hash of the repository this code runs from, or 'unknown'."""
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     try:
         r = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True,
                            timeout=10)
