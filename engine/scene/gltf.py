@@ -33,6 +33,7 @@ import struct
 import urllib.parse
 from numbers import Integral, Real
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -512,7 +513,136 @@ def _load_primitive(r, mesh_index, prim_index, prim):
     return _Primitive(pos, faces, joints, weights, deltas)
 
 
-# ------------------------------------------------------------------------------ the scene
+# ------------------------------------------------------------------------------ reading the scene's parts
+# GltfAnimation._build calls these in the order below; each check fails with the first problem it meets.
+
+
+def _depth_first(nodes, roots):
+    """The nodes below ``roots`` (each root, then its children in order, recursively)."""
+    out = []
+    for root in roots:
+        stack = [int(root)]
+        while stack:
+            i = stack.pop()
+            out.append(i)
+            stack.extend(reversed(nodes[i].get("children", [])))
+    return out
+
+
+def _read_hierarchy(r, nodes):
+    """(parent (N,) int32 with -1 for roots, every node in depth-first order from the roots); checks
+    that nodes are objects, children are node indices and the hierarchy is a forest."""
+    n_nodes = len(nodes)
+    for i, nd in enumerate(nodes):
+        if not isinstance(nd, dict):
+            r.fail(f"malformed glTF: nodes[{i}] is not an object")
+    parent = np.full(n_nodes, -1, dtype=np.int32)
+    for i, nd in enumerate(nodes):
+        ch = nd.get("children", [])
+        if not isinstance(ch, list):
+            r.fail(f"node {i}: 'children' is not a list")
+        for c in ch:
+            if not _is_int(c) or not 0 <= c < n_nodes:
+                r.fail(f"node {i} has a child {c!r} that is not a node index (0..{n_nodes - 1})")
+            if parent[c] >= 0 or c == i:
+                r.fail(f"node {c} has more than one parent (the node hierarchy must be a forest)")
+            parent[c] = i
+    order = _depth_first(nodes, np.flatnonzero(parent < 0))
+    if len(order) != n_nodes:
+        r.fail("the node hierarchy has a cycle")
+    return parent, order
+
+
+class _RestTransforms(NamedTuple):
+    """Every node's rest transform: TRS, or a 'matrix' where ``use_matrix`` is set."""
+
+    t: np.ndarray  # (N, 3) translation
+    r: np.ndarray  # (N, 4) unit quaternion, xyzw
+    s: np.ndarray  # (N, 3) scale
+    use_matrix: np.ndarray  # (N,) bool
+    matrix: np.ndarray  # (N, 4, 4)
+
+
+def _read_rest_transforms(r, nodes):
+    """:class:`_RestTransforms` of ``nodes``; rotations are normalized."""
+    n_nodes = len(nodes)
+    node_t = np.zeros((n_nodes, 3))
+    node_r = np.zeros((n_nodes, 4))
+    node_r[:, 3] = 1.0
+    node_s = np.ones((n_nodes, 3))
+    use_matrix = np.zeros(n_nodes, dtype=np.bool_)
+    node_matrix = np.tile(np.eye(4), (n_nodes, 1, 1))
+    for i, nd in enumerate(nodes):
+        w = f"node {i}"
+        if "matrix" in nd:
+            use_matrix[i] = True
+            node_matrix[i] = r.floats(nd, "matrix", 16, np.eye(4).ravel(), w).reshape(4, 4).T
+        node_t[i] = r.floats(nd, "translation", 3, (0, 0, 0), w)
+        q = r.floats(nd, "rotation", 4, (0, 0, 0, 1), w)
+        if np.abs(q).max() > 1e150:  # scaled first: a huge quaternion must not overflow the norm
+            q = q / np.abs(q).max()
+        nq = np.linalg.norm(q)
+        node_r[i] = q / nq if nq > 0 else (0, 0, 0, 1)
+        node_s[i] = r.floats(nd, "scale", 3, (1, 1, 1), w)
+    return _RestTransforms(node_t, node_r, node_s, use_matrix, node_matrix)
+
+
+def _scene_nodes(r, nodes, parent, scene_index):
+    """The nodes of scene ``scene_index`` (default: the file's ``scene``, else 0) in depth-first
+    order; every node when the file has no scenes."""
+    n_nodes = len(nodes)
+    scenes = r.items("scenes")
+    if scene_index is None:
+        scene_index = r.tree.get("scene", 0) if scenes else None
+    if scenes:
+        sc = r.item("scenes", scene_index, "the default scene")
+        roots = sc.get("nodes", [])
+        if not isinstance(roots, list):
+            r.fail(f"scene {scene_index}: 'nodes' is not a list")
+        for n in roots:
+            if not _is_int(n) or not 0 <= n < n_nodes:
+                r.fail(f"scene {scene_index} refers to node {n!r}, but the file has {n_nodes} nodes")
+    else:
+        roots = [int(i) for i in np.flatnonzero(parent < 0)]
+    return _depth_first(nodes, roots)
+
+
+class _Skins(NamedTuple):
+    """The file's skins, their joints laid end to end in one joint palette."""
+
+    items: list  # the skins' JSON objects
+    offset: list  # each skin's first row in the palette
+    joint_node: np.ndarray  # (J,) int32: the node of each palette row ([0] without skins)
+    ibm: np.ndarray  # (J, 4, 4) inverse bind matrices (one identity without skins)
+    n_joints: int  # J (0 without skins)
+
+
+def _read_skins(r, n_nodes):
+    skins = r.items("skins")
+    skin_offset, joint_node, ibm = [], [], []
+    total = 0
+    for s, sk in enumerate(skins):
+        if not isinstance(sk, dict):
+            r.fail(f"malformed glTF: skins[{s}] is not an object")
+        joints = sk.get("joints")
+        if not isinstance(joints, list) or not joints:
+            r.fail(f"skin {s} has no joints")
+        for j in joints:
+            if not _is_int(j) or not 0 <= j < n_nodes:
+                r.fail(f"skin {s} refers to joint node {j!r}, but the file has {n_nodes} nodes")
+        if "inverseBindMatrices" in sk:
+            m = r.accessor(sk["inverseBindMatrices"], f"skin {s} inverseBindMatrices")
+            if m.shape[1] != 16 or len(m) < len(joints):
+                r.fail(f"skin {s}: inverseBindMatrices must be {len(joints)} MAT4, got {m.shape}")
+            ibm.append(m[: len(joints)].reshape(-1, 4, 4).transpose(0, 2, 1))
+        else:
+            ibm.append(np.tile(np.eye(4), (len(joints), 1, 1)))
+        skin_offset.append(total)
+        joint_node.extend(int(j) for j in joints)
+        total += len(joints)
+    joint_node = np.array(joint_node or [0], dtype=np.int32)
+    ibm = np.ascontiguousarray(np.concatenate(ibm) if ibm else np.eye(4)[None], dtype=np.float64)
+    return _Skins(skins, skin_offset, joint_node, ibm, total)
 
 
 class _Instance:
@@ -520,6 +650,257 @@ class _Instance:
 
     def __init__(self, node, mesh, prim, skin, n_targets):
         self.node, self.mesh, self.prim, self.skin, self.n_targets = node, mesh, prim, skin, n_targets
+
+
+class _Morphs(NamedTuple):
+    """The morph weights of the nodes whose mesh has morph targets, laid end to end in one vector."""
+
+    offset: dict  # node -> its first entry in the vector
+    count: dict  # node -> its number of weights
+    weights: np.ndarray  # the initial vector (node weights, else mesh weights, else 0; [0] without morphs)
+
+
+def _read_instances(r, nodes, visible, skins):
+    """(instances, :class:`_Morphs`): one :class:`_Instance` per triangle primitive of each visible
+    node with a mesh, in depth-first node order then primitive order (a mesh that several nodes use
+    is decoded once); ``skins`` is the JSON list.  Fails when the scene holds no triangles."""
+    r.items("meshes")  # a 'meshes' that is not a list fails here, before any node's mesh is read
+    prim_cache = {}
+    instances = []
+    weight_offset = {}
+    weight_count = {}
+    init_weights = []
+    n_w = 0
+    for i in visible:
+        nd = nodes[i]
+        if "mesh" not in nd:
+            continue
+        mi = nd["mesh"]
+        mesh = r.item("meshes", mi, f"node {i}")
+        prims = mesh.get("primitives")
+        if not isinstance(prims, list) or not prims:
+            r.fail(f"mesh {mi} has no primitives")
+        skin = nd.get("skin")
+        if skin is not None and (not _is_int(skin) or not 0 <= skin < len(skins)):
+            r.fail(f"node {i} refers to skin {skin!r}, but the file has {len(skins)} skins")
+        n_targets = None
+        for pi, prim in enumerate(prims):
+            key = (mi, pi)
+            if key not in prim_cache:
+                prim_cache[key] = _load_primitive(r, mi, pi, prim)
+            pr = prim_cache[key]
+            if pr is None or len(pr.faces) == 0:
+                continue
+            if n_targets is None:
+                n_targets = len(pr.targets)
+            elif n_targets != len(pr.targets):
+                r.fail(f"mesh {mi}: primitives have different numbers of morph targets")
+            use_skin = skin if (skin is not None and pr.joints is not None) else None
+            if use_skin is not None:
+                nj = len(skins[use_skin]["joints"])
+                bad = (pr.joints >= nj) | (pr.joints < 0)
+                if (bad & (pr.weights != 0)).any():
+                    r.fail(f"mesh {mi} primitive {pi}: joint index {int(pr.joints.max())} out of range "
+                           f"for skin {use_skin} with {nj} joints")
+            instances.append(_Instance(i, mi, pr, use_skin, len(pr.targets)))
+        if n_targets:
+            default = r.floats(mesh, "weights", n_targets, np.zeros(n_targets), f"mesh {mi}")
+            w0 = r.floats(nd, "weights", n_targets, default, f"node {i}")
+            weight_offset[i] = n_w
+            weight_count[i] = n_targets
+            init_weights.append(w0)
+            n_w += n_targets
+    if not instances:
+        r.fail("the scene holds no triangles (no mesh with a triangle primitive)")
+    weights = np.concatenate(init_weights) if init_weights else np.zeros(1)
+    return instances, _Morphs(weight_offset, weight_count, weights)
+
+
+class _Channels(NamedTuple):
+    """The chosen clips' channels that move geometry, as the flat arrays K.sample_channels takes."""
+
+    times: np.ndarray  # every channel's key times, end to end ([0] without channels)
+    values: np.ndarray  # every channel's output values, end to end ([0] without channels)
+    table: dict  # per channel: tstart, tcount, vstart (int64), ncomp, interp, kind, target (int32)
+    moved_nodes: set  # nodes whose translation, rotation or scale a channel changes
+    moved_weights: set  # nodes whose morph weights a channel changes
+    t_lo: float  # the first key time (inf without channels)
+    t_hi: float  # the last key time (-inf without channels)
+
+
+def _read_channels(r, anims, chosen, n_nodes, morphs, use_matrix):
+    """The channels of animations ``chosen`` that target node TRS or morph weights, checked (targets,
+    samplers, interpolation, key times, value counts); other targets are skipped, and so are the
+    weights of nodes without morph targets.  A channel whose keys are all equal moves nothing."""
+    times, values = [], []
+    ch = {k: [] for k in ("tstart", "tcount", "vstart", "ncomp", "interp", "kind", "target")}
+    moved_nodes = set()
+    moved_weights = set()
+    t_lo, t_hi = math.inf, -math.inf
+    nt, nv = 0, 0
+    for a in chosen:
+        an = anims[a]
+        samplers = an.get("samplers", [])
+        channels = an.get("channels", [])
+        if not isinstance(samplers, list) or not isinstance(channels, list):
+            r.fail(f"animation {a}: 'samplers' and 'channels' must be lists")
+        for c, chan in enumerate(channels):
+            w = f"animation {a} channel {c}"
+            if not isinstance(chan, dict) or not isinstance(chan.get("target"), dict):
+                r.fail(f"{w}: missing target")
+            tgt = chan["target"]
+            path_name = tgt.get("path")
+            node = tgt.get("node")
+            if path_name not in _PATHS or node is None:
+                continue  # e.g. KHR_animation_pointer targets: not geometry
+            if not _is_int(node) or not 0 <= node < n_nodes:
+                r.fail(f"{w} targets node {node!r}, but the file has {n_nodes} nodes")
+            si = chan.get("sampler")
+            if not _is_int(si) or not 0 <= si < len(samplers) or not isinstance(samplers[si], dict):
+                r.fail(f"{w} refers to sampler {si!r}, but animation {a} has {len(samplers)} samplers")
+            smp = samplers[si]
+            interp = smp.get("interpolation", "LINEAR")
+            if interp not in _INTERP:
+                r.fail(f"{w}: unknown interpolation {interp!r}")
+            kind, m = _PATHS[path_name]
+            if kind == K.KIND_W:
+                if node not in morphs.offset:
+                    continue  # weights of a node without morph targets move nothing
+                m = morphs.count[node]
+            elif use_matrix[node]:
+                r.fail(f"{w} animates node {node}, which has a 'matrix' (animated nodes need TRS)")
+            per = 3 if interp == "CUBICSPLINE" else 1
+            tk, vals = _sampler_keys(r, w, smp, per, m)
+            ch["tstart"].append(nt)
+            ch["tcount"].append(len(tk))
+            ch["vstart"].append(nv)
+            ch["ncomp"].append(m)
+            ch["interp"].append(_INTERP[interp])
+            ch["kind"].append(kind)
+            ch["target"].append(morphs.offset[node] if kind == K.KIND_W else node)
+            times.append(tk)
+            values.append(vals)
+            nt += len(tk)
+            nv += len(vals)
+            t_lo, t_hi = min(t_lo, float(tk[0])), max(t_hi, float(tk[-1]))
+            if not _holds_its_value(vals, len(tk), per, m):
+                (moved_weights if kind == K.KIND_W else moved_nodes).add(node)
+    return _Channels(
+        np.concatenate(times) if times else np.zeros(1),
+        np.concatenate(values) if values else np.zeros(1),
+        {k: np.array(v, dtype=np.int64 if k in ("tstart", "vstart") else np.int32) for k, v in ch.items()},
+        moved_nodes, moved_weights, t_lo, t_hi,
+    )
+
+
+def _sampler_keys(r, w, smp, per, m):
+    """A sampler's key times (K,) and its output values, flat (K * per * m: ``per`` is 3 for
+    CUBICSPLINE's in-tangent, value, out-tangent, else 1; ``m`` values each)."""
+    tin = r.accessor(smp.get("input"), f"{w} input")
+    tout = r.accessor(smp.get("output"), f"{w} output")
+    if tin.shape[1] != 1 or tin.dtype.kind != "f" or len(tin) == 0:
+        r.fail(f"{w}: sampler input must be a non-empty float SCALAR accessor")
+    tk = tin[:, 0]
+    if (np.diff(tk) < 0).any():
+        r.fail(f"{w}: key times decrease")
+    vals = np.asarray(tout, dtype=np.float64).reshape(-1)
+    if len(vals) != len(tk) * per * m:
+        r.fail(f"{w}: {len(tk)} keys need {len(tk) * per * m} output values, got {len(vals)}")
+    return tk, vals
+
+
+def _holds_its_value(vals, n_keys, per, m):
+    """Whether a channel's keys all hold one value (and, for CUBICSPLINE, zero tangents)."""
+    recs = vals.reshape(n_keys, per, m)
+    constant = bool((np.ptp(recs[:, per // 2], axis=0) == 0).all())
+    if per == 3:
+        constant = constant and not recs[:, [0, 2]].any()
+    return constant
+
+
+def _moving_nodes(order, parent, moved_nodes):
+    """(N,) bool: the nodes a channel moves and every node below one."""
+    moving = np.zeros(len(parent), dtype=bool)
+    for i in order:
+        moving[i] = (i in moved_nodes) or (parent[i] >= 0 and moving[parent[i]])
+    return moving
+
+
+class _Flat(NamedTuple):
+    """The instances laid end to end in the arrays K.deform_vertices takes."""
+
+    local: np.ndarray  # (V, 3) float32: POSITION data
+    vinst: np.ndarray  # (V,) int32: the instance of each vertex
+    inst: tuple  # per instance: first vertex (I+1,), node, skinned, morph delta base, target count, weight offset
+    joints: np.ndarray  # (V, J) int32 palette rows ((1, J) without skins)
+    jweights: np.ndarray  # (V, J) float32 joint weights, divided by their sum
+    deltas: np.ndarray  # (D, 3) float32 morph target displacements ([0] without morphs)
+    faces: np.ndarray  # (F, 3) int64 vertex indices
+    tri_moving: np.ndarray  # (F,) bool: triangles of instances that can move
+    inst_moving: np.ndarray  # (I,) bool: instances that can move
+
+
+def _flatten_instances(instances, skins, moving, morphs, moved_weights):
+    """Concatenate the instances' vertices, faces, joints and morph targets, and decide which
+    instances can move: rigid ones under a moving node, skinned ones with a moving joint (or with
+    unweighted vertices under a moving node), and any whose morph weights are animated."""
+    V = sum(len(ins.prim.positions) for ins in instances)
+    J = max([ins.prim.joints.shape[1] for ins in instances if ins.skin is not None] or [1])
+    local = np.zeros((V, 3), dtype=TRI_DTYPE)
+    vinst = np.zeros(V, dtype=np.int32)
+    inst_first = np.zeros(len(instances) + 1, dtype=np.int64)
+    inst_node = np.zeros(len(instances), dtype=np.int32)
+    inst_skinned = np.zeros(len(instances), dtype=np.bool_)
+    inst_mbase = np.zeros(len(instances), dtype=np.int64)
+    inst_mcount = np.zeros(len(instances), dtype=np.int32)
+    inst_woff = np.zeros(len(instances), dtype=np.int64)
+    joints = np.zeros((V if any(ins.skin is not None for ins in instances) else 1, J), dtype=np.int32)
+    jweights = np.zeros(joints.shape, dtype=TRI_DTYPE)
+    faces, tri_moving, deltas = [], [], []
+    n_d = 0
+    v0 = 0
+    inst_moving = np.zeros(len(instances), dtype=bool)
+    for k, ins in enumerate(instances):
+        pr = ins.prim
+        n = len(pr.positions)
+        local[v0:v0 + n] = pr.positions
+        vinst[v0:v0 + n] = k
+        inst_first[k] = v0
+        inst_node[k] = ins.node
+        mv = False
+        if ins.skin is not None:
+            inst_skinned[k] = True
+            nj = len(skins.items[ins.skin]["joints"])
+            jj = np.where((pr.joints >= 0) & (pr.joints < nj), pr.joints, 0)
+            ww = pr.weights.copy()
+            sums = ww.sum(axis=1, keepdims=True)
+            ww = np.divide(ww, sums, out=np.zeros_like(ww), where=sums > 0)
+            joints[v0:v0 + n, : jj.shape[1]] = jj + skins.offset[ins.skin]
+            jweights[v0:v0 + n, : ww.shape[1]] = ww
+            skin_nodes = np.array(skins.items[ins.skin]["joints"])
+            mv = bool(moving[skin_nodes].any()) or (bool((sums == 0).any()) and moving[ins.node])
+        else:
+            mv = bool(moving[ins.node])
+        if ins.n_targets:
+            inst_mbase[k] = n_d
+            inst_mcount[k] = ins.n_targets
+            inst_woff[k] = morphs.offset[ins.node]
+            deltas.append(pr.targets.reshape(-1, 3))
+            n_d += ins.n_targets * n
+            mv = mv or ins.node in moved_weights
+        inst_moving[k] = mv
+        faces.append(pr.faces + v0)
+        tri_moving.append(np.full(len(pr.faces), mv))
+        v0 += n
+    inst_first[-1] = V
+    deltas = (np.ascontiguousarray(np.concatenate(deltas), dtype=TRI_DTYPE) if deltas
+              else np.zeros((1, 3), dtype=TRI_DTYPE))
+    inst = (inst_first, inst_node, inst_skinned, inst_mbase, inst_mcount, inst_woff)
+    return _Flat(local, vinst, inst, joints, jweights, deltas, np.concatenate(faces), np.concatenate(tri_moving),
+                 inst_moving)
+
+
+# ------------------------------------------------------------------------------ the scene
 
 
 class GltfAnimation(Animation):
@@ -581,315 +962,49 @@ class GltfAnimation(Animation):
     # ---------------------------------------------------------------- construction
 
     def _build(self, r, clip, scene_index):
+        """Read the file's parts in the order below (each reader checks what it reads and fails with
+        the first problem), then keep the arrays the per-frame kernels take and pose frame 0."""
         nodes = r.items("nodes")
         n_nodes = len(nodes)
-        for i, nd in enumerate(nodes):
-            if not isinstance(nd, dict):
-                r.fail(f"malformed glTF: nodes[{i}] is not an object")
-        parent = np.full(n_nodes, -1, dtype=np.int32)
-        for i, nd in enumerate(nodes):
-            ch = nd.get("children", [])
-            if not isinstance(ch, list):
-                r.fail(f"node {i}: 'children' is not a list")
-            for c in ch:
-                if not _is_int(c) or not 0 <= c < n_nodes:
-                    r.fail(f"node {i} has a child {c!r} that is not a node index (0..{n_nodes - 1})")
-                if parent[c] >= 0 or c == i:
-                    r.fail(f"node {c} has more than one parent (the node hierarchy must be a forest)")
-                parent[c] = i
-        order = []
-        for root in np.flatnonzero(parent < 0):
-            stack = [int(root)]
-            while stack:
-                i = stack.pop()
-                order.append(i)
-                stack.extend(reversed(nodes[i].get("children", [])))
-        if len(order) != n_nodes:
-            r.fail("the node hierarchy has a cycle")
+        parent, order = _read_hierarchy(r, nodes)
+        rest = _read_rest_transforms(r, nodes)
+        visible = _scene_nodes(r, nodes, parent, scene_index)
+        skins = _read_skins(r, n_nodes)
+        self.n_joints = skins.n_joints
+        instances, morphs = _read_instances(r, nodes, visible, skins.items)
+        self._weights = morphs.weights
 
-        # node rest transforms
-        node_t = np.zeros((n_nodes, 3))
-        node_r = np.zeros((n_nodes, 4))
-        node_r[:, 3] = 1.0
-        node_s = np.ones((n_nodes, 3))
-        use_matrix = np.zeros(n_nodes, dtype=np.bool_)
-        node_matrix = np.tile(np.eye(4), (n_nodes, 1, 1))
-        for i, nd in enumerate(nodes):
-            w = f"node {i}"
-            if "matrix" in nd:
-                use_matrix[i] = True
-                node_matrix[i] = r.floats(nd, "matrix", 16, np.eye(4).ravel(), w).reshape(4, 4).T
-            node_t[i] = r.floats(nd, "translation", 3, (0, 0, 0), w)
-            q = r.floats(nd, "rotation", 4, (0, 0, 0, 1), w)
-            if np.abs(q).max() > 1e150:  # scaled first: a huge quaternion must not overflow the norm
-                q = q / np.abs(q).max()
-            nq = np.linalg.norm(q)
-            node_r[i] = q / nq if nq > 0 else (0, 0, 0, 1)
-            node_s[i] = r.floats(nd, "scale", 3, (1, 1, 1), w)
-
-        # scene roots
-        scenes = r.items("scenes")
-        if scene_index is None:
-            scene_index = r.tree.get("scene", 0) if scenes else None
-        if scenes:
-            sc = r.item("scenes", scene_index, "the default scene")
-            roots = sc.get("nodes", [])
-            if not isinstance(roots, list):
-                r.fail(f"scene {scene_index}: 'nodes' is not a list")
-            for n in roots:
-                if not _is_int(n) or not 0 <= n < n_nodes:
-                    r.fail(f"scene {scene_index} refers to node {n!r}, but the file has {n_nodes} nodes")
-        else:
-            roots = [int(i) for i in np.flatnonzero(parent < 0)]
-        visible = []
-        for root in roots:
-            stack = [int(root)]
-            while stack:
-                i = stack.pop()
-                visible.append(i)
-                stack.extend(reversed(nodes[i].get("children", [])))
-
-        # skins
-        skins = r.items("skins")
-        skin_offset, joint_node, ibm = [], [], []
-        total = 0
-        for s, sk in enumerate(skins):
-            if not isinstance(sk, dict):
-                r.fail(f"malformed glTF: skins[{s}] is not an object")
-            joints = sk.get("joints")
-            if not isinstance(joints, list) or not joints:
-                r.fail(f"skin {s} has no joints")
-            for j in joints:
-                if not _is_int(j) or not 0 <= j < n_nodes:
-                    r.fail(f"skin {s} refers to joint node {j!r}, but the file has {n_nodes} nodes")
-            if "inverseBindMatrices" in sk:
-                m = r.accessor(sk["inverseBindMatrices"], f"skin {s} inverseBindMatrices")
-                if m.shape[1] != 16 or len(m) < len(joints):
-                    r.fail(f"skin {s}: inverseBindMatrices must be {len(joints)} MAT4, got {m.shape}")
-                ibm.append(m[: len(joints)].reshape(-1, 4, 4).transpose(0, 2, 1))
-            else:
-                ibm.append(np.tile(np.eye(4), (len(joints), 1, 1)))
-            skin_offset.append(total)
-            joint_node.extend(int(j) for j in joints)
-            total += len(joints)
-        self.n_joints = total
-        joint_node = np.array(joint_node or [0], dtype=np.int32)
-        ibm = np.ascontiguousarray(np.concatenate(ibm) if ibm else np.eye(4)[None], dtype=np.float64)
-
-        # mesh instances, in depth-first scene order
-        meshes = r.items("meshes")
-        prim_cache = {}
-        instances = []
-        weight_offset = {}
-        weight_count = {}
-        init_weights = []
-        n_w = 0
-        for i in visible:
-            nd = nodes[i]
-            if "mesh" not in nd:
-                continue
-            mi = nd["mesh"]
-            mesh = r.item("meshes", mi, f"node {i}")
-            prims = mesh.get("primitives")
-            if not isinstance(prims, list) or not prims:
-                r.fail(f"mesh {mi} has no primitives")
-            skin = nd.get("skin")
-            if skin is not None and (not _is_int(skin) or not 0 <= skin < len(skins)):
-                r.fail(f"node {i} refers to skin {skin!r}, but the file has {len(skins)} skins")
-            n_targets = None
-            for pi, prim in enumerate(prims):
-                key = (mi, pi)
-                if key not in prim_cache:
-                    prim_cache[key] = _load_primitive(r, mi, pi, prim)
-                pr = prim_cache[key]
-                if pr is None or len(pr.faces) == 0:
-                    continue
-                if n_targets is None:
-                    n_targets = len(pr.targets)
-                elif n_targets != len(pr.targets):
-                    r.fail(f"mesh {mi}: primitives have different numbers of morph targets")
-                use_skin = skin if (skin is not None and pr.joints is not None) else None
-                if use_skin is not None:
-                    nj = len(skins[use_skin]["joints"])
-                    bad = (pr.joints >= nj) | (pr.joints < 0)
-                    if (bad & (pr.weights != 0)).any():
-                        r.fail(f"mesh {mi} primitive {pi}: joint index {int(pr.joints.max())} out of range "
-                               f"for skin {use_skin} with {nj} joints")
-                instances.append(_Instance(i, mi, pr, use_skin, len(pr.targets)))
-            if n_targets:
-                default = r.floats(mesh, "weights", n_targets, np.zeros(n_targets), f"mesh {mi}")
-                w0 = r.floats(nd, "weights", n_targets, default, f"node {i}")
-                weight_offset[i] = n_w
-                weight_count[i] = n_targets
-                init_weights.append(w0)
-                n_w += n_targets
-        if not instances:
-            r.fail("the scene holds no triangles (no mesh with a triangle primitive)")
-        self._weights = np.concatenate(init_weights) if init_weights else np.zeros(1)
-
-        # clip selection and channels
         anims = r.items("animations")
-        self.clips = []
-        for a, an in enumerate(anims):
-            if not isinstance(an, dict):
-                r.fail(f"malformed glTF: animations[{a}] is not an object")
-            name = an.get("name")
-            self.clips.append(name if isinstance(name, str) and name else f"animation {a}")
-        chosen = self._choose_clips(r, anims, clip)
-        self.clip = None if not chosen else ("all" if len(chosen) > 1 else self.clips[chosen[0]])
+        chosen = self._select_clips(r, anims, clip)
+        channels = _read_channels(r, anims, chosen, n_nodes, morphs, rest.use_matrix)
+        self._times = channels.times
+        self._values = channels.values
+        self._ch = channels.table
+        self.n_channels = len(channels.table["kind"])
 
-        times, values = [], []
-        ch = {k: [] for k in ("tstart", "tcount", "vstart", "ncomp", "interp", "kind", "target")}
-        moved_nodes = set()
-        moved_weights = set()
-        animated_trs = set()
-        t_lo, t_hi = math.inf, -math.inf
-        nt, nv = 0, 0
-        for a in chosen:
-            an = anims[a]
-            samplers = an.get("samplers", [])
-            channels = an.get("channels", [])
-            if not isinstance(samplers, list) or not isinstance(channels, list):
-                r.fail(f"animation {a}: 'samplers' and 'channels' must be lists")
-            for c, chan in enumerate(channels):
-                w = f"animation {a} channel {c}"
-                if not isinstance(chan, dict) or not isinstance(chan.get("target"), dict):
-                    r.fail(f"{w}: missing target")
-                tgt = chan["target"]
-                path_name = tgt.get("path")
-                node = tgt.get("node")
-                if path_name not in _PATHS or node is None:
-                    continue  # e.g. KHR_animation_pointer targets: not geometry
-                if not _is_int(node) or not 0 <= node < n_nodes:
-                    r.fail(f"{w} targets node {node!r}, but the file has {n_nodes} nodes")
-                si = chan.get("sampler")
-                if not _is_int(si) or not 0 <= si < len(samplers) or not isinstance(samplers[si], dict):
-                    r.fail(f"{w} refers to sampler {si!r}, but animation {a} has {len(samplers)} samplers")
-                smp = samplers[si]
-                interp = smp.get("interpolation", "LINEAR")
-                if interp not in _INTERP:
-                    r.fail(f"{w}: unknown interpolation {interp!r}")
-                kind, m = _PATHS[path_name]
-                if kind == K.KIND_W:
-                    if node not in weight_offset:
-                        continue  # weights of a node without morph targets move nothing
-                    m = weight_count[node]
-                elif use_matrix[node]:
-                    r.fail(f"{w} animates node {node}, which has a 'matrix' (animated nodes need TRS)")
-                tin = r.accessor(smp.get("input"), f"{w} input")
-                tout = r.accessor(smp.get("output"), f"{w} output")
-                if tin.shape[1] != 1 or tin.dtype.kind != "f" or len(tin) == 0:
-                    r.fail(f"{w}: sampler input must be a non-empty float SCALAR accessor")
-                tk = tin[:, 0]
-                if (np.diff(tk) < 0).any():
-                    r.fail(f"{w}: key times decrease")
-                per = 3 if interp == "CUBICSPLINE" else 1
-                vals = np.asarray(tout, dtype=np.float64).reshape(-1)
-                if len(vals) != len(tk) * per * m:
-                    r.fail(f"{w}: {len(tk)} keys need {len(tk) * per * m} output values, got {len(vals)}")
-                ch["tstart"].append(nt)
-                ch["tcount"].append(len(tk))
-                ch["vstart"].append(nv)
-                ch["ncomp"].append(m)
-                ch["interp"].append(_INTERP[interp])
-                ch["kind"].append(kind)
-                ch["target"].append(weight_offset[node] if kind == K.KIND_W else node)
-                times.append(tk)
-                values.append(vals)
-                nt += len(tk)
-                nv += len(vals)
-                t_lo, t_hi = min(t_lo, float(tk[0])), max(t_hi, float(tk[-1]))
-                recs = vals.reshape(len(tk), per, m)
-                constant = bool((np.ptp(recs[:, per // 2], axis=0) == 0).all())
-                if per == 3:
-                    constant = constant and not recs[:, [0, 2]].any()
-                if not constant:
-                    (moved_weights if kind == K.KIND_W else moved_nodes).add(node)
-                if kind != K.KIND_W:
-                    animated_trs.add(node)
-        self._times = np.concatenate(times) if times else np.zeros(1)
-        self._values = np.concatenate(values) if values else np.zeros(1)
-        self._ch = {k: np.array(v, dtype=np.int64 if k in ("tstart", "vstart") else np.int32)
-                    for k, v in ch.items()}
-        self.n_channels = len(ch["kind"])
-
-        # which nodes move: animated ones and everything below them
-        moving = np.zeros(n_nodes, dtype=bool)
-        for i in order:
-            moving[i] = (i in moved_nodes) or (parent[i] >= 0 and moving[parent[i]])
-
-        # flatten instances
-        V = sum(len(ins.prim.positions) for ins in instances)
-        J = max([ins.prim.joints.shape[1] for ins in instances if ins.skin is not None] or [1])
-        local = np.zeros((V, 3), dtype=TRI_DTYPE)
-        vinst = np.zeros(V, dtype=np.int32)
-        inst_first = np.zeros(len(instances) + 1, dtype=np.int64)
-        inst_node = np.zeros(len(instances), dtype=np.int32)
-        inst_skinned = np.zeros(len(instances), dtype=np.bool_)
-        inst_mbase = np.zeros(len(instances), dtype=np.int64)
-        inst_mcount = np.zeros(len(instances), dtype=np.int32)
-        inst_woff = np.zeros(len(instances), dtype=np.int64)
-        joints = np.zeros((V if any(ins.skin is not None for ins in instances) else 1, J), dtype=np.int32)
-        jweights = np.zeros(joints.shape, dtype=TRI_DTYPE)
-        faces, tri_moving, deltas = [], [], []
-        n_d = 0
-        v0 = 0
-        inst_moving = np.zeros(len(instances), dtype=bool)
-        for k, ins in enumerate(instances):
-            pr = ins.prim
-            n = len(pr.positions)
-            local[v0:v0 + n] = pr.positions
-            vinst[v0:v0 + n] = k
-            inst_first[k] = v0
-            inst_node[k] = ins.node
-            mv = False
-            if ins.skin is not None:
-                inst_skinned[k] = True
-                nj = len(skins[ins.skin]["joints"])
-                jj = np.where((pr.joints >= 0) & (pr.joints < nj), pr.joints, 0)
-                ww = pr.weights.copy()
-                sums = ww.sum(axis=1, keepdims=True)
-                ww = np.divide(ww, sums, out=np.zeros_like(ww), where=sums > 0)
-                joints[v0:v0 + n, : jj.shape[1]] = jj + skin_offset[ins.skin]
-                jweights[v0:v0 + n, : ww.shape[1]] = ww
-                skin_nodes = np.array(skins[ins.skin]["joints"])
-                mv = bool(moving[skin_nodes].any()) or (bool((sums == 0).any()) and moving[ins.node])
-            else:
-                mv = bool(moving[ins.node])
-            if ins.n_targets:
-                inst_mbase[k] = n_d
-                inst_mcount[k] = ins.n_targets
-                inst_woff[k] = weight_offset[ins.node]
-                deltas.append(pr.targets.reshape(-1, 3))
-                n_d += ins.n_targets * n
-                mv = mv or ins.node in moved_weights
-            inst_moving[k] = mv
-            faces.append(pr.faces + v0)
-            tri_moving.append(np.full(len(pr.faces), mv))
-            v0 += n
-        inst_first[-1] = V
+        moving = _moving_nodes(order, parent, channels.moved_nodes)
+        flat = _flatten_instances(instances, skins, moving, morphs, channels.moved_weights)
         try:
-            local32, faces32 = as_mesh(local, np.concatenate(faces), what=f"glTF scene {self.path.name}")
+            local32, faces32 = as_mesh(flat.local, flat.faces, what=f"glTF scene {self.path.name}")
         except InputError as e:
             r.fail(str(e))
         self._local = local32
         self._faces = faces32
-        self._vinst = vinst
-        self._inst = (inst_first, inst_node, inst_skinned, inst_mbase, inst_mcount, inst_woff)
-        self._joints = joints
-        self._jweights = jweights
-        self._deltas = (np.ascontiguousarray(np.concatenate(deltas), dtype=TRI_DTYPE) if deltas
-                        else np.zeros((1, 3), dtype=TRI_DTYPE))
+        self._vinst = flat.vinst
+        self._inst = flat.inst
+        self._joints = flat.joints
+        self._jweights = flat.jweights
+        self._deltas = flat.deltas
         self._order = np.array(order, dtype=np.int32)
         self._parent = parent
-        self._use_matrix = use_matrix
-        self._node_matrix = node_matrix
-        self._rest = (node_t, node_r, node_s)
-        self._node_t, self._node_r, self._node_s = node_t.copy(), node_r.copy(), node_s.copy()
+        self._use_matrix = rest.use_matrix
+        self._node_matrix = rest.matrix
+        self._rest = (rest.t, rest.r, rest.s)
+        self._node_t, self._node_r, self._node_s = rest.t.copy(), rest.r.copy(), rest.s.copy()
         self._world = np.zeros((n_nodes, 4, 4))
-        self._joint_node = joint_node
-        self._ibm = ibm
-        self._palette = np.zeros((len(joint_node), 4, 4))
+        self._joint_node = skins.joint_node
+        self._ibm = skins.ibm
+        self._palette = np.zeros((len(skins.joint_node), 4, 4))
         self._nodes_json = nodes
         self._cameras = r.items("cameras")
         self._camera_node = self._find_camera(r, visible, nodes)
@@ -899,10 +1014,28 @@ class GltfAnimation(Animation):
         self.n_nodes = n_nodes
         self.n_instances = len(instances)
         self.n_morph_targets = int(sum(ins.n_targets for ins in instances))
-        self.n_vertices = V
-        mask = ~np.concatenate(tri_moving)
+        self.n_vertices = len(flat.local)
+        mask = ~flat.tri_moving
         self.static = bool(mask.all())
         self.static_mask = as_static_mask(mask, self.n_triangles)
+        self._set_clip_range(channels.t_lo, channels.t_hi)
+        self._pose_first_frame(r, flat.inst_moving[flat.vinst])
+
+    def _select_clips(self, r, anims, clip):
+        """Name the file's clips (``self.clips``), choose the animations to play (their indices,
+        returned) and name the choice (``self.clip``)."""
+        self.clips = []
+        for a, an in enumerate(anims):
+            if not isinstance(an, dict):
+                r.fail(f"malformed glTF: animations[{a}] is not an object")
+            name = an.get("name")
+            self.clips.append(name if isinstance(name, str) and name else f"animation {a}")
+        chosen = self._choose_clips(r, anims, clip)
+        self.clip = None if not chosen else ("all" if len(chosen) > 1 else self.clips[chosen[0]])
+        return chosen
+
+    def _set_clip_range(self, t_lo, t_hi):
+        """``time_range`` and ``duration`` from the channels' first and last key times."""
         if self.n_channels and t_hi >= t_lo:
             self.time_range = (t_lo, t_hi)
             span = t_hi - t_lo
@@ -910,9 +1043,13 @@ class GltfAnimation(Animation):
         else:
             self.time_range = None
             self.duration = None
+
+    def _pose_first_frame(self, r, vertex_moves):
+        """Pose every vertex at clip time 0; later frames recompute the vertices ``vertex_moves``
+        (V,) bool marks.  Fails when the pose is not finite or exceeds 1e30."""
+        V = self.n_vertices
         vid = np.arange(V, dtype=np.int64)
-        dyn_v = inst_moving[vinst]
-        self._dynamic_vids = vid[dyn_v]
+        self._dynamic_vids = vid[vertex_moves]
         self._verts = np.zeros((V, 3), dtype=TRI_DTYPE)
         self._centre = np.zeros(3)  # POSITION data is float32 in the file: stored as it is
         self._posed_origin = np.zeros(3)  # the frame self._verts is in
