@@ -10,8 +10,8 @@ The spin lock is a test-and-test-and-set lock on one int32 slot (0 free, 1 held)
 relaxed load with the x86 ``pause`` hint, try ``cmpxchg`` (acquire) when the slot looks free,
 and after :data:`SPINS_BEFORE_YIELD` failed looks give the core away with ``sched_yield``, so a
 waiting thread does not burn the time slice of a preempted lock holder when there are more
-threads than cores.  Unlock is a release store of 0.  These are the mutexes of the seed's
-sort-last strategies (Ize et al. 2006, "Sort-last: global grid").
+threads than cores.  Unlock is a release store of 0.  These are the mutexes of the
+sort-last strategies of Ize et al. 2006 ("Sort-last: global grid").
 """
 
 import os

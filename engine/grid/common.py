@@ -247,7 +247,7 @@ def clear_macro_range(count, dims, k, mdims, macro_full, m0, m1):
     """Zero the counts of every layer's cells inside the non-empty macro cells m0..m1-1.
 
     count (L, C) int32 viewed with the PREVIOUS frame's dims; macro_full (M,) its flags.
-    Cells of empty macro cells are already zero and are not touched (the seed's clear).
+    Cells of empty macro cells are already zero and are not touched (the clear of Ize et al. 2006).
     Returns the number of cells zeroed.
     """
     nx = dims[0]
@@ -270,7 +270,7 @@ def clear_macro_range(count, dims, k, mdims, macro_full, m0, m1):
 
 @njit(cache=True, parallel=True)
 def clear_macro_parallel(count, dims, k, mdims, macro_full, n_threads, touched):
-    """Parallel clear: thread t takes the t-th contiguous section of macro cells (the seed).
+    """Parallel clear: thread t takes the t-th contiguous section of macro cells (as Ize et al. 2006).
 
     touched (n_threads,) int64 receives cells zeroed per thread (load-balance figure).
     """

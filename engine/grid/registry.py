@@ -1,8 +1,13 @@
-"""Registry of grid build strategies, chosen by name.
+"""Registry of grid build strategies, chosen by name (``GridParams.strategy``).
 
-A strategy is a class with a ``name`` and a ``build(tris, spec, bufs, threads, exact)``
-method filling a :class:`gridrt.grid.buffers.GridBuffers`; see ``strategies/serial.py`` for the
-contract.  Strategy modules register themselves with :func:`register`.
+A strategy is a subclass of :class:`gridrt.grid.strategies.base.Strategy` (the contract is in
+that module's docstring) with a ``name``, the flags ``parallel_stages`` and ``layered``, and an
+``insert(tris, spec, bufs, threads, exact, times)`` method that fills the cell lists of a
+:class:`gridrt.grid.build.GridBuffers` and returns the number of references; the builder
+(:class:`gridrt.grid.build.GridBuilder`) runs the shared clear and macro-cell stages around it.
+Each strategy module registers its classes with the :func:`register` decorator when
+:mod:`gridrt.grid.strategies` imports it, which :func:`get_builder` and :func:`names` do on
+first use.  The first line of a class's docstring is what ``gridrt strategies`` prints.
 """
 
 from ..errors import InputError
@@ -29,6 +34,7 @@ def get_builder(name):
 
 
 def names():
+    """The registered strategy names, in registry order (:mod:`gridrt.grid.strategies`)."""
     from . import strategies  # noqa: F401
 
     return list(BUILDERS)

@@ -1,7 +1,7 @@
 """Grid build strategies; importing this package registers each one (explicitly, by name).
 
 Registry order: serial, sort_first, global_lock, cell_locks, lock_pool, thread_grids_merge,
-thread_grids, sort_middle, counting (the seed's table, Ize et al. 2006, plus Lagae & Dutré 2008).
+thread_grids, sort_middle, counting (the table of Ize et al. 2006, plus Lagae & Dutré 2008).
 """
 
 from . import serial  # noqa: F401

@@ -1,8 +1,8 @@
-"""``counting``: lock-free two-pass compact grid, beyond the seed.
+"""``counting``: lock-free two-pass compact grid, beyond Ize et al. 2006.
 
 Lagae & Dutré, "Compact, Fast and Robust Grids for Ray Tracing", EGSR 2008: count the
 references of every cell, prefix-sum the counts into offsets, then scatter each reference into
-its slot.  Parallel here the way the seed's sort-last strategies split work (Ize et al. 2006):
+its slot.  Parallel here the way the sort-last strategies of Ize et al. 2006 split work:
 thread t takes the t-th contiguous block of triangles and both passes write the one shared grid.
 
 The count pass increments cell counts with atomic adds and keeps what each add returns, the

@@ -1,4 +1,4 @@
-"""``serial``: the seed's single-threaded rebuild (Ize et al. 2006, "Serial grid rebuild").
+"""``serial``: the single-threaded rebuild of Ize et al. 2006 ("Serial grid rebuild").
 
 The clear and macro-cell stages are the shared ones in :mod:`gridrt.grid.common` (clear only
 cells of macro cells that were full last frame; flag a macro cell at its first non-empty cell).

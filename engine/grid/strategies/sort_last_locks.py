@@ -3,7 +3,7 @@
 Ize, Wald, Robertson, Parker, "An Evaluation of Parallel Grid Construction for Ray Tracing
 Dynamic Scenes", RT 2006, "Sort-last: global grid": each thread takes a subset of the
 triangles (here the t-th contiguous block) and inserts them into the one grid, taking a mutex
-around every cell update.  The seed's three mutex granularities:
+around every cell update.  The paper's three mutex granularities:
 
 * ``global_lock``: "single mutex for the entire grid" (degenerates into a serial build, and is
   expected to be slower than serial because of the lock traffic);

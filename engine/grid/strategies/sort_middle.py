@@ -1,4 +1,4 @@
-"""``sort_middle``: the seed's winner.
+"""``sort_middle``: the winner of Ize et al. 2006.
 
 Ize, Wald, Robertson, Parker, RT 2006, "Sort-middle": each thread takes a subset of the
 triangles and "performs a coarse bucket sort on its triangles", using ``z % num_threads`` where

@@ -9,7 +9,7 @@ synchronization.  Then either
   contiguous blocks of cells: sum the per-thread counts, prefix-sum them, copy each cell's lists
   from every thread grid (thread 0 first, so lists stay in ascending triangle order).  The
   per-thread grids are scratch arrays zeroed by the merge as it reads them, so they are clean
-  for the next frame (this is where the seed's "must clear all grids" cost lands);
+  for the next frame (this is where the "must clear all grids" cost of Ize et al. 2006 lands);
 * ``thread_grids``: "don't merge and instead check grids during traversal": the per-thread
   grids are the grid's layers (``layered = True``, ``cell_start`` (T, C+1)); the shared clear
   and macro-cell stages run over all T layers ("must perform grid clear and macro cell build for
