@@ -5,10 +5,10 @@ after ``--warmup`` untimed runs (numba compiles, buffers grow), with min and max
 
 * ``core``:  serial grid build (bbox and exact insertion) and primary-ray Mrays/s (DDA and CGT)
   at 1 thread and all cores on a ~100k and a ~1M triangle mesh.
-* ``build``: build strategies x thread counts x scenes, total and per stage (the seed's
-  "Comparison build methods" and "Individual steps"; :func:`gridrt.app.bench.sweep.run_build_sweep`).
+* ``build``: build strategies x thread counts x scenes, total and per stage (Ize et al.
+  2006's "Comparison build methods" and "Individual steps"; :func:`gridrt.app.bench.sweep.run_build_sweep`).
 * ``frame``: animation + rebuild + render per frame at 1024x1024 for each scene at 1 thread and
-  all cores (the seed's "Total performance", CGT's fps table); CGT traversal by default (DDA on
+  all cores (Ize et al. 2006's "Total performance", CGT's fps table); CGT traversal by default (DDA on
   request), static/moving split on and off.
 * ``trade``: every knob that trades speed for accuracy against a brute-force float64 reference
   (:mod:`app.bench_trade`).
@@ -33,8 +33,9 @@ from .util import (
     put_stat, resolve_scene, scene_list, stat, thread_list, write_csv, write_json, write_summary,
 )
 
-#: the seed's and CGT's figures quoted in summaries (DESIGN.md, "Numbers to keep in mind")
-SEED_FPS = ("Ize et al. 2006 (16 threads, 8 dual-core Opteron 880, rebuild + ray cast): Thai (~10M triangles) "
+#: the fps figures of Ize et al. 2006 and of CGT (Wald et al. 2006, "Ray Tracing Animated Scenes using
+#: Coherent Grid Traversal"), quoted in summaries
+PAPER_FPS = ("Ize et al. 2006 (16 threads, 8 dual-core Opteron 880, rebuild + ray cast): Thai (~10M triangles) "
             "0.78 -> 2.86 fps, Marbles 0.50 -> 1.97 fps, Hand (16k) 78 -> 150 fps.  CGT (Wald et al. 2006, "
             "1024x1024, grid rebuilt every frame, dual 3.2 GHz Xeon, primary rays): Hand 34.5 fps, Marbles "
             "57.1 fps, Fairy forest (174k) 3.4 fps.")
@@ -82,7 +83,7 @@ def add_parser(sub):
     f.add_argument("--strategy", default="auto",
                    help="build strategy (default auto: serial at 1 thread, sort_middle above)")
     f.add_argument("--traversal", default=FRAME_TRAVERSAL, help=f"comma-separated of {', '.join(TRAVERSALS)} (default "
-                   f"{FRAME_TRAVERSAL}: the packet traversal the seed's and CGT's fps figures used; single-ray DDA "
+                   f"{FRAME_TRAVERSAL}: the packet traversal the fps figures of Ize et al. 2006 and CGT used; single-ray DDA "
                    "takes seconds per frame on some scenes)")
     f.add_argument("--split", choices=("both", "on", "off"), default="both",
                    help="static/moving split for scenes with static parts (default both: measure on and off)")
@@ -180,7 +181,7 @@ def run_core(a):
     body += ["", f"Medians of {runs} runs after {a.warmup} warm-up run(s).  Build: strategy serial, 1 thread, "
              "lambda 4, macro 4.  Rays: one primary ray per pixel, camera along the mesh's thinnest axis, "
              "lambert shading, watertight test; dda: single-ray 3D DDA, cgt: coherent grid traversal of 8x8 "
-             "ray packets (Wald et al. 2006), same image.  The seed's serial bounding-box build of the 282k Conference "
+             "ray packets (Wald et al. 2006), same image.  Ize et al. 2006's serial bounding-box build of the 282k Conference "
              "took 82 ms on one 2006 Opteron core (about 3.4M triangles/s)."]
     if note:
         body += ["", f"Note: {note}."]
@@ -476,7 +477,7 @@ def _frame_summary(rows, size, runs, warmup, strategy):
             f"is on; nothing for a static scene), one primary ray per pixel at {size}x{size}, lambert shading, "
             f"watertight test.  {warmup} warm-up + {runs} timed frames; ms median [min-max].  Strategy "
             f"{'auto = serial at 1 thread, sort_middle above' if strategy == 'auto' else strategy}.  fps = 1000 / "
-            "median frame ms (frame = animation + rebuild + render); the seed's figure counts rebuild + ray cast "
+            "median frame ms (frame = animation + rebuild + render); the figure of Ize et al. 2006 counts rebuild + ray cast "
             "(fps b+r).", ""]
     table = []
     for r in rows:
@@ -524,7 +525,7 @@ def _frame_summary(rows, size, runs, warmup, strategy):
                 tr_rows.append([key[0], key[1], "on" if key[2] else "-"]
                                + [f"{fmt_ms(sel[t], 'render_ms')} ({base / sel[t]['render_ms']:.2f}x)" for t in travs])
         body += md_table(["scene", "threads", "split"] + [f"render ms {t}" for t in travs], tr_rows)
-    body += ["", "For reference, on 2006 hardware: " + SEED_FPS]
+    body += ["", "For reference, on 2006 hardware: " + PAPER_FPS]
     return body
 
 

@@ -1,5 +1,5 @@
-"""Build-time sweep over strategies and thread counts: the seed's "Comparison build methods" and
-"Individual steps" measurements (Ize, Wald, Robertson, Parker, RT 2006).
+"""Build-time sweep over strategies and thread counts: the "Comparison build methods" and
+"Individual steps" measurements of Ize, Wald, Robertson, Parker, RT 2006.
 
 For every scene, strategy and thread count one :class:`~gridrt.grid.GridBuilder` rebuilds the
 grid ``warmup + runs`` times, by default round-robin over the strategies (see ``interleave``).
@@ -28,7 +28,7 @@ from gridrt.grid.registry import get_builder
 from gridrt.grid.traffic import stage_bytes
 from gridrt.threads import check_threads
 
-#: the seed's three stages, in plot order
+#: the three build stages of Ize et al. 2006, in plot order
 STAGES = ("clear_ms", "insert_ms", "macro_ms")
 #: seconds between the frames of an animated scene in the sweep
 FRAME_DT = 1.0 / 30.0

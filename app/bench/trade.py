@@ -50,15 +50,16 @@ def add_parser(bsub, common):
                         description=__doc__.split("\n\n")[0])
     common(t, "trade", warmup=1, scenes=False)
     t.add_argument("--scene", default=None,
-                   help="image scene spec (default armadillo; icosphere:81920 without ../shared/data)")
+                   help="image scene spec (default armadillo; icosphere:81920 when the Armadillo mesh is absent)")
     t.add_argument("--probe-mesh", default=None,
-                   help="closed static mesh for the holes count (default armadillo; icosphere:20480 without data)")
+                   help="closed static mesh for the holes count (default armadillo; icosphere:20480 when the "
+                        "Armadillo mesh is absent)")
     t.add_argument("--size", type=int, default=1024, help="full image edge in pixels (default 1024)")
     t.add_argument("--samples", type=int, default=4096, help="sampled pixels for the reference (default 4096)")
     t.add_argument("--probes", type=int, default=100000, help="probe rays for the holes count (default 100000)")
     t.add_argument("--threads", type=int, default=None, help="render threads (default: all cores)")
-    t.add_argument("--strategy", default="serial", help="build strategy (default serial, as in the seed's "
-                   "bbox/exact comparison)")
+    t.add_argument("--strategy", default="serial", help="build strategy (default serial, as in the "
+                   "bbox/exact comparison of Ize et al. 2006)")
     t.add_argument("--knobs", default=None, help=f"comma-separated of {', '.join(KNOBS)} (default: all)")
     t.add_argument("--lambdas", default=DEFAULT_LAMBDAS, help=f"lambda sweep (default {DEFAULT_LAMBDAS})")
     t.add_argument("--macros", default=DEFAULT_MACROS, help=f"macro-cell sizes (default {DEFAULT_MACROS})")
@@ -406,7 +407,7 @@ def _summary(rows, c):
     ins = {r["value"]: r for r in rows if r["knob"] == "insert"}
     if "bbox" in ins and "exact" in ins:
         b, e = ins["bbox"], ins["exact"]
-        body += ["", "Our version of the seed's Conference point (bbox -> exact insertion; the seed measured 1.24M -> "
+        body += ["", "Our version of the Conference point of Ize et al. 2006 (bbox -> exact insertion; they measured 1.24M -> "
                  "0.83M references, render 339 -> 330 ms, serial rebuild 82 -> 245 ms on the 282k Conference):",
                  "", *md_table(["", "bbox", "exact", "change"], [
                      ["references", f"{b['references']:,}", f"{e['references']:,}",
