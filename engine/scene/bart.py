@@ -578,6 +578,84 @@ class _Parser:
             self._add(v, idx.astype(np.int64))
 
 
+# ------------------------------------------------------------------------------ laying out the scene
+# BartAnimation._build calls these after the parser has read every file.
+
+
+class _Splines:
+    """Kochanek-Bartels position and rotation splines laid end to end, as :func:`_animate_nodes`,
+    :func:`kb_position` and :func:`kb_rotation` take them; ``add_*`` returns the new spline's index
+    and fails, naming ``what``, when the spline through the keys is not finite."""
+
+    def __init__(self, path):
+        self.path = path
+        self.p_tmin, self.p_tmax, self.p_coef, self.p_start, self.p_count = [], [], [], [], []
+        self.r_tmin, self.r_tmax, self.r_pabq, self.r_start, self.r_count = [], [], [], [], []
+        self.n_p = self.n_r = 0
+
+    def _check_finite(self, what, *arrays):
+        if not all(np.isfinite(a).all() for a in arrays):
+            raise SceneFileError(self.path, f"{what}: the spline through these keys is not finite "
+                                            "(key values or tension/continuity/bias too large)")
+
+    def add_position(self, keys, what):
+        """``transl`` or ``scale`` keys: rows of time, x, y, z, tension, continuity, bias."""
+        with np.errstate(all="ignore"):  # overflow is reported below, as an error naming the keys
+            tmin, tmax, coef = kb_position_coefficients(keys[:, 0], keys[:, 1:4], keys[:, 4:7])
+        self._check_finite(what, tmin, tmax, coef)
+        self.p_tmin.append(tmin), self.p_tmax.append(tmax), self.p_coef.append(coef)
+        self.p_start.append(self.n_p), self.p_count.append(len(tmin))
+        self.n_p += len(tmin)
+        return len(self.p_start) - 1
+
+    def add_rotation(self, keys, what):
+        """``rot`` keys: rows of time, axis x, y, z, degrees, tension, continuity, bias."""
+        with np.errstate(all="ignore"):
+            q = axis_angle_quaternions(keys[:, 1:4], np.radians(keys[:, 4]))
+            tmin, tmax, pabq = kb_rotation_segments(keys[:, 0], q, keys[:, 5:8])
+        self._check_finite(what, tmin, tmax, pabq)
+        self.r_tmin.append(tmin), self.r_tmax.append(tmax), self.r_pabq.append(pabq)
+        self.r_start.append(self.n_r), self.r_count.append(len(tmin))
+        self.n_r += len(tmin)
+        return len(self.r_start) - 1
+
+    def arrays(self):
+        """(p_tmin, p_tmax, p_coef, p_start, p_count, r_tmin, r_tmax, r_pabq, r_start, r_count), with
+        one placeholder segment where there is no spline of a kind."""
+        def cat(lst, shape):
+            return np.ascontiguousarray(np.concatenate(lst)) if lst else np.zeros(shape)
+
+        return (
+            cat(self.p_tmin, (1,)), cat(self.p_tmax, (1,)), cat(self.p_coef, (1, 4, 3)),
+            np.array(self.p_start or [0], np.int64), np.array(self.p_count or [1], np.int64),
+            cat(self.r_tmin, (1,)), cat(self.r_tmax, (1,)), cat(self.r_pabq, (1, 4, 4)),
+            np.array(self.r_start or [0], np.int64), np.array(self.r_count or [1], np.int64),
+        )
+
+
+def _keys_constant(keys, cols):
+    """Whether columns ``cols`` of the key rows hold one value (the motion moves nothing)."""
+    return bool((np.ptp(keys[:, cols], axis=0) == 0).all())
+
+
+def _moving_nodes(parent, moved):
+    """(N,) bool: the nodes in ``moved`` and every node below one."""
+    n_nodes = len(parent)
+    moving = np.zeros(n_nodes, dtype=bool)
+    for i in range(n_nodes):  # parents are created before their children
+        moving[i] = i in moved or (parent[i] >= 0 and moving[parent[i]])
+    return moving
+
+
+def _tpa_groups(tpa):
+    """The ``tpa`` triangles grouped by their key times: key-times bytes -> (times, [(node, keyed
+    vertices (K, 3, 3)), ...]), groups and members in file order."""
+    groups = {}
+    for node, times, tv in tpa:
+        groups.setdefault(times.tobytes(), (times, []))[1].append((node, tv))
+    return groups
+
+
 # ------------------------------------------------------------------------------ the scene
 
 
@@ -631,44 +709,40 @@ class BartAnimation(Animation):
         self._build(ps)
 
     def _build(self, ps):
+        """Lay the parsed scene out in the arrays the per-frame kernels take, then pose time 0."""
         n_nodes = len(ps.node_parent)
         parent = np.array(ps.node_parent, dtype=np.int32)
         node_matrix = np.ascontiguousarray(np.stack(ps.node_matrix), dtype=np.float64)
 
-        # splines
-        p_tmin, p_tmax, p_coef, p_start, p_count = [], [], [], [], []
-        r_tmin, r_tmax, r_pabq, r_start, r_count = [], [], [], [], []
-        n_p = n_r = 0
+        splines = _Splines(self.path)
+        self._anim, moved, key_lo, key_hi = self._read_transform_animations(ps, splines)
+        cam = ps.anims.get("camera", {})
+        self._cam_t = splines.add_position(cam["transl"], "transl keys of 'camera'") if "transl" in cam else -1
+        self._cam_r = splines.add_rotation(cam["rot"], "rot keys of 'camera'") if "rot" in cam else -1
+        self._splines = splines.arrays()
 
-        def finite_spline(what, *arrays):
-            if not all(np.isfinite(a).all() for a in arrays):
-                raise SceneFileError(self.path, f"{what}: the spline through these keys is not finite "
-                                                "(key values or tension/continuity/bias too large)")
+        moving = _moving_nodes(parent, moved)
+        groups = _tpa_groups(ps.tpa)
+        vert_moving, tri_moving = self._lay_out_geometry(ps, moving, groups)
+        for times, _ in groups.values():  # the tpa keys widen the span of the spline keys
+            key_lo, key_hi = min(key_lo, times[0]), max(key_hi, times[-1])
+        self._set_node_arrays(parent, node_matrix)
+        self.n_nodes = n_nodes
+        self.n_animated_transforms = len(self._anim[0])
+        self.n_tpa = sum(len(m[1]) for m in groups.values())
 
-        def add_pos(keys, what):
-            nonlocal n_p
-            with np.errstate(all="ignore"):  # overflow is reported below, as an error naming the keys
-                tmin, tmax, coef = kb_position_coefficients(keys[:, 0], keys[:, 1:4], keys[:, 4:7])
-            finite_spline(what, tmin, tmax, coef)
-            p_tmin.append(tmin), p_tmax.append(tmax), p_coef.append(coef)
-            p_start.append(n_p), p_count.append(len(tmin))
-            n_p += len(tmin)
-            return len(p_start) - 1
+        self.n_triangles = int(len(self._faces))
+        mask = ~tri_moving
+        self.static = bool(mask.all())
+        self.static_mask = as_static_mask(mask, self.n_triangles)
+        self._set_time_range(ps.anim_params, key_lo, key_hi)
+        self._pose_first_frame(vert_moving)
 
-        def add_rot(keys, what):
-            nonlocal n_r
-            with np.errstate(all="ignore"):
-                q = axis_angle_quaternions(keys[:, 1:4], np.radians(keys[:, 4]))
-                tmin, tmax, pabq = kb_rotation_segments(keys[:, 0], q, keys[:, 5:8])
-            finite_spline(what, tmin, tmax, pabq)
-            r_tmin.append(tmin), r_tmax.append(tmax), r_pabq.append(pabq)
-            r_start.append(n_r), r_count.append(len(tmin))
-            n_r += len(tmin)
-            return len(r_start) - 1
-
-        def constant(keys, cols):
-            return bool((np.ptp(keys[:, cols], axis=0) == 0).all())
-
+    def _read_transform_animations(self, ps, splines):
+        """The splines of the ``k`` blocks that animate ``x`` transforms (their indices by name in
+        ``self._transform_splines``) and their visibility keys (``self._visibility``).  Returns the
+        (node, translation, rotation, scale spline) index arrays :func:`_animate_nodes` takes, the
+        nodes whose keys move them, and the first and last key times the motion reaches."""
         anim_node, anim_t, anim_r, anim_s = [], [], [], []
         self._transform_splines = {}
         moved = set()
@@ -683,10 +757,10 @@ class BartAnimation(Animation):
                 if motion in an:
                     keys = an[motion]
                     what = f"{motion} keys of {name!r}"
-                    ids[k] = add_rot(keys, what) if motion == "rot" else add_pos(keys, what)
+                    ids[k] = splines.add_rotation(keys, what) if motion == "rot" else splines.add_position(keys, what)
                     key_lo, key_hi = min(key_lo, keys[1, 0]), max(key_hi, keys[-2, 0])
                     cols = [1, 2, 3, 4] if motion == "rot" else [1, 2, 3]
-                    if not constant(keys, cols):
+                    if not _keys_constant(keys, cols):
                         moved.add(node)
             if "visibility" in an:
                 self._visibility.append((node, an["visibility"]))
@@ -697,28 +771,15 @@ class BartAnimation(Animation):
             anim_t.append(ids[0])
             anim_r.append(ids[1])
             anim_s.append(ids[2])
+        anim = tuple(np.array(a, dtype=np.int64) for a in (anim_node, anim_t, anim_r, anim_s))
+        return anim, moved, key_lo, key_hi
 
-        cam = ps.anims.get("camera", {})
-        self._cam_t = add_pos(cam["transl"], "transl keys of 'camera'") if "transl" in cam else -1
-        self._cam_r = add_rot(cam["rot"], "rot keys of 'camera'") if "rot" in cam else -1
-
-        def cat(lst, shape):
-            return np.ascontiguousarray(np.concatenate(lst)) if lst else np.zeros(shape)
-
-        self._splines = (
-            cat(p_tmin, (1,)), cat(p_tmax, (1,)), cat(p_coef, (1, 4, 3)),
-            np.array(p_start or [0], np.int64), np.array(p_count or [1], np.int64),
-            cat(r_tmin, (1,)), cat(r_tmax, (1,)), cat(r_pabq, (1, 4, 4)),
-            np.array(r_start or [0], np.int64), np.array(r_count or [1], np.int64),
-        )
-        self._anim = tuple(np.array(a, dtype=np.int64) for a in (anim_node, anim_t, anim_r, anim_s))
-
-        # which nodes move
-        moving = np.zeros(n_nodes, dtype=bool)
-        for i in range(n_nodes):  # parents are created before their children
-            moving[i] = i in moved or (parent[i] >= 0 and moving[parent[i]])
-
-        # geometry: static blocks first in file order, then tpa triangles grouped by key times
+    def _lay_out_geometry(self, ps, moving, groups):
+        """The vertices and faces: static blocks first in file order, then the tpa triangles by
+        groups of key times.  Sets ``self._local`` (float32, relative to ``self._centre``),
+        ``self._faces``, ``self._vinst`` (each vertex's node) and ``self._tpa`` (per group: key
+        times, keyed vertices, first and end vertex).  Returns the (V,) vertices and (F,) triangles
+        that can move: under a moving node, or tpa triangles whose keys differ."""
         verts, faces, tri_moving, vnode = [], [], [], []
         v0 = 0
         for node, v, f in ps.blocks:
@@ -730,9 +791,6 @@ class BartAnimation(Animation):
         # float32 storage relative to a float64 centre when the scene lies far from the origin
         centre = storage_centre(np.concatenate([b[1] for b in ps.blocks] + [tv[0] for _, _, tv in ps.tpa])
                                 if ps.blocks or ps.tpa else np.zeros((0, 3)))
-        groups = {}
-        for node, times, tv in ps.tpa:
-            groups.setdefault(times.tobytes(), (times, []))[1].append((node, tv))
         self._tpa = []
         for times, members in groups.values():
             frames = np.concatenate([tv for _, tv in members], axis=1)  # (K, 3m, 3)
@@ -745,21 +803,21 @@ class BartAnimation(Animation):
             tri_moving.append(moves)
             vnode.append(nodes)
             v0 += n
-            key_lo, key_hi = min(key_lo, times[0]), max(key_hi, times[-1])
         local64 = np.concatenate(verts).astype(np.float64)
         if np.abs(local64).max() > 1e30:
             raise SceneFileError(self.path, "vertex coordinates beyond 1e30, too large for float32")
         self._faces = np.ascontiguousarray(np.concatenate(faces), dtype=np.int32)
-        local = np.ascontiguousarray(local64 - centre, dtype=TRI_DTYPE)
-        self._local = local
+        self._local = np.ascontiguousarray(local64 - centre, dtype=TRI_DTYPE)
         self._centre = centre
-        vnode = np.concatenate(vnode)
+        self._vinst = np.concatenate(vnode)
         tri_moving = np.concatenate(tri_moving)
-        vert_moving = np.zeros(len(local), dtype=bool)
+        vert_moving = np.zeros(len(self._local), dtype=bool)
         vert_moving[self._faces[tri_moving].ravel()] = True
+        return vert_moving, tri_moving
 
-        # one rigid "instance" per node for the shared deform kernel
-        self._vinst = vnode
+    def _set_node_arrays(self, parent, node_matrix):
+        """The node hierarchy, and one rigid "instance" per node for the shared deform kernel."""
+        n_nodes = len(parent)
         self._inst = (
             np.zeros(n_nodes + 1, dtype=np.int64),  # unused: no morph targets
             np.arange(n_nodes, dtype=np.int32),
@@ -776,16 +834,11 @@ class BartAnimation(Animation):
         self._node_matrix = node_matrix
         self._trs = (np.zeros((n_nodes, 3)), np.zeros((n_nodes, 4)), np.ones((n_nodes, 3)))
         self._world = np.zeros((n_nodes, 4, 4))
-        self.n_nodes = n_nodes
-        self.n_animated_transforms = len(anim_node)
-        self.n_tpa = sum(len(m[1]) for m in groups.values())
 
-        self.n_triangles = int(len(self._faces))
-        mask = ~tri_moving
-        self.static = bool(mask.all())
-        self.static_mask = as_static_mask(mask, self.n_triangles)
-        if ps.anim_params is not None:
-            start, end, frames = ps.anim_params
+    def _set_time_range(self, anim_params, key_lo, key_hi):
+        """``time_range``, ``n_frames`` and ``duration``: from the ``a`` line, else the span of the keys."""
+        if anim_params is not None:
+            start, end, frames = anim_params
             self.time_range = (start, end)
             self.n_frames = frames
         elif key_hi > key_lo:
@@ -797,9 +850,13 @@ class BartAnimation(Animation):
         self.duration = None
         if self.time_range is not None:
             self.duration = self.time_range[1] - self.time_range[0]
-        vid = np.arange(len(local), dtype=np.int64)
+
+    def _pose_first_frame(self, vert_moving):
+        """Pose every vertex at time 0; later frames recompute the vertices ``vert_moving`` marks.
+        Fails when the pose is not finite or exceeds 1e30."""
+        vid = np.arange(len(self._local), dtype=np.int64)
         self._dynamic_vids = vid[vert_moving]
-        self._verts = np.zeros_like(local)
+        self._verts = np.zeros_like(self._local)
         self._posed_origin = np.zeros(3)  # the frame self._verts is in
         self._pose(self.bart_time(0.0), vid)
         if not (np.isfinite(self._verts).all() and np.abs(self._verts).max() <= 1e30):
