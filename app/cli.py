@@ -1,6 +1,7 @@
 """Arguments shared by the subcommands, and their conversion into engine objects."""
 
 import argparse
+from dataclasses import fields
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from gridrt.camera import Camera, check_fov
@@ -29,46 +30,62 @@ def size(text):
     return w, h
 
 
+def defaults(cls):
+    """The field defaults of a settings dataclass (GridParams, RenderParams, SceneSpec), read
+    without constructing one (construction validates, which would load the strategy registry)."""
+    return {f.name: f.default for f in fields(cls)}
+
+
+def scene_defaults():
+    from gridrt.scene.spec import SceneSpec
+
+    return defaults(SceneSpec)
+
+
 def add_scene_args(p):
     g = p.add_argument_group("scene")
-    g.add_argument("--scene", default="marbles",
+    d = scene_defaults()
+    g.add_argument("--scene", default=d["source"],
                    help="built-in scene (marbles, icosphere) or a mesh file (.obj .ply .stl .off .glb .gltf)")
-    g.add_argument("--count", type=int, default=None,
+    g.add_argument("--count", type=int, default=d["count"],
                    help="triangles for built-in scenes (marbles: default 8800; scales past 1M)")
-    g.add_argument("--animate", choices=("twist", "wave"), default=None, help="deform a mesh file over time")
-    g.add_argument("--amplitude", type=float, default=None, help="deformation amplitude in scene units")
-    g.add_argument("--speed", type=float, default=1.0, help="animation speed factor")
-    g.add_argument("--seed", type=int, default=0, help="random seed of procedural scenes")
-    g.add_argument("--clip", default=None, help="animation clip to play: glTF animation or MD2 clip, by name or index")
-    g.add_argument("--subdivide", type=int, default=None,
+    g.add_argument("--animate", choices=("twist", "wave"), default=d["animate"], help="deform a mesh file over time")
+    g.add_argument("--amplitude", type=float, default=d["amplitude"], help="deformation amplitude in scene units")
+    g.add_argument("--speed", type=float, default=d["speed"], help="animation speed factor")
+    g.add_argument("--seed", type=int, default=d["seed"], help="random seed of procedural scenes")
+    g.add_argument("--clip", default=d["clip"],
+                   help="animation clip to play: glTF animation or MD2 clip, by name or index")
+    g.add_argument("--subdivide", type=int, default=d["subdivide"],
                    help="split a static mesh's triangles 1->4 until at least this many (e.g. Lucy 100k -> 1.6M)")
-    g.add_argument("--fps", type=float, default=None, help="keyframe rate of MD2 models and frame folders")
+    g.add_argument("--fps", type=float, default=d["fps"], help="keyframe rate of MD2 models and frame folders")
 
 
 def add_grid_args(p):
+    d = defaults(GridParams)
     g = p.add_argument_group("grid")
-    g.add_argument("--strategy", default="serial", help="grid build strategy (see `gridrt strategies`)")
-    g.add_argument("--threads", type=int, default=None, help=f"threads for build and render (1..{MAX_THREADS}; "
+    g.add_argument("--strategy", default=d["strategy"], help="grid build strategy (see `gridrt strategies`)")
+    g.add_argument("--threads", type=int, default=d["threads"], help=f"threads for build and render (1..{MAX_THREADS}; "
                    "default: all cores)")
-    g.add_argument("--lambda", dest="density", type=float, default=4.0,
-                   help="grid density: cells ~ lambda x triangles (default 4)")
-    g.add_argument("--macro", type=int, default=4, help="macro-cell edge in cells (default 4)")
-    g.add_argument("--insert", choices=INSERT_MODES, default="bbox",
+    g.add_argument("--lambda", dest="density", type=float, default=d["density"],
+                   help=f"grid density: cells ~ lambda x triangles (default {d['density']:g})")
+    g.add_argument("--macro", type=int, default=d["macro"], help=f"macro-cell edge in cells (default {d['macro']})")
+    g.add_argument("--insert", choices=INSERT_MODES, default=d["insert"],
                    help="triangle insertion test: bounding box (fast) or exact SAT (fewer references)")
-    g.add_argument("--max-cells", type=int, default=None, help="ceiling on grid cells")
+    g.add_argument("--max-cells", type=int, default=d["max_cells"], help=f"ceiling on grid cells (default {d['max_cells']})")
     g.add_argument("--no-split", dest="split_static", action="store_false",
                    help="rebuild the whole scene every frame (default: grid static parts once, moving parts per frame)")
 
 
 def add_render_args(p, default_size=(1024, 768)):
+    d = defaults(RenderParams)  # shadows off and the watertight test: the two switches below change them
     g = p.add_argument_group("render")
     g.add_argument("--size", type=size, default=default_size, help="image size WIDTHxHEIGHT")
-    g.add_argument("--shading", choices=SHADING_MODES, default="lambert")
+    g.add_argument("--shading", choices=SHADING_MODES, default=d["shading"])
     g.add_argument("--shadows", action="store_true", help="hard shadows from one point light")
-    g.add_argument("--light", type=vec3, default=None, help="point light X,Y,Z (default: above the camera)")
+    g.add_argument("--light", type=vec3, default=d["light"], help="point light X,Y,Z (default: above the camera)")
     g.add_argument("--fast-intersect", action="store_true",
                    help="Moller-Trumbore instead of the watertight test (faster, may leak at edges)")
-    g.add_argument("--traversal", choices=TRAVERSALS, default="cgt",
+    g.add_argument("--traversal", choices=TRAVERSALS, default=d["traversal"],
                    help="ray traversal: single-ray 3D DDA, or coherent grid traversal of 8x8 ray packets "
                         "(cgt; same image, faster)")
     g.add_argument("--eye", type=vec3, default=None, help="camera position X,Y,Z")
@@ -79,28 +96,27 @@ def add_render_args(p, default_size=(1024, 768)):
                    help="look through the scene's own animated camera (BART, glTF) where it has one")
 
 
-def scene_from_args(a):
-    from gridrt.scene import make_scene
+def scene_spec(a):
+    """The SceneSpec of the parsed scene arguments."""
+    from gridrt.scene.spec import SceneSpec
 
-    clip = a.clip
-    if clip is not None and clip.isdigit():
-        clip = int(clip)
-    return make_scene(a.scene, count=a.count, animate=a.animate, amplitude=a.amplitude, speed=a.speed, seed=a.seed,
-                      clip=clip, subdivide=a.subdivide, fps=a.fps)
+    return SceneSpec(source=a.scene, count=a.count, animate=a.animate, amplitude=a.amplitude, speed=a.speed,
+                     seed=a.seed, clip=a.clip, subdivide=a.subdivide, fps=a.fps)
+
+
+def scene_from_args(a):
+    return scene_spec(a).make()
 
 
 def grid_params(a):
-    kw = dict(strategy=a.strategy, density=a.density, macro=a.macro, insert=a.insert, threads=a.threads)
-    if getattr(a, "max_cells", None) is not None:
-        kw["max_cells"] = a.max_cells
-    return GridParams(**kw)
+    return GridParams(strategy=a.strategy, density=a.density, macro=a.macro, insert=a.insert, threads=a.threads,
+                      max_cells=a.max_cells)
 
 
 def render_params(a):
     w, h = a.size
     return RenderParams(width=w, height=h, shading=a.shading, shadows=a.shadows, light=a.light,
-                        watertight=not a.fast_intersect, threads=a.threads,
-                        traversal=getattr(a, "traversal", "dda"))
+                        watertight=not a.fast_intersect, threads=a.threads, traversal=a.traversal)
 
 
 def camera_from_args(a):

@@ -198,7 +198,7 @@ def test_bench_trade_quick_matches_an_independent_recount(tmp_path):
     xs, ys = sample_pixels(64, 64, 256, seed=0)
     _, rd = ref_camera_rays(cam.eye, cam.target, cam.up, cam.fov, 64, 64)
     ref = ref_cast(tris, np.broadcast_to(np.asarray(cam.eye), (256, 3)), rd[ys * 64 + xs])
-    img = render(build_grid(tris, GridParams()), tris, cam, RenderParams(32, 32, threads=1))
+    img = render(build_grid(tris, GridParams()), tris, cam, RenderParams(32, 32, threads=1, traversal="dda"))
     tri = img.tri[ys // 2, xs // 2]
     expect = int((tri != ref.tri).sum())
     assert expect > 0

@@ -314,12 +314,12 @@ def test_cgt_threads_identical():
 
 
 def test_traversal_parameter():
-    """RenderParams validates the traversal (API default dda); the CLI's --traversal reaches it
-    and defaults to cgt (same images, faster)."""
+    """RenderParams validates the traversal (default cgt: same images, faster); the CLI's
+    --traversal reaches it and defaults to the same."""
     from gridrt.app import cli
 
-    assert RenderParams().traversal == "dda"
-    assert RenderParams(traversal="cgt").traversal == "cgt"
+    assert RenderParams().traversal == "cgt"
+    assert RenderParams(traversal="dda").traversal == "dda"
     with pytest.raises(InputError, match="traversal"):
         RenderParams(traversal="bvh")
     p = argparse.ArgumentParser()

@@ -402,7 +402,7 @@ def test_flat_scene_renders_correctly(rng, axis):
     view[axis] += 1.0  # look at the plane obliquely
     cam = Camera.frame(lo, hi, direction=tuple(view))
     w, h = 48, 40
-    res = render(g, tris, cam, RenderParams(width=w, height=h, shading="normal"))
+    res = render(g, tris, cam, RenderParams(width=w, height=h, shading="normal", traversal="dda"))
     ref = R.ref_cast(tris, *R.ref_camera_rays(cam.eye, cam.target, cam.up, cam.fov, w, h))
     diff = R.compare_hits(res.t.reshape(-1).astype(np.float64), res.tri.reshape(-1), ref, t_rtol=1e-6, graze_tol=1e-9)
     assert len(diff.bad) == 0, f"{len(diff.bad)} pixels differ from the reference"
@@ -434,7 +434,7 @@ def test_flat_scene_viewed_head_on(rng):
     g = build_grid(tris)
     c = 0.5 * (g.spec.lo + g.spec.hi) + g.origin  # the grid's frame -> world
     cam = Camera(eye=(c[0], -1.2, c[2]), target=(c[0], -2.0, c[2]), up=(0, 0, 1), fov=60.0)
-    res = render(g, tris, cam, RenderParams(width=40, height=40))
+    res = render(g, tris, cam, RenderParams(width=40, height=40, traversal="dda"))
     o, d = R.ref_camera_rays(cam.eye, cam.target, cam.up, cam.fov, 40, 40)
     ref = R.ref_cast(tris, o, d)
     diff = R.compare_hits(res.t.reshape(-1).astype(np.float64), res.tri.reshape(-1), ref, t_rtol=1e-6, graze_tol=1e-9)

@@ -259,7 +259,7 @@ def test_build_grid_render_cast_rays_far_from_origin(teapot):
         centre = 0.5 * (v.min(axis=0) + v.max(axis=0)) + off
         assert (grid.origin == 0).all() if X == 0 else np.allclose(grid.origin, centre, rtol=1e-12)
         img = gridrt.render(grid, tris, gridrt.Camera(tuple(eye + off), tuple(target + off)),
-                            gridrt.RenderParams(w, h))
+                            gridrt.RenderParams(w, h, traversal="dda"))
         flips, rel = agreement(img.t.reshape(-1), img.tri.reshape(-1), ref)
         assert flips <= 0.0005 * w * h and rel < 1e-6, X
         hits = gridrt.cast_rays(grid, tris, o + off, d)
@@ -282,7 +282,7 @@ def test_viewer_worker_far_from_origin(teapot, tmp_path):
     write_obj(tmp_path / "far.obj", v + off, f)
     eye, target = view_of(v.min(axis=0), v.max(axis=0))
     w, h = 64, 48
-    gp, rp = GridParams(threads=1), RenderParams(w, h, threads=1, shading="normal")
+    gp, rp = GridParams(threads=1), RenderParams(w, h, threads=1, shading="normal", traversal="dda")
     pipes = []
 
     def factory(scene, job):
@@ -340,7 +340,7 @@ def test_pipeline_frame_follows_a_moving_scene():
     frames = np.stack([v + p * AXIS for p in path] + [v + path[-1] * AXIS])  # frame 2 held for a second
     scene = KeyframeMesh(frames, ico.faces, fps=1.0)
     assert not scene.static
-    pipe = FramePipeline(scene, GridParams(threads=1), RenderParams(48, 36, threads=1))
+    pipe = FramePipeline(scene, GridParams(threads=1), RenderParams(48, 36, threads=1, traversal="dda"))
     origins = []
     for k, p in enumerate(path):
         eye = p * AXIS + np.array([0.3, 0.4, 3.0])

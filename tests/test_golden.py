@@ -93,7 +93,7 @@ def test_render_matches_golden(name, update_golden, tmp_path):
     fn, shading, light = CASES[name]
     tris, cam = fn()
     grid = build_grid(tris, GridParams(density=4.0, macro=2))
-    params = RenderParams(width=SIZE, height=SIZE, shading=shading, shadows=light is not None, light=light)
+    params = RenderParams(width=SIZE, height=SIZE, shading=shading, shadows=light is not None, light=light, traversal="dda")
     img = render(grid, tris, cam, params).image
     assert img.shape == (SIZE, SIZE, 4) and img.dtype == np.uint8
     n = differing(img, golden)

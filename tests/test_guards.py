@@ -746,7 +746,7 @@ def test_stale_grid_is_refused():
         b.build(B, GridParams(density=2.0))
         for what, call in (("cast", lambda: cast_rays(ga, A, o, d)),
                            ("render", lambda: render(ga, A, Camera(eye=(0.5, 0.5, 3), target=(0.5, 0.5, 0.5)),
-                                                     RenderParams(width=32, height=32)).tri)):
+                                                     RenderParams(width=32, height=32, traversal="dda")).tri)):
             try:
                 res = call()
             except InputError as e:

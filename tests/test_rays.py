@@ -338,7 +338,7 @@ def test_render_buffers_match_reference(scene):
     """render()'s t and tri buffers equal the reference on the camera's own rays."""
     c = get_case(scene)
     w, h = c.cam_size
-    res = render(c.grid, c.tris, c.camera, RenderParams(width=w, height=h, shading="lambert"))
+    res = render(c.grid, c.tris, c.camera, RenderParams(width=w, height=h, shading="lambert", traversal="dda"))
     ref = R.ref_cast(c.tris, *R.ref_camera_rays(c.camera.eye, c.camera.target, c.camera.up, c.camera.fov, w, h))
     assert res.image.shape == (h, w, 4) and res.image.dtype == np.uint8
     assert res.t.shape == (h, w) and res.tri.shape == (h, w)
@@ -398,7 +398,7 @@ def test_render_sizes_and_tiles(size, tile):
     c = get_case("icosphere")
     w, h = size
     cam = Camera(eye=(0.3, 0.3, 3.5), target=(0.3, -0.2, 0.1), fov=40.0)
-    res = render(c.grid, c.tris, cam, RenderParams(width=w, height=h, tile=tile, shading="normal"))
+    res = render(c.grid, c.tris, cam, RenderParams(width=w, height=h, tile=tile, shading="normal", traversal="dda"))
     ref = R.ref_render(c.tris, cam, w, h, "normal")
     diff = R.compare_hits(res.t.reshape(-1).astype(np.float64), res.tri.reshape(-1), ref.hits, t_rtol=1e-6, graze_tol=GRAZE)
     assert len(diff.bad) == 0
@@ -409,7 +409,7 @@ def test_render_sizes_and_tiles(size, tile):
 def test_render_threads_identical():
     c = get_case("random")
     cam = c.camera
-    outs = [render(c.grid, c.tris, cam, RenderParams(width=48, height=40, threads=n, shadows=True)) for n in (1, 2, 5)]
+    outs = [render(c.grid, c.tris, cam, RenderParams(width=48, height=40, threads=n, shadows=True, traversal="dda")) for n in (1, 2, 5)]
     for o in outs[1:]:
         assert np.array_equal(o.image, outs[0].image)
         assert np.array_equal(o.tri, outs[0].tri) and np.array_equal(o.t, outs[0].t)

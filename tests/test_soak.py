@@ -191,15 +191,15 @@ def frame_settings(i):
 
 def soak(n_frames, warmup, report_at, width=64, height=48, count=8800):
     ref = FramePipeline(make_scene("marbles", count=count), GridParams(strategy="serial", threads=1),
-                        RenderParams(width=width, height=height, threads=1))
-    var = FramePipeline(make_scene("marbles", count=count), GridParams(), RenderParams(width=width, height=height))
+                        RenderParams(width=width, height=height, threads=1, traversal="dda"))
+    var = FramePipeline(make_scene("marbles", count=count), GridParams(), RenderParams(width=width, height=height, traversal="dda"))
     identical = tie_frames = 0
     samples = []
     at = {}
     t0 = time.perf_counter()
     for i in range(n_frames):
         s, bt, rt, trav, shadows = frame_settings(i)
-        ref.render_params = RenderParams(width=width, height=height, threads=1, shadows=shadows)
+        ref.render_params = RenderParams(width=width, height=height, threads=1, shadows=shadows, traversal="dda")
         var.grid_params = GridParams(strategy=s, threads=bt)
         var.render_params = RenderParams(width=width, height=height, threads=rt, traversal=trav, shadows=shadows)
         a = ref.step(i / 30.0)

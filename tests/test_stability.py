@@ -248,7 +248,7 @@ def test_offset_scene(X):
     g = build_grid(T32, GridParams(density=4.0))
     # build_grid centres the far scene (grid.origin); its spec is in that frame, render takes world inputs
     cam = Camera.frame(g.spec.scene_lo + g.origin, g.spec.scene_hi + g.origin, fov=50.0)
-    res = render(g, T32, cam, RenderParams(width=40, height=30, shading="normal"))
+    res = render(g, T32, cam, RenderParams(width=40, height=30, shading="normal", traversal="dda"))
     ref = R.ref_cast(T32, *R.ref_camera_rays(cam.eye, cam.target, cam.up, cam.fov, 40, 30))
     compare(f"offset {X:g} camera", res.t.reshape(-1), res.tri.reshape(-1), ref, t_rtol=1e-6)
     assert ref.hit.mean() > 0.05

@@ -310,7 +310,7 @@ def test_animated_scene_switching_every_frame():
 
     scene = make_scene("marbles", count=1400, seed=7)
     builder = GridBuilder(GridParams())
-    rp = RenderParams(width=40, height=30, threads=2)
+    rp = RenderParams(width=40, height=30, threads=2, traversal="dda")
     plan = []
     for i in range(2 * len(STRATEGIES)):
         plan.append((STRATEGIES[(i * 4) % len(STRATEGIES)], THREADS[(i * 5) % len(THREADS)], MODES[(i // 3) % 2]))

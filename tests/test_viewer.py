@@ -76,32 +76,46 @@ def test_viewer_state_actions():
     st.advance(1.0)
     assert st.time == pytest.approx(1.1)
 
-    st.strategy = "c"
-    st.cycle_strategy(["a", "b", "c"], +1)
-    assert st.strategy == "a"
-    st.cycle_strategy(["a", "b", "c"], -1)
-    assert st.strategy == "c"
-    st.strategy = "gone"
-    st.cycle_strategy(["a", "b", "c"], +1)
-    assert st.strategy == "a"
+    from gridrt.grid.registry import names
 
-    st.threads, st.max_threads = 1, 3
+    a, b, c = names()[:3]
+    st.set_grid(strategy=c)
+    st.cycle_strategy([a, b, c], +1)
+    assert st.grid.strategy == a
+    st.cycle_strategy([a, b, c], -1)
+    assert st.grid.strategy == c
+    st.set_grid(strategy=b)
+    st.cycle_strategy([a, c], +1)   # not in the list: the first
+    assert st.grid.strategy == a
+    # a refused value keeps the params and says why
+    before = st.grid
+    assert not st.set_grid(strategy="gone") and st.grid is before and "gone" in st.scene_error
+
+    st.set_threads(1)
+    st.max_threads = 3
     st.change_threads(-1)
-    assert st.threads == 1
+    assert st.threads == st.grid.threads == st.render.threads == 1
     for _ in range(5):
         st.change_threads(+1)
-    assert st.threads == 3
+    assert st.threads == st.grid.threads == st.render.threads == 3
 
     st.scale = 0.25
     assert st.render_size_for(1000, 500) == (250, 125)
     st.scale = SCALE_MIN
     assert st.render_size_for(3, 3) == (1, 1)
 
-    st = ViewerState(strategy="serial", threads=1, density=2.5, macro=3, insert="exact", shading="normal",
-                     shadows=True, watertight=False)
+    # the defaults are the dataclasses' own (one thread count for both); widgets replace fields
+    st = ViewerState(max_threads=4)
+    assert st.grid_params() == GridParams(threads=st.threads)
+    assert st.render_params(64, 48) == RenderParams(width=64, height=48, threads=st.threads)
+    assert st.render.traversal == "cgt"
+    assert st.set_grid(density=2.5) and st.set_grid(macro=3, insert="exact")
+    assert st.set_render(shading="normal") and st.set_render(shadows=True, watertight=False)
+    st.set_threads(1)
     assert st.grid_params() == GridParams(strategy="serial", threads=1, density=2.5, macro=3, insert="exact")
     assert st.render_params(64, 48) == RenderParams(width=64, height=48, shading="normal", shadows=True,
                                                     watertight=False, threads=1)
+    assert not st.set_grid(density=-1.0) and st.grid.density == 2.5 and "density" in st.scene_error
 
 
 # ---------------------------------------------------------------------------------------------
@@ -148,6 +162,7 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
     from gridrt.app.viewer.blit import Blitter
     from gridrt.app.viewer.state import ViewerState
     from gridrt.app.viewer.ui import ImguiRuntime, draw_overlay, draw_panel
+    from gridrt.config import GridParams
 
     W, H = 640, 800   # tall enough for the whole panel (the viewer scrolls it in smaller windows)
     fbo = ctx.simple_framebuffer((W, H), components=4)
@@ -155,7 +170,7 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
     blit = Blitter(ctx)
     img = _pattern(W, H)
     blit.upload(img)
-    st = ViewerState(threads=2, max_threads=8, triangles=1234, scene_name="marbles")
+    st = ViewerState(grid=GridParams(threads=2), max_threads=8, triangles=1234, scene_name="marbles")
     st.stats = dict(frame=1, t=0.0, triangles=1234, cells=5000, references=8000, threads=2, strategy="serial",
                     insert="bbox", clear_ms=0.1, insert_ms=1.5, macro_ms=0.2, build_ms=1.8, render_ms=4.0,
                     frame_ms=6.5, anim_ms=0.1, rebuilt=1, refs_per_tri=6.5, dims="(20, 10, 25)", grid_bytes=65536,
@@ -222,9 +237,9 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
         # clicks on real widgets change the state (and the pixels)
         sy, sx = _rect_slice(st.widget_rects["shadows"], 0)
         before = out[sy, sx].copy()
-        assert st.shadows is False
+        assert st.render.shadows is False
         out = click("shadows", 0.05)
-        assert st.shadows is True
+        assert st.render.shadows is True
         assert (np.abs(out[sy, sx].astype(int) - before).sum(axis=-1) > 60).sum() > 5   # the check mark
         assert st.playing is True
         click("play")
@@ -467,7 +482,8 @@ def test_viewer_window_under_xvfb(tmp_path):
                              GridParams(strategy=st["strategy"], threads=st["threads"], density=s6["density"],
                                         macro=s6["macro"], insert=s6["insert"]),
                              RenderParams(width=W, height=H, shading=s6["shading"], shadows=True,
-                                          watertight=s6["watertight"], threads=st["threads"]))
+                                          watertight=s6["watertight"], threads=st["threads"],
+                                          traversal=s6["traversal"]))
         ref = pipe.step(st["t"], camera=Camera(cam["eye"], cam["target"], cam["up"], cam["fov"]))
         assert np.array_equal(shot, ref.image[..., :3])
         no_shadow = FramePipeline(make_scene("marbles", count=2000), pipe.grid_params,

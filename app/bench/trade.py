@@ -1,10 +1,11 @@
 """``gridrt bench trade``: what each speed-for-accuracy knob buys and costs.
 
-For one scene and camera, every knob is varied alone from the defaults: insertion test (bbox,
-exact), lambda (cells per triangle), macro-cell size, intersection test (watertight, fast
-Moller-Trumbore), traversal (DDA, CGT), render resolution, and precision (the engine stores
-triangles as float32 and computes in float64).  For each setting: build ms, references, render
-ms, and the error it costs against independent references (:mod:`app.benchref`):
+For one scene and camera, every knob is varied alone from a baseline (the engine's defaults, with
+the DDA traversal: see :func:`baseline`): insertion test (bbox, exact), lambda (cells per
+triangle), macro-cell size, intersection test (watertight, fast Moller-Trumbore), traversal (DDA,
+CGT), render resolution, and precision (the engine stores triangles as float32 and computes in
+float64). For each setting: build ms, references, render ms, and the error it costs against
+independent references (:mod:`app.benchref`):
 
 * pixels whose hit triangle differs from a brute-force float64 caster, on a seeded random sample
   of pixels (brute force over a whole 1024x1024 image would take minutes); a lower resolution is
@@ -88,7 +89,7 @@ def source_f64(sc, tris32, origin=None):
     from gridrt.scene import StaticMesh
     from gridrt.scene.mesh import quiet_trimesh
 
-    if not isinstance(sc.scene, StaticMesh) or sc.kwargs.get("subdivide") or sc.kwargs.get("animate"):
+    if not isinstance(sc.scene, StaticMesh) or sc.spec.subdivide or sc.spec.animate:
         return None, "precision needs a static, unsubdivided mesh file or icosphere"
     F = len(tris32)
     if sc.path is None:
@@ -127,9 +128,26 @@ def _default_specs(a):
     return scene, probe
 
 
+def baseline(size):
+    """The configuration every knob is varied from, (insert, lambda, macro, watertight, resolution,
+    traversal): the engine's defaults (GridParams, RenderParams) at ``size`` x ``size``, except the
+    traversal, DDA: the holes are counted through ``cast_rays``, which has the single-ray traversal
+    only, so each row's holes are those of the traversal it renders with (the traversal knob's CGT
+    row, the engine's default, shows what the packets change)."""
+    from ..cli import defaults
+
+    g, r = defaults(GridParams), defaults(RenderParams)
+    return (g["insert"], g["density"], g["macro"], r["watertight"], size, "dda")
+
+
+def _describe(cfg):
+    ins, lam, mac, wt, res, trav = cfg
+    return f"{ins}, lambda {lam:g}, macro {mac}, {'watertight' if wt else 'fast'}, {trav.upper()}, {res}x{res}"
+
+
 def _configs(a, knobs, size):
     """[(knob, label, cfg)], cfg = (insert, lambda, macro, watertight, resolution, traversal)."""
-    d = ("bbox", 4.0, 4, True, size, "dda")
+    d = baseline(size)
     rows = []
     lambdas = [0.5, 4.0] if a.quick and a.lambdas == DEFAULT_LAMBDAS else float_list(a.lambdas, "--lambdas")
     macros = [1, 4] if a.quick and a.macros == DEFAULT_MACROS else int_list(a.macros, "--macros")
@@ -138,9 +156,9 @@ def _configs(a, knobs, size):
         if k == "insert":
             rows += [(k, ins, (ins,) + d[1:]) for ins in ("bbox", "exact")]
         elif k == "lambda":
-            rows += [(k, f"{lam:g}", (d[0], lam) + d[2:]) for lam in sorted(set(lambdas) | {4.0})]
+            rows += [(k, f"{lam:g}", (d[0], lam) + d[2:]) for lam in sorted(set(lambdas) | {d[1]})]
         elif k == "macro":
-            for m in sorted(set(macros) | {4}):
+            for m in sorted(set(macros) | {d[2]}):
                 if m > 64:
                     raise InputError(f"--macros: macro-cell size must be at most 64, got {m}")
                 rows.append((k, str(m), d[:2] + (m,) + d[3:]))
@@ -320,7 +338,7 @@ def run_trade(a):
     write_json(info, out / "machine.json")
     _plot_trade(rows, out / "trade.png")
     _plot_knobs(rows, out / "trade_knobs.png")
-    ctx = dict(scene=sc, tris=tris, size=size, n_samples=n_samples, seed=a.seed, ref_ms=ref_ms, threads=threads,
+    ctx = dict(baseline=_describe(dcfg), scene=sc, tris=tris, size=size, n_samples=n_samples, seed=a.seed, ref_ms=ref_ms, threads=threads,
                strategy=a.strategy, runs=runs, warmup=warmup, probe=pm, n_probes=len(po), diag=diag,
                ref_hits=int((ref32[1] >= 0).sum()), src_why=src_why, probe_why=probe_why, has64=ref64 is not None,
                knobs=knobs, hit_fraction=meas[dcfg]["hit_fraction"] if dcfg in meas else float("nan"),
@@ -392,16 +410,16 @@ def _summary(rows, c):
         names.append(f"{r['knob']}={r['value']} ({r['total_ms']:.0f} ms, {100 * r['pixel_error']:.2f}% px, "
                      f"{_g(r['holes_per_million'], 3)} holes/M)")
     body += ["Pareto front of (build + render ms, px differ, holes per million), costs within 3% counted as equal "
-             "(timing noise); each row varies one knob from the defaults:", ""] + [f"- {n}" for n in names]
+             "(timing noise); each row varies one knob from the baseline:", ""] + [f"- {n}" for n in names]
     d = next((r for r in rows if r["default"] and r["knob"] != "precision"), None)
     if d is not None:
         if d["pareto"] == 1:
-            body += ["", f"The defaults (bbox, lambda 4, macro 4, watertight, DDA, {size}x{size}) are on the front."]
+            body += ["", f"The baseline ({c['baseline']}) is on the front."]
         else:
             dom = [r for r in front if r["total_ms"] <= d["total_ms"] and r["pixel_error"] <= d["pixel_error"]
                    and (r["holes_per_million"] or 0) <= (d["holes_per_million"] or 0)]
             best = min(dom, key=lambda r: r["total_ms"]) if dom else None
-            body += ["", "The defaults (bbox, lambda 4, macro 4, watertight, DDA) are **not** on the front"
+            body += ["", f"The baseline ({c['baseline']}) is **not** on the front"
                      + (f": {best['knob']}={best['value']} is {d['total_ms'] / best['total_ms']:.2f}x faster "
                         f"({best['total_ms']:.0f} against {d['total_ms']:.0f} ms) at no more error." if best else ".")]
     ins = {r["value"]: r for r in rows if r["knob"] == "insert"}
@@ -456,7 +474,7 @@ def _plot_trade(rows, path):
                     continue
                 done_default = True
                 a.scatter(r["total_ms"], y, color="k", s=110, marker="*", zorder=4)
-                a.annotate("defaults", (r["total_ms"], y), fontsize=7, xytext=(4, -10), textcoords="offset points")
+                a.annotate("baseline", (r["total_ms"], y), fontsize=7, xytext=(4, -10), textcoords="offset points")
                 continue
             a.scatter(r["total_ms"], y, color=KNOB_COLORS[r["knob"]], s=26,
                       edgecolors="k" if r["pareto"] == 1 else "none", linewidths=1.2, zorder=3)
@@ -478,10 +496,10 @@ def _plot_trade(rows, path):
         a.grid(True, alpha=0.3)
     knobs = list(dict.fromkeys(r["knob"] for r in pts))
     handles = [Line2D([], [], marker="o", linestyle="", color=KNOB_COLORS[k], label=k) for k in knobs]
-    handles += [Line2D([], [], marker="*", linestyle="", color="k", markersize=10, label="defaults"),
+    handles += [Line2D([], [], marker="*", linestyle="", color="k", markersize=10, label="baseline"),
                 Line2D([], [], marker="o", linestyle="", color="w", markeredgecolor="k", label="Pareto front")]
     ax[0, 0].legend(handles=handles, fontsize=7)
-    fig.suptitle("speed against accuracy: one knob at a time from the defaults")
+    fig.suptitle("speed against accuracy: one knob at a time from the baseline")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 

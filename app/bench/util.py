@@ -46,14 +46,14 @@ SCENE_HELP = ("comma-separated scene specs NAME[:N][:twist|wave]: built-ins marb
 
 
 @dataclass
-class SceneSpec:
-    """A resolved scene spec: label (the spec text), the Animation, the file it came from (None
-    for built-ins) and the make_scene arguments."""
+class BenchScene:
+    """A resolved scene spec: label (the spec text), the :class:`gridrt.scene.SceneSpec` it names,
+    the Animation that spec made, and the file it came from (None for built-ins)."""
 
     label: str
+    spec: object
     scene: object
     path: Path | None
-    kwargs: dict
 
 
 def data_path(name):
@@ -110,14 +110,19 @@ def parse_scene_spec(spec):
     return str(src), kw
 
 
-def resolve_scene(spec):
-    """SceneSpec for a spec string (see SCENE_HELP)."""
-    from gridrt.scene import make_scene
+def scene_spec(text):
+    """The :class:`gridrt.scene.SceneSpec` of a spec string (see SCENE_HELP)."""
+    from gridrt.scene import SceneSpec
 
-    src, kw = parse_scene_spec(spec)
-    scene = make_scene(src, **kw)
-    p = Path(src)
-    return SceneSpec(spec.strip(), scene, p if p.exists() else None, kw)
+    src, kw = parse_scene_spec(text)
+    return SceneSpec(source=src, **kw)
+
+
+def resolve_scene(text):
+    """BenchScene for a spec string (see SCENE_HELP): its SceneSpec, made."""
+    spec = scene_spec(text)
+    p = Path(spec.source)
+    return BenchScene(text.strip(), spec, spec.make(), p if p.exists() else None)
 
 
 def scene_list(text, defaults, fallback, quick=None):

@@ -17,7 +17,7 @@ from collections import deque
 
 from gridrt import camera_control as cc
 
-from .state import SceneSpec
+from gridrt.scene import SceneSpec
 
 #: keys listed in the panel's help line
 KEY_HELP = (

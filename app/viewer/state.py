@@ -1,6 +1,10 @@
-"""ViewerState: the viewer's only mutable UI state.  The panel (app/ui.py) and the input
-handler (app/input.py) change its fields; the frame loop (app/view.py) turns them into frozen
-GridParams / RenderParams for the pipeline and reports them in the state dump."""
+"""ViewerState: the viewer's only mutable UI state.  The panel (app/viewer/ui.py) and the input
+handler (app/viewer/input.py) change it; the frame loop (app/viewer/view.py) hands its GridParams /
+RenderParams to the pipeline and reports them in the state dump.
+
+The grid and render settings live in one GridParams and one RenderParams (frozen; a widget
+replaces a field with :meth:`ViewerState.set_grid` / :meth:`ViewerState.set_render`) and the
+scene in one :class:`gridrt.scene.SceneSpec`: the state keeps no loose copy of any of them."""
 
 import math
 from collections import deque
@@ -10,6 +14,9 @@ import numpy as np
 
 from gridrt.camera import Camera
 from gridrt.config import GridParams, RenderParams
+from gridrt.errors import InputError
+from gridrt.scene import SceneSpec  # noqa: F401  (the viewer's scene spec; input, ui and tests import it here too)
+from gridrt.threads import check_threads
 
 #: frames kept for the live build/render plots
 HISTORY = 300
@@ -19,24 +26,6 @@ SCALE_MIN, SCALE_MAX = 0.1, 2.0
 SPEED_MIN, SPEED_MAX = 0.0, 4.0
 #: time range of the scrub slider when the scene does not loop
 DEFAULT_SPAN = 10.0
-
-
-@dataclass
-class SceneSpec:
-    """What to load: a built-in scene name or a mesh path, with the make_scene options."""
-
-    source: str = "marbles"
-    count: int | None = None
-    animate: str | None = None
-    amplitude: float | None = None
-    speed: float = 1.0
-    seed: int = 0
-    clip: int | str | None = None
-    subdivide: int | None = None
-    fps: float | None = None
-
-    def label(self):
-        return self.source if self.count is None else f"{self.source} ({self.count} triangles)"
 
 
 @dataclass
@@ -79,21 +68,11 @@ class ViewerState:
     playing: bool = True
     time: float = 0.0
     speed: float = 1.0
-    # grid
-    strategy: str = "serial"
-    threads: int = 1
+    # grid and render settings (threads: the same count for both; width and height follow the window)
+    grid: GridParams = field(default_factory=GridParams)
+    render: RenderParams = field(default_factory=RenderParams)
     max_threads: int = 1
-    density: float = 4.0
-    macro: int = 4
-    insert: str = "bbox"
-    max_cells: int | None = None
-    # render
-    watertight: bool = True
-    shading: str = "lambert"
-    shadows: bool = False
     follow_camera: bool = False  # look through the scene's animated camera (BART, glTF)
-    traversal: str = "dda"  # "dda" single rays or "cgt" packets
-    light: tuple | None = None
     scale: float = 1.0
     # camera
     camera: Camera | None = None
@@ -124,13 +103,44 @@ class ViewerState:
     panel_rect: tuple = (0.0, 0.0, 0.0, 0.0)   # x, y, w, h in window pixels
     widget_rects: dict = field(default_factory=dict)  # label -> (x, y, w, h), for tests
 
-    # ---- derived engine parameters -------------------------------------------------------
+    def __post_init__(self):
+        # one thread count for build and render, a concrete one (None: all cores)
+        threads = check_threads(self.grid.threads)
+        self.grid = self.grid.replace(threads=threads)
+        self.render = self.render.replace(threads=threads)
+        self.max_threads = max(self.max_threads, threads)
+
+    # ---- settings: widgets replace fields of the frozen params -----------------------------
+    @property
+    def threads(self):
+        return self.grid.threads
+
+    def set_grid(self, **kw):
+        """Replace GridParams fields; a refused value leaves the params as they are and shows
+        the reason in the panel.  True when replaced."""
+        return self._replace("grid", kw)
+
+    def set_render(self, **kw):
+        """Replace RenderParams fields (as :meth:`set_grid`)."""
+        return self._replace("render", kw)
+
+    def _replace(self, name, kw):
+        try:
+            setattr(self, name, getattr(self, name).replace(**kw))
+        except InputError as e:
+            self.scene_error = str(e)
+            return False
+        return True
+
+    def set_threads(self, n):
+        """Build and render on ``n`` threads (clamped to 1..max_threads)."""
+        n = min(max(int(n), 1), self.max_threads)
+        self.grid = self.grid.replace(threads=n)
+        self.render = self.render.replace(threads=n)
+
+    # ---- engine parameters -----------------------------------------------------------------
     def grid_params(self):
-        kw = dict(strategy=self.strategy, density=self.density, macro=self.macro, insert=self.insert,
-                  threads=self.threads)
-        if self.max_cells is not None:
-            kw["max_cells"] = self.max_cells
-        return GridParams(**kw)
+        return self.grid
 
     def render_size_for(self, fb_w, fb_h):
         """Render resolution for a framebuffer of fb_w x fb_h pixels at the current scale."""
@@ -138,9 +148,8 @@ class ViewerState:
         return max(1, int(round(fb_w * s))), max(1, int(round(fb_h * s)))
 
     def render_params(self, width, height):
-        return RenderParams(width=width, height=height, shading=self.shading, shadows=self.shadows,
-                            light=self.light, watertight=self.watertight, threads=self.threads,
-                            traversal=self.traversal)
+        """The RenderParams of a width x height render."""
+        return self.render.replace(width=width, height=height)
 
     # ---- animation -----------------------------------------------------------------------
     def time_span(self):
@@ -159,11 +168,11 @@ class ViewerState:
     def cycle_strategy(self, names, step):
         if not names:
             return
-        i = names.index(self.strategy) if self.strategy in names else -step
-        self.strategy = names[(i + step) % len(names)]
+        i = names.index(self.grid.strategy) if self.grid.strategy in names else -step
+        self.set_grid(strategy=names[(i + step) % len(names)])
 
     def change_threads(self, step):
-        self.threads = min(max(self.threads + step, 1), self.max_threads)
+        self.set_threads(self.threads + step)
 
     def reset_view(self):
         if self.home is not None:
@@ -183,17 +192,17 @@ class ViewerState:
             "playing": self.playing,
             "time": self.time,
             "speed": self.speed,
-            "strategy": self.strategy,
-            "threads": self.threads,
+            "strategy": self.grid.strategy,
+            "threads": self.grid.threads,
             "max_threads": self.max_threads,
-            "density": self.density,
-            "macro": self.macro,
-            "insert": self.insert,
-            "watertight": self.watertight,
-            "shading": self.shading,
-            "shadows": self.shadows,
+            "density": self.grid.density,
+            "macro": self.grid.macro,
+            "insert": self.grid.insert,
+            "watertight": self.render.watertight,
+            "shading": self.render.shading,
+            "shadows": self.render.shadows,
             "follow_camera": self.follow_camera,
-            "traversal": self.traversal,
+            "traversal": self.render.traversal,
             "scale": self.scale,
             "show_panel": self.show_panel,
             "busy": self.busy,

@@ -13,10 +13,10 @@ import numpy as np
 from imgui_bundle import imgui, implot
 
 from gridrt.config import INSERT_MODES, SHADING_MODES, TRAVERSALS
-from gridrt.scene import BUILTIN_SCENES, DEFORM_KINDS, SUPPORTED_EXTENSIONS
+from gridrt.scene import BUILTIN_SCENES, DEFORM_KINDS, SUPPORTED_EXTENSIONS, SceneSpec
 
 from .input import KEY_HELP
-from .state import SCALE_MAX, SCALE_MIN, SPEED_MAX, SPEED_MIN, SceneSpec
+from .state import SCALE_MAX, SCALE_MIN, SPEED_MAX, SPEED_MIN
 
 PANEL_POS = (8.0, 8.0)
 PANEL_WIDTH = 320.0
@@ -152,45 +152,47 @@ def draw_panel(state, strategy_names):
     opened = imgui.collapsing_header("Grid", imgui.TreeNodeFlags_.default_open)
     _rect(state, "grid header")
     if opened:
-        v = _combo(state, "strategy", list(strategy_names), state.strategy)
+        gp = state.grid
+        v = _combo(state, "strategy", list(strategy_names), gp.strategy)
         if v is not None:
-            state.strategy = v
+            state.set_grid(strategy=v)
         w = imgui.calc_item_width()
         changed, n = imgui.slider_int("threads", int(state.threads), 1, int(state.max_threads))
         _rect(state, "threads", w)
         if changed:
-            state.threads = min(max(n, 1), state.max_threads)
+            state.set_threads(n)
         w = imgui.calc_item_width()
-        changed, d = imgui.slider_float("lambda", float(state.density), 0.125, 64.0, "%.3g",
+        changed, d = imgui.slider_float("lambda", float(gp.density), 0.125, 64.0, "%.3g",
                                         imgui.SliderFlags_.logarithmic)
         _rect(state, "lambda", w)
         if changed and d > 0:
-            state.density = d
+            state.set_grid(density=d)
         w = imgui.calc_item_width()
-        changed, m = imgui.slider_int("macro cell", int(state.macro), 1, 16)
+        changed, m = imgui.slider_int("macro cell", int(gp.macro), 1, 16)
         _rect(state, "macro cell", w)
         if changed:
-            state.macro = min(max(m, 1), 16)
-        v = _combo(state, "insertion", list(INSERT_MODES), state.insert)
+            state.set_grid(macro=min(max(m, 1), 16))
+        v = _combo(state, "insertion", list(INSERT_MODES), gp.insert)
         if v is not None:
-            state.insert = v
+            state.set_grid(insert=v)
 
     opened = imgui.collapsing_header("Render", imgui.TreeNodeFlags_.default_open)
     _rect(state, "render header")
     if opened:
-        v = _combo(state, "intersection", list(INTERSECTION_LABELS), INTERSECTION_LABELS[0 if state.watertight else 1])
+        rp = state.render
+        v = _combo(state, "intersection", list(INTERSECTION_LABELS), INTERSECTION_LABELS[0 if rp.watertight else 1])
         if v is not None:
-            state.watertight = v == INTERSECTION_LABELS[0]
-        v = _combo(state, "shading", list(SHADING_MODES), state.shading)
+            state.set_render(watertight=v == INTERSECTION_LABELS[0])
+        v = _combo(state, "shading", list(SHADING_MODES), rp.shading)
         if v is not None:
-            state.shading = v
-        v = _combo(state, "traversal", list(TRAVERSALS), state.traversal)
+            state.set_render(shading=v)
+        v = _combo(state, "traversal", list(TRAVERSALS), rp.traversal)
         if v is not None:
-            state.traversal = v
-        changed, b = imgui.checkbox("shadows", bool(state.shadows))
+            state.set_render(traversal=v)
+        changed, b = imgui.checkbox("shadows", bool(rp.shadows))
         _rect(state, "shadows")
         if changed:
-            state.shadows = b
+            state.set_render(shadows=b)
         imgui.same_line()
         changed, b = imgui.checkbox("scene camera", bool(state.follow_camera))
         _rect(state, "scene camera")

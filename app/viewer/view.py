@@ -92,35 +92,26 @@ def initial_state(a):
     from gridrt.threads import check_threads, max_threads
     from gridrt.warmup import cache_is_cold
 
-    from .state import SceneSpec, ViewerState
+    from .state import ViewerState
 
     gp = cli.grid_params(a)   # validates strategy, lambda, macro, insert, threads
     w, h = a.size
     rp = cli.render_params(a)
     from gridrt.scene import BUILTIN_SCENES
 
-    source = str(a.scene)
+    spec = cli.scene_spec(a)
+    source = spec.source
     if source.strip().lower() in BUILTIN_SCENES:
         source = source.strip().lower()
+    threads = check_threads(gp.threads)
     st = ViewerState(
-        scene=SceneSpec(source=source, count=a.count, animate=a.animate, amplitude=a.amplitude,
-                        speed=a.speed, seed=a.seed, clip=(int(a.clip) if a.clip and a.clip.isdigit() else a.clip),
-                        subdivide=a.subdivide, fps=a.fps),
+        scene=spec.replace(source=source),
+        grid=gp.replace(threads=threads),
+        render=rp.replace(threads=threads),
+        max_threads=max_threads(),
         playing=not a.paused,
         follow_camera=a.follow_camera,
     )
-    st.strategy = gp.strategy
-    st.threads = check_threads(gp.threads)
-    st.max_threads = max_threads()
-    st.density = gp.density
-    st.macro = gp.macro
-    st.insert = gp.insert
-    st.max_cells = getattr(a, "max_cells", None)
-    st.watertight = rp.watertight
-    st.shading = rp.shading
-    st.shadows = rp.shadows
-    st.traversal = rp.traversal
-    st.light = rp.light
     st.scale = float(a.scale)
     st.fov = a.fov
     st.up = a.up or (0.0, 1.0, 0.0)
@@ -128,7 +119,7 @@ def initial_state(a):
     st.home = st.camera
     st.show_panel = not a.hide_panel
     st.window_size = (w, h)
-    st.cold_cache = cache_is_cold(st.traversal)
+    st.cold_cache = cache_is_cold(st.render.traversal)
     if source not in BUILTIN_SCENES:
         st.file_text = source
     return st

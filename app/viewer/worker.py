@@ -21,7 +21,7 @@ from gridrt.errors import GridrtError
 class LoadJob:
     """Load a scene and make a new pipeline for it."""
 
-    spec: object            # gridrt.app.viewer.state.SceneSpec
+    spec: object            # gridrt.scene.SceneSpec
     grid_params: object
     render_params: object
     camera: object = None   # explicit camera, or None to frame the scene
@@ -148,12 +148,9 @@ class RenderWorker:
                 notify()
 
     def _load(self, job):
-        from gridrt.scene import make_scene
-
         t0 = time.perf_counter()
         s = job.spec
-        scene = make_scene(s.source, count=s.count, animate=s.animate, amplitude=s.amplitude,
-                           speed=s.speed, seed=s.seed, clip=s.clip, subdivide=s.subdivide, fps=s.fps)
+        scene = s.make()
         self.pipeline = self._factory(scene, job)
         return LoadResult(s, scene_name=scene.name, triangles=int(scene.n_triangles), duration=scene.duration,
                           static=bool(scene.static), keep_camera=job.keep_camera,

@@ -36,6 +36,7 @@ from .gltf import DRACO_HINT, GltfAnimation
 from .marbles import Marbles
 from .md2 import Md2Model
 from .mesh import SUPPORTED_EXTENSIONS, Mesh, load_mesh, quiet_trimesh
+from .spec import SceneSpec
 from .subdivide import subdivide_mesh
 
 __all__ = [
@@ -53,6 +54,7 @@ __all__ = [
     "Mesh",
     "SCENE_EXTENSIONS",
     "SceneCountWarning",
+    "SceneSpec",
     "StaticMesh",
     "SUPPORTED_EXTENSIONS",
     "gather_triangles",

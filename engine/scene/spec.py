@@ -1,0 +1,56 @@
+"""SceneSpec: what scene to load, as one value (the CLI's scene options, the viewer's scene, the
+render worker's load job, a benchmark's scene spec) with :meth:`SceneSpec.make` to load it."""
+
+from dataclasses import dataclass, fields, replace
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """A built-in scene name or a scene file / frame folder, with :func:`make_scene`'s options
+    (see there for what each means; None leaves the scene's own default).
+
+    source     built-in scene name (:data:`BUILTIN_SCENES`), scene file or frame folder
+    count      triangles of the marbles and icosphere scenes
+    animate    "twist" or "wave": deform a static mesh over time
+    amplitude  deformation amplitude in scene units
+    speed      animation speed factor
+    seed       random seed of procedural scenes
+    clip       animation clip (glTF animation or MD2 clip) by name or index
+    subdivide  split a static mesh's triangles 1->4 until at least this many
+    fps        keyframe rate of MD2 models and frame folders
+    """
+
+    source: str = "marbles"
+    count: int | None = None
+    animate: str | None = None
+    amplitude: float | None = None
+    speed: float = 1.0
+    seed: int = 0
+    clip: int | str | None = None
+    subdivide: int | None = None
+    fps: float | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "source", str(self.source))
+        if isinstance(self.clip, str) and self.clip.isdigit():
+            object.__setattr__(self, "clip", int(self.clip))  # "2" on a command line is clip index 2
+
+    def options(self):
+        """The make_scene keyword arguments this spec sets (fields other than source that
+        differ from their defaults)."""
+        base = SceneSpec()
+        return {f.name: getattr(self, f.name) for f in fields(self)
+                if f.name != "source" and getattr(self, f.name) != getattr(base, f.name)}
+
+    def make(self):
+        """Load the scene: :func:`gridrt.scene.make_scene` with these options."""
+        from . import make_scene
+
+        return make_scene(self.source, count=self.count, animate=self.animate, amplitude=self.amplitude,
+                          speed=self.speed, seed=self.seed, clip=self.clip, subdivide=self.subdivide, fps=self.fps)
+
+    def label(self):
+        return self.source if self.count is None else f"{self.source} ({self.count} triangles)"
+
+    def replace(self, **kw):
+        return replace(self, **kw)
