@@ -43,12 +43,14 @@ def scene_defaults():
 
 
 def add_scene_args(p):
+    from gridrt.scene import BUILTIN_SCENES
+
     g = p.add_argument_group("scene")
     d = scene_defaults()
     g.add_argument("--scene", default=d["source"],
-                   help="built-in scene (marbles, icosphere) or a mesh file (.obj .ply .stl .off .glb .gltf)")
+                   help=f"built-in scene ({', '.join(BUILTIN_SCENES)}) or a mesh file (.obj .ply .stl .off .glb .gltf)")
     g.add_argument("--count", type=int, default=d["count"],
-                   help="triangles for built-in scenes (marbles: default 8800; scales past 1M)")
+                   help="triangles of the marbles and icosphere scenes (marbles: default 8800; scales past 1M)")
     g.add_argument("--animate", choices=("twist", "wave"), default=d["animate"], help="deform a mesh file over time")
     g.add_argument("--amplitude", type=float, default=d["amplitude"], help="deformation amplitude in scene units")
     g.add_argument("--speed", type=float, default=d["speed"], help="animation speed factor")

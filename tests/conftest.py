@@ -1,14 +1,18 @@
 """Shared fixtures and scene helpers for the gridrt tests.
 
 * ``rng``: a seeded numpy Generator (fixed seed, so failures reproduce).
-* ``shared_data(relpath)``: path of a file under ``../shared/data`` (real third-party meshes, not
-  shipped with the repository); skips the test with a reason when it is absent.
+* ``data_path(relpath)`` (also the ``shared_data`` fixture): path of a real third-party file named
+  by its place under ``../shared/data`` (which only the development machines have): the
+  repository's ``assets/`` copy when it ships one (:data:`SHIPPED`), else ``../shared/data``;
+  skips the test with a reason when neither has it.  ``GRIDRT_NO_SHARED_DATA=1`` ignores
+  ``../shared/data``, so a run shows what a user's clone runs and skips.
 * ``--update-golden``: regenerate ``tests/golden/*.png`` from the brute-force reference renderer
   (see ``test_golden.py``).
 * Procedural scenes: :func:`random_triangles`, :func:`random_scene` (slivers, huge, flat,
   duplicated and zero-area triangles), :func:`icosphere`, :func:`load_tris`.
 """
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -16,12 +20,32 @@ import pytest
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before anything imports numba)
 
-#: ../shared/data relative to the repository (present on the development machines only).
+#: ../shared/data relative to the repository (present on the development machines only; treated
+#: as absent when GRIDRT_NO_SHARED_DATA is set to anything but "" or "0").
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+NO_SHARED_DATA = os.environ.get("GRIDRT_NO_SHARED_DATA", "") not in ("", "0")
+
+#: the repository's assets/ (real files that ship with gridrt; see assets/README.md)
+ASSETS = Path(__file__).resolve().parents[1] / "assets"
 
 TEAPOT = "static/utah_teapot/teapot.obj"
 ARMADILLO = "static/armadillo/armadillo.off"
 BUNNY = "static/stanford_bunny/stanford-bunny.obj"
+
+#: ../shared/data files (or folders) that assets/ ships byte for byte -> their name in assets/
+SHIPPED = {
+    TEAPOT: "teapot.obj",
+    "animated/cesium_man/CesiumMan.glb": "CesiumMan.glb",
+    "animated/animated_morph_sphere/AnimatedMorphSphere.gltf": "AnimatedMorphSphere.gltf",
+    "animated/animated_morph_sphere/AnimatedMorphSphere.bin": "AnimatedMorphSphere.bin",
+    "animated/md2_sydney/sydney.md2": "sydney.md2",
+    "animated/bart/museum/aff": "museum",
+    **{f"animated/bart/museum/aff/{n}.aff": f"museum/{n}.aff"
+       for n in ("museum5", "animart5", "block", "camera", "paintings", "pillar", "room")},
+}
+#: ../shared/data meshes that assets/ ships converted (the same vertices as float32, the same
+#: faces, another format) -> their name in assets/
+CONVERTED = {ARMADILLO: "armadillo.ply"}
 
 
 def pytest_addoption(parser):
@@ -44,32 +68,41 @@ def rng():
     return np.random.default_rng(20061204)
 
 
-def shared_data_path(relpath):
-    """Absolute path of ``relpath`` under ../shared/data, or pytest.skip naming what is missing."""
+def data_path(relpath, converted=False):
+    """The real file (or folder) known by its place ``relpath`` under ../shared/data: the copy
+    in assets/ when the repository ships it byte for byte, else the one in ../shared/data, else
+    (with ``converted``, for callers that only need the mesh's arrays) the converted copy in
+    assets/; pytest.skip naming what is missing when there is none."""
+    if relpath in SHIPPED and (ASSETS / SHIPPED[relpath]).exists():
+        return ASSETS / SHIPPED[relpath]
     p = SHARED_DATA / relpath
-    if not p.is_file():
-        pytest.skip(f"real test data not available: {p} (../shared/data is not part of the repository)")
-    return p
+    if not NO_SHARED_DATA and p.exists():
+        return p
+    if converted and relpath in CONVERTED and (ASSETS / CONVERTED[relpath]).is_file():
+        return ASSETS / CONVERTED[relpath]
+    why = "GRIDRT_NO_SHARED_DATA is set" if NO_SHARED_DATA else "../shared/data is not part of the repository"
+    pytest.skip(f"real test data not available: {p} ({why}; assets/ does not ship it)")
 
 
 @pytest.fixture
 def shared_data():
-    """The :func:`shared_data_path` helper as a fixture: ``shared_data("static/...")``."""
-    return shared_data_path
+    """The :func:`data_path` helper as a fixture: ``shared_data("static/...")``."""
+    return data_path
 
 
 def load_mesh_arrays(relpath):
-    """(vertices (V, 3) float32, faces (F, 3) int64) of a mesh in ../shared/data, loaded with
-    trimesh without merging or reordering anything (skips when the file is absent)."""
+    """(vertices (V, 3) float32, faces (F, 3) int64) of a real mesh (see :func:`data_path`; a
+    converted copy in assets/ will do), loaded with trimesh without merging or reordering
+    anything (skips when the file is absent)."""
     import trimesh
 
-    p = shared_data_path(relpath)
+    p = data_path(relpath, converted=True)
     m = trimesh.load(p, force="mesh", process=False)
     return np.asarray(m.vertices, np.float32), np.asarray(m.faces, np.int64)
 
 
 def load_tris(relpath):
-    """(F, 3, 3) float32 triangles of a mesh in ../shared/data (skips when absent)."""
+    """(F, 3, 3) float32 triangles of a real mesh (see :func:`load_mesh_arrays`; skips when absent)."""
     v, f = load_mesh_arrays(relpath)
     return np.ascontiguousarray(v[f])
 

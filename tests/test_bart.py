@@ -8,7 +8,6 @@ counts from ../shared/data/README.md, and small AFF files written here with hand
 
 import math
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,15 +23,13 @@ from gridrt.scene.bart import (
     kb_rotation_segments,
 )
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
-BART = DATA / "animated" / "bart"
+from conftest import data_path
 
 
 def need(rel):
-    p = BART / rel
-    if not p.exists():
-        pytest.skip(f"real test data {p} is absent (../shared/data not available)")
-    return p
+    """A BART scene file by its name under ../shared/data/animated/bart (assets/ ships the
+    museum); skips when absent."""
+    return data_path(f"animated/bart/{rel}")
 
 
 def rodrigues(axis, degrees):

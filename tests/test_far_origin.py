@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import shared_data_path
+from conftest import data_path
 from reference import ref_camera_rays, ref_cast
 
 REPO = Path(__file__).resolve().parents[1]
@@ -101,7 +101,7 @@ def view_of(lo, hi, dist=1.3):
 def teapot():
     from gridrt.scene import load_mesh
 
-    m = load_mesh(shared_data_path("static/utah_teapot/teapot.obj"))
+    m = load_mesh(data_path("static/utah_teapot/teapot.obj"))
     return m.vertices64, m.faces.astype(np.int64)
 
 
@@ -179,7 +179,7 @@ def _gltf_moved(src, dst, offset):
 def test_dump_animated_gltf_far_from_origin(tmp_path):
     from gridrt.scene import make_scene
 
-    src = shared_data_path("animated/animated_morph_sphere/AnimatedMorphSphere.gltf")
+    src = data_path("animated/animated_morph_sphere/AnimatedMorphSphere.gltf")
     t_anim = 1.3
     near = make_scene(str(src)).triangles_at(t_anim).astype(np.float64)
     p = near.reshape(-1, 3)
@@ -199,7 +199,7 @@ def test_static_gltf_far_from_origin(tmp_path):
     from the origin, not through float32 world coordinates."""
     from gridrt.scene import make_scene
 
-    src = shared_data_path("animated/animated_morph_sphere/AnimatedMorphSphere.gltf")
+    src = data_path("animated/animated_morph_sphere/AnimatedMorphSphere.gltf")
     doc = json.loads(Path(src).read_text())
     doc.pop("animations")
     plain = tmp_path / "plain.gltf"
@@ -223,7 +223,7 @@ def test_static_gltf_far_from_origin(tmp_path):
 def test_dump_bart_far_from_origin(tmp_path):
     from gridrt.scene import make_scene
 
-    root = shared_data_path("animated/bart/museum/aff/museum5.aff")
+    root = data_path("animated/bart/museum/aff/museum5.aff")
     t_anim, w, h = 0.7, 96, 72
     near = make_scene(str(root)).triangles_at(t_anim).astype(np.float64)
     eye, target = np.array([0.5, 1.7, -5.5]), np.array([0.0, 1.4, 0.0])  # inside the museum, facing the art

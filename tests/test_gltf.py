@@ -15,7 +15,6 @@ import json
 import math
 import struct
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pygltflib as gl
@@ -26,15 +25,13 @@ from gridrt.errors import InputError, SceneFileError
 from gridrt.scene import GltfAnimation, StaticMesh, make_scene
 from gridrt.scene import gltf as gltf_module
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+from conftest import data_path
 HAVE_DRACO = importlib.util.find_spec("DracoPy") is not None
 
 
 def need_data(rel):
-    p = DATA / rel
-    if not p.exists():
-        pytest.skip(f"real test data {p} is absent (../shared/data not available)")
-    return p
+    """A real file by its ../shared/data name (assets/ ships some); skips when absent."""
+    return data_path(rel)
 
 
 # ----------------------------------------------------------------------------- a glTF writer

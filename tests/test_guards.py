@@ -47,7 +47,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conftest import SHARED_DATA
+from conftest import ARMADILLO, TEAPOT, data_path
 from gridrt.camera import Camera
 from gridrt.config import GridParams, RenderParams
 from gridrt.errors import InputError
@@ -893,65 +893,97 @@ class LoaderWorker:
         return res
 
 
-def shared(rel):
-    p = SHARED_DATA / rel
-    if not p.exists():
-        pytest.skip(f"real test data not available: {p} (../shared/data is not part of the repository)")
-    return p
-
-
 def make_seeds(tmp):
-    """target name -> (path to load, file to mutate, files a SceneFileError may name).  Real files
-    from ../shared/data, copied; STL and ASCII PLY are written from the real teapot by trimesh's
-    exporters (no such file ships in ../shared/data)."""
+    """(target name -> (path to load, file to mutate), target name -> why it is missing).  Real
+    files (the repository's assets/ first, then ../shared/data: conftest.data_path), copied; STL
+    and ASCII PLY are written from the real teapot by trimesh's exporters (no such file ships in
+    ../shared/data).  Without ../shared/data (a user's clone) the binary PLY is the shipped
+    armadillo.ply instead of Lucy and the OFF is armadillo.ply written by trimesh's OFF exporter;
+    a target whose source is absent is missing (its test skips with the reason)."""
     import trimesh
 
-    out = {}
+    out, missing = {}, {}
 
-    def copy(rel, name=None):
-        src = shared(rel)
+    def have(rel, converted=False):
+        try:
+            return data_path(rel, converted)
+        except pytest.skip.Exception as e:
+            missing[rel] = str(e)
+            return None
+
+    def copy(src, name=None):
         dst = tmp / (name or src.name)
         shutil.copyfile(src, dst)
         return dst
 
-    obj = copy("static/utah_teapot/teapot.obj")
-    out["obj"] = (obj, obj)  # (path to load, file to mutate)
-    off = copy("static/armadillo/armadillo.off")
-    out["off"] = (off, off)
-    ply = copy("static/lucy/Lucy100k.ply")
-    out["ply-binary"] = (ply, ply)
-    mesh = trimesh.load(obj, force="mesh", process=False)
-    for key, name, kw in (("ply-ascii", "teapot_ascii.ply", dict(file_type="ply", encoding="ascii")),
-                          ("stl-binary", "teapot.stl", dict(file_type="stl")),
-                          ("stl-ascii", "teapot_ascii.stl", dict(file_type="stl_ascii"))):
+    def exported(mesh, name, **kw):
         data = mesh.export(**kw)
         (tmp / name).write_bytes(data if isinstance(data, bytes) else data.encode())
-        out[key] = (tmp / name, tmp / name)
-    glb = copy("animated/cesium_man/CesiumMan.glb")
-    out["glb"] = (glb, glb)
-    gdir = tmp / "morph"
-    gdir.mkdir()
-    src = shared("animated/animated_morph_sphere/AnimatedMorphSphere.gltf").parent
-    for q in src.iterdir():
-        shutil.copyfile(q, gdir / q.name)
-    gltf = gdir / "AnimatedMorphSphere.gltf"
-    out["gltf-json"] = (gltf, gltf)
-    out["gltf-bin"] = (gltf, next(q for q in gdir.iterdir() if q.suffix == ".bin"))
-    adir = tmp / "museum"
-    shutil.copytree(shared("animated/bart/museum/aff"), adir)
-    for q in adir.iterdir():
-        q.chmod(0o644)
-    out["aff-root"] = (adir / "museum5.aff", adir / "museum5.aff")
-    out["aff-include"] = (adir / "museum5.aff", adir / "camera.aff")
-    out["aff-mesh"] = (adir / "museum5.aff", adir / "room.aff")
-    md2 = copy("animated/md2_sydney/sydney.md2")
-    out["md2"] = (md2, md2)
-    fdir = tmp / "frames"
-    fdir.mkdir()
-    for k in range(3):
-        shutil.copyfile(obj, fdir / f"f{k:03d}.obj")
-    out["frames"] = (fdir, fdir / "f001.obj")
-    return out
+        return tmp / name
+
+    def need(names, *rels):
+        why = [missing[r] for r in rels if r in missing]
+        for name in names:
+            if why:
+                missing[name] = why[0]
+        return not why
+
+    teapot = have(TEAPOT)
+    if need(["obj", "ply-ascii", "stl-binary", "stl-ascii", "frames"], TEAPOT):
+        obj = copy(teapot)
+        out["obj"] = (obj, obj)  # (path to load, file to mutate)
+    armadillo = have(ARMADILLO, converted=True)
+    if need(["off"], ARMADILLO):
+        off = copy(armadillo) if armadillo.suffix == ".off" else exported(
+            trimesh.load(armadillo, force="mesh", process=False), "armadillo.off", file_type="off")
+        out["off"] = (off, off)
+    lucy = have("static/lucy/Lucy100k.ply")
+    ply = lucy if lucy is not None else armadillo if armadillo is not None and armadillo.suffix == ".ply" else None
+    if ply is not None:
+        ply = copy(ply)
+        out["ply-binary"] = (ply, ply)
+    else:
+        need(["ply-binary"], "static/lucy/Lucy100k.ply")
+    if "obj" in out:
+        mesh = trimesh.load(out["obj"][0], force="mesh", process=False)
+        for key, name, kw in (("ply-ascii", "teapot_ascii.ply", dict(file_type="ply", encoding="ascii")),
+                              ("stl-binary", "teapot.stl", dict(file_type="stl")),
+                              ("stl-ascii", "teapot_ascii.stl", dict(file_type="stl_ascii"))):
+            p = exported(mesh, name, **kw)
+            out[key] = (p, p)
+    glb = have("animated/cesium_man/CesiumMan.glb")
+    if need(["glb"], "animated/cesium_man/CesiumMan.glb"):
+        glb = copy(glb)
+        out["glb"] = (glb, glb)
+    morph = "animated/animated_morph_sphere/AnimatedMorphSphere"
+    gltf, gbin = have(morph + ".gltf"), have(morph + ".bin")
+    if need(["gltf-json", "gltf-bin"], morph + ".gltf", morph + ".bin"):
+        gdir = tmp / "morph"
+        gdir.mkdir()
+        out["gltf-json"] = (gdir / gltf.name,) * 2
+        out["gltf-bin"] = (gdir / gltf.name, gdir / gbin.name)
+        for q in (gltf, gbin):
+            shutil.copyfile(q, gdir / q.name)
+    museum = have("animated/bart/museum/aff")
+    if need(["aff-root", "aff-include", "aff-mesh"], "animated/bart/museum/aff"):
+        adir = tmp / "museum"
+        shutil.copytree(museum, adir)
+        for q in adir.iterdir():
+            q.chmod(0o644)
+        out["aff-root"] = (adir / "museum5.aff", adir / "museum5.aff")
+        out["aff-include"] = (adir / "museum5.aff", adir / "camera.aff")
+        out["aff-mesh"] = (adir / "museum5.aff", adir / "room.aff")
+    md2 = have("animated/md2_sydney/sydney.md2")
+    if need(["md2"], "animated/md2_sydney/sydney.md2"):
+        md2 = copy(md2)
+        out["md2"] = (md2, md2)
+    if "obj" in out:
+        fdir = tmp / "frames"
+        fdir.mkdir()
+        for k in range(3):
+            shutil.copyfile(out["obj"][0], fdir / f"f{k:03d}.obj")
+        out["frames"] = (fdir, fdir / "f001.obj")
+    return out, missing
 
 
 TARGETS = ["obj", "off", "ply-binary", "ply-ascii", "stl-binary", "stl-ascii", "glb", "gltf-json", "gltf-bin",
@@ -1007,14 +1039,13 @@ def mutation(draw, raw, spans, text):
 @pytest.fixture(scope="module")
 def fuzz_env(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("realfuzz")
-    seeds = make_seeds(tmp)
+    seeds, missing = make_seeds(tmp)
     worker = LoaderWorker()
     try:
-        for name in TARGETS:  # the unmutated files load (and warm the worker's compile cache)
-            path, target = seeds[name]
+        for name, (path, target) in seeds.items():  # the unmutated files load (and warm the worker's compile cache)
             res = worker.load(path, timeout=300)
             assert res["outcome"] == "ok", (name, res)
-        yield seeds, worker, {}
+        yield seeds, worker, {}, missing
     finally:
         worker.stop()
 
@@ -1064,7 +1095,9 @@ def test_fuzz_real_files(fuzz_env, name):
     """Mutated and truncated real files of every format: a scene with finite triangles that
     grids and casts, or a SceneFileError naming the file; never another exception, a crash or a
     case longer than CASE_TIMEOUT (the worker enforces it)."""
-    seeds, worker, stats = fuzz_env
+    seeds, worker, stats, missing = fuzz_env
+    if name not in seeds:
+        pytest.skip(missing[name])
 
     @FUZZ_DEFAULT
     @given(data=st.data())
@@ -1080,7 +1113,9 @@ def test_fuzz_real_files(fuzz_env, name):
 def test_fuzz_real_files_soak(fuzz_env, name, request):
     if not soak_requested(request.config):
         pytest.skip("long fuzz: run with -m soak (or GRIDRT_SOAK=1)")
-    seeds, worker, stats = fuzz_env
+    seeds, worker, stats, missing = fuzz_env
+    if name not in seeds:
+        pytest.skip(missing[name])
 
     @FUZZ_SOAK
     @given(data=st.data())

@@ -7,7 +7,6 @@ float64 average of the two neighbouring frames.
 """
 
 import struct
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,14 +16,12 @@ from gridrt.errors import InputError, SceneFileError
 from gridrt.scene import KeyframeMesh, Md2Model, make_scene
 from gridrt.scene.frames import load_frame_folder
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+from conftest import data_path
 
 
 def need_data(rel):
-    p = DATA / rel
-    if not p.exists():
-        pytest.skip(f"real test data {p} is absent (../shared/data not available)")
-    return p
+    """A real file by its ../shared/data name (assets/ ships some); skips when absent."""
+    return data_path(rel)
 
 
 def to_gridrt(v):

@@ -2,6 +2,7 @@
 name, carries its shaders, and runs from its own files (``import gridrt``, ``python -m gridrt``)."""
 
 import os
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -12,10 +13,20 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 
 
+#: what pyproject packages (copied into a clean folder to build: setuptools would otherwise add
+#: whatever an earlier build left in the repository's build/lib to the wheel)
+SOURCES = ("pyproject.toml", "README.md", "engine", "app", "shaders", "assets")
+
+
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory):
-    out = tmp_path_factory.mktemp("wheel")
-    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(out), str(REPO)],
+    src, out = tmp_path_factory.mktemp("src"), tmp_path_factory.mktemp("wheel")
+    for name in SOURCES:
+        if (REPO / name).is_dir():
+            shutil.copytree(REPO / name, src / name, ignore=shutil.ignore_patterns("__pycache__"))
+        else:
+            shutil.copyfile(REPO / name, src / name)
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(out), str(src)],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     (whl,) = out.glob("gridrt-*.whl")
@@ -32,10 +43,16 @@ def test_wheel_installs_only_gridrt(wheel):
         assert want in names, want
     entry = [n for n in names if n.endswith("entry_points.txt")]
     assert entry and "gridrt = gridrt.app.__main__:main" in zipfile.ZipFile(wheel).read(entry[0]).decode()
+    assets = [p for p in (REPO / "assets").rglob("*") if p.is_file() and not p.name.startswith(".")]
+    assert any(p.name == "README.md" for p in assets) and len(assets) > 1
+    for p in assets:  # every shipped asset (and its README: origins, licences) byte for byte
+        name = "gridrt/assets/" + p.relative_to(REPO / "assets").as_posix()
+        assert name in names and zipfile.ZipFile(wheel).read(name) == p.read_bytes(), name
 
 
 def test_wheel_runs_from_its_own_files(wheel, tmp_path):
-    """Unpacked alone on the path (no repository): the package, its shaders and -m gridrt."""
+    """Unpacked alone on the path (no repository): the package, its shaders, its assets (the
+    built-in scenes load from gridrt/assets) and -m gridrt."""
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
     env = dict(os.environ, PYTHONPATH=str(site))
@@ -50,3 +67,13 @@ def test_wheel_runs_from_its_own_files(wheel, tmp_path):
     r = subprocess.run([sys.executable, "-m", "gridrt", "strategies"], cwd=tmp_path, env=env, capture_output=True,
                        text=True, timeout=300)
     assert r.returncode == 0 and "serial" in r.stdout, r.stderr
+    from gridrt.scene import make_scene
+
+    code = ("import gridrt.scene as s; print(s.ASSET_DIR); "
+            "print(*(s.make_scene(n).triangles_at(0.0).shape[0] for n in ('morph_sphere', 'museum')))")
+    r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
+    where, *counts = r.stdout.split()
+    assert Path(where) == site / "gridrt" / "assets"
+    assert [int(c) for c in counts] == [make_scene(n).triangles_at(0.0).shape[0] for n in ("morph_sphere", "museum")]

@@ -10,7 +10,6 @@ import json
 import math
 import os
 import struct
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +17,7 @@ import pytest
 import gridrt  # noqa: F401  (sets numba's thread count before numba loads)
 from gridrt.errors import InputError, SceneFileError
 from gridrt.scene import (
+    ASSET_SCENES,
     BUILTIN_SCENES,
     SCENE_EXTENSIONS,
     SUPPORTED_EXTENSIONS,
@@ -33,7 +33,7 @@ from gridrt.scene import (
 from gridrt.scene import mesh as mesh_module
 from gridrt.scene.animation import as_static_mask
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+from conftest import ASSETS, data_path
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -66,10 +66,9 @@ def shoelace(xy):
 
 
 def need_data(rel):
-    p = DATA / rel
-    if not p.exists():
-        pytest.skip(f"real test data {p} is absent (../shared/data not available)")
-    return p
+    """A real file by its ../shared/data name (assets/ ships some; a converted mesh will do: these
+    tests load meshes); skips when absent."""
+    return data_path(rel, converted=True)
 
 
 # An anisotropic octahedron, off-centre; coordinates are exact in float32.
@@ -594,7 +593,7 @@ def test_mesh_validates_and_copies():
 
 
 def _twisted_teapot_or_octa():
-    p = DATA / "static/utah_teapot/teapot.obj"
+    p = ASSETS / "teapot.obj"
     return load_mesh(p) if p.exists() else Mesh(OCTA_V, OCTA_F, name="octa")
 
 
@@ -950,7 +949,7 @@ def test_deform_bad_vertex_out():
 
 
 def test_make_scene_builtins():
-    assert set(BUILTIN_SCENES) == {"marbles", "icosphere"}
+    assert set(BUILTIN_SCENES) == {"marbles", "icosphere", *ASSET_SCENES}  # the assets: test_assets.py
     m = make_scene("marbles")
     assert isinstance(m, Marbles) and m.n_triangles == 8800
     assert make_scene("Marbles", count=10_000, seed=2).n_triangles == 10_000

@@ -6,6 +6,9 @@
 * ``"marbles"``: rigid marbles bouncing in a box (:class:`Marbles`), ``count`` = exact triangles;
 * ``"icosphere"``: a unit icosphere with about ``count`` triangles (static, or deformed with
   ``animate``);
+* the real assets that ship with gridrt (``"armadillo"``, ``"teapot"``, ``"cesium_man"``,
+  ``"morph_sphere"``, ``"sydney"``, ``"museum"``; see :data:`ASSET_SCENES` and
+  ``assets/README.md``): loaded as their files below;
 * a .gltf/.glb file with animations: :class:`GltfAnimation` (node animation, skinning, morph
   targets); without animations it is static;
 * a BART .aff file: :class:`BartAnimation` (spline-animated transform hierarchy, ``tpa``
@@ -29,6 +32,7 @@ import numpy as np
 
 from ..errors import InputError, SceneFileError
 from .animation import Animation, StaticMesh, gather_triangles
+from .assets import ASSET_DIR, ASSET_SCENES, asset_path
 from .bart import BartAnimation
 from .deform import DEFORM_KINDS, Deform
 from .frames import FRAME_EXTENSIONS, KeyframeMesh, check_fps, is_frame_folder, load_frame_folder
@@ -40,6 +44,8 @@ from .spec import SceneSpec
 from .subdivide import subdivide_mesh
 
 __all__ = [
+    "ASSET_DIR",
+    "ASSET_SCENES",
     "Animation",
     "BUILTIN_SCENES",
     "BartAnimation",
@@ -57,6 +63,7 @@ __all__ = [
     "SceneSpec",
     "StaticMesh",
     "SUPPORTED_EXTENSIONS",
+    "asset_path",
     "gather_triangles",
     "icosphere_mesh",
     "load_frame_folder",
@@ -68,11 +75,21 @@ __all__ = [
 #: Every file extension :func:`make_scene` accepts (static meshes, glTF, BART, MD2).
 SCENE_EXTENSIONS = SUPPORTED_EXTENSIONS + (".aff", ".md2")
 
-#: Built-in scene names and what ``count`` means for each.
+#: Built-in scene names and what each is: the procedural ones (``count`` = their size) and the
+#: shipped assets (:data:`ASSET_SCENES`, fixed meshes: ``count`` does not apply).
 BUILTIN_SCENES = {
     "marbles": "rigid marbles bouncing in a box; count = exact triangle count (default 8800)",
     "icosphere": "unit icosphere; count = approximate triangle count, 20*4^k (default 5120)",
+    **{name: what for name, (_, what) in ASSET_SCENES.items()},
 }
+
+
+def scene_choices():
+    """What a scene may be, in words: the one list of built-in scenes and formats that
+    ``--help``, the error messages and the README quote (a test checks the README's)."""
+    return (f"a built-in scene ({', '.join(BUILTIN_SCENES)}), a scene file ({', '.join(SCENE_EXTENSIONS)}) or a "
+            f"folder of frames f000.obj, f001.obj, ... ({', '.join(FRAME_EXTENSIONS)})")
+
 
 _ICOSPHERE_DEFAULT = 5120
 _ICOSPHERE_MAX_SUBDIVISIONS = 9
@@ -123,9 +140,11 @@ def make_scene(name_or_path, count=None, animate=None, amplitude=None, speed=1.0
     ----------
     name_or_path : str or os.PathLike
         One of :data:`BUILTIN_SCENES`, a file with one of :data:`SCENE_EXTENSIONS`, or a folder
-        of frame meshes (``f000.obj, f001.obj, ...``).
+        of frame meshes (``f000.obj, f001.obj, ...``).  A shipped asset's name loads its file,
+        with that file's options.
     count : int, optional
-        Built-in scenes only: triangle count (exact for marbles, nearest ``20*4^k`` for icosphere).
+        Marbles and icosphere only: triangle count (exact for marbles, nearest ``20*4^k`` for
+        icosphere).
     animate : {"twist", "wave"}, optional
         Deform a static mesh (mesh file, glTF without animation, or icosphere) over time; see
         :class:`Deform`.  Not for scenes that are animated already.
@@ -178,6 +197,14 @@ def make_scene(name_or_path, count=None, animate=None, amplitude=None, speed=1.0
         mesh = icosphere_mesh(_ICOSPHERE_DEFAULT if count is None else count)
         return _static_or_deformed(mesh, subdivide, animate, amplitude, speed)
 
+    if key in ASSET_SCENES:
+        if count is not None:
+            raise InputError(f"count applies to the marbles and icosphere scenes, not to {key!r} (a fixed "
+                             "mesh: subdivide= splits a static one)")
+        name_or_path = asset_path(key)
+        if not name_or_path.exists():
+            raise SceneFileError(name_or_path, f"file of the built-in scene {key!r} not found (an incomplete "
+                                 "gridrt install: its assets folder is missing)")
     path = Path(name_or_path)
     ext = path.suffix.lower()
     if not path.exists() and ext not in SCENE_EXTENSIONS:
