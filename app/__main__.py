@@ -10,9 +10,44 @@ from gridrt.errors import GridrtError
 from . import dump
 
 
+class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """``--help`` shows every option's default: appended as ``(default: X)`` unless the help text
+    already says it (``%(default)s``, or the word default, as for options whose default is a
+    behaviour such as "all cores"); sizes print as WxH and vectors as X,Y,Z, as they are typed."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        d = action.default
+        if ("default" in text.lower() or not action.option_strings or d is None or d is argparse.SUPPRESS
+                or isinstance(d, bool)):
+            return text
+        return (text + " " if text else "") + "(default: " + show_default(action).replace("%", "%%") + ")"
+
+
+def show_default(action):
+    """An option's default as it would be typed on the command line."""
+    d = action.default
+    if isinstance(d, (tuple, list)):
+        sep = "x" if getattr(action.type, "__name__", "") == "size" else ","
+        return sep.join(show_default(argparse.Namespace(default=x, type=None)) for x in d)
+    if isinstance(d, float):
+        return f"{d:g}"
+    return str(d)
+
+
+class Parser(argparse.ArgumentParser):
+    """The gridrt parser: its subcommands' parsers are Parsers too (argparse makes subparsers of
+    the parent's class), so every ``--help`` shows defaults (:class:`DefaultsHelpFormatter`)."""
+
+    def __init__(self, *args, **kw):
+        kw.setdefault("formatter_class", DefaultsHelpFormatter)
+        super().__init__(*args, **kw)
+
+
 def build_parser():
-    p = argparse.ArgumentParser(prog="gridrt", description="Per-frame parallel uniform-grid ray tracer for "
-                                "animated triangle scenes (Ize, Wald, Robertson, Parker, RT 2006).")
+    p = Parser(prog="gridrt", description="Per-frame parallel uniform-grid ray tracer for "
+               "animated triangle scenes (Ize, Wald, Robertson, Parker, \"An Evaluation of Parallel Grid "
+               "Construction for Ray Tracing Dynamic Scenes\", IEEE RT 2006).")
     sub = p.add_subparsers(dest="command", required=True)
     dump.add_parser(sub)
     from .bench import main as bench

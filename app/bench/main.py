@@ -29,8 +29,8 @@ from gridrt.threads import check_threads
 from gridrt.trace.render import Renderer
 
 from .util import (
-    SCENE_HELP, check_frame_args, check_runs, facing_camera, figure, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress,
-    put_stat, resolve_scene, scene_list, stat, thread_list, write_csv, write_json, write_summary,
+    check_frame_args, check_runs, facing_camera, figure, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress,
+    put_stat, resolve_scene, scene_list, scenes_help, stat, thread_list, write_csv, write_json, write_summary,
 )
 
 #: the fps figures of Ize et al. 2006 and of CGT (Wald et al. 2006, "Ray Tracing Animated Scenes using
@@ -46,17 +46,18 @@ def add_parser(sub):
                        description=__doc__.split("\n\n")[0])
     bsub = p.add_subparsers(dest="bench", required=True)
 
-    def common(q, out, runs=5, warmup=1, scenes=True):
+    def common(q, out, runs=5, warmup=1, scenes=None):
+        """The options every benchmark has; ``scenes`` = (defaults, fallback) adds --scenes."""
         q.add_argument("--runs", type=int, default=runs, help=f"timed runs per figure, median reported (default {runs})")
         q.add_argument("--warmup", type=int, default=warmup, help=f"untimed runs first (default {warmup})")
         q.add_argument("--out", default=f"out/bench_{out}", help=f"output folder (default out/bench_{out})")
         q.add_argument("--quick", action="store_true", help="tiny scenes and sizes, one run (smoke test)")
         q.add_argument("--no-progress", action="store_true", help="no progress bars")
         if scenes:
-            q.add_argument("--scenes", default=None, help=SCENE_HELP)
+            q.add_argument("--scenes", default=None, help=scenes_help(*scenes))
 
     c = bsub.add_parser("core", help="serial build ms (bbox, exact) and primary-ray Mrays/s on ~100k and ~1M triangles")
-    common(c, "core")
+    common(c, "core", scenes=(CORE_SCENES, CORE_FALLBACK))
     c.add_argument("--size", type=int, default=1024, help="square image edge for the ray figures (default 1024)")
     c.add_argument("--threads", default=None, help="thread counts for the ray figures (default: 1 and all cores)")
     c.add_argument("--traversal", default=",".join(TRAVERSALS), help=f"ray traversals, comma-separated of "
@@ -64,7 +65,7 @@ def add_parser(sub):
     c.set_defaults(func=run_core)
 
     b = bsub.add_parser("build", help="build strategies x threads x scenes, total and per stage")
-    common(b, "build", warmup=2)
+    common(b, "build", warmup=2, scenes=(BUILD_SCENES, BUILD_FALLBACK))
     b.add_argument("--strategies", default=None, help="comma-separated strategy names (default: all)")
     b.add_argument("--threads", default=None, help="thread counts (default: 1 .. all cores)")
     b.add_argument("--insert", choices=("bbox", "exact"), default="bbox", help="insertion test (default bbox)")
@@ -77,7 +78,7 @@ def add_parser(sub):
     b.set_defaults(func=run_build)
 
     f = bsub.add_parser("frame", help="rebuild + render per frame at 1024x1024 per scene, 1 thread and all cores")
-    common(f, "frame", warmup=2)
+    common(f, "frame", warmup=2, scenes=(FRAME_SCENES, FRAME_FALLBACK))
     f.add_argument("--threads", default=None, help="thread counts (default: 1 and all cores)")
     f.add_argument("--size", type=int, default=1024, help="square image edge (default 1024)")
     f.add_argument("--strategy", default="auto",
@@ -87,7 +88,8 @@ def add_parser(sub):
                    "takes seconds per frame on some scenes)")
     f.add_argument("--split", choices=("both", "on", "off"), default="both",
                    help="static/moving split for scenes with static parts (default both: measure on and off)")
-    f.add_argument("--shading", choices=("lambert", "normal", "cost"), default="lambert")
+    f.add_argument("--shading", choices=("lambert", "normal", "cost"), default="lambert",
+                   help="shading of the rendered frames (default lambert)")
     f.add_argument("--dt", type=float, default=1.0 / 30.0, help="seconds between frames (default 1/30)")
     f.set_defaults(func=run_frame)
 
@@ -103,6 +105,8 @@ def add_parser(sub):
 # ----------------------------------------------------------------------------------------------
 
 CORE_ALIASES = {"bunny16": "bunny:1000000", "ico82k": "icosphere:81920", "ico1m": "icosphere:1310720"}
+CORE_SCENES = ["lucy", "bunny:1000000"]
+CORE_FALLBACK = ["icosphere:81920", "icosphere:1310720"]
 
 
 def timings(fn, runs, warmup=1):
@@ -124,7 +128,7 @@ def run_core(a):
     size = 64 if a.quick else a.size
     runs = 1 if a.quick else a.runs
     text = ",".join(CORE_ALIASES.get(s.strip(), s.strip()) for s in a.scenes.split(",")) if a.scenes else None
-    specs, note = scene_list(text, ["lucy", "bunny:1000000"], ["icosphere:81920", "icosphere:1310720"],
+    specs, note = scene_list(text, CORE_SCENES, CORE_FALLBACK,
                              quick=["icosphere:1280"] if a.quick else None)
     threads = thread_list(a.threads)
     travs = [t.strip() for t in a.traversal.split(",") if t.strip()]

@@ -24,6 +24,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 import gridrt  # noqa: F401
+from gridrt.commands import pip_command
 from gridrt.config import TRAVERSALS, GridParams, RenderParams
 from gridrt.errors import GridrtError
 from gridrt.grid.build import GridBuilder
@@ -31,12 +32,11 @@ from gridrt.trace.render import Renderer, cast_rays
 
 from .util import (
     Affinity, check_frame_args, figure, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress, put_stat,
-    resolve_scene, scene_camera, scene_list, thread_list, write_csv, write_json, write_summary, SCENE_HELP,
+    resolve_scene, scene_camera, scene_list, scenes_help, thread_list, write_csv, write_json, write_summary,
 )
 from .reference import brute_cast
 
-INSTALL_HINT = ("embreex is not installed; `gridrt bench peers` needs it: pip install embreex "
-                "(or pip install 'gridrt[peers]')")
+INSTALL_HINT = f"embreex is not installed; `gridrt bench peers` needs it: {pip_command()} install embreex"
 PEER_SCENES = ["cesium", "lucy:twist", "kitchen"]
 PEER_FALLBACK = ["marbles", "icosphere:81920:twist"]
 HAVE_CGT = "cgt" in TRAVERSALS
@@ -54,7 +54,7 @@ def add_parser(bsub, common):
     p = bsub.add_parser("peers", help="the same animated mesh and rays through Embree (embreex) side by side",
                         description=__doc__.split("\n\n")[0])
     common(p, "peers", warmup=2, scenes=False)
-    p.add_argument("--scenes", default=None, help=SCENE_HELP + f" (default {','.join(PEER_SCENES)})")
+    p.add_argument("--scenes", default=None, help=scenes_help(PEER_SCENES, PEER_FALLBACK))
     p.add_argument("--threads", default=None, help="thread counts (default: 1 and all cores)")
     p.add_argument("--size", type=int, default=1024, help="camera image edge: size x size rays (default 1024)")
     p.add_argument("--strategy", default="auto",

@@ -20,10 +20,11 @@ from gridrt.errors import InputError
 from .sweep import write_csv  # noqa: F401  (one CSV writer for every benchmark)
 from gridrt.threads import check_threads
 
-#: ../shared/data beside the repository (real meshes; absent in a user's fresh clone)
+#: the development data set: real meshes in shared/data beside the repository, when present (not
+#: part of the repository; a user's clone has the shipped assets/ instead)
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 
-#: short names for the real scenes in ../shared/data
+#: short names for the real scenes of the development data set
 SHORTCUTS = {
     "lucy": "static/lucy/Lucy100k.ply",
     "armadillo": "static/armadillo/armadillo.off",
@@ -41,8 +42,16 @@ SHORTCUTS = {
 }
 
 SCENE_HELP = ("comma-separated scene specs NAME[:N][:twist|wave]: built-ins marbles, icosphere (N = triangle "
-              "count), a mesh or animation file, or a short name for ../shared/data (" + ", ".join(SHORTCUTS)
+              "count), a mesh or animation file, or a short name for a real mesh of the development data set, "
+              "when present (" + ", ".join(SHORTCUTS)
               + "; N = subdivide a static mesh to at least N triangles); twist/wave deform a static mesh")
+
+
+def scenes_help(defaults, fallback):
+    """--scenes help of a benchmark whose default scenes are ``defaults`` (those present) and
+    ``fallback`` (when none of them is)."""
+    return (f"{SCENE_HELP} (default: {','.join(defaults)}, those of them present; {','.join(fallback)} when none "
+            "is)")
 
 
 @dataclass
@@ -62,7 +71,7 @@ def data_path(name):
 
 
 def scene_available(spec):
-    """True unless the spec names a ../shared/data scene that is absent."""
+    """True unless the spec names a scene of the development data set that is absent."""
     base = spec.split(":")[0].strip().lower()
     return base not in SHORTCUTS or data_path(base).exists()
 
@@ -97,8 +106,8 @@ def parse_scene_spec(spec):
     if key in SHORTCUTS:
         src = data_path(key)
         if not src.exists():
-            raise InputError(f"scene {base!r} needs {src}, which is absent (../shared/data is not part of the "
-                             "repository; use a built-in scene such as marbles or icosphere)")
+            raise InputError(f"scene {base!r} needs {src}, which is absent (the development data set is not part "
+                             "of the repository; use a built-in scene such as marbles or icosphere)")
     else:
         src = base
     builtin = key in ("marbles", "icosphere")

@@ -1,8 +1,8 @@
 """``gridrt view``: the interactive viewer.
 
-A glfw window with an OpenGL 3.3 core context; moderngl shows the ray-traced image (app/blit.py,
-shaders from shaders/); an imgui-bundle panel floats over it (app/ui.py).  The FramePipeline runs
-on a worker thread (app/worker.py), so the window keeps answering while a scene loads, the numba
+A glfw window with an OpenGL 3.3 core context; moderngl shows the ray-traced image (blit.py,
+shaders from shaders/); an imgui-bundle panel floats over it (ui.py).  The FramePipeline runs
+on a worker thread (worker.py), so the window keeps answering while a scene loads, the numba
 kernels compile or a heavy frame renders, and shows what it is waiting for.
 
 Nothing is written to the working directory unless the user asks (a screenshot key or button
@@ -57,14 +57,21 @@ def add_parser(sub):
     return p
 
 
+def headless_command():
+    """The headless dump to run instead, as a command that works as printed (named the way this
+    process was started: ``.venv/bin/gridrt`` after the README's set-up; see gridrt.commands)."""
+    from gridrt.commands import gridrt_command
+
+    return f"{gridrt_command()} dump --scene marbles --frames 60 --out out/marbles"
+
+
 def no_display_message():
     return ("gridrt view: no display found (DISPLAY and WAYLAND_DISPLAY are unset); render headless instead: "
-            "gridrt dump --scene marbles --frames 60 --out out/marbles")
+            + headless_command())
 
 
 def window_failed_message(why):
-    return (f"gridrt view: cannot open an OpenGL 3.3 window ({why}); render headless instead: "
-            "gridrt dump --scene marbles --frames 60 --out out/marbles")
+    return f"gridrt view: cannot open an OpenGL 3.3 window ({why}); render headless instead: " + headless_command()
 
 
 def run(a):
@@ -73,15 +80,15 @@ def run(a):
         return 3
     from gridrt.errors import InputError
 
-    from gridrt.scene import BUILTIN_SCENES
+    from gridrt.scene import BUILTIN_SCENES, scene_choices
 
     from .state import SCALE_MAX, SCALE_MIN
 
     if not (SCALE_MIN <= a.scale <= SCALE_MAX):
         raise InputError(f"--scale must be between {SCALE_MIN} and {SCALE_MAX}, got {a.scale}")
-    if str(a.scene).strip().lower() not in BUILTIN_SCENES and not Path(a.scene).is_file():
-        raise InputError(f"unknown scene {str(a.scene)!r}: not a built-in scene ({', '.join(BUILTIN_SCENES)}) "
-                         "and no such file")
+    if str(a.scene).strip().lower() not in BUILTIN_SCENES and not Path(a.scene).exists():
+        raise InputError(f"unknown scene {str(a.scene)!r}: not a built-in scene and not an existing file or folder; "
+                         f"a scene may be {scene_choices()}")
     state = initial_state(a)
     viewer = Viewer(a, state)
     return viewer.run()

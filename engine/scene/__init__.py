@@ -69,6 +69,7 @@ __all__ = [
     "load_frame_folder",
     "load_mesh",
     "make_scene",
+    "scene_choices",
     "subdivide_mesh",
 ]
 
@@ -208,12 +209,8 @@ def make_scene(name_or_path, count=None, animate=None, amplitude=None, speed=1.0
     path = Path(name_or_path)
     ext = path.suffix.lower()
     if not path.exists() and ext not in SCENE_EXTENSIONS:
-        raise InputError(
-            f"unknown scene {str(name_or_path)!r}: not a built-in scene "
-            f"({', '.join(BUILTIN_SCENES)}) and not an existing file or folder; "
-            f"scene files may be {', '.join(SCENE_EXTENSIONS)}, or a folder of frames "
-            f"({', '.join(FRAME_EXTENSIONS)})"
-        )
+        raise InputError(f"unknown scene {str(name_or_path)!r}: not a built-in scene and not an existing file or "
+                         f"folder; a scene may be {scene_choices()}")
     if count is not None:
         raise InputError("count applies to built-in scenes only, not to scene files")
     what = f"{path.name}"
@@ -223,6 +220,9 @@ def make_scene(name_or_path, count=None, animate=None, amplitude=None, speed=1.0
         _no("clip", clip, None, "a folder of frames")
         _animated_only(what, animate, subdivide)
         return load_frame_folder(path, fps=30.0 if fps is None else fps)
+    if ext not in SCENE_EXTENSIONS:
+        what_ext = f"unsupported file extension {ext!r}" if ext else "no file extension"
+        raise SceneFileError(path, f"{what_ext}; a scene may be {scene_choices()}")
     if ext == ".aff":
         _no("clip", clip, None, "BART scenes")
         _no("fps", fps, None, "BART scenes (their keys are in seconds)")

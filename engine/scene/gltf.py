@@ -38,14 +38,16 @@ from typing import NamedTuple
 import numpy as np
 
 from ..arrays import TRI_DTYPE, as_mesh, as_origin
+from ..commands import pip_command
 from ..errors import InputError, SceneFileError
 from . import kernels as K
 from .animation import Animation, as_static_mask, check_time, gather_unchecked, pose_moving_vertices
 
 __all__ = ["GltfAnimation", "DRACO_HINT"]
 
-#: How to get Draco support, quoted in error messages.
-DRACO_HINT = "install DracoPy to read it (pip install DracoPy, or pip install 'gridrt[draco]')"
+#: How to get Draco support, quoted in error messages: a command that installs DracoPy into the
+#: environment gridrt runs in, as it can be pasted (gridrt.commands)
+DRACO_HINT = f"install DracoPy to read it: {pip_command()} install DracoPy"
 
 _GLB_MAGIC = b"glTF"
 _CHUNK_JSON = 0x4E4F534A
