@@ -182,13 +182,7 @@ def make_scene(name_or_path, count=None, animate=None, amplitude=None, speed=1.0
 
     key = name_or_path.strip().lower() if isinstance(name_or_path, str) else None
     if key == "marbles":
-        if animate is not None or amplitude is not None:
-            raise InputError("the marbles scene is already animated; animate= and amplitude= apply to meshes")
-        _no("clip", clip, None, "the marbles scene")
-        _no("fps", fps, None, "the marbles scene")
-        if subdivide is not None:
-            raise InputError("subdivide does not apply to the marbles scene: choose its size with count=")
-        return Marbles(8800 if count is None else count, seed=seed, speed=speed)
+        return _marbles_scene(count, animate, amplitude, speed, seed, clip, subdivide, fps)
     if animate is None and (amplitude is not None or speed != 1.0):
         raise InputError("amplitude and speed apply only to the marbles and to deformed meshes: pass "
                          "animate='twist' or 'wave' (clip-based scenes play at their own rate)")
@@ -199,13 +193,7 @@ def make_scene(name_or_path, count=None, animate=None, amplitude=None, speed=1.0
         return _static_or_deformed(mesh, subdivide, animate, amplitude, speed)
 
     if key in ASSET_SCENES:
-        if count is not None:
-            raise InputError(f"count applies to the marbles and icosphere scenes, not to {key!r} (a fixed "
-                             "mesh: subdivide= splits a static one)")
-        name_or_path = asset_path(key)
-        if not name_or_path.exists():
-            raise SceneFileError(name_or_path, f"file of the built-in scene {key!r} not found (an incomplete "
-                                 "gridrt install: its assets folder is missing)")
+        name_or_path = _asset_file(key, count)
     path = Path(name_or_path)
     ext = path.suffix.lower()
     if not path.exists() and ext not in SCENE_EXTENSIONS:
@@ -213,6 +201,35 @@ def make_scene(name_or_path, count=None, animate=None, amplitude=None, speed=1.0
                          f"folder; a scene may be {scene_choices()}")
     if count is not None:
         raise InputError("count applies to built-in scenes only, not to scene files")
+    return _file_scene(path, animate, amplitude, speed, clip, subdivide, fps)
+
+
+def _marbles_scene(count, animate, amplitude, speed, seed, clip, subdivide, fps):
+    """The built-in marbles scene; the options that do not apply to it are refused."""
+    if animate is not None or amplitude is not None:
+        raise InputError("the marbles scene is already animated; animate= and amplitude= apply to meshes")
+    _no("clip", clip, None, "the marbles scene")
+    _no("fps", fps, None, "the marbles scene")
+    if subdivide is not None:
+        raise InputError("subdivide does not apply to the marbles scene: choose its size with count=")
+    return Marbles(8800 if count is None else count, seed=seed, speed=speed)
+
+
+def _asset_file(key, count):
+    """The file behind the shipped asset scene ``key`` (refusing ``count`` and a missing file)."""
+    if count is not None:
+        raise InputError(f"count applies to the marbles and icosphere scenes, not to {key!r} (a fixed "
+                         "mesh: subdivide= splits a static one)")
+    path = asset_path(key)
+    if not path.exists():
+        raise SceneFileError(path, f"file of the built-in scene {key!r} not found (an incomplete "
+                             "gridrt install: its assets folder is missing)")
+    return path
+
+
+def _file_scene(path, animate, amplitude, speed, clip, subdivide, fps):
+    """The scene in a file or a folder of frames, by its extension; the options that do not apply
+    to its kind are refused."""
     what = f"{path.name}"
     if path.is_dir():
         if not is_frame_folder(path):
@@ -220,6 +237,7 @@ def make_scene(name_or_path, count=None, animate=None, amplitude=None, speed=1.0
         _no("clip", clip, None, "a folder of frames")
         _animated_only(what, animate, subdivide)
         return load_frame_folder(path, fps=30.0 if fps is None else fps)
+    ext = path.suffix.lower()
     if ext not in SCENE_EXTENSIONS:
         what_ext = f"unsupported file extension {ext!r}" if ext else "no file extension"
         raise SceneFileError(path, f"{what_ext}; a scene may be {scene_choices()}")
