@@ -43,23 +43,30 @@ def scene_defaults():
 
 
 def add_scene_args(p):
-    from gridrt.scene import BUILTIN_SCENES
+    from gridrt.scene import DEFORM_KINDS, scene_choices
+    from gridrt.scene.deform import DEFAULT_AMPLITUDE_FRACTION
 
     g = p.add_argument_group("scene")
     d = scene_defaults()
-    g.add_argument("--scene", default=d["source"],
-                   help=f"built-in scene ({', '.join(BUILTIN_SCENES)}) or a mesh file (.obj .ply .stl .off .glb .gltf)")
+    g.add_argument("--scene", default=d["source"], help=scene_choices())
     g.add_argument("--count", type=int, default=d["count"],
-                   help="triangles of the marbles and icosphere scenes (marbles: default 8800; scales past 1M)")
-    g.add_argument("--animate", choices=("twist", "wave"), default=d["animate"], help="deform a mesh file over time")
-    g.add_argument("--amplitude", type=float, default=d["amplitude"], help="deformation amplitude in scene units")
+                   help="triangles of the marbles and icosphere scenes (default: 8800 for marbles, 5120 for the "
+                        "icosphere; marbles scale past 1M)")
+    g.add_argument("--animate", choices=DEFORM_KINDS, default=d["animate"],
+                   help="deform a static mesh over time (default: none)")
+    g.add_argument("--amplitude", type=float, default=d["amplitude"],
+                   help=f"deformation amplitude in scene units (default: {100 * DEFAULT_AMPLITUDE_FRACTION:g}%% of the "
+                        "mesh's bounding-box diagonal)")
     g.add_argument("--speed", type=float, default=d["speed"], help="animation speed factor")
     g.add_argument("--seed", type=int, default=d["seed"], help="random seed of procedural scenes")
     g.add_argument("--clip", default=d["clip"],
-                   help="animation clip to play: glTF animation or MD2 clip, by name or index")
+                   help="animation clip to play: glTF animation or MD2 clip, by name or index (default: a glTF's "
+                        "animations together when they do not overlap, else its first; all of an MD2's frames)")
     g.add_argument("--subdivide", type=int, default=d["subdivide"],
-                   help="split a static mesh's triangles 1->4 until at least this many (e.g. Lucy 100k -> 1.6M)")
-    g.add_argument("--fps", type=float, default=d["fps"], help="keyframe rate of MD2 models and frame folders")
+                   help="split a static mesh's triangles 1->4 until at least this many (e.g. Lucy 100k -> 1.6M; "
+                        "default: none)")
+    g.add_argument("--fps", type=float, default=d["fps"],
+                   help="keyframe rate of MD2 models and frame folders (default: 10 for MD2, 30 for frames)")
 
 
 def add_grid_args(p):
@@ -82,7 +89,9 @@ def add_render_args(p, default_size=(1024, 768)):
     d = defaults(RenderParams)  # shadows off and the watertight test: the two switches below change them
     g = p.add_argument_group("render")
     g.add_argument("--size", type=size, default=default_size, help="image size WIDTHxHEIGHT")
-    g.add_argument("--shading", choices=SHADING_MODES, default=d["shading"])
+    g.add_argument("--shading", choices=SHADING_MODES, default=d["shading"],
+                   help="lambert (a headlight, or the point light with --shadows), normal (normals as colours) or "
+                        "cost (a heat map of triangle tests per ray)")
     g.add_argument("--shadows", action="store_true", help="hard shadows from one point light")
     g.add_argument("--light", type=vec3, default=d["light"], help="point light X,Y,Z (default: above the camera)")
     g.add_argument("--fast-intersect", action="store_true",
@@ -90,8 +99,10 @@ def add_render_args(p, default_size=(1024, 768)):
     g.add_argument("--traversal", choices=TRAVERSALS, default=d["traversal"],
                    help="ray traversal: single-ray 3D DDA, or coherent grid traversal of 8x8 ray packets "
                         "(cgt; same image, faster)")
-    g.add_argument("--eye", type=vec3, default=None, help="camera position X,Y,Z")
-    g.add_argument("--target", type=vec3, default=None, help="camera look-at point X,Y,Z")
+    g.add_argument("--eye", type=vec3, default=None,
+                   help="camera position X,Y,Z, with --target (default: a camera that frames the scene)")
+    g.add_argument("--target", type=vec3, default=None,
+                   help="camera look-at point X,Y,Z, with --eye (default: the centre of the scene)")
     g.add_argument("--up", type=vec3, default=None, help="camera up vector X,Y,Z (default 0,1,0)")
     g.add_argument("--fov", type=float, default=45.0, help="vertical field of view in degrees")
     g.add_argument("--follow-camera", action="store_true",

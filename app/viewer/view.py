@@ -52,7 +52,7 @@ def add_parser(sub):
                    help="folder for F12/P screenshots (default: the current directory, only when asked)")
     g.add_argument("--state-file", type=Path, default=None,
                    help="write the viewer state as JSON to this file several times a second "
-                        "(frame counters, parameters, screenshot paths, widget positions; for scripts/tests)")
+                        "(frame counters, parameters, screenshot paths, widget positions; for scripts/tests; default: none)")
     p.set_defaults(func=run)
     return p
 

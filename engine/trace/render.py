@@ -165,6 +165,11 @@ def _check_grid_tris(grid, tris):
     if not isinstance(grid, Grid):
         raise InputError(f"expected a Grid (from build_grid or GridBuilder.build), got {type(grid).__name__}")
     grid.check_current()
+    if isinstance(tris, (list, tuple)):  # nested sequences, as build_grid takes them
+        try:
+            tris = np.asarray(tris)
+        except ValueError:  # ragged: refused below, as any other non-array
+            pass
     if not isinstance(tris, np.ndarray) or tris.dtype.kind not in "fiu" or tris.ndim != 3 or tris.shape[1:] != (3, 3):
         raise InputError(f"triangles must be the (F,3,3) array the grid was built from, got "
                          f"{getattr(tris, 'shape', None)} {getattr(tris, 'dtype', type(tris))}")
