@@ -2,10 +2,11 @@
 
 * ``rng``: a seeded numpy Generator (fixed seed, so failures reproduce).
 * ``data_path(relpath)`` (also the ``shared_data`` fixture): path of a real third-party file named
-  by its place under ``../shared/data`` (which only the development machines have): the
-  repository's ``assets/`` copy when it ships one (:data:`SHIPPED`), else ``../shared/data``;
-  skips the test with a reason when neither has it.  ``GRIDRT_NO_SHARED_DATA=1`` ignores
-  ``../shared/data``, so a run shows what a user's clone runs and skips.
+  by its place in the development data set (real meshes kept beside the repository, on the
+  development machines only): the repository's ``assets/`` copy when it ships one
+  (:data:`SHIPPED`), else the data set's; skips the test with a reason when neither has it.
+  ``GRIDRT_NO_SHARED_DATA=1`` ignores the data set, so a run shows what a user's clone runs and
+  skips.
 * ``--update-golden``: regenerate ``tests/golden/*.png`` from the brute-force reference renderer
   (see ``test_golden.py``).
 * Procedural scenes: :func:`random_triangles`, :func:`random_scene` (slivers, huge, flat,
@@ -20,8 +21,8 @@ import pytest
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before anything imports numba)
 
-#: ../shared/data relative to the repository (present on the development machines only; treated
-#: as absent when GRIDRT_NO_SHARED_DATA is set to anything but "" or "0").
+#: the development data set, shared/data beside the repository (present on the development
+#: machines only; treated as absent when GRIDRT_NO_SHARED_DATA is set to anything but "" or "0").
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 NO_SHARED_DATA = os.environ.get("GRIDRT_NO_SHARED_DATA", "") not in ("", "0")
 
@@ -32,7 +33,7 @@ TEAPOT = "static/utah_teapot/teapot.obj"
 ARMADILLO = "static/armadillo/armadillo.off"
 BUNNY = "static/stanford_bunny/stanford-bunny.obj"
 
-#: ../shared/data files (or folders) that assets/ ships byte for byte -> their name in assets/
+#: data set files (or folders) that assets/ ships byte for byte -> their name in assets/
 SHIPPED = {
     TEAPOT: "teapot.obj",
     "animated/cesium_man/CesiumMan.glb": "CesiumMan.glb",
@@ -43,7 +44,7 @@ SHIPPED = {
     **{f"animated/bart/museum/aff/{n}.aff": f"museum/{n}.aff"
        for n in ("museum5", "animart5", "block", "camera", "paintings", "pillar", "room")},
 }
-#: ../shared/data meshes that assets/ ships converted (the same vertices as float32, the same
+#: data set meshes that assets/ ships converted (the same vertices as float32, the same
 #: faces, another format) -> their name in assets/
 CONVERTED = {ARMADILLO: "armadillo.ply"}
 
@@ -69,8 +70,8 @@ def rng():
 
 
 def data_path(relpath, converted=False):
-    """The real file (or folder) known by its place ``relpath`` under ../shared/data: the copy
-    in assets/ when the repository ships it byte for byte, else the one in ../shared/data, else
+    """The real file (or folder) known by its place ``relpath`` in the development data set: the
+    copy in assets/ when the repository ships it byte for byte, else the data set's, else
     (with ``converted``, for callers that only need the mesh's arrays) the converted copy in
     assets/; pytest.skip naming what is missing when there is none."""
     if relpath in SHIPPED and (ASSETS / SHIPPED[relpath]).exists():
@@ -80,7 +81,7 @@ def data_path(relpath, converted=False):
         return p
     if converted and relpath in CONVERTED and (ASSETS / CONVERTED[relpath]).is_file():
         return ASSETS / CONVERTED[relpath]
-    why = "GRIDRT_NO_SHARED_DATA is set" if NO_SHARED_DATA else "../shared/data is not part of the repository"
+    why = "GRIDRT_NO_SHARED_DATA is set" if NO_SHARED_DATA else "the development data set is not part of the repository"
     pytest.skip(f"real test data not available: {p} ({why}; assets/ does not ship it)")
 
 

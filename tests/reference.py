@@ -3,8 +3,8 @@
 Everything here is plain numpy in float64, written to be slow and obviously correct.  It imports
 nothing from ``engine``: the grid *placement* (``lo``, ``cell``, ``dims``) and the camera
 parameters are inputs, and the membership rule, the ray/triangle test, the camera model and the
-shading formulas are re-implemented from their written definitions (``notes/CONTEXT.md`` and the
-docstring of ``engine/trace/render.py``).
+shading formulas are re-implemented from their written definitions (the papers the engine cites,
+and the docstrings of ``engine/trace/render.py`` and ``engine/trace/shade.py``).
 
 Conventions (same as the engine's):
 

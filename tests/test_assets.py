@@ -58,7 +58,7 @@ def test_readme_checksums_match_every_shipped_file():
 
 
 def test_shipped_copies_are_the_shared_data_files():
-    """conftest maps ../shared/data names onto assets/: the same bytes, or (armadillo) the same mesh."""
+    """conftest maps the development data set's names onto assets/: the same bytes, or (armadillo) the same mesh."""
     if NO_SHARED_DATA or not SHARED_DATA.is_dir():
         pytest.skip(f"{SHARED_DATA} is absent (or ignored: GRIDRT_NO_SHARED_DATA): nothing to compare the copies with")
     import trimesh

@@ -3,7 +3,7 @@
 Independent references: Catmull-Rom curves (what a KB spline with zero tension, continuity and
 bias reduces to on evenly spaced keys), coaxial rotations (squad of evenly spaced coaxial keys turns
 at a constant rate), key values read from the .aff text by the simple scanners below, triangle
-counts from ../shared/data/README.md, and small AFF files written here with hand-computed poses.
+counts as listed with the development data set, and small AFF files written here with hand-computed poses.
 """
 
 import math
@@ -27,8 +27,8 @@ from conftest import data_path
 
 
 def need(rel):
-    """A BART scene file by its name under ../shared/data/animated/bart (assets/ ships the
-    museum); skips when absent."""
+    """A BART scene file by its name in the development data set's animated/bart folder (assets/
+    ships the museum); skips when absent."""
     return data_path(f"animated/bart/{rel}")
 
 

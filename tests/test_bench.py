@@ -1,5 +1,5 @@
 """Smoke tests of ``gridrt bench`` (every subcommand on a tiny scene with --quick) and checks of
-the benchmark's own references (app/benchref.py) against tests/reference.py.
+the benchmark's own references (app/bench/reference.py) against tests/reference.py.
 
 The bench's error figures are recomputed here independently: the engine's image at the sampled
 pixels against ``reference.ref_cast`` on ``reference.ref_camera_rays``.

@@ -6,7 +6,7 @@ two triangles are hit at the same t and each traversal keeps the one it tested f
 differing pixel is explained: the brute-force float64 caster (tests/reference.py) hits both
 triangles at that t (within 1e-9 relative).  Ties are counted and printed per case.
 
-Cases: random triangles, a closed icosphere, the Utah teapot (../shared/data), a height field
+Cases: random triangles, a closed icosphere, the Utah teapot (shipped in assets/), a height field
 seen at grazing angles, axis-aligned cubes (rays along lattice lines: many exact ties) and a scene
 with duplicated triangles (exact ties by construction); cameras outside, inside the grid with a
 wide field of view (packets whose rays disagree on the major axis take the single-ray fallback),

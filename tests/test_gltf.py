@@ -5,9 +5,9 @@ References are independent of gridrt.scene.gltf:
 * small glTF files are written here with pygltflib and their poses are computed analytically
   (a joint rotating about z by a known angle, a translation growing linearly in time, a morph
   weight ramp, a STEP staircase and a cubic Hermite segment from the specification's formula);
-* the real files in ../shared/data are re-posed by a separate float64 numpy implementation that
+* the real files (assets/ ships two; the development data set, when present, more) are re-posed by a separate float64 numpy implementation that
   reads them with pygltflib, and their bind poses are compared with trimesh's loads;
-* triangle counts come from ../shared/data/README.md.
+* triangle counts are those listed with the development data set.
 """
 
 import importlib.util
@@ -30,7 +30,7 @@ HAVE_DRACO = importlib.util.find_spec("DracoPy") is not None
 
 
 def need_data(rel):
-    """A real file by its ../shared/data name (assets/ ships some); skips when absent."""
+    """A real file by its name in the development data set (assets/ ships some); skips when absent."""
     return data_path(rel)
 
 

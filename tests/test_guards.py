@@ -18,9 +18,9 @@ refused before a kernel runs.  This module
   a worker process with a time limit, so a crash (segfault) or a hang is caught and reported as
   such; the outcome must be a scene with finite triangles that grids and casts, or a
   SceneFileError naming the file -- never another exception;
-* keeps regression tests of the unguarded paths this work found (reproducers and write-ups in
-  ``../notes/bugs/``: stale grids, unchecked gather indices, a builder corrupted by a refused build,
-  a half-applied RayCaster update), run in a subprocess where the bug crashed the interpreter.
+* keeps regression tests of the unguarded paths this work found (stale grids, unchecked gather
+  indices, a builder corrupted by a refused build, a half-applied RayCaster update), run in a
+  subprocess where the bug crashed the interpreter.
 
 The full fuzz (300 examples per target, ``-m soak`` or GRIDRT_SOAK=1) prints its outcome counts;
 the default run does 14 per target.
@@ -675,7 +675,7 @@ def test_guard_raycaster():
 
 def test_raycaster_update_is_atomic():
     """An update refused with InputError leaves the caster as it was (same hits as before);
-    regression test of ../notes/bugs/raycaster_update_partial.py."""
+    regression test of a half-applied update (since fixed)."""
     from gridrt.api import RayCaster
 
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [0, 1, 1]], np.float64)
@@ -706,8 +706,8 @@ def run_python(code, timeout=240):
 
 
 def test_gather_triangles_checks_indices():
-    """The public gather_triangles refuses face indices outside [0, V) (regression test of
-    ../notes/bugs/gather_triangles_oob.py: this segfaulted)."""
+    """The public gather_triangles refuses face indices outside [0, V) (regression test:
+    this segfaulted)."""
     r = run_python("""
         import numpy as np, engine
         from gridrt.errors import InputError
@@ -727,8 +727,8 @@ def test_gather_triangles_checks_indices():
 
 def test_stale_grid_is_refused():
     """A grid whose builder has built another grid since must be refused (or still be correct)
-    by cast_rays and render, never read the new cell lists (regression test of
-    ../notes/bugs/stale_grid_oob.py: this returned triangle ids out of bounds)."""
+    by cast_rays and render, never read the new cell lists (regression test:
+    this returned triangle ids out of bounds)."""
     r = run_python("""
         import numpy as np, engine
         from gridrt.camera import Camera
@@ -763,8 +763,8 @@ def test_stale_grid_is_refused():
 
 def test_refused_build_leaves_builder_usable():
     """After GridBuilder.build refuses a frame (too many references for int32 offsets), the next
-    build on the same builder equals a fresh build (serial and thread_grids; regression test of
-    ../notes/bugs/failed_build_corrupts_builder.py: corrupt grids and a segfault)."""
+    build on the same builder equals a fresh build (serial and thread_grids; regression test:
+    this left corrupt grids and a segfault)."""
     r = run_python("""
         import warnings, numpy as np, engine
         from gridrt.errors import InputError
@@ -895,9 +895,9 @@ class LoaderWorker:
 
 def make_seeds(tmp):
     """(target name -> (path to load, file to mutate), target name -> why it is missing).  Real
-    files (the repository's assets/ first, then ../shared/data: conftest.data_path), copied; STL
-    and ASCII PLY are written from the real teapot by trimesh's exporters (no such file ships in
-    ../shared/data).  Without ../shared/data (a user's clone) the binary PLY is the shipped
+    files (the repository's assets/ first, then the development data set: conftest.data_path),
+    copied; STL and ASCII PLY are written from the real teapot by trimesh's exporters (the data
+    set has no such file).  Without the data set (a user's clone) the binary PLY is the shipped
     armadillo.ply instead of Lucy and the OFF is armadillo.ply written by trimesh's OFF exporter;
     a target whose source is absent is missing (its test skips with the reason)."""
     import trimesh

@@ -20,7 +20,7 @@ from conftest import data_path
 
 
 def need_data(rel):
-    """A real file by its ../shared/data name (assets/ ships some); skips when absent."""
+    """A real file by its name in the development data set (assets/ ships some); skips when absent."""
     return data_path(rel)
 
 

@@ -1,7 +1,7 @@
 """Ray casting through the grid against the brute-force float64 caster (tests/reference.py).
 
-Over 100k rays on three scenes (random triangles, a closed icosphere, the Utah teapot when
-../shared/data is present), starting inside and outside the grid, aimed and random, axis-parallel
+Over 100k rays on three scenes (random triangles, a closed icosphere, the Utah teapot shipped in
+assets/), starting inside and outside the grid, aimed and random, axis-parallel
 and through cell corners, plus camera rays.  ``cast_rays`` must return, for every ray, the same
 triangle as the reference (or, on an exact tie, a triangle at the same t), t within 1e-5
 relative, and a miss exactly when the reference misses.  The watertight and the fast
@@ -232,7 +232,7 @@ def test_total_ray_count():
     """The cases above cover at least 100k rays (when the teapot is available)."""
     total = sum(len(get_case(s).o) for s in ("random", "icosphere"))
     assert total >= 95_000
-    total += len(get_case("teapot").o)  # skips when ../shared/data is absent
+    total += len(get_case("teapot").o)  # skips when the teapot is absent
     print(f"rays checked against the reference per intersection test: {total}")
     assert total >= 100_000
 

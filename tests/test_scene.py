@@ -2,7 +2,7 @@
 
 References are independent of the code under test: files are written by hand here (OBJ, OFF,
 PLY, STL, glTF), areas and node transforms are computed in float64 numpy, triangle counts of the
-real meshes come from ../shared/data/README.md, and motions are checked against their analytic
+real meshes are those listed with the development data set, and motions are checked against their analytic
 formulas.
 """
 
@@ -66,7 +66,7 @@ def shoelace(xy):
 
 
 def need_data(rel):
-    """A real file by its ../shared/data name (assets/ ships some; a converted mesh will do: these
+    """A real file by its name in the development data set (assets/ ships some; a converted mesh will do: these
     tests load meshes); skips when absent."""
     return data_path(rel, converted=True)
 

@@ -1,7 +1,7 @@
 """Watertightness at scale and a long-run soak (issue 7, parts 2 and 4).
 
 Watertightness: probe rays aimed exactly at shared vertices, edge midpoints and random points of
-shared edges of closed real meshes (Armadillo, dragon, Lucy from ../shared/data), each from an
+shared edges of closed real meshes (the shipped Armadillo; dragon and Lucy from the development data set, when present), each from an
 origin outside the mesh's bounding sphere and in front of every face touching its target (so the
 ray crosses the surface there, see tests/test_watertight.py).  On a closed mesh such a ray must
 hit no later than its target: a miss or a hit at t > |target - origin| (1 + 1e-6) is a *hole*.

@@ -16,8 +16,8 @@ a plane tiled by them, probed at its shared edges); zero-area and duplicated tri
 exactly parallel to the axes with +0.0 and -0.0 components; rays starting on cell boundaries,
 on triangles and inside the grid; grazing rays; the camera inside the scene (both traversals);
 extreme lambda (one cell, a grid capped by max_cells with a clear warning, and the max_bytes
-memory budget with a clear error); extreme direction magnitudes.  Tests named after a reproducer
-in ../notes/bugs/ are regression tests of engine defects this work found (since fixed).
+memory budget with a clear error); extreme direction magnitudes.  Tests that say "regression
+test" guard engine defects this work found (since fixed).
 """
 
 import math
@@ -278,7 +278,7 @@ def test_offset_floor_sweep():
 @pytest.mark.parametrize("X", [1e6, 1e9])
 def test_raycaster_far_from_origin_keeps_hits(X):
     """RayCaster takes float64 vertices and rays and works in a frame centred on the mesh
-    (regression test of ../notes/bugs/float32_offset_floor.py): far from the origin its hits
+    (regression test: float32 world coordinates had a precision floor): far from the origin its hits
     equal the float64 brute force."""
     local, rng = offset_scene()
     lo, hi = local.reshape(-1, 3).min(0), local.reshape(-1, 3).max(0)
@@ -357,7 +357,7 @@ def test_flat_scene_two_and_three_axes():
 def test_zero_area_triangle_never_hit():
     """Rays aimed exactly at points of zero-area triangles (three distinct collinear vertices)
     must miss them: such a triangle has no surface (the brute force: determinant 0).  Regression
-    test of ../notes/bugs/degenerate_triangle_hit.py (1280 of these 4000 rays used to hit)."""
+    test (1280 of these 4000 rays used to hit)."""
     rng = np.random.default_rng(215)
     n = 40
     line = np.zeros((n, 3, 3), np.float32)
@@ -761,8 +761,8 @@ def test_grid_memory_budget():
     and 16 threads, a build with max_bytes = need succeeds and one with need - 1 is refused with an
     InputError naming max_bytes and lambda; 60 triangles spanning the scene at lambda 1e12 against
     an 8 MiB budget are refused.  The allocation of a build that fits is printed against its
-    budget (the reference buffer grows with 1.5x slack).  Regression test of
-    ../notes/bugs/grid_memory_cap.py."""
+    budget (the reference buffer grows with 1.5x slack).  Regression test
+    (grids once grew without a memory cap)."""
     tris = spanning_triangles(60, 340)
     cap = 1 << 16
     ratios = []
@@ -813,8 +813,8 @@ def test_direction_magnitudes(unit_case, mag):
 @pytest.mark.parametrize("mag", [5e-301, 1e-305, 1e-307])
 def test_direction_magnitudes_below_tiny_dir(unit_case, mag):
     """|d| below 1e-300 in every component: a valid (non-zero) direction; hits at t ~ 1 / mag
-    are representable, so they must equal the brute force (regression test of
-    ../notes/bugs/tiny_direction_miss.py: these rays used to miss)."""
+    are representable, so they must equal the brute force (regression test:
+    these rays used to miss)."""
     tris, grid, o, d, h1 = unit_case
     du = (d / np.linalg.norm(d, axis=1, keepdims=True))[:3000]
     cast_and_compare(f"|d| = {mag:g}", grid, tris, o[:3000], du * mag, ref=scaled_ref(tris, o[:3000], du, mag))

@@ -10,7 +10,7 @@ t > |target - origin| * (1 + 1e-6).  The same rays through the fast Moller-Trumb
 counted and printed (it gives no such guarantee; nothing is asserted about it).
 
 Meshes: an icosphere (trimesh.creation), a radially jittered icosphere shot from inside, and the
-closed Armadillo from ../shared/data (skipped when absent).  This is pbrt-v4's
+closed Armadillo shipped in assets/ (skipped when absent).  This is pbrt-v4's
 ``Triangle.Watertight`` property, done on shared edges instead of random points.
 
 The packet traversal (CGT, engine/trace/cgt.py) gets the same kind of probes, with the same

@@ -11,9 +11,9 @@ after ``--warmup`` untimed runs (numba compiles, buffers grow), with min and max
   all cores (Ize et al. 2006's "Total performance", CGT's fps table); CGT traversal by default (DDA on
   request), static/moving split on and off.
 * ``trade``: every knob that trades speed for accuracy against a brute-force float64 reference
-  (:mod:`app.bench_trade`).
+  (:mod:`gridrt.app.bench.trade`).
 * ``peers``: the same animated mesh and rays through Intel Embree (embreex) side by side
-  (:mod:`app.bench_peers`).
+  (:mod:`gridrt.app.bench.peers`).
 """
 
 import sys

@@ -5,7 +5,7 @@ the DDA traversal: see :func:`baseline`): insertion test (bbox, exact), lambda (
 triangle), macro-cell size, intersection test (watertight, fast Moller-Trumbore), traversal (DDA,
 CGT), render resolution, and precision (the engine stores triangles as float32 and computes in
 float64). For each setting: build ms, references, render ms, and the error it costs against
-independent references (:mod:`app.benchref`):
+independent references (:mod:`gridrt.app.bench.reference`):
 
 * pixels whose hit triangle differs from a brute-force float64 caster, on a seeded random sample
   of pixels (brute force over a whole 1024x1024 image would take minutes); a lower resolution is
