@@ -12,7 +12,7 @@ from tqdm import tqdm
 
 from gridrt.errors import InputError
 from gridrt.pipeline import STATS_COLUMNS
-from gridrt.warmup import compile_notice
+from gridrt.warmup import compile_progress
 
 from . import cli
 
@@ -42,9 +42,14 @@ def run(a):
         if not math.isfinite(getattr(a, name)):
             raise InputError(f"--{name} must be finite")
     # the notice appears when numba really starts compiling (a cold cache, or settings whose kernels
-    # this machine has not compiled yet), not when every kernel loads from the cache
-    with compile_notice(_say_compiling):
-        return _dump(a)
+    # this machine has not compiled yet), not when every kernel loads from the cache; then, unless
+    # --no-progress, which kernel compiles and how many are done
+    display = CompileDisplay(progress=not a.no_progress)
+    try:
+        with compile_progress(display):
+            return _dump(a)
+    finally:
+        display.close()
 
 
 #: printed (once, on stderr) when the first kernel of a dump starts compiling
@@ -54,6 +59,50 @@ COMPILING = "Compiling numba kernels (about 10-60 s the first time; cached for l
 def _say_compiling():
     tqdm.write(COMPILING, file=sys.stderr)  # above the progress bar, if one is showing
     sys.stderr.flush()
+
+
+class CompileDisplay:
+    """Shows a cold start on stderr (a ``report`` for :func:`gridrt.warmup.compile_progress`):
+    the COMPILING notice once, at the first compile; then, with ``progress``, the kernel numba is
+    compiling and the kernels done out of those expected: a bar on a terminal, else one line per
+    kernel (``compiling gridrt.trace.cgt.trace_packet (14/43 kernels done, 9.2 s)``) and a last
+    line with the total."""
+
+    def __init__(self, progress=True, file=None):
+        self.progress = progress
+        self.file = file or sys.stderr
+        self.tty = bool(getattr(self.file, "isatty", lambda: False)())
+        self.noticed = False
+        self.bar = None
+        self.last = None
+
+    def __call__(self, p, started):
+        if not self.noticed:
+            self.noticed = True
+            _say_compiling()
+        self.last = (p.done, p.expected, p.seconds)
+        if not self.progress:
+            return
+        if self.tty:
+            if self.bar is None:
+                self.bar = tqdm(total=p.expected, desc="compiling", unit="kernel", file=self.file, mininterval=0)
+            self.bar.total = p.expected
+            self.bar.n = p.done
+            self.bar.set_postfix_str(p.kernel or "", refresh=False)
+            self.bar.refresh()
+        elif started:
+            tqdm.write(f"gridrt: {p}", file=self.file)
+            self.file.flush()
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.set_postfix_str("", refresh=False)
+            self.bar.close()
+            self.bar = None
+        elif self.progress and self.last is not None:
+            done, expected, seconds = self.last
+            tqdm.write(f"gridrt: compiled {done}/{expected} kernels in {seconds:.1f} s", file=self.file)
+            self.file.flush()
 
 
 def _dump(a):

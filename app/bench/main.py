@@ -14,6 +14,8 @@ after ``--warmup`` untimed runs (numba compiles, buffers grow), with min and max
   (:mod:`gridrt.app.bench.trade`).
 * ``peers``: the same animated mesh and rays through Intel Embree (embreex) side by side
   (:mod:`gridrt.app.bench.peers`).
+* ``start``: cold (fresh numba cache) and warm start of ``gridrt dump --frames 1`` to its first
+  frame, wall and CPU time (:mod:`gridrt.app.bench.start`).
 """
 
 import sys
@@ -93,10 +95,11 @@ def add_parser(sub):
     f.add_argument("--dt", type=float, default=1.0 / 30.0, help="seconds between frames (default 1/30)")
     f.set_defaults(func=run_frame)
 
-    from . import peers as bench_peers, trade as bench_trade
+    from . import peers as bench_peers, start as bench_start, trade as bench_trade
 
     bench_trade.add_parser(bsub, common)
     bench_peers.add_parser(bsub, common)
+    bench_start.add_parser(bsub, common)
     return p
 
 

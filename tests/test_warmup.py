@@ -1,0 +1,161 @@
+"""The cold start's progress display (gridrt.warmup.compile_progress and the dump's display of it).
+
+What compiled is read independently of the display: numba writes one cache index file
+(``<module>.<function>-<line>.pyXY.nbi``) per kernel it compiles with cache=True, and a dispatcher's
+``signatures`` list what it compiled in this process.
+"""
+
+import importlib
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from numba import njit
+
+from gridrt.warmup import compile_progress, kernels_reached
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGE = __name__.split(".")[0]
+
+
+@njit  # not cached: compiles at its first call with each argument type
+def _leaf(x):
+    return x * 2
+
+
+@njit
+def _middle(x):
+    return _leaf(x) + 1
+
+
+@njit
+def _top(x):
+    return _middle(x) + _leaf(x)
+
+
+@njit
+def _alone(x):
+    return x - 1
+
+
+def test_compile_progress_names_kernels_and_counts_them():
+    events = []
+
+    def report(p, started):
+        events.append((started, p.kernel, p.again, p.done, p.expected))
+
+    assert {id(k) for k in kernels_reached(_top)} == {id(_top), id(_middle), id(_leaf)}
+    with compile_progress(report, package=PACKAGE) as progress:
+        assert _top(3) == 13
+        assert len(_top.signatures) == len(_middle.signatures) == len(_leaf.signatures) == 1
+        # the three kernels were expected from the start: the top one's call tree
+        assert events[0] == (True, f"{__name__}._top", False, 0, 3)
+        started = [e[1] for e in events if e[0]]
+        assert sorted(started) == sorted(f"{__name__}.{n}" for n in ("_top", "_middle", "_leaf"))
+        assert (progress.done, progress.expected, progress.kernel) == (3, 3, None)
+        n = len(events)
+        assert _top(3) == 13 and len(events) == n, "a compiled kernel reported again"
+        assert _leaf(2.5) == 5.0  # another argument type: compiles again, counted once
+        assert len(_leaf.signatures) == 2
+        assert events[n] == (True, f"{__name__}._leaf", True, 3, 3)
+        assert _alone(1) == 0  # a kernel nobody expected: the total grows
+        assert events[-1][1:] == (None, False, 4, 4)
+    assert "4/4 kernels done" in str(progress)
+    with compile_progress(report, package=PACKAGE):
+        assert _top(4) == 17 and _alone(2) == 1  # all compiled: nothing to report
+    assert len(events) == n + 4
+    with compile_progress(report, package="not_this_package"):
+        assert _alone(2.5) == 1.5  # compiles, but not one of the package's kernels
+    assert len(_alone.signatures) == 2 and len(events) == n + 4
+
+
+def gridrt(*args, env):
+    return subprocess.run([sys.executable, "-m", "gridrt", *args], cwd=REPO, capture_output=True, text=True,
+                          env={**os.environ, **env}, timeout=900)
+
+
+LINE = re.compile(r"gridrt: compiling (\S+)( again \(other argument types\))? \((\d+)/(\d+) kernels done, ([\d.]+) s\)$")
+LAST = re.compile(r"gridrt: compiled (\d+)/(\d+) kernels in ([\d.]+) s$")
+
+
+def index_files(folder):
+    """{(module file stem, function): (size, mtime)} of the numba cache index files under folder."""
+    out = {}
+    for p in Path(folder).rglob("*.nbi"):
+        stem, func = re.match(r"(\w+)\.(.+)-\d+\.py\d+\.nbi$", p.name).groups()
+        out[(stem, func)] = (p.stat().st_size, p.stat().st_mtime_ns)
+    return out
+
+
+@pytest.mark.slow
+def test_cold_dump_shows_what_compiles_and_warm_dump_compiles_nothing(tmp_path):
+    """A first frame of the default scene on an empty numba cache names every kernel it compiles
+    (the cache folder's index files, one per compiled kernel, are the reference) and counts them
+    up to the total; the same dump again loads everything from the cache and says nothing."""
+    cache = tmp_path / "cache"
+    env = {"NUMBA_CACHE_DIR": str(cache)}
+    args = ["dump", "--frames", "1", "--size", "16x12", "--out", str(tmp_path / "d")]
+    r = gridrt(*args, env=env)
+    assert r.returncode == 0, r.stderr
+    assert r.stderr.count("Compiling numba kernels") == 1
+    lines = [s.strip() for s in re.split(r"[\r\n]", r.stderr)]
+    shown = [m.groups() for m in map(LINE.search, lines) if m]
+    last = [m.groups() for m in map(LAST.search, lines) if m]
+    assert shown and len(last) == 1, r.stderr
+    named = {name for name, *_ in shown}
+    for name in named:  # each name is a real kernel of the package
+        module, _, func = name.rpartition(".")
+        assert module.startswith("gridrt.") and hasattr(getattr(importlib.import_module(module), func), "py_func")
+    compiled = index_files(cache)
+    assert {(n.rpartition(".")[0].rpartition(".")[2], n.rpartition(".")[2]) for n in named} == set(compiled)
+    done = [int(d) for _, _, d, _, _ in shown]
+    expected = [int(e) for _, _, _, e, _ in shown]
+    seconds = [float(s) for *_, s in shown]
+    assert done == sorted(done) and expected == sorted(expected) and seconds == sorted(seconds)
+    assert all(d < e for (_, a, *_), d, e in zip(shown, done, expected) if not a), \
+        "a kernel started for the first time with every expected kernel done"
+    assert int(last[0][0]) == int(last[0][1]) == len(compiled), last
+    again = [name for name, a, *_ in shown if a]
+    assert all(name in named for name in again)
+    assert len(shown) == len(named) + len(again), "a kernel named again without 'again'"
+
+    r = gridrt(*args, env=env)
+    assert r.returncode == 0, r.stderr
+    assert "Compiling numba kernels" not in r.stderr and "gridrt: compil" not in r.stderr, r.stderr
+    assert index_files(cache) == compiled, "the warm run compiled something"
+
+
+@pytest.mark.slow
+def test_bench_start_quick(tmp_path):
+    """``gridrt bench start --quick``: one cold run (it compiles kernels) and warm runs (they
+    compile none), in the CSV and the summary."""
+    import csv
+
+    out = tmp_path / "start"
+    r = subprocess.run([sys.executable, "-m", "gridrt", "bench", "start", "--quick", "--no-progress", "--out",
+                        str(out)], cwd=REPO, capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr
+    with open(out / "start.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    cold = [row for row in rows if row["kind"] == "cold"]
+    warm = [row for row in rows if row["kind"].startswith("warm")]
+    assert len(cold) == 1 and warm
+    assert int(cold[0]["kernels"]) > 10 and all(int(row["kernels"]) == 0 for row in warm)
+    assert all(float(row["wall_s"]) > 0 and float(row["cpu_s"]) > 0 for row in rows)
+    summary = (out / "summary.md").read_text()
+    assert "| cold | 1 |" in summary and "| warm | 1 |" in summary
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--dump-args", "--frames 3"], "--dump-args sets --frames"),
+    (["--dump-args", "'unclosed"], "--dump-args"),
+    (["--runs", "0"], "--runs must be >= 1"),
+    (["--cold-runs", "-1"], "--cold-runs must be >= 0"),
+])
+def test_bench_start_bad_arguments(tmp_path, args, message):
+    r = subprocess.run([sys.executable, "-m", "gridrt", "bench", "start", "--no-progress", "--out", str(tmp_path / "s"),
+                        *args], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr, r.stderr
