@@ -1,4 +1,5 @@
-"""Vertex keyframe animation: MD2 models and folders of OBJ/PLY frames, interpolated linearly.
+"""Vertex keyframe animation: MD2 models and folders of OBJ/PLY/OFF/STL frames, interpolated
+linearly (:data:`FRAME_EXTENSIONS`).
 
 :class:`KeyframeMesh` holds K frames of the same connectivity, (K, V, 3) float32 vertices and
 (F, 3) faces, shown at ``fps`` frames per second; between frames the vertices are interpolated
