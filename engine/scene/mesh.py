@@ -161,11 +161,9 @@ def _check_gltf(path, ext):
         raise SceneFileError(path, gltf_version_problem(tree))
     required = set(tree.get("extensionsRequired") or ())
     if "KHR_draco_mesh_compression" in required and importlib.util.find_spec("DracoPy") is None:
-        raise SceneFileError(
-            path,
-            "geometry is Draco-compressed (KHR_draco_mesh_compression); "
-            "install the DracoPy package to read it",
-        )
+        from .gltf import DRACO_HINT
+
+        raise SceneFileError(path, f"geometry is Draco-compressed (KHR_draco_mesh_compression); {DRACO_HINT}")
     if "EXT_meshopt_compression" in required:
         raise SceneFileError(path, "geometry uses EXT_meshopt_compression, which trimesh cannot decode")
 
