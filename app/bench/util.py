@@ -50,8 +50,7 @@ SCENE_HELP = ("comma-separated scene specs NAME[:N][:twist|wave]: built-ins marb
 def scenes_help(defaults, fallback):
     """--scenes help of a benchmark whose default scenes are ``defaults`` (those present) and
     ``fallback`` (when none of them is)."""
-    return (f"{SCENE_HELP} (default: {','.join(defaults)}, those of them present; {','.join(fallback)} when none "
-            "is)")
+    return f"{SCENE_HELP} (default: {', '.join(defaults)}, those of them present; {', '.join(fallback)} when none is)"
 
 
 @dataclass
