@@ -23,6 +23,7 @@ holes) are marked.
 import math
 import sys
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -176,7 +177,59 @@ def _configs(a, knobs, size):
     return rows, d
 
 
+@dataclass
+class _Options:
+    """The checked options of a run: knobs, image edge, timing rounds, sample and probe counts."""
+
+    knobs: tuple
+    threads: int
+    size: int
+    runs: int
+    warmup: int
+    n_samples: int
+    n_probes: int
+
+
+@dataclass
+class _Setup:
+    """The image scene (its triangles in its frame, camera, diagonal), the probe mesh and the
+    references: the sampled pixels' rays and brute-force hits, the float64 source geometry's, and
+    the probe rays (float32 targets, and float64 source targets where there is a source)."""
+
+    sc: object
+    tris: np.ndarray
+    cam: object
+    diag: float
+    pm: object
+    mesh: object
+    probe_tris: np.ndarray
+    probe_why: str
+    xs: np.ndarray
+    ys: np.ndarray
+    ref32: tuple
+    ref_ms: float
+    ref64: tuple | None
+    src_why: str
+    probes: tuple
+    probes64: tuple | None
+
+
 def run_trade(a):
+    o = _options(a)
+    out = out_dir(a.out)
+    info = machine_info([o.threads])
+    su = _setup(a, o, *_default_specs(a))
+    configs, dcfg = _configs(a, o.knobs, o.size)
+    unique = list(dict.fromkeys(c for _, _, c in configs))
+    meas, holes_cache = _measure(a, o, su, unique, dcfg)
+    rows = _rows(configs, unique, meas, holes_cache, dcfg, su, o.n_samples)
+    finish_machine(info)
+    _write(a, o, su, rows, meas, dcfg, info, out)
+    return 0
+
+
+def _options(a):
+    """The run's options, checked (--quick shrinks them)."""
     check_runs(a.runs, a.warmup)
     knobs = KNOBS if a.knobs is None else tuple(k.strip() for k in a.knobs.split(",") if k.strip())
     if a.knobs is None and a.quick:
@@ -198,10 +251,12 @@ def run_trade(a):
         raise InputError("--samples must be >= 1 and --probes >= 8")
     if not math.isfinite(a.time):
         raise InputError("--time must be finite")
-    scene_spec, probe_spec = _default_specs(a)
-    out = out_dir(a.out)
-    info = machine_info([threads])
+    return _Options(knobs, threads, size, runs, warmup, n_samples, n_probes)
 
+
+def _setup(a, o, scene_spec, probe_spec):
+    """The image scene, the probe mesh and the brute-force references (see :class:`_Setup`)."""
+    threads, size, n_samples, n_probes = o.threads, o.size, o.n_samples, o.n_probes
     sc = resolve_scene(scene_spec)
     origin = sc.scene.frame_origin(a.time)  # measured in the frame the pipeline renders the scene in
     tris = np.array(sc.scene.triangles_at(a.time, origin=origin))
@@ -226,23 +281,30 @@ def run_trade(a):
     t0 = time.perf_counter()
     ref32 = brute_cast(tris, O, D, threads=threads)
     ref_ms = (time.perf_counter() - t0) * 1e3
-    configs, dcfg = _configs(a, knobs, size)
     src64, src_why = (None, "")
     ref64 = None
-    if "precision" in knobs:
+    if "precision" in o.knobs:
         src64, src_why = source_f64(sc, tris, origin)
         if src64 is not None:
             ref64 = brute_cast(src64, O, D, threads=threads)
-    po, pd, pdist = probe_rays(probe_v, mesh.faces, n_probes, seed=a.seed)
-    po64 = pd64 = pdist64 = None
+    probes = probe_rays(probe_v, mesh.faces, n_probes, seed=a.seed)
+    probes64 = None
     if probe_src is not None:
         # the same targets as the float32 probes (same seed, same topology) at the float64
         # source positions of the mesh's indexed vertices
         vsrc = probe_v.astype(np.float64)
         vsrc[mesh.faces.reshape(-1)] = probe_src.reshape(-1, 3)
-        po64, pd64, pdist64 = probe_rays(vsrc, mesh.faces, n_probes, seed=a.seed)
+        probes64 = probe_rays(vsrc, mesh.faces, n_probes, seed=a.seed)
+    return _Setup(sc, tris, cam, diag, pm, mesh, probe_tris, probe_why, xs, ys, ref32, ref_ms, ref64, src_why,
+                  probes, probes64)
 
-    unique = list(dict.fromkeys(c for _, _, c in configs))
+
+def _measure(a, o, su, unique, dcfg):
+    """Every configuration's figures: pass 1 (warm-up, errors, holes), then the timed rounds."""
+    threads, size, runs, warmup = o.threads, o.size, o.runs, o.warmup
+    tris, cam, xs, ys, ref32, ref64 = su.tris, su.cam, su.xs, su.ys, su.ref32, su.ref64
+    po, pd, pdist = su.probes
+    po64, pd64, pdist64 = su.probes64 if su.probes64 is not None else (None, None, None)
     gkeys = list(dict.fromkeys(c[:3] for c in unique))
     builders = {gk: GridBuilder(GridParams(strategy=a.strategy, density=gk[1], macro=gk[2], insert=gk[0],
                                            threads=threads)) for gk in gkeys}
@@ -275,11 +337,11 @@ def run_trade(a):
             m["holes"] = None  # cast_rays has no packet traversal: not measurable with probe rays
         else:
             if hk not in holes_cache:
-                pg = GridBuilder(builders[gk].params).build(probe_tris)
-                h = cast_rays(pg, probe_tris, po, pd, watertight=wt, threads=threads)
+                pg = GridBuilder(builders[gk].params).build(su.probe_tris)
+                h = cast_rays(pg, su.probe_tris, po, pd, watertight=wt, threads=threads)
                 holes_cache[hk] = count_holes(h.t, h.tri, pdist)
                 if po64 is not None and cfg == dcfg:
-                    h = cast_rays(pg, probe_tris, po64, pd64, watertight=wt, threads=threads)
+                    h = cast_rays(pg, su.probe_tris, po64, pd64, watertight=wt, threads=threads)
                     holes_cache["precision"] = count_holes(h.t, h.tri, pdist64)
             m["holes"] = holes_cache[hk]
         meas[cfg] = m
@@ -301,8 +363,14 @@ def run_trade(a):
     for cfg in unique:
         put_stat(meas[cfg], "build_ms", bt[cfg[:3]])
         put_stat(meas[cfg], "render_ms", rt[cfg])
+    return meas, holes_cache
 
-    # rows + Pareto front over the unique configurations (precision is not a setting)
+
+def _rows(configs, unique, meas, holes_cache, dcfg, su, n_samples):
+    """The CSV rows, one per (knob, value), with the Pareto front over the unique configurations
+    (precision is not a setting)."""
+    po = su.probes[0]
+    po64 = su.probes64[0] if su.probes64 is not None else None
     pts = []
     for cfg in unique:
         m = meas[cfg]
@@ -333,15 +401,21 @@ def run_trade(a):
             holes="" if holes is None else holes, holes_per_million="" if holes is None else holes / n_pr * 1e6,
             pareto="" if prec else int(cfg in front),
         ))
-    finish_machine(info)
+    return rows
+
+
+def _write(a, o, su, rows, meas, dcfg, info, out):
+    """trade.csv, machine.json, the two plots and summary.md; the tables on stdout."""
+    sc = su.sc
     write_csv(rows, out / "trade.csv")
     write_json(info, out / "machine.json")
     _plot_trade(rows, out / "trade.png")
     _plot_knobs(rows, out / "trade_knobs.png")
-    ctx = dict(baseline=_describe(dcfg), scene=sc, tris=tris, size=size, n_samples=n_samples, seed=a.seed, ref_ms=ref_ms, threads=threads,
-               strategy=a.strategy, runs=runs, warmup=warmup, probe=pm, n_probes=len(po), diag=diag,
-               ref_hits=int((ref32[1] >= 0).sum()), src_why=src_why, probe_why=probe_why, has64=ref64 is not None,
-               knobs=knobs, hit_fraction=meas[dcfg]["hit_fraction"] if dcfg in meas else float("nan"),
+    ctx = dict(baseline=_describe(dcfg), scene=sc, tris=su.tris, size=o.size, n_samples=o.n_samples, seed=a.seed,
+               ref_ms=su.ref_ms, threads=o.threads, strategy=a.strategy, runs=o.runs, warmup=o.warmup, probe=su.pm,
+               n_probes=len(su.probes[0]), diag=su.diag, ref_hits=int((su.ref32[1] >= 0).sum()),
+               src_why=su.src_why, probe_why=su.probe_why, has64=su.ref64 is not None, knobs=o.knobs,
+               hit_fraction=meas[dcfg]["hit_fraction"] if dcfg in meas else float("nan"),
                camera="the scene's own camera" if getattr(sc.scene, "camera_at", lambda t: None)(a.time) is not None
                else "camera along the scene's thinnest axis")
     body = _summary(rows, ctx)
@@ -351,7 +425,6 @@ def run_trade(a):
         if line.startswith("|"):
             print(line)
     print(f"wrote {out}/trade.csv, trade.png, trade_knobs.png, summary.md")
-    return 0
 
 
 def _g(x, digits=3):

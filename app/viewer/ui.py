@@ -13,7 +13,7 @@ import numpy as np
 from imgui_bundle import imgui, implot
 
 from gridrt.config import INSERT_MODES, SHADING_MODES, TRAVERSALS
-from gridrt.scene import BUILTIN_SCENES, DEFORM_KINDS, SUPPORTED_EXTENSIONS, SceneSpec
+from gridrt.scene import BUILTIN_SCENES, DEFORM_KINDS, FRAME_EXTENSIONS, SCENE_EXTENSIONS, SceneSpec
 
 from .input import KEY_HELP
 from .state import SCALE_MAX, SCALE_MIN, SPEED_MAX, SPEED_MIN
@@ -255,8 +255,8 @@ def _draw_scene(state):
     _rect(state, "mesh file", w)
     state.file_text = txt
     if imgui.is_item_hovered():
-        imgui.set_tooltip("path of a " + " ".join(SUPPORTED_EXTENSIONS) + " file; Enter or Open loads it "
-                          "(or drop a file on the window)")
+        imgui.set_tooltip(f"path of a scene file ({' '.join(SCENE_EXTENSIONS)}) or a folder of frames "
+                          f"({' '.join(FRAME_EXTENSIONS)}); Enter or Open loads it (or drop a file on the window)")
     imgui.same_line()
     if (imgui.button("Open file") or enter) and state.file_text.strip():
         state.scene_request = SceneSpec(source=os.path.expanduser(state.file_text.strip()))
