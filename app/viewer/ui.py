@@ -104,6 +104,18 @@ def _combo(state, label, items, current):
 def draw_panel(state, strategy_names):
     """Draw the control panel for one frame; widgets write into ``state`` only (and record
     their rectangles in ``state.widget_rects``)."""
+    _begin_panel(state)
+    _draw_title(state)
+    _section(state, "Scene", "scene header", _draw_scene)
+    _section(state, "Animation", "animation header", _draw_animation)
+    _section(state, "Grid", "grid header", lambda st: _draw_grid(st, strategy_names))
+    _section(state, "Render", "render header", _draw_render)
+    _section(state, "Stats", "stats header", _draw_stats)
+    _draw_help()
+
+
+def _begin_panel(state):
+    """The panel's window at its fixed place, as tall as the window allows."""
     io = imgui.get_io()
     max_h = max(float(io.display_size.y) - 2 * PANEL_POS[1], 100.0)
     imgui.set_next_window_pos(imgui.ImVec2(*PANEL_POS), imgui.Cond_.always)
@@ -115,6 +127,9 @@ def draw_panel(state, strategy_names):
     state.panel_rect = (float(p.x), float(p.y), float(s.x), float(s.y))
     imgui.push_item_width(-90.0)
 
+
+def _draw_title(state):
+    """The scene's name and size, then the last error and message."""
     title = state.scene_name or state.scene.source
     imgui.text(f"{title}: {state.triangles:,} triangles" if state.triangles else title)
     if state.scene_error:
@@ -124,108 +139,110 @@ def draw_panel(state, strategy_names):
     if state.message:
         imgui.text_colored(DIM_COLOR, state.message)
 
-    opened = imgui.collapsing_header("Scene", imgui.TreeNodeFlags_.default_open)
-    _rect(state, "scene header")
-    if opened:
-        _draw_scene(state)
 
-    opened = imgui.collapsing_header("Animation", imgui.TreeNodeFlags_.default_open)
-    _rect(state, "animation header")
+def _section(state, title, rect_name, draw):
+    """A collapsing header (open at first) recorded as ``rect_name``; ``draw(state)`` fills it."""
+    opened = imgui.collapsing_header(title, imgui.TreeNodeFlags_.default_open)
+    _rect(state, rect_name)
     if opened:
-        if imgui.button("Pause" if state.playing else "Play", imgui.ImVec2(50, 0)):
-            state.playing = not state.playing
-        _rect(state, "play")
-        imgui.same_line()
-        span = state.time_span()
-        w = imgui.calc_item_width()
-        changed, t = imgui.slider_float("time", float(state.time), 0.0, float(span),
-                                        "static" if state.static else "%.2f s")
-        _rect(state, "time", w)
-        if changed:
-            state.time = min(max(t, 0.0), span)
-        w = imgui.calc_item_width()
-        changed, v = imgui.slider_float("speed", float(state.speed), SPEED_MIN, SPEED_MAX, "%.2fx")
-        _rect(state, "speed", w)
-        if changed:
-            state.speed = v
+        draw(state)
 
-    opened = imgui.collapsing_header("Grid", imgui.TreeNodeFlags_.default_open)
-    _rect(state, "grid header")
-    if opened:
-        gp = state.grid
-        v = _combo(state, "strategy", list(strategy_names), gp.strategy)
-        if v is not None:
-            state.set_grid(strategy=v)
-        w = imgui.calc_item_width()
-        changed, n = imgui.slider_int("threads", int(state.threads), 1, int(state.max_threads))
-        _rect(state, "threads", w)
-        if changed:
-            state.set_threads(n)
-        w = imgui.calc_item_width()
-        changed, d = imgui.slider_float("lambda", float(gp.density), 0.125, 64.0, "%.3g",
-                                        imgui.SliderFlags_.logarithmic)
-        _rect(state, "lambda", w)
-        if changed and d > 0:
-            state.set_grid(density=d)
-        w = imgui.calc_item_width()
-        changed, m = imgui.slider_int("macro cell", int(gp.macro), 1, 16)
-        _rect(state, "macro cell", w)
-        if changed:
-            state.set_grid(macro=min(max(m, 1), 16))
-        v = _combo(state, "insertion", list(INSERT_MODES), gp.insert)
-        if v is not None:
-            state.set_grid(insert=v)
 
-    opened = imgui.collapsing_header("Render", imgui.TreeNodeFlags_.default_open)
-    _rect(state, "render header")
-    if opened:
-        rp = state.render
-        v = _combo(state, "intersection", list(INTERSECTION_LABELS), INTERSECTION_LABELS[0 if rp.watertight else 1])
-        if v is not None:
-            state.set_render(watertight=v == INTERSECTION_LABELS[0])
-        v = _combo(state, "shading", list(SHADING_MODES), rp.shading)
-        if v is not None:
-            state.set_render(shading=v)
-        v = _combo(state, "traversal", list(TRAVERSALS), rp.traversal)
-        if v is not None:
-            state.set_render(traversal=v)
-        changed, b = imgui.checkbox("shadows", bool(rp.shadows))
-        _rect(state, "shadows")
-        if changed:
-            state.set_render(shadows=b)
-        imgui.same_line()
-        changed, b = imgui.checkbox("scene camera", bool(state.follow_camera))
-        _rect(state, "scene camera")
-        if changed:
-            state.follow_camera = b
-        w = imgui.calc_item_width()
-        changed, sc = imgui.slider_float("resolution", float(state.scale), SCALE_MIN, SCALE_MAX, "%.2fx")
-        _rect(state, "resolution", w)
-        if changed:
-            state.scale = min(max(sc, SCALE_MIN), SCALE_MAX)
-        if imgui.button("Save image"):
-            state.want_shot = True
-        _rect(state, "save image")
-        imgui.same_line()
-        if imgui.button("Save window"):
-            state.want_window_shot = True
-        _rect(state, "save window")
-        imgui.same_line()
-        if imgui.button("Reset view"):
-            state.reset_view()
-        _rect(state, "reset view")
-
-    opened = imgui.collapsing_header("Stats", imgui.TreeNodeFlags_.default_open)
-    _rect(state, "stats header")
-    if opened:
-        _draw_stats(state)
-
+def _draw_help():
+    """The key help line, then the end of the panel's window."""
     imgui.separator()
     imgui.push_text_wrap_pos(0.0)
     imgui.text_colored(DIM_COLOR, KEY_HELP)
     imgui.pop_text_wrap_pos()
     imgui.pop_item_width()
     imgui.end()
+
+
+def _draw_animation(state):
+    """Play/pause, the time slider and the playback speed."""
+    if imgui.button("Pause" if state.playing else "Play", imgui.ImVec2(50, 0)):
+        state.playing = not state.playing
+    _rect(state, "play")
+    imgui.same_line()
+    span = state.time_span()
+    w = imgui.calc_item_width()
+    changed, t = imgui.slider_float("time", float(state.time), 0.0, float(span),
+                                    "static" if state.static else "%.2f s")
+    _rect(state, "time", w)
+    if changed:
+        state.time = min(max(t, 0.0), span)
+    w = imgui.calc_item_width()
+    changed, v = imgui.slider_float("speed", float(state.speed), SPEED_MIN, SPEED_MAX, "%.2fx")
+    _rect(state, "speed", w)
+    if changed:
+        state.speed = v
+
+
+def _draw_grid(state, strategy_names):
+    """Build strategy, threads, lambda, macro-cell size and insertion test."""
+    gp = state.grid
+    v = _combo(state, "strategy", list(strategy_names), gp.strategy)
+    if v is not None:
+        state.set_grid(strategy=v)
+    w = imgui.calc_item_width()
+    changed, n = imgui.slider_int("threads", int(state.threads), 1, int(state.max_threads))
+    _rect(state, "threads", w)
+    if changed:
+        state.set_threads(n)
+    w = imgui.calc_item_width()
+    changed, d = imgui.slider_float("lambda", float(gp.density), 0.125, 64.0, "%.3g",
+                                    imgui.SliderFlags_.logarithmic)
+    _rect(state, "lambda", w)
+    if changed and d > 0:
+        state.set_grid(density=d)
+    w = imgui.calc_item_width()
+    changed, m = imgui.slider_int("macro cell", int(gp.macro), 1, 16)
+    _rect(state, "macro cell", w)
+    if changed:
+        state.set_grid(macro=min(max(m, 1), 16))
+    v = _combo(state, "insertion", list(INSERT_MODES), gp.insert)
+    if v is not None:
+        state.set_grid(insert=v)
+
+
+def _draw_render(state):
+    """Intersection test, shading, traversal, shadows, scene camera, resolution and the
+    image / window / view buttons."""
+    rp = state.render
+    v = _combo(state, "intersection", list(INTERSECTION_LABELS), INTERSECTION_LABELS[0 if rp.watertight else 1])
+    if v is not None:
+        state.set_render(watertight=v == INTERSECTION_LABELS[0])
+    v = _combo(state, "shading", list(SHADING_MODES), rp.shading)
+    if v is not None:
+        state.set_render(shading=v)
+    v = _combo(state, "traversal", list(TRAVERSALS), rp.traversal)
+    if v is not None:
+        state.set_render(traversal=v)
+    changed, b = imgui.checkbox("shadows", bool(rp.shadows))
+    _rect(state, "shadows")
+    if changed:
+        state.set_render(shadows=b)
+    imgui.same_line()
+    changed, b = imgui.checkbox("scene camera", bool(state.follow_camera))
+    _rect(state, "scene camera")
+    if changed:
+        state.follow_camera = b
+    w = imgui.calc_item_width()
+    changed, sc = imgui.slider_float("resolution", float(state.scale), SCALE_MIN, SCALE_MAX, "%.2fx")
+    _rect(state, "resolution", w)
+    if changed:
+        state.scale = min(max(sc, SCALE_MIN), SCALE_MAX)
+    if imgui.button("Save image"):
+        state.want_shot = True
+    _rect(state, "save image")
+    imgui.same_line()
+    if imgui.button("Save window"):
+        state.want_window_shot = True
+    _rect(state, "save window")
+    imgui.same_line()
+    if imgui.button("Reset view"):
+        state.reset_view()
+    _rect(state, "reset view")
 
 
 def _draw_scene(state):
