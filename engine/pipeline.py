@@ -10,6 +10,7 @@ from .camera import Camera
 from .config import GridParams, RenderParams
 from .grid.build import GridBuilder
 from .precision import warn_detail
+from .stats import FrameStats
 from .threads import use_threads
 from .trace.render import Renderer
 
@@ -29,7 +30,7 @@ RECENTRE_DRIFT = 1.0
 
 @dataclass
 class Frame:
-    """One rendered frame: image (H,W,4) uint8, t (H,W) float32, tri (H,W) int32, stats dict.
+    """One rendered frame: image (H,W,4) uint8, t (H,W) float32, tri (H,W) int32, stats FrameStats.
 
     ``grid`` is the frame's grid and ``origin`` ((3,) float64) the world position of the frame it
     was built in: the grid covers the scene's triangles moved by ``-origin`` (see FramePipeline).
@@ -38,7 +39,7 @@ class Frame:
     image: np.ndarray
     t: np.ndarray
     tri: np.ndarray
-    stats: dict
+    stats: FrameStats
     grid: object = None
     origin: np.ndarray = None
 
@@ -198,42 +199,12 @@ class FramePipeline:
         else:
             res = self.renderer.render(grid, tris, local_cam, rp)
         self.last_camera = cam
-        gs = grid.stats
         rp = self.render_params
-        stats = {
-            "frame": self.frame_index,
-            "t": float(t),
-            "triangles": self.scene.n_triangles,
-            "cells": gs["cells"] + (self.static_grid.stats["cells"] if second is not None else 0),
-            "references": gs["references"] + (self.static_grid.stats["references"] if second is not None else 0),
-            "threads": gs["threads"],
-            "strategy": gs["strategy"],
-            "insert": gs["insert"],
-            "clear_ms": gs["clear_ms"] if rebuild else 0.0,
-            "insert_ms": gs["insert_ms"] if rebuild else 0.0,
-            "macro_ms": gs["macro_ms"] if rebuild else 0.0,
-            "build_ms": gs["build_ms"] if rebuild else 0.0,
-            "render_ms": res.stats["render_ms"],
-            "anim_ms": anim_ms,
-            "bounds_ms": gs.get("bounds_ms", 0.0) if rebuild else 0.0,
-            "rebuilt": int(rebuild),
-            "refs_per_tri": gs["refs_per_tri"],
-            "moving_triangles": gs["triangles"],
-            "static_build_ms": static_ms,
-            "dims": gs["dims"],
-            "macro_full": gs["macro_full"],
-            "grid_bytes": gs["grid_bytes"] + (self.static_grid.stats["grid_bytes"] if second is not None else 0),
-            "width": rp.width,
-            "height": rp.height,
-            "shading": rp.shading,
-            "traversal": rp.traversal,
-            "fallback_rays": res.stats.get("fallback_rays", 0),
-        }
-        for k in ("mrays", "hit_fraction", "tests_per_ray", "cells_per_ray"):
-            stats[k] = res.stats[k]
-        for k, v in gs.items():  # strategy-specific stages (count_ms, bucket_ms, merge_ms, ...)
-            if k.endswith("_ms") and k not in stats:
-                stats[k] = v if rebuild else 0.0
-        stats["frame_ms"] = (time.perf_counter() - t_frame) * 1e3
+        stats = FrameStats(
+            frame=self.frame_index, t=float(t), triangles=self.scene.n_triangles, build=grid.stats,
+            static=self.static_grid.stats if second is not None else None, render=res.stats,
+            rebuilt=bool(rebuild), anim_ms=anim_ms, static_build_ms=static_ms,
+            frame_ms=(time.perf_counter() - t_frame) * 1e3, width=rp.width, height=rp.height, shading=rp.shading,
+        )
         self.frame_index += 1
         return Frame(res.image, res.t, res.tri, stats, grid, self.origin)

@@ -163,6 +163,7 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
     from gridrt.app.viewer.state import ViewerState
     from gridrt.app.viewer.ui import ImguiRuntime, draw_overlay, draw_panel
     from gridrt.config import GridParams
+    from gridrt.stats import BuildStats, FrameStats, RenderStats
 
     W, H = 640, 800   # tall enough for the whole panel (the viewer scrolls it in smaller windows)
     fbo = ctx.simple_framebuffer((W, H), components=4)
@@ -171,10 +172,14 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
     img = _pattern(W, H)
     blit.upload(img)
     st = ViewerState(grid=GridParams(threads=2), max_threads=8, triangles=1234, scene_name="marbles")
-    st.stats = dict(frame=1, t=0.0, triangles=1234, cells=5000, references=8000, threads=2, strategy="serial",
-                    insert="bbox", clear_ms=0.1, insert_ms=1.5, macro_ms=0.2, build_ms=1.8, render_ms=4.0,
-                    frame_ms=6.5, anim_ms=0.1, rebuilt=1, refs_per_tri=6.5, dims="(20, 10, 25)", grid_bytes=65536,
-                    width=W, height=H, mrays=10.0)
+    build = BuildStats(stages=dict(clear_ms=0.1, insert_ms=1.5, macro_ms=0.2), build_ms=1.8, strategy="serial",
+                       threads=2, insert="bbox", triangles=1234, cells=5000, references=8000, refs_per_tri=6.5,
+                       cells_cleared=0, cells_inspected=0, macro_cells=0, macro_full=0, dims="20x10x25",
+                       grid_bytes=65536)
+    render = RenderStats(render_ms=4.0, mrays=10.0, hit_fraction=0.5, tests_per_ray=1.0, cells_per_ray=1.0,
+                         render_threads=2, traversal="cgt")
+    st.stats = FrameStats(frame=1, t=0.0, triangles=1234, build=build, render=render, rebuilt=True, anim_ms=0.1,
+                          static_build_ms=0.0, frame_ms=6.5, width=W, height=H, shading="lambert")
     for i in range(60):   # render time falls steadily, build time stays flat
         st.history.add(dict(build_ms=1.0, render_ms=6.0 - 0.08 * i, frame_ms=7.0))
     names = ["serial", "other"]

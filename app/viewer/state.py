@@ -15,6 +15,7 @@ import numpy as np
 from gridrt.camera import Camera
 from gridrt.config import GridParams, RenderParams
 from gridrt.errors import InputError
+from gridrt.stats import FrameStats
 from gridrt.scene import SceneSpec  # noqa: F401  (the viewer's scene spec; input, ui and tests import it here too)
 from gridrt.threads import check_threads
 
@@ -94,7 +95,7 @@ class ViewerState:
     framebuffer_size: tuple = (0, 0)
     render_size: tuple = (0, 0)
     # stats
-    stats: dict = field(default_factory=dict)
+    stats: FrameStats | None = None         # the last frame's
     history: StatsHistory = field(default_factory=StatsHistory)
     ui_frames: int = 0
     rendered_frames: int = 0
@@ -181,7 +182,7 @@ class ViewerState:
     def snapshot(self):
         """A JSON-ready dict of the state (the --state-file dump)."""
         cam = self.camera
-        st = {k: _plain(v) for k, v in self.stats.items()}
+        st = {k: _plain(v) for k, v in (self.stats or {}).items()}
         return {
             "ui_frames": self.ui_frames,
             "rendered_frames": self.rendered_frames,

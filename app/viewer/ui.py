@@ -27,8 +27,6 @@ INTERSECTION_LABELS = ("watertight (Woop et al.)", "fast (Moller-Trumbore)")
 ERROR_COLOR = imgui.ImVec4(1.0, 0.45, 0.4, 1.0)
 DIM_COLOR = imgui.ImVec4(0.65, 0.68, 0.72, 1.0)
 _ANIMATE = ("none",) + tuple(DEFORM_KINDS)
-#: stage keys shown separately, not as build stages
-_NOT_BUILD_STAGES = {"build_ms", "render_ms", "frame_ms", "anim_ms"}
 
 
 class ImguiRuntime:
@@ -299,7 +297,9 @@ def _draw_stats(state):
     if not st:
         imgui.text_colored(DIM_COLOR, "no frame yet")
         return
-    stages = [(k[:-3], v) for k, v in st.items() if k.endswith("_ms") and k not in _NOT_BUILD_STAGES]
+    stages = [(k.removesuffix("_ms"), v) for k, v in st.build_stages.items()]
+    if st.static is not None:
+        stages.append(("static build", st.static_build_ms))
     if st.get("rebuilt", 1):
         imgui.text(f"build  {st['build_ms']:8.2f} ms  {st['strategy']}, {st['threads']} thr")
         imgui.push_text_wrap_pos(0.0)

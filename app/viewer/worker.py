@@ -59,7 +59,7 @@ class LoadResult:
 @dataclass
 class FrameResult:
     image: np.ndarray
-    stats: dict
+    stats: object           # the frame's gridrt.stats.FrameStats (frozen), None for a failed frame
     camera: object          # the camera the frame was rendered with
     radius: float           # half the grid's diagonal (for fly speed)
     job: FrameJob
@@ -139,7 +139,7 @@ class RenderWorker:
                 if not isinstance(e, GridrtError):
                     traceback.print_exc()
                 res = (LoadResult(job.spec, error=msg) if isinstance(job, LoadJob)
-                       else FrameResult(None, {}, job.camera, 1.0, job, error=msg))
+                       else FrameResult(None, None, job.camera, 1.0, job, error=msg))
             with self._cond:
                 self._results.append(res)
                 self._current = None
@@ -167,4 +167,4 @@ class RenderWorker:
         cam = pipe.last_camera
         spec = getattr(fr.grid if fr.grid is not None else pipe.grid, "spec", None)
         radius = 1.0 if spec is None else 0.5 * float(np.linalg.norm(np.asarray(spec.hi) - np.asarray(spec.lo)))
-        return FrameResult(fr.image.copy(), dict(fr.stats), cam, radius, job)
+        return FrameResult(fr.image.copy(), fr.stats, cam, radius, job)

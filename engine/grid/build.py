@@ -11,6 +11,7 @@ from ..config import GridParams
 from ..errors import InputError
 from ..threads import check_threads, use_threads
 from . import common
+from ..stats import BuildStats
 from .layout import BOUNDS_PAD, Grid, GridSpec
 from .registry import get_builder
 from .strategies.base import timed
@@ -265,9 +266,22 @@ class GridBuilder:
         bufs.prev_spec = spec
         bufs.prev_layers = layers
 
-        times["build_ms"] = (time.perf_counter() - t_start) * 1e3
-        stats = dict(times)
-        stats.update(
+        build_ms = (time.perf_counter() - t_start) * 1e3
+        counters = {k: times.pop(k) for k in strategy.counters if k in times}
+        grid = Grid(
+            spec=spec,
+            cell_start=bufs.start,
+            tri_ids=bufs.ref_buffer,
+            cell_count=bufs.count,
+            macro_full=bufs.macro_full,
+            references=int(refs),
+            n_triangles=F,
+            generation=bufs.generation,
+            buffers=bufs,
+        )
+        grid.stats = BuildStats(
+            stages=times,
+            build_ms=build_ms,
             strategy=p.strategy,
             threads=threads,
             insert=p.insert,
@@ -280,20 +294,9 @@ class GridBuilder:
             macro_cells=spec.n_macro,
             macro_full=int(bufs.macro_full.sum()),
             dims="x".join(str(int(d)) for d in spec.dims),
+            grid_bytes=grid.memory_bytes(),
+            counters=counters,
         )
-        grid = Grid(
-            spec=spec,
-            cell_start=bufs.start,
-            tri_ids=bufs.ref_buffer,
-            cell_count=bufs.count,
-            macro_full=bufs.macro_full,
-            references=int(refs),
-            n_triangles=F,
-            stats=stats,
-            generation=bufs.generation,
-            buffers=bufs,
-        )
-        stats["grid_bytes"] = grid.memory_bytes()
         return grid
 
 

@@ -74,8 +74,9 @@ class Grid:
     macro_full  (M,) uint8        1 when any cell of the macro cell is non-empty; M = spec.n_macro
     references  int               total (cell, triangle) references over all layers
     n_triangles int               triangles the grid was built over
-    stats       dict              stage timings in ms (clear_ms, insert_ms, macro_ms, build_ms,
-                                  plus strategy-specific stages) and counts
+    stats       BuildStats        the build's stage timings in ms (bounds, clear, insert and the
+                                  strategy's own parts of it, macro) and its counts
+                                  (gridrt.stats; reads like a dict by column name too)
     generation  int               which build of ``buffers`` this grid is
     origin      (3,) float64      world position of the grid's coordinate origin: the grid and
                                   the triangles it was built over live in ``world - origin``

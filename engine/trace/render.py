@@ -33,6 +33,7 @@ from numba import njit, parallel_chunksize, prange
 from ..arrays import as_origin, check_ray_values, check_rays
 from ..config import DEFAULT_MAX_BYTES, RenderParams, _positive_int
 from ..errors import InputError
+from ..stats import RenderStats
 from ..threads import check_threads, launch_guard, use_threads
 from .traverse import MAILBOX, trace_ray
 from ..camera import Camera, pixel_dir
@@ -306,14 +307,15 @@ def cast_rays(grid, tris, origins, dirs, tmin=0.0, tmax=np.inf, watertight=True,
 @dataclass
 class RenderResult:
     """image (H,W,4) uint8; t (H,W) float32 hit distance (inf: miss); tri (H,W) int32 (-1: miss);
-    cost (H,W) int32 triangle tests per primary ray; cells (H,W) int32 cells visited; stats dict."""
+    cost (H,W) int32 triangle tests per primary ray; cells (H,W) int32 cells visited; stats
+    RenderStats (gridrt.stats)."""
 
     image: np.ndarray
     t: np.ndarray
     tri: np.ndarray
     cost: np.ndarray
     cells: np.ndarray
-    stats: dict
+    stats: RenderStats
 
 
 class Renderer:
@@ -384,7 +386,7 @@ class Renderer:
             render_kernel(*args)
         ms = (time.perf_counter() - t0) * 1e3
         n = W * H
-        stats = dict(
+        stats = RenderStats(
             render_ms=ms,
             mrays=n / (ms * 1e3) if ms > 0 else float("nan"),
             hit_fraction=float((ib >= 0).mean()),
@@ -392,7 +394,7 @@ class Renderer:
             cells_per_ray=float(nb.mean()),
             render_threads=threads,
             traversal=params.traversal,
-        ) if params.traversal == "dda" else dict(
+        ) if params.traversal == "dda" else RenderStats(
             # the CGT kernel sums (hits, costbuf, cellbuf, fallback rays) as it writes the buffers
             render_ms=ms,
             mrays=n / (ms * 1e3) if ms > 0 else float("nan"),

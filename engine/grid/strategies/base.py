@@ -32,6 +32,9 @@ class Strategy:
     parallel_stages = True
     #: True: one layer of cell lists per thread, kept apart for the ray caster
     layered = False
+    #: keys of the counts ``insert`` adds to its ``times`` (the rest are stage times in ms); the
+    #: build keeps them apart, as BuildStats.counters
+    counters = ()
 
     def layers(self, threads):
         return threads if self.layered else 1

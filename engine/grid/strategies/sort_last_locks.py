@@ -105,6 +105,7 @@ class _SortLastLocked(Strategy):
     """Shared body of the three mutex strategies; subclasses set ``kind``."""
 
     kind = GLOBAL
+    counters = ("lock_waits",)
 
     def n_locks(self, spec):
         return {GLOBAL: 1, PER_CELL: spec.n_cells, PER_MACRO: spec.n_macro}[self.kind]

@@ -158,6 +158,7 @@ class SortMiddle(Strategy):
     """Bucket-sort triangle blocks by z % T, then thread j fills the layers z % T == j."""
 
     name = "sort_middle"
+    counters = ("bucket_entries",)
 
     def insert(self, tris, spec, bufs, threads, exact, times):
         T = threads
