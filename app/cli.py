@@ -80,7 +80,8 @@ def add_grid_args(p):
     g.add_argument("--macro", type=int, default=d["macro"], help=f"macro-cell edge in cells (default {d['macro']})")
     g.add_argument("--insert", choices=INSERT_MODES, default=d["insert"],
                    help="triangle insertion test: bounding box (fast) or exact SAT (fewer references)")
-    g.add_argument("--max-cells", type=int, default=d["max_cells"], help=f"ceiling on grid cells (default {d['max_cells']})")
+    g.add_argument("--max-cells", type=int, default=d["max_cells"],
+                   help=f"ceiling on grid cells (default {d['max_cells']})")
     g.add_argument("--no-split", dest="split_static", action="store_false",
                    help="rebuild the whole scene every frame (default: grid static parts once, moving parts per frame)")
 
