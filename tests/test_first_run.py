@@ -360,3 +360,44 @@ def test_help_of_a_subcommand_prints_defaults_through_the_cli(tmp_path):
     g, rp = GridParams(), RenderParams()
     assert f"(default: {g.strategy})" in text and f"(default: {rp.shading})" in text
     assert "(default: out/dump)" in text and "(default: 1024x768)" in text
+
+
+# ----------------------------------------------------------------------------- the README's Layout
+
+
+def readme_layout():
+    """(path, indent) of every path the README's Layout block names at a line's start (a folder
+    ``x/`` or a file ``x.py``/``x.toml``; indented lines name paths inside the folder above them),
+    and the ``*.py`` files named anywhere on the engine's indented lines."""
+    text = README.read_text(encoding="utf-8").split("## Layout", 1)[1]
+    block = next(body for lang, body in fenced_blocks(text))
+    named, top = [], None
+    for ln in block.splitlines():
+        if not ln.strip():
+            continue
+        indent = len(ln) - len(ln.lstrip())
+        first = ln.split()[0].rstrip(",")
+        if indent == 0:
+            top = first
+            named.append(first)
+        elif indent == 2 and re.fullmatch(r"[\w.]+/?", first):
+            named.append(top + first)
+            if first.endswith(".py"):  # a line of files: every one it names
+                named += [top + f for f in re.findall(r"\b(\w+\.py)\b", ln)]
+    return named
+
+
+def test_readme_layout_is_the_tree():
+    named = readme_layout()
+    for rel in named:
+        assert (REPO / rel).exists(), f"README's Layout names {rel}, which is not in the repository"
+    tracked = subprocess.run(["git", "ls-files"], cwd=REPO, capture_output=True, text=True).stdout.split()
+    if not tracked:
+        pytest.skip("not a git checkout")
+    top = {p.split("/")[0] + ("/" if "/" in p else "") for p in tracked if not p.startswith(".")}
+    top -= {"README.md", "BENCHMARKS.md"}  # (the documents themselves)
+    assert top <= set(named), f"top-level paths the Layout omits: {sorted(top - set(named))}"
+    packages = {"/".join(p.split("/")[:2]) + "/" for p in tracked
+                if p.split("/")[0] in ("engine", "app") and p.count("/") >= 2 and p.endswith("/__init__.py")
+                and p.count("/") == 2}
+    assert packages <= set(named), f"subpackages the Layout omits: {sorted(packages - set(named))}"
