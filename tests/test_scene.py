@@ -1163,3 +1163,18 @@ def test_pipeline_animates_at_its_own_thread_count():
             pipes[T].step(i / 30)
             # every evaluation of the step (the first also measures the scene to choose its frame)
             assert seen and set(seen) == {T}
+
+
+@pytest.mark.parametrize("subdivisions", [0, 1, 2, 3])
+@pytest.mark.parametrize("radius", [1.0, 0.37, 12.5])
+def test_icosphere_equals_trimesh_bit_for_bit(subdivisions, radius):
+    """gridrt's icosphere (the marbles, built without importing trimesh) is trimesh's."""
+    import trimesh
+
+    from gridrt.scene.icosphere import icosphere_triangles
+
+    ref = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    want = np.asarray(ref.vertices, np.float64)[np.asarray(ref.faces)]
+    got = icosphere_triangles(subdivisions, radius)
+    assert got.dtype == np.float64 and got.shape == (20 * 4 ** subdivisions, 3, 3)
+    assert np.array_equal(got, want)

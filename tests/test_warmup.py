@@ -159,3 +159,17 @@ def test_bench_start_bad_arguments(tmp_path, args, message):
     r = subprocess.run([sys.executable, "-m", "gridrt", "bench", "start", "--no-progress", "--out", str(tmp_path / "s"),
                         *args], cwd=REPO, capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+def test_default_dump_imports_no_heavy_module(tmp_path):
+    """The default scene's dump (a warm start's work) imports none of the modules it does not
+    need: mesh loaders (trimesh, pygltflib), plots (matplotlib), the viewer's GL and UI."""
+    code = (
+        "import sys; from gridrt.app.__main__ import main; "
+        f"rc = main(['dump', '--frames', '1', '--size', '16x12', '--no-progress', '--out', r'{tmp_path}']); "
+        "print('LOADED', [m for m in ('trimesh', 'pygltflib', 'matplotlib', 'glfw', 'moderngl', 'imgui_bundle') "
+        "if m in sys.modules], rc)"
+    )
+    r = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr
+    assert "LOADED [] 0" in r.stdout, r.stdout
