@@ -104,8 +104,10 @@ def add_render_args(p, default_size=(1024, 768)):
                    help="camera position X,Y,Z, with --target (default: a camera that frames the scene)")
     g.add_argument("--target", type=vec3, default=None,
                    help="camera look-at point X,Y,Z, with --eye (default: the centre of the scene)")
-    g.add_argument("--up", type=vec3, default=None, help="camera up vector X,Y,Z (default 0,1,0)")
-    g.add_argument("--fov", type=float, default=45.0, help="vertical field of view in degrees")
+    c = defaults(Camera)
+    g.add_argument("--up", type=vec3, default=c["up"],
+                   help=f"camera up vector X,Y,Z (default {','.join(f'{x:g}' for x in c['up'])})")
+    g.add_argument("--fov", type=float, default=c["fov"], help="vertical field of view in degrees")
     g.add_argument("--follow-camera", action="store_true",
                    help="look through the scene's own animated camera (BART, glTF) where it has one")
 
@@ -141,7 +143,7 @@ def camera_from_args(a):
         return None
     if a.eye is None or a.target is None:
         raise InputError("an explicit camera needs both --eye and --target")
-    return Camera(eye=a.eye, target=a.target, up=a.up or (0.0, 1.0, 0.0), fov=a.fov)
+    return Camera(eye=a.eye, target=a.target, up=a.up, fov=a.fov)
 
 
 def pipeline_from_args(a, scene=None):
@@ -150,5 +152,5 @@ def pipeline_from_args(a, scene=None):
     camera = camera_from_args(a)
     scene = scene if scene is not None else scene_from_args(a)
     return FramePipeline(scene, grid_params(a), render_params(a), camera=camera,
-                         fov=a.fov, up=a.up or (0.0, 1.0, 0.0), split_static=a.split_static,
+                         fov=a.fov, up=a.up, split_static=a.split_static,
                          follow_camera=a.follow_camera)

@@ -31,6 +31,9 @@ def test_cli_defaults_are_the_dataclasses():
     assert cli.render_params(a) == RenderParams(width=64, height=48)
     assert cli.scene_spec(a) == SceneSpec()
     assert RenderParams().traversal == "cgt"  # the Pareto choice (BENCHMARKS.md section 6)
+    from gridrt.camera import Camera
+
+    assert (a.fov, a.up) == (Camera().fov, Camera().up)
     # and what is given on the command line reaches the same fields
     a = p.parse_args(["--strategy", "sort_middle", "--lambda", "2.5", "--macro", "3", "--insert", "exact",
                       "--max-cells", "5000", "--traversal", "dda", "--shading", "normal", "--fast-intersect",

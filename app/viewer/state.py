@@ -78,8 +78,8 @@ class ViewerState:
     # camera
     camera: Camera | None = None
     home: Camera | None = None
-    fov: float = 45.0
-    up: tuple = (0.0, 1.0, 0.0)
+    fov: float = Camera.fov
+    up: tuple = Camera.up
     scene_radius: float = 1.0
     # window / ui
     show_panel: bool = True

@@ -121,7 +121,7 @@ def initial_state(a):
     )
     st.scale = float(a.scale)
     st.fov = a.fov
-    st.up = a.up or (0.0, 1.0, 0.0)
+    st.up = a.up
     st.camera = cli.camera_from_args(a)
     st.home = st.camera
     st.show_panel = not a.hide_panel

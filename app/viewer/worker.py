@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gridrt.camera import Camera
 from gridrt.errors import GridrtError
 
 
@@ -26,8 +27,8 @@ class LoadJob:
     render_params: object
     camera: object = None   # explicit camera, or None to frame the scene
     keep_camera: bool = False  # keep the viewer's camera (else reframe once loaded)
-    fov: float = 45.0
-    up: tuple = (0.0, 1.0, 0.0)
+    fov: float = Camera.fov
+    up: tuple = Camera.up
     label: str = "loading scene"
 
 
