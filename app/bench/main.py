@@ -24,12 +24,13 @@ import time
 import numpy as np
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
-from gridrt.config import TRAVERSALS, GridParams, RenderParams
+from gridrt.config import INSERT_MODES, SHADING_MODES, TRAVERSALS, GridParams, RenderParams
 from gridrt.errors import InputError
 from gridrt.grid.build import GridBuilder
 from gridrt.threads import check_threads
 from gridrt.trace.render import Renderer
 
+from ..cli import defaults
 from .util import (
     check_frame_args, check_runs, facing_camera, figure, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress,
     put_stat, resolve_scene, scene_list, scenes_help, stat, thread_list, write_csv, write_json, write_summary,
@@ -70,9 +71,12 @@ def add_parser(sub):
     common(b, "build", warmup=2, scenes=(BUILD_SCENES, BUILD_FALLBACK))
     b.add_argument("--strategies", default=None, help="comma-separated strategy names (default: all)")
     b.add_argument("--threads", default=None, help="thread counts (default: 1 .. all cores)")
-    b.add_argument("--insert", choices=("bbox", "exact"), default="bbox", help="insertion test (default bbox)")
-    b.add_argument("--lambda", dest="density", type=float, default=4.0, help="grid density (default 4)")
-    b.add_argument("--macro", type=int, default=4, help="macro-cell edge in cells (default 4)")
+    g = defaults(GridParams)
+    b.add_argument("--insert", choices=INSERT_MODES, default=g["insert"],
+                   help=f"insertion test (default {g['insert']})")
+    b.add_argument("--lambda", dest="density", type=float, default=g["density"],
+                   help=f"grid density (default {g['density']:g})")
+    b.add_argument("--macro", type=int, default=g["macro"], help=f"macro-cell edge in cells (default {g['macro']})")
     b.add_argument("--back-to-back", action="store_true",
                    help="build each configuration's frames in a row, as a viewer rebuilds with one builder (its "
                         "buffers stay in cache); default: strategies round-robin, fairer under host noise but "
@@ -90,8 +94,8 @@ def add_parser(sub):
                    "takes seconds per frame on some scenes)")
     f.add_argument("--split", choices=("both", "on", "off"), default="both",
                    help="static/moving split for scenes with static parts (default both: measure on and off)")
-    f.add_argument("--shading", choices=("lambert", "normal", "cost"), default="lambert",
-                   help="shading of the rendered frames (default lambert)")
+    f.add_argument("--shading", choices=SHADING_MODES, default=defaults(RenderParams)["shading"],
+                   help="shading of the rendered frames (default %(default)s)")
     f.add_argument("--dt", type=float, default=1.0 / 30.0, help="seconds between frames (default 1/30)")
     f.set_defaults(func=run_frame)
 
@@ -382,7 +386,7 @@ def _traffic_scene(rows, sc, threads, bw):
 # frame
 # ----------------------------------------------------------------------------------------------
 
-FRAME_TRAVERSAL = "cgt" if "cgt" in TRAVERSALS else "dda"
+FRAME_TRAVERSAL = defaults(RenderParams)["traversal"]  # the engine's default, the packet traversal (CGT)
 FRAME_SCENES = ["marbles", "cesium", "robots", "kitchen", "lucy:twist", "lucy:1600000:twist"]
 FRAME_FALLBACK = ["marbles", "icosphere:20480:twist", "icosphere:1310720:twist"]
 
