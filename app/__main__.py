@@ -44,12 +44,16 @@ class Parser(argparse.ArgumentParser):
         super().__init__(*args, **kw)
 
 
-def build_parser():
+def build_parser(command=None):
+    """The command line's parser; with ``command="dump"`` only the dump's subcommand, so that a
+    dump starts without importing the benchmarks and the viewer."""
     p = Parser(prog="gridrt", description="Per-frame parallel uniform-grid ray tracer for "
                "animated triangle scenes (Ize, Wald, Robertson, Parker, \"An Evaluation of Parallel Grid "
                "Construction for Ray Tracing Dynamic Scenes\", IEEE RT 2006).")
     sub = p.add_subparsers(dest="command", required=True)
     dump.add_parser(sub)
+    if command == "dump":
+        return p
     from .bench import main as bench
     from .viewer import view
 
@@ -79,7 +83,8 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 
 
 def main(argv=None):
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser("dump" if argv[:1] == ["dump"] else None).parse_args(argv)
     with warnings.catch_warnings():  # restores the formatter when main returns (main may run in-process)
         warnings.showwarning = _show_warning
         try:

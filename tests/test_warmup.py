@@ -163,12 +163,14 @@ def test_bench_start_bad_arguments(tmp_path, args, message):
 
 def test_default_dump_imports_no_heavy_module(tmp_path):
     """The default scene's dump (a warm start's work) imports none of the modules it does not
-    need: mesh loaders (trimesh, pygltflib), plots (matplotlib), the viewer's GL and UI."""
+    need: mesh loaders (trimesh, pygltflib), plots (matplotlib), the viewer's GL and UI, the
+    benchmarks and the viewer's own modules."""
+    heavy = ("trimesh", "pygltflib", "matplotlib", "glfw", "moderngl", "imgui_bundle", "gridrt.app.bench",
+             "gridrt.app.viewer")
     code = (
         "import sys; from gridrt.app.__main__ import main; "
         f"rc = main(['dump', '--frames', '1', '--size', '16x12', '--no-progress', '--out', r'{tmp_path}']); "
-        "print('LOADED', [m for m in ('trimesh', 'pygltflib', 'matplotlib', 'glfw', 'moderngl', 'imgui_bundle') "
-        "if m in sys.modules], rc)"
+        f"print('LOADED', [m for m in {heavy!r} if m in sys.modules], rc)"
     )
     r = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr
