@@ -29,6 +29,35 @@ RECENTRE_DRIFT = 1.0
 
 
 @dataclass
+class SplitScene:
+    """A scene split into the triangles that never move (gridded once, by their own builder) and
+    the others (gathered into ``moving`` and gridded every frame).
+
+    static_ids, moving_ids  (Fs,), (Fm,) int32  the scene's ids of the two parts' triangles
+    moving                  (Fm, 3, 3) float32  the moving triangles of the current frame
+    static_builder          GridBuilder owning the static grid's buffers
+    static_tris             (Fs, 3, 3) float32  the static triangles (None until first gridded)
+    """
+
+    static_ids: np.ndarray
+    moving_ids: np.ndarray
+    moving: np.ndarray
+    static_builder: GridBuilder
+    static_tris: np.ndarray | None = None
+
+    @classmethod
+    def of_mask(cls, mask):
+        """The split of a scene whose triangles ``mask`` ((F,) bool) marks as static."""
+        moving_ids = np.flatnonzero(~mask).astype(np.int32)
+        return cls(np.flatnonzero(mask).astype(np.int32), moving_ids,
+                   np.empty((len(moving_ids), 3, 3), np.float32), GridBuilder())
+
+    def second(self, moving_grid):
+        """``Renderer.render``'s ``second=`` for the static grid rendered with ``moving_grid``."""
+        return (moving_grid, self.moving, self.static_ids, self.moving_ids)
+
+
+@dataclass
 class Frame:
     """One rendered frame: image (H,W,4) uint8, t (H,W) float32, tri (H,W) int32, stats FrameStats.
 
@@ -87,7 +116,7 @@ class FramePipeline:
         self.split_static = split_static
         self.follow_camera = follow_camera  # use the scene's own animated camera (BART, glTF)
         self.last_camera = None
-        self._split = None  # (ids_static, ids_moving, static tris, moving tris buffer, static builder)
+        self._split = None  # SplitScene, once the scene is split
         self.static_grid = None
         self._static_params = None
         self.origin = None  # (3,) float64 world position of the frame the scene is gridded in
@@ -110,11 +139,11 @@ class FramePipeline:
         self._local_camera = (cam, self.origin, local)
         return local
 
-    def _frame_bounds(self, grid, second):
+    def _frame_bounds(self, grid, split):
         lo, hi = grid.spec.scene_lo, grid.spec.scene_hi
-        if second is not None:
-            lo = np.minimum(lo, second[0].spec.scene_lo)
-            hi = np.maximum(hi, second[0].spec.scene_hi)
+        if split is not None:
+            lo = np.minimum(lo, self.static_grid.spec.scene_lo)
+            hi = np.maximum(hi, self.static_grid.spec.scene_hi)
         return lo, hi
 
     def _split_parts(self):
@@ -126,33 +155,30 @@ class FramePipeline:
         if mask.shape != (self.scene.n_triangles,) or mask.all() or not mask.any():
             return None
         if self._split is None:
-            ids_s = np.flatnonzero(mask).astype(np.int32)
-            ids_m = np.flatnonzero(~mask).astype(np.int32)
-            self._split = (ids_s, ids_m, None, np.empty((len(ids_m), 3, 3), np.float32), GridBuilder())
+            self._split = SplitScene.of_mask(mask)
         return self._split
 
     def _build(self, tris, gp):
-        """(grid, second-grid tuple or None, rebuilt?, static_build_ms) for this frame."""
-        parts = self._split_parts()
-        if parts is None:
+        """(grid, split, rebuilt?, static_build_ms) for this frame: the scene's grid and None, or
+        for a split scene the moving part's grid and the SplitScene (its static part's grid is
+        :attr:`static_grid`)."""
+        split = self._split_parts()
+        if split is None:
             rebuild = self.grid is None or not self.scene.static or self._built_params != gp
             if rebuild:
                 self.grid = self.builder.build(tris, gp)
                 self._built_params = gp
             return self.grid, None, rebuild, 0.0
-        ids_s, ids_m, static_tris, moving, sbuilder = parts
         static_ms = 0.0
         if self.static_grid is None or self._static_params != gp:
-            static_tris = np.ascontiguousarray(tris[ids_s])
-            self._split = (ids_s, ids_m, static_tris, moving, sbuilder)
-            self.static_grid = sbuilder.build(static_tris, gp)
+            split.static_tris = np.ascontiguousarray(tris[split.static_ids])
+            self.static_grid = split.static_builder.build(split.static_tris, gp)
             self._static_params = gp
             static_ms = self.static_grid.stats["build_ms"]
-        np.take(tris, ids_m, axis=0, out=moving)
-        self.grid = self.builder.build(moving, gp)
+        np.take(tris, split.moving_ids, axis=0, out=split.moving)
+        self.grid = self.builder.build(split.moving, gp)
         self._built_params = gp
-        second = (self.grid, moving, ids_s, ids_m)
-        return self.static_grid, second, True, static_ms
+        return self.grid, split, True, static_ms
 
     def step(self, t, camera=None):
         """Render the scene at time t; returns a Frame. ``camera`` overrides the pipeline's."""
@@ -169,8 +195,8 @@ class FramePipeline:
             self.precision_warning = warn_detail(tris, f"scene {self.scene.name!r}")
         anim_ms = (time.perf_counter() - t0) * 1e3
         gp = self.grid_params
-        grid, second, rebuild, static_ms = self._build(tris, gp)
-        lo, hi = self._frame_bounds(grid, second)
+        grid, split, rebuild, static_ms = self._build(tris, gp)
+        lo, hi = self._frame_bounds(grid, split)
         drift = 0.5 * (lo + hi)
         if np.abs(drift).max() > RECENTRE_DRIFT * max(float((hi - lo).max()), 1e-300):
             # the scene has moved away from the frame: centre the frame on it again
@@ -179,8 +205,8 @@ class FramePipeline:
             self.recentred += 1
             tris = self.scene.triangles_at(float(t), origin=self.origin)
             anim_ms += (time.perf_counter() - t0) * 1e3
-            grid, second, rebuild, static_ms = self._build(tris, gp)
-            lo, hi = self._frame_bounds(grid, second)
+            grid, split, rebuild, static_ms = self._build(tris, gp)
+            lo, hi = self._frame_bounds(grid, split)
         cam = None
         if self.follow_camera:
             cam = self.scene.camera_at(float(t))
@@ -193,16 +219,15 @@ class FramePipeline:
         rp = self.render_params
         if rp.light is not None and self.origin.any():
             rp = rp.replace(light=tuple(np.asarray(rp.light, np.float64) - self.origin))
-        if second is not None:
-            res = self.renderer.render(self.static_grid, self._split[2], local_cam, rp, second=second)
-            grid = second[0]
+        if split is not None:
+            res = self.renderer.render(self.static_grid, split.static_tris, local_cam, rp, second=split.second(grid))
         else:
             res = self.renderer.render(grid, tris, local_cam, rp)
         self.last_camera = cam
         rp = self.render_params
         stats = FrameStats(
             frame=self.frame_index, t=float(t), triangles=self.scene.n_triangles, build=grid.stats,
-            static=self.static_grid.stats if second is not None else None, render=res.stats,
+            static=self.static_grid.stats if split is not None else None, render=res.stats,
             rebuilt=bool(rebuild), anim_ms=anim_ms, static_build_ms=static_ms,
             frame_ms=(time.perf_counter() - t_frame) * 1e3, width=rp.width, height=rp.height, shading=rp.shading,
         )

@@ -50,7 +50,8 @@ from gridrt.camera import Camera
 from gridrt.config import RenderParams
 from gridrt.grid import GridBuilder, GridParams, build_grid
 from gridrt.trace import cast_rays, cgt
-from gridrt.trace.render import Renderer, _grid_args
+from gridrt.trace.grids import grid_arrays
+from gridrt.trace.render import Renderer
 from gridrt.trace.traverse import MAILBOX
 from reference import ref_camera_rays
 
@@ -210,11 +211,11 @@ def test_armadillo_shared_edges():
 
 
 @njit(cache=True, parallel=True)
-def _trace_packets(tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
-                   eyes, dirs, offs, watertight, t_out, f_out, fallback):
+def _trace_packets(g, eyes, dirs, offs, watertight, t_out, f_out, fallback):
     """Packet p (rays offs[p]..offs[p+1]-1, from eyes[p] along unit dirs, at most 64) traced by
-    cgt.trace_packet, as cgt._render_tiles traces a block of pixels (its ray table filled from
-    dirs instead of the camera).  fallback[p]: rays of packet p the single-ray DDA traced."""
+    cgt.trace_packet through the grid g (GridArrays), as cgt._render_tiles traces a block of
+    pixels (its ray table filled from dirs instead of the camera).  fallback[p]: rays of packet p
+    the single-ray DDA traced."""
     for p in prange(len(offs) - 1):
         S = np.empty(cgt.NS * cgt.PN)
         io = np.empty(cgt.NIO * cgt.PN)
@@ -230,8 +231,7 @@ def _trace_packets(tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macr
             io[cgt.IO_DY * cgt.PN + j] = dirs[a + j, 1]
             io[cgt.IO_DZ * cgt.PN + j] = dirs[a + j, 2]
             io[cgt.IO_TMAX * cgt.PN + j] = np.inf
-        fallback[p] = cgt.trace_packet(tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims,
-                                       macro_full, n, io, 0.0, watertight, False, S, mb, mb1)
+        fallback[p] = cgt.trace_packet(g, n, io, 0.0, watertight, False, S, mb, mb1)
         for j in range(n):
             t_out[a + j] = io[cgt.IO_T * cgt.PN + j]
             f_out[a + j] = int(io[cgt.IO_F * cgt.PN + j])
@@ -382,7 +382,7 @@ def packet_counts(m, grid, rng, n_packets):
         t = np.empty(len(d))
         f = np.empty(len(d), np.int64)
         fb = np.empty(len(eyes), np.int64)
-        _trace_packets(m.tris, *_grid_args(grid), eyes, d, offs, wt, t, f, fb)
+        _trace_packets(grid_arrays(grid, m.tris), eyes, d, offs, wt, t, f, fb)
         hole = (f < 0) | (t > dist * (1 + REL))
         c[key + "_holes"] = np.bincount(kinds[hole], minlength=4)
         c[key + "_at"] = int((np.abs(t - dist) <= REL * dist).sum())

@@ -46,7 +46,8 @@ from numba import njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .shade import BACKGROUND, _u8, cost_rgb, facing_normal, lambert_rgb, normal_rgb, shadow_ray
+from .grids import pack_grids, unpack_grids
+from .shade import BACKGROUND, _u8, cost_rgb, facing_normal, lambert_rgb, normal_rgb, scene_id, shadow_ray
 from .traverse import MAILBOX, TINY_DIR, _floor_clamp, trace_ray
 
 #: packet edge in pixels (a packet holds up to PK * PK rays)
@@ -81,7 +82,7 @@ O_CT0, O_CT1 = _R_CT0 * PN, _R_CT1 * PN
 # rows of a packet's flat ray table io (NIO * PN float64), row r of ray j at io[r * PN + j]:
 # inputs (origin, direction, tmax), then results
 IO_OX, IO_OY, IO_OZ, IO_DX, IO_DY, IO_DZ, IO_TMAX = 0, 1, 2, 3, 4, 5, 6
-IO_T, IO_F, IO_NT, IO_NC, IO_W = 7, 8, 9, 10, 11  # t (inf: miss), triangle (-1), tests, cells, grid (0 A, 1 B)
+IO_T, IO_F, IO_NT, IO_NC, IO_W = 7, 8, 9, 10, 11  # t (inf: miss), triangle (-1), tests, cells, grid number
 NIO = 12
 _U_OX, _U_OY, _U_OZ = np.uint64(IO_OX * PN), np.uint64(IO_OY * PN), np.uint64(IO_OZ * PN)
 _U_DX, _U_DY, _U_DZ = np.uint64(IO_DX * PN), np.uint64(IO_DY * PN), np.uint64(IO_DZ * PN)
@@ -375,18 +376,11 @@ def _step(S, na, io, xp, any_hit, watertight, tests, cells):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def trace_packet(
-    tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
-    n, io, tmin, watertight, any_hit, S, mb, mb1,
-):
-    """Trace rays 0..n-1 of the table io (NIO * PN,) float64 (origin, direction, tmax per ray)
-    through one grid.
-
-    Fills io's result rows (IO_T, IO_F, IO_NT, IO_NC) with the hits :func:`trace_ray` finds
-    (nearest, or with any_hit some hit, in (tmin, tmax)).  S (NS * PN,) float64 and mb (MBOX,)
-    int32 are scratch; mb1 (MAILBOX,) int32 is the fallback DDA's mailbox.  Returns the number of
-    rays traced by the single-ray fallback (0 when the packet was coherent).
-    """
+def _gather(io, n, S, lo, hi, tmin):
+    """Clip rays 0..n-1 of io to the grid box (lo, hi) and gather those that meet it into the
+    active rows of S, their results in io reset to a miss.  Returns (active rays, K, neg,
+    coherent): coherent when the active rays agree on the watertight test's permutation (major
+    axis K of the direction and its sign, neg) and none has a tiny major component."""
     for j in range(n):
         S[O_CT0 + j] = tmin
         S[O_CT1 + j] = io[IO_TMAX * PN + j]
@@ -397,8 +391,6 @@ def trace_packet(
     _clip_axis(io, n, S, IO_OX, IO_DX, lo[0], hi[0])
     _clip_axis(io, n, S, IO_OY, IO_DY, lo[1], hi[1])
     _clip_axis(io, n, S, IO_OZ, IO_DZ, lo[2], hi[2])
-    # gather the rays that meet the grid box; the packet is coherent when they agree on the
-    # watertight test's permutation (major axis and its sign)
     na = 0
     K = -1
     neg0 = False
@@ -441,20 +433,159 @@ def trace_packet(
         S[O_BF + na] = -1.0
         S[O_J + na] = j
         na += 1
+    return na, K, neg0, uniform
+
+
+@njit(cache=True, _nrt=False)
+def _trace_singly(g, S, na, io, tmin, watertight, any_hit, mb1):
+    """The single-ray fallback of an incoherent packet: each active ray through trace_ray."""
+    for a in range(na):
+        j = int(S[O_J + a])
+        f, t, u, v, nc, nt = trace_ray(
+            g, S[O_OX + a], S[O_OY + a], S[O_OZ + a], S[O_DX + a], S[O_DY + a], S[O_DZ + a],
+            tmin, S[O_BT + a], watertight, any_hit, mb1,
+        )
+        io[IO_T * PN + j] = t
+        io[IO_F * PN + j] = f
+        io[IO_NT * PN + j] = nt
+        io[IO_NC * PN + j] = nc
+
+
+@njit(cache=True, _nrt=False)
+def _reference_plane(S, na, oD):
+    """The K coordinate xr about which the packet's bounds are taken, beyond which (or before
+    which) all ray segments lie: the near end (camera rays share their origin) or the far end
+    (shadow rays converge on the light), whichever gives the tighter bounds.  On that one side
+    the bounds are four planes, used to cull triangles (Wald et al. 2006, frustum culling).
+    oD: the row of S holding d[K].  Returns (xr, side, xlo, xhi) and the bounding form about
+    xr (see _spread): side is 1 for the near end, -1 for the far one, [xlo, xhi] the K range
+    of the segments."""
+    xlo = np.inf
+    xhi = -np.inf
+    for a in range(na):
+        x0 = S[O_OK + a] + S[O_T0 + a] * S[oD + a]
+        x1 = S[O_OK + a] + S[O_T1 + a] * S[oD + a]
+        xlo = min(xlo, min(x0, x1))
+        xhi = max(xhi, max(x0, x1))
+    cu0, cu1, cv0, cv1, su0, su1, sv0, sv1 = _spread(S, na, xlo)
+    e0, e1, e2, e3, e4, e5, e6, e7 = _spread(S, na, xhi)
+    if (e1 - e0) + (e3 - e2) < (cu1 - cu0) + (cv1 - cv0):
+        return xhi, -1.0, xlo, xhi, e0, e1, e2, e3, e4, e5, e6, e7
+    return xlo, 1.0, xlo, xhi, cu0, cu1, cv0, cv1, su0, su1, sv0, sv1
+
+
+@njit(cache=True)
+def _strides(K, U, V, nx, ny):
+    """Index steps along the axes K, U, V of an nx x ny x nz array of cells stored x fastest."""
+    return (1 if K == 0 else (nx if K == 1 else nx * ny), 1 if U == 0 else (nx if U == 1 else nx * ny),
+            1 if V == 0 else (nx if V == 1 else nx * ny))
+
+
+@njit(cache=True)
+def _extent(cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, ha, hb, eU, eV):
+    """The packet's (U, V) extent between the K planes at ha and hb from the reference plane,
+    grown by (eU, eV): (ulo, uhi, vlo, vhi)."""
+    ulo = cu0 + min(min(ha * su0, ha * su1), min(hb * su0, hb * su1)) - eU
+    uhi = cu1 + max(max(ha * su0, ha * su1), max(hb * su0, hb * su1)) + eU
+    vlo = cv0 + min(min(ha * sv0, ha * sv1), min(hb * sv0, hb * sv1)) - eV
+    vhi = cv1 + max(max(ha * sv0, ha * sv1), max(hb * sv0, hb * sv1)) + eV
+    return ulo, uhi, vlo, vhi
+
+
+@njit(cache=True, _nrt=False)
+def _any_macro_full(macro_full, mk, mu0, mu1, mv0, mv1, mstK, mstU, mstV):
+    """True when a macro cell of slab mk within [mu0, mu1] x [mv0, mv1] holds triangles."""
+    for mu in range(mu0, mu1 + 1):
+        for mv in range(mv0, mv1 + 1):
+            if macro_full[mk * mstK + mu * mstU + mv * mstV] != 0:
+                return True
+    return False
+
+
+@njit(cache=True, _nrt=False)
+def _prefetch_slice(tris, cell_start, tri_ids, ck, stU, stV, cu_0, cu_1, cv_0, cv_1):
+    """Start the loads of the triangles of the cells [cu_0, cu_1] x [cv_0, cv_1] of one slice (ck:
+    its first cell's index), so that their cache misses overlap instead of queueing."""
+    for iu in range(cu_0, cu_1 + 1):
+        for iv in range(cv_0, cv_1 + 1):
+            c = ck + iu * stU + iv * stV
+            for l in range(cell_start.shape[0]):
+                for r in range(cell_start[l, c], cell_start[l, c + 1]):
+                    _prefetch_tri(tris, tri_ids[r])
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _test_slice(tris, cell_start, tri_ids, ck, stU, stV, cu_0, cu_1, cv_0, cv_1, U, V, K, box, planes, S, na, mb,
+                watertight, tmin):
+    """Test the triangles of the cells [cu_0, cu_1] x [cv_0, cv_1] of one slice (ck: its first
+    cell's index) against the active rays: each once (the packet's mailbox mb), unless it lies
+    outside the packet's extent in the slice (box = (ulo, uhi, vlo, vhi)) or beyond one of its
+    four bounding planes (planes = (xr, the planes' offsets u0, u1, v0, v1 and slopes, see
+    _outside)).  Returns (cells visited, triangle tests, rays hit)."""
+    ulo, uhi, vlo, vhi = box
+    xr, pl_u0, pl_u1, pl_v0, pl_v1, sl_u0, sl_u1, sl_v0, sl_v1 = planes
+    mmask = mb.shape[0] - 1
+    cells = 0
+    tests = 0
+    hits = 0
+    for iu in range(cu_0, cu_1 + 1):
+        for iv in range(cv_0, cv_1 + 1):
+            c = ck + iu * stU + iv * stV
+            cells += 1
+            for l in range(cell_start.shape[0]):
+                for r in range(cell_start[l, c], cell_start[l, c + 1]):
+                    f = tri_ids[r]
+                    slot = f & mmask
+                    if mb[slot] == f:
+                        continue
+                    p0u = np.float64(tris[f, 0, U])
+                    p1u = np.float64(tris[f, 1, U])
+                    p2u = np.float64(tris[f, 2, U])
+                    if max(p0u, max(p1u, p2u)) < ulo or min(p0u, min(p1u, p2u)) > uhi:
+                        continue
+                    p0v = np.float64(tris[f, 0, V])
+                    p1v = np.float64(tris[f, 1, V])
+                    p2v = np.float64(tris[f, 2, V])
+                    if max(p0v, max(p1v, p2v)) < vlo or min(p0v, min(p1v, p2v)) > vhi:
+                        continue
+                    p0k = np.float64(tris[f, 0, K])
+                    p1k = np.float64(tris[f, 1, K])
+                    p2k = np.float64(tris[f, 2, K])
+                    mb[slot] = f
+                    if _outside(p0u, p0v, p0k, p1u, p1v, p1k, p2u, p2v, p2k, xr,
+                                pl_u0, pl_u1, pl_v0, pl_v1, sl_u0, sl_u1, sl_v0, sl_v1):
+                        continue  # the packet's bounds only shrink: it stays outside
+                    tests += 1
+                    if watertight:
+                        hits += _test_wt(
+                            S, na, p0u, p0v, p0k, p1u, p1v, p1k, p2u, p2v, p2k, np.float64(f), tmin)
+                    else:
+                        hits += _test_mt(
+                            S, na, np.float64(tris[f, 0, 0]), np.float64(tris[f, 0, 1]),
+                            np.float64(tris[f, 0, 2]), np.float64(tris[f, 1, 0]),
+                            np.float64(tris[f, 1, 1]), np.float64(tris[f, 1, 2]),
+                            np.float64(tris[f, 2, 0]), np.float64(tris[f, 2, 1]),
+                            np.float64(tris[f, 2, 2]), np.float64(f), tmin)
+    return cells, tests, hits
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1):
+    """Trace rays 0..n-1 of the table io (NIO * PN,) float64 (origin, direction, tmax per ray)
+    through the grid g (:class:`gridrt.trace.grids.GridArrays`).
+
+    Fills io's result rows (IO_T, IO_F, IO_NT, IO_NC) with the hits :func:`trace_ray` finds
+    (nearest, or with any_hit some hit, in (tmin, tmax)).  S (NS * PN,) float64 and mb (MBOX,)
+    int32 are scratch; mb1 (MAILBOX,) int32 is the fallback DDA's mailbox.  Returns the number of
+    rays traced by the single-ray fallback (0 when the packet was coherent).
+    """
+    tris, lo, cell, inv_cell, dims = g.tris, g.lo, g.cell, g.inv_cell, g.dims
+    cell_start, tri_ids, M, mdims, macro_full = g.cell_start, g.tri_ids, g.macro, g.mdims, g.macro_full
+    na, K, neg0, uniform = _gather(io, n, S, lo, g.hi, tmin)
     if na == 0:
         return 0
     if not uniform:
-        for a in range(na):
-            j = int(S[O_J + a])
-            f, t, u, v, nc, nt = trace_ray(
-                tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
-                S[O_OX + a], S[O_OY + a], S[O_OZ + a], S[O_DX + a], S[O_DY + a], S[O_DZ + a],
-                tmin, S[O_BT + a], watertight, any_hit, mb1,
-            )
-            io[IO_T * PN + j] = t
-            io[IO_F * PN + j] = f
-            io[IO_NT * PN + j] = nt
-            io[IO_NC * PN + j] = nc
+        _trace_singly(g, S, na, io, tmin, watertight, any_hit, mb1)
         return na
 
     # the permutation of shear_setup: kx = (kz + 1) % 3, ky = (kx + 1) % 3, swapped when d[kz] < 0
@@ -467,40 +598,12 @@ def trace_packet(
     cK = cell[K]
     icK, icU, icV = inv_cell[K], inv_cell[U], inv_cell[V]
     nK, nU, nV = dims[K], dims[U], dims[V]
-    nx, ny = dims[0], dims[1]
-    stK = 1 if K == 0 else (nx if K == 1 else nx * ny)
-    stU = 1 if U == 0 else (nx if U == 1 else nx * ny)
-    stV = 1 if V == 0 else (nx if V == 1 else nx * ny)
-    mx, my = mdims[0], mdims[1]
-    mstK = 1 if K == 0 else (mx if K == 1 else mx * my)
-    mstU = 1 if U == 0 else (mx if U == 1 else mx * my)
-    mstV = 1 if V == 0 else (mx if V == 1 else mx * my)
-    M = macro
-    L = cell_start.shape[0]
+    stK, stU, stV = _strides(K, U, V, dims[0], dims[1])
+    mstK, mstU, mstV = _strides(K, U, V, mdims[0], mdims[1])
     eU = EPS_CELL * cell[U]
     eV = EPS_CELL * cell[V]
-    oD = O_DX + K * PN  # row of d[K]
     sK = 1 if S[O_IDK] > 0.0 else -1
-
-    # bounding form of the packet about a K coordinate xr beyond which (or before which) all ray
-    # segments lie: the near end (camera rays share their origin) or the far end (shadow rays
-    # converge on the light), whichever gives the tighter bounds.  On that one side the bounds
-    # are four planes, used to cull triangles (Wald et al. 2006, frustum culling).
-    xlo = np.inf
-    xhi = -np.inf
-    for a in range(na):
-        x0 = S[O_OK + a] + S[O_T0 + a] * S[oD + a]
-        x1 = S[O_OK + a] + S[O_T1 + a] * S[oD + a]
-        xlo = min(xlo, min(x0, x1))
-        xhi = max(xhi, max(x0, x1))
-    xr = xlo
-    side = 1.0
-    cu0, cu1, cv0, cv1, su0, su1, sv0, sv1 = _spread(S, na, xr)
-    e0, e1, e2, e3, e4, e5, e6, e7 = _spread(S, na, xhi)
-    if (e1 - e0) + (e3 - e2) < (cu1 - cu0) + (cv1 - cv0):
-        xr = xhi
-        side = -1.0
-        cu0, cu1, cv0, cv1, su0, su1, sv0, sv1 = e0, e1, e2, e3, e4, e5, e6, e7
+    xr, side, xlo, xhi, cu0, cu1, cv0, cv1, su0, su1, sv0, sv1 = _reference_plane(S, na, O_DX + K * PN)
 
     # first slice: where the earliest ray (in traversal order) enters the grid
     xs = xlo if sK > 0 else xhi
@@ -508,7 +611,6 @@ def trace_packet(
 
     for s in range(mb.shape[0]):
         mb[s] = -1
-    mmask = mb.shape[0] - 1
     tests = 0
     cells = 0
     pending = 0
@@ -522,33 +624,13 @@ def trace_packet(
             kend = mk * M
             xm = loK + kend * cK
         # skip the rest of this macro-cell slab when the packet overlaps only empty macro cells there
-        ha = xa - xr
-        hb = xm - xr
-        ulo = cu0 + min(min(ha * su0, ha * su1), min(hb * su0, hb * su1)) - eU
-        uhi = cu1 + max(max(ha * su0, ha * su1), max(hb * su0, hb * su1)) + eU
-        vlo = cv0 + min(min(ha * sv0, ha * sv1), min(hb * sv0, hb * sv1)) - eV
-        vhi = cv1 + max(max(ha * sv0, ha * sv1), max(hb * sv0, hb * sv1)) + eV
-        mu0 = _floor_clamp((ulo - loU) * icU, nU) // M
-        mu1 = _floor_clamp((uhi - loU) * icU, nU) // M
-        mv0 = _floor_clamp((vlo - loV) * icV, nV) // M
-        mv1 = _floor_clamp((vhi - loV) * icV, nV) // M
-        full = False
-        for mu in range(mu0, mu1 + 1):
-            for mv in range(mv0, mv1 + 1):
-                if macro_full[mk * mstK + mu * mstU + mv * mstV] != 0:
-                    full = True
-                    break
-            if full:
-                break
-        if full:
+        ulo, uhi, vlo, vhi = _extent(cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, xa - xr, xm - xr, eU, eV)
+        if _any_macro_full(macro_full, mk, _floor_clamp((ulo - loU) * icU, nU) // M,
+                           _floor_clamp((uhi - loU) * icU, nU) // M, _floor_clamp((vlo - loV) * icV, nV) // M,
+                           _floor_clamp((vhi - loV) * icV, nV) // M, mstK, mstU, mstV):
             while True:
                 xb = loK + (k + 1 if sK > 0 else k) * cK
-                ha = xa - xr
-                hb = xb - xr
-                ulo = cu0 + min(min(ha * su0, ha * su1), min(hb * su0, hb * su1)) - eU
-                uhi = cu1 + max(max(ha * su0, ha * su1), max(hb * su0, hb * su1)) + eU
-                vlo = cv0 + min(min(ha * sv0, ha * sv1), min(hb * sv0, hb * sv1)) - eV
-                vhi = cv1 + max(max(ha * sv0, ha * sv1), max(hb * sv0, hb * sv1)) + eV
+                ulo, uhi, vlo, vhi = _extent(cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, xa - xr, xb - xr, eU, eV)
                 pl_u0 = cu0 - eU
                 pl_u1 = cu1 + eU
                 pl_v0 = cv0 - eV
@@ -561,51 +643,14 @@ def trace_packet(
                 cu_1 = _floor_clamp((uhi - loU) * icU, nU)
                 cv_0 = _floor_clamp((vlo - loV) * icV, nV)
                 cv_1 = _floor_clamp((vhi - loV) * icV, nV)
-                # start the loads of this slice's triangles (misses overlap instead of queueing)
-                for iu in range(cu_0, cu_1 + 1):
-                    for iv in range(cv_0, cv_1 + 1):
-                        c = k * stK + iu * stU + iv * stV
-                        for l in range(L):
-                            for r in range(cell_start[l, c], cell_start[l, c + 1]):
-                                _prefetch_tri(tris, tri_ids[r])
-                for iu in range(cu_0, cu_1 + 1):
-                    for iv in range(cv_0, cv_1 + 1):
-                        c = k * stK + iu * stU + iv * stV
-                        cells += 1
-                        for l in range(L):
-                            for r in range(cell_start[l, c], cell_start[l, c + 1]):
-                                f = tri_ids[r]
-                                slot = f & mmask
-                                if mb[slot] == f:
-                                    continue
-                                p0u = np.float64(tris[f, 0, U])
-                                p1u = np.float64(tris[f, 1, U])
-                                p2u = np.float64(tris[f, 2, U])
-                                if max(p0u, max(p1u, p2u)) < ulo or min(p0u, min(p1u, p2u)) > uhi:
-                                    continue
-                                p0v = np.float64(tris[f, 0, V])
-                                p1v = np.float64(tris[f, 1, V])
-                                p2v = np.float64(tris[f, 2, V])
-                                if max(p0v, max(p1v, p2v)) < vlo or min(p0v, min(p1v, p2v)) > vhi:
-                                    continue
-                                p0k = np.float64(tris[f, 0, K])
-                                p1k = np.float64(tris[f, 1, K])
-                                p2k = np.float64(tris[f, 2, K])
-                                mb[slot] = f
-                                if _outside(p0u, p0v, p0k, p1u, p1v, p1k, p2u, p2v, p2k, xr,
-                                            pl_u0, pl_u1, pl_v0, pl_v1, sl_u0, sl_u1, sl_v0, sl_v1):
-                                    continue  # the packet's bounds only shrink: it stays outside
-                                tests += 1
-                                if watertight:
-                                    pending += _test_wt(
-                                        S, na, p0u, p0v, p0k, p1u, p1v, p1k, p2u, p2v, p2k, np.float64(f), tmin)
-                                else:
-                                    pending += _test_mt(
-                                        S, na, np.float64(tris[f, 0, 0]), np.float64(tris[f, 0, 1]),
-                                        np.float64(tris[f, 0, 2]), np.float64(tris[f, 1, 0]),
-                                        np.float64(tris[f, 1, 1]), np.float64(tris[f, 1, 2]),
-                                        np.float64(tris[f, 2, 0]), np.float64(tris[f, 2, 1]),
-                                        np.float64(tris[f, 2, 2]), np.float64(f), tmin)
+                _prefetch_slice(tris, cell_start, tri_ids, k * stK, stU, stV, cu_0, cu_1, cv_0, cv_1)
+                nc, nt, nh = _test_slice(
+                    tris, cell_start, tri_ids, k * stK, stU, stV, cu_0, cu_1, cv_0, cv_1, U, V, K,
+                    (ulo, uhi, vlo, vhi), (xr, pl_u0, pl_u1, pl_v0, pl_v1, sl_u0, sl_u1, sl_v0, sl_v1),
+                    S, na, mb, watertight, tmin)
+                cells += nc
+                tests += nt
+                pending += nh
                 xa = xb
                 if pending > 0:
                     nb, pending = _step(S, na, io, xb, any_hit, watertight, tests, cells)
@@ -633,20 +678,24 @@ def trace_packet(
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def trace_packet_two(
-    tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
-    tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b, mdims_b, macro_full_b,
-    has_b, n, io, io2, tmin, watertight, any_hit, S, mb, mb1,
-):
-    """:func:`trace_packet` over grid A and, when has_b, grid B (as trace_two does for one ray):
-    B's rays end at A's hit (nearest), or are skipped where A found one (any_hit).  io's IO_W row
-    tells which grid the hit is in.  Returns the number of rays traced by the fallback."""
-    nf = trace_packet(tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
-                      n, io, tmin, watertight, any_hit, S, mb, mb1)
+def trace_packet_grids(grids, n, io, io2, tmin, watertight, any_hit, S, mb, mb1):
+    """:func:`trace_packet` over the tuple of grids, in order (as trace_grids does for one ray):
+    each later grid's rays end at the hit found before it (nearest), or are skipped where one was
+    found (any_hit).  io's IO_W row tells which grid the hit is in; io2 is scratch.  Returns the
+    number of rays traced by the fallback."""
+    nf = trace_packet(grids[0], n, io, tmin, watertight, any_hit, S, mb, mb1)
     for j in range(n):
         io[IO_W * PN + j] = 0.0
-    if not has_b:
-        return nf
+    for i in range(1, len(grids)):
+        _chain_rays(io, io2, n, any_hit)
+        nf += trace_packet(grids[i], n, io2, tmin, watertight, any_hit, S, mb, mb1)
+        _merge_hits(io, io2, n, i)
+    return nf
+
+
+@njit(cache=True, _nrt=False)
+def _chain_rays(io, io2, n, any_hit):
+    """io's rays into io2, each ending where io found a hit (any_hit: not traced at all there)."""
     for j in range(n):
         for r in range(IO_TMAX):
             io2[r * PN + j] = io[r * PN + j]
@@ -654,16 +703,18 @@ def trace_packet_two(
             io2[IO_TMAX * PN + j] = -np.inf if any_hit else io[IO_T * PN + j]
         else:
             io2[IO_TMAX * PN + j] = io[IO_TMAX * PN + j]
-    nf += trace_packet(tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b, mdims_b,
-                       macro_full_b, n, io2, tmin, watertight, any_hit, S, mb, mb1)
+
+
+@njit(cache=True, _nrt=False)
+def _merge_hits(io, io2, n, which):
+    """io2's hits (in grid ``which``) replace io's; the counters add up."""
     for j in range(n):
         if io2[IO_F * PN + j] >= 0.0:
             io[IO_T * PN + j] = io2[IO_T * PN + j]
             io[IO_F * PN + j] = io2[IO_F * PN + j]
-            io[IO_W * PN + j] = 1.0
+            io[IO_W * PN + j] = which
         io[IO_NT * PN + j] += io2[IO_NT * PN + j]
         io[IO_NC * PN + j] += io2[IO_NC * PN + j]
-    return nf
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
@@ -700,8 +751,9 @@ def _camera_rays(basis, W, H, px0, py0, pw, ph, io):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def _write_out(io, col, W, px0, py0, pw, ph, has_b, ids_a, ids_b, img, tbuf, idbuf, costbuf, cellbuf):
-    """Write a packet's results (io) and colours (col, 3 * PN) into the image buffers, given
+def _write_out(io, col, W, px0, py0, pw, ph, grids, img, tbuf, idbuf, costbuf, cellbuf):
+    """Write a packet's results (io) and colours (col, 3 * PN) into the image buffers (the
+    triangles' scene ids through the grids' ids maps when there are several grids), given
     flat: img (H * W * 4,) uint8, tbuf (H * W,) float32, idbuf, costbuf, cellbuf (H * W,) int32.
     Returns (hits, sum of tests, sum of cells).  Flat buffers and unsigned indices (no
     wraparound tests) let the row loop vectorize."""
@@ -729,13 +781,11 @@ def _write_out(io, col, W, px0, py0, pw, ph, has_b, ids_a, ids_b, img, tbuf, idb
             hits += f >= 0
             tests += nt
             cells += nc
-    if has_b and hits > 0:  # scene ids of the two grids' triangles
+    if len(grids) > 1 and hits > 0:  # scene ids of the grids' triangles
         for yy in range(ph):
             for xx in range(pw):
                 j = yy * pw + xx
-                f = int(io[IO_F * PN + j])
-                if f >= 0:
-                    idbuf[(py0 + yy) * W + px0 + xx] = ids_b[f] if io[IO_W * PN + j] == 1.0 else ids_a[f]
+                idbuf[(py0 + yy) * W + px0 + xx] = scene_id(grids, int(io[IO_W * PN + j]), int(io[IO_F * PN + j]))
     return hits, tests, cells
 
 
@@ -763,9 +813,7 @@ def _prefetch_tile(ti, ntx, tile, W, H, img, tbuf, idbuf, costbuf, cellbuf):
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _render_tiles(
-    tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
-    tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b, mdims_b, macro_full_b,
-    has_b, ids_a, ids_b, basis, W, H, tile, t0, t1, mode, shadows, light, off, watertight,
+    grids, basis, W, H, tile, t0, t1, mode, shadows, light, off, watertight,
     img, tbuf, idbuf, costbuf, cellbuf, S, io, io2, sio, sj, col, mb, mb1, acc,
 ):
     """Render tiles t0..t1-1 (row-major), each as packets of up to PK x PK pixels: trace and shade
@@ -790,11 +838,7 @@ def _render_tiles(
                 ph = min(PK, ty1 - py0)
                 n = pw * ph
                 _camera_rays(basis, W, H, px0, py0, pw, ph, io)
-                nfb = trace_packet_two(
-                    tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
-                    tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b, mdims_b,
-                    macro_full_b, has_b, n, io, io2, 0.0, watertight, False, S, mb, mb1,
-                )
+                nfb = trace_packet_grids(grids, n, io, io2, 0.0, watertight, False, S, mb, mb1)
                 # colours into col (3 * PN), shadow rays of lit hits into sio
                 m = 0
                 for j in range(n):
@@ -807,7 +851,7 @@ def _render_tiles(
                         dx = io[IO_DX * PN + j]
                         dy = io[IO_DY * PN + j]
                         dz = io[IO_DZ * PN + j]
-                        nx, ny, nz, dn = facing_normal(tris, tris_b, int(io[IO_W * PN + j]), f, dx, dy, dz)
+                        nx, ny, nz, dn = facing_normal(grids[int(io[IO_W * PN + j])].tris, f, dx, dy, dz)
                         if mode == 1:
                             r, g, b = normal_rgb(nx, ny, nz)
                         else:
@@ -833,19 +877,14 @@ def _render_tiles(
                     col[PN + j] = g
                     col[2 * PN + j] = b
                 if m > 0:
-                    nfb += trace_packet_two(
-                        tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
-                        tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b,
-                        mdims_b, macro_full_b, has_b, m, sio, io2, 0.0, watertight, True, S, mb, mb1,
-                    )
+                    nfb += trace_packet_grids(grids, m, sio, io2, 0.0, watertight, True, S, mb, mb1)
                     for q in range(m):
                         j = sj[q]
                         r, g, b = lambert_rgb(col[j] if sio[IO_F * PN + q] < 0.0 else 0.0)
                         col[j] = r
                         col[PN + j] = g
                         col[2 * PN + j] = b
-                hits, tests, cells = _write_out(io, col, W, px0, py0, pw, ph, has_b, ids_a, ids_b,
-                                                img, tbuf, idbuf, costbuf, cellbuf)
+                hits, tests, cells = _write_out(io, col, W, px0, py0, pw, ph, grids, img, tbuf, idbuf, costbuf, cellbuf)
                 acc[0] += hits
                 acc[1] += tests
                 acc[2] += cells
@@ -854,10 +893,7 @@ def _render_tiles(
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def cgt_render_kernel(
-    tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
-    tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b, mdims_b, macro_full_b,
-    has_b, ids_a, ids_b, basis, W, H, tile, mode, shadows, light, off, watertight,
-    img, tbuf, idbuf, costbuf, cellbuf,
+    grids, basis, W, H, tile, mode, shadows, light, off, watertight, img, tbuf, idbuf, costbuf, cellbuf,
 ):
     """render_kernel (same arguments, same buffers, same shading) with primary and shadow rays
     traced as packets of up to PK x PK pixels within each tile.  costbuf / cellbuf hold the CGT
@@ -872,7 +908,9 @@ def cgt_render_kernel(
     nch = min(ntiles, CHUNKS)
     per = (ntiles + nch - 1) // nch
     acc = np.zeros((nch, 4), np.int64)
+    flat = pack_grids(grids)  # (a tuple of grids cannot enter the parallel loop as it is: see grids.py)
     for ch in prange(nch):
+        gs = unpack_grids(flat)
         S = np.empty(NS * PN)
         io = np.empty(NIO * PN)
         io2 = np.empty(NIO * PN)
@@ -882,9 +920,7 @@ def cgt_render_kernel(
         mb = np.empty(MBOX, np.int32)
         mb1 = np.empty(MAILBOX, np.int32)
         _render_tiles(
-            tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
-            tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b, mdims_b,
-            macro_full_b, has_b, ids_a, ids_b, basis, W, H, tile, ch * per, min((ch + 1) * per, ntiles),
+            gs, basis, W, H, tile, ch * per, min((ch + 1) * per, ntiles),
             mode, shadows, light, off, watertight, img.reshape(H * W * 4), tbuf.reshape(H * W),
             idbuf.reshape(H * W), costbuf.reshape(H * W), cellbuf.reshape(H * W),
             S, io, io2, sio, sj, col, mb, mb1, acc[ch],

@@ -35,82 +35,53 @@ from ..config import DEFAULT_MAX_BYTES, RenderParams, _positive_int
 from ..errors import InputError
 from ..stats import RenderStats
 from ..threads import check_threads, launch_guard, use_threads
-from .traverse import MAILBOX, trace_ray
+from .traverse import MAILBOX, trace_grids, trace_ray
 from ..camera import Camera, pixel_dir
 from .cgt import cgt_render_kernel
+from .grids import grid_arrays, pack_grids, unpack_grids
 from .shade import (  # noqa: F401  (the shading constants stay importable from here)
-    AMBIENT, ALBEDO, BACKGROUND, COST_SCALE, cost_rgb, facing_normal, lambert_rgb, normal_rgb, put_pixel, shadow_ray,
+    AMBIENT, ALBEDO, BACKGROUND, COST_SCALE, cost_rgb, facing_normal, lambert_rgb, normal_rgb, put_pixel, scene_id,
+    shadow_ray,
 )
 
 #: shadow-ray origins move off the surface by this fraction of the scene's bounding-box diagonal
 SHADOW_OFFSET = 1e-6
-_NO_IDS = np.zeros(0, np.int32)
 SHADING_CODES = {"lambert": 0, "normal": 1, "cost": 2}
-
-
-@njit(cache=True, _nrt=False)
-def trace_two(
-    tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
-    tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b, mdims_b, macro_full_b,
-    has_b, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mb,
-):
-    """Nearest hit over grid A and (when has_b) grid B: (which 0/1, tri, t, u, v, cells, tests)."""
-    f, t, u, v, nc, nt = trace_ray(
-        tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
-        ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mb,
-    )
-    if not has_b or (any_hit and f >= 0):
-        return 0, f, t, u, v, nc, nt
-    f2, t2, u2, v2, nc2, nt2 = trace_ray(
-        tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b, mdims_b, macro_full_b,
-        ox, oy, oz, dx, dy, dz, tmin, t if f >= 0 else tmax, watertight, any_hit, mb,
-    )
-    if f2 >= 0:
-        return 1, f2, t2, u2, v2, nc + nc2, nt + nt2
-    return 0, f, t, u, v, nc + nc2, nt + nt2
 
 
 @njit(cache=True, parallel=True)
 def render_kernel(
-    tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
-    tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b, mdims_b, macro_full_b,
-    has_b, ids_a, ids_b, basis, W, H, tile, mode, shadows, light, off, watertight,
-    img, tbuf, idbuf, costbuf, cellbuf,
+    grids, basis, W, H, tile, mode, shadows, light, off, watertight, img, tbuf, idbuf, costbuf, cellbuf,
 ):
     """Render W x H pixels into img (H,W,4) uint8, tbuf (H,W) float32, idbuf (H,W) int32,
     costbuf (H,W) int32 (triangle tests) and cellbuf (H,W) int32 (cells visited).
 
-    Grid A over tris, and with has_b also grid B over tris_b (a scene split into static and
-    moving parts); ids_a / ids_b map each part's triangle index to the scene's (used when
-    has_b).  off: shadow-ray origin offset along the normal.
+    grids: a tuple of GridArrays (gridrt.trace.grids), traversed together (one grid, or a scene
+    split into static and moving parts); idbuf holds the scene ids of the hit triangles (through
+    each grid's ids map where it has one).  off: shadow-ray origin offset along the normal.
     """
     ntx = (W + tile - 1) // tile
     nty = (H + tile - 1) // tile
     ex, ey, ez = basis[0, 0], basis[0, 1], basis[0, 2]
+    flat = pack_grids(grids)  # (a tuple of grids cannot enter the parallel loop as it is: see grids.py)
     for ti in prange(ntx * nty):
+        gs = unpack_grids(flat)
         mb = np.empty(MAILBOX, np.int32)
         tx0 = (ti % ntx) * tile
         ty0 = (ti // ntx) * tile
         for y in range(ty0, min(ty0 + tile, H)):
             for x in range(tx0, min(tx0 + tile, W)):
                 dx, dy, dz = pixel_dir(basis, W, H, x, y)
-                which, f, t, u, v, nc, nt = trace_two(
-                    tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
-                    tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b, tri_ids_b, macro_b, mdims_b,
-                    macro_full_b, has_b, ex, ey, ez, dx, dy, dz, 0.0, np.inf, watertight, False, mb,
-                )
+                which, f, t, u, v, nc, nt = trace_grids(gs, ex, ey, ez, dx, dy, dz, 0.0, np.inf, watertight, False, mb)
                 tbuf[y, x] = np.float32(t)
-                if f >= 0 and has_b:
-                    idbuf[y, x] = ids_b[f] if which == 1 else ids_a[f]
-                else:
-                    idbuf[y, x] = f
+                idbuf[y, x] = scene_id(gs, which, f)
                 costbuf[y, x] = nt
                 cellbuf[y, x] = nc
                 r, g, b = BACKGROUND[0], BACKGROUND[1], BACKGROUND[2]
                 if mode == 2:
                     r, g, b = cost_rgb(nt)
                 elif f >= 0:
-                    nx, ny, nz, dn = facing_normal(tris, tris_b, which, f, dx, dy, dz)
+                    nx, ny, nz, dn = facing_normal(gs[which].tris, f, dx, dy, dz)
                     if mode == 1:
                         r, g, b = normal_rgb(nx, ny, nz)
                     else:
@@ -120,12 +91,8 @@ def render_kernel(
                             need, sox, soy, soz, lx, ly, lz, ld, s = shadow_ray(
                                 ex, ey, ez, t, dx, dy, dz, nx, ny, nz, light, off)
                             if need:
-                                sw, sf, st, su, sv, snc, snt = trace_two(
-                                    tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims,
-                                    macro_full, tris_b, lo_b, hi_b, cell_b, inv_cell_b, dims_b, cell_start_b,
-                                    tri_ids_b, macro_b, mdims_b, macro_full_b, has_b,
-                                    sox, soy, soz, lx, ly, lz, 0.0, ld, watertight, True, mb,
-                                )
+                                sw, sf, st, su, sv, snc, snt = trace_grids(
+                                    gs, sox, soy, soz, lx, ly, lz, 0.0, ld, watertight, True, mb)
                                 if sf >= 0:
                                     s = 0.0
                         r, g, b = lambert_rgb(s)
@@ -133,31 +100,22 @@ def render_kernel(
 
 
 @njit(cache=True, parallel=True)
-def cast_kernel(
-    tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
-    origins, dirs, tmin, tmax, watertight, any_hit, chunk,
-    out_t, out_f, out_u, out_v,
-):
-    """Nearest hit of each ray (origins, dirs (N,3) float64) into the out_* arrays (N,)."""
+def cast_kernel(g, origins, dirs, tmin, tmax, watertight, any_hit, chunk, out_t, out_f, out_u, out_v):
+    """Nearest hit of each ray (origins, dirs (N,3) float64) through the grid g (GridArrays) into
+    the out_* arrays (N,)."""
     N = origins.shape[0]
     nch = (N + chunk - 1) // chunk
     for ci in prange(nch):
         mb = np.empty(MAILBOX, np.int32)
         for i in range(ci * chunk, min((ci + 1) * chunk, N)):
             f, t, u, v, nc, nt = trace_ray(
-                tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
-                origins[i, 0], origins[i, 1], origins[i, 2], dirs[i, 0], dirs[i, 1], dirs[i, 2],
+                g, origins[i, 0], origins[i, 1], origins[i, 2], dirs[i, 0], dirs[i, 1], dirs[i, 2],
                 tmin, tmax, watertight, any_hit, mb,
             )
             out_t[i] = t
             out_f[i] = f
             out_u[i] = u
             out_v[i] = v
-
-
-def _grid_args(grid):
-    s = grid.spec
-    return (s.lo, s.hi, s.cell, s.inv_cell, s.dims, grid.cell_start, grid.tri_ids, s.macro, s.mdims, grid.macro_full)
 
 
 def _check_grid_tris(grid, tris):
@@ -253,7 +211,7 @@ def cast_batch(grid, tris, origins, dirs, origin=None, tmin=0.0, tmax=np.inf, wa
         check_ray_values(o[s : s + chunk], d[s : s + chunk], s, frame)
     hits = Hits(np.empty(N), np.empty(N, np.int32), np.empty(N), np.empty(N))
     use_threads(threads)
-    g = _grid_args(grid)
+    g = grid_arrays(grid, tris)
     wt, ah = bool(watertight), bool(any_hit)
     with launch_guard():
         for s in range(0, N, chunk):
@@ -275,13 +233,13 @@ def cast_batch(grid, tris, origins, dirs, origin=None, tmin=0.0, tmax=np.inf, wa
                 if np.may_share_memory(dc, d):
                     dc = dc.copy()  # (never write to the caller's array)
                 dc[odd] = np.ldexp(dc[odd], -ex[:, None])
-            cast_kernel(tris, *g, oc, dc, tmin, tmax, wt, ah, 256, *out)
+            cast_kernel(g, oc, dc, tmin, tmax, wt, ah, 256, *out)
             for x in np.unique(ex):
                 rows = odd[ex == x]
                 # t = t' * 2**-x for d' = d * 2**-x; a hit beyond float64's range is no hit
                 lo_t, hi_t = np.ldexp(np.array([tmin, tmax]), int(x))
                 sub = [np.empty(len(rows)), np.empty(len(rows), np.int32), np.empty(len(rows)), np.empty(len(rows))]
-                cast_kernel(tris, *g, oc[rows], dc[rows], float(lo_t), float(hi_t), wt, ah, 256, *sub)
+                cast_kernel(g, oc[rows], dc[rows], float(lo_t), float(hi_t), wt, ah, 256, *sub)
                 with np.errstate(over="ignore"):
                     ts = np.ldexp(sub[0], -int(x))
                 gone = ~np.isfinite(ts)
@@ -358,10 +316,11 @@ class Renderer:
             ids_b = np.ascontiguousarray(ids_b, np.int32)
             if ids_a.shape != (len(tris),) or ids_b.shape != (len(tris_b),):
                 raise InputError("triangle id maps must have one entry per triangle of each grid")
+            grids = (grid_arrays(grid, tris, ids_a), grid_arrays(grid_b, tris_b, ids_b))
             lo_s = np.minimum(grid.spec.scene_lo, grid_b.spec.scene_lo)
             hi_s = np.maximum(grid.spec.scene_hi, grid_b.spec.scene_hi)
         else:
-            grid_b, tris_b, ids_a, ids_b = grid, tris, _NO_IDS, _NO_IDS
+            grids = (grid_arrays(grid, tris),)
             lo_s, hi_s = grid.spec.scene_lo, grid.spec.scene_hi
         threads = check_threads(params.threads)
         W, H = params.width, params.height
@@ -374,8 +333,7 @@ class Renderer:
             light = default_light(diag, camera)
         use_threads(threads)
         args = (
-            tris, *_grid_args(grid), tris_b, *_grid_args(grid_b), second is not None, ids_a, ids_b,
-            basis, W, H, params.tile, SHADING_CODES[params.shading], bool(params.shadows), light,
+            grids, basis, W, H, params.tile, SHADING_CODES[params.shading], bool(params.shadows), light,
             SHADOW_OFFSET * diag, bool(params.watertight), img, tb, ib, cb, nb,
         )
         t0 = time.perf_counter()

@@ -48,17 +48,24 @@ def unit_normal(tris, f):
 
 
 @njit(cache=True, _nrt=False)
-def facing_normal(tris, tris_b, which, f, dx, dy, dz):
-    """Unit geometric normal of the hit triangle (tris_b when which == 1) turned towards the
-    viewer, and its dot product with the ray direction (<= 0): (nx, ny, nz, dn)."""
-    if which == 1:
-        nx, ny, nz = unit_normal(tris_b, f)
-    else:
-        nx, ny, nz = unit_normal(tris, f)
+def facing_normal(tris, f, dx, dy, dz):
+    """Unit geometric normal of triangle f of tris turned towards the viewer, and its dot product
+    with the ray direction (<= 0): (nx, ny, nz, dn)."""
+    nx, ny, nz = unit_normal(tris, f)
     dn = nx * dx + ny * dy + nz * dz
     if dn > 0.0:
         nx, ny, nz, dn = -nx, -ny, -nz, -dn
     return nx, ny, nz, dn
+
+
+@njit(cache=True, _nrt=False)
+def scene_id(grids, which, f):
+    """The scene's id of triangle f of grid ``which`` of the tuple grids (through the grid's ids
+    map when it has one); -1 (a miss) stays -1."""
+    if f < 0:
+        return -1
+    ids = grids[which].ids
+    return ids[f] if ids.shape[0] > 0 else f
 
 
 @njit(cache=True, _nrt=False)

@@ -52,16 +52,63 @@ def _slab(o, d, lo, hi, t0, t1):
     return max(t0, ta), min(t1, tb)
 
 
+@njit(cache=True)
+def _cell_exit_t(lo, c, i, s, o, inv_d):
+    """t at which a ray (origin coordinate o, 1 / direction inv_d, step s = -1, 0, 1) leaves cell
+    i along one axis of a grid starting at lo with cells of size c; inf when it does not step."""
+    if s > 0:
+        return (lo + (i + 1) * c - o) * inv_d
+    if s < 0:
+        return (lo + i * c - o) * inv_d
+    return np.inf
+
+
+@njit(cache=True)
+def _macro_exit_t(lo, c, mi, k, n, s, o, inv_d):
+    """As _cell_exit_t for macro cell mi (k cells wide, the last one cut at the grid's n cells)."""
+    if s == 0:
+        return np.inf
+    b = (lo + min((mi + 1) * k, n) * c) if s > 0 else (lo + mi * k * c)
+    return (b - o) * inv_d
+
+
+@njit(cache=True)
+def _macro_entry(cp, mi, k, n, s, exit_axis):
+    """Cell index along one axis after leaving macro cell mi at the (cell-unit) coordinate cp:
+    along the exit axis the first cell of the next macro cell, along the others the cell at cp,
+    kept within this macro cell."""
+    if exit_axis:
+        return (mi + 1) * k if s > 0 else mi * k - 1
+    return min(max(_floor_clamp(cp, n), mi * k), min((mi + 1) * k, n) - 1)
+
+
 @njit(cache=True, _nrt=False)
-def trace_ray(
-    tris, lo, hi, cell, inv_cell, dims, cell_start, tri_ids, macro, mdims, macro_full,
-    ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox,
-):
-    """Nearest (or, with any_hit, any) hit of one ray with tmin < t < tmax.
+def _test_triangle(tris, f, watertight, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Triangle f of tris against one ray: (hit, t, u, v) of intersect_watertight (vertices and
+    origin permuted by (kx, ky, kz), shear Sx, Sy, Sz) or of intersect_fast."""
+    if watertight:
+        return intersect_watertight(
+            np.float64(tris[f, 0, kx]), np.float64(tris[f, 0, ky]), np.float64(tris[f, 0, kz]),
+            np.float64(tris[f, 1, kx]), np.float64(tris[f, 1, ky]), np.float64(tris[f, 1, kz]),
+            np.float64(tris[f, 2, kx]), np.float64(tris[f, 2, ky]), np.float64(tris[f, 2, kz]),
+            okx, oky, okz, Sx, Sy, Sz, tmin, tmax)
+    return intersect_fast(
+        np.float64(tris[f, 0, 0]), np.float64(tris[f, 0, 1]), np.float64(tris[f, 0, 2]),
+        np.float64(tris[f, 1, 0]), np.float64(tris[f, 1, 1]), np.float64(tris[f, 1, 2]),
+        np.float64(tris[f, 2, 0]), np.float64(tris[f, 2, 1]), np.float64(tris[f, 2, 2]),
+        ox, oy, oz, dx, dy, dz, tmin, tmax)
+
+
+@njit(cache=True, _nrt=False)
+def trace_ray(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox):
+    """Nearest (or, with any_hit, any) hit of one ray with tmin < t < tmax in the grid g
+    (:class:`gridrt.trace.grids.GridArrays`).
 
     Returns (tri, t, u, v, cells_visited, tests); tri = -1 and t = inf on a miss.
     mailbox (MAILBOX,) int32 scratch.
     """
+    tris, lo, hi, cell, inv_cell, dims = g.tris, g.lo, g.hi, g.cell, g.inv_cell, g.dims
+    cell_start, tri_ids, macro, mdims, macro_full = g.cell_start, g.tri_ids, g.macro, g.mdims, g.macro_full
     # clip the ray to the grid box (axis-parallel rays: a zero component never steps)
     t0, t1 = _slab(ox, dx, lo[0], hi[0], tmin, tmax)
     t0, t1 = _slab(oy, dy, lo[1], hi[1], t0, t1)
@@ -108,12 +155,9 @@ def trace_ray(
         mk = iz // k
         if macro_full[mi + mx * (mj + my * mk)] == 0:
             # leave the empty macro cell in one step
-            bx = (lo[0] + min((mi + 1) * k, nx) * cell[0]) if sx > 0 else (lo[0] + mi * k * cell[0])
-            by = (lo[1] + min((mj + 1) * k, ny) * cell[1]) if sy > 0 else (lo[1] + mj * k * cell[1])
-            bz = (lo[2] + min((mk + 1) * k, nz) * cell[2]) if sz > 0 else (lo[2] + mk * k * cell[2])
-            tx = (bx - ox) * idx if sx != 0 else np.inf
-            ty = (by - oy) * idy if sy != 0 else np.inf
-            tz = (bz - oz) * idz if sz != 0 else np.inf
+            tx = _macro_exit_t(lo[0], cell[0], mi, k, nx, sx, ox, idx)
+            ty = _macro_exit_t(lo[1], cell[1], mj, k, ny, sy, oy, idy)
+            tz = _macro_exit_t(lo[2], cell[2], mk, k, nz, sz, oz, idz)
             if tx <= ty and tx <= tz:
                 te = tx
                 ax = 0
@@ -128,19 +172,9 @@ def trace_ray(
             cpx = (ox + te * dx - lo[0]) * inv_cell[0]
             cpy = (oy + te * dy - lo[1]) * inv_cell[1]
             cpz = (oz + te * dz - lo[2]) * inv_cell[2]
-            # along the exit axis: first cell of the next macro cell; others stay in this one
-            if ax == 0:
-                ix = (mi + 1) * k if sx > 0 else mi * k - 1
-            else:
-                ix = min(max(_floor_clamp(cpx, nx), mi * k), min((mi + 1) * k, nx) - 1)
-            if ax == 1:
-                iy = (mj + 1) * k if sy > 0 else mj * k - 1
-            else:
-                iy = min(max(_floor_clamp(cpy, ny), mj * k), min((mj + 1) * k, ny) - 1)
-            if ax == 2:
-                iz = (mk + 1) * k if sz > 0 else mk * k - 1
-            else:
-                iz = min(max(_floor_clamp(cpz, nz), mk * k), min((mk + 1) * k, nz) - 1)
+            ix = _macro_entry(cpx, mi, k, nx, sx, ax == 0)
+            iy = _macro_entry(cpy, mj, k, ny, sy, ax == 1)
+            iz = _macro_entry(cpz, mk, k, nz, sz, ax == 2)
             if ix < 0 or iy < 0 or iz < 0 or ix >= nx or iy >= ny or iz >= nz:
                 break
             continue
@@ -157,18 +191,8 @@ def trace_ray(
                     continue
                 mailbox[slot] = f
                 tests += 1
-                if watertight:
-                    hit, t, u, v = intersect_watertight(
-                        np.float64(tris[f, 0, kx]), np.float64(tris[f, 0, ky]), np.float64(tris[f, 0, kz]),
-                        np.float64(tris[f, 1, kx]), np.float64(tris[f, 1, ky]), np.float64(tris[f, 1, kz]),
-                        np.float64(tris[f, 2, kx]), np.float64(tris[f, 2, ky]), np.float64(tris[f, 2, kz]),
-                        okx, oky, okz, Sx, Sy, Sz, tmin, best_t)
-                else:
-                    hit, t, u, v = intersect_fast(
-                        np.float64(tris[f, 0, 0]), np.float64(tris[f, 0, 1]), np.float64(tris[f, 0, 2]),
-                        np.float64(tris[f, 1, 0]), np.float64(tris[f, 1, 1]), np.float64(tris[f, 1, 2]),
-                        np.float64(tris[f, 2, 0]), np.float64(tris[f, 2, 1]), np.float64(tris[f, 2, 2]),
-                        ox, oy, oz, dx, dy, dz, tmin, best_t)
+                hit, t, u, v = _test_triangle(tris, f, watertight, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz,
+                                              ox, oy, oz, dx, dy, dz, tmin, best_t)
                 if hit:
                     best_t = t
                     best_f = f
@@ -177,9 +201,9 @@ def trace_ray(
                     if any_hit:
                         return best_f, best_t, best_u, best_v, cells, tests
         # step to the next cell
-        tx = (lo[0] + (ix + 1) * cell[0] - ox) * idx if sx > 0 else ((lo[0] + ix * cell[0] - ox) * idx if sx < 0 else np.inf)
-        ty = (lo[1] + (iy + 1) * cell[1] - oy) * idy if sy > 0 else ((lo[1] + iy * cell[1] - oy) * idy if sy < 0 else np.inf)
-        tz = (lo[2] + (iz + 1) * cell[2] - oz) * idz if sz > 0 else ((lo[2] + iz * cell[2] - oz) * idz if sz < 0 else np.inf)
+        tx = _cell_exit_t(lo[0], cell[0], ix, sx, ox, idx)
+        ty = _cell_exit_t(lo[1], cell[1], iy, sy, oy, idy)
+        tz = _cell_exit_t(lo[2], cell[2], iz, sz, oz, idz)
         if tx <= ty and tx <= tz:
             te = tx
             ix += sx
@@ -197,3 +221,31 @@ def trace_ray(
         return -1, np.inf, 0.0, 0.0, cells, tests
     return best_f, best_t, best_u, best_v, cells, tests
 
+
+
+@njit(cache=True, _nrt=False)
+def trace_grids(grids, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox):
+    """Nearest (or, with any_hit, any) hit of one ray over the tuple of grids, in order: each grid
+    is searched up to the nearest hit found in the grids before it (with any_hit, the first hit
+    ends the search).  Returns (which, tri, t, u, v, cells_visited, tests): the hit's grid number
+    (0 on a miss) and the triangle's index in that grid, the counters summed over the grids
+    searched."""
+    which = 0
+    best_f = -1
+    best_t = np.inf
+    best_u = 0.0
+    best_v = 0.0
+    cells = 0
+    tests = 0
+    i = 0
+    for g in grids:
+        f, t, u, v, nc, nt = trace_ray(g, ox, oy, oz, dx, dy, dz, tmin, best_t if best_f >= 0 else tmax,
+                                       watertight, any_hit, mailbox)
+        cells += nc
+        tests += nt
+        if f >= 0:
+            which, best_f, best_t, best_u, best_v = i, f, t, u, v
+            if any_hit:
+                break
+        i += 1
+    return which, best_f, best_t, best_u, best_v, cells, tests

@@ -1,0 +1,72 @@
+"""A grid as the traversal kernels see it: one value, :class:`GridArrays`, and sequences of them.
+
+The render and traversal kernels take a tuple of grids (the static and the moving part of a
+split scene, later other parts) and trace every ray through all of them, nearest hit first
+(:func:`gridrt.trace.traverse.trace_grids`, :func:`gridrt.trace.cgt.trace_packet_grids`).  The
+grids of one tuple must have the same numba type (the same array dtypes and layouts:
+:func:`grid_arrays` makes them so), so that kernels can loop over the tuple and index it with a
+run-time grid number.
+
+numba's parallel loops cannot take a tuple of tuples from outside the loop (numba issue #9098:
+prange expands tuple inputs one level, and a nested tuple is refused as a non-scalar gufunc
+argument), so a parallel kernel passes its grids into the loop with :func:`pack_grids` (one flat
+tuple of all their fields, outside the loop) and :func:`unpack_grids` (the tuple of grids again,
+inside it).  Both are resolved at compile time into plain tuple element moves.
+"""
+
+from collections import namedtuple
+
+import numpy as np
+from numba.extending import overload
+
+#: One grid and its triangles, as the kernels take it (see gridrt.grid.layout for the arrays):
+#: tris (F,3,3) float32 in the grid's frame; lo, hi, cell, inv_cell (3,) float64; dims (3,) int64;
+#: cell_start (L, C+1) int32; tri_ids (R,) int32; macro int; mdims (3,) int64; macro_full (M,)
+#: uint8; ids (F,) int32, the scene's id of each triangle, or empty when the grid's triangle
+#: indices are the scene's.
+GridArrays = namedtuple(
+    "GridArrays", "tris lo hi cell inv_cell dims cell_start tri_ids macro mdims macro_full ids")
+NFIELDS = len(GridArrays._fields)
+NO_IDS = np.zeros(0, np.int32)
+
+
+def grid_arrays(grid, tris, ids=None):
+    """The :class:`GridArrays` of a built ``grid`` over its own (F,3,3) float32 ``tris`` (checked by
+    the caller), with scene ids ``ids`` ((F,) int32, checked by the caller; None: none)."""
+    s = grid.spec
+    c = np.ascontiguousarray
+    return GridArrays(
+        c(tris, np.float32), c(s.lo, np.float64), c(s.hi, np.float64), c(s.cell, np.float64),
+        c(s.inv_cell, np.float64), c(s.dims, np.int64), c(grid.cell_start, np.int32), c(grid.tri_ids, np.int32),
+        int(s.macro), c(s.mdims, np.int64), c(grid.macro_full, np.uint8), NO_IDS if ids is None else c(ids, np.int32))
+
+
+def pack_grids(grids):
+    """(kernels only) The fields of every grid of the tuple ``grids``, as one flat tuple."""
+    raise NotImplementedError("pack_grids is only callable from numba kernels")
+
+
+def unpack_grids(flat):
+    """(kernels only) The tuple of :class:`GridArrays` that :func:`pack_grids` flattened."""
+    raise NotImplementedError("unpack_grids is only callable from numba kernels")
+
+
+def _compile(src, name, **env):
+    ns = dict(env)
+    exec(src, ns)  # noqa: S102  (source generated here from the tuple's length only)
+    return ns[name]
+
+
+@overload(pack_grids)
+def _pack_grids(grids):
+    n = len(grids)
+    items = "".join(f"grids[{i}][{j}], " for i in range(n) for j in range(NFIELDS))
+    return _compile(f"def impl(grids):\n    return ({items})\n", "impl")
+
+
+@overload(unpack_grids)
+def _unpack_grids(flat):
+    n = len(flat) // NFIELDS
+    items = "".join(
+        "GridArrays(" + ", ".join(f"flat[{i * NFIELDS + j}]" for j in range(NFIELDS)) + "), " for i in range(n))
+    return _compile(f"def impl(flat):\n    return ({items})\n", "impl", GridArrays=GridArrays)
