@@ -233,3 +233,18 @@ def test_bench_peers_says_how_to_install_embreex(tmp_path, monkeypatch, capsys):
 def test_bench_bad_arguments(tmp_path, capsys, args, message):
     assert main(["bench", *args, "--quick", "--no-progress", "--out", str(tmp_path / "x")]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_bench_shortcuts_fall_back_to_the_shipped_assets(tmp_path, monkeypatch):
+    """Without the development data set, a bench shortcut whose scene ships in assets/ uses the
+    asset (the Armadillo as binary PLY, Cesium Man); one that does not ship says it is absent."""
+    from gridrt.app.bench import util
+    from gridrt.errors import InputError
+    from gridrt.scene.assets import asset_path
+
+    monkeypatch.setattr(util, "DATA", tmp_path)
+    assert util.data_path("armadillo") == asset_path("armadillo")
+    assert util.parse_scene_spec("cesium")[0] == str(asset_path("cesium_man"))
+    assert util.scene_available("morphsphere") and not util.scene_available("lucy")
+    with pytest.raises(InputError, match="absent"):
+        util.parse_scene_spec("lucy")

@@ -43,7 +43,7 @@ SHORTCUTS = {
 
 SCENE_HELP = ("comma-separated scene specs NAME[:N][:twist|wave]: built-ins marbles, icosphere (N = triangle "
               "count), a mesh or animation file, or a short name for a real mesh of the development data set, "
-              "when present (" + ", ".join(SHORTCUTS)
+              "when present, or the shipped asset of the same scene (" + ", ".join(SHORTCUTS)
               + "; N = subdivide a static mesh to at least N triangles); twist/wave deform a static mesh")
 
 
@@ -64,9 +64,20 @@ class BenchScene:
     path: Path | None
 
 
+#: SHORTCUTS names whose scene also ships in assets/ under another name
+_ASSET_NAMES = {"cesium": "cesium_man", "morphsphere": "morph_sphere"}
+
+
 def data_path(name):
-    """The file behind a SHORTCUTS name (may not exist)."""
-    return DATA / SHORTCUTS[name]
+    """The file behind a SHORTCUTS name: the development data set's file, else the same scene's
+    shipped asset (assets/, see gridrt.scene.assets) where there is one; may not exist."""
+    from gridrt.scene.assets import ASSET_SCENES, asset_path
+
+    p = DATA / SHORTCUTS[name]
+    asset = _ASSET_NAMES.get(name, name)
+    if not p.exists() and asset in ASSET_SCENES and asset_path(asset).exists():
+        return asset_path(asset)
+    return p
 
 
 def scene_available(spec):
