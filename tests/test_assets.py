@@ -209,3 +209,13 @@ def test_dump_morph_sphere_renders_two_different_frames(tmp_path):
         ts.append(tb)
     both = np.isfinite(ts[0]) & np.isfinite(ts[1])
     assert np.abs(ts[0][both] - ts[1][both]).max() > 1e-3 * r, "the sphere did not morph between the frames"
+
+
+def test_static_assets_list_is_what_loads_static():
+    """STATIC_ASSETS (the viewer offers a deformation for these) is exactly the set of asset scenes
+    that load as static meshes, and a deformation animates each of them."""
+    from gridrt.scene.assets import STATIC_ASSETS
+
+    assert set(STATIC_ASSETS) == {n for n in ASSET_SCENES if make_scene(n).static}
+    for n in STATIC_ASSETS:
+        assert not make_scene(n, animate="twist").static

@@ -14,6 +14,7 @@ from imgui_bundle import imgui, implot
 
 from gridrt.config import INSERT_MODES, SHADING_MODES, TRAVERSALS
 from gridrt.scene import BUILTIN_SCENES, DEFORM_KINDS, FRAME_EXTENSIONS, SCENE_EXTENSIONS, SceneSpec
+from gridrt.scene.assets import STATIC_ASSETS
 
 from .input import KEY_HELP
 from .state import SCALE_MAX, SCALE_MIN, SPEED_MAX, SPEED_MIN
@@ -249,7 +250,7 @@ def _draw_scene(state):
     v = _combo(state, "built-in", builtins, state.scene.source if is_builtin else None)
     if v is not None:
         state.scene_request = SceneSpec(source=v)
-    if is_builtin:
+    if state.scene.source in ("marbles", "icosphere"):  # the scenes whose size is a triangle count
         w = imgui.calc_item_width()
         changed, n = imgui.input_int("triangles", int(state.scene.count or state.triangles or 1), 1000, 10000,
                                      imgui.InputTextFlags_.enter_returns_true)
@@ -258,7 +259,7 @@ def _draw_scene(state):
             state.scene_request = SceneSpec(source=state.scene.source, count=int(n), seed=state.scene.seed)
         if imgui.is_item_hovered():
             imgui.set_tooltip("press Enter to rebuild the scene with this many triangles")
-    if state.scene.source != "marbles":
+    if state.scene.source == "icosphere" or state.scene.source in STATIC_ASSETS or not is_builtin:
         v = _combo(state, "deform", list(_ANIMATE), state.scene.animate or "none")
         if v is not None:
             s = state.scene

@@ -20,6 +20,10 @@ ASSET_SCENES = {
 }
 
 
+#: the asset scenes that do not move (the ones a deformation can animate)
+STATIC_ASSETS = ("armadillo", "teapot")
+
+
 def _asset_dir():
     """The folder holding the assets: the copy inside the installed package (gridrt/assets) or
     the repository's assets/ (this file is engine/scene/assets.py in a checkout)."""
