@@ -516,7 +516,7 @@ def test_guard_cast_rays(good_grid, tripwires):
                         (GOOD.astype(complex), "array the grid was built from"),
                         (np.where(np.arange(18).reshape(2, 3, 3) == 4, np.nan, GOOD.astype(np.float64)), "NaN"),
                         (GOOD.reshape(2, 9), "array the grid was built from"),
-                        (GOOD.tolist(), "array the grid was built from")):
+                        ([GOOD[0].tolist(), [[0.0, 0.0]] * 3], "array the grid was built from")):  # ragged list
         expect_guard(lambda: cast_rays(grid, tris, o, d), match)
 
 
