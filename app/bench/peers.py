@@ -167,96 +167,129 @@ def run_peers(a):
     bar = progress(len(scenes) * len(threads) * (warmup + runs + 1), "bench peers", a.no_progress)
     affinity_ok = True
     for sc in scenes:
-        origin = sc.scene.frame_origin(0.0)  # both tracers get the scene in the frame the pipeline uses
-        tris0 = np.array(sc.scene.triangles_at(0.0, origin=origin))
-        cam = scene_camera(sc.scene, tris0, origin=origin)
-        o, d = cam.rays(size, size)
-        o32 = np.ascontiguousarray(o, np.float32)
-        d32 = np.ascontiguousarray(d, np.float32)
-        o = o32.astype(np.float64)
-        d = d32.astype(np.float64)
-        N = len(o)
+        origin, cam, o32, d32, o, d = _camera_rays(sc, size)
         for T in threads:
             bar.set_postfix_str(f"{sc.label} T={T}")
             strat = frame_strategy(a.strategy, T)
             builder = GridBuilder(GridParams(strategy=strat, threads=T))
-            smp = {k: [] for k in ("o_build", "o_cast", "o_frame", "o_render_cgt", "o_frame_cgt", "e_upload",
-                                   "e_commit", "e_cast", "e_frame", "e_frame_noupload")}
             renderer = Renderer()
             rp = RenderParams(size, size, threads=T, traversal="cgt") if HAVE_CGT else None
             with Affinity(T) as aff, ThreadPoolExecutor(T) as pool:
                 affinity_ok &= aff.applied
-                for i in range(warmup + runs):
-                    tris = sc.scene.triangles_at(i * a.dt, origin=origin)
-                    t0 = time.perf_counter()
-                    g = builder.build(tris)
-                    t1 = time.perf_counter()
-                    ho = cast_rays(g, tris, o, d, threads=T)
-                    t2 = time.perf_counter()
-                    if rp is not None:
-                        img = renderer.render(g, tris, cam, rp)
-                    t2c = time.perf_counter()
-                    up, cm = emb.build(tris)
-                    t3 = time.perf_counter()
-                    te, fe = emb.cast(pool, o32, d32, T)
-                    t4 = time.perf_counter()
-                    if i >= warmup:
-                        smp["o_build"].append((t1 - t0) * 1e3)
-                        smp["o_cast"].append((t2 - t1) * 1e3)
-                        smp["o_frame"].append((t2 - t0) * 1e3)
-                        if rp is not None:
-                            smp["o_render_cgt"].append((t2c - t2) * 1e3)
-                            smp["o_frame_cgt"].append((t1 - t0 + t2c - t2) * 1e3)
-                        smp["e_upload"].append(up)
-                        smp["e_commit"].append(cm)
-                        smp["e_cast"].append((t4 - t3) * 1e3)
-                        smp["e_frame"].append(up + cm + (t4 - t3) * 1e3)
-                        smp["e_frame_noupload"].append(cm + (t4 - t3) * 1e3)
-                    bar.update()
-                # static cast throughput on the last frame
-                so, se, sr = [], [], []
-                for _ in range(runs):
-                    t0 = time.perf_counter()
-                    cast_rays(g, tris, o, d, threads=T)
-                    t1 = time.perf_counter()
-                    emb.cast(pool, o32, d32, T)
-                    t2 = time.perf_counter()
-                    if rp is not None:
-                        img = renderer.render(g, tris, cam, rp)
-                    t3 = time.perf_counter()
-                    so.append((t1 - t0) * 1e3)
-                    se.append((t2 - t1) * 1e3)
-                    sr.append((t3 - t2) * 1e3)
+                frames = _time_frames(sc, origin, builder, renderer, rp, cam, emb, pool, o32, d32, o, d, T,
+                                      warmup, runs, a.dt, bar)
+                static = _time_static(frames, renderer, rp, cam, emb, pool, o32, d32, o, d, T, runs)
                 bar.update()
-                last = np.array(tris)
-            ag = agreement(ho.t, ho.tri.astype(np.int64), te, fe)
-            with np.errstate(invalid="ignore"):
-                bad = np.flatnonzero(~(((ho.tri < 0) & (fe < 0)) | ((ho.tri == fe) & (ho.tri >= 0) & (
-                    np.abs(ho.t - te) <= T_REL * np.maximum(np.abs(ho.t), 1e-30)))))
-            judge = _judge(last, o, d, bad, ho.t, ho.tri.astype(np.int64), te, fe, T)
-            row = dict(scene=sc.label, name=sc.scene.name, triangles=len(last), threads=T, strategy=strat,
-                       cpus=T if aff.applied else "", rays=N, size=size, frames=runs,
-                       embree_robust=int(emb.robust))
-            for k, v in smp.items():
-                put_stat(row, k + "_ms", v)
-            put_stat(row, "o_static_cast_ms", so)
-            put_stat(row, "e_static_cast_ms", se)
-            if rp is not None:
-                put_stat(row, "o_static_render_cgt_ms", sr)
-                row["o_mrays_cgt"] = N / row["o_static_render_cgt_ms"] / 1e3
-                row["o_fps_cgt"] = 1e3 / row["o_frame_cgt_ms"]
-                agc = agreement(img.t.ravel().astype(np.float64), img.tri.ravel().astype(np.int64), te, fe)
-                row["agree_cgt"] = (agc["both_miss"] + agc["same"]) / N
-            row["o_mrays"] = N / row["o_static_cast_ms"] / 1e3
-            row["e_mrays"] = N / row["e_static_cast_ms"] / 1e3
-            row["o_fps"] = 1e3 / row["o_frame_ms"]
-            row["e_fps"] = 1e3 / row["e_frame_ms"]
-            row["e_fps_noupload"] = 1e3 / row["e_frame_noupload_ms"]
-            row.update(ag)
-            row["agree"] = (ag["both_miss"] + ag["same"]) / N
-            row.update(judge)
-            rows.append(row)
+            rows.append(_row(sc, T, strat, aff.applied, size, runs, emb, o, d, frames, static, rp))
     bar.close()
+    _write(rows, out, info, emb, runs, warmup, affinity_ok, note)
+    return 0
+
+
+def _camera_rays(sc, size):
+    """(frame origin, camera, float32 origins and directions, the same as float64) of a scene: both
+    tracers get the scene in the frame the pipeline uses and the same float32-rounded camera rays."""
+    origin = sc.scene.frame_origin(0.0)
+    tris0 = np.array(sc.scene.triangles_at(0.0, origin=origin))
+    cam = scene_camera(sc.scene, tris0, origin=origin)
+    o, d = cam.rays(size, size)
+    o32 = np.ascontiguousarray(o, np.float32)
+    d32 = np.ascontiguousarray(d, np.float32)
+    return origin, cam, o32, d32, o32.astype(np.float64), d32.astype(np.float64)
+
+
+def _time_frames(sc, origin, builder, renderer, rp, cam, emb, pool, o32, d32, o, d, T, warmup, runs, dt, bar):
+    """Per frame, both rebuild from scratch and cast: {samples (ms lists), last grid, triangles and hits}."""
+    smp = {k: [] for k in ("o_build", "o_cast", "o_frame", "o_render_cgt", "o_frame_cgt", "e_upload",
+                           "e_commit", "e_cast", "e_frame", "e_frame_noupload")}
+    img = None
+    for i in range(warmup + runs):
+        tris = sc.scene.triangles_at(i * dt, origin=origin)
+        t0 = time.perf_counter()
+        g = builder.build(tris)
+        t1 = time.perf_counter()
+        ho = cast_rays(g, tris, o, d, threads=T)
+        t2 = time.perf_counter()
+        if rp is not None:
+            img = renderer.render(g, tris, cam, rp)
+        t2c = time.perf_counter()
+        up, cm = emb.build(tris)
+        t3 = time.perf_counter()
+        te, fe = emb.cast(pool, o32, d32, T)
+        t4 = time.perf_counter()
+        if i >= warmup:
+            smp["o_build"].append((t1 - t0) * 1e3)
+            smp["o_cast"].append((t2 - t1) * 1e3)
+            smp["o_frame"].append((t2 - t0) * 1e3)
+            if rp is not None:
+                smp["o_render_cgt"].append((t2c - t2) * 1e3)
+                smp["o_frame_cgt"].append((t1 - t0 + t2c - t2) * 1e3)
+            smp["e_upload"].append(up)
+            smp["e_commit"].append(cm)
+            smp["e_cast"].append((t4 - t3) * 1e3)
+            smp["e_frame"].append(up + cm + (t4 - t3) * 1e3)
+            smp["e_frame_noupload"].append(cm + (t4 - t3) * 1e3)
+        bar.update()
+    return dict(samples=smp, grid=g, tris=tris, hits=ho, embree=(te, fe), img=img)
+
+
+def _time_static(frames, renderer, rp, cam, emb, pool, o32, d32, o, d, T, runs):
+    """Static cast throughput on the last frame: (gridrt cast ms, Embree cast ms, gridrt CGT render ms)
+    lists, and the last CGT image."""
+    g, tris = frames["grid"], frames["tris"]
+    so, se, sr = [], [], []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        cast_rays(g, tris, o, d, threads=T)
+        t1 = time.perf_counter()
+        emb.cast(pool, o32, d32, T)
+        t2 = time.perf_counter()
+        if rp is not None:
+            frames["img"] = renderer.render(g, tris, cam, rp)
+        t3 = time.perf_counter()
+        so.append((t1 - t0) * 1e3)
+        se.append((t2 - t1) * 1e3)
+        sr.append((t3 - t2) * 1e3)
+    return so, se, sr
+
+
+def _row(sc, T, strat, pinned, size, runs, emb, o, d, frames, static, rp):
+    """The CSV row of one scene and thread count: timings, throughputs and the two tracers' agreement."""
+    last = np.array(frames["tris"])
+    ho, (te, fe), img = frames["hits"], frames["embree"], frames["img"]
+    so, se, sr = static
+    N = len(o)
+    ag = agreement(ho.t, ho.tri.astype(np.int64), te, fe)
+    with np.errstate(invalid="ignore"):
+        bad = np.flatnonzero(~(((ho.tri < 0) & (fe < 0)) | ((ho.tri == fe) & (ho.tri >= 0) & (
+            np.abs(ho.t - te) <= T_REL * np.maximum(np.abs(ho.t), 1e-30)))))
+    judge = _judge(last, o, d, bad, ho.t, ho.tri.astype(np.int64), te, fe, T)
+    row = dict(scene=sc.label, name=sc.scene.name, triangles=len(last), threads=T, strategy=strat,
+               cpus=T if pinned else "", rays=N, size=size, frames=runs,
+               embree_robust=int(emb.robust))
+    for k, v in frames["samples"].items():
+        put_stat(row, k + "_ms", v)
+    put_stat(row, "o_static_cast_ms", so)
+    put_stat(row, "e_static_cast_ms", se)
+    if rp is not None:
+        put_stat(row, "o_static_render_cgt_ms", sr)
+        row["o_mrays_cgt"] = N / row["o_static_render_cgt_ms"] / 1e3
+        row["o_fps_cgt"] = 1e3 / row["o_frame_cgt_ms"]
+        agc = agreement(img.t.ravel().astype(np.float64), img.tri.ravel().astype(np.int64), te, fe)
+        row["agree_cgt"] = (agc["both_miss"] + agc["same"]) / N
+    row["o_mrays"] = N / row["o_static_cast_ms"] / 1e3
+    row["e_mrays"] = N / row["e_static_cast_ms"] / 1e3
+    row["o_fps"] = 1e3 / row["o_frame_ms"]
+    row["e_fps"] = 1e3 / row["e_frame_ms"]
+    row["e_fps_noupload"] = 1e3 / row["e_frame_noupload_ms"]
+    row.update(ag)
+    row["agree"] = (ag["both_miss"] + ag["same"]) / N
+    row.update(judge)
+    return row
+
+
+def _write(rows, out, info, emb, runs, warmup, affinity_ok, note):
+    """peers.csv, machine.json, peers.png and summary.md; the summary's table on stdout."""
     finish_machine(info)
     write_csv(rows, out / "peers.csv")
     write_json(info, out / "machine.json")
@@ -270,7 +303,6 @@ def run_peers(a):
         if line.startswith("|"):
             print(line)
     print(f"wrote {out}/peers.csv, peers.png, summary.md")
-    return 0
 
 
 def _summary(rows, emb, runs, warmup, affinity_ok):
