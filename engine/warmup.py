@@ -99,7 +99,9 @@ class CompileProgress:
     types, literal constants included);
     ``done``: kernels compiled; ``expected``: kernels expected to compile so far (done included):
     grows when a kernel that was not expected starts (a later kernel called from Python, a cached
-    kernel compiled for a new signature); ``seconds``: since the first compile started.  Only the
+    kernel compiled for a new signature), and drops the kernels of a call tree that did not compile
+    once that tree is done (branches numba pruned for the argument types, e.g. the shadow path of a
+    render without shadows); ``seconds``: since the first compile started.  Only the
     package's own kernels count (``package``): numba's overload helpers compile as part of them.
     """
 
@@ -110,6 +112,7 @@ class CompileProgress:
         self.started = None
         self._expected = {}  # id -> name
         self._done = set()
+        self._maybe = set()  # ids expected by the outermost compile under way, not compiled yet
         self._stack = []  # dispatchers being compiled, outermost first (numba's compiles nest)
 
     @property
@@ -137,8 +140,11 @@ class CompileProgress:
         if not self._ours(kernel):
             return False
         if outermost:  # called from Python: its whole call tree compiles now, less the cached kernels
+            self._maybe = set()
             for k in kernels_reached(kernel):
                 if id(k) not in self._done and self._ours(k) and (k is kernel or not _has_cache_entry(k)):
+                    if id(k) not in self._expected:
+                        self._maybe.add(id(k))
                     self._expected.setdefault(id(k), kernel_name(k))
         self._expected.setdefault(id(kernel), kernel_name(kernel))
         self.kernel = kernel_name(kernel)
@@ -150,6 +156,12 @@ class CompileProgress:
         ours = self._ours(kernel)
         if ours:
             self._done.add(id(kernel))
+        if not self._stack:
+            # the call tree is compiled: a kernel it names that did not compile sits on a branch numba
+            # pruned for these argument types (the shadow path of a render without shadows): not needed
+            for k in self._maybe - self._done:
+                self._expected.pop(k, None)
+            self._maybe = set()
         inner = [k for k in self._stack if self._ours(k)]
         self.kernel = kernel_name(inner[-1]) if inner else None
         self.again = bool(inner) and id(inner[-1]) in self._done

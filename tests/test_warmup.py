@@ -111,6 +111,8 @@ def test_cold_dump_shows_what_compiles_and_warm_dump_compiles_nothing(tmp_path):
         assert module.startswith("gridrt.") and hasattr(getattr(importlib.import_module(module), func), "py_func")
     compiled = index_files(cache)
     assert {(n.rpartition(".")[0].rpartition(".")[2], n.rpartition(".")[2]) for n in named} == set(compiled)
+    # a render without shadows compiles no shadow path (the CGT kernel gets light=None, numba prunes it)
+    assert not any(n.endswith(".shadow_ray") for n in named), sorted(named)
     done = [int(d) for _, _, d, _, _ in shown]
     expected = [int(e) for _, _, _, e, _ in shown]
     seconds = [float(s) for *_, s in shown]

@@ -818,6 +818,8 @@ def _render_tiles(
 ):
     """Render tiles t0..t1-1 (row-major), each as packets of up to PK x PK pixels: trace and shade
     each packet (and its shadow rays as another packet) into the flat buffers (see _write_out).
+    ``light`` is None without shadows: numba then compiles no shadow path at all (a first frame
+    without shadows compiles about a third less), and the (3,) light position with them.
     Adds (hits, triangle tests, cells, fallback rays) to acc (4,) int64.  (One function without
     reference counting: numba would otherwise count references to every array argument of every
     call.)"""
@@ -855,7 +857,7 @@ def _render_tiles(
                         if mode == 1:
                             r, g, b = normal_rgb(nx, ny, nz)
                         else:
-                            if not shadows:
+                            if light is None:  # no shadows: numba prunes the shadow path (light: NoneType)
                                 s = -dn
                             else:
                                 need, sox, soy, soz, lx, ly, lz, ld, s = shadow_ray(
@@ -876,7 +878,7 @@ def _render_tiles(
                     col[j] = r
                     col[PN + j] = g
                     col[2 * PN + j] = b
-                if m > 0:
+                if light is not None and m > 0:
                     nfb += trace_packet_grids(grids, m, sio, io2, 0.0, watertight, True, S, mb, mb1)
                     for q in range(m):
                         j = sj[q]

@@ -338,6 +338,8 @@ class Renderer:
         )
         t0 = time.perf_counter()
         if params.traversal == "cgt":
+            if not params.shadows:  # light None: the CGT kernel without its shadow path (compiles faster)
+                args = args[:7] + (None,) + args[8:]
             with parallel_chunksize(1):  # dynamic scheduling of the kernel's chunks of tiles
                 sums = cgt_render_kernel(*args)
         else:
