@@ -405,42 +405,41 @@ class Viewer:
         d.mkdir(parents=True, exist_ok=True)
         return d
 
-    def _save_shot(self):
+    def _save_png(self, rgb, stem, what):
+        """Save (H, W, 3) uint8 ``rgb`` as the next free ``stem_NNNN.png`` in the shot folder and say
+        so (panel message and stdout); on an OSError say that instead.  Returns the path or None."""
         from PIL import Image
 
+        st = self.state
+        try:
+            p = _next_free(self._shot_folder(), stem)
+            Image.fromarray(rgb).save(p)
+        except OSError as e:
+            st.message = f"{what} failed: {e}"
+            print(f"gridrt view: {st.message}", file=sys.stderr, flush=True)
+            return None
+        st.message = f"saved {p.name}"
+        print(f"gridrt view: saved {what} {p}", flush=True)
+        return p
+
+    def _save_shot(self):
         st = self.state
         if self.image is None:
             st.message = "no frame to save yet"
             return
-        try:
-            p = _next_free(self._shot_folder(), "gridrt")
-            Image.fromarray(self.image[:, :, :3]).save(p)
-        except OSError as e:
-            st.message = f"screenshot failed: {e}"
-            print(f"gridrt view: {st.message}", file=sys.stderr, flush=True)
-            return
-        st.last_screenshot = str(p)
-        st.message = f"saved {p.name}"
-        print(f"gridrt view: saved screenshot {p}", flush=True)
+        p = self._save_png(self.image[:, :, :3], "gridrt", "screenshot")
+        if p is not None:
+            st.last_screenshot = str(p)
 
     def _save_window_shot(self, fw, fh):
         import numpy as np
-        from PIL import Image
 
-        st = self.state
         raw = self.ctx.screen.read(viewport=(0, 0, fw, fh), components=3)
         _ = self.ctx.error   # reading the default framebuffer leaves a pending GL error on some drivers
         img = np.frombuffer(raw, np.uint8).reshape(fh, fw, 3)[::-1]
-        try:
-            p = _next_free(self._shot_folder(), "gridrt_window")
-            Image.fromarray(np.ascontiguousarray(img)).save(p)
-        except OSError as e:
-            st.message = f"window screenshot failed: {e}"
-            print(f"gridrt view: {st.message}", file=sys.stderr, flush=True)
-            return
-        st.last_window_shot = str(p)
-        st.message = f"saved {p.name}"
-        print(f"gridrt view: saved window screenshot {p}", flush=True)
+        p = self._save_png(np.ascontiguousarray(img), "gridrt_window", "window screenshot")
+        if p is not None:
+            self.state.last_window_shot = str(p)
 
     def _write_state(self, force=False):
         if self.state_file is None:
