@@ -128,10 +128,14 @@ def storage_centre(points):
     if len(p) == 0:
         return np.zeros(3)
     lo, hi = p.min(axis=0), p.max(axis=0)
-    c = 0.5 * (lo + hi)
-    if np.abs(c).max() <= float((hi - lo).max()):
-        return np.zeros(3)
-    return c
+    return frame_centre(0.5 * (lo + hi), float((hi - lo).max()))
+
+
+def frame_centre(centre, extent):
+    """The one rule for where a frame centred on a scene sits: (3,) zeros when bounds with this
+    ``centre`` and largest side ``extent`` reach within one extent of the world origin (world
+    coordinates are then as precise), else ``centre``."""
+    return np.zeros(3) if np.abs(centre).max() <= extent else np.asarray(centre, np.float64)
 
 
 def as_origin(origin):

@@ -30,7 +30,7 @@ from numbers import Real
 import numpy as np
 from numba import njit, prange
 
-from ..arrays import TRI_DTYPE, as_origin
+from ..arrays import TRI_DTYPE, as_origin, frame_centre
 from ..errors import InputError
 from .mesh import Mesh
 
@@ -226,8 +226,7 @@ class Animation(ABC):
         """The origin of the frame a renderer should work in at time ``t``: (3,) float64 zeros when
         the scene's bounds reach within one extent of the world origin (world coordinates then keep
         float32's precision of the scene's own size), else the centre of its bounds."""
-        c, extent = self.bounds_at(t)
-        return np.zeros(3) if np.abs(c).max() <= extent else c
+        return frame_centre(*self.bounds_at(t))
 
     def _output(self, out):
         shape = (self.n_triangles, 3, 3)
