@@ -49,6 +49,24 @@ SHIPPED = {
 CONVERTED = {ARMADILLO: "armadillo.ply"}
 
 
+def soak_requested(config):
+    """True when the run asks for the ``soak`` marker's slow exhaustive cases (``-m soak``, or
+    GRIDRT_SOAK=1)."""
+    return "soak" in (config.getoption("markexpr") or "") or os.environ.get("GRIDRT_SOAK", "") not in ("", "0")
+
+
+def pytest_collection_modifyitems(config, items):
+    """Without ``-m soak`` (or GRIDRT_SOAK=1) the soak cases are deselected, not skipped: they are
+    opt-in (the default run has shorter versions of each), and a skip would say something is
+    missing."""
+    if soak_requested(config):
+        return
+    soak = [it for it in items if it.get_closest_marker("soak") is not None]
+    if soak:
+        config.hook.pytest_deselected(items=soak)
+        items[:] = [it for it in items if it.get_closest_marker("soak") is None]
+
+
 def pytest_addoption(parser):
     parser.addoption(
         "--update-golden",
@@ -83,6 +101,23 @@ def data_path(relpath, converted=False):
         return ASSETS / CONVERTED[relpath]
     why = "GRIDRT_NO_SHARED_DATA is set" if NO_SHARED_DATA else "the development data set is not part of the repository"
     pytest.skip(f"real test data not available: {p} ({why}; assets/ does not ship it)")
+
+
+def available(*relpaths, converted=False):
+    """{relpath: path} of those of ``relpaths`` that :func:`data_path` finds, in order; skips
+    (naming them) only when none is there.  For a test that checks the same property on several
+    real files, where a clone without the development data set still has the shipped ones."""
+    found, missing = {}, []
+    for rel in relpaths:
+        try:
+            found[rel] = data_path(rel, converted=converted)
+        except pytest.skip.Exception:
+            missing.append(rel)
+    if not found:
+        pytest.skip(f"none of these real files is available: {', '.join(missing)} (the development data set)")
+    if missing:
+        print(f"data set files not available (their checks did not run): {', '.join(missing)}")
+    return found
 
 
 @pytest.fixture

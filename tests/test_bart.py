@@ -23,7 +23,7 @@ from gridrt.scene.bart import (
     kb_rotation_segments,
 )
 
-from conftest import data_path
+from conftest import available, data_path
 
 
 def need(rel):
@@ -276,13 +276,21 @@ def count_aff_triangles(path):
     return n
 
 
-@pytest.mark.parametrize("rel,readme", [
-    ("kitchen/aff/kitchen.aff", 110_561),
-    ("robots/aff/Robot.aff", 71_708),
-    ("museum/aff/museum5.aff", None),
-])
-def test_real_triangle_counts(rel, readme):
-    p = need(rel)
+#: the data set's BART scenes (assets/ ships the museum) and their README triangle counts
+REAL_BART = {"museum/aff/museum5.aff": None, "kitchen/aff/kitchen.aff": 110_561, "robots/aff/Robot.aff": 71_708}
+
+
+def real_bart(*rels):
+    """{rel: path} of the BART scenes present (the museum always: assets/ ships it)."""
+    return {rel.removeprefix("animated/bart/"): p for rel, p in available(*(f"animated/bart/{r}" for r in rels)).items()}
+
+
+def test_real_triangle_counts():
+    for rel, p in real_bart(*REAL_BART).items():
+        check_triangle_count(rel, p, REAL_BART[rel])
+
+
+def check_triangle_count(rel, p, readme):
     s = BartAnimation(p)
     assert s.n_triangles == count_aff_triangles(p)
     if readme is not None:
@@ -303,9 +311,17 @@ def read_keys(path, name, motion):
     return np.array(toks[i + 2:i + 2 + n * w], dtype=np.float64).reshape(n, w)
 
 
-def test_kitchen_camera_at_key_times_equals_keyed_values():
-    p = need("kitchen/aff/kitchen.aff")
-    s = BartAnimation(p)
+def test_keyed_values_at_key_times():
+    """The camera at its key times equals its keys: the museum's and, with the data set, the
+    kitchen's (at least 30 keys), whose toy car's transform is checked against its keys too."""
+    for rel, p in real_bart("museum/aff/museum5.aff", "kitchen/aff/kitchen.aff").items():
+        checked = check_camera_keys(p.parent / "camera.aff" if "museum" in rel else p, BartAnimation(p))
+        assert checked >= (30 if "kitchen" in rel else 8), (rel, checked)
+        if "kitchen" in rel:
+            check_toycar(p)
+
+
+def check_camera_keys(p, s):
     start, end = s.time_range
     transl = read_keys(p, "camera", "transl")
     rot = read_keys(p, "camera", "rot")
@@ -323,12 +339,10 @@ def test_kitchen_camera_at_key_times_equals_keyed_values():
             np.testing.assert_allclose(d / np.linalg.norm(d), -r[:, 2], atol=1e-9)
             np.testing.assert_allclose(cam.up, r[:, 1], atol=1e-9)
             checked += 1
-    assert checked >= 30
+    return checked
 
 
-def test_kitchen_toycar_at_key_times():
-    """The toy car's transform at its translation key times equals the keyed translation."""
-    p = need("kitchen/aff/kitchen.aff")
+def check_toycar(p):
     s = BartAnimation(p)
     keys = read_keys(p, "toycar", "transl")
     assert "toycar" in s.animated_transforms
@@ -339,9 +353,12 @@ def test_kitchen_toycar_at_key_times():
         s.transform_at("nope", 0.0)
 
 
-@pytest.mark.parametrize("rel", ["kitchen/aff/kitchen.aff", "robots/aff/Robot.aff", "museum/aff/museum5.aff"])
-def test_real_static_mask(rel):
-    s = BartAnimation(need(rel))
+def test_real_static_mask():
+    for p in real_bart("museum/aff/museum5.aff", "kitchen/aff/kitchen.aff", "robots/aff/Robot.aff").values():
+        check_static_mask(BartAnimation(p))
+
+
+def check_static_mask(s):
     frames = [s.triangles_at(t).copy() for t in (0.0, 0.37 * s.duration, 0.81 * s.duration)]
     m = s.static_mask
     assert 0 < m.sum() < s.n_triangles

@@ -25,7 +25,7 @@ from gridrt.errors import InputError, SceneFileError
 from gridrt.scene import GltfAnimation, StaticMesh, make_scene
 from gridrt.scene import gltf as gltf_module
 
-from conftest import data_path
+from conftest import ASSETS, available, data_path
 HAVE_DRACO = importlib.util.find_spec("DracoPy") is not None
 
 
@@ -455,6 +455,11 @@ REAL = {
     "BrainStem": ("animated/brainstem/BrainStem.glb", 61666),
     "LittlestTokyo": ("animated/littlest_tokyo/LittlestTokyo.glb", 141802),
 }
+#: the ones assets/ ships (tests run on them everywhere); the others only with the data set
+#: (test_data_set_gltf_scenes)
+SHIPPED_GLTF = ["AnimatedMorphSphere", "CesiumMan"]
+POSE_TIMES = {"CesiumMan": (0.0, 0.37, 1.21), "AnimatedMorphSphere": (0.5, 2.2, 4.9), "BrainStem": (3.3, 11.0, 17.0)}
+DRACO_TEAPOT = ASSETS / "teapot_draco.glb"  # assets/teapot.obj through Draco (tests/make_draco_asset.py)
 
 
 def load_real(name):
@@ -465,11 +470,14 @@ def load_real(name):
     return p, n
 
 
-@pytest.mark.parametrize("name", sorted(REAL))
+@pytest.mark.parametrize("name", SHIPPED_GLTF)
 def test_real_bind_pose_equals_trimesh(name):
+    check_bind_pose(name, *load_real(name))
+
+
+def check_bind_pose(name, p, n):
     import trimesh
 
-    p, n = load_real(name)
     s = GltfAnimation(p)
     assert s.n_triangles == n
     bind = s.bind_triangles()
@@ -483,9 +491,12 @@ def test_real_bind_pose_equals_trimesh(name):
     np.testing.assert_allclose(fa[6], fb[6], atol=1e-9 * scale**2, rtol=1e-4)  # areas
 
 
-@pytest.mark.parametrize("name", sorted(REAL))
+@pytest.mark.parametrize("name", SHIPPED_GLTF)
 def test_real_static_mask_and_loop(name):
-    p, _ = load_real(name)
+    check_static_mask_and_loop(name, load_real(name)[0])
+
+
+def check_static_mask_and_loop(name, p):
     s = GltfAnimation(p)
     d = s.duration
     assert d is not None and d > 0
@@ -610,13 +621,12 @@ def reference_pose(path, t):
     return np.concatenate(tris)
 
 
-@pytest.mark.parametrize("name,times", [
-    ("CesiumMan", (0.0, 0.37, 1.21)),
-    ("AnimatedMorphSphere", (0.5, 2.2, 4.9)),
-    ("BrainStem", (3.3, 11.0, 17.0)),
-])
-def test_real_pose_equals_numpy_reference(name, times):
-    p, _ = load_real(name)
+@pytest.mark.parametrize("name", SHIPPED_GLTF)
+def test_real_pose_equals_numpy_reference(name):
+    check_pose(name, load_real(name)[0], POSE_TIMES[name])
+
+
+def check_pose(name, p, times):
     s = GltfAnimation(p)
     for t in times:
         ref = reference_pose(p, t)
@@ -628,17 +638,49 @@ def test_real_pose_equals_numpy_reference(name, times):
 # ----------------------------------------------------------------------------- Draco
 
 
-def test_littlest_tokyo_with_dracopy():
-    p, n = load_real("LittlestTokyo")
-    s = make_scene(p)
-    assert isinstance(s, GltfAnimation) and s.n_triangles == n
-    assert s.clip == "Take 001" and s.time_range == (0.0, 10.0)
-    a = s.triangles_at(2.0)
-    assert np.isfinite(a).all()
+def test_data_set_gltf_scenes():
+    """The checks above on the data set's glTF scenes that assets/ cannot ship (BrainStem: not to be
+    shipped; LittlestTokyo: 4 MB, Draco-compressed), each one that is present."""
+    found = available(*(REAL[n][0] for n in ("BrainStem", "LittlestTokyo")))
+    for name in ("BrainStem", "LittlestTokyo"):
+        rel, n = REAL[name]
+        if rel not in found:
+            continue
+        p = found[rel]
+        if name == "LittlestTokyo":
+            if not HAVE_DRACO:
+                print("DracoPy is not installed: LittlestTokyo's Draco-compressed meshes were not decoded")
+                continue
+            s = make_scene(p)
+            assert isinstance(s, GltfAnimation) and s.n_triangles == n
+            assert s.clip == "Take 001" and s.time_range == (0.0, 10.0)
+            assert np.isfinite(s.triangles_at(2.0)).all()
+        check_bind_pose(name, p, n)
+        check_static_mask_and_loop(name, p)
+        if name in POSE_TIMES:
+            check_pose(name, p, POSE_TIMES[name])
+
+
+@pytest.mark.skipif(not HAVE_DRACO, reason="DracoPy is not installed (pip install DracoPy, or the test extra)")
+def test_draco_teapot_decodes_to_the_obj():
+    """assets/teapot_draco.glb (16-bit quantized positions, the OBJ's vertex and face order) against
+    assets/teapot.obj read by trimesh: the same faces, every coordinate within half a
+    quantization step of the mesh's extent / (2^16 - 1) (and a few float32 ulp), through make_scene."""
+    import trimesh
+
+    obj = trimesh.load(str(ASSETS / "teapot.obj"), force="mesh", process=False)
+    ref_v, ref_f = np.asarray(obj.vertices), np.asarray(obj.faces)
+    s = make_scene(DRACO_TEAPOT)
+    tris = s.triangles_at(0.0).astype(np.float64)
+    assert tris.shape == (len(ref_f), 3, 3)
+    step = np.ptp(ref_v, axis=0).max() / (2**16 - 1)
+    err = np.abs(tris - ref_v[ref_f]).max()
+    assert err <= 0.5 * step * 1.05, (err, step)  # (Draco dequantizes in float32: a few ulp more)
+    assert err > 0  # it was quantized: the file really is the compressed one
 
 
 def test_draco_without_dracopy_says_how_to_get_it(monkeypatch):
-    p = need_data("animated/littlest_tokyo/LittlestTokyo.glb")
+    p = DRACO_TEAPOT
     real_find_spec = importlib.util.find_spec
     monkeypatch.setattr(gltf_module.importlib.util, "find_spec",
                         lambda name, *a: None if name == "DracoPy" else real_find_spec(name, *a))

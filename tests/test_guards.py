@@ -60,10 +60,6 @@ STRATEGIES = names()
 GOOD = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0, 1], [1, 0, 1], [0, 1, 1]]], np.float32)
 
 
-def soak_requested(config):
-    return "soak" in (config.getoption("markexpr") or "") or os.environ.get("GRIDRT_SOAK", "") not in ("", "0")
-
-
 # ----------------------------------------------------------------------------------------------
 # kernel inventory
 
@@ -1110,9 +1106,7 @@ def test_fuzz_real_files(fuzz_env, name):
 
 @pytest.mark.soak
 @pytest.mark.parametrize("name", TARGETS)
-def test_fuzz_real_files_soak(fuzz_env, name, request):
-    if not soak_requested(request.config):
-        pytest.skip("long fuzz: run with -m soak (or GRIDRT_SOAK=1)")
+def test_fuzz_real_files_soak(fuzz_env, name):
     seeds, worker, stats, missing = fuzz_env
     if name not in seeds:
         pytest.skip(missing[name])

@@ -16,7 +16,7 @@ from gridrt.errors import InputError, SceneFileError
 from gridrt.scene import KeyframeMesh, Md2Model, make_scene
 from gridrt.scene.frames import load_frame_folder
 
-from conftest import data_path
+from conftest import available, data_path
 
 
 def need_data(rel):
@@ -126,12 +126,16 @@ def test_md2_clips(small_md2):
     assert isinstance(s, Md2Model) and s.fps == 5.0 and s.name == "toy (run)"
 
 
-@pytest.mark.parametrize("rel,n_tris,n_frames", [
-    ("animated/md2_sydney/sydney.md2", 679, 198),
-    ("animated/md2_faerie/faerie.md2", 654, 198),
-])
-def test_real_md2(rel, n_tris, n_frames):
-    p = need_data(rel)
+#: the data set's MD2 models: (triangles, frames); assets/ ships sydney
+REAL_MD2 = {"animated/md2_sydney/sydney.md2": (679, 198), "animated/md2_faerie/faerie.md2": (654, 198)}
+
+
+def test_real_md2():
+    for rel, p in available(*REAL_MD2).items():
+        check_real_md2(p, *REAL_MD2[rel])
+
+
+def check_real_md2(p, n_tris, n_frames):
     frames, faces, names = decode_md2(p)
     m = make_scene(p)
     assert isinstance(m, Md2Model) and m.n_triangles == n_tris and m.n_frames == n_frames

@@ -33,7 +33,7 @@ from gridrt.scene import (
 from gridrt.scene import mesh as mesh_module
 from gridrt.scene.animation import as_static_mask
 
-from conftest import ASSETS, data_path
+from conftest import ASSETS, available, data_path
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -286,33 +286,49 @@ def test_gltf_multi_mesh_concatenated_with_node_transforms(tmp_path, ext):
     assert areas(m.triangles()).sum() == pytest.approx(areas(expected).sum(), rel=1e-5)
 
 
-@pytest.mark.parametrize(
-    "rel,n_tris",
-    [
-        ("static/utah_teapot/teapot.obj", 6320),
-        ("static/armadillo/armadillo.off", 52000),
-        ("static/lucy/Lucy100k.ply", 100000),
-        ("static/stanford_bunny/stanford-bunny.obj", 69451),
-        ("static/stanford_dragon/dragon.obj", 93600),
-        ("animated/cesium_man/CesiumMan.glb", 4672),
-        ("animated/animated_morph_sphere/AnimatedMorphSphere.gltf", 960),
-    ],
-)
-def test_real_meshes_triangle_counts(rel, n_tris):
-    m = load_mesh(need_data(rel))
-    assert m.n_triangles == n_tris
+#: real meshes and their triangle counts (the data set's README)
+REAL_COUNTS = {
+    "static/utah_teapot/teapot.obj": 6320,
+    "static/armadillo/armadillo.off": 52000,
+    "animated/cesium_man/CesiumMan.glb": 4672,
+    "animated/animated_morph_sphere/AnimatedMorphSphere.gltf": 960,
+    "static/lucy/Lucy100k.ply": 100000,
+    "static/stanford_bunny/stanford-bunny.obj": 69451,
+    "static/stanford_dragon/dragon.obj": 93600,
+}
+#: the data set's scans that assets/ does not ship (checked together, each one that is present)
+SCANS = ["static/lucy/Lucy100k.ply", "static/stanford_bunny/stanford-bunny.obj", "static/stanford_dragon/dragon.obj"]
+
+
+def check_real_mesh(rel, path):
+    m = load_mesh(path)
+    assert m.n_triangles == REAL_COUNTS[rel], rel
     assert m.vertices.dtype == np.float32 and m.faces.dtype == np.int32
     assert np.isfinite(m.vertices).all()
     assert m.faces.min() >= 0 and m.faces.max() < m.n_vertices
     assert areas(m.triangles()).sum() > 0
 
 
-def test_real_closed_mesh_has_no_boundary_edges():
-    m = load_mesh(need_data("static/lucy/Lucy100k.ply"))
-    # README: Lucy100k is closed, so every undirected edge is shared by exactly two triangles.
-    e = np.sort(m.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1).astype(np.int64)
-    _, counts = np.unique(e[:, 0] * m.n_vertices + e[:, 1], return_counts=True)
-    assert (counts == 2).all()
+@pytest.mark.parametrize("rel", [r for r in REAL_COUNTS if r not in SCANS])
+def test_real_meshes_triangle_counts(rel):
+    check_real_mesh(rel, need_data(rel))
+
+
+def test_data_set_scans_triangle_counts():
+    for rel, path in available(*SCANS).items():
+        check_real_mesh(rel, path)
+
+
+def test_real_closed_meshes_have_no_boundary_edges():
+    """The closed scans (data set README: the Armadillo, Lucy100k and the dragon): every undirected
+    edge is shared by exactly two triangles."""
+    found = available("static/armadillo/armadillo.off", "static/lucy/Lucy100k.ply", "static/stanford_dragon/dragon.obj",
+                      converted=True)
+    for rel, path in found.items():
+        m = load_mesh(path)
+        e = np.sort(m.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1).astype(np.int64)
+        _, counts = np.unique(e[:, 0] * m.n_vertices + e[:, 1], return_counts=True)
+        assert (counts == 2).all(), rel
 
 
 def hide_dracopy(monkeypatch):
@@ -326,7 +342,7 @@ def hide_dracopy(monkeypatch):
 
 def test_draco_glb_without_dracopy_is_refused_quickly(monkeypatch):
     hide_dracopy(monkeypatch)
-    p = need_data("animated/littlest_tokyo/LittlestTokyo.glb")
+    p = ASSETS / "teapot_draco.glb"  # assets/teapot.obj through Draco (tests/make_draco_asset.py)
     with pytest.raises(SceneFileError, match="DracoPy"):
         load_mesh(p)
     with pytest.raises(SceneFileError, match="DracoPy"):
@@ -657,8 +673,9 @@ def test_triangles_at_is_continuous(scene):
 
 
 def test_triangles_at_loops(scene):
-    if scene.duration is None:
-        pytest.skip("scene does not loop")
+    if scene.duration is None:  # no period: only a static scene may say so
+        assert scene.static
+        return
     a = scene.triangles_at(0.3).copy()
     b = scene.triangles_at(0.3 + scene.duration)
     size = np.ptp(a.reshape(-1, 3), axis=0).max()
@@ -901,11 +918,11 @@ def test_wave_matches_formula():
         np.testing.assert_array_equal(d.triangles_at(t), got[mesh.faces])
 
 
-def test_deform_real_mesh_lucy_twist():
-    mesh = load_mesh(need_data("static/lucy/Lucy100k.ply"))
+def test_deform_real_mesh_twist():
+    mesh = load_mesh(need_data("static/armadillo/armadillo.off"))
     d = Deform(mesh, "twist")
     a = d.triangles_at(0.25)
-    assert a.shape == (100_000, 3, 3)
+    assert a.shape == (52_000, 3, 3)
     disp = np.linalg.norm(a.reshape(-1, 3).astype(np.float64) - mesh.triangles().reshape(-1, 3), axis=1)
     assert disp.max() <= d.amplitude * (1 + 1e-5)
 
@@ -1120,20 +1137,21 @@ def test_subdivide_keeps_the_surface():
             subdivide_mesh(base, bad)
 
 
-def test_make_scene_subdivides_lucy_to_1_6m():
-    p = need_data("static/lucy/Lucy100k.ply")
-    s = make_scene(p, subdivide=1_600_000, animate="twist")
-    assert isinstance(s, Deform) and s.n_triangles == 1_600_000
+def test_make_scene_subdivides_a_scan_to_832k():
+    """The Armadillo (52,000 triangles) subdivided twice (x 16)."""
+    p = need_data("static/armadillo/armadillo.off")
+    s = make_scene(p, subdivide=832_000, animate="twist")
+    assert isinstance(s, Deform) and s.n_triangles == 832_000
     base = load_mesh(p)
     tris = s.triangles_at(0.0)  # the twist is at rest at t = 0
     assert areas(tris[:64_000]).sum() == pytest.approx(areas(base.triangles()[:4000]).sum(), rel=1e-5)
 
 
 @pytest.mark.slow
-def test_make_scene_subdivides_lucy_to_6_4m():
-    p = need_data("static/lucy/Lucy100k.ply")
-    s = make_scene(p, subdivide=6_400_000)
-    assert s.n_triangles == 6_400_000 and s.static
+def test_make_scene_subdivides_a_scan_to_3_3m():
+    p = need_data("static/armadillo/armadillo.off")
+    s = make_scene(p, subdivide=3_328_000)
+    assert s.n_triangles == 3_328_000 and s.static
 
 
 def test_pipeline_animates_at_its_own_thread_count():

@@ -36,7 +36,7 @@ import time
 import numpy as np
 import pytest
 
-from conftest import ARMADILLO, load_mesh_arrays
+from conftest import ARMADILLO, available, load_mesh_arrays
 from gridrt.config import GridParams, RenderParams
 from gridrt.grid import GridBuilder, build_grid, names
 from gridrt.pipeline import FramePipeline
@@ -51,10 +51,6 @@ MESHES = [ARMADILLO, DRAGON, LUCY]
 STRATEGIES = names()
 REL = 1e-6
 BATCH = 200_000
-
-
-def soak_requested(config):
-    return "soak" in (config.getoption("markexpr") or "") or os.environ.get("GRIDRT_SOAK", "") not in ("", "0")
 
 
 def rss_mb():
@@ -129,16 +125,22 @@ def probe(relpath, n_probes):
     return done, rate
 
 
-@pytest.mark.parametrize("relpath", MESHES, ids=["armadillo", "dragon", "lucy"])
-def test_watertight_probes(relpath):
-    probe(relpath, 40_000)
+def test_watertight_probes():
+    """The Armadillo (shipped in assets/); the data set's closed scans below."""
+    probe(ARMADILLO, 40_000)
+
+
+def test_watertight_probes_data_set_scans():
+    """test_watertight_probes and test_cgt_watertight_probes on the data set's other closed scans (the
+    dragon, Lucy), each one that is present."""
+    for relpath in available(DRAGON, LUCY):
+        probe(relpath, 40_000)
+        cgt_probe(relpath, 180_000, 128 * ROW_WIDTH)
 
 
 @pytest.mark.soak
 @pytest.mark.parametrize("relpath", MESHES, ids=["armadillo", "dragon", "lucy"])
-def test_watertight_probes_soak(relpath, request):
-    if not soak_requested(request.config):
-        pytest.skip("10M probes per mesh and strategy: run with -m soak (or GRIDRT_SOAK=1)")
+def test_watertight_probes_soak(relpath):
     probe(relpath, int(os.environ.get("GRIDRT_SOAK_RAYS", "10000000")))
 
 
@@ -159,16 +161,13 @@ def cgt_probe(relpath, n_rays, n_row_rays):
     cgt_report(relpath.split("/")[-1], pk, rows, time.perf_counter() - t0)
 
 
-@pytest.mark.parametrize("relpath", MESHES, ids=["armadillo", "dragon", "lucy"])
-def test_cgt_watertight_probes(relpath):
-    cgt_probe(relpath, 180_000, 128 * ROW_WIDTH)
+def test_cgt_watertight_probes():
+    cgt_probe(ARMADILLO, 180_000, 128 * ROW_WIDTH)
 
 
 @pytest.mark.soak
 @pytest.mark.parametrize("relpath", MESHES, ids=["armadillo", "dragon", "lucy"])
-def test_cgt_watertight_probes_soak(relpath, request):
-    if not soak_requested(request.config):
-        pytest.skip("10M packet probes and 10M camera-row rays per mesh: run with -m soak (or GRIDRT_SOAK=1)")
+def test_cgt_watertight_probes_soak(relpath):
     n = int(os.environ.get("GRIDRT_SOAK_RAYS", "10000000"))
     cgt_probe(relpath, n, n)
 
@@ -237,11 +236,9 @@ def test_soak_short():
 
 
 @pytest.mark.soak
-def test_soak_long(request):
+def test_soak_long():
     """10,000 frames: identical to serial, RSS flat after 500 frames (growth < 16 MiB, slope
     < 1 KiB per frame: a leak of one small array per frame would show)."""
-    if not soak_requested(request.config):
-        pytest.skip("10,000 frames: run with -m soak (or GRIDRT_SOAK=1)")
     n = int(os.environ.get("GRIDRT_SOAK_FRAMES", "10000"))
     growth, slope = soak(n, min(500, n // 4), (500, n // 2, n))
     assert growth < 16.0 and slope < 1.0
