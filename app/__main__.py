@@ -1,6 +1,7 @@
 """``gridrt`` / ``python -m gridrt``: view | dump | bench | strategies."""
 
 import argparse
+import contextlib
 import sys
 import warnings
 
@@ -85,7 +86,13 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser("dump" if argv[:1] == ["dump"] else None).parse_args(argv)
-    with warnings.catch_warnings():  # restores the formatter when main returns (main may run in-process)
+    if args.command == "bench":  # warm-up runs compile the parallel render kernels the timed runs use
+        from gridrt.trace.twin import parallel_first
+
+        kernels = parallel_first()
+    else:
+        kernels = contextlib.nullcontext()
+    with warnings.catch_warnings(), kernels:  # restores the formatter when main returns (main may run in-process)
         warnings.showwarning = _show_warning
         try:
             return args.func(args) or 0

@@ -142,7 +142,7 @@ class CompileProgress:
         if outermost:  # called from Python: its whole call tree compiles now, less the cached kernels
             self._maybe = set()
             for k in kernels_reached(kernel):
-                if id(k) not in self._done and self._ours(k) and (k is kernel or not _has_cache_entry(k)):
+                if id(k) not in self._done and self._ours(k) and (k is kernel or not has_cache_entry(k)):
                     if id(k) not in self._expected:
                         self._maybe.add(id(k))
                     self._expected.setdefault(id(k), kernel_name(k))
@@ -202,19 +202,25 @@ def compile_progress(report, package="gridrt"):
 
 
 def _kernels(traversal="dda"):
-    from .trace.cgt import cgt_render_kernel
-    from .trace.render import render_kernel
+    """The render kernels a first frame of this traversal may run: the parallel one and its serial
+    twin (gridrt.trace.twin; the serial one runs while the parallel one is not compiled)."""
+    from .trace.cgt import _render_tiles, cgt_render_kernel
+    from .trace.render import render_kernel, render_serial
 
-    return [cgt_render_kernel if traversal == "cgt" else render_kernel]
+    # (the serial CGT render is a Python function around the kernel _render_tiles)
+    return [cgt_render_kernel, _render_tiles] if traversal == "cgt" else [render_kernel, render_serial]
 
 
-def _has_cache_entry(kernel):
+def has_cache_entry(kernel, sig=None):
     """True when the kernel's on-disk cache index holds a compiled version for this machine (CPU
-    and numba version) and the kernel's current source, as numba's own loader requires."""
+    and numba version) and the kernel's current source, as numba's own loader requires; for the
+    argument types ``sig`` (a tuple of numba types) when given, else for any."""
     cache = getattr(kernel, "_cache", None)
     try:
         index = cache._cache_file._load_index()  # {} when absent, from another numba, or stale
         codegen = kernel.targetctx.codegen()
+        if sig is not None:
+            return cache._index_key(tuple(sig), codegen) in index
         return any(cache._index_key(key[0], codegen) == key for key in index)
     except Exception:  # numba's internals moved: fall back to the existence of the index file
         path = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
@@ -222,6 +228,7 @@ def _has_cache_entry(kernel):
 
 
 def cache_is_cold(traversal="dda"):
-    """True when the render kernel of this traversal (run by every first frame) has no on-disk
+    """True when neither render kernel of this traversal (one of them runs every first frame: the
+    parallel one, or its serial twin while the parallel one is not compiled) has an on-disk
     compile cache entry for this machine yet."""
-    return not all(_has_cache_entry(k) for k in _kernels(traversal))
+    return not any(has_cache_entry(k) for k in _kernels(traversal))

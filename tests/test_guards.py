@@ -156,6 +156,9 @@ BOUNDARIES = {
         "checks it, RayCaster holds it); rays shape/dtype, t range, threads and the memory budget, then every "
         "chunk's values (finite, non-zero directions), all before the first chunk is cast",
         ["test_guard_cast_rays", "test_stale_grid_is_refused", "test_guard_cast_batch"]),
+    "gridrt.trace.cgt:cgt_render_serial": (
+        "internal: Renderer.render's one-thread CGT path (gridrt.trace.twin), called after its checks, with its "
+        "buffers", ["test_guard_render", "test_stale_grid_is_refused"]),
     "gridrt.trace.render:Renderer.render": (
         "as cast_rays, plus the second grid's tris and id maps; image buffers sized W x H",
         ["test_guard_render", "test_stale_grid_is_refused"]),

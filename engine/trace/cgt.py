@@ -677,7 +677,7 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1):
     return 0
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@njit(cache=True, _nrt=False, error_model="numpy", inline="always")
 def trace_packet_grids(grids, n, io, io2, tmin, watertight, any_hit, S, mb, mb1):
     """:func:`trace_packet` over the tuple of grids, in order (as trace_grids does for one ray):
     each later grid's rays end at the hit found before it (nearest), or are skipped where one was
@@ -893,6 +893,25 @@ def _render_tiles(
                 acc[3] += nfb
 
 
+@njit(cache=True)
+def _sums(acc):
+    """The column sums of acc (nch, 4) int64, in a new (4,) array.  (A loop: acc.sum(axis=0) would
+    compile numba's string formatting for its axis error, a second on a cold start.)"""
+    out = np.zeros(4, np.int64)
+    for ch in range(acc.shape[0]):
+        for k in range(4):
+            out[k] += acc[ch, k]
+    return out
+
+
+@njit(cache=True)
+def _chunking(W, H, tile):
+    """(tiles, chunks, tiles per chunk): the frame's tiles in runs of consecutive tiles."""
+    ntiles = ((W + tile - 1) // tile) * ((H + tile - 1) // tile)
+    nch = min(ntiles, CHUNKS)
+    return ntiles, nch, (ntiles + nch - 1) // nch
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
 def cgt_render_kernel(
     grids, basis, W, H, tile, mode, shadows, light, off, watertight, img, tbuf, idbuf, costbuf, cellbuf,
@@ -901,34 +920,36 @@ def cgt_render_kernel(
     traced as packets of up to PK x PK pixels within each tile.  costbuf / cellbuf hold the CGT
     counters (see the module docstring).  Returns (4,) int64: pixels hit, the sums of costbuf and
     cellbuf, and the number of rays (primary and shadow) that took the single-ray fallback."""
-    ntx = (W + tile - 1) // tile
-    nty = (H + tile - 1) // tile
-    ntiles = ntx * nty
     # scratch is allocated once per chunk (a run of consecutive tiles); call under
     # numba.parallel_chunksize(1) so threads take chunks dynamically.  The result does not
     # depend on the chunking or the scheduling.
-    nch = min(ntiles, CHUNKS)
-    per = (ntiles + nch - 1) // nch
+    ntiles, nch, per = _chunking(W, H, tile)
     acc = np.zeros((nch, 4), np.int64)
     flat = pack_grids(grids)  # (a tuple of grids cannot enter the parallel loop as it is: see grids.py)
     for ch in prange(nch):
-        gs = unpack_grids(flat)
-        S = np.empty(NS * PN)
-        io = np.empty(NIO * PN)
-        io2 = np.empty(NIO * PN)
-        sio = np.empty(NIO * PN)
-        sj = np.empty(PN, np.int64)
-        col = np.empty(3 * PN)
-        mb = np.empty(MBOX, np.int32)
-        mb1 = np.empty(MAILBOX, np.int32)
         _render_tiles(
-            gs, basis, W, H, tile, ch * per, min((ch + 1) * per, ntiles),
-            mode, shadows, light, off, watertight, img.reshape(H * W * 4), tbuf.reshape(H * W),
-            idbuf.reshape(H * W), costbuf.reshape(H * W), cellbuf.reshape(H * W),
-            S, io, io2, sio, sj, col, mb, mb1, acc[ch],
+            unpack_grids(flat), basis, W, H, tile, ch * per, min((ch + 1) * per, ntiles), mode, shadows, light, off,
+            watertight, img.reshape(H * W * 4), tbuf.reshape(H * W), idbuf.reshape(H * W), costbuf.reshape(H * W),
+            cellbuf.reshape(H * W), np.empty(NS * PN), np.empty(NIO * PN), np.empty(NIO * PN), np.empty(NIO * PN),
+            np.empty(PN, np.int64), np.empty(3 * PN), np.empty(MBOX, np.int32), np.empty(MAILBOX, np.int32), acc[ch],
         )
-    out = np.zeros(4, np.int64)
-    for ch in range(nch):
-        for k in range(4):
-            out[k] += acc[ch, k]
-    return out
+    return _sums(acc)
+
+
+def cgt_render_serial(
+    grids, basis, W, H, tile, mode, shadows, light, off, watertight, img, tbuf, idbuf, costbuf, cellbuf,
+):
+    """cgt_render_kernel on one thread: all tiles in order, one scratch; the same buffers and sums
+    bit for bit (tiles are independent).  A Python function around the kernel _render_tiles, so
+    that a cold first frame compiles one level of kernels less: numba optimises and generates
+    machine code for a kernel's whole call tree again at every level that wraps it (about 1 s
+    here; gridrt.trace.twin)."""
+    ntiles = ((W + tile - 1) // tile) * ((H + tile - 1) // tile)
+    acc = np.zeros(4, np.int64)
+    _render_tiles(
+        grids, basis, W, H, tile, 0, ntiles, mode, shadows, light, off, watertight,
+        img.reshape(H * W * 4), tbuf.reshape(H * W), idbuf.reshape(H * W), costbuf.reshape(H * W),
+        cellbuf.reshape(H * W), np.empty(NS * PN), np.empty(NIO * PN), np.empty(NIO * PN), np.empty(NIO * PN),
+        np.empty(PN, np.int64), np.empty(3 * PN), np.empty(MBOX, np.int32), np.empty(MAILBOX, np.int32), acc,
+    )
+    return acc

@@ -36,8 +36,9 @@ from ..errors import InputError
 from ..stats import RenderStats
 from ..threads import check_threads, launch_guard, use_threads
 from .traverse import MAILBOX, trace_grids, trace_ray
+from .twin import TWINS
 from ..camera import Camera, pixel_dir
-from .cgt import cgt_render_kernel
+from .cgt import cgt_render_kernel, cgt_render_serial
 from .grids import grid_arrays, pack_grids, unpack_grids
 from .shade import (  # noqa: F401  (the shading constants stay importable from here)
     AMBIENT, ALBEDO, BACKGROUND, COST_SCALE, cost_rgb, facing_normal, lambert_rgb, normal_rgb, put_pixel, scene_id,
@@ -47,6 +48,44 @@ from .shade import (  # noqa: F401  (the shading constants stay importable from 
 #: shadow-ray origins move off the surface by this fraction of the scene's bounding-box diagonal
 SHADOW_OFFSET = 1e-6
 SHADING_CODES = {"lambert": 0, "normal": 1, "cost": 2}
+
+
+@njit(cache=True)
+def _render_tile(grids, basis, W, H, tile, ti, mode, shadows, light, off, watertight,
+                 img, tbuf, idbuf, costbuf, cellbuf, mb):
+    """Tile ti (row-major) of render_kernel, with the mailbox mb."""
+    ntx = (W + tile - 1) // tile
+    ex, ey, ez = basis[0, 0], basis[0, 1], basis[0, 2]
+    tx0 = (ti % ntx) * tile
+    ty0 = (ti // ntx) * tile
+    for y in range(ty0, min(ty0 + tile, H)):
+        for x in range(tx0, min(tx0 + tile, W)):
+            dx, dy, dz = pixel_dir(basis, W, H, x, y)
+            which, f, t, u, v, nc, nt = trace_grids(grids, ex, ey, ez, dx, dy, dz, 0.0, np.inf, watertight, False, mb)
+            tbuf[y, x] = np.float32(t)
+            idbuf[y, x] = scene_id(grids, which, f)
+            costbuf[y, x] = nt
+            cellbuf[y, x] = nc
+            r, g, b = BACKGROUND[0], BACKGROUND[1], BACKGROUND[2]
+            if mode == 2:
+                r, g, b = cost_rgb(nt)
+            elif f >= 0:
+                nx, ny, nz, dn = facing_normal(grids[which].tris, f, dx, dy, dz)
+                if mode == 1:
+                    r, g, b = normal_rgb(nx, ny, nz)
+                else:
+                    if not shadows:
+                        s = -dn
+                    else:
+                        need, sox, soy, soz, lx, ly, lz, ld, s = shadow_ray(
+                            ex, ey, ez, t, dx, dy, dz, nx, ny, nz, light, off)
+                        if need:
+                            sw, sf, st, su, sv, snc, snt = trace_grids(
+                                grids, sox, soy, soz, lx, ly, lz, 0.0, ld, watertight, True, mb)
+                            if sf >= 0:
+                                s = 0.0
+                    r, g, b = lambert_rgb(s)
+            put_pixel(img, y, x, r, g, b)
 
 
 @njit(cache=True, parallel=True)
@@ -60,43 +99,24 @@ def render_kernel(
     split into static and moving parts); idbuf holds the scene ids of the hit triangles (through
     each grid's ids map where it has one).  off: shadow-ray origin offset along the normal.
     """
-    ntx = (W + tile - 1) // tile
-    nty = (H + tile - 1) // tile
-    ex, ey, ez = basis[0, 0], basis[0, 1], basis[0, 2]
+    ntiles = ((W + tile - 1) // tile) * ((H + tile - 1) // tile)
     flat = pack_grids(grids)  # (a tuple of grids cannot enter the parallel loop as it is: see grids.py)
-    for ti in prange(ntx * nty):
-        gs = unpack_grids(flat)
-        mb = np.empty(MAILBOX, np.int32)
-        tx0 = (ti % ntx) * tile
-        ty0 = (ti // ntx) * tile
-        for y in range(ty0, min(ty0 + tile, H)):
-            for x in range(tx0, min(tx0 + tile, W)):
-                dx, dy, dz = pixel_dir(basis, W, H, x, y)
-                which, f, t, u, v, nc, nt = trace_grids(gs, ex, ey, ez, dx, dy, dz, 0.0, np.inf, watertight, False, mb)
-                tbuf[y, x] = np.float32(t)
-                idbuf[y, x] = scene_id(gs, which, f)
-                costbuf[y, x] = nt
-                cellbuf[y, x] = nc
-                r, g, b = BACKGROUND[0], BACKGROUND[1], BACKGROUND[2]
-                if mode == 2:
-                    r, g, b = cost_rgb(nt)
-                elif f >= 0:
-                    nx, ny, nz, dn = facing_normal(gs[which].tris, f, dx, dy, dz)
-                    if mode == 1:
-                        r, g, b = normal_rgb(nx, ny, nz)
-                    else:
-                        if not shadows:
-                            s = -dn
-                        else:
-                            need, sox, soy, soz, lx, ly, lz, ld, s = shadow_ray(
-                                ex, ey, ez, t, dx, dy, dz, nx, ny, nz, light, off)
-                            if need:
-                                sw, sf, st, su, sv, snc, snt = trace_grids(
-                                    gs, sox, soy, soz, lx, ly, lz, 0.0, ld, watertight, True, mb)
-                                if sf >= 0:
-                                    s = 0.0
-                        r, g, b = lambert_rgb(s)
-                put_pixel(img, y, x, r, g, b)
+    for ti in prange(ntiles):
+        _render_tile(unpack_grids(flat), basis, W, H, tile, ti, mode, shadows, light, off, watertight,
+                     img, tbuf, idbuf, costbuf, cellbuf, np.empty(MAILBOX, np.int32))
+
+
+@njit(cache=True)
+def render_serial(
+    grids, basis, W, H, tile, mode, shadows, light, off, watertight, img, tbuf, idbuf, costbuf, cellbuf,
+):
+    """render_kernel on one thread: the same tiles in order, the same buffers bit for bit; compiles
+    faster (gridrt.trace.twin)."""
+    ntiles = ((W + tile - 1) // tile) * ((H + tile - 1) // tile)
+    mb = np.empty(MAILBOX, np.int32)
+    for ti in range(ntiles):
+        _render_tile(grids, basis, W, H, tile, ti, mode, shadows, light, off, watertight,
+                     img, tbuf, idbuf, costbuf, cellbuf, mb)
 
 
 @njit(cache=True, parallel=True)
@@ -341,9 +361,11 @@ class Renderer:
             if not params.shadows:  # light None: the CGT kernel without its shadow path (compiles faster)
                 args = args[:7] + (None,) + args[8:]
             with parallel_chunksize(1):  # dynamic scheduling of the kernel's chunks of tiles
-                sums = cgt_render_kernel(*args)
+                # the parallel kernel, or its serial twin on one thread and while the parallel one
+                # compiles (gridrt.trace.twin)
+                sums = TWINS(threads, cgt_render_kernel, cgt_render_serial, *args)
         else:
-            render_kernel(*args)
+            TWINS(threads, render_kernel, render_serial, *args)
         ms = (time.perf_counter() - t0) * 1e3
         n = W * H
         stats = RenderStats(

@@ -1,0 +1,136 @@
+"""A parallel kernel and its serial twin: the first frame need not wait for the parallel one.
+
+A render kernel exists twice: ``parallel`` (``prange`` over chunks of tiles) and ``serial`` (the
+same tiles in order on one thread, through the same tile kernel).  Both take the same arguments
+and write the same buffers bit for bit, since no result depends on which thread renders a tile.
+The serial one compiles seconds faster on a cold numba cache: the parallel one adds numba's parfor
+lowering and one more optimisation and machine-code pass over its whole call tree (BENCHMARKS.md
+section 10).
+
+:class:`Twins` picks one per call (``TWINS``, the process's scheduler; a call names both kernels,
+so that every caller of a kernel stays visible where it is called):
+
+* one thread: the serial kernel (the parallel one would run the same code on one thread);
+* the parallel kernel compiled for these argument types in this process, or in the on-disk cache
+  for this machine (it then loads in milliseconds): the parallel kernel;
+* otherwise (a cold cache): the serial kernel, and from the second call with these argument types
+  on, the parallel kernel compiles in a background thread while the serial one goes on serving;
+  once compiled it takes over.  A one-frame run never compiles it.
+
+Benchmarks run under :func:`parallel_first`: their untimed warm-up runs then compile the parallel
+kernel as before (on first use, in the caller's thread), so that timed runs never time the serial
+kernel standing in for it.
+
+The background compile is an ordinary (non-daemon) thread: a process that ends while it runs
+waits for it, and the compiled kernel lands in the on-disk cache for the next start.
+"""
+
+import threading
+from contextlib import contextmanager
+
+import numpy as np
+
+
+def _fingerprint(a):
+    """A cheap stand-in for the numba type of an argument (numba's typeof of a tuple of grids takes
+    about 80 us): Python type, and dtype, dimensions and contiguity for an array, element by element
+    for a tuple.  Two arguments with the same fingerprint have the same numba type."""
+    if isinstance(a, np.ndarray):
+        return (a.dtype.str, a.ndim, a.flags.c_contiguous, a.flags.f_contiguous, a.flags.writeable, a.flags.aligned)
+    if isinstance(a, tuple):
+        return (type(a), tuple(_fingerprint(x) for x in a))
+    return type(a)
+
+
+@contextmanager
+def parallel_first():
+    """Within the block, every :class:`Twins` calls the parallel kernel on more than one thread,
+    compiling it when first needed, as before twins existed: what a benchmark wants."""
+    before = Twins.eager
+    Twins.eager = True
+    try:
+        yield
+    finally:
+        Twins.eager = before
+
+
+class Twins:
+    """Calls ``parallel`` (a numba dispatcher) or its serial twin ``serial`` (a dispatcher, or a
+    Python function around one; the same arguments and the same results), as the module docstring
+    says, keeping per parallel kernel and argument types what has been served and compiled."""
+
+    eager = False  # parallel_first()
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._seen = set()  # (parallel kernel, argument types) served serially once
+        self._compiling = {}  # (parallel kernel, argument types) -> background thread
+        self._failed = {}  # parallel kernel -> the exception of its background compile that failed
+        self._ready = set()  # (parallel kernel, argument fingerprints) the parallel kernel is compiled for
+
+    @staticmethod
+    def signature(parallel, args):
+        """The numba argument types of ``args``, as the dispatcher keys its compiled versions."""
+        return tuple(parallel.typeof_pyval(a) for a in args)
+
+    @staticmethod
+    def parallel_ready(parallel, sig):
+        """True when the parallel kernel runs for ``sig`` without compiling (compiled in this
+        process, or in the on-disk cache)."""
+        if sig in parallel.overloads:
+            return True
+        from ..warmup import has_cache_entry
+
+        return has_cache_entry(parallel, sig)
+
+    def pick(self, threads, parallel, serial, args):
+        """The function to call for ``args`` on ``threads`` threads (see the module docstring)."""
+        if threads <= 1:
+            return serial
+        if self.eager or not hasattr(parallel, "overloads"):  # (a stand-in for a kernel, in tests)
+            return parallel
+        fp = (id(parallel),) + tuple(_fingerprint(a) for a in args)
+        if fp in self._ready:
+            return parallel
+        sig = self.signature(parallel, args)
+        key = (id(parallel), sig)
+        with self._lock:
+            failed = self._failed.get(id(parallel))
+            if failed is not None:  # a defect, not bad input: say so in the caller's thread
+                raise RuntimeError(f"compiling {parallel.py_func.__qualname__} failed") from failed
+            if sig in parallel.overloads:
+                self._ready.add(fp)
+                return parallel
+            if key in self._compiling:
+                return serial  # still compiling
+            if self.parallel_ready(parallel, sig):
+                return parallel
+            if key in self._seen:
+                job = threading.Thread(target=self._compile, args=(parallel, sig), name="gridrt-compile-parallel")
+                self._compiling[key] = job
+                job.start()
+            else:
+                self._seen.add(key)
+            return serial
+
+    def _compile(self, parallel, sig):
+        try:
+            parallel.compile(sig)
+        except Exception as e:  # noqa: BLE001 (raised in the next caller's thread)
+            self._failed[id(parallel)] = e
+        with self._lock:
+            self._compiling.pop((id(parallel), sig), None)
+
+    def wait(self):
+        """Block until background compiles started so far have ended (tests, benchmarks)."""
+        with self._lock:
+            jobs = list(self._compiling.values())
+        for job in jobs:
+            job.join()
+
+    def __call__(self, threads, parallel, serial, *args):
+        return self.pick(threads, parallel, serial, args)(*args)
+
+
+#: the process's scheduler
+TWINS = Twins()

@@ -1,0 +1,223 @@
+"""A parallel render kernel and its serial twin (gridrt.trace.twin).
+
+* The render kernels' twins (DDA and CGT, with and without shadows, one grid and a split scene of
+  two) write the same image, t, triangle and counter buffers and return the same sums, bit for
+  bit, as the parallel kernels on 2 and 3 threads; and both give the brute-force float64 caster's
+  hits (tests/reference.py) on the primary rays.
+* The choice (a fresh process and a fresh numba cache, with two small kernels written for the
+  test): one thread calls the serial kernel; on a cold cache the first call on two threads is
+  serial too and compiles nothing parallel, the second starts the parallel compile in the
+  background, and once that is done the parallel kernel serves; a later process with that cache
+  calls the parallel kernel from the first call and compiles nothing.
+* A parallel kernel that fails to compile in the background is reported in the caller's thread.
+"""
+
+import json
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+from numba import njit, prange
+
+import reference as R
+from conftest import icosphere_tris
+from gridrt.camera import Camera
+from gridrt.config import RenderParams
+from gridrt.grid import build_grid
+from gridrt.trace.grids import grid_arrays
+from gridrt.trace.cgt import cgt_render_kernel, cgt_render_serial
+from gridrt.trace.render import render_kernel, render_serial
+from gridrt.trace.twin import TWINS, Twins, parallel_first
+
+
+
+def _args(grids, camera, W, H, shading=0, light=None, off=1e-6):
+    bufs = (np.zeros((H, W, 4), np.uint8), np.zeros((H, W), np.float32), np.zeros((H, W), np.int32),
+            np.zeros((H, W), np.int32), np.zeros((H, W), np.int32))
+    return (grids, camera.basis(), W, H, 16, shading, light is not None, light, off, True) + bufs
+
+
+def _scene():
+    tris = icosphere_tris(3, radius=1.0)
+    moving = icosphere_tris(2, radius=0.4) + np.float32(0.9)
+    both = np.concatenate([tris, moving])
+    g_a = build_grid(tris, origin=np.zeros(3))
+    g_b = build_grid(moving, origin=np.zeros(3))
+    one = (grid_arrays(build_grid(both, origin=np.zeros(3)), both),)
+    two = (grid_arrays(g_a, tris, np.arange(len(tris), dtype=np.int32)),
+           grid_arrays(g_b, moving, np.arange(len(tris), len(both), dtype=np.int32)))
+    cam = Camera.frame(both.min(axis=(0, 1)), both.max(axis=(0, 1)))
+    return both, one, two, cam
+
+
+@pytest.mark.parametrize("traversal", ["dda", "cgt"])
+@pytest.mark.parametrize("shadows", [False, True])
+def test_serial_twin_equals_parallel_kernel(traversal, shadows):
+    both, one, two, cam = _scene()
+    parallel, serial = (cgt_render_kernel, cgt_render_serial) if traversal == "cgt" else (render_kernel, render_serial)
+    W, H = 96, 72
+    light = cam.basis()[0] + np.array([2.0, 3.0, 1.0]) if shadows else None
+    if traversal == "dda" and light is None:
+        light = np.zeros(3)  # the DDA kernel takes the light as an array and `shadows` as the switch
+    for grids in (one, two):
+        a = _args(grids, cam, W, H, light=light)
+        if traversal == "dda":
+            a = a[:6] + (shadows,) + a[7:]
+        ref = serial(*a)
+        ref_bufs = [b.copy() for b in a[10:]]
+        for threads in (2, 3):
+            from gridrt.threads import use_threads
+
+            use_threads(threads)
+            b = _args(grids, cam, W, H, light=light)
+            b = b[:6] + a[6:7] + b[7:]
+            out = parallel(*b)
+            for x, y in zip(ref_bufs, b[10:]):
+                np.testing.assert_array_equal(x, y)
+            if traversal == "cgt":
+                np.testing.assert_array_equal(ref, out)
+        # the primary hits against the float64 brute-force caster
+        origins, dirs = cam.rays(W, H)
+        diff = R.compare_hits(ref_bufs[1].reshape(-1), ref_bufs[2].reshape(-1), R.ref_cast(both, origins, dirs))
+        assert len(diff.bad) == 0, f"{len(diff.bad)} of {W * H} primary hits differ from the reference"
+
+
+_KERNELS = '''
+import numpy as np
+from numba import njit, prange
+
+
+@njit(cache=True, parallel=True)
+def par(x, out):
+    for i in prange(x.shape[0]):
+        out[i] = 2.0 * x[i] + 1.0
+
+
+@njit(cache=True)
+def ser(x, out):
+    for i in range(x.shape[0]):
+        out[i] = 2.0 * x[i] + 1.0
+'''
+
+_DRIVER = '''
+import json, sys
+import numpy as np
+import gridrt  # (sets numba's thread count before numba starts its threads)
+from numba.core import event
+from gridrt.trace.cgt import cgt_render_kernel, cgt_render_serial
+from gridrt.trace.render import render_kernel, render_serial
+from gridrt.trace.twin import TWINS, Twins, parallel_first
+import twin_kernels as k
+
+compiled = []
+
+
+class L(event.Listener):
+    def on_start(self, ev):
+        compiled.append(ev.data["dispatcher"].py_func.__name__)
+
+    def on_end(self, ev):
+        pass
+
+
+event.register("numba:compile", L())
+t = Twins()
+x = np.arange(1000.0)
+steps = []
+for threads in [int(a) for a in sys.argv[1:]]:
+    out = np.zeros_like(x)
+    f = t.pick(threads, k.par, k.ser, (x, out))
+    f(x, out)
+    steps.append(["par" if f is k.par else "ser", bool((out == 2 * x + 1).all()), bool(t._compiling)])
+    t.wait()
+print(json.dumps({"steps": steps, "compiled": compiled}))
+'''
+
+
+def _drive(tmp_path, cache, *threads):
+    env = {"NUMBA_CACHE_DIR": str(cache), "PYTHONPATH": str(tmp_path), "PATH": "/usr/bin:/bin"}
+    r = subprocess.run([sys.executable, str(tmp_path / "driver.py"), *map(str, threads)],
+                       capture_output=True, text=True, env=env, timeout=300)
+    assert r.returncode == 0, r.stderr
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def test_choice_on_cold_and_warm_cache(tmp_path):
+    (tmp_path / "twin_kernels.py").write_text(_KERNELS)
+    (tmp_path / "driver.py").write_text(textwrap.dedent(_DRIVER))
+    cache = tmp_path / "cache"
+    cold = _drive(tmp_path, cache, 1, 2, 2, 2)
+    assert [s[:2] for s in cold["steps"]] == [["ser", True], ["ser", True], ["ser", True], ["par", True]]
+    # the parallel kernel compiled in the background from the second two-thread call, not before
+    assert [s[2] for s in cold["steps"]] == [False, False, True, False]
+    assert cold["compiled"] == ["ser", "par"]
+    warm = _drive(tmp_path, cache, 2, 1)
+    assert [s[:2] for s in warm["steps"]] == [["par", True], ["ser", True]]
+    assert warm["compiled"] == []  # both loaded from the cache
+    one = _drive(tmp_path, tmp_path / "cache1", 2)  # a cold one-call run never compiles the parallel one
+    assert one["steps"] == [["ser", True, False]] and one["compiled"] == ["ser"]
+
+
+@njit(parallel=True)
+def _broken(x, out):
+    for i in prange(x.shape[0]):
+        out[i] = x[i] + _NOT_DEFINED  # noqa: F821 (the compile fails in the background)
+
+
+@njit
+def _fine(x, out):
+    for i in range(x.shape[0]):
+        out[i] = x[i]
+
+
+def test_background_compile_failure_is_reported():
+    t = Twins()
+    x, out = np.arange(4.0), np.zeros(4)
+    t(2, _broken, _fine, x, out)
+    t(2, _broken, _fine, x, out)  # starts the background compile, which fails
+    t.wait()
+    with pytest.raises(RuntimeError, match="compiling _broken failed"):
+        t(2, _broken, _fine, x, out)
+    t(1, _broken, _fine, x, out)  # one thread: the serial kernel, as before
+    np.testing.assert_array_equal(out, x)
+
+
+def test_renderer_frames_equal_across_the_switch():
+    """Frames through Renderer on 2 threads: the first ones from the serial twin (on a cold cache) or
+    the parallel kernel, later ones from the parallel kernel: all equal, bit for bit."""
+    both, one, two, cam = _scene()
+    grid = build_grid(both)
+    from gridrt.trace.render import Renderer
+
+    rd = Renderer()
+    frames = []
+    for _ in range(3):
+        r = rd.render(grid, both, cam, RenderParams(64, 48, threads=2))
+        frames.append((r.image.copy(), r.t.copy(), r.tri.copy(), r.stats.tests_per_ray))
+        TWINS.wait()
+    serial = Renderer().render(grid, both, cam, RenderParams(64, 48, threads=1))
+    for f in frames:
+        np.testing.assert_array_equal(f[0], serial.image)
+        np.testing.assert_array_equal(f[1], serial.t)
+        np.testing.assert_array_equal(f[2], serial.tri)
+        assert f[3] == serial.stats.tests_per_ray
+
+
+def test_parallel_first_calls_the_parallel_kernel_at_once():
+    """Benchmarks (gridrt bench) run under parallel_first: the first call on two threads is parallel,
+    and only within the block."""
+    @njit(parallel=True)
+    def par(x, out):
+        for i in prange(x.shape[0]):
+            out[i] = x[i] + 1.0
+
+    t = Twins()
+    x, out = np.arange(4.0), np.zeros(4)
+    assert t.pick(2, par, _fine, (x, out)) is _fine
+    with parallel_first():
+        assert t.pick(2, par, _fine, (x, out)) is par and t.pick(1, par, _fine, (x, out)) is _fine
+        t(2, par, _fine, x, out)
+    np.testing.assert_array_equal(out, x + 1.0)
+    assert t.pick(2, par, _fine, (x, out)) is par  # compiled now: parallel from here on
