@@ -25,11 +25,11 @@ import warnings
 
 import numpy as np
 
-from .arrays import as_mesh, as_triangles, triangle_areas2
+from .arrays import as_mesh, as_triangles
 from .config import GridParams
 from .errors import InputError
 from .grid.build import GridBuilder
-from .precision import PrecisionWarning, detail_warning, warn_detail
+from .precision import ONE_SHOT_SAMPLE, PrecisionWarning, detail_warning, warn_detail
 from .threads import launch_guard
 from .trace.render import Hits, cast_batch
 
@@ -48,15 +48,79 @@ def _vertices64(vertices, what):
     return v
 
 
-def _has_area(tris):
-    """True when some triangle has non-zero area (as the constructor's check), looking at growing
-    blocks of triangles: a mesh's first few settle it, only an all-degenerate one is read whole."""
-    start, step = 0, 64
-    while start < len(tris):
-        if (triangle_areas2(tris[start : start + step]) > 0).any():
-            return True
-        start, step = start + step, step * 4
-    return False
+def _centred_mesh(vertices, faces):
+    """(origin, vertices (V,3) float32 and triangles (F,3,3) float32 in the frame centred on the
+    vertices' bounds, faces (F,3) int32, the largest |coordinate| in that frame) of a mesh, or
+    InputError naming its problem.  One pass over the vertex values (bounds, NaN/inf/1e30), one
+    over the faces (index range), one conversion and one gather: about the cost of the grid build
+    it comes with.  Anything unusual (no vertices, bad values, float faces, indices out of range)
+    goes through the slow checks, which say what is wrong (or accept integral float faces)."""
+    from .grid import common
+    from .scene.animation import gather_unchecked
+
+    v = np.asarray(vertices)
+    if v.dtype == object or not (np.issubdtype(v.dtype, np.floating) or np.issubdtype(v.dtype, np.integer)) \
+            or v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
+        v = _vertices64(vertices, "vertices")  # raises for a wrong dtype or shape
+    v = np.ascontiguousarray(v, dtype=np.float32 if v.dtype == np.float32 else np.float64)
+    f = np.asarray(faces)
+    bb = np.empty((1, 7))
+    if len(v) and v.dtype == np.float32:
+        common.scene_bounds_serial(v, bb)
+    elif len(v):
+        common.bounds_f64(v, bb, np.empty(v.shape, np.float32))
+    slow = len(v) == 0 or bb[0, 6] != 0.0 or f.ndim != 2 or f.shape[1:] != (3,) or len(f) == 0 \
+        or not np.issubdtype(f.dtype, np.integer) or len(v) > np.iinfo(np.int32).max
+    if not slow:
+        fmin, fmax = int(f.min()), int(f.max())
+        slow = fmin < 0 or fmax >= len(v)
+    if slow:  # the checks that name the problem (or accept what is only unusual)
+        v64 = _vertices64(vertices, "vertices")
+        origin = RayCaster._centre(v64)
+        verts, f32 = as_mesh(v64 - origin, faces)
+        tris = np.take(verts, f32, axis=0)
+        return origin, verts, f32, tris, max(abs(float(verts.min())), abs(float(verts.max())))
+    lo, hi = bb[0, 0:3], bb[0, 3:6]
+    origin = 0.5 * (lo + hi)
+    verts = np.empty(v.shape, np.float32)
+    common.to_frame(v, float(origin[0]), float(origin[1]), float(origin[2]), verts)
+    f32 = np.ascontiguousarray(f, dtype=np.int32)
+    tris = gather_unchecked(verts, f32, np.empty((len(f32), 3, 3), np.float32))
+    if common.first_nondegenerate(tris) < 0:
+        raise InputError(f"mesh: all {len(f32)} triangles are degenerate (zero area)")
+    return origin, verts, f32, tris, float(max(np.abs(lo - origin).max(), np.abs(hi - origin).max()))
+
+
+def _centred_vertices(vertices, faces, shape):
+    """update's (origin, vertices (V,3) float32 and triangles (F,3,3) float32 in the frame centred
+    on the vertices' bounds, the largest |coordinate| there) for new ``vertices`` of ``shape`` over
+    the caster's validated ``faces``: one pass over the values for bounds and NaN/inf/1e30 (the
+    messages from the slow checks when it finds one), one conversion, one gather."""
+    from .grid import common
+    from .scene.animation import gather_unchecked
+
+    v = np.asarray(vertices)
+    if v.dtype == object or not (np.issubdtype(v.dtype, np.floating) or np.issubdtype(v.dtype, np.integer)) \
+            or v.ndim != 2 or v.shape[1] != 3:
+        v = _vertices64(vertices, "update: vertices")  # raises for a wrong dtype or shape
+    if v.shape != shape:
+        raise InputError(f"update needs vertices of shape {shape}, got {v.shape}")
+    v = np.ascontiguousarray(v, dtype=np.float32 if v.dtype == np.float32 else np.float64)
+    bb = np.empty((1, 7))
+    if v.dtype == np.float32:
+        common.scene_bounds_serial(v, bb)
+    else:
+        common.bounds_f64(v, bb, np.empty(v.shape, np.float32))
+    if bb[0, 6] != 0.0:
+        _vertices64(vertices, "update: vertices")  # raises naming the bad values
+    lo, hi = bb[0, 0:3], bb[0, 3:6]
+    origin = 0.5 * (lo + hi)
+    verts = np.empty(v.shape, np.float32)
+    common.to_frame(v, float(origin[0]), float(origin[1]), float(origin[2]), verts)
+    tris = gather_unchecked(verts, faces, np.empty((len(faces), 3, 3), np.float32))
+    if common.first_nondegenerate(tris) < 0:
+        raise InputError(f"update: all {len(tris)} triangles are degenerate (zero area)")
+    return origin, verts, tris, float(max(np.abs(lo - origin).max(), np.abs(hi - origin).max()))
 
 
 class _Snapshot:
@@ -82,11 +146,8 @@ class RayCaster:
 
     def __init__(self, vertices, faces, params: GridParams | None = None):
         self.params = params or GridParams()
-        v64 = _vertices64(vertices, "vertices")
-        origin = self._centre(v64)
-        verts, self.faces = as_mesh(v64 - origin, faces)
-        tris = np.take(verts, self.faces, axis=0)
-        self.precision_warning = warn_detail(tris, "RayCaster mesh")
+        origin, verts, self.faces, tris, big = _centred_mesh(vertices, faces)
+        self.precision_warning = warn_detail(tris, "RayCaster mesh", big=big, sample=ONE_SHOT_SAMPLE)
         builder = GridBuilder(self.params)
         with launch_guard():
             grid = builder.build(tris, self.params)
@@ -121,19 +182,10 @@ class RayCaster:
     def update(self, vertices):
         """New vertex positions (same count and order); rebuilds the grid.  On an error the
         caster keeps its previous mesh.  Casts running meanwhile finish on the previous mesh."""
-        v64 = _vertices64(vertices, "update: vertices")
-        shape = self._snap.vertices.shape
-        if v64.shape != shape:
-            raise InputError(f"update needs vertices of shape {shape}, got {v64.shape}")
-        origin = self._centre(v64)
-        verts = (v64 - origin).astype(np.float32)
-        tris = np.take(verts, self.faces, axis=0)
-        if not _has_area(tris):
-            raise InputError(f"update: all {len(tris)} triangles are degenerate (zero area)")
+        origin, verts, tris, big = _centred_vertices(vertices, self.faces, self._snap.vertices.shape)
         # a cheap look (1024 triangles' edges, the extent from the vertices): warn when the mesh has
         # just become too fine for float32 at its size, not on every update of such a mesh
         if len(verts):
-            big = max(abs(float(verts.min())), abs(float(verts.max())))
             msg = detail_warning(tris, "RayCaster mesh", sample=1024, big=big)
             if msg is not None and self.precision_warning is None:
                 warnings.warn(msg, PrecisionWarning, stacklevel=2)

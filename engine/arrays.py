@@ -41,8 +41,9 @@ def as_triangles(tris, what="triangles", allow_degenerate=True):
     return np.ascontiguousarray(as_triangles64(tris, what, allow_degenerate), dtype=TRI_DTYPE)
 
 
-def as_triangles64(tris, what="triangles", allow_degenerate=True):
-    """:func:`as_triangles`, but the triangles are returned as given, in float64."""
+def triangle_array(tris, what="triangles"):
+    """``tris`` as an (F, 3, 3) real-valued array with F > 0, or InputError; reads no values (see
+    :func:`refuse_bad_values` for those)."""
     a = np.asarray(tris)
     if a.dtype == object or not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
         raise InputError(f"{what} must be a numeric array, got dtype {a.dtype}")
@@ -50,9 +51,21 @@ def as_triangles64(tris, what="triangles", allow_degenerate=True):
         raise InputError(f"{what} must have shape (F, 3, 3), got {a.shape}")
     if a.shape[0] == 0:
         raise InputError(f"{what}: the scene is empty (0 triangles)")
+    return a
+
+
+def refuse_bad_values(a, what="triangles"):
+    """InputError naming the first NaN or infinity of ``a``, or its coordinates beyond 1e30; returns
+    when there are none."""
     _finite_check(a, what)
     if np.abs(a).max() > 1e30:
         raise InputError(f"{what} have coordinates beyond 1e30, too large for float32")
+
+
+def as_triangles64(tris, what="triangles", allow_degenerate=True):
+    """:func:`as_triangles`, but the triangles are returned as given, in float64."""
+    a = triangle_array(tris, what)
+    refuse_bad_values(a, what)
     out = np.ascontiguousarray(a, dtype=np.float64)
     if not allow_degenerate:
         local = (out - bounds_centre(out)).astype(TRI_DTYPE)

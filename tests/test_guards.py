@@ -122,6 +122,18 @@ BOUNDARIES = {
     "gridrt.grid.build:GridBuilder.build": (
         "bounds pass reads tris (shape/dtype checked first; it is itself the NaN/inf/1e30 guard)",
         ["test_guard_build_triangles", "test_guard_build_nonfinite_every_strategy", "test_guard_build_params"]),
+    "gridrt.api:_centred_mesh": (
+        "RayCaster's mesh: vertex and face shapes/dtypes checked first; the bounds pass is the NaN/inf/1e30 "
+        "guard; face indices range-checked before the gather; anything unusual takes the slow checks",
+        ["test_guard_raycaster", "test_raycaster_update_is_atomic"]),
+    "gridrt.api:_centred_vertices": (
+        "RayCaster.update: shape against the caster's, then as _centred_mesh over its validated faces",
+        ["test_guard_raycaster", "test_raycaster_update_is_atomic"]),
+    "gridrt.grid.build:build_grid": (
+        "shape/dtype checked first, contiguous float32 or float64 made; the bounds pass is itself the "
+        "NaN/inf/1e30 guard (messages from the slow checks when it finds one); to_frame and "
+        "first_nondegenerate write/read arrays of the checked shape",
+        ["test_guard_build_triangles", "test_guard_build_nonfinite_every_strategy"]),
     "gridrt.grid.build:GridBuilder._build": (
         "internal: clear and macro stages index count/macro arrays sized from the spec; reached only after the "
         "triangles, params and memory budget passed; buffers reset when a build fails",
@@ -328,13 +340,17 @@ BAD_TRIS = {
 
 @pytest.mark.parametrize("case", sorted(BAD_TRIS))
 def test_guard_build_triangles(case):
-    """Bad triangle arrays are refused by build_grid before any kernel runs, and by the per-frame
-    GridBuilder before any kernel but the bounds pass (which only reads the array within its
-    shape, and is the NaN / inf / 1e30 check of float32 frames)."""
+    """Bad triangle arrays are refused by build_grid and by the per-frame GridBuilder before any
+    kernel runs (wrong shapes and dtypes), or before any kernel but a bounds pass (bad values: the
+    pass only reads the array within its checked shape, and is the NaN / inf / 1e30 check;
+    build_grid's runs in float32 or float64, GridBuilder's on float32 frames)."""
     tris, match = BAD_TRIS[case]
+    values = case in ("nan", "+inf", "1e31", "-inf float64", "-1e38 float64", "1e300 float64")
+    with pytest.MonkeyPatch.context() as mp:
+        install_tripwires(mp, allow=("scene_bounds_serial", "bounds_f64") if values else ())
+        expect_guard(lambda: build_grid(tris), match)
     with pytest.MonkeyPatch.context() as mp:
         install_tripwires(mp)
-        expect_guard(lambda: build_grid(tris), match)
         if case not in ("nan", "+inf", "1e31"):  # float32 frames with bad values reach the bounds pass
             expect_guard(lambda: GridBuilder().build(tris), match)
     with pytest.MonkeyPatch.context() as mp:

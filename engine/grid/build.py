@@ -312,15 +312,36 @@ def build_grid(tris, params: GridParams | None = None, *, origin=None, **kw) -> 
         params = GridParams(**kw)
     elif kw:
         params = params.replace(**kw)
-    from ..arrays import as_origin, as_triangles64, storage_centre
-    from ..precision import warn_detail
+    from ..arrays import as_origin, frame_centre, refuse_bad_values, triangle_array
+    from ..precision import ONE_SHOT_SAMPLE, warn_detail
 
-    tris64 = as_triangles64(tris, allow_degenerate=False)
+    # one pass over the values for bounds and NaN/inf/1e30 (the messages come from the slow checks,
+    # run only when the pass found something) that also stores float32, and a second one to move
+    # them into a frame centred on the scene only when it lies far away
+    a = triangle_array(tris)
+    a = np.ascontiguousarray(a, dtype=np.float32 if a.dtype == np.float32 else np.float64)
+    bb = np.empty((1, 7))
+    if a.dtype == np.float32:
+        common.scene_bounds_serial(a, bb)
+        as32 = a  # (the builder only reads it)
+    else:
+        as32 = np.empty(a.shape, np.float32)  # float32(a), made by the bounds pass
+        common.bounds_f64(a, bb, as32)
+    if bb[0, 6] != 0.0:
+        refuse_bad_values(a)
+    lo, hi = bb[0, 0:3], bb[0, 3:6]
     # a scene far from the world origin is gridded in a frame centred on it (grid.origin), from its
     # float64 coordinates, so float32 keeps the precision of the scene's own size
-    origin = storage_centre(tris64) if origin is None else as_origin(origin)
-    local = np.ascontiguousarray(tris64 - origin if origin.any() else tris64, dtype=np.float32)
-    warn_detail(local, "the triangles")
+    origin = frame_centre(0.5 * (lo + hi), float((hi - lo).max())) if origin is None else as_origin(origin)
+    if not origin.any():
+        local = as32
+    else:
+        local = np.empty(a.shape, np.float32)
+        common.to_frame(a.reshape(-1, 3), float(origin[0]), float(origin[1]), float(origin[2]), local.reshape(-1, 3))
+    if common.first_nondegenerate(local) < 0:
+        raise InputError(f"triangles: all {len(local)} triangles are degenerate (zero area)")
+    warn_detail(local, "the triangles", big=float(max(np.abs(lo - origin).max(), np.abs(hi - origin).max())),
+                sample=ONE_SHOT_SAMPLE)
     grid = GridBuilder(params).build(local)  # the builder is dropped: the grid owns its buffers
     grid.origin = origin
     return grid

@@ -22,9 +22,11 @@ BAD_MAGNITUDE = 1e30  # coordinates beyond this are refused (cell arithmetic wou
 
 
 @njit(cache=True, _nrt=False)
-def _bounds_lanes(flat, mn, mx, nan):
-    """Lane-wise min/max of flat (a slice starting on a row boundary) into mn, mx (W,) float32,
-    and nan (W,) float32 += x - x, which turns NaN exactly when a NaN or infinity went by.
+def _bounds_lanes(flat, mn, mx, nan, out=None):
+    """Lane-wise min/max of flat (a slice starting on a row boundary) into mn, mx (W,) (of flat's
+    dtype), and nan (W,) += x - x, which turns NaN exactly when a NaN or infinity went by; with
+    ``out`` (flat's size, float32), also out = float32(flat) in the same pass (without, numba
+    compiles no store at all).
 
     Every lane is independent of the others, so LLVM turns the inner loop into SIMD min/max
     (a scalar min/max chain over the triangles runs at about a tenth of the speed).  Loops
@@ -39,11 +41,15 @@ def _bounds_lanes(flat, mn, mx, nan):
             mn[l] = min(mn[l], x)
             mx[l] = max(mx[l], x)
             nan[l] += x - x
+            if out is not None:
+                out[r * W + l] = np.float32(x)
     for l in range(flat.shape[0] - rows * W):
         x = flat[rows * W + l]
         mn[l] = min(mn[l], x)
         mx[l] = max(mx[l], x)
         nan[l] += x - x
+        if out is not None:
+            out[rows * W + l] = np.float32(x)
 
 
 @njit(cache=True)
@@ -88,6 +94,64 @@ def scene_bounds_serial(tris, out):
     """scene_bounds on one thread (small scenes: no parallel launch)."""
     flat = tris.reshape(tris.size)
     _bounds_chunk(flat, 0, flat.size, out, 0)
+
+
+@njit(cache=True)
+def bounds_f64(tris, out, as32):
+    """scene_bounds_serial for float64 points, C-contiguous (F,3,3) triangles or (V,3) vertices:
+    out (1, 7) float64 as there; and as32 (same shape, float32) = float32(tris) in the same pass
+    (the triangles in a frame at the world origin: what they are stored as unless they lie far)."""
+    flat = tris.reshape(tris.size)
+    W = BOUNDS_LANES
+    mn = np.full(W, np.inf)
+    mx = np.full(W, -np.inf)
+    nan = np.zeros(W)
+    _bounds_lanes(flat, mn, mx, nan, as32.reshape(as32.size))
+    bad = 0.0
+    for a in range(3):
+        lo = np.inf
+        hi = -np.inf
+        for l in range(a, W, 3):
+            lo = min(lo, mn[l])
+            hi = max(hi, mx[l])
+            if not (nan[l] == 0.0):
+                bad = 1.0
+        if flat.size > 0 and not (abs(lo) <= BAD_MAGNITUDE and abs(hi) <= BAD_MAGNITUDE):
+            bad = 1.0
+        out[0, a] = lo
+        out[0, 3 + a] = hi
+    out[0, 6] = bad
+
+
+@njit(cache=True, _nrt=False)
+def to_frame(src, ox, oy, oz, out):
+    """out = float32(src - (ox, oy, oz)) per point, the difference taken in float64: src (N,3)
+    float32 or float64, out (N,3) float32, both C-contiguous (checked by the caller; pass
+    triangles as (3F, 3) views)."""
+    for i in range(src.shape[0]):
+        out[i, 0] = np.float32(np.float64(src[i, 0]) - ox)
+        out[i, 1] = np.float32(np.float64(src[i, 1]) - oy)
+        out[i, 2] = np.float32(np.float64(src[i, 2]) - oz)
+
+
+@njit(cache=True, _nrt=False)
+def first_nondegenerate(tris):
+    """The index of the first triangle of tris (F,3,3) float32 with non-zero area, or -1 when every
+    one has zero area: the same exact test as the cell-range pass (_ranges_block), which gives
+    such triangles no cells."""
+    for f in range(tris.shape[0]):
+        ax = np.float64(tris[f, 0, 0])
+        ay = np.float64(tris[f, 0, 1])
+        az = np.float64(tris[f, 0, 2])
+        ux = np.float64(tris[f, 1, 0]) - ax
+        uy = np.float64(tris[f, 1, 1]) - ay
+        uz = np.float64(tris[f, 1, 2]) - az
+        vx = np.float64(tris[f, 2, 0]) - ax
+        vy = np.float64(tris[f, 2, 1]) - ay
+        vz = np.float64(tris[f, 2, 2]) - az
+        if not ((uy * vz == uz * vy) and (uz * vx == ux * vz) and (ux * vy == uy * vx)):
+            return f
+    return -1
 
 
 # ---------------------------------------------------------------------------------------------
