@@ -24,9 +24,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 import gridrt  # noqa: F401
-from gridrt.commands import pip_command
 from gridrt.config import TRAVERSALS, GridParams, RenderParams
-from gridrt.errors import GridrtError
 from gridrt.grid.build import GridBuilder
 from gridrt.trace.render import Renderer, cast_rays
 
@@ -35,8 +33,8 @@ from .util import (
     resolve_scene, scene_camera, scene_list, scenes_help, thread_list, write_csv, write_json, write_summary,
 )
 from .reference import brute_cast
+from .sides import INSTALL_HINT, EmbreeSide, MissingPeer  # noqa: F401  (INSTALL_HINT, MissingPeer: part of this command's API)
 
-INSTALL_HINT = f"embreex is not installed; `gridrt bench peers` needs it: {pip_command()} install embreex"
 PEER_SCENES = ["cesium", "lucy:twist", "kitchen"]
 PEER_FALLBACK = ["marbles", "icosphere:81920:twist"]
 HAVE_CGT = "cgt" in TRAVERSALS
@@ -44,10 +42,6 @@ HAVE_CGT = "cgt" in TRAVERSALS
 T_REL = 1e-4
 #: disagreeing rays checked against brute force, at most
 CHECK_MAX = 256
-
-
-class MissingPeer(GridrtError):
-    """The optional peer library is not installed."""
 
 
 def add_parser(bsub, common):
@@ -63,59 +57,6 @@ def add_parser(bsub, common):
                    help="Embree without RTC_SCENE_FLAG_ROBUST (default robust, like gridrt's watertight test)")
     p.add_argument("--dt", type=float, default=1.0 / 30.0, help="seconds between frames (default 1/30)")
     p.set_defaults(func=run_peers)
-
-
-def import_embreex():
-    """(rtcore, rtcore_scene, mesh_construction, version) or MissingPeer with the install hint."""
-    try:
-        import embreex
-        from embreex import mesh_construction, rtcore, rtcore_scene
-    except ImportError:
-        raise MissingPeer(INSTALL_HINT) from None
-    return rtcore, rtcore_scene, mesh_construction, getattr(embreex, "__version__", "?")
-
-
-class EmbreeSide:
-    """One Embree device for the whole run (created before any affinity change, so Embree's
-    task scheduler sees every core) and the per-frame rebuild + pooled cast."""
-
-    def __init__(self, robust):
-        self.rtc, self.rs, self.mc, self.version = import_embreex()
-        self.device = self.rtc.EmbreeDevice()
-        self.robust = robust
-        self.scene = None
-        self._zero = np.zeros((0, 3), np.float32)
-        tiny = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], np.float32)
-        self.build(tiny)
-
-    def build(self, tris):
-        """New scene over tris (F,3,3) float32: returns (upload ms, commit ms)."""
-        t0 = time.perf_counter()
-        scene = self.rs.EmbreeScene(self.device, robust=self.robust)
-        self.mc.TriangleMesh(scene, tris)
-        t1 = time.perf_counter()
-        scene.run(self._zero, self._zero)  # commits the scene (rtcCommitScene: the BVH build)
-        t2 = time.perf_counter()
-        self.scene = scene
-        return (t1 - t0) * 1e3, (t2 - t1) * 1e3
-
-    def cast(self, pool, o32, d32, threads):
-        """(t (N,) float64 [inf: miss], prim (N,) int64 [-1: miss]) over chunks in the pool."""
-        N = len(o32)
-        n_chunks = max(1, min(threads * 8, N // 4096 or 1))
-        bounds = np.linspace(0, N, n_chunks + 1).astype(np.int64)
-        sc = self.scene
-
-        def job(k):
-            return sc.run(o32[bounds[k]:bounds[k + 1]], d32[bounds[k]:bounds[k + 1]], output=1)
-
-        parts = list(pool.map(job, range(n_chunks))) if threads > 1 else [job(k) for k in range(n_chunks)]
-        prim = np.concatenate([p["primID"] for p in parts]).astype(np.int64)
-        t = np.concatenate([p["tfar"] for p in parts]).astype(np.float64)
-        miss = prim < 0
-        t[miss] = np.inf
-        prim[miss] = -1
-        return t, prim
 
 
 def agreement(t_o, f_o, t_e, f_e):
