@@ -215,6 +215,26 @@ def test_bench_peers_quick(tmp_path):
     assert int(r["rays"]) == 64 * 64
     assert float(r["agree"]) >= 0.999  # two watertight-grade engines on a closed sphere
     assert "sched_setaffinity" in summary
+    # the other peers, where installed: the same rays, agreeing hits, their own timings
+    import importlib.util
+
+    for name, module in (("open3d", "open3d"), ("mitsuba", "mitsuba")):
+        if importlib.util.find_spec(module) is None:
+            assert f"{module} is not installed" in summary
+            continue
+        assert float(r[f"{name}_agree"]) >= 0.999
+        assert float(r[f"{name}_frame_ms"]) > 0 and float(r[f"{name}_mrays"]) > 0
+
+
+def test_bench_peers_names_missing_other_peers(tmp_path, monkeypatch):
+    """Open3D and Mitsuba are optional: absent, the run goes on and the summary says how to get them."""
+    pytest.importorskip("embreex", reason="embreex (optional extra 'peers') is not installed")
+    for module in ("open3d", "mitsuba", "drjit"):
+        monkeypatch.setitem(sys.modules, module, None)  # import -> ImportError
+    out = tmp_path / "peers"
+    assert main(["bench", "peers", "--quick", "--no-progress", "--out", str(out), "--threads", "1"]) == 0
+    summary = (out / "summary.md").read_text()
+    assert "pip install open3d-cpu" in summary and "pip install mitsuba drjit" in summary
 
 
 def test_bench_peers_says_how_to_install_embreex(tmp_path, monkeypatch, capsys):

@@ -15,6 +15,10 @@ camera image (the rays are rounded to float32 once and given to both):
 Also: static cast throughput (Mrays/s, cast only, on the last frame) and hit agreement (same
 triangle id and t within 1e-4 relative, or both miss); disagreeing rays are checked against the
 brute-force float64 caster to tell which side is right.
+
+Other peers, measured the same way when installed (optional extras, each named with its install
+command when absent; app/bench/sides.py): Open3D's RaycastingScene (``open3d-cpu``) and Mitsuba 3's
+CPU variant ``llvm_ad_rgb`` (``mitsuba``, ``drjit``).
 """
 
 import sys
@@ -33,7 +37,10 @@ from .util import (
     resolve_scene, scene_camera, scene_list, scenes_help, thread_list, write_csv, write_json, write_summary,
 )
 from .reference import brute_cast
-from .sides import INSTALL_HINT, EmbreeSide, MissingPeer  # noqa: F401  (INSTALL_HINT, MissingPeer: part of this command's API)
+from .sides import INSTALL_HINT, EmbreeSide, MissingPeer, MitsubaSide, Open3DSide  # noqa: F401  (INSTALL_HINT)
+
+#: peers measured beside Embree when installed (optional extras; each skipped with a message when absent)
+OTHER_PEERS = (Open3DSide, MitsubaSide)
 
 PEER_SCENES = ["cesium", "lucy:twist", "kitchen"]
 PEER_FALLBACK = ["marbles", "icosphere:81920:twist"]
@@ -92,6 +99,13 @@ def _judge(tris, o, d, idx, t_o, f_o, t_e, f_e, threads):
 def run_peers(a):
     check_frame_args(a)
     emb = EmbreeSide(robust=not a.embree_fast)  # raises MissingPeer with the install hint
+    others, absent = [], []
+    for side in OTHER_PEERS:
+        try:
+            others.append(side())
+        except MissingPeer as e:
+            absent.append(f"{side.label}: {e}")
+            print(f"note: {side.label} not measured: {e}", file=sys.stderr)
     size = 64 if a.quick else a.size
     runs, warmup = (1, 1) if a.quick else (a.runs, a.warmup)
     specs, note = scene_list(a.scenes, PEER_SCENES, PEER_FALLBACK, quick=["icosphere:1280:twist"] if a.quick else None)
@@ -99,6 +113,8 @@ def run_peers(a):
     out = out_dir(a.out)
     info = machine_info(threads)
     info["embree"] = repr(emb.device)
+    for peer in others:
+        info[peer.name] = peer.version
     if note:
         print(f"note: {note}", file=sys.stderr)
     from .main import frame_strategy
@@ -118,12 +134,12 @@ def run_peers(a):
             with Affinity(T) as aff, ThreadPoolExecutor(T) as pool:
                 affinity_ok &= aff.applied
                 frames = _time_frames(sc, origin, builder, renderer, rp, cam, emb, pool, o32, d32, o, d, T,
-                                      warmup, runs, a.dt, bar)
-                static = _time_static(frames, renderer, rp, cam, emb, pool, o32, d32, o, d, T, runs)
+                                      warmup, runs, a.dt, bar, others)
+                static = _time_static(frames, renderer, rp, cam, emb, pool, o32, d32, o, d, T, runs, others)
                 bar.update()
-            rows.append(_row(sc, T, strat, aff.applied, size, runs, emb, o, d, frames, static, rp))
+            rows.append(_row(sc, T, strat, aff.applied, size, runs, emb, o, d, frames, static, rp, others))
     bar.close()
-    _write(rows, out, info, emb, runs, warmup, affinity_ok, note)
+    _write(rows, out, info, emb, runs, warmup, affinity_ok, note, others, absent)
     return 0
 
 
@@ -139,10 +155,14 @@ def _camera_rays(sc, size):
     return origin, cam, o32, d32, o32.astype(np.float64), d32.astype(np.float64)
 
 
-def _time_frames(sc, origin, builder, renderer, rp, cam, emb, pool, o32, d32, o, d, T, warmup, runs, dt, bar):
-    """Per frame, both rebuild from scratch and cast: {samples (ms lists), last grid, triangles and hits}."""
+def _time_frames(sc, origin, builder, renderer, rp, cam, emb, pool, o32, d32, o, d, T, warmup, runs, dt, bar,
+                 others=()):
+    """Per frame, all rebuild from scratch and cast: {samples (ms lists), last grid, triangles and hits}."""
     smp = {k: [] for k in ("o_build", "o_cast", "o_frame", "o_render_cgt", "o_frame_cgt", "e_upload",
                            "e_commit", "e_cast", "e_frame", "e_frame_noupload")}
+    for peer in others:
+        smp.update({f"{peer.name}_{k}": [] for k in ("upload", "commit", "cast", "frame")})
+    peer_hits = {}
     img = None
     for i in range(warmup + runs):
         tris = sc.scene.triangles_at(i * dt, origin=origin)
@@ -158,6 +178,14 @@ def _time_frames(sc, origin, builder, renderer, rp, cam, emb, pool, o32, d32, o,
         t3 = time.perf_counter()
         te, fe = emb.cast(pool, o32, d32, T)
         t4 = time.perf_counter()
+        for peer in others:
+            pu, pc = peer.build(tris)
+            t5 = time.perf_counter()
+            peer_hits[peer.name] = peer.cast(pool, o32, d32, T)
+            pcast = (time.perf_counter() - t5) * 1e3
+            if i >= warmup:
+                for k, v in (("upload", pu), ("commit", pc), ("cast", pcast), ("frame", pu + pc + pcast)):
+                    smp[f"{peer.name}_{k}"].append(v)
         if i >= warmup:
             smp["o_build"].append((t1 - t0) * 1e3)
             smp["o_cast"].append((t2 - t1) * 1e3)
@@ -171,15 +199,20 @@ def _time_frames(sc, origin, builder, renderer, rp, cam, emb, pool, o32, d32, o,
             smp["e_frame"].append(up + cm + (t4 - t3) * 1e3)
             smp["e_frame_noupload"].append(cm + (t4 - t3) * 1e3)
         bar.update()
-    return dict(samples=smp, grid=g, tris=tris, hits=ho, embree=(te, fe), img=img)
+    return dict(samples=smp, grid=g, tris=tris, hits=ho, embree=(te, fe), img=img, peers=peer_hits)
 
 
-def _time_static(frames, renderer, rp, cam, emb, pool, o32, d32, o, d, T, runs):
+def _time_static(frames, renderer, rp, cam, emb, pool, o32, d32, o, d, T, runs, others=()):
     """Static cast throughput on the last frame: (gridrt cast ms, Embree cast ms, gridrt CGT render ms)
-    lists, and the last CGT image."""
+    lists, and the last CGT image; the other peers' cast ms into frames["static_peers"]."""
     g, tris = frames["grid"], frames["tris"]
     so, se, sr = [], [], []
+    sp = frames["static_peers"] = {peer.name: [] for peer in others}
     for _ in range(runs):
+        for peer in others:
+            t0 = time.perf_counter()
+            peer.cast(pool, o32, d32, T)
+            sp[peer.name].append((time.perf_counter() - t0) * 1e3)
         t0 = time.perf_counter()
         cast_rays(g, tris, o, d, threads=T)
         t1 = time.perf_counter()
@@ -194,7 +227,7 @@ def _time_static(frames, renderer, rp, cam, emb, pool, o32, d32, o, d, T, runs):
     return so, se, sr
 
 
-def _row(sc, T, strat, pinned, size, runs, emb, o, d, frames, static, rp):
+def _row(sc, T, strat, pinned, size, runs, emb, o, d, frames, static, rp, others=()):
     """The CSV row of one scene and thread count: timings, throughputs and the two tracers' agreement."""
     last = np.array(frames["tris"])
     ho, (te, fe), img = frames["hits"], frames["embree"], frames["img"]
@@ -226,16 +259,23 @@ def _row(sc, T, strat, pinned, size, runs, emb, o, d, frames, static, rp):
     row.update(ag)
     row["agree"] = (ag["both_miss"] + ag["same"]) / N
     row.update(judge)
+    for peer in others:
+        put_stat(row, f"{peer.name}_static_cast_ms", frames["static_peers"][peer.name])
+        row[f"{peer.name}_mrays"] = N / row[f"{peer.name}_static_cast_ms"] / 1e3
+        row[f"{peer.name}_fps"] = 1e3 / row[f"{peer.name}_frame_ms"]
+        tp, fp = frames["peers"][peer.name]
+        agp = agreement(ho.t, ho.tri.astype(np.int64), tp, fp)
+        row[f"{peer.name}_agree"] = (agp["both_miss"] + agp["same"]) / N
     return row
 
 
-def _write(rows, out, info, emb, runs, warmup, affinity_ok, note):
+def _write(rows, out, info, emb, runs, warmup, affinity_ok, note, others=(), absent=()):
     """peers.csv, machine.json, peers.png and summary.md; the summary's table on stdout."""
     finish_machine(info)
     write_csv(rows, out / "peers.csv")
     write_json(info, out / "machine.json")
     _plot(rows, out / "peers.png")
-    body = _summary(rows, emb, runs, warmup, affinity_ok)
+    body = _summary(rows, emb, runs, warmup, affinity_ok) + _others_summary(rows, others, absent)
     if note:
         body += ["", f"Note: {note}."]
     write_summary(out / "summary.md", "gridrt bench peers: gridrt against Embree", info,
@@ -303,6 +343,29 @@ def _summary(rows, emb, runs, warmup, affinity_ok):
                             f"{one['o_build_ms'] / many['o_build_ms']:.2f}x")
         body += ["", f"Speed-up from {ths[0]} to {ths[-1]} threads (a pool speed-up above 1 shows that embreex's "
                  "`run` releases the GIL):", ""] + sc_lines
+    return body
+
+
+def _others_summary(rows, others, absent):
+    """The peers measured beside Embree (Open3D, Mitsuba 3, when installed), against gridrt."""
+    body = []
+    if others:
+        body += ["", "Other peers, the same frames and rays (per frame: upload + build + cast of all rays; "
+                 "static: cast only, last frame; agreement with gridrt's cast_rays as above). "
+                 + "; ".join(f"{p.label} {p.version}" for p in others) + ":", ""]
+        table = []
+        for r in rows:
+            for p in others:
+                table.append([r["scene"], r["threads"], p.label, fmt_ms(r, f"{p.name}_upload_ms"),
+                              fmt_ms(r, f"{p.name}_commit_ms"), fmt_ms(r, f"{p.name}_cast_ms"),
+                              fmt_ms(r, f"{p.name}_frame_ms"), f"{r[f'{p.name}_mrays']:.2f}",
+                              f"{r['o_mrays']:.2f}", f"{r['o_mrays_cgt']:.2f}" if "o_mrays_cgt" in r else "-",
+                              f"{r[f'{p.name}_frame_ms'] / r['o_frame_ms']:.2f}",
+                              f"{100 * r[f'{p.name}_agree']:.4f}%"])
+        body += md_table(["scene", "threads", "peer", "upload", "build", "cast", "frame", "peer Mrays/s",
+                          "gridrt cast Mrays/s", "gridrt CGT Mrays/s", "peer frame / gridrt frame", "agree"], table)
+    for line in absent:
+        body += ["", f"Not measured: {line}."]
     return body
 
 

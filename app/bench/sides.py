@@ -66,3 +66,109 @@ class EmbreeSide:
         t[miss] = np.inf
         prim[miss] = -1
         return t, prim
+
+
+class Open3DSide:
+    """Open3D's RaycastingScene (PyPI ``open3d-cpu``; Embree 3 underneath): per frame a new scene over
+    the triangles (the "upload": Open3D tensors of the vertices and faces, and add_triangles), the
+    build (its first cast commits the scene: timed by a zero-ray cast) and ``cast_rays`` with
+    ``nthreads``."""
+
+    name, label = "open3d", "Open3D"
+
+    def __init__(self):
+        try:
+            import open3d as o3d
+        except ImportError:
+            raise MissingPeer(f"open3d is not installed: {pip_command()} install open3d-cpu") from None
+        self.o3d = o3d
+        self.version = o3d.__version__
+        self.scene = None
+
+    def build(self, tris):
+        """New scene over tris (F,3,3) float32: returns (upload ms, commit ms)."""
+        o3d = self.o3d
+        t0 = time.perf_counter()
+        F = len(tris)
+        v = o3d.core.Tensor(np.ascontiguousarray(tris, np.float32).reshape(-1, 3))
+        f = o3d.core.Tensor(np.arange(3 * F, dtype=np.uint32).reshape(F, 3))
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(v, f)
+        t1 = time.perf_counter()
+        scene.cast_rays(o3d.core.Tensor(np.zeros((1, 6), np.float32)), nthreads=1)  # commits the scene
+        t2 = time.perf_counter()
+        self.scene = scene
+        return (t1 - t0) * 1e3, (t2 - t1) * 1e3
+
+    def cast(self, pool, o32, d32, threads):
+        """(t (N,) float64 [inf: miss], prim (N,) int64 [-1: miss]) on ``threads`` threads."""
+        rays = self.o3d.core.Tensor(np.hstack([o32, d32]))
+        ans = self.scene.cast_rays(rays, nthreads=threads)
+        t = ans["t_hit"].numpy().astype(np.float64)
+        prim = ans["primitive_ids"].numpy().astype(np.int64)
+        miss = ~np.isfinite(t) | (prim == self.o3d.t.geometry.RaycastingScene.INVALID_ID)
+        t[miss] = np.inf
+        prim[miss] = -1
+        return t, prim
+
+
+class MitsubaSide:
+    """Mitsuba 3 (PyPI ``mitsuba`` and ``drjit``), variant ``llvm_ad_rgb`` (CPU, JIT-compiled wavefront
+    kernels; Embree builds the BVH): one mesh whose vertex positions are replaced every frame
+    (``params.update()`` rebuilds the scene's BVH: "commit"; the "upload" is the copy into Dr.Jit
+    arrays) and ``ray_intersect_preliminary`` on all rays at once, with Dr.Jit's thread pool set
+    to ``threads``."""
+
+    name, label = "mitsuba", "Mitsuba 3"
+
+    def __init__(self):
+        try:
+            import drjit as dr
+            import mitsuba as mi
+        except ImportError:
+            raise MissingPeer(f"mitsuba is not installed: {pip_command()} install mitsuba drjit") from None
+        if "llvm_ad_rgb" not in mi.variants():
+            raise MissingPeer("this mitsuba build has no llvm_ad_rgb variant (the CPU one)")
+        mi.set_variant("llvm_ad_rgb")
+        self.mi, self.dr = mi, dr
+        self.version = mi.__version__
+        self.scene = self.params = None
+        self.F = -1
+
+    def build(self, tris):
+        mi, dr = self.mi, self.dr
+        F = len(tris)
+        t0 = time.perf_counter()
+        pos = mi.Float(np.ascontiguousarray(tris, np.float32).reshape(-1))
+        if F != self.F:  # a new mesh of this size (the faces never change)
+            mesh = mi.Mesh("gridrt", vertex_count=3 * F, face_count=F, has_vertex_normals=False,
+                           has_vertex_texcoords=False)
+            p = mi.traverse(mesh)
+            p["faces"] = mi.UInt32(np.arange(3 * F, dtype=np.uint32))
+            p["vertex_positions"] = pos
+            p.update()
+            self.scene = mi.load_dict({"type": "scene", "mesh": mesh})
+            self.params = mi.traverse(self.scene)
+            self.key = next(k for k in self.params.keys() if k.endswith("vertex_positions"))
+            self.F = F
+            t1 = time.perf_counter()
+        else:
+            self.params[self.key] = pos
+            dr.eval(self.params[self.key])
+            t1 = time.perf_counter()
+            self.params.update()  # rebuilds the BVH
+        dr.sync_thread()
+        t2 = time.perf_counter()
+        return (t1 - t0) * 1e3, (t2 - t1) * 1e3
+
+    def cast(self, pool, o32, d32, threads):
+        mi, dr = self.mi, self.dr
+        dr.set_thread_count(threads)
+        ray = mi.Ray3f(o=mi.Point3f(o32[:, 0], o32[:, 1], o32[:, 2]), d=mi.Vector3f(d32[:, 0], d32[:, 1], d32[:, 2]))
+        pi = self.scene.ray_intersect_preliminary(ray, coherent=True)
+        valid = np.array(pi.is_valid())
+        t = np.array(pi.t).astype(np.float64)
+        prim = np.array(pi.prim_index).astype(np.int64)
+        t[~valid] = np.inf
+        prim[~valid] = -1
+        return t, prim
