@@ -211,10 +211,16 @@ def test_bench_peers_quick(tmp_path):
     out = tmp_path / "peers"
     assert main(["bench", "peers", "--quick", "--no-progress", "--out", str(out), "--threads", "1"]) == 0
     rows, summary = check_outputs(out, "peers.csv", ["peers.png"])
-    r = rows[0]
-    assert int(r["rays"]) == 64 * 64
-    assert float(r["agree"]) >= 0.999  # two watertight-grade engines on a closed sphere
+    assert [r["view"] for r in rows] == ["frame", "fill", "random"]
+    for r in rows:
+        assert int(r["rays"]) == 64 * 64
+        assert float(r["agree"]) >= 0.999  # two watertight-grade engines on a closed sphere
+    view = {r["view"]: r for r in rows}
+    assert float(view["fill"]["hit_fraction"]) >= 0.9 > float(view["frame"]["hit_fraction"])
+    assert 0.0 < float(view["random"]["hit_fraction"]) < 1.0  # (origins in the bounding box: some lie outside)
+    assert "o_mrays_cgt" not in view["random"] or view["random"]["o_mrays_cgt"] == ""
     assert "sched_setaffinity" in summary
+    r = rows[0]
     # the other peers, where installed: the same rays, agreeing hits, their own timings
     import importlib.util
 
@@ -249,6 +255,7 @@ def test_bench_peers_says_how_to_install_embreex(tmp_path, monkeypatch, capsys):
     (["build", "--strategies", "serial,fastest"], "unknown build strategy"),
     (["frame", "--scenes", "marbles:lots"], "neither a triangle count"),
     (["frame", "--traversal", "bvh"], "unknown traversal"),
+    (["peers", "--views", "frame,sideways"], "unknown view"),
 ])
 def test_bench_bad_arguments(tmp_path, capsys, args, message):
     assert main(["bench", *args, "--quick", "--no-progress", "--out", str(tmp_path / "x")]) == 2

@@ -1,8 +1,10 @@
 """``gridrt bench peers``: gridrt against Intel Embree (PyPI ``embreex``) on the same animated
 mesh, the same rays and the same cores, in one run.
 
-Per frame (t = i/30 s) both rebuild from scratch and cast one ray per pixel of a size x size
-camera image (the rays are rounded to float32 once and given to both):
+Per frame (t = i/30 s) both rebuild from scratch and cast the same rays, rounded to float32 once
+and given to both: one per pixel of a size x size image from the scene's camera (view "frame"),
+from that camera moved in until at least 90% of the pixels hit ("fill": a sparse view flatters a
+grid's empty-space skipping), or as many random rays from inside the scene's bounds ("random"):
 
 * gridrt: ``GridBuilder.build`` + ``cast_rays`` (DDA, watertight test), ``threads`` threads;
 * Embree: a new ``EmbreeScene`` + ``TriangleMesh`` (the "upload": embreex copies the vertices
@@ -29,6 +31,7 @@ import numpy as np
 
 import gridrt  # noqa: F401
 from gridrt.config import TRAVERSALS, GridParams, RenderParams
+from gridrt.errors import InputError
 from gridrt.grid.build import GridBuilder
 from gridrt.trace.render import Renderer, cast_rays
 
@@ -45,6 +48,10 @@ OTHER_PEERS = (Open3DSide, MitsubaSide)
 PEER_SCENES = ["cesium", "lucy:twist", "kitchen"]
 PEER_FALLBACK = ["marbles", "icosphere:81920:twist"]
 HAVE_CGT = "cgt" in TRAVERSALS
+#: the ray sets (--views)
+VIEWS = ("frame", "fill", "random")
+#: the hit fraction a "fill" view reaches at least
+FILL = 0.9
 #: relative t tolerance of hit agreement
 T_REL = 1e-4
 #: disagreeing rays checked against brute force, at most
@@ -63,6 +70,10 @@ def add_parser(bsub, common):
     p.add_argument("--embree-fast", action="store_true",
                    help="Embree without RTC_SCENE_FLAG_ROBUST (default robust, like gridrt's watertight test)")
     p.add_argument("--dt", type=float, default=1.0 / 30.0, help="seconds between frames (default 1/30)")
+    p.add_argument("--views", default=",".join(VIEWS),
+                   help="ray sets, comma-separated: frame (the scene's camera, or one framing its bounds), fill "
+                        f"(that camera moved in until at least {FILL:.0%} of the pixels hit: a sparse view flatters "
+                        "a grid), random (origins uniform in the scene's bounds, directions uniform on the sphere)")
     p.set_defaults(func=run_peers)
 
 
@@ -98,6 +109,10 @@ def _judge(tris, o, d, idx, t_o, f_o, t_e, f_e, threads):
 
 def run_peers(a):
     check_frame_args(a)
+    views = [v.strip() for v in a.views.split(",") if v.strip()]
+    for v in views:
+        if v not in VIEWS:
+            raise InputError(f"unknown view {v!r} in --views; choose from {', '.join(VIEWS)}")
     emb = EmbreeSide(robust=not a.embree_fast)  # raises MissingPeer with the install hint
     others, absent = [], []
     for side in OTHER_PEERS:
@@ -121,26 +136,61 @@ def run_peers(a):
 
     scenes = [resolve_scene(s) for s in specs]
     rows = []
-    bar = progress(len(scenes) * len(threads) * (warmup + runs + 1), "bench peers", a.no_progress)
+    bar = progress(len(scenes) * len(views) * len(threads) * (warmup + runs + 1), "bench peers", a.no_progress)
     affinity_ok = True
-    for sc in scenes:
-        origin, cam, o32, d32, o, d = _camera_rays(sc, size)
+    for sc, view in ((sc, view) for sc in scenes for view in views):
+        origin, cam, o32, d32, o, d = _rays(sc, size, view)
         for T in threads:
-            bar.set_postfix_str(f"{sc.label} T={T}")
+            bar.set_postfix_str(f"{sc.label} {view} T={T}")
             strat = frame_strategy(a.strategy, T)
             builder = GridBuilder(GridParams(strategy=strat, threads=T))
             renderer = Renderer()
-            rp = RenderParams(size, size, threads=T, traversal="cgt") if HAVE_CGT else None
+            rp = RenderParams(size, size, threads=T, traversal="cgt") if HAVE_CGT and view != "random" else None
             with Affinity(T) as aff, ThreadPoolExecutor(T) as pool:
                 affinity_ok &= aff.applied
                 frames = _time_frames(sc, origin, builder, renderer, rp, cam, emb, pool, o32, d32, o, d, T,
                                       warmup, runs, a.dt, bar, others)
                 static = _time_static(frames, renderer, rp, cam, emb, pool, o32, d32, o, d, T, runs, others)
                 bar.update()
-            rows.append(_row(sc, T, strat, aff.applied, size, runs, emb, o, d, frames, static, rp, others))
+            rows.append(_row(sc, T, strat, aff.applied, size, runs, emb, o, d, frames, static, rp, others, view))
     bar.close()
     _write(rows, out, info, emb, runs, warmup, affinity_ok, note, others, absent)
     return 0
+
+
+def _rays(sc, size, view):
+    """(frame origin, camera, float32 origins and directions, the same as float64) of a scene for one
+    of VIEWS: size x size camera rays, or as many random rays."""
+    origin, cam, o32, d32, o, d = _camera_rays(sc, size)
+    if view == "fill":
+        cam = _fill_camera(sc, origin, cam)
+        o, d = cam.rays(size, size)
+        o32, d32 = np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32)
+        o, d = o32.astype(np.float64), d32.astype(np.float64)
+    elif view == "random":
+        tris0 = np.asarray(sc.scene.triangles_at(0.0, origin=origin), np.float64).reshape(-1, 3)
+        rng = np.random.default_rng(20061204)
+        o32 = rng.uniform(tris0.min(axis=0), tris0.max(axis=0), (size * size, 3)).astype(np.float32)
+        d = rng.normal(size=(size * size, 3))
+        d32 = (d / np.linalg.norm(d, axis=1)[:, None]).astype(np.float32)
+        o, d = o32.astype(np.float64), d32.astype(np.float64)
+    return origin, cam, o32, d32, o, d
+
+
+def _fill_camera(sc, origin, cam, probe=64):
+    """``cam`` moved towards its target, 24 steps of 0.85x the distance at most, to the first eye from
+    which at least FILL of a probe x probe image hits the scene at time 0 (or the closest step)."""
+    import dataclasses
+
+    tris = np.array(sc.scene.triangles_at(0.0, origin=origin))
+    g = GridBuilder(GridParams()).build(tris)
+    eye, target = np.asarray(cam.eye), np.asarray(cam.target)
+    for k in range(25):
+        c = dataclasses.replace(cam, eye=tuple(target + (eye - target) * 0.85 ** k))
+        po, pd = c.rays(probe, probe)
+        if (cast_rays(g, tris, po, pd).tri >= 0).mean() >= FILL:
+            break
+    return c
 
 
 def _camera_rays(sc, size):
@@ -227,7 +277,7 @@ def _time_static(frames, renderer, rp, cam, emb, pool, o32, d32, o, d, T, runs, 
     return so, se, sr
 
 
-def _row(sc, T, strat, pinned, size, runs, emb, o, d, frames, static, rp, others=()):
+def _row(sc, T, strat, pinned, size, runs, emb, o, d, frames, static, rp, others=(), view="frame"):
     """The CSV row of one scene and thread count: timings, throughputs and the two tracers' agreement."""
     last = np.array(frames["tris"])
     ho, (te, fe), img = frames["hits"], frames["embree"], frames["img"]
@@ -238,9 +288,9 @@ def _row(sc, T, strat, pinned, size, runs, emb, o, d, frames, static, rp, others
         bad = np.flatnonzero(~(((ho.tri < 0) & (fe < 0)) | ((ho.tri == fe) & (ho.tri >= 0) & (
             np.abs(ho.t - te) <= T_REL * np.maximum(np.abs(ho.t), 1e-30)))))
     judge = _judge(last, o, d, bad, ho.t, ho.tri.astype(np.int64), te, fe, T)
-    row = dict(scene=sc.label, name=sc.scene.name, triangles=len(last), threads=T, strategy=strat,
-               cpus=T if pinned else "", rays=N, size=size, frames=runs,
-               embree_robust=int(emb.robust))
+    row = dict(scene=f"{sc.label} [{view}]", name=sc.scene.name, view=view, triangles=len(last), threads=T,
+               strategy=strat, cpus=T if pinned else "", rays=N, size=size, frames=runs,
+               embree_robust=int(emb.robust), hit_fraction=float((ho.tri >= 0).mean()))
     for k, v in frames["samples"].items():
         put_stat(row, k + "_ms", v)
     put_stat(row, "o_static_cast_ms", so)
@@ -307,7 +357,7 @@ def _summary(rows, emb, runs, warmup, affinity_ok):
                       fmt_ms(r, "e_frame_ms"), f"{r['o_frame_ms'] / r['e_frame_noupload_ms']:.2f}"])
     body += md_table(["scene", "triangles", "threads", "gridrt build", "gridrt cast", "gridrt frame", "Embree upload",
                       "Embree commit", "Embree cast", "Embree frame", "gridrt / Embree without upload"], table)
-    if any("o_frame_cgt_ms" in r for r in rows):
+    if any("o_mrays_cgt" in r for r in rows):
         body += ["", "gridrt's packet traversal (CGT) exists only inside `render` (camera rays generated in the kernel, "
                  "the same pixel-centre rays before their float32 rounding, plus lambert shading); `cast_rays` takes "
                  "arbitrary rays and uses DDA.  Frame = build + CGT render:", ""]
@@ -315,18 +365,18 @@ def _summary(rows, emb, runs, warmup, affinity_ok):
                           "Embree frame", "gridrt CGT / Embree without upload"],
                          [[r["scene"], r["threads"], fmt_ms(r, "o_render_cgt_ms"), fmt_ms(r, "o_frame_cgt_ms"),
                            fmt_ms(r, "e_frame_noupload_ms"), fmt_ms(r, "e_frame_ms"),
-                           f"{r['o_frame_cgt_ms'] / r['e_frame_noupload_ms']:.2f}"] for r in rows if "o_frame_cgt_ms" in r])
+                           f"{r['o_frame_cgt_ms'] / r['e_frame_noupload_ms']:.2f}"] for r in rows if "o_mrays_cgt" in r])
     body += ["", "Static cast throughput (cast only, last frame) and hit agreement (same triangle and t within "
              f"{T_REL:g} relative, or both miss); disagreements checked against brute force (up to {CHECK_MAX}):", ""]
     t2 = []
     for r in rows:
-        t2.append([r["scene"], r["threads"], f"{r['o_mrays']:.2f}",
+        t2.append([r["scene"], r["threads"], f"{r['hit_fraction']:.2f}", f"{r['o_mrays']:.2f}",
                    f"{r['o_mrays_cgt']:.2f}" if "o_mrays_cgt" in r else "-", f"{r['e_mrays']:.2f}",
                    f"{100 * r['agree']:.4f}%", f"{100 * r['agree_cgt']:.4f}%" if "agree_cgt" in r else "-",
                    r["id_differs"], r["hit_miss"], r["t_off"],
                    f"{r['ours_right']}/{r['checked']}" if r["checked"] else "-",
                    f"{r['embree_right']}/{r['checked']}" if r["checked"] else "-"])
-    body += md_table(["scene", "threads", "gridrt cast Mrays/s", "gridrt CGT render Mrays/s", "Embree Mrays/s",
+    body += md_table(["scene", "threads", "hit fraction", "gridrt cast Mrays/s", "gridrt CGT render Mrays/s", "Embree Mrays/s",
                       "agree (cast)", "agree (CGT render)", "other triangle", "hit vs miss", "t differs",
                       "gridrt right", "Embree right"], t2)
     body += ["", "'other triangle', 'hit vs miss', 't differs', 'right': for `cast_rays` against Embree; 'right' "
