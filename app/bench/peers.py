@@ -45,8 +45,8 @@ from .sides import INSTALL_HINT, EmbreeSide, MissingPeer, MitsubaSide, Open3DSid
 #: peers measured beside Embree when installed (optional extras; each skipped with a message when absent)
 OTHER_PEERS = (Open3DSide, MitsubaSide)
 
-PEER_SCENES = ["cesium", "lucy:twist", "kitchen"]
-PEER_FALLBACK = ["marbles", "icosphere:81920:twist"]
+PEER_SCENES = ["cesium", "lucy:twist", "kitchen", "icosphere:1310720:twist"]
+PEER_FALLBACK = ["marbles", "icosphere:81920:twist", "icosphere:1310720:twist"]
 HAVE_CGT = "cgt" in TRAVERSALS
 #: the ray sets (--views)
 VIEWS = ("frame", "fill", "random")
