@@ -206,7 +206,9 @@ def test_bench_trade_quick_matches_an_independent_recount(tmp_path):
     assert "Conference point" in summary and "Pareto front" in summary
 
 
-def test_bench_peers_quick(tmp_path):
+def test_bench_peers_quick(tmp_path, monkeypatch):
+    """The quick peers run: its rows per view, agreement, and the other peers where installed; then
+    with Open3D and Mitsuba hidden: the run goes on and the summary says how to get them."""
     pytest.importorskip("embreex", reason="embreex (optional extra 'peers') is not installed")
     out = tmp_path / "peers"
     assert main(["bench", "peers", "--quick", "--no-progress", "--out", str(out), "--threads", "1"]) == 0
@@ -230,17 +232,15 @@ def test_bench_peers_quick(tmp_path):
             continue
         assert float(r[f"{name}_agree"]) >= 0.999
         assert float(r[f"{name}_frame_ms"]) > 0 and float(r[f"{name}_mrays"]) > 0
-
-
-def test_bench_peers_names_missing_other_peers(tmp_path, monkeypatch):
-    """Open3D and Mitsuba are optional: absent, the run goes on and the summary says how to get them."""
-    pytest.importorskip("embreex", reason="embreex (optional extra 'peers') is not installed")
     for module in ("open3d", "mitsuba", "drjit"):
         monkeypatch.setitem(sys.modules, module, None)  # import -> ImportError
-    out = tmp_path / "peers"
-    assert main(["bench", "peers", "--quick", "--no-progress", "--out", str(out), "--threads", "1"]) == 0
+    out = tmp_path / "peers_without"
+    assert main(["bench", "peers", "--quick", "--no-progress", "--out", str(out), "--threads", "1",
+                 "--views", "frame"]) == 0
     summary = (out / "summary.md").read_text()
     assert "pip install open3d-cpu" in summary and "pip install mitsuba drjit" in summary
+
+
 
 
 def test_bench_peers_says_how_to_install_embreex(tmp_path, monkeypatch, capsys):
