@@ -1,5 +1,5 @@
-"""``gridrt bench peers``: gridrt against Intel Embree (PyPI ``embreex``) on the same animated
-mesh, the same rays and the same cores, in one run.
+"""``gridrt bench peers``: gridrt against Intel Embree (PyPI ``embreex``) and, where installed,
+Open3D and Mitsuba 3, on the same animated mesh, the same rays and the same cores, in one run.
 
 Per frame (t = i/30 s) both rebuild from scratch and cast the same rays, rounded to float32 once
 and given to both: one per pixel of a size x size image from the scene's camera (view "frame"),
@@ -59,7 +59,7 @@ CHECK_MAX = 256
 
 
 def add_parser(bsub, common):
-    p = bsub.add_parser("peers", help="the same animated mesh and rays through Embree (embreex) side by side",
+    p = bsub.add_parser("peers", help="the same animated mesh and rays through Embree, Open3D and Mitsuba 3 side by side",
                         description=__doc__.split("\n\n")[0])
     common(p, "peers", warmup=2, scenes=False)
     p.add_argument("--scenes", default=None, help=scenes_help(PEER_SCENES, PEER_FALLBACK))
@@ -72,7 +72,7 @@ def add_parser(bsub, common):
     p.add_argument("--dt", type=float, default=1.0 / 30.0, help="seconds between frames (default 1/30)")
     p.add_argument("--views", default=",".join(VIEWS),
                    help="ray sets, comma-separated: frame (the scene's camera, or one framing its bounds), fill "
-                        f"(that camera moved in until at least {FILL:.0%} of the pixels hit: a sparse view flatters "
+                        f"(that camera moved in until at least {100 * FILL:.0f}%% of the pixels hit: a sparse view flatters "
                         "a grid), random (origins uniform in the scene's bounds, directions uniform on the sphere)")
     p.set_defaults(func=run_peers)
 
