@@ -116,7 +116,10 @@ def test_cold_dump_shows_what_compiles_and_warm_dump_compiles_nothing(tmp_path):
     done = [int(d) for _, _, d, _, _ in shown]
     expected = [int(e) for _, _, _, e, _ in shown]
     seconds = [float(s) for *_, s in shown]
-    assert done == sorted(done) and expected == sorted(expected) and seconds == sorted(seconds)
+    # the expected count grows with each call tree and drops the kernels of a finished tree that numba
+    # pruned for its argument types (the shadow path, the bounding-box build's overlap test): never
+    # below the kernels done
+    assert done == sorted(done) and seconds == sorted(seconds) and all(d <= e for d, e in zip(done, expected))
     assert all(d < e for (_, a, *_), d, e in zip(shown, done, expected) if not a), \
         "a kernel started for the first time with every expected kernel done"
     assert int(last[0][0]) == int(last[0][1]) == len(compiled), last

@@ -21,7 +21,8 @@ from .shared import ranges
 def count_serial(rng, tris, lo, cell, dims, exact, count):
     """count[c] += 1 for every (cell, triangle) reference; count (C,) int32 starts at zero.
 
-    rng (F, 6) int32: each triangle's inclusive cell range (shared.cell_ranges)."""
+    rng (F, 6) int32: each triangle's inclusive cell range (shared.cell_ranges); exact: True for
+    exact insertion (the triangle-box test per cell), None for bounding-box insertion."""
     nx = dims[0]
     nxy = dims[0] * dims[1]
     for f in range(rng.shape[0]):
@@ -30,8 +31,9 @@ def count_serial(rng, tris, lo, cell, dims, exact, count):
             for j in range(j0, j1 + 1):
                 base = k * nxy + j * nx
                 for i in range(i0, i1 + 1):
-                    if exact and not cell_overlaps(tris, f, i, j, k, lo, cell):
-                        continue
+                    if exact is not None:  # None: bbox insertion, and numba compiles no overlap test
+                        if not cell_overlaps(tris, f, i, j, k, lo, cell):
+                            continue
                     count[base + i] += 1
 
 
@@ -46,8 +48,9 @@ def scatter_serial(rng, tris, lo, cell, dims, exact, start, tri_ids):
             for j in range(j0, j1 + 1):
                 base = k * nxy + j * nx
                 for i in range(i0, i1 + 1):
-                    if exact and not cell_overlaps(tris, f, i, j, k, lo, cell):
-                        continue
+                    if exact is not None:  # (as count_serial)
+                        if not cell_overlaps(tris, f, i, j, k, lo, cell):
+                            continue
                     c = base + i
                     p = start[c] - 1
                     start[c] = p
@@ -66,10 +69,10 @@ class Serial(Strategy):
         start = bufs.start[0]
         rng = ranges(tris, spec, bufs, 1, times)
         with timed(times, "count_ms"):
-            count_serial(rng, tris, spec.lo, spec.cell, spec.dims, exact, count)
+            count_serial(rng, tris, spec.lo, spec.cell, spec.dims, True if exact else None, count)
         with timed(times, "scan_ms"):
             refs = scan_inclusive(count, start)
         tri_ids = bufs.refs(refs)
         with timed(times, "scatter_ms"):
-            scatter_serial(rng, tris, spec.lo, spec.cell, spec.dims, exact, start, tri_ids)
+            scatter_serial(rng, tris, spec.lo, spec.cell, spec.dims, True if exact else None, start, tri_ids)
         return refs

@@ -55,7 +55,10 @@ def ranges(tris, spec, bufs, n_threads, times):
     F = tris.shape[0]
     rng = scratch(bufs, "cell_ranges", 6 * F, np.int32).reshape(F, 6)
     with timed(times, "ranges_ms"):
-        cell_ranges(tris, spec.lo, spec.inv_cell, spec.dims, n_threads, rng)
+        if n_threads == 1:  # the same pass without the parallel loop (a cold start compiles less)
+            cell_ranges_into(tris.reshape(tris.size), spec.lo, spec.inv_cell, spec.dims, rng.reshape(rng.size))
+        else:
+            cell_ranges(tris, spec.lo, spec.inv_cell, spec.dims, n_threads, rng)
     return rng
 
 
