@@ -25,7 +25,7 @@ import warnings
 
 import numpy as np
 
-from .arrays import as_mesh, as_triangles
+from .arrays import as_mesh, as_triangles, float_contiguous
 from .config import GridParams
 from .errors import InputError
 from .grid.build import GridBuilder
@@ -48,28 +48,46 @@ def _vertices64(vertices, what):
     return v
 
 
-def _centred_mesh(vertices, faces):
+def _vertex_array(vertices, what):
+    """``vertices`` as a C-contiguous float32 or float64 (V, 3) array, reading no values; InputError
+    for a wrong dtype or shape."""
+    v = np.asarray(vertices)
+    if v.dtype == object or not (np.issubdtype(v.dtype, np.floating) or np.issubdtype(v.dtype, np.integer)) \
+            or v.ndim != 2 or v.shape[1] != 3:
+        v = _vertices64(vertices, what)  # raises naming the dtype or shape
+    return float_contiguous(v)
+
+
+def _in_centred_frame(v, lo, hi, faces, what):
     """(origin, vertices (V,3) float32 and triangles (F,3,3) float32 in the frame centred on the
-    vertices' bounds, faces (F,3) int32, the largest |coordinate| in that frame) of a mesh, or
-    InputError naming its problem.  One pass over the vertex values (bounds, NaN/inf/1e30), one
-    over the faces (index range), one conversion and one gather: about the cost of the grid build
-    it comes with.  Anything unusual (no vertices, bad values, float faces, indices out of range)
-    goes through the slow checks, which say what is wrong (or accept integral float faces)."""
+    bounds lo, hi of the checked vertices ``v``, the largest |coordinate| there) over checked
+    ``faces`` (F,3) int32: one conversion and one gather; InputError when every triangle has zero
+    area."""
     from .grid import common
     from .scene.animation import gather_unchecked
 
-    v = np.asarray(vertices)
-    if v.dtype == object or not (np.issubdtype(v.dtype, np.floating) or np.issubdtype(v.dtype, np.integer)) \
-            or v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
-        v = _vertices64(vertices, "vertices")  # raises for a wrong dtype or shape
-    v = np.ascontiguousarray(v, dtype=np.float32 if v.dtype == np.float32 else np.float64)
+    origin = 0.5 * (lo + hi)
+    verts = np.empty(v.shape, np.float32)
+    common.to_frame(v, float(origin[0]), float(origin[1]), float(origin[2]), verts)
+    tris = gather_unchecked(verts, faces, np.empty((len(faces), 3, 3), np.float32))
+    if common.first_nondegenerate(tris) < 0:
+        raise InputError(f"{what}: all {len(faces)} triangles are degenerate (zero area)")
+    return origin, verts, tris, float(max(np.abs(lo - origin).max(), np.abs(hi - origin).max()))
+
+
+def _centred_mesh(vertices, faces):
+    """(origin, vertices, faces (F,3) int32, triangles, largest |coordinate|) of a mesh in the
+    frame centred on its vertices' bounds (see _in_centred_frame), or InputError naming its
+    problem.  One pass over the vertex values (bounds, NaN/inf/1e30), one over the faces (index
+    range), then the conversion and the gather: about the cost of the grid build it comes with.
+    Anything unusual (no vertices, bad values, float faces, indices out of range) goes through the
+    slow checks, which say what is wrong (or accept integral float faces)."""
+    from .grid import common
+
+    v = _vertex_array(vertices, "vertices")
     f = np.asarray(faces)
-    bb = np.empty((1, 7))
-    if len(v) and v.dtype == np.float32:
-        common.scene_bounds_serial(v, bb)
-    elif len(v):
-        common.bounds_f64(v, bb, np.empty(v.shape, np.float32))
-    slow = len(v) == 0 or bb[0, 6] != 0.0 or f.ndim != 2 or f.shape[1:] != (3,) or len(f) == 0 \
+    lo, hi, bad = common.point_bounds(v) if len(v) else (None, None, True)
+    slow = bad or f.ndim != 2 or f.shape[1:] != (3,) or len(f) == 0 \
         or not np.issubdtype(f.dtype, np.integer) or len(v) > np.iinfo(np.int32).max
     if not slow:
         fmin, fmax = int(f.min()), int(f.max())
@@ -80,47 +98,24 @@ def _centred_mesh(vertices, faces):
         verts, f32 = as_mesh(v64 - origin, faces)
         tris = np.take(verts, f32, axis=0)
         return origin, verts, f32, tris, max(abs(float(verts.min())), abs(float(verts.max())))
-    lo, hi = bb[0, 0:3], bb[0, 3:6]
-    origin = 0.5 * (lo + hi)
-    verts = np.empty(v.shape, np.float32)
-    common.to_frame(v, float(origin[0]), float(origin[1]), float(origin[2]), verts)
     f32 = np.ascontiguousarray(f, dtype=np.int32)
-    tris = gather_unchecked(verts, f32, np.empty((len(f32), 3, 3), np.float32))
-    if common.first_nondegenerate(tris) < 0:
-        raise InputError(f"mesh: all {len(f32)} triangles are degenerate (zero area)")
-    return origin, verts, f32, tris, float(max(np.abs(lo - origin).max(), np.abs(hi - origin).max()))
+    origin, verts, tris, big = _in_centred_frame(v, lo, hi, f32, "mesh")
+    return origin, verts, f32, tris, big
 
 
 def _centred_vertices(vertices, faces, shape):
-    """update's (origin, vertices (V,3) float32 and triangles (F,3,3) float32 in the frame centred
-    on the vertices' bounds, the largest |coordinate| there) for new ``vertices`` of ``shape`` over
-    the caster's validated ``faces``: one pass over the values for bounds and NaN/inf/1e30 (the
-    messages from the slow checks when it finds one), one conversion, one gather."""
+    """update's (origin, vertices, triangles, largest |coordinate|) for new ``vertices`` of
+    ``shape`` over the caster's validated ``faces``: one pass over the values for bounds and
+    NaN/inf/1e30 (the messages from the slow checks when it finds one), then as _centred_mesh."""
     from .grid import common
-    from .scene.animation import gather_unchecked
 
-    v = np.asarray(vertices)
-    if v.dtype == object or not (np.issubdtype(v.dtype, np.floating) or np.issubdtype(v.dtype, np.integer)) \
-            or v.ndim != 2 or v.shape[1] != 3:
-        v = _vertices64(vertices, "update: vertices")  # raises for a wrong dtype or shape
+    v = _vertex_array(vertices, "update: vertices")
     if v.shape != shape:
         raise InputError(f"update needs vertices of shape {shape}, got {v.shape}")
-    v = np.ascontiguousarray(v, dtype=np.float32 if v.dtype == np.float32 else np.float64)
-    bb = np.empty((1, 7))
-    if v.dtype == np.float32:
-        common.scene_bounds_serial(v, bb)
-    else:
-        common.bounds_f64(v, bb, np.empty(v.shape, np.float32))
-    if bb[0, 6] != 0.0:
+    lo, hi, bad = common.point_bounds(v)
+    if bad:
         _vertices64(vertices, "update: vertices")  # raises naming the bad values
-    lo, hi = bb[0, 0:3], bb[0, 3:6]
-    origin = 0.5 * (lo + hi)
-    verts = np.empty(v.shape, np.float32)
-    common.to_frame(v, float(origin[0]), float(origin[1]), float(origin[2]), verts)
-    tris = gather_unchecked(verts, faces, np.empty((len(faces), 3, 3), np.float32))
-    if common.first_nondegenerate(tris) < 0:
-        raise InputError(f"update: all {len(tris)} triangles are degenerate (zero area)")
-    return origin, verts, tris, float(max(np.abs(lo - origin).max(), np.abs(hi - origin).max()))
+    return _in_centred_frame(v, lo, hi, faces, "update")
 
 
 class _Snapshot:

@@ -54,6 +54,12 @@ def triangle_array(tris, what="triangles"):
     return a
 
 
+def float_contiguous(a):
+    """A real array as a C-contiguous float32 array when it is float32 (no copy when it already is
+    one), else float64: what the one-pass bounds kernels take (gridrt.grid.common.point_bounds)."""
+    return np.ascontiguousarray(a, dtype=np.float32 if a.dtype == np.float32 else np.float64)
+
+
 def refuse_bad_values(a, what="triangles"):
     """InputError naming the first NaN or infinity of ``a``, or its coordinates beyond 1e30; returns
     when there are none."""

@@ -122,17 +122,17 @@ BOUNDARIES = {
     "gridrt.grid.build:GridBuilder.build": (
         "bounds pass reads tris (shape/dtype checked first; it is itself the NaN/inf/1e30 guard)",
         ["test_guard_build_triangles", "test_guard_build_nonfinite_every_strategy", "test_guard_build_params"]),
-    "gridrt.api:_centred_mesh": (
-        "RayCaster's mesh: vertex and face shapes/dtypes checked first; the bounds pass is the NaN/inf/1e30 "
-        "guard; face indices range-checked before the gather; anything unusual takes the slow checks",
-        ["test_guard_raycaster", "test_raycaster_update_is_atomic"]),
-    "gridrt.api:_centred_vertices": (
-        "RayCaster.update: shape against the caster's, then as _centred_mesh over its validated faces",
-        ["test_guard_raycaster", "test_raycaster_update_is_atomic"]),
+    "gridrt.api:_in_centred_frame": (
+        "RayCaster's mesh and updates: reached after _centred_mesh / _centred_vertices checked shapes, dtypes, "
+        "values (the bounds pass) and face indices; to_frame and first_nondegenerate read and write arrays of "
+        "those shapes", ["test_guard_raycaster", "test_raycaster_update_is_atomic"]),
+    "gridrt.grid.common:point_bounds": (
+        "the one-pass bounds kernels on a C-contiguous float32/float64 array its callers made (shape checked "
+        "first); the pass is itself the NaN/inf/1e30 guard", ["test_guard_build_triangles", "test_guard_raycaster"]),
     "gridrt.grid.build:build_grid": (
-        "shape/dtype checked first, contiguous float32 or float64 made; the bounds pass is itself the "
-        "NaN/inf/1e30 guard (messages from the slow checks when it finds one); to_frame and "
-        "first_nondegenerate write/read arrays of the checked shape",
+        "shape/dtype checked first, contiguous float32 or float64 made, values through point_bounds (messages "
+        "from the slow checks when it finds one); to_frame and first_nondegenerate write/read arrays of the "
+        "checked shape",
         ["test_guard_build_triangles", "test_guard_build_nonfinite_every_strategy"]),
     "gridrt.grid.build:GridBuilder._build": (
         "internal: clear and macro stages index count/macro arrays sized from the spec; reached only after the "

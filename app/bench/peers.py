@@ -161,13 +161,11 @@ def run_peers(a):
 def _rays(sc, size, view):
     """(frame origin, camera, float32 origins and directions, the same as float64) of a scene for one
     of VIEWS: size x size camera rays, or as many random rays."""
-    origin, cam, o32, d32, o, d = _camera_rays(sc, size)
-    if view == "fill":
-        cam = _fill_camera(sc, origin, cam)
-        o, d = cam.rays(size, size)
-        o32, d32 = np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32)
-        o, d = o32.astype(np.float64), d32.astype(np.float64)
-    elif view == "random":
+    if view != "random":
+        origin, cam, o32, d32, o, d = _camera_rays(sc, size, fill=view == "fill")
+    else:
+        origin = sc.scene.frame_origin(0.0)
+        cam = None
         tris0 = np.asarray(sc.scene.triangles_at(0.0, origin=origin), np.float64).reshape(-1, 3)
         rng = np.random.default_rng(20061204)
         o32 = rng.uniform(tris0.min(axis=0), tris0.max(axis=0), (size * size, 3)).astype(np.float32)
@@ -177,12 +175,12 @@ def _rays(sc, size, view):
     return origin, cam, o32, d32, o, d
 
 
-def _fill_camera(sc, origin, cam, probe=64):
+def _fill_camera(tris, cam, probe=64):
     """``cam`` moved towards its target, 24 steps of 0.85x the distance at most, to the first eye from
-    which at least FILL of a probe x probe image hits the scene at time 0 (or the closest step)."""
+    which at least FILL of a probe x probe image hits ``tris`` (the scene at time 0; or the closest
+    step)."""
     import dataclasses
 
-    tris = np.array(sc.scene.triangles_at(0.0, origin=origin))
     g = GridBuilder(GridParams()).build(tris)
     eye, target = np.asarray(cam.eye), np.asarray(cam.target)
     for k in range(25):
@@ -193,12 +191,15 @@ def _fill_camera(sc, origin, cam, probe=64):
     return c
 
 
-def _camera_rays(sc, size):
+def _camera_rays(sc, size, fill=False):
     """(frame origin, camera, float32 origins and directions, the same as float64) of a scene: both
-    tracers get the scene in the frame the pipeline uses and the same float32-rounded camera rays."""
+    tracers get the scene in the frame the pipeline uses and the same float32-rounded camera rays;
+    ``fill``: from the camera moved in until the scene fills the view (_fill_camera)."""
     origin = sc.scene.frame_origin(0.0)
     tris0 = np.array(sc.scene.triangles_at(0.0, origin=origin))
     cam = scene_camera(sc.scene, tris0, origin=origin)
+    if fill:
+        cam = _fill_camera(tris0, cam)
     o, d = cam.rays(size, size)
     o32 = np.ascontiguousarray(o, np.float32)
     d32 = np.ascontiguousarray(d, np.float32)

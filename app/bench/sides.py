@@ -84,6 +84,7 @@ class Open3DSide:
         self.o3d = o3d
         self.version = o3d.__version__
         self.scene = None
+        self._faces = None  # the (F, 3) faces tensor of a triangle soup, made once per size
 
     def build(self, tris):
         """New scene over tris (F,3,3) float32: returns (upload ms, commit ms)."""
@@ -91,9 +92,10 @@ class Open3DSide:
         t0 = time.perf_counter()
         F = len(tris)
         v = o3d.core.Tensor(np.ascontiguousarray(tris, np.float32).reshape(-1, 3))
-        f = o3d.core.Tensor(np.arange(3 * F, dtype=np.uint32).reshape(F, 3))
+        if self._faces is None or len(self._faces) != F:  # (the faces never change: as Mitsuba's side)
+            self._faces = o3d.core.Tensor(np.arange(3 * F, dtype=np.uint32).reshape(F, 3))
         scene = o3d.t.geometry.RaycastingScene()
-        scene.add_triangles(v, f)
+        scene.add_triangles(v, self._faces)
         t1 = time.perf_counter()
         scene.cast_rays(o3d.core.Tensor(np.zeros((1, 6), np.float32)), nthreads=1)  # commits the scene
         t2 = time.perf_counter()

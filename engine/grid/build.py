@@ -312,24 +312,17 @@ def build_grid(tris, params: GridParams | None = None, *, origin=None, **kw) -> 
         params = GridParams(**kw)
     elif kw:
         params = params.replace(**kw)
-    from ..arrays import as_origin, frame_centre, refuse_bad_values, triangle_array
+    from ..arrays import as_origin, float_contiguous, frame_centre, refuse_bad_values, triangle_array
     from ..precision import ONE_SHOT_SAMPLE, warn_detail
 
     # one pass over the values for bounds and NaN/inf/1e30 (the messages come from the slow checks,
     # run only when the pass found something) that also stores float32, and a second one to move
     # them into a frame centred on the scene only when it lies far away
-    a = triangle_array(tris)
-    a = np.ascontiguousarray(a, dtype=np.float32 if a.dtype == np.float32 else np.float64)
-    bb = np.empty((1, 7))
-    if a.dtype == np.float32:
-        common.scene_bounds_serial(a, bb)
-        as32 = a  # (the builder only reads it)
-    else:
-        as32 = np.empty(a.shape, np.float32)  # float32(a), made by the bounds pass
-        common.bounds_f64(a, bb, as32)
-    if bb[0, 6] != 0.0:
+    a = float_contiguous(triangle_array(tris))
+    as32 = a if a.dtype == np.float32 else np.empty(a.shape, np.float32)  # (the builder only reads it)
+    lo, hi, bad = common.point_bounds(a, None if as32 is a else as32)
+    if bad:
         refuse_bad_values(a)
-    lo, hi = bb[0, 0:3], bb[0, 3:6]
     # a scene far from the world origin is gridded in a frame centred on it (grid.origin), from its
     # float64 coordinates, so float32 keeps the precision of the scene's own size
     origin = frame_centre(0.5 * (lo + hi), float((hi - lo).max())) if origin is None else as_origin(origin)

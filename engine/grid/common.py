@@ -97,16 +97,19 @@ def scene_bounds_serial(tris, out):
 
 
 @njit(cache=True)
-def bounds_f64(tris, out, as32):
+def bounds_f64(tris, out, as32=None):
     """scene_bounds_serial for float64 points, C-contiguous (F,3,3) triangles or (V,3) vertices:
-    out (1, 7) float64 as there; and as32 (same shape, float32) = float32(tris) in the same pass
-    (the triangles in a frame at the world origin: what they are stored as unless they lie far)."""
+    out (1, 7) float64 as there; with as32 (same shape, float32), also as32 = float32(tris) in the
+    same pass (without, numba compiles no store)."""
     flat = tris.reshape(tris.size)
     W = BOUNDS_LANES
     mn = np.full(W, np.inf)
     mx = np.full(W, -np.inf)
     nan = np.zeros(W)
-    _bounds_lanes(flat, mn, mx, nan, as32.reshape(as32.size))
+    if as32 is None:
+        _bounds_lanes(flat, mn, mx, nan)
+    else:
+        _bounds_lanes(flat, mn, mx, nan, as32.reshape(as32.size))
     bad = 0.0
     for a in range(3):
         lo = np.inf
@@ -121,6 +124,20 @@ def bounds_f64(tris, out, as32):
         out[0, a] = lo
         out[0, 3 + a] = hi
     out[0, 6] = bad
+
+
+def point_bounds(a, as32=None):
+    """(lo (3,), hi (3,), bad) of a C-contiguous float32 or float64 array of points, (F,3,3)
+    triangles or (V,3) vertices, in one SIMD pass (the Python boundary's value check: reads the
+    array within its shape only); bad: a NaN, an infinity or a coordinate beyond BAD_MAGNITUDE is
+    among them.  ``as32`` (float32, a's shape; float64 ``a`` only) receives float32(a) in the same
+    pass."""
+    bb = np.empty((1, 7))
+    if a.dtype == np.float32:
+        scene_bounds_serial(a, bb)
+    else:
+        bounds_f64(a, bb, as32)
+    return bb[0, 0:3], bb[0, 3:6], bb[0, 6] != 0.0
 
 
 @njit(cache=True, _nrt=False)

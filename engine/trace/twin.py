@@ -73,15 +73,6 @@ class Twins:
         """The numba argument types of ``args``, as the dispatcher keys its compiled versions."""
         return tuple(parallel.typeof_pyval(a) for a in args)
 
-    @staticmethod
-    def parallel_ready(parallel, sig):
-        """True when the parallel kernel runs for ``sig`` without compiling (compiled in this
-        process, or in the on-disk cache)."""
-        if sig in parallel.overloads:
-            return True
-        from ..warmup import has_cache_entry
-
-        return has_cache_entry(parallel, sig)
 
     def pick(self, threads, parallel, serial, args):
         """The function to call for ``args`` on ``threads`` threads (see the module docstring)."""
@@ -103,7 +94,9 @@ class Twins:
                 return parallel
             if key in self._compiling:
                 return serial  # still compiling
-            if self.parallel_ready(parallel, sig):
+            from ..warmup import has_cache_entry
+
+            if has_cache_entry(parallel, sig):  # it loads from the on-disk cache in milliseconds
                 return parallel
             if key in self._seen:
                 job = threading.Thread(target=self._compile, args=(parallel, sig), name="gridrt-compile-parallel")
