@@ -1,10 +1,11 @@
 """Coherent grid traversal (engine/trace/cgt.py) against the single-ray DDA and the brute force.
 
-``RenderParams(traversal="cgt")`` must give the DDA's image, hit distance and triangle buffers:
-t bit for bit everywhere, the triangle (and so the colour) everywhere except at exact ties, where
-two triangles are hit at the same t and each traversal keeps the one it tested first.  Every
-differing pixel is explained: the brute-force float64 caster (tests/reference.py) hits both
-triangles at that t (within 1e-9 relative).  Ties are counted and printed per case.
+``RenderParams(traversal="cgt")`` must give the DDA's image, hit distance and triangle buffers
+bit for bit everywhere, exact ties included: where two triangles are hit at the same t both
+traversals keep the lower index.  Scenes that produce ties are checked to produce them (the
+brute-force float64 caster, tests/reference.py, hits two triangles at the pixel's t).  Between
+different grids over the same scene (two grids against one) a tie may still go either way; every
+differing pixel there is explained as a tie.
 
 Cases: random triangles, a closed icosphere, the Utah teapot (shipped in assets/), a height field
 seen at grazing angles, axis-aligned cubes (rays along lattice lines: many exact ties) and a scene
@@ -133,13 +134,13 @@ def tie_pixels(a, b, tris, cam, label):
 
 
 def assert_same(a, b, tris, cam, label):
-    """CGT result b against DDA result a: identical t, triangles and image except at exact ties."""
+    """CGT result b against DDA result a: identical t, triangles and image, ties included."""
     assert np.array_equal(a.t, b.t), f"{label}: t differs at {int((a.t != b.t).sum())} pixels"
-    ties = tie_pixels(a, b, tris, cam, label)
-    other = (a.image != b.image).any(-1) & (a.tri == b.tri)
-    assert not other.any(), f"{label}: {int(other.sum())} pixels differ in colour with the same triangle"
-    print(f"{label}: {a.tri.size} pixels, {int((a.tri >= 0).sum())} hits, {ties} exact ties")
-    return ties
+    diff = a.tri != b.tri
+    assert not diff.any(), f"{label}: the triangle differs at {int(diff.sum())} pixels"
+    other = (a.image != b.image).any(-1)
+    assert not other.any(), f"{label}: {int(other.sum())} pixels differ in colour"
+    print(f"{label}: {a.tri.size} pixels, {int((a.tri >= 0).sum())} hits")
 
 
 def render_both(grid, tris, cam, **kw):
@@ -242,21 +243,19 @@ def test_cgt_counters_and_fallback():
     assert res.stats["cells_per_ray"] == pytest.approx(res.cells.mean(), abs=1e-9)
 
 
-def test_cgt_ties_counted_and_explained():
-    """Duplicated triangles and rays along cube edges give exact ties; every pixel where the two
-    traversals pick different triangles is one of them (asserted in assert_same), and the scenes
-    do produce ties for the brute force, so the check is not vacuous."""
-    total = 0
+def test_cgt_ties_broken_alike():
+    """Duplicated triangles and rays along cube edges give exact ties; both traversals pick the
+    same triangle there (asserted in assert_same), and the scenes do produce ties for the brute
+    force, so the check is not vacuous."""
     for name, view in (("dups", "framed"), ("dups", "inside"), ("cubes", "face")):
         tris, grid = grid_of(name)
         cam = camera(view, tris)
         a, b = render_both(grid, tris, cam, width=72, height=72, shading="normal")
-        total += assert_same(a, b, tris, cam, f"ties {name}/{view}")
+        assert_same(a, b, tris, cam, f"ties {name}/{view}")
         ref = R.ref_render(tris, cam, 72, 72, "normal").hits
         with np.errstate(invalid="ignore"):
             tied = ref.hit & (np.abs(ref.t2 - ref.t) <= TIE_RTOL * np.maximum(ref.t, 1e-9))
         assert tied.sum() > 20, f"{name}/{view}: the scene should produce exact ties"
-    print(f"pixels that differ between DDA and CGT, all exact ties: {total}")
 
 
 def test_cgt_two_grids():
@@ -297,8 +296,8 @@ def test_cgt_pipeline_marbles():
         cam = p.camera
     for fa, fb in zip(frames["dda"], frames["cgt"]):
         assert np.array_equal(fa.t, fb.t)
-        assert np.array_equal(fa.tri, fb.tri) or tie_pixels(fa, fb, sc.triangles_at(fa.stats["t"]), cam, "marbles")
-        assert np.array_equal(fa.image[fa.tri == fb.tri], fb.image[fa.tri == fb.tri])
+        assert np.array_equal(fa.tri, fb.tri)
+        assert np.array_equal(fa.image, fb.image)
         # the pipeline really used the packets: CGT counts its triangle tests per packet
         assert fa.stats["tests_per_ray"] != fb.stats["tests_per_ray"]
 

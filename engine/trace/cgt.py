@@ -31,8 +31,7 @@ last survivors fill their places), so the loops always run over a contiguous pre
 
 Results equal the DDA's bit for bit (same intersection arithmetic: the packet loops repeat
 :func:`intersect_watertight` / :func:`intersect_fast` operation for operation, without fast-math
-contraction) except at exact ties, two triangles hit at the same t, where the first one tested
-wins and the two traversals test in different orders.
+contraction), ties included: of two triangles hit at the same t both take the lower index.
 
 Per-ray counters: ``tests`` counts the triangle tests made while the ray was active (each test
 of the packet loop covers every active ray), ``cells`` the cells the packet visited meanwhile.
@@ -250,10 +249,11 @@ def _test_wt(S, na, p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z, ff, tmin):
         T = U * (Sz * az) + V * (Sz * bz) + W * (Sz * cz)
         t = T / det
         bt = S[O_BT + i]
+        bf = S[O_BF + i]
         out = ((U < 0.0) | (V < 0.0) | (W < 0.0)) & ((U > 0.0) | (V > 0.0) | (W > 0.0))
-        hit = (not out) & (det != 0.0) & (t > tmin) & (t < bt)
+        hit = (not out) & (det != 0.0) & (t > tmin) & ((t < bt) | ((t == bt) & (ff < bf)))
         S[O_BT + i] = t if hit else bt
-        S[O_BF + i] = ff if hit else S[O_BF + i]
+        S[O_BF + i] = ff if hit else bf
         nh += hit
     return nh
 
@@ -288,10 +288,11 @@ def _test_mt(S, na, v0x, v0y, v0z, v1x, v1y, v1z, v2x, v2y, v2z, ff, tmin):
         v = (dx * qx + dy * qy + dz * qz) * inv
         t = (e2x * qx + e2y * qy + e2z * qz) * inv
         bt = S[O_BT + i]
+        bf = S[O_BF + i]
         hit = (det != 0.0) & (not ((u < 0.0) | (u > 1.0))) & (not ((v < 0.0) | (u + v > 1.0)))
-        hit = hit & (t > tmin) & (t < bt)
+        hit = hit & (t > tmin) & ((t < bt) | ((t == bt) & (ff < bf)))
         S[O_BT + i] = t if hit else bt
-        S[O_BF + i] = ff if hit else S[O_BF + i]
+        S[O_BF + i] = ff if hit else bf
         nh += hit
     return nh
 

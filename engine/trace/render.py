@@ -17,10 +17,11 @@ Shading (all colours linear in [0, 1], stored as ``uint8(round(255 * c))``, alph
 
 Traversal (RenderParams.traversal): ``dda`` traces one ray at a time (render_kernel);
 ``cgt`` traces 8x8-pixel packets and their shadow rays with coherent grid traversal
-(gridrt.trace.cgt.cgt_render_kernel): the same t, triangle and colour buffers except where two
-triangles are hit at exactly the same t.  Each render kernel has a serial twin (render_serial,
-cgt_render_serial) that writes the same buffers; Renderer.render calls it on one thread and while
-the parallel kernel is not compiled yet (gridrt.trace.twin).
+(gridrt.trace.cgt.cgt_render_kernel): the same t, triangle and colour buffers (both give a
+tie, two triangles hit at exactly the same t, to the lower triangle index).  Each render kernel
+has a serial twin (render_serial, cgt_render_serial) that writes the same buffers;
+Renderer.render calls it on one thread and while the parallel kernel is not compiled yet
+(gridrt.trace.twin).
 
 The unit geometric normal is normalize((v1 - v0) x (v2 - v0)).
 """

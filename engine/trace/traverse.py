@@ -192,8 +192,10 @@ def trace_ray(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbo
                 mailbox[slot] = f
                 tests += 1
                 hit, t, u, v = _test_triangle(tris, f, watertight, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz,
-                                              ox, oy, oz, dx, dy, dz, tmin, best_t)
-                if hit:
+                                              ox, oy, oz, dx, dy, dz, tmin, np.inf)
+                # ties (the same t) go to the lowest triangle index, as in the packet loops, so a
+                # ray's hit does not depend on the order in which a traversal meets the triangles
+                if hit and (t < best_t or (t == best_t and f < best_f)):
                     best_t = t
                     best_f = f
                     best_u = u
