@@ -163,7 +163,8 @@ BOUNDARIES = {
                                                            ["test_guard_reference_overflow_tripwire"]),
     "gridrt.grid.strategies.thread_grids:ThreadGridsMerge.insert": (
         "internal: merged grid sized by the layers' total", ["test_guard_reference_overflow_tripwire"]),
-    "gridrt.trace.render:cast_batch": (
+    "gridrt.trace.batch:cast_grouped": (
+        "called by cast_batch only, after its checks (the rows it sorts are indices it computes itself); cast_batch: "
         "walks grid cell lists and reads tris[tri_ids[r]]: tris must be the grid's own float32 array (cast_rays "
         "checks it, RayCaster holds it); rays shape/dtype, t range, threads and the memory budget, then every "
         "chunk's values (finite, non-zero directions), all before the first chunk is cast",
@@ -506,7 +507,7 @@ def test_guard_stream_bandwidth(tripwires, kw, match):
 
 
 def test_guard_cast_rays(good_grid, tripwires):
-    """Rays, t range, threads and the triangle array are checked before cast_kernel."""
+    """Rays, t range, threads and the triangle array are checked before cast_grouped."""
     from gridrt.trace import cast_rays
 
     grid = good_grid

@@ -6,7 +6,8 @@ and given to both: one per pixel of a size x size image from the scene's camera 
 from that camera moved in until at least 90% of the pixels hit ("fill": a sparse view flatters a
 grid's empty-space skipping), or as many random rays from inside the scene's bounds ("random"):
 
-* gridrt: ``GridBuilder.build`` + ``cast_rays`` (DDA, watertight test), ``threads`` threads;
+* gridrt: ``GridBuilder.build`` + ``cast_rays`` (watertight test; coherent runs of rays as CGT
+  packets, the rest through the single-ray DDA: gridrt.trace.batch), ``threads`` threads;
 * Embree: a new ``EmbreeScene`` + ``TriangleMesh`` (the "upload": embreex copies the vertices
   element by element in Python-level code, so it is reported apart), ``rtcCommitScene`` (the BVH
   build; triggered by a zero-ray ``run``) and ``run(origins, dirs, output=1)`` on chunks of the
@@ -342,7 +343,8 @@ def _summary(rows, emb, runs, warmup, affinity_ok):
         f"{emb.version and 'embreex ' + emb.version}, {repr(emb.device)}; scene flag "
         f"{'RTC_SCENE_FLAG_ROBUST' if emb.robust else 'none (fast)'}.  Per frame both rebuild from scratch and cast "
         f"the same float32-rounded camera rays (one per pixel); {warmup} warm-up + {runs} timed frames, ms median "
-        "[min-max].  gridrt: build + `cast_rays` (DDA, watertight).  Embree: upload (embreex's `TriangleMesh` "
+        "[min-max].  gridrt: build + `cast_rays` (watertight; coherent runs of rays as CGT packets, the rest by "
+        "DDA).  Embree: upload (embreex's `TriangleMesh` "
         "copies vertices element by element in Python-level code; native Embree would share the buffer) + commit "
         "(BVH build) + `run(..., output=1)` on ray chunks in a thread pool.",
         "",
@@ -359,9 +361,9 @@ def _summary(rows, emb, runs, warmup, affinity_ok):
     body += md_table(["scene", "triangles", "threads", "gridrt build", "gridrt cast", "gridrt frame", "Embree upload",
                       "Embree commit", "Embree cast", "Embree frame", "gridrt / Embree without upload"], table)
     if any("o_mrays_cgt" in r for r in rows):
-        body += ["", "gridrt's packet traversal (CGT) exists only inside `render` (camera rays generated in the kernel, "
-                 "the same pixel-centre rays before their float32 rounding, plus lambert shading); `cast_rays` takes "
-                 "arbitrary rays and uses DDA.  Frame = build + CGT render:", ""]
+        body += ["", "gridrt's CGT render: the same traversal as `cast_rays`' packets in 8x8-pixel blocks, with the camera "
+                 "rays generated in the kernel (the same pixel-centre rays before their float32 rounding) and lambert "
+                 "shading.  Frame = build + CGT render:", ""]
         body += md_table(["scene", "threads", "gridrt CGT render", "gridrt frame (CGT)", "Embree frame without upload",
                           "Embree frame", "gridrt CGT / Embree without upload"],
                          [[r["scene"], r["threads"], fmt_ms(r, "o_render_cgt_ms"), fmt_ms(r, "o_frame_cgt_ms"),
@@ -439,7 +441,7 @@ def _plot(rows, path):
     a.set_ylabel("ms per frame (median)")
     a.legend(fontsize=6)
     a = ax[0, 1]
-    a.bar(x - 0.27, [r["o_mrays"] for r in rows], 0.27, label="gridrt cast_rays (DDA)", color="C0")
+    a.bar(x - 0.27, [r["o_mrays"] for r in rows], 0.27, label="gridrt cast_rays", color="C0")
     a.bar(x, [r.get("o_mrays_cgt", 0) for r in rows], 0.27, label="gridrt render (CGT)", color="C2")
     a.bar(x + 0.27, [r["e_mrays"] for r in rows], 0.27, label="Embree", color="C3")
     a.set_xticks(x, labels, fontsize=6)

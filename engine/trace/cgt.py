@@ -56,6 +56,9 @@ PN = PK * PK
 MBOX = 256
 #: the render kernel's parallel work items (runs of consecutive tiles sharing one scratch allocation)
 CHUNKS = 256
+#: the distance (in cells along the packet's major axis) at which a batch cast judges a packet's
+#: width (trace_packet's max_cells): rays through a scene that fills their view mostly end within it
+HORIZON = 32.0
 #: bounds are grown by this many cell sizes before cells and triangles are picked (rounding slack;
 #: insertion itself grows triangles by INSERT_EPS = 1e-5 cells)
 EPS_CELL = 1e-5
@@ -571,7 +574,7 @@ def _test_slice(tris, cell_start, tri_ids, ck, stU, stV, cu_0, cu_1, cv_0, cv_1,
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1):
+def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.inf):
     """Trace rays 0..n-1 of the table io (NIO * PN,) float64 (origin, direction, tmax per ray)
     through the grid g (:class:`gridrt.trace.grids.GridArrays`).
 
@@ -579,6 +582,11 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1):
     (nearest, or with any_hit some hit, in (tmin, tmax)).  S (NS * PN,) float64 and mb (MBOX,)
     int32 are scratch; mb1 (MAILBOX,) int32 is the fallback DDA's mailbox.  Returns the number of
     rays traced by the single-ray fallback (0 when the packet was coherent).
+
+    With a finite ``max_cells`` a packet is traced only when it is coherent and its bounds cover
+    at most that many cells in the slice HORIZON cells from the reference plane; otherwise
+    nothing is traced, io's results are undefined, and it returns -1 (the batch caster then
+    traces those rays another way).
     """
     tris, lo, cell, inv_cell, dims = g.tris, g.lo, g.cell, g.inv_cell, g.dims
     cell_start, tri_ids, M, mdims, macro_full = g.cell_start, g.tri_ids, g.macro, g.mdims, g.macro_full
@@ -586,6 +594,8 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1):
     if na == 0:
         return 0
     if not uniform:
+        if max_cells < np.inf:
+            return -1
         _trace_singly(g, S, na, io, tmin, watertight, any_hit, mb1)
         return na
 
@@ -605,6 +615,13 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1):
     eV = EPS_CELL * cell[V]
     sK = 1 if S[O_IDK] > 0.0 else -1
     xr, side, xlo, xhi, cu0, cu1, cv0, cv1, su0, su1, sv0, sv1 = _reference_plane(S, na, O_DX + K * PN)
+    if max_cells < np.inf:
+        # the packet's extent in the slice (one cell thick) HORIZON cells along K from the
+        # reference plane, or at the far end of its K range when nearer
+        h = min(xhi - xlo, HORIZON * cK) * side
+        ulo, uhi, vlo, vhi = _extent(cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, h - cK * side, h, eU, eV)
+        if ((uhi - ulo) * icU + 1.0) * ((vhi - vlo) * icV + 1.0) > max_cells:
+            return -1
 
     # first slice: where the earliest ray (in traversal order) enters the grid
     xs = xlo if sK > 0 else xhi

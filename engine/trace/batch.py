@@ -1,0 +1,223 @@
+"""Batch casting of arbitrary rays: coherent groups of rays as CGT packets, the rest one at a time.
+
+A batch (``cast_rays``, ``RayCaster.cast``) is cast in two passes over groups of up to
+:data:`gridrt.trace.cgt.PN` rays:
+
+1. the rays in the caller's order, in runs of PN: camera rays in pixel order, the shadow rays of
+   a block of pixels and the like arrive coherent.  A run that is coherent (its rays agree on the
+   major axis of their direction and its sign) and narrow (its bounds, those the packet traversal
+   uses, cover at most ``max_cells`` cells in the widest slice they cross) is traced as one CGT
+   packet (:func:`gridrt.trace.cgt.trace_packet`); the others are left for pass 2;
+2. the rays left, sorted by a key (:func:`sort_keys`: the permutation class of the direction, the
+   macro cell of the origin, then the direction's slopes on a Morton curve), again in runs of PN:
+   rays the caller shuffled come together again.  A run that passes the same test is a packet,
+   the other rays are traced one at a time (:func:`gridrt.trace.traverse.trace_ray`).
+
+Results do not depend on the order or grouping of the rays: the packet loops repeat the single
+ray's intersection arithmetic operation for operation and both give a tie (two triangles hit at
+the same t) to the lower triangle index, so a ray's t, triangle, u and v are the same whichever
+way it is traced (u and v of a packet hit are recomputed by the single-ray test of the triangle
+hit).  With ``any_hit`` a ray that hits anything in (tmin, tmax) is reported with a hit either
+way; which hit is reported may depend on the way.
+"""
+
+import numpy as np
+from numba import njit, parallel_chunksize, prange
+
+from .cgt import IO_DX, IO_DY, IO_DZ, IO_F, IO_OX, IO_OY, IO_OZ, IO_TMAX, MBOX, NIO, NS, PN, trace_packet
+from .intersect import permute, shear_setup
+from .traverse import MAILBOX, TINY_DIR, _floor_clamp, _test_triangle, trace_ray
+
+#: a run of rays is traced as a packet when its bounds cover at most this many cells in the
+#: widest slice (measured: BENCHMARKS.md, "Batch casts")
+MAX_CELLS = 32.0
+#: groups of runs per parallel work item (one scratch allocation each)
+GROUPS_PER_ITEM = 16
+#: bits of each slope in the sort key's Morton code
+SLOPE_BITS = 10
+#: the rays left by pass 1 are sorted when they average at least MIN_PER_BIN rays per bin of
+#: slopes cut to COARSE_BITS bits (rays_per_bin)
+COARSE_BITS = 5
+MIN_PER_BIN = 16.0
+NO_ROWS = np.zeros(0, np.int64)
+NO_LEFT = np.zeros(0, np.uint8)
+
+
+@njit(cache=True, _nrt=False)
+def _single(g, origins, dirs, i, tmin, tmax, watertight, any_hit, mb1, out_t, out_f, out_u, out_v):
+    f, t, u, v, nc, nt = trace_ray(g, origins[i, 0], origins[i, 1], origins[i, 2], dirs[i, 0], dirs[i, 1],
+                                   dirs[i, 2], tmin, tmax, watertight, any_hit, mb1)
+    out_t[i] = t
+    out_f[i] = f
+    out_u[i] = u
+    out_v[i] = v
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _cast_run(g, origins, dirs, idx, s, n, tmin, tmax, watertight, any_hit, max_cells, singly, io, S, mb, mb1,
+              out_t, out_f, out_u, out_v, left):
+    """Rays idx[s:s+n] (rays s..s+n-1 when idx is empty) as one packet when they make one (see
+    the module docstring; never when max_cells <= 0); otherwise one at a time (singly) or flagged
+    in ``left``.  Returns the number of rays traced as a packet (n or 0)."""
+    use_idx = idx.shape[0] > 0
+    for j in range(n):
+        i = idx[s + j] if use_idx else s + j
+        io[IO_OX * PN + j] = origins[i, 0]
+        io[IO_OY * PN + j] = origins[i, 1]
+        io[IO_OZ * PN + j] = origins[i, 2]
+        io[IO_DX * PN + j] = dirs[i, 0]
+        io[IO_DY * PN + j] = dirs[i, 1]
+        io[IO_DZ * PN + j] = dirs[i, 2]
+        io[IO_TMAX * PN + j] = tmax
+    r = trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells) if max_cells > 0.0 else -1
+    if r < 0:
+        for j in range(n):
+            i = idx[s + j] if use_idx else s + j
+            if singly:
+                _single(g, origins, dirs, i, tmin, tmax, watertight, any_hit, mb1, out_t, out_f, out_u, out_v)
+            else:
+                left[i] = 1
+        return 0
+    tris = g.tris
+    for j in range(n):
+        i = idx[s + j] if use_idx else s + j
+        f = int(io[IO_F * PN + j])
+        out_f[i] = f
+        if f < 0:
+            out_t[i] = np.inf
+            out_u[i] = 0.0
+            out_v[i] = 0.0
+            continue
+        # the single-ray test of the triangle hit: the packet's t bit for bit, and u, v
+        ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
+        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        kx, ky, kz, Sx, Sy, Sz = shear_setup(dx, dy, dz)
+        okx, oky, okz = permute(ox, oy, oz, kx, ky, kz)
+        hit, t, u, v = _test_triangle(tris, f, watertight, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz,
+                                      ox, oy, oz, dx, dy, dz, tmin, np.inf)
+        out_t[i] = t
+        out_u[i] = u
+        out_v[i] = v
+    return n
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def cast_runs_kernel(g, origins, dirs, idx, tmin, tmax, watertight, any_hit, max_cells, singly,
+                     out_t, out_f, out_u, out_v, left):
+    """Pass 1 (idx empty: the rays in order, singly False) or pass 2 (idx: the rays left, sorted;
+    singly True) of a batch cast over the grid g (GridArrays), in runs of PN rays, into the out_*
+    arrays (N,).  ``left`` (N,) uint8: pass 1 sets it to 1 for the rays it leaves.  Returns the
+    number of rays traced in packets.  (Call under numba.parallel_chunksize(1).)"""
+    M = idx.shape[0] if idx.shape[0] > 0 else origins.shape[0]
+    nruns = (M + PN - 1) // PN
+    nitems = (nruns + GROUPS_PER_ITEM - 1) // GROUPS_PER_ITEM
+    packets = np.zeros(nitems, np.int64)
+    for it in prange(nitems):
+        io = np.empty(NIO * PN)
+        S = np.empty(NS * PN)
+        mb = np.empty(MBOX, np.int32)
+        mb1 = np.empty(MAILBOX, np.int32)
+        for run in range(it * GROUPS_PER_ITEM, min((it + 1) * GROUPS_PER_ITEM, nruns)):
+            s = run * PN
+            packets[it] += _cast_run(g, origins, dirs, idx, s, min(PN, M - s), tmin, tmax, watertight, any_hit,
+                                     max_cells, singly, io, S, mb, mb1, out_t, out_f, out_u, out_v, left)
+    total = 0
+    for it in range(nitems):
+        total += packets[it]
+    return total
+
+
+@njit(cache=True)
+def _spread_bits(x):
+    """The low 16 bits of x with a zero bit after each (for a Morton code)."""
+    x &= 0xFFFF
+    x = (x | (x << 8)) & 0x00FF00FF
+    x = (x | (x << 4)) & 0x0F0F0F0F
+    x = (x | (x << 2)) & 0x33333333
+    return (x | (x << 1)) & 0x55555555
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def sort_keys(g, origins, dirs, rows, keys):
+    """keys[r] (int64) of ray rows[r]: the permutation class of its direction (major axis and sign,
+    6 classes), the macro cell of its origin (clamped to the grid) and its two slopes (minor over
+    major component, in [-1, 1]) on a Morton curve of SLOPE_BITS bits each, most significant first."""
+    lo, inv_cell, dims, M, mdims = g.lo, g.inv_cell, g.dims, g.macro, g.mdims
+    nb = 1 << SLOPE_BITS
+    for r in prange(rows.shape[0]):
+        i = rows[r]
+        ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
+        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        ax, ay, az = abs(dx), abs(dy), abs(dz)
+        if ax >= ay and ax >= az:
+            K, dk, du, dv = 0, dx, dy, dz
+        elif ay >= az:
+            K, dk, du, dv = 1, dy, dz, dx
+        else:
+            K, dk, du, dv = 2, dz, dx, dy
+        cls = 2 * K + (1 if dk < 0.0 else 0)
+        inv = 1.0 / dk if abs(dk) >= TINY_DIR else 0.0
+        bu = min(nb - 1, max(0, int((du * inv + 1.0) * 0.5 * nb)))
+        bv = min(nb - 1, max(0, int((dv * inv + 1.0) * 0.5 * nb)))
+        mx = _floor_clamp((ox - lo[0]) * inv_cell[0], dims[0]) // M
+        my = _floor_clamp((oy - lo[1]) * inv_cell[1], dims[1]) // M
+        mz = _floor_clamp((oz - lo[2]) * inv_cell[2], dims[2]) // M
+        mc = mx + mdims[0] * (my + mdims[1] * mz)
+        keys[r] = (np.int64(cls) << 58) | (np.int64(mc) << (2 * SLOPE_BITS)) | np.int64(
+            _spread_bits(bu) | (_spread_bits(bv) << 1))
+
+
+@njit(cache=True, error_model="numpy")
+def rays_per_bin(keys, drop, max_bits):
+    """An estimate of the mean number of rays per occupied bin of the keys with their low ``drop``
+    bits dropped (linear counting: the bins hashed into a table of 2**bits flags, bits the least
+    giving at least two flags a key, at most max_bits; a full table gives 0)."""
+    bits = 10
+    while bits < max_bits and (1 << bits) < 2 * keys.shape[0]:
+        bits += 1
+    m = 1 << bits
+    seen = np.zeros(m, np.uint8)
+    occ = 0
+    for r in range(keys.shape[0]):
+        h = (np.uint64(keys[r] >> drop) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits)
+        if seen[h] == 0:
+            seen[h] = 1
+            occ += 1
+    if occ >= m:
+        return 0.0
+    return keys.shape[0] / (-m * np.log(1.0 - occ / m))
+
+
+def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cells=MAX_CELLS):
+    """Cast the rays (origins, dirs (N,3) float64, checked) through the grid g (GridArrays) into
+    out = (t, tri, u, v) as the module docstring describes; ``max_cells`` <= 0 traces every ray
+    singly.  Returns (rays traced in packets in pass 1, in pass 2)."""
+    N = len(origins)
+    if N == 0:
+        return 0, 0
+    max_cells = float(max_cells)
+    # (the run kernels under parallel_chunksize(1): runs differ in cost, so threads take work
+    # items one at a time; not sort_keys, whose rows cost alike)
+    if max_cells <= 0.0:
+        with parallel_chunksize(1):
+            cast_runs_kernel(g, origins, dirs, NO_ROWS, tmin, tmax, watertight, any_hit, -1.0, True, *out, NO_LEFT)
+        return 0, 0
+    left = np.zeros(N, np.uint8)
+    with parallel_chunksize(1):
+        p1 = cast_runs_kernel(g, origins, dirs, NO_ROWS, tmin, tmax, watertight, any_hit, max_cells, False,
+                              *out, left)
+    rows = np.flatnonzero(left)
+    if len(rows) == 0:
+        return int(p1), 0
+    # (the macro-cell index fits the 38 key bits between the class and the slopes: grids have
+    # far fewer cells, GridParams' cell budget)
+    keys = np.empty(len(rows), np.int64)
+    sort_keys(g, origins, dirs, rows, keys)
+    # sorting pays when the rays left crowd into few bins (class, origin's macro cell, slopes to
+    # COARSE_BITS bits); rays all over the place are traced one by one in the caller's order
+    if rays_per_bin(keys, 2 * (SLOPE_BITS - COARSE_BITS), 20) >= MIN_PER_BIN:
+        rows = rows[np.argsort(keys)]
+    with parallel_chunksize(1):
+        p2 = cast_runs_kernel(g, origins, dirs, rows, tmin, tmax, watertight, any_hit, max_cells, True,
+                              *out, NO_LEFT)
+    return int(p1), int(p2)
