@@ -19,6 +19,7 @@ import numpy as np
 from numba import njit
 
 from .intersect import intersect_fast, intersect_watertight, permute, shear_setup
+from .prefetch import _prefetch_tri
 
 #: mailbox slots per ray (direct-mapped by triangle id)
 MAILBOX = 32
@@ -181,6 +182,11 @@ def trace_ray(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbo
 
         cells += 1
         c = ix + nx * (iy + ny * iz)
+        # start the loads of all the cell's triangles first: their cache misses (the triangles of
+        # a cell lie anywhere in tris) then overlap instead of queueing one test at a time
+        for l in range(L):
+            for r in range(cell_start[l, c], cell_start[l, c + 1]):
+                _prefetch_tri(tris, tri_ids[r])
         for l in range(L):
             r0 = cell_start[l, c]
             r1 = cell_start[l, c + 1]
