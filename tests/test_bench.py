@@ -11,6 +11,8 @@ import sys
 
 import numpy as np
 import pytest
+
+import gridrt
 from PIL import Image
 
 from conftest import icosphere, icosphere_tris, random_triangles
@@ -249,6 +251,44 @@ def test_bench_peers_says_how_to_install_embreex(tmp_path, monkeypatch, capsys):
     assert "pip install embreex" in capsys.readouterr().err
 
 
+def test_bench_packets_quick(tmp_path):
+    """The packet profile: its counts equal the CGT render's own (tests per packet from the cost
+    buffer, independently), the phases add up to the traced time, and profiling leaves every
+    traced result as it is."""
+    from importlib import import_module
+
+    from gridrt.app.bench import packets as P
+    from gridrt.camera import Camera
+    from gridrt.config import GridParams, RenderParams
+    from gridrt.grid import build_grid
+    from gridrt.trace.grids import grid_arrays
+
+    cgt = import_module("gridrt.trace.cgt")
+    out = tmp_path / "packets"
+    assert main(["bench", "packets", "--quick", "--no-progress", "--out", str(out)]) == 0
+    rows = read_csv(out / "packets.csv")
+    assert {r["view"] for r in rows} == {"frame", "fill"}
+    for r in rows:
+        phases = sum(float(r[f"{p}_ms"]) for p in P.PHASES)
+        assert phases == pytest.approx(float(r["trace_ms"]), rel=1e-6)
+        assert int(r["packets"]) == 64 and int(r["tests"]) > 0  # 64x64 pixels: 64 packets of 8x8
+    assert "triangle tests" in (out / "summary.md").read_text()
+    # the counts against the render's cost buffer: a packet's test count is its rays' largest
+    tris = icosphere_tris(3)
+    grid = build_grid(tris, GridParams())
+    cam = Camera(eye=(0.3, 0.5, 2.5), target=(0.0, 0.0, 0.0), fov=50.0)
+    W = H = 48
+    res = gridrt.render(grid, tris, cam, RenderParams(W, H, traversal="cgt", tile=P.TILE, shading="normal"))
+    per_packet = res.cost.reshape(H // 8, 8, W // 8, 8).max(axis=(1, 3))
+    prof = np.zeros(cgt.NPROF, np.int64)
+    g = grid_arrays(grid, np.ascontiguousarray(tris, np.float32))
+    hits = P.profile_frame(g, cam.basis(), W, H, prof)
+    assert hits == int((res.tri >= 0).sum())
+    assert prof[cgt.C_PACKETS] == (W // 8) * (H // 8) and prof[cgt.C_TESTS] == per_packet.sum()
+    assert (prof[: len(cgt.PROFILE_PHASES)] >= 0).all() and prof[cgt.P_TESTS] > 0
+    assert hits == P.profile_frame(g, cam.basis(), W, H, None)
+
+
 @pytest.mark.parametrize("args,message", [
     (["trade", "--knobs", "insert,colour"], "unknown knob"),
     (["frame", "--runs", "0"], "--runs"),
@@ -256,6 +296,7 @@ def test_bench_peers_says_how_to_install_embreex(tmp_path, monkeypatch, capsys):
     (["frame", "--scenes", "marbles:lots"], "neither a triangle count"),
     (["frame", "--traversal", "bvh"], "unknown traversal"),
     (["peers", "--views", "frame,sideways"], "unknown view"),
+    (["packets", "--views", "random"], "unknown view"),
 ])
 def test_bench_bad_arguments(tmp_path, capsys, args, message):
     assert main(["bench", *args, "--quick", "--no-progress", "--out", str(tmp_path / "x")]) == 2

@@ -99,11 +99,12 @@ def add_parser(sub):
     f.add_argument("--dt", type=float, default=1.0 / 30.0, help="seconds between frames (default 1/30)")
     f.set_defaults(func=run_frame)
 
-    from . import peers as bench_peers, start as bench_start, trade as bench_trade
+    from . import packets as bench_packets, peers as bench_peers, start as bench_start, trade as bench_trade
 
     bench_trade.add_parser(bsub, common)
     bench_peers.add_parser(bsub, common)
     bench_start.add_parser(bsub, common)
+    bench_packets.add_parser(bsub, common)
     return p
 
 

@@ -43,7 +43,7 @@ import numpy as np
 from numba import njit, prange
 
 from .grids import pack_grids, unpack_grids
-from .prefetch import _prefetch_tri, _prefetch_write
+from .prefetch import _cycles, _prefetch_tri, _prefetch_write
 from .shade import BACKGROUND, _u8, cost_rgb, facing_normal, lambert_rgb, normal_rgb, scene_id, shadow_ray
 from .traverse import MAILBOX, TINY_DIR, _floor_clamp, trace_ray
 
@@ -89,6 +89,37 @@ _U_DX, _U_DY, _U_DZ = np.uint64(IO_DX * PN), np.uint64(IO_DY * PN), np.uint64(IO
 _U_TMAX = np.uint64(IO_TMAX * PN)
 _U_T, _U_F, _U_NT, _U_NC = np.uint64(IO_T * PN), np.uint64(IO_F * PN), np.uint64(IO_NT * PN), np.uint64(IO_NC * PN)
 _U_PN, _U_2PN = np.uint64(PN), np.uint64(2 * PN)
+
+
+#: slots of a packet profile (trace_packet's ``prof``, (NPROF,) int64): cycles per phase, then counts
+P_SETUP, P_MACRO, P_SLICE, P_CELLS, P_TESTS, P_RETIRE, P_FALLBACK, P_RAYS = 0, 1, 2, 3, 4, 5, 6, 7
+PROFILE_PHASES = ("setup", "macro", "slice", "cells", "tests", "retire", "fallback", "rays")
+C_PACKETS, C_SLICES, C_CELLS, C_TESTS = 8, 9, 10, 11
+NPROF = 12
+
+
+@njit(cache=True, _nrt=False)
+def _now(prof):
+    """The cycle counter when profiling (prof an array), else 0 (prof None: compiled away)."""
+    if prof is None:
+        return 0
+    return _cycles()
+
+
+@njit(cache=True, _nrt=False)
+def _lap(prof, k, t):
+    """Add the cycles since t to phase k of prof; returns the counter now (0 without prof)."""
+    if prof is None:
+        return 0
+    now = _cycles()
+    prof[k] += now - t
+    return now
+
+
+@njit(cache=True, _nrt=False)
+def _prof_count(prof, k, n):
+    if prof is not None:
+        prof[k] += n
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
@@ -471,12 +502,13 @@ def _prefetch_slice(tris, cell_start, tri_ids, ck, stU, stV, cu_0, cu_1, cv_0, c
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _test_slice(tris, cell_start, tri_ids, ck, stU, stV, cu_0, cu_1, cv_0, cv_1, U, V, K, box, planes, S, na, mb,
-                watertight, tmin):
+                watertight, tmin, prof=None):
     """Test the triangles of the cells [cu_0, cu_1] x [cv_0, cv_1] of one slice (ck: its first
     cell's index) against the active rays: each once (the packet's mailbox mb), unless it lies
     outside the packet's extent in the slice (box = (ulo, uhi, vlo, vhi)) or beyond one of its
     four bounding planes (planes = (xr, the planes' offsets u0, u1, v0, v1 and slopes, see
-    _outside)).  Returns (cells visited, triangle tests, rays hit)."""
+    _outside)).  Returns (cells visited, triangle tests, rays hit).  With ``prof`` the tests'
+    cycles go to its P_TESTS slot."""
     ulo, uhi, vlo, vhi = box
     xr, pl_u0, pl_u1, pl_v0, pl_v1, sl_u0, sl_u1, sl_v0, sl_v1 = planes
     mmask = mb.shape[0] - 1
@@ -511,6 +543,7 @@ def _test_slice(tris, cell_start, tri_ids, ck, stU, stV, cu_0, cu_1, cv_0, cv_1,
                                 pl_u0, pl_u1, pl_v0, pl_v1, sl_u0, sl_u1, sl_v0, sl_v1):
                         continue  # the packet's bounds only shrink: it stays outside
                     tests += 1
+                    t0 = _now(prof)
                     if watertight:
                         hits += _test_wt(
                             S, na, p0u, p0v, p0k, p1u, p1v, p1k, p2u, p2v, p2k, np.float64(f), tmin)
@@ -521,11 +554,12 @@ def _test_slice(tris, cell_start, tri_ids, ck, stU, stV, cu_0, cu_1, cv_0, cv_1,
                             np.float64(tris[f, 1, 1]), np.float64(tris[f, 1, 2]),
                             np.float64(tris[f, 2, 0]), np.float64(tris[f, 2, 1]),
                             np.float64(tris[f, 2, 2]), np.float64(f), tmin)
+                    _lap(prof, P_TESTS, t0)
     return cells, tests, hits
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.inf):
+def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.inf, prof=None):
     """Trace rays 0..n-1 of the table io (NIO * PN,) float64 (origin, direction, tmax per ray)
     through the grid g (:class:`gridrt.trace.grids.GridArrays`).
 
@@ -538,16 +572,28 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.i
     at most that many cells in the slice HORIZON cells from the reference plane; otherwise
     nothing is traced, io's results are undefined, and it returns -1 (the batch caster then
     traces those rays another way).
+
+    ``prof`` ((NPROF,) int64, or None: nothing measured, and nothing of it compiled) adds the
+    cycles of each phase (the P_* slots: gather, setup and bounds; macro-cell slab checks; slice
+    ranges and prefetch; cell visits, mailbox and culls, with the triangle tests apart in
+    P_TESTS; retiring rays; the single-ray fallback) and the counts C_* (packets, slices, cells,
+    tests).  Profiling costs a counter read per phase and per test.
     """
+    t = _now(prof)
     tris, lo, cell, inv_cell, dims = g.tris, g.lo, g.cell, g.inv_cell, g.dims
     cell_start, tri_ids, M, mdims, macro_full = g.cell_start, g.tri_ids, g.macro, g.mdims, g.macro_full
     na, K, neg0, uniform = _gather(io, n, S, lo, g.hi, tmin)
+    _prof_count(prof, C_PACKETS, 1)
     if na == 0:
+        _lap(prof, P_SETUP, t)
         return 0
     if not uniform:
         if max_cells < np.inf:
+            _lap(prof, P_SETUP, t)
             return -1
+        t = _lap(prof, P_SETUP, t)
         _trace_singly(g, S, na, io, tmin, watertight, any_hit, mb1)
+        _lap(prof, P_FALLBACK, t)
         return na
 
     # the permutation of shear_setup: kx = (kz + 1) % 3, ky = (kx + 1) % 3, swapped when d[kz] < 0
@@ -572,6 +618,7 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.i
         h = min(xhi - xlo, HORIZON * cK) * side
         ulo, uhi, vlo, vhi = _extent(cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, h - cK * side, h, eU, eV)
         if ((uhi - ulo) * icU + 1.0) * ((vhi - vlo) * icV + 1.0) > max_cells:
+            _lap(prof, P_SETUP, t)
             return -1
 
     # first slice: where the earliest ray (in traversal order) enters the grid
@@ -584,6 +631,7 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.i
     cells = 0
     pending = 0
     xa = loK + (k if sK > 0 else k + 1) * cK
+    t = _lap(prof, P_SETUP, t)
     while na > 0 and 0 <= k < nK:
         mk = k // M
         if sK > 0:
@@ -597,6 +645,7 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.i
         if _any_macro_full(macro_full, mk, _floor_clamp((ulo - loU) * icU, nU) // M,
                            _floor_clamp((uhi - loU) * icU, nU) // M, _floor_clamp((vlo - loV) * icV, nV) // M,
                            _floor_clamp((vhi - loV) * icV, nV) // M, mstK, mstU, mstV):
+            t = _lap(prof, P_MACRO, t)
             while True:
                 xb = loK + (k + 1 if sK > 0 else k) * cK
                 ulo, uhi, vlo, vhi = _extent(cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, xa - xr, xb - xr, eU, eV)
@@ -613,10 +662,15 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.i
                 cv_0 = _floor_clamp((vlo - loV) * icV, nV)
                 cv_1 = _floor_clamp((vhi - loV) * icV, nV)
                 _prefetch_slice(tris, cell_start, tri_ids, k * stK, stU, stV, cu_0, cu_1, cv_0, cv_1)
+                t = _lap(prof, P_SLICE, t)
                 nc, nt, nh = _test_slice(
                     tris, cell_start, tri_ids, k * stK, stU, stV, cu_0, cu_1, cv_0, cv_1, U, V, K,
                     (ulo, uhi, vlo, vhi), (xr, pl_u0, pl_u1, pl_v0, pl_v1, sl_u0, sl_u1, sl_v0, sl_v1),
-                    S, na, mb, watertight, tmin)
+                    S, na, mb, watertight, tmin, prof)
+                t = _lap(prof, P_CELLS, t)
+                _prof_count(prof, C_SLICES, 1)
+                _prof_count(prof, C_CELLS, nc)
+                _prof_count(prof, C_TESTS, nt)
                 cells += nc
                 tests += nt
                 pending += nh
@@ -626,23 +680,29 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.i
                     if nb != na:
                         na = nb
                         if na == 0:
+                            _lap(prof, P_RETIRE, t)
                             return 0
                         cu0, cu1, cv0, cv1, su0, su1, sv0, sv1 = _spread(S, na, xr)
+                    t = _lap(prof, P_RETIRE, t)
                 if k == kend:
                     break
                 k += sK
         else:
             xa = xm
+            t = _lap(prof, P_MACRO, t)
         # once per macro slab: also retire rays whose segment has ended
         nb, pending = _step(S, na, io, xa, any_hit, watertight, tests, cells)
         if nb != na:
             na = nb
             if na == 0:
+                _lap(prof, P_RETIRE, t)
                 return 0
             cu0, cu1, cv0, cv1, su0, su1, sv0, sv1 = _spread(S, na, xr)
         k = kend + sK
+        t = _lap(prof, P_RETIRE, t)
     for a in range(na):
         _finish(S, a, io, tests, cells)
+    _lap(prof, P_RETIRE, t)
     return 0
 
 

@@ -1,4 +1,5 @@
-"""Cache prefetch hints for the traversal kernels (numba intrinsics around llvm.prefetch)."""
+"""Cache prefetch hints and the cycle counter for the traversal kernels (numba intrinsics around
+llvm.prefetch and llvm.readcyclecounter)."""
 
 from llvmlite import ir
 from numba import types
@@ -49,5 +50,18 @@ def _prefetch_write(typingctx, arr, i):
                                             "llvm.prefetch.p0")
         builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 1), ir.Constant(i32, 3), ir.Constant(i32, 1)])
         return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def _cycles(typingctx):
+    """The CPU's cycle counter (llvm.readcyclecounter: rdtsc on x86), for profiling builds only."""
+    sig = types.int64()
+
+    def codegen(context, builder, signature, args):
+        i64 = ir.IntType(64)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(i64, []), "llvm.readcyclecounter")
+        return builder.call(fn, [])
 
     return sig, codegen
