@@ -362,6 +362,31 @@ def _step(S, na, io, xp, any_hit, watertight, tests, cells):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
+def _classify(io, n, S):
+    """Of rays 0..n-1 of io, clipped (S rows CT0, CT1): how many meet the box, the least and the
+    greatest permutation class (2 * major axis + 1 where its component is negative, as _gather
+    picks them), and how many have a tiny major component.  A loop that vectorizes."""
+    nin = 0
+    cmin = 6
+    cmax = -1
+    ntiny = 0
+    for j in range(n):
+        dx = io[IO_DX * PN + j]
+        dy = io[IO_DY * PN + j]
+        dz = io[IO_DZ * PN + j]
+        ax, ay, az = abs(dx), abs(dy), abs(dz)
+        xmaj = (ax >= ay) & (ax >= az)
+        ymaj = (~xmaj) & (ay >= az)
+        dk = dx if xmaj else (dy if ymaj else dz)
+        c = (0 if xmaj else (2 if ymaj else 4)) + (1 if dk < 0.0 else 0)
+        cmin = min(cmin, c)
+        cmax = max(cmax, c)
+        nin += S[O_CT0 + j] <= S[O_CT1 + j]
+        ntiny += not (abs(dk) >= TINY_DIR)
+    return nin, cmin, cmax, ntiny
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _gather(io, n, S, lo, hi, tmin):
     """Clip rays 0..n-1 of io to the grid box (lo, hi) and gather those that meet it into the
     active rows of S, their results in io reset to a miss.  Returns (active rays, K, neg,
@@ -377,6 +402,22 @@ def _gather(io, n, S, lo, hi, tmin):
     _clip_axis(io, n, S, IO_OX, IO_DX, lo[0], hi[0])
     _clip_axis(io, n, S, IO_OY, IO_DY, lo[1], hi[1])
     _clip_axis(io, n, S, IO_OZ, IO_DZ, lo[2], hi[2])
+    nin, cmin, cmax, ntiny = _classify(io, n, S)
+    if nin == n:
+        # every ray meets the box (the common case): straight row copies, which vectorize
+        for j in range(n):
+            S[O_OX + j] = io[IO_OX * PN + j]
+            S[O_OY + j] = io[IO_OY * PN + j]
+            S[O_OZ + j] = io[IO_OZ * PN + j]
+            S[O_DX + j] = io[IO_DX * PN + j]
+            S[O_DY + j] = io[IO_DY * PN + j]
+            S[O_DZ + j] = io[IO_DZ * PN + j]
+            S[O_T0 + j] = S[O_CT0 + j]
+            S[O_T1 + j] = S[O_CT1 + j]
+            S[O_BT + j] = io[IO_TMAX * PN + j]
+            S[O_BF + j] = -1.0
+            S[O_J + j] = j
+        return n, cmin // 2, cmin % 2 == 1, cmin == cmax and ntiny == 0
     na = 0
     K = -1
     neg0 = False
