@@ -228,6 +228,9 @@ def test_bench_peers_quick(tmp_path, monkeypatch):
     # the other peers, where installed: the same rays, agreeing hits, their own timings
     import importlib.util
 
+    # Embree's fast scene beside the robust one, in the same run
+    assert float(r["embree_fast_agree"]) >= 0.999 and float(r["embree_fast_mrays"]) > 0
+    assert "Embree (fast)" in summary
     for name, module in (("open3d", "open3d"), ("mitsuba", "mitsuba")):
         if importlib.util.find_spec(module) is None:
             assert f"{module} is not installed" in summary

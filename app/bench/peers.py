@@ -19,9 +19,10 @@ Also: static cast throughput (Mrays/s, cast only, on the last frame) and hit agr
 triangle id and t within 1e-4 relative, or both miss); disagreeing rays are checked against the
 brute-force float64 caster to tell which side is right.
 
-Other peers, measured the same way when installed (optional extras, each named with its install
-command when absent; app/bench/sides.py): Open3D's RaycastingScene (``open3d-cpu``) and Mitsuba 3's
-CPU variant ``llvm_ad_rgb`` (``mitsuba``, ``drjit``).
+Other peers, measured the same way in the same run: Embree with the other scene flag (fast beside
+robust, or robust beside ``--embree-fast``), and when installed (optional extras, each named with
+its install command when absent; app/bench/sides.py) Open3D's RaycastingScene (``open3d-cpu``) and
+Mitsuba 3's CPU variant ``llvm_ad_rgb`` (``mitsuba``, ``drjit``).
 """
 
 import sys
@@ -41,7 +42,9 @@ from .util import (
     resolve_scene, scene_camera, scene_list, scenes_help, thread_list, write_csv, write_json, write_summary,
 )
 from .reference import brute_cast
-from .sides import INSTALL_HINT, EmbreeSide, MissingPeer, MitsubaSide, Open3DSide  # noqa: F401  (INSTALL_HINT)
+from .sides import (  # noqa: F401  (INSTALL_HINT)
+    INSTALL_HINT, EmbreeFastSide, EmbreeRobustSide, EmbreeSide, MissingPeer, MitsubaSide, Open3DSide,
+)
 
 #: peers measured beside Embree when installed (optional extras; each skipped with a message when absent)
 OTHER_PEERS = (Open3DSide, MitsubaSide)
@@ -116,7 +119,8 @@ def run_peers(a):
             raise InputError(f"unknown view {v!r} in --views; choose from {', '.join(VIEWS)}")
     emb = EmbreeSide(robust=not a.embree_fast)  # raises MissingPeer with the install hint
     others, absent = [], []
-    for side in OTHER_PEERS:
+    # Embree's other scene flag in the same run, then the other peers
+    for side in ((EmbreeRobustSide if a.embree_fast else EmbreeFastSide),) + OTHER_PEERS:
         try:
             others.append(side())
         except MissingPeer as e:
@@ -400,7 +404,7 @@ def _summary(rows, emb, runs, warmup, affinity_ok):
 
 
 def _others_summary(rows, others, absent):
-    """The peers measured beside Embree (Open3D, Mitsuba 3, when installed), against gridrt."""
+    """The peers measured beside Embree (its other scene flag; Open3D, Mitsuba 3 when installed), against gridrt."""
     body = []
     if others:
         body += ["", "Other peers, the same frames and rays (per frame: upload + build + cast of all rays; "

@@ -68,6 +68,25 @@ class EmbreeSide:
         return t, prim
 
 
+class EmbreeFastSide(EmbreeSide):
+    """Embree without RTC_SCENE_FLAG_ROBUST, measured beside the robust scene of the main side."""
+
+    name, label = "embree_fast", "Embree (fast)"
+
+    def __init__(self):
+        super().__init__(robust=False)
+
+
+class EmbreeRobustSide(EmbreeSide):
+    """Embree with RTC_SCENE_FLAG_ROBUST, measured beside the main side when that one is fast
+    (``--embree-fast``)."""
+
+    name, label = "embree_robust", "Embree (robust)"
+
+    def __init__(self):
+        super().__init__(robust=True)
+
+
 class Open3DSide:
     """Open3D's RaycastingScene (PyPI ``open3d-cpu``; Embree 3 underneath): per frame a new scene over
     the triangles (the "upload": Open3D tensors of the vertices and faces, and add_triangles), the
