@@ -1,5 +1,6 @@
-"""``gridrt bench peers``: gridrt against Intel Embree (PyPI ``embreex``) and, where installed,
-Open3D and Mitsuba 3, on the same animated mesh, the same rays and the same cores, in one run.
+"""``gridrt bench peers``: gridrt against Intel Embree (PyPI ``embreex``), Open3D and Mitsuba 3,
+each where installed (an optional extra, skipped with its install command when absent), on the
+same animated mesh, the same rays and the same cores, in one run.
 
 Per frame (t = i/30 s) both rebuild from scratch and cast the same rays, rounded to float32 once
 and given to both: one per pixel of a size x size image from the scene's camera (view "frame"),
@@ -117,10 +118,15 @@ def run_peers(a):
     for v in views:
         if v not in VIEWS:
             raise InputError(f"unknown view {v!r} in --views; choose from {', '.join(VIEWS)}")
-    emb = EmbreeSide(robust=not a.embree_fast)  # raises MissingPeer with the install hint
     others, absent = [], []
-    # Embree's other scene flag in the same run, then the other peers
-    for side in ((EmbreeRobustSide if a.embree_fast else EmbreeFastSide),) + OTHER_PEERS:
+    try:
+        emb = EmbreeSide(robust=not a.embree_fast)
+        extra = ((EmbreeRobustSide if a.embree_fast else EmbreeFastSide),)  # its other scene flag, same run
+    except MissingPeer as e:  # an optional extra like the others: the run goes on without it
+        emb, extra = None, ()
+        absent.append(f"Embree: {e}")
+        print(f"note: Embree not measured: {e}", file=sys.stderr)
+    for side in extra + OTHER_PEERS:
         try:
             others.append(side())
         except MissingPeer as e:
@@ -132,7 +138,8 @@ def run_peers(a):
     threads = thread_list(a.threads)
     out = out_dir(a.out)
     info = machine_info(threads)
-    info["embree"] = repr(emb.device)
+    if emb is not None:
+        info["embree"] = repr(emb.device)
     for peer in others:
         info[peer.name] = peer.version
     if note:
@@ -213,7 +220,8 @@ def _camera_rays(sc, size, fill=False):
 
 def _time_frames(sc, origin, builder, renderer, rp, cam, emb, pool, o32, d32, o, d, T, warmup, runs, dt, bar,
                  others=()):
-    """Per frame, all rebuild from scratch and cast: {samples (ms lists), last grid, triangles and hits}."""
+    """Per frame, all rebuild from scratch and cast: {samples (ms lists), last grid, triangles and hits}
+    (emb None: Embree is not installed and not measured)."""
     smp = {k: [] for k in ("o_build", "o_cast", "o_frame", "o_render_cgt", "o_frame_cgt", "e_upload",
                            "e_commit", "e_cast", "e_frame", "e_frame_noupload")}
     for peer in others:
@@ -230,10 +238,11 @@ def _time_frames(sc, origin, builder, renderer, rp, cam, emb, pool, o32, d32, o,
         if rp is not None:
             img = renderer.render(g, tris, cam, rp)
         t2c = time.perf_counter()
-        up, cm = emb.build(tris)
-        t3 = time.perf_counter()
-        te, fe = emb.cast(pool, o32, d32, T)
-        t4 = time.perf_counter()
+        if emb is not None:
+            up, cm = emb.build(tris)
+            t3 = time.perf_counter()
+            te, fe = emb.cast(pool, o32, d32, T)
+            t4 = time.perf_counter()
         for peer in others:
             pu, pc = peer.build(tris)
             t5 = time.perf_counter()
@@ -249,13 +258,17 @@ def _time_frames(sc, origin, builder, renderer, rp, cam, emb, pool, o32, d32, o,
             if rp is not None:
                 smp["o_render_cgt"].append((t2c - t2) * 1e3)
                 smp["o_frame_cgt"].append((t1 - t0 + t2c - t2) * 1e3)
-            smp["e_upload"].append(up)
-            smp["e_commit"].append(cm)
-            smp["e_cast"].append((t4 - t3) * 1e3)
-            smp["e_frame"].append(up + cm + (t4 - t3) * 1e3)
-            smp["e_frame_noupload"].append(cm + (t4 - t3) * 1e3)
+            if emb is not None:
+                smp["e_upload"].append(up)
+                smp["e_commit"].append(cm)
+                smp["e_cast"].append((t4 - t3) * 1e3)
+                smp["e_frame"].append(up + cm + (t4 - t3) * 1e3)
+                smp["e_frame_noupload"].append(cm + (t4 - t3) * 1e3)
         bar.update()
-    return dict(samples=smp, grid=g, tris=tris, hits=ho, embree=(te, fe), img=img, peers=peer_hits)
+    if emb is None:
+        smp = {k: v for k, v in smp.items() if not k.startswith("e_")}
+    return dict(samples=smp, grid=g, tris=tris, hits=ho, embree=(te, fe) if emb is not None else None, img=img,
+                peers=peer_hits)
 
 
 def _time_static(frames, renderer, rp, cam, emb, pool, o32, d32, o, d, T, runs, others=()):
@@ -272,13 +285,15 @@ def _time_static(frames, renderer, rp, cam, emb, pool, o32, d32, o, d, T, runs, 
         t0 = time.perf_counter()
         cast_rays(g, tris, o, d, threads=T)
         t1 = time.perf_counter()
-        emb.cast(pool, o32, d32, T)
+        if emb is not None:
+            emb.cast(pool, o32, d32, T)
         t2 = time.perf_counter()
         if rp is not None:
             frames["img"] = renderer.render(g, tris, cam, rp)
         t3 = time.perf_counter()
         so.append((t1 - t0) * 1e3)
-        se.append((t2 - t1) * 1e3)
+        if emb is not None:
+            se.append((t2 - t1) * 1e3)
         sr.append((t3 - t2) * 1e3)
     return so, se, sr
 
@@ -286,35 +301,38 @@ def _time_static(frames, renderer, rp, cam, emb, pool, o32, d32, o, d, T, runs, 
 def _row(sc, T, strat, pinned, size, runs, emb, o, d, frames, static, rp, others=(), view="frame"):
     """The CSV row of one scene and thread count: timings, throughputs and the two tracers' agreement."""
     last = np.array(frames["tris"])
-    ho, (te, fe), img = frames["hits"], frames["embree"], frames["img"]
+    ho, img = frames["hits"], frames["img"]
     so, se, sr = static
     N = len(o)
-    ag = agreement(ho.t, ho.tri.astype(np.int64), te, fe)
-    with np.errstate(invalid="ignore"):
-        bad = np.flatnonzero(~(((ho.tri < 0) & (fe < 0)) | ((ho.tri == fe) & (ho.tri >= 0) & (
-            np.abs(ho.t - te) <= T_REL * np.maximum(np.abs(ho.t), 1e-30)))))
-    judge = _judge(last, o, d, bad, ho.t, ho.tri.astype(np.int64), te, fe, T)
     row = dict(scene=f"{sc.label} [{view}]", name=sc.scene.name, view=view, triangles=len(last), threads=T,
                strategy=strat, cpus=T if pinned else "", rays=N, size=size, frames=runs,
-               embree_robust=int(emb.robust), hit_fraction=float((ho.tri >= 0).mean()))
+               embree_robust=int(emb.robust) if emb is not None else "", hit_fraction=float((ho.tri >= 0).mean()))
     for k, v in frames["samples"].items():
         put_stat(row, k + "_ms", v)
     put_stat(row, "o_static_cast_ms", so)
-    put_stat(row, "e_static_cast_ms", se)
     if rp is not None:
         put_stat(row, "o_static_render_cgt_ms", sr)
         row["o_mrays_cgt"] = N / row["o_static_render_cgt_ms"] / 1e3
         row["o_fps_cgt"] = 1e3 / row["o_frame_cgt_ms"]
-        agc = agreement(img.t.ravel().astype(np.float64), img.tri.ravel().astype(np.int64), te, fe)
-        row["agree_cgt"] = (agc["both_miss"] + agc["same"]) / N
     row["o_mrays"] = N / row["o_static_cast_ms"] / 1e3
-    row["e_mrays"] = N / row["e_static_cast_ms"] / 1e3
     row["o_fps"] = 1e3 / row["o_frame_ms"]
-    row["e_fps"] = 1e3 / row["e_frame_ms"]
-    row["e_fps_noupload"] = 1e3 / row["e_frame_noupload_ms"]
-    row.update(ag)
-    row["agree"] = (ag["both_miss"] + ag["same"]) / N
-    row.update(judge)
+    if emb is not None:
+        te, fe = frames["embree"]
+        ag = agreement(ho.t, ho.tri.astype(np.int64), te, fe)
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero(~(((ho.tri < 0) & (fe < 0)) | ((ho.tri == fe) & (ho.tri >= 0) & (
+                np.abs(ho.t - te) <= T_REL * np.maximum(np.abs(ho.t), 1e-30)))))
+        judge = _judge(last, o, d, bad, ho.t, ho.tri.astype(np.int64), te, fe, T)
+        put_stat(row, "e_static_cast_ms", se)
+        if rp is not None:
+            agc = agreement(img.t.ravel().astype(np.float64), img.tri.ravel().astype(np.int64), te, fe)
+            row["agree_cgt"] = (agc["both_miss"] + agc["same"]) / N
+        row["e_mrays"] = N / row["e_static_cast_ms"] / 1e3
+        row["e_fps"] = 1e3 / row["e_frame_ms"]
+        row["e_fps_noupload"] = 1e3 / row["e_frame_noupload_ms"]
+        row.update(ag)
+        row["agree"] = (ag["both_miss"] + ag["same"]) / N
+        row.update(judge)
     for peer in others:
         put_stat(row, f"{peer.name}_static_cast_ms", frames["static_peers"][peer.name])
         row[f"{peer.name}_mrays"] = N / row[f"{peer.name}_static_cast_ms"] / 1e3
@@ -330,16 +348,34 @@ def _write(rows, out, info, emb, runs, warmup, affinity_ok, note, others=(), abs
     finish_machine(info)
     write_csv(rows, out / "peers.csv")
     write_json(info, out / "machine.json")
-    _plot(rows, out / "peers.png")
-    body = _summary(rows, emb, runs, warmup, affinity_ok) + _others_summary(rows, others, absent)
+    _plot(rows, out / "peers.png", emb is not None)
+    body = (_summary(rows, emb, runs, warmup, affinity_ok) if emb is not None else _gridrt_summary(rows, runs, warmup))
+    body += _others_summary(rows, others, absent)
     if note:
         body += ["", f"Note: {note}."]
-    write_summary(out / "summary.md", "gridrt bench peers: gridrt against Embree", info,
+    write_summary(out / "summary.md", "gridrt bench peers: gridrt against " + ("Embree and " if emb is not None else "")
+                  + "the other peers", info,
                   [("Results", body), ("Figures", ["![peers](peers.png)"])])
     for line in body:
         if line.startswith("|"):
             print(line)
     print(f"wrote {out}/peers.csv, peers.png, summary.md")
+
+
+def _gridrt_summary(rows, runs, warmup):
+    """The results without Embree: gridrt's own figures (the other peers follow)."""
+    body = [f"Embree was not measured (see below).  Per frame gridrt rebuilds from scratch and casts the same "
+            f"float32-rounded rays as the other peers; {warmup} warm-up + {runs} timed frames, ms median [min-max].  "
+            "gridrt: build + `cast_rays` (watertight; coherent runs of rays as CGT packets, the rest by DDA); CGT "
+            "render: camera rays in 8x8-pixel packets with lambert shading.", ""]
+    body += md_table(["scene", "triangles", "threads", "hit fraction", "gridrt build", "gridrt cast", "gridrt frame",
+                      "gridrt CGT render", "gridrt frame (CGT)", "cast Mrays/s", "CGT render Mrays/s"],
+                     [[r["scene"], f"{r['triangles']:,}", r["threads"], f"{r['hit_fraction']:.2f}",
+                       fmt_ms(r, "o_build_ms"), fmt_ms(r, "o_cast_ms"), fmt_ms(r, "o_frame_ms"),
+                       fmt_ms(r, "o_render_cgt_ms") if "o_mrays_cgt" in r else "-",
+                       fmt_ms(r, "o_frame_cgt_ms") if "o_mrays_cgt" in r else "-", f"{r['o_mrays']:.2f}",
+                       f"{r['o_mrays_cgt']:.2f}" if "o_mrays_cgt" in r else "-"] for r in rows])
+    return body
 
 
 def _summary(rows, emb, runs, warmup, affinity_ok):
@@ -408,7 +444,8 @@ def _others_summary(rows, others, absent):
     body = []
     if others:
         body += ["", "Other peers, the same frames and rays (per frame: upload + build + cast of all rays; "
-                 "static: cast only, last frame; agreement with gridrt's cast_rays as above). "
+                 f"static: cast only, last frame; agreement with gridrt's cast_rays: the same triangle and t within {T_REL:g} "
+                 "relative, or both miss). "
                  + "; ".join(f"{p.label} {p.version}" for p in others) + ":", ""]
         table = []
         for r in rows:
@@ -426,7 +463,7 @@ def _others_summary(rows, others, absent):
     return body
 
 
-def _plot(rows, path):
+def _plot(rows, path, embree=True):
     labels = [f"{r['scene'][:16]}\n{r['threads']}T" for r in rows]
     x = np.arange(len(rows))
     fig, ax = figure(1, 2, w=6.0)
@@ -435,22 +472,24 @@ def _plot(rows, path):
     c1 = np.array([r["o_cast_ms"] for r in rows])
     a.bar(x - 0.2, b1, 0.4, label="gridrt build", color="C0")
     a.bar(x - 0.2, c1, 0.4, bottom=b1, label="gridrt cast", color="C9")
-    u = np.array([r["e_upload_ms"] for r in rows])
-    cm = np.array([r["e_commit_ms"] for r in rows])
-    ce = np.array([r["e_cast_ms"] for r in rows])
-    a.bar(x + 0.2, u, 0.4, label="Embree upload (embreex)", color="C7")
-    a.bar(x + 0.2, cm, 0.4, bottom=u, label="Embree commit", color="C3")
-    a.bar(x + 0.2, ce, 0.4, bottom=u + cm, label="Embree cast", color="C1")
+    if embree:
+        u = np.array([r["e_upload_ms"] for r in rows])
+        cm = np.array([r["e_commit_ms"] for r in rows])
+        ce = np.array([r["e_cast_ms"] for r in rows])
+        a.bar(x + 0.2, u, 0.4, label="Embree upload (embreex)", color="C7")
+        a.bar(x + 0.2, cm, 0.4, bottom=u, label="Embree commit", color="C3")
+        a.bar(x + 0.2, ce, 0.4, bottom=u + cm, label="Embree cast", color="C1")
     a.set_xticks(x, labels, fontsize=6)
     a.set_ylabel("ms per frame (median)")
     a.legend(fontsize=6)
     a = ax[0, 1]
     a.bar(x - 0.27, [r["o_mrays"] for r in rows], 0.27, label="gridrt cast_rays", color="C0")
     a.bar(x, [r.get("o_mrays_cgt", 0) for r in rows], 0.27, label="gridrt render (CGT)", color="C2")
-    a.bar(x + 0.27, [r["e_mrays"] for r in rows], 0.27, label="Embree", color="C3")
+    if embree:
+        a.bar(x + 0.27, [r["e_mrays"] for r in rows], 0.27, label="Embree", color="C3")
     a.set_xticks(x, labels, fontsize=6)
     a.set_ylabel("static cast Mrays/s (median)")
     a.legend(fontsize=7)
-    fig.suptitle("gridrt against Embree: rebuild + cast per frame, and cast throughput")
+    fig.suptitle(f"gridrt{' against Embree' if embree else ''}: rebuild + cast per frame, and cast throughput")
     fig.tight_layout()
     fig.savefig(path, dpi=110)

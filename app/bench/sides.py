@@ -8,7 +8,7 @@ import numpy as np
 from gridrt.commands import pip_command
 from gridrt.errors import GridrtError
 
-INSTALL_HINT = f"embreex is not installed; `gridrt bench peers` needs it: {pip_command()} install embreex"
+INSTALL_HINT = f"embreex is not installed: {pip_command()} install embreex"
 
 
 class MissingPeer(GridrtError):
