@@ -50,8 +50,9 @@ from .sides import (  # noqa: F401  (INSTALL_HINT)
 #: peers measured beside Embree when installed (optional extras; each skipped with a message when absent)
 OTHER_PEERS = (Open3DSide, MitsubaSide)
 
-PEER_SCENES = ["cesium", "lucy:twist", "kitchen", "icosphere:1310720:twist"]
-PEER_FALLBACK = ["marbles", "icosphere:81920:twist", "icosphere:1310720:twist"]
+#: the default scenes: with the "fill" view, meshes that fill the frame from 20k to 1.3M triangles
+PEER_SCENES = ["cesium", "icosphere:20480:twist", "lucy:twist", "kitchen", "icosphere:1310720:twist"]
+PEER_FALLBACK = ["marbles", "icosphere:20480:twist", "icosphere:81920:twist", "icosphere:1310720:twist"]
 HAVE_CGT = "cgt" in TRAVERSALS
 #: the ray sets (--views)
 VIEWS = ("frame", "fill", "random")
