@@ -163,6 +163,9 @@ BOUNDARIES = {
                                                            ["test_guard_reference_overflow_tripwire"]),
     "gridrt.grid.strategies.thread_grids:ThreadGridsMerge.insert": (
         "internal: merged grid sized by the layers' total", ["test_guard_reference_overflow_tripwire"]),
+    "gridrt.trace.render:cast_batch": (
+        "odd_directions reads the chunk's float64 directions (N, 3), after every check below",
+        ["test_guard_cast_rays", "test_guard_cast_batch"]),
     "gridrt.trace.batch:cast_grouped": (
         "called by cast_batch only, after its checks (the rows it sorts are indices it computes itself); cast_batch: "
         "walks grid cell lists and reads tris[tri_ids[r]]: tris must be the grid's own float32 array (cast_rays "

@@ -127,6 +127,33 @@ def cast_runs_kernel(g, origins, dirs, idx, tmin, tmax, watertight, any_hit, max
     return total
 
 
+@njit(cache=True, error_model="numpy")
+def odd_directions(dirs):
+    """Indices (int64) of the rays of dirs (N, 3) float64 whose largest direction component lies
+    below 2**-101 or at or above 2**100 (cast_batch rescales them by powers of two).  Two passes,
+    no temporaries the size of the batch."""
+    n = 0
+    for i in range(dirs.shape[0]):
+        n += _odd(dirs[i, 0], dirs[i, 1], dirs[i, 2])
+    out = np.empty(n, np.int64)
+    k = 0
+    if n > 0:
+        for i in range(dirs.shape[0]):
+            if _odd(dirs[i, 0], dirs[i, 1], dirs[i, 2]):
+                out[k] = i
+                k += 1
+    return out
+
+
+@njit(cache=True)
+def _odd(dx, dy, dz):
+    """max(|dx|, |dy|, |dz|) < 2**-101 or >= 2**100, for finite components, without branches."""
+    ax, ay, az = abs(dx), abs(dy), abs(dz)
+    lo = 2.0**-101
+    hi = 2.0**100
+    return ((ax < lo) & (ay < lo) & (az < lo)) | ((ax >= hi) | (ay >= hi) | (az >= hi))
+
+
 @njit(cache=True)
 def _spread_bits(x):
     """The low 16 bits of x with a zero bit after each (for a Morton code)."""
