@@ -11,8 +11,6 @@ own cost is reported (the driver with and without it); the phases are shares of 
 run's cycles, scaled to the unprofiled driver's time.
 """
 
-import time
-
 import numpy as np
 from numba import njit
 
@@ -24,6 +22,7 @@ from gridrt.trace.grids import grid_arrays
 from gridrt.trace.render import Renderer
 from gridrt.trace.traverse import MAILBOX
 
+from .main import timings
 from .peers import _camera_rays
 from .util import (
     check_runs, finish_machine, machine_info, md_table, out_dir, progress, resolve_scene, scene_list, write_csv,
@@ -79,17 +78,6 @@ def profile_frame(g, basis, W, H, prof):
     return hits
 
 
-def _timed(f, runs, warmup):
-    for _ in range(warmup):
-        f()
-    out = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        f()
-        out.append((time.perf_counter() - t0) * 1e3)
-    return out
-
-
 def measure(sc, size, view, runs, warmup):
     """One scene and view: a row of times (ms medians) and the per-phase split."""
     origin, cam, *_ = _camera_rays(sc, size, fill=view == "fill")
@@ -99,8 +87,8 @@ def measure(sc, size, view, runs, warmup):
     basis = cam.basis()
     rp = RenderParams(size, size, threads=1, traversal="cgt", tile=TILE)
     renderer = Renderer()
-    render_ms = _timed(lambda: renderer.render(grid, tris, cam, rp), runs, warmup)
-    plain_ms = _timed(lambda: profile_frame(g, basis, size, size, None), runs, warmup)
+    render_ms = timings(lambda: renderer.render(grid, tris, cam, rp), runs, warmup)[0]
+    trace = timings(lambda: profile_frame(g, basis, size, size, None), runs, warmup)[0]
     profs = []
 
     def profiled():
@@ -108,17 +96,15 @@ def measure(sc, size, view, runs, warmup):
         profile_frame(g, basis, size, size, prof)
         profs.append(prof)
 
-    prof_ms = _timed(profiled, runs, warmup)
+    prof_ms = timings(profiled, runs, warmup)[0]
     prof = np.median(np.array(profs[warmup:]), axis=0)
     cyc = {name: float(prof[i]) for i, name in enumerate(cgt.PROFILE_PHASES)}
     cyc["cells"] -= cyc["tests"]  # the tests are timed inside the cell visits
     total = sum(cyc.values())
-    trace = float(np.median(plain_ms))
     row = dict(scene=sc.label, triangles=len(tris), view=view, size=size,
                hit_fraction=profile_frame(g, basis, size, size, None) / size**2,
                packets=int(prof[cgt.C_PACKETS]), slices=int(prof[cgt.C_SLICES]), cells=int(prof[cgt.C_CELLS]),
-               tests=int(prof[cgt.C_TESTS]), render_ms=float(np.median(render_ms)), trace_ms=trace,
-               profiled_ms=float(np.median(prof_ms)))
+               tests=int(prof[cgt.C_TESTS]), render_ms=render_ms, trace_ms=trace, profiled_ms=prof_ms)
     row["shade_ms"] = row["render_ms"] - trace
     for name in PHASES:
         row[f"{name}_ms"] = cyc[name] / total * trace

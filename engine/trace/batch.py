@@ -60,16 +60,18 @@ def _cast_run(g, origins, dirs, idx, s, n, tmin, tmax, watertight, any_hit, max_
     the module docstring; never when max_cells <= 0); otherwise one at a time (singly) or flagged
     in ``left``.  Returns the number of rays traced as a packet (n or 0)."""
     use_idx = idx.shape[0] > 0
-    for j in range(n):
-        i = idx[s + j] if use_idx else s + j
-        io[IO_OX * PN + j] = origins[i, 0]
-        io[IO_OY * PN + j] = origins[i, 1]
-        io[IO_OZ * PN + j] = origins[i, 2]
-        io[IO_DX * PN + j] = dirs[i, 0]
-        io[IO_DY * PN + j] = dirs[i, 1]
-        io[IO_DZ * PN + j] = dirs[i, 2]
-        io[IO_TMAX * PN + j] = tmax
-    r = trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells) if max_cells > 0.0 else -1
+    r = -1
+    if max_cells > 0.0:
+        for j in range(n):
+            i = idx[s + j] if use_idx else s + j
+            io[IO_OX * PN + j] = origins[i, 0]
+            io[IO_OY * PN + j] = origins[i, 1]
+            io[IO_OZ * PN + j] = origins[i, 2]
+            io[IO_DX * PN + j] = dirs[i, 0]
+            io[IO_DY * PN + j] = dirs[i, 1]
+            io[IO_DZ * PN + j] = dirs[i, 2]
+            io[IO_TMAX * PN + j] = tmax
+        r = trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells)
     if r < 0:
         for j in range(n):
             i = idx[s + j] if use_idx else s + j
@@ -241,10 +243,12 @@ def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cel
     keys = np.empty(len(rows), np.int64)
     sort_keys(g, origins, dirs, rows, keys)
     # sorting pays when the rays left crowd into few bins (class, origin's macro cell, slopes to
-    # COARSE_BITS bits); rays all over the place are traced one by one in the caller's order
-    if rays_per_bin(keys, 2 * (SLOPE_BITS - COARSE_BITS), 20) >= MIN_PER_BIN:
+    # COARSE_BITS bits); rays all over the place are traced one by one in the caller's order,
+    # without trying their runs as packets again (pass 1 found such runs incoherent)
+    sort = rays_per_bin(keys, 2 * (SLOPE_BITS - COARSE_BITS), 20) >= MIN_PER_BIN
+    if sort:
         rows = rows[np.argsort(keys)]
     with parallel_chunksize(1):
-        p2 = cast_runs_kernel(g, origins, dirs, rows, tmin, tmax, watertight, any_hit, max_cells, True,
-                              *out, NO_LEFT)
+        p2 = cast_runs_kernel(g, origins, dirs, rows, tmin, tmax, watertight, any_hit, max_cells if sort else -1.0,
+                              True, *out, NO_LEFT)
     return int(p1), int(p2)

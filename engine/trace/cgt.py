@@ -363,9 +363,10 @@ def _step(S, na, io, xp, any_hit, watertight, tests, cells):
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _classify(io, n, S):
-    """Of rays 0..n-1 of io, clipped (S rows CT0, CT1): how many meet the box, the least and the
-    greatest permutation class (2 * major axis + 1 where its component is negative, as _gather
-    picks them), and how many have a tiny major component.  A loop that vectorizes."""
+    """Of rays 0..n-1 of io, clipped (S rows CT0, CT1): how many meet the box and, over those, the
+    least and the greatest permutation class (2 * major axis + 1 where its component is negative:
+    the watertight test's permutation, shear_setup's choice) and how many have a tiny major
+    component.  A loop that vectorizes."""
     nin = 0
     cmin = 6
     cmax = -1
@@ -376,13 +377,14 @@ def _classify(io, n, S):
         dz = io[IO_DZ * PN + j]
         ax, ay, az = abs(dx), abs(dy), abs(dz)
         xmaj = (ax >= ay) & (ax >= az)
-        ymaj = (~xmaj) & (ay >= az)
+        ymaj = (not xmaj) & (ay >= az)
         dk = dx if xmaj else (dy if ymaj else dz)
         c = (0 if xmaj else (2 if ymaj else 4)) + (1 if dk < 0.0 else 0)
-        cmin = min(cmin, c)
-        cmax = max(cmax, c)
-        nin += S[O_CT0 + j] <= S[O_CT1 + j]
-        ntiny += not (abs(dk) >= TINY_DIR)
+        inside = S[O_CT0 + j] <= S[O_CT1 + j]
+        cmin = min(cmin, c if inside else 6)
+        cmax = max(cmax, c if inside else -1)
+        nin += inside
+        ntiny += inside & (not (abs(dk) >= TINY_DIR))
     return nin, cmin, cmax, ntiny
 
 
@@ -403,6 +405,7 @@ def _gather(io, n, S, lo, hi, tmin):
     _clip_axis(io, n, S, IO_OY, IO_DY, lo[1], hi[1])
     _clip_axis(io, n, S, IO_OZ, IO_DZ, lo[2], hi[2])
     nin, cmin, cmax, ntiny = _classify(io, n, S)
+    K, neg, uniform = cmin // 2, cmin % 2 == 1, cmin == cmax and ntiny == 0
     if nin == n:
         # every ray meets the box (the common case): straight row copies, which vectorize
         for j in range(n):
@@ -417,50 +420,26 @@ def _gather(io, n, S, lo, hi, tmin):
             S[O_BT + j] = io[IO_TMAX * PN + j]
             S[O_BF + j] = -1.0
             S[O_J + j] = j
-        return n, cmin // 2, cmin % 2 == 1, cmin == cmax and ntiny == 0
-    na = 0
-    K = -1
-    neg0 = False
-    uniform = True
+        return n, K, neg, uniform
+    na = 0  # some rays miss the box: gather the others
     for j in range(n):
         t0 = S[O_CT0 + j]
         t1 = S[O_CT1 + j]
         if not (t0 <= t1):
             continue
-        dx = io[IO_DX * PN + j]
-        dy = io[IO_DY * PN + j]
-        dz = io[IO_DZ * PN + j]
-        ax, ay, az = abs(dx), abs(dy), abs(dz)
-        if ax >= ay and ax >= az:
-            kz = 0
-            dk = dx
-        elif ay >= az:
-            kz = 1
-            dk = dy
-        else:
-            kz = 2
-            dk = dz
-        neg = dk < 0.0
-        if K < 0:
-            K = kz
-            neg0 = neg
-        elif kz != K or neg != neg0:
-            uniform = False
-        if not (abs(dk) >= TINY_DIR):
-            uniform = False
         S[O_OX + na] = io[IO_OX * PN + j]
         S[O_OY + na] = io[IO_OY * PN + j]
         S[O_OZ + na] = io[IO_OZ * PN + j]
-        S[O_DX + na] = dx
-        S[O_DY + na] = dy
-        S[O_DZ + na] = dz
+        S[O_DX + na] = io[IO_DX * PN + j]
+        S[O_DY + na] = io[IO_DY * PN + j]
+        S[O_DZ + na] = io[IO_DZ * PN + j]
         S[O_T0 + na] = t0
         S[O_T1 + na] = t1
         S[O_BT + na] = io[IO_TMAX * PN + j]
         S[O_BF + na] = -1.0
         S[O_J + na] = j
         na += 1
-    return na, K, neg0, uniform
+    return na, K, neg, uniform
 
 
 @njit(cache=True, _nrt=False)

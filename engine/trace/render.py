@@ -247,11 +247,12 @@ def cast_batch(grid, tris, origins, dirs, origin=None, tmin=0.0, tmax=np.inf, wa
             # exactly), so the traversal never sees components whose inverse overflows:
             # frexp exponent < -100 or > 100, i.e. a largest component below 2**-101 or from 2**100
             odd = odd_directions(dc)  # (one pass in a kernel: the numpy expression took 10% of a cast)
-            ex = np.frexp(np.abs(dc[odd]).max(axis=1))[1]
+            d_odd = dc[odd]
+            ex = np.frexp(np.abs(d_odd).max(axis=1))[1]
             if len(odd):
                 if np.may_share_memory(dc, d):
                     dc = dc.copy()  # (never write to the caller's array)
-                dc[odd] = np.ldexp(dc[odd], -ex[:, None])
+                dc[odd] = np.ldexp(d_odd, -ex[:, None])
             cast_grouped(g, oc, dc, tmin, tmax, wt, ah, out, max_cells)
             for x in np.unique(ex):
                 rows = odd[ex == x]
