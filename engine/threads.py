@@ -15,8 +15,9 @@ MAX_THREADS = max(16, os.cpu_count() or 1)
 
 
 def configure_env():
-    """Set NUMBA_NUM_THREADS (unless the user did), prefer the OpenMP threading layer and point
-    numba's compile cache at a folder keyed by the engine's source.
+    """Set NUMBA_NUM_THREADS (unless the user did), prefer the OpenMP threading layer, point
+    numba's compile cache at a folder keyed by the engine's source and let numba's loops use the
+    CPU's widest vectors (see :func:`wide_vector_features`).
 
     Must run before the first ``import numba`` to take effect.  The omp layer is the one that
     tolerates parallel kernels launched from two Python threads at once (the viewer does that).
@@ -33,6 +34,45 @@ def configure_env():
         os.environ.setdefault("GOMP_SPINCOUNT", "10000")
     if "NUMBA_CACHE_DIR" not in os.environ:
         os.environ["NUMBA_CACHE_DIR"] = _cache_dir()
+    if "NUMBA_CPU_FEATURES" not in os.environ:
+        features = wide_vector_features(os.environ.get("GRIDRT_VECTOR_WIDTH", "auto"))
+        if features is not None:
+            os.environ["NUMBA_CPU_FEATURES"] = features
+
+
+#: values of GRIDRT_VECTOR_WIDTH: the widest vectors numba's kernels may use ("auto": the CPU's widest)
+VECTOR_WIDTHS = ("auto", "512", "256")
+
+
+def wide_vector_features(width):
+    """The NUMBA_CPU_FEATURES that let LLVM vectorize loops with 512-bit registers (zmm: 16 float32
+    or 8 float64 lanes), or None to leave numba's default.
+
+    LLVM's tuning for the Intel cores with AVX-512 (Skylake-X to Sapphire Rapids) prefers 256-bit
+    vectors ("prefer-256-bit"), so by default numba's loops use ymm registers even where zmm ones
+    exist.  With width "auto" or "512" and a CPU with AVX-512F, this returns the host's features
+    with that preference turned off; on a CPU without AVX-512 (AVX2 only) there is nothing wider
+    and it returns None, as it does for "256".  Any other width is reported (a warning) and
+    treated as "auto".  The setting is process-wide and must be made before numba is imported:
+    gridrt's ``configure_env`` applies GRIDRT_VECTOR_WIDTH, unless NUMBA_CPU_FEATURES is set."""
+    if width not in VECTOR_WIDTHS:
+        import warnings
+
+        warnings.warn(f"GRIDRT_VECTOR_WIDTH={width!r} is not one of {', '.join(VECTOR_WIDTHS)}; using auto",
+                      stacklevel=3)
+        width = "auto"
+    if width == "256":
+        return None
+    try:
+        import llvmlite.binding as ll
+
+        ll.initialize_native_target()
+        features = ll.get_host_cpu_features().flatten()
+    except Exception:  # (no llvmlite, or a host it cannot describe: numba's default)
+        return None
+    if "+avx512f" not in features.split(","):
+        return None
+    return features + ",-prefer-256-bit"
 
 
 def _have_gomp():
