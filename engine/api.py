@@ -206,20 +206,22 @@ class RayCaster:
                 self._spare = snap.builder
 
     def cast(self, origins, directions, tmin=0.0, tmax=np.inf, watertight=True, any_hit=False, threads=None,
-             max_bytes=None, packets=True) -> Hits:
+             max_bytes=None, packets=True, packet_precision="float64") -> Hits:
         """Nearest hit per ray (any hit with any_hit=True). origins, directions: (N,3), world
         coordinates, any real dtype and strides (read in chunks, not copied).  Memory: the
         results (28 bytes a ray) plus a bounded scratch; a batch needing more than ``max_bytes``
         (default: params.max_bytes) is refused before anything is allocated.  Coherent runs of
         rays (camera rays, shadow rays towards a point, in any order) go through CGT packets
         (``packets=False``: every ray on its own); the hits do not depend on it, nor on the rays'
-        order or grouping."""
+        order or grouping.  ``packet_precision="float32"`` runs the packets' triangle tests in
+        float32 (faster on large meshes; hits then agree up to float32 rounding, see
+        gridrt.trace.batch)."""
         with self._lock:
             snap = self._snap
             snap.users += 1
         try:
             return cast_batch(snap.grid, snap.triangles, origins, directions, snap.origin, tmin, tmax, watertight,
                               any_hit, threads, self.params.max_bytes if max_bytes is None else max_bytes,
-                              packets=packets)
+                              packets=packets, packet_precision=packet_precision)
         finally:
             self._release(snap)

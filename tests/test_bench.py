@@ -281,6 +281,7 @@ def test_bench_packets_quick(tmp_path):
     assert main(["bench", "packets", "--quick", "--no-progress", "--out", str(out)]) == 0
     rows = read_csv(out / "packets.csv")
     assert {r["view"] for r in rows} == {"frame", "fill"}
+    assert {r["precision"] for r in rows} == {"float64", "float32"}
     for r in rows:
         assert all(float(r[f"{p}_ms"]) >= 0.0 for p in P.PHASES) and float(r["tests_ms"]) > 0.0
         assert int(r["packets"]) == 64 and int(r["tests"]) > 0  # 64x64 pixels: 64 packets of 8x8
@@ -292,13 +293,14 @@ def test_bench_packets_quick(tmp_path):
     W = H = 48
     res = gridrt.render(grid, tris, cam, RenderParams(W, H, traversal="cgt", tile=P.TILE, shading="normal"))
     per_packet = res.cost.reshape(H // 8, 8, W // 8, 8).max(axis=(1, 3))
-    prof = np.zeros(cgt.NPROF, np.int64)
     g = grid_arrays(grid, np.ascontiguousarray(tris, np.float32))
-    hits = P.profile_frame(g, cam.basis(), W, H, prof)
-    assert hits == int((res.tri >= 0).sum())
-    assert prof[cgt.C_PACKETS] == (W // 8) * (H // 8) and prof[cgt.C_TESTS] == per_packet.sum()
-    assert (prof[: len(cgt.PROFILE_PHASES)] >= 0).all() and prof[cgt.P_TESTS] > 0
-    assert hits == P.profile_frame(g, cam.basis(), W, H, None)
+    for f32 in (False, True):
+        prof = np.zeros(cgt.NPROF, np.int64)
+        hits = P.profile_frame(g, cam.basis(), W, H, prof, f32)
+        assert hits == int((res.tri >= 0).sum())
+        assert prof[cgt.C_PACKETS] == (W // 8) * (H // 8) and prof[cgt.C_TESTS] == per_packet.sum()
+        assert (prof[: len(cgt.PROFILE_PHASES)] >= 0).all() and prof[cgt.P_TESTS] > 0
+        assert hits == P.profile_frame(g, cam.basis(), W, H, None, f32)
 
 
 @pytest.mark.parametrize("args,message", [

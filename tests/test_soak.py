@@ -16,7 +16,8 @@ tests/test_watertight.py (see its docstring): star packets (up to 8 x 8 rays fro
 at a vertex, its one-ring vertices and points of its spokes and link edges, traced by the
 packet kernel cgt.trace_packet) and camera rows (512 x 1 images through Renderer.render with
 traversal="cgt", every pixel ray crossing one shared edge).  Same criterion, 0 holes with the
-watertight test; the fast test's hole rate is printed.  Default: about 190,000 packet probes and
+watertight test, in float64 and in float32 (packet_precision="float32", t judged within 1e-5);
+the fast test's hole rate is printed.  Default: about 190,000 packet probes and
 65,536 row rays per mesh; ``-m soak``: at least 10M rays traced as packets (single-ray fallbacks
 not counted) and 10M row rays per mesh (GRIDRT_SOAK_RAYS).
 

@@ -33,10 +33,13 @@ from gridrt.trace.twin import TWINS, Twins, parallel_first
 
 
 
-def _args(grids, camera, W, H, shading=0, light=None, off=1e-6):
+def _args(grids, camera, W, H, shading=0, light=None, off=1e-6, f32=None):
+    """Render kernel arguments; f32 (True / False: the CGT kernels' packet precision, after
+    watertight) or None (the DDA kernels)."""
     bufs = (np.zeros((H, W, 4), np.uint8), np.zeros((H, W), np.float32), np.zeros((H, W), np.int32),
             np.zeros((H, W), np.int32), np.zeros((H, W), np.int32))
-    return (grids, camera.basis(), W, H, 16, shading, light is not None, light, off, True) + bufs
+    prec = () if f32 is None else (f32,)
+    return (grids, camera.basis(), W, H, 16, shading, light is not None, light, off, True) + prec + bufs
 
 
 def _scene():
@@ -61,20 +64,22 @@ def test_serial_twin_equals_parallel_kernel(traversal, shadows):
     light = cam.basis()[0] + np.array([2.0, 3.0, 1.0]) if shadows else None
     if traversal == "dda" and light is None:
         light = np.zeros(3)  # the DDA kernel takes the light as an array and `shadows` as the switch
+    f32 = False if traversal == "cgt" else None
+    nb = 10 if f32 is None else 11  # where the buffers start
     for grids in (one, two):
-        a = _args(grids, cam, W, H, light=light)
+        a = _args(grids, cam, W, H, light=light, f32=f32)
         if traversal == "dda":
             a = a[:6] + (shadows,) + a[7:]
         ref = serial(*a)
-        ref_bufs = [b.copy() for b in a[10:]]
+        ref_bufs = [b.copy() for b in a[nb:]]
         for threads in (2, 3):
             from gridrt.threads import use_threads
 
             use_threads(threads)
-            b = _args(grids, cam, W, H, light=light)
+            b = _args(grids, cam, W, H, light=light, f32=f32)
             b = b[:6] + a[6:7] + b[7:]
             out = parallel(*b)
-            for x, y in zip(ref_bufs, b[10:]):
+            for x, y in zip(ref_bufs, b[nb:]):
                 np.testing.assert_array_equal(x, y)
             if traversal == "cgt":
                 np.testing.assert_array_equal(ref, out)

@@ -211,11 +211,11 @@ def test_armadillo_shared_edges():
 
 
 @njit(cache=True, parallel=True)
-def _trace_packets(g, eyes, dirs, offs, watertight, t_out, f_out, fallback):
+def _trace_packets(g, eyes, dirs, offs, watertight, f32, t_out, f_out, fallback):
     """Packet p (rays offs[p]..offs[p+1]-1, from eyes[p] along unit dirs, at most 64) traced by
     cgt.trace_packet through the grid g (GridArrays), as cgt._render_tiles traces a block of
-    pixels (its ray table filled from dirs instead of the camera).  fallback[p]: rays of packet p
-    the single-ray DDA traced."""
+    pixels (its ray table filled from dirs instead of the camera), its triangle tests in float32
+    with f32.  fallback[p]: rays of packet p the single-ray DDA traced."""
     for p in prange(len(offs) - 1):
         S = np.empty(cgt.NS * cgt.PN)
         io = np.empty(cgt.NIO * cgt.PN)
@@ -231,7 +231,7 @@ def _trace_packets(g, eyes, dirs, offs, watertight, t_out, f_out, fallback):
             io[cgt.IO_DY * cgt.PN + j] = dirs[a + j, 1]
             io[cgt.IO_DZ * cgt.PN + j] = dirs[a + j, 2]
             io[cgt.IO_TMAX * cgt.PN + j] = np.inf
-        fallback[p] = cgt.trace_packet(g, n, io, 0.0, watertight, False, S, mb, mb1)
+        fallback[p] = cgt.trace_packet(g, n, io, 0.0, watertight, False, S, mb, mb1, np.inf, None, f32)
         for j in range(n):
             t_out[a + j] = io[cgt.IO_T * cgt.PN + j]
             f_out[a + j] = int(io[cgt.IO_F * cgt.PN + j])
@@ -374,36 +374,45 @@ class ProbeMesh:
         return cams, t
 
 
+#: the packet tests: (watertight, float32 tests, key); the float32 watertight test's t is good to
+#: float32 rounding, so its probes are judged within REL32
+TESTS = ((True, False, "wt"), (False, False, "fast"), (True, True, "wt32"))
+REL32 = 1e-5
+
+
 def packet_counts(m, grid, rng, n_packets):
-    """Star packets traced by the packet kernel with both tests: counts (see cgt_report)."""
+    """Star packets traced by the packet kernel with the three TESTS: counts (see cgt_report)."""
     eyes, d, dist, offs, kinds, _ = m.star_packets(rng, n_packets)
     c = {"packets": len(eyes), "probes": len(d), "kinds": np.bincount(kinds, minlength=4)}
-    for wt, key in ((True, "wt"), (False, "fast")):
+    for wt, f32, key in TESTS:
+        rel = REL32 if f32 else REL
         t = np.empty(len(d))
         f = np.empty(len(d), np.int64)
         fb = np.empty(len(eyes), np.int64)
-        _trace_packets(grid_arrays(grid, m.tris), eyes, d, offs, wt, t, f, fb)
-        hole = (f < 0) | (t > dist * (1 + REL))
+        _trace_packets(grid_arrays(grid, m.tris), eyes, d, offs, wt, f32, t, f, fb)
+        hole = (f < 0) | (t > dist * (1 + rel))
         c[key + "_holes"] = np.bincount(kinds[hole], minlength=4)
-        c[key + "_at"] = int((np.abs(t - dist) <= REL * dist).sum())
+        c[key + "_at"] = int((np.abs(t - dist) <= rel * dist).sum())
         c[key + "_fallback"] = int(fb.sum())
     return c
 
 
 def row_counts(m, grid, rng, n_cameras, width=ROW_WIDTH):
-    """Edge-row cameras rendered by Renderer.render with traversal="cgt" and both tests: counts
-    (see cgt_report)."""
+    """Edge-row cameras rendered by Renderer.render with traversal="cgt" and the three TESTS:
+    counts (see cgt_report)."""
     cams, tref = m.edge_rows(rng, n_cameras, width)
     r = Renderer()
     c = {"edges": len(cams), "rays": len(cams) * width}
-    for wt, key in ((True, "wt"), (False, "fast")):
+    for wt, f32, key in TESTS:
+        rel = REL32 if f32 else REL
         holes = at = fb = 0
-        rp = RenderParams(width=width, height=1, traversal="cgt", watertight=wt, shading="normal")
+        rp = RenderParams(width=width, height=1, traversal="cgt", watertight=wt, shading="normal",
+                          packet_precision="float32" if f32 else "float64")
         for cam, tr in zip(cams, tref):
             out = r.render(grid, m.tris, cam, rp)
             t = out.t.reshape(-1).astype(np.float64)  # a float32 buffer: rounding 6e-8 < REL
-            holes += int(((out.tri.reshape(-1) < 0) | (t > tr * (1 + REL))).sum())
-            at += int((np.abs(t - tr) <= REL * tr).sum())
+            holes += int(((out.tri.reshape(-1) < 0) | (t > tr * (1 + rel))).sum())
+            at += int((np.abs(t - tr) <= rel * tr).sum())
             fb += out.stats["fallback_rays"]
         c[key + "_holes"], c[key + "_at"], c[key + "_fallback"] = holes, at, fb
     return c
@@ -415,10 +424,10 @@ def add_counts(a, b):
 
 def cgt_report(label, pk, rows, secs, width=ROW_WIDTH):
     """Print the FIGURE line of packet counts pk and camera-row counts rows and check them:
-    0 holes with the watertight test; most probes hit at their target (nothing blocks them
-    earlier); at most a quarter of the rays took the single-ray fallback (the packets really are
-    traced as packets); and the fast test leaks somewhere (the probes are close enough to the
-    edges to catch a test that is not watertight)."""
+    0 holes with the watertight test, in float64 and in float32; most probes hit at their target
+    (nothing blocks them earlier); at most a quarter of the rays took the single-ray fallback (the
+    packets really are traced as packets); and the fast test leaks somewhere (the probes are close
+    enough to the edges to catch a test that is not watertight)."""
     hw, hf, n_pk, n_rows = pk["wt_holes"], pk["fast_holes"], pk["probes"], rows["rays"]
     k = pk["kinds"]
     print(f"FIGURE cgt holes {label}: {n_pk + n_rows} CGT rays in {secs:.1f} s. Packets: {n_pk} probes in "
@@ -428,12 +437,16 @@ def cgt_report(label, pk, rows, secs, width=ROW_WIDTH):
           f"{100 * hf.sum() / n_pk:.3f}% (by kind {hf.tolist()}). Camera rows (Renderer, cgt, {width}x1 images): "
           f"{n_rows} pixel rays on {rows['edges']} edges ({rows['wt_fallback']} fallback); watertight: "
           f"{rows['wt_holes']} holes, {rows['wt_at']} at their target; fast: {rows['fast_holes']} holes, rate "
-          f"{100 * rows['fast_holes'] / n_rows:.3f}%")
-    assert hw.sum() == 0, f"{label}: the watertight test let packet probes through: {hw.tolist()} (by kind)"
-    assert rows["wt_holes"] == 0, f"{label}: the watertight test let {rows['wt_holes']} camera-row rays through"
-    for n, c in ((n_pk, pk), (n_rows, rows)):
-        assert c["wt_at"] > 0.5 * n and c["wt_fallback"] <= 0.25 * n, (
-            f"{label}: {c['wt_at']} of {n} probes hit at their target, {c['wt_fallback']} took the fallback")
+          f"{100 * rows['fast_holes'] / n_rows:.3f}%. Watertight in float32: packets {int(pk['wt32_holes'].sum())} "
+          f"holes, {pk['wt32_at']} at their target; rows {rows['wt32_holes']} holes, {rows['wt32_at']} at their target")
+    for key, what in (("wt", "watertight test"), ("wt32", "watertight test in float32")):
+        assert pk[key + "_holes"].sum() == 0, (
+            f"{label}: the {what} let packet probes through: {pk[key + '_holes'].tolist()} (by kind)")
+        assert rows[key + "_holes"] == 0, f"{label}: the {what} let {rows[key + '_holes']} camera-row rays through"
+        for n, c in ((n_pk, pk), (n_rows, rows)):
+            assert c[key + "_at"] > 0.5 * n and c[key + "_fallback"] <= 0.25 * n, (
+                f"{label} ({what}): {c[key + '_at']} of {n} probes hit at their target, {c[key + '_fallback']} "
+                "took the fallback")
     assert hf.sum() > 0 and rows["fast_holes"] > 0, f"{label}: the probes do not find the fast test's leaks"
 
 

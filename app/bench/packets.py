@@ -15,7 +15,7 @@ import numpy as np
 from numba import njit
 
 import gridrt  # noqa: F401
-from gridrt.config import GridParams, RenderParams
+from gridrt.config import PACKET_PRECISIONS, GridParams, RenderParams
 from gridrt.grid.build import GridBuilder
 from gridrt.trace import cgt
 from gridrt.trace.grids import grid_arrays
@@ -48,14 +48,17 @@ def add_parser(bsub, common):
     p.add_argument("--size", type=int, default=1024, help="square image edge (default 1024)")
     p.add_argument("--views", default="frame,fill", help="frame (the scene's camera) and/or fill (moved in until "
                    "90%% of the pixels hit) (default frame,fill)")
+    p.add_argument("--precision", default="float64,float32",
+                   help="precisions of the packets' triangle tests, comma-separated (RenderParams.packet_precision; "
+                        "default float64,float32)")
     p.set_defaults(func=run_packets)
 
 
 @njit(cache=True, error_model="numpy")
-def profile_frame(g, basis, W, H, prof):
+def profile_frame(g, basis, W, H, prof, f32):
     """Trace the frame's primary rays through the grid g (GridArrays) as packets of up to PK x PK
-    pixels in TILE-pixel tiles, row-major, on this thread; ``prof`` (cgt.NPROF,) int64 or None.
-    Returns the number of pixels hit."""
+    pixels in TILE-pixel tiles, row-major, on this thread; ``prof`` (cgt.NPROF,) int64 or None;
+    f32: float32 triangle tests.  Returns the number of pixels hit."""
     PN = cgt.PN
     S = np.empty(cgt.NS * PN)
     io = np.empty(cgt.NIO * PN)
@@ -72,28 +75,29 @@ def profile_frame(g, basis, W, H, prof):
                     t = cgt._now(prof)
                     cgt._camera_rays(basis, W, H, px0, py0, pw, ph, io)
                     cgt._lap(prof, cgt.P_RAYS, t)
-                    cgt.trace_packet(g, n, io, 0.0, True, False, S, mb, mb1, np.inf, prof)
+                    cgt.trace_packet(g, n, io, 0.0, True, False, S, mb, mb1, np.inf, prof, f32)
                     for j in range(n):
                         hits += io[cgt.IO_F * PN + j] >= 0.0
     return hits
 
 
-def measure(sc, size, view, runs, warmup):
+def measure(sc, size, view, runs, warmup, precision="float64"):
     """One scene and view: a row of times (ms medians) and the per-phase split."""
     origin, cam, *_ = _camera_rays(sc, size, fill=view == "fill")
     tris = np.ascontiguousarray(sc.scene.triangles_at(0.0, origin=origin), np.float32)
     grid = GridBuilder(GridParams(threads=1)).build(tris)
     g = grid_arrays(grid, tris)
     basis = cam.basis()
-    rp = RenderParams(size, size, threads=1, traversal="cgt", tile=TILE)
+    rp = RenderParams(size, size, threads=1, traversal="cgt", tile=TILE, packet_precision=precision)
+    f32 = precision == "float32"
     renderer = Renderer()
     render_ms = timings(lambda: renderer.render(grid, tris, cam, rp), runs, warmup)[0]
-    trace = timings(lambda: profile_frame(g, basis, size, size, None), runs, warmup)[0]
+    trace = timings(lambda: profile_frame(g, basis, size, size, None, f32), runs, warmup)[0]
     profs = []
 
     def profiled():
         prof = np.zeros(cgt.NPROF, np.int64)
-        profile_frame(g, basis, size, size, prof)
+        profile_frame(g, basis, size, size, prof, f32)
         profs.append(prof)
 
     prof_ms = timings(profiled, runs, warmup)[0]
@@ -101,8 +105,8 @@ def measure(sc, size, view, runs, warmup):
     cyc = {name: float(prof[i]) for i, name in enumerate(cgt.PROFILE_PHASES)}
     cyc["cells"] -= cyc["tests"]  # the tests are timed inside the cell visits
     total = sum(cyc.values())
-    row = dict(scene=sc.label, triangles=len(tris), view=view, size=size,
-               hit_fraction=profile_frame(g, basis, size, size, None) / size**2,
+    row = dict(scene=sc.label, triangles=len(tris), view=view, size=size, precision=precision,
+               hit_fraction=profile_frame(g, basis, size, size, None, f32) / size**2,
                packets=int(prof[cgt.C_PACKETS]), slices=int(prof[cgt.C_SLICES]), cells=int(prof[cgt.C_CELLS]),
                tests=int(prof[cgt.C_TESTS]), render_ms=render_ms, trace_ms=trace, profiled_ms=prof_ms)
     row["shade_ms"] = row["render_ms"] - trace
@@ -119,6 +123,12 @@ def run_packets(a):
     for v in views:
         if v not in ("frame", "fill"):
             raise InputError(f"unknown view {v!r} in --views; choose from frame, fill")
+    precisions = [v.strip() for v in a.precision.split(",") if v.strip()]
+    for v in precisions:
+        if v not in PACKET_PRECISIONS:
+            raise InputError(f"unknown precision {v!r} in --precision; choose from {', '.join(PACKET_PRECISIONS)}")
+    if not precisions:
+        raise InputError("--precision needs at least one of " + ", ".join(PACKET_PRECISIONS))
     size = 64 if a.quick else a.size
     runs, warmup = (1, 1) if a.quick else (a.runs, a.warmup)
     specs, note = scene_list(a.scenes, PACKET_SCENES, PACKET_FALLBACK, quick=["icosphere:1280"] if a.quick else None)
@@ -127,12 +137,13 @@ def run_packets(a):
     out = out_dir(a.out)
     info = machine_info([1])
     scenes = [resolve_scene(s) for s in specs]
-    bar = progress(len(scenes) * len(views), "bench packets", a.no_progress)
+    bar = progress(len(scenes) * len(views) * len(precisions), "bench packets", a.no_progress)
     rows = []
     for sc in scenes:
         for view in views:
-            rows.append(measure(sc, size, view, runs, warmup))
-            bar.update()
+            for prec in precisions:
+                rows.append(measure(sc, size, view, runs, warmup, prec))
+                bar.update()
     bar.close()
     info = finish_machine(info)
     write_csv(rows, out / "packets.csv")
@@ -140,7 +151,7 @@ def run_packets(a):
     table = []
     for r in rows:
         per = 1e6 / r["packets"]  # ns per packet from ms
-        table.append([f"{r['scene']} [{r['view']}]", f"{r['triangles']:,}", f"{r['hit_fraction']:.2f}",
+        table.append([f"{r['scene']} [{r['view']}]", r["precision"], f"{r['triangles']:,}", f"{r['hit_fraction']:.2f}",
                       f"{r['render_ms']:.1f}", f"{r['shade_ms']:.1f}", f"{r['trace_ms']:.1f}",
                       *(f"{r[f'{p}_ms'] * per:.0f} ({100 * r[f'{p}_ms'] / r['render_ms']:.0f}%)" for p in PHASES),
                       f"{r['tests'] / r['packets']:.1f}", f"{r['cells'] / r['packets']:.1f}",
@@ -149,11 +160,11 @@ def run_packets(a):
             "CGT render (lambert, no shadows); shading + output = render less the traced time; trace: the driver "
             "without the profile.  Per phase: ns per packet, and in brackets its share of the render.  Tests and "
             "cells: per packet.  Overhead: the profiled driver's time over the unprofiled one's.", "",
-            *md_table(["scene", "triangles", "hit", "render ms", "shading + output ms", "trace ms",
+            *md_table(["scene", "tests in", "triangles", "hit", "render ms", "shading + output ms", "trace ms",
                        *(PHASE_TEXT[p] for p in PHASES), "tests", "cells", "profile overhead"], table)]
     write_summary(out / "summary.md", "Where a CGT packet's time goes", info, [("Phases", body)])
     for r in rows:
-        print(f"{r['scene']} [{r['view']}]: render {r['render_ms']:.1f} ms = shading {r['shade_ms']:.1f} + trace "
+        print(f"{r['scene']} [{r['view']}] {r['precision']}: render {r['render_ms']:.1f} ms = shading {r['shade_ms']:.1f} + trace "
               f"{r['trace_ms']:.1f}: " + ", ".join(f"{p} {r[f'{p}_ms']:.1f}" for p in PHASES))
     print(f"wrote {out}/packets.csv, summary.md, machine.json")
     return 0

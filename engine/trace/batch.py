@@ -19,6 +19,12 @@ the same t) to the lower triangle index, so a ray's t, triangle, u and v are the
 way it is traced (u and v of a packet hit are recomputed by the single-ray test of the triangle
 hit).  With ``any_hit`` a ray that hits anything in (tmin, tmax) is reported with a hit either
 way; which hit is reported may depend on the way.
+
+With the packets' tests in float32 (``packet_precision="float32"``) a packet picks each ray's
+triangle in float32; its t, u and v are then the float64 test's of that triangle, and a ray whose
+triangle the float64 test misses (float32 rounding at an edge or at tmax) is traced again on its
+own in float64.  Hits may then depend on the grouping, but only at near-ties and within float32
+rounding of an edge.
 """
 
 import numpy as np
@@ -54,11 +60,12 @@ def _single(g, origins, dirs, i, tmin, tmax, watertight, any_hit, mb1, out_t, ou
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def _cast_run(g, origins, dirs, idx, s, n, tmin, tmax, watertight, any_hit, max_cells, singly, io, S, mb, mb1,
-              out_t, out_f, out_u, out_v, left):
+def _cast_run(g, origins, dirs, idx, s, n, tmin, tmax, watertight, any_hit, max_cells, singly, f32, io, S, mb,
+              mb1, out_t, out_f, out_u, out_v, left):
     """Rays idx[s:s+n] (rays s..s+n-1 when idx is empty) as one packet when they make one (see
-    the module docstring; never when max_cells <= 0); otherwise one at a time (singly) or flagged
-    in ``left``.  Returns the number of rays traced as a packet (n or 0)."""
+    the module docstring; never when max_cells <= 0), its triangle tests in float32 with f32;
+    otherwise one at a time (singly) or flagged in ``left``.  Returns the number of rays traced
+    as a packet (n or 0)."""
     use_idx = idx.shape[0] > 0
     r = -1
     if max_cells > 0.0:
@@ -71,7 +78,7 @@ def _cast_run(g, origins, dirs, idx, s, n, tmin, tmax, watertight, any_hit, max_
             io[IO_DY * PN + j] = dirs[i, 1]
             io[IO_DZ * PN + j] = dirs[i, 2]
             io[IO_TMAX * PN + j] = tmax
-        r = trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells)
+        r = trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells, None, f32)
     if r < 0:
         for j in range(n):
             i = idx[s + j] if use_idx else s + j
@@ -97,6 +104,11 @@ def _cast_run(g, origins, dirs, idx, s, n, tmin, tmax, watertight, any_hit, max_
         okx, oky, okz = permute(ox, oy, oz, kx, ky, kz)
         hit, t, u, v = _test_triangle(tris, f, watertight, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz,
                                       ox, oy, oz, dx, dy, dz, tmin, np.inf)
+        if f32 and not (hit and t < tmax):
+            # the float32 tests chose a triangle the float64 test misses (within float32 rounding
+            # of an edge or of tmax): the ray goes again in float64, on its own
+            _single(g, origins, dirs, i, tmin, tmax, watertight, any_hit, mb1, out_t, out_f, out_u, out_v)
+            continue
         out_t[i] = t
         out_u[i] = u
         out_v[i] = v
@@ -104,7 +116,7 @@ def _cast_run(g, origins, dirs, idx, s, n, tmin, tmax, watertight, any_hit, max_
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def cast_runs_kernel(g, origins, dirs, idx, tmin, tmax, watertight, any_hit, max_cells, singly,
+def cast_runs_kernel(g, origins, dirs, idx, tmin, tmax, watertight, any_hit, max_cells, singly, f32,
                      out_t, out_f, out_u, out_v, left):
     """Pass 1 (idx empty: the rays in order, singly False) or pass 2 (idx: the rays left, sorted;
     singly True) of a batch cast over the grid g (GridArrays), in runs of PN rays, into the out_*
@@ -122,7 +134,7 @@ def cast_runs_kernel(g, origins, dirs, idx, tmin, tmax, watertight, any_hit, max
         for run in range(it * GROUPS_PER_ITEM, min((it + 1) * GROUPS_PER_ITEM, nruns)):
             s = run * PN
             packets[it] += _cast_run(g, origins, dirs, idx, s, min(PN, M - s), tmin, tmax, watertight, any_hit,
-                                     max_cells, singly, io, S, mb, mb1, out_t, out_f, out_u, out_v, left)
+                                     max_cells, singly, f32, io, S, mb, mb1, out_t, out_f, out_u, out_v, left)
     total = 0
     for it in range(nitems):
         total += packets[it]
@@ -217,10 +229,11 @@ def rays_per_bin(keys, drop, max_bits):
     return keys.shape[0] / (-m * np.log(1.0 - occ / m))
 
 
-def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cells=MAX_CELLS):
+def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cells=MAX_CELLS, f32=False):
     """Cast the rays (origins, dirs (N,3) float64, checked) through the grid g (GridArrays) into
     out = (t, tri, u, v) as the module docstring describes; ``max_cells`` <= 0 traces every ray
-    singly.  Returns (rays traced in packets in pass 1, in pass 2)."""
+    singly; f32: the packets' triangle tests in float32.  Returns (rays traced in packets in pass
+    1, in pass 2)."""
     N = len(origins)
     if N == 0:
         return 0, 0
@@ -229,11 +242,12 @@ def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cel
     # items one at a time; not sort_keys, whose rows cost alike)
     if max_cells <= 0.0:
         with parallel_chunksize(1):
-            cast_runs_kernel(g, origins, dirs, NO_ROWS, tmin, tmax, watertight, any_hit, -1.0, True, *out, NO_LEFT)
+            cast_runs_kernel(g, origins, dirs, NO_ROWS, tmin, tmax, watertight, any_hit, -1.0, True, f32, *out,
+                             NO_LEFT)
         return 0, 0
     left = np.zeros(N, np.uint8)
     with parallel_chunksize(1):
-        p1 = cast_runs_kernel(g, origins, dirs, NO_ROWS, tmin, tmax, watertight, any_hit, max_cells, False,
+        p1 = cast_runs_kernel(g, origins, dirs, NO_ROWS, tmin, tmax, watertight, any_hit, max_cells, False, f32,
                               *out, left)
     rows = np.flatnonzero(left)
     if len(rows) == 0:
@@ -250,5 +264,5 @@ def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cel
         rows = rows[np.argsort(keys)]
     with parallel_chunksize(1):
         p2 = cast_runs_kernel(g, origins, dirs, rows, tmin, tmax, watertight, any_hit, max_cells if sort else -1.0,
-                              True, *out, NO_LEFT)
+                              True, f32, *out, NO_LEFT)
     return int(p1), int(p2)

@@ -70,7 +70,26 @@ _R_SX, _R_SY, _R_SZ = 10, 11, 12  # watertight shear constants
 _R_OX, _R_OY, _R_OZ, _R_DX, _R_DY, _R_DZ = 13, 14, 15, 16, 17, 18  # origin, direction (Moller-Trumbore)
 _R_T0 = 19  # start of the clipped segment
 _R_CT0, _R_CT1 = 20, 21  # clip results of every packet ray (indexed by packet ray, before compaction)
-NS = 22
+NS64 = 22
+# float32 rows of the packet tests in float32 (trace_packet's f32), after the float64 rows: S32 =
+# S[O_F32:].view(np.float32), row r of active ray i at S32[r * PN + i].  Coordinates are taken
+# relative to the packet's reference origin (active ray 0's at setup), in float64 before rounding,
+# so that float32 keeps its relative precision far from the world's origin.
+# The best triangle is an int32 row of the same memory (I32 = S[O_F32:].view(np.int32)).  While a
+# packet is traced in float32 these two rows hold its rays' best t and triangle (the float64 rows
+# BT, BF are then unused): _count_final32 and _finish read them.
+_F_OU, _F_OV, _F_OK, _F_SX, _F_SY, _F_SZ = 0, 1, 2, 3, 4, 5  # Woop: origin - ref (permuted), shear
+_F_OX, _F_OY, _F_OZ, _F_DX, _F_DY, _F_DZ = 6, 7, 8, 9, 10, 11  # Moller-Trumbore: origin - ref, direction
+_F_BT, _F_BF = 12, 13  # best t (float32), best triangle (int32)
+NF32 = 14
+#: lanes of the float32 test loops: the active rays are processed in whole blocks of L32 (the rays
+#: after the last active one are made inert, see _dead32), so the loops have no scalar remainder
+L32 = 16
+NS = NS64 + (NF32 + 1) // 2
+O_F32 = NS64 * PN
+F_OU, F_OV, F_OK, F_SX, F_SY, F_SZ = (r * PN for r in range(6))
+F_OX, F_OY, F_OZ, F_DX, F_DY, F_DZ = (r * PN for r in range(6, 12))
+F_BT, F_BF = _F_BT * PN, _F_BF * PN
 O_OU, O_OV, O_OK = _R_OU * PN, _R_OV * PN, _R_OK * PN
 O_SX, O_SY, O_SZ = _R_SX * PN, _R_SY * PN, _R_SZ * PN
 O_OX, O_OY, O_OZ = _R_OX * PN, _R_OY * PN, _R_OZ * PN
@@ -282,6 +301,212 @@ def _test_mt(S, na, v0x, v0y, v0z, v1x, v1y, v1z, v2x, v2y, v2z, ff, tmin):
     return nh
 
 
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _setup32(S, S32, I32, na, ref, watertight):
+    """The float32 rows of the active rays (see _F_OU), over whole blocks of L32 rays: origins less
+    the packet's reference origin ref = (x, y, z, u, v, k), in float64 and then rounded; shear
+    constants (watertight) or directions rounded; the best t rounded down (a hit beyond a ray's
+    tmax stays beyond it) and the best triangle."""
+    rx, ry, rz, ru, rv, rk = ref
+    npad = (na + L32 - 1) // L32 * L32
+    if watertight:
+        for i in range(npad):
+            S32[F_OU + i] = np.float32(S[O_OU + i] - ru)
+            S32[F_OV + i] = np.float32(S[O_OV + i] - rv)
+            S32[F_OK + i] = np.float32(S[O_OK + i] - rk)
+            S32[F_SX + i] = np.float32(S[O_SX + i])
+            S32[F_SY + i] = np.float32(S[O_SY + i])
+            S32[F_SZ + i] = np.float32(S[O_SZ + i])
+    else:
+        for i in range(npad):
+            S32[F_OX + i] = np.float32(S[O_OX + i] - rx)
+            S32[F_OY + i] = np.float32(S[O_OY + i] - ry)
+            S32[F_OZ + i] = np.float32(S[O_OZ + i] - rz)
+            S32[F_DX + i] = np.float32(S[O_DX + i])
+            S32[F_DY + i] = np.float32(S[O_DY + i])
+            S32[F_DZ + i] = np.float32(S[O_DZ + i])
+    up = 0
+    for i in range(na):
+        b = np.float32(S[O_BT + i])
+        S32[F_BT + i] = b
+        I32[F_BF + i] = -1
+        up += np.float64(b) > S[O_BT + i]
+    if up > 0:  # (rare: a finite tmax that float32 rounds up)
+        for i in range(na):
+            if np.float64(S32[F_BT + i]) > S[O_BT + i]:
+                S32[F_BT + i] = np.nextafter(S32[F_BT + i], np.float32(-np.inf))
+    _dead32(S32, na)
+
+
+@njit(cache=True, _nrt=False)
+def _dead32(S32, na):
+    """Make the rays after the last active one up to its block of L32 inert in the float32 tests:
+    a NaN origin fails every comparison (no hit, nothing undecided), so the test loops need not
+    check which lanes are active."""
+    nan = np.float32(np.nan)
+    for i in range(na, (na + L32 - 1) // L32 * L32):
+        S32[F_OU + i] = nan
+        S32[F_OX + i] = nan
+        S32[F_BT + i] = nan
+
+
+@njit(cache=True, _nrt=False)
+def _up32(x):
+    """The smallest float32 at or above x (float64)."""
+    b = np.float32(x)
+    return np.nextafter(b, np.float32(np.inf)) if np.float64(b) < x else b
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _test_wt32(S32, I32, na, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z, ff, tmin32):
+    """_test_wt in float32 over the packet, L32 rays at a time (16 lanes of a zmm register where
+    512-bit vectors are enabled, see gridrt.threads): the vertices q (permuted, less the packet's
+    reference origin, rounded to float32) against the float32 rows.  Shared vertices give every
+    ray the same sheared coordinates in every triangle, so the edge functions of a shared edge
+    are exact negations and the test stays watertight in float32 (Woop, Benthin, Wald 2013).  A
+    ray for which an edge function is exactly 0 and the other signs do not already exclude the
+    triangle is not decided here: it is counted in the second result, for _fix_wt64 to decide in
+    float64.  Returns (1 if some ray was hit else 0, 1 if some ray is left to float64 else 0)."""
+    zero = np.float32(0.0)
+    nh = False  # (flags, not counts: an int64 count would halve the lanes of the loop)
+    nz = False
+    for b in range((na + L32 - 1) // L32):
+        for l in range(L32):
+            i = b * L32 + l
+            okx = S32[F_OU + i]
+            oky = S32[F_OV + i]
+            okz = S32[F_OK + i]
+            Sx = S32[F_SX + i]
+            Sy = S32[F_SY + i]
+            Sz = S32[F_SZ + i]
+            ax = q0x - okx
+            ay = q0y - oky
+            az = q0z - okz
+            bx = q1x - okx
+            by = q1y - oky
+            bz = q1z - okz
+            cx = q2x - okx
+            cy = q2y - oky
+            cz = q2z - okz
+            Ax = ax - Sx * az
+            Ay = ay - Sy * az
+            Bx = bx - Sx * bz
+            By = by - Sy * bz
+            Cx = cx - Sx * cz
+            Cy = cy - Sy * cz
+            U = Cx * By - Cy * Bx
+            V = Ax * Cy - Ay * Cx
+            W = Bx * Ay - By * Ax
+            det = U + V + W
+            T = U * (Sz * az) + V * (Sz * bz) + W * (Sz * cz)
+            t = T / det
+            bt = S32[F_BT + i]
+            bf = I32[F_BF + i]
+            out = ((U < zero) | (V < zero) | (W < zero)) & ((U > zero) | (V > zero) | (W > zero))
+            undecided = (not out) & ((U == zero) | (V == zero) | (W == zero))
+            hit = (not out) & (not undecided) & (det != zero) & (t > tmin32) & ((t < bt) | ((t == bt) & (ff < bf)))
+            S32[F_BT + i] = t if hit else bt
+            I32[F_BF + i] = ff if hit else bf
+            nh |= hit
+            nz |= undecided
+    return int(nh), int(nz)
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _fix_wt64(S32, I32, na, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z, ff, tmin):
+    """The rays _test_wt32 left undecided (an edge function exactly 0 in float32), decided in
+    float64 as Woop et al. do: the edge functions again from the same float32 sheared vertex
+    coordinates, whose products are exact in float64, so the signs are exact and agree with those
+    every neighbouring triangle got in float32 (a shared edge still gives exact negations).  An
+    edge function still 0 means the ray meets the edge or vertex exactly: both triangles count it.
+    Returns 1 if some ray was hit, else 0."""
+    zero = np.float32(0.0)
+    nh = 0
+    for i in range(na):
+        okx = S32[F_OU + i]
+        oky = S32[F_OV + i]
+        okz = S32[F_OK + i]
+        Sx = S32[F_SX + i]
+        Sy = S32[F_SY + i]
+        Sz = S32[F_SZ + i]
+        az = q0z - okz
+        bz = q1z - okz
+        cz = q2z - okz
+        Ax = (q0x - okx) - Sx * az
+        Ay = (q0y - oky) - Sy * az
+        Bx = (q1x - okx) - Sx * bz
+        By = (q1y - oky) - Sy * bz
+        Cx = (q2x - okx) - Sx * cz
+        Cy = (q2y - oky) - Sy * cz
+        U = Cx * By - Cy * Bx
+        V = Ax * Cy - Ay * Cx
+        W = Bx * Ay - By * Ax
+        out = ((U < zero) | (V < zero) | (W < zero)) & ((U > zero) | (V > zero) | (W > zero))
+        if out or not ((U == zero) | (V == zero) | (W == zero)):
+            continue  # decided in float32
+        # exact products of the float32 coordinates
+        U64 = np.float64(Cx) * np.float64(By) - np.float64(Cy) * np.float64(Bx)
+        V64 = np.float64(Ax) * np.float64(Cy) - np.float64(Ay) * np.float64(Cx)
+        W64 = np.float64(Bx) * np.float64(Ay) - np.float64(By) * np.float64(Ax)
+        if (U64 < 0.0 or V64 < 0.0 or W64 < 0.0) and (U64 > 0.0 or V64 > 0.0 or W64 > 0.0):
+            continue
+        det = U64 + V64 + W64
+        if det == 0.0:
+            continue
+        T = U64 * (np.float64(Sz) * np.float64(az)) + V64 * (np.float64(Sz) * np.float64(bz)) + W64 * (
+            np.float64(Sz) * np.float64(cz))
+        t32 = np.float32(T / det)
+        bt = S32[F_BT + i]
+        if t32 > np.float32(tmin) and ((t32 < bt) or (t32 == bt and ff < I32[F_BF + i])):
+            S32[F_BT + i] = t32
+            I32[F_BF + i] = ff
+            nh = 1
+    return nh
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _test_mt32(S32, I32, na, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z, ff, tmin32):
+    """_test_mt in float32 over the packet, L32 rays at a time (vertices less the packet's
+    reference origin, rounded).  Returns 1 if some ray was hit, else 0."""
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    nh = False
+    e1x = q1x - q0x
+    e1y = q1y - q0y
+    e1z = q1z - q0z
+    e2x = q2x - q0x
+    e2y = q2y - q0y
+    e2z = q2z - q0z
+    for b in range((na + L32 - 1) // L32):
+        for l in range(L32):
+            i = b * L32 + l
+            dx = S32[F_DX + i]
+            dy = S32[F_DY + i]
+            dz = S32[F_DZ + i]
+            px = dy * e2z - dz * e2y
+            py = dz * e2x - dx * e2z
+            pz = dx * e2y - dy * e2x
+            det = e1x * px + e1y * py + e1z * pz
+            inv = one / det
+            sx = S32[F_OX + i] - q0x
+            sy = S32[F_OY + i] - q0y
+            sz = S32[F_OZ + i] - q0z
+            u = (sx * px + sy * py + sz * pz) * inv
+            qx = sy * e1z - sz * e1y
+            qy = sz * e1x - sx * e1z
+            qz = sx * e1y - sy * e1x
+            v = (dx * qx + dy * qy + dz * qz) * inv
+            t = (e2x * qx + e2y * qy + e2z * qz) * inv
+            bt = S32[F_BT + i]
+            bf = I32[F_BF + i]
+            hit = (det != zero) & (not ((u < zero) | (u > one))) & (not ((v < zero) | (u + v > one)))
+            hit = hit & (t > tmin32) & ((t < bt) | ((t == bt) & (ff < bf)))
+            S32[F_BT + i] = t if hit else bt
+            I32[F_BF + i] = ff if hit else bf
+            nh |= hit
+    return int(nh)
+
+
 @njit(cache=True)
 def _outside(p0u, p0v, p0k, p1u, p1v, p1k, p2u, p2v, p2k, xr, u0, u1, v0, v1, su0, su1, sv0, sv1):
     """True when the triangle lies wholly beyond one of the packet's four bounding planes
@@ -299,10 +524,16 @@ def _outside(p0u, p0v, p0k, p1u, p1v, p1k, p2u, p2v, p2k, xr, u0, u1, v0, v1, su
 
 
 @njit(cache=True, _nrt=False)
-def _finish(S, a, io, tests, cells):
+def _finish(S, a, io, tests, cells, f32, S32, I32):
+    """Active ray a's results into io (from the float32 tests' rows with f32)."""
     j = int(S[O_J + a])
-    bf = S[O_BF + a]
-    io[IO_T * PN + j] = S[O_BT + a] if bf >= 0.0 else np.inf
+    if f32:
+        bf = np.float64(I32[F_BF + a])
+        bt = np.float64(S32[F_BT + a])
+    else:
+        bf = S[O_BF + a]
+        bt = S[O_BT + a]
+    io[IO_T * PN + j] = bt if bf >= 0.0 else np.inf
     io[IO_F * PN + j] = bf
     io[IO_NT * PN + j] = tests
     io[IO_NC * PN + j] = cells
@@ -326,8 +557,23 @@ def _count_final(S, na, xp, any_hit):
     return nf, pend
 
 
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _count_final32(S, S32, I32, na, xp, any_hit):
+    """_count_final on the float32 tests' best t and triangle."""
+    nf = 0
+    pend = 0
+    for i in range(na):
+        te = (xp - S[O_OK + i]) * S[O_IDK + i]
+        hit = I32[F_BF + i] >= 0
+        fin = (np.float64(S32[F_BT + i]) <= te) | (S[O_T1 + i] <= te) | (any_hit & hit)
+        S[O_CT0 + i] = 1.0 if fin else 0.0
+        nf += fin
+        pend += hit & (not fin)
+    return nf, pend
+
+
 @njit(cache=True, _nrt=False)
-def _retire(S, na, io, watertight, tests, cells):
+def _retire(S, na, io, watertight, tests, cells, f32, S32, I32):
     """Write out the rays flagged by _count_final and remove them from the active set; survivors
     from the end fill the gaps, so the active rays stay a contiguous prefix and each ray is moved
     at most once.  Returns the number of active rays left."""
@@ -336,10 +582,10 @@ def _retire(S, na, io, watertight, tests, cells):
         if S[O_CT0 + a] == 0.0:
             a += 1
             continue
-        _finish(S, a, io, tests, cells)
+        _finish(S, a, io, tests, cells, f32, S32, I32)
         na -= 1
         while na > a and S[O_CT0 + na] != 0.0:
-            _finish(S, na, io, tests, cells)
+            _finish(S, na, io, tests, cells, f32, S32, I32)
             na -= 1
         if na > a:  # move the last surviving ray here: the rows read after setup
             for r in range(_R_SX):
@@ -347,18 +593,25 @@ def _retire(S, na, io, watertight, tests, cells):
             r0, r1 = (_R_SX, _R_OX) if watertight else (_R_OX, _R_T0)
             for r in range(r0, r1):
                 S[r * PN + a] = S[r * PN + na]
+            if f32:
+                for r in range(_F_BF):
+                    S32[r * PN + a] = S32[r * PN + na]
+                I32[F_BF + a] = I32[F_BF + na]
             S[O_CT0 + a] = 0.0
             a += 1
+    if f32:
+        _dead32(S32, na)
     return na
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def _step(S, na, io, xp, any_hit, watertight, tests, cells):
-    """Retire the rays that are final at xp; returns (active rays, active rays with a hit)."""
-    nf, pend = _count_final(S, na, xp, any_hit)
+def _step(S, na, io, xp, any_hit, watertight, tests, cells, f32, S32, I32):
+    """Retire the rays that are final at xp; returns (active rays, active rays with a hit).  With
+    f32 the float32 tests' rows are read."""
+    nf, pend = _count_final32(S, S32, I32, na, xp, any_hit) if f32 else _count_final(S, na, xp, any_hit)
     if nf == 0:
         return na, pend
-    return _retire(S, na, io, watertight, tests, cells), pend
+    return _retire(S, na, io, watertight, tests, cells, f32, S32, I32), pend
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
@@ -522,13 +775,17 @@ def _prefetch_slice(tris, cell_start, tri_ids, ck, stU, stV, cu_0, cu_1, cv_0, c
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _test_slice(tris, cell_start, tri_ids, ck, stU, stV, cu_0, cu_1, cv_0, cv_1, U, V, K, box, planes, S, na, mb,
-                watertight, tmin, prof=None):
+                watertight, tmin, f32, S32, I32, ref, tmin32, prof=None):
     """Test the triangles of the cells [cu_0, cu_1] x [cv_0, cv_1] of one slice (ck: its first
     cell's index) against the active rays: each once (the packet's mailbox mb), unless it lies
     outside the packet's extent in the slice (box = (ulo, uhi, vlo, vhi)) or beyond one of its
     four bounding planes (planes = (xr, the planes' offsets u0, u1, v0, v1 and slopes, see
-    _outside)).  Returns (cells visited, triangle tests, rays hit).  With ``prof`` the tests'
-    cycles go to its P_TESTS slot."""
+    _outside)).  With f32 the tests run in float32 (_test_wt32 with its float64 fallback, or
+    _test_mt32) on the float32 rows S32 and I32, vertices less the reference origin ref (see
+    _setup32).
+    Returns (cells visited, triangle tests, rays hit).  With ``prof`` the tests' cycles go to its
+    P_TESTS slot."""
+    rx, ry, rz, ru, rv, rk = ref
     ulo, uhi, vlo, vhi = box
     xr, pl_u0, pl_u1, pl_v0, pl_v1, sl_u0, sl_u1, sl_v0, sl_v1 = planes
     mmask = mb.shape[0] - 1
@@ -564,7 +821,25 @@ def _test_slice(tris, cell_start, tri_ids, ck, stU, stV, cu_0, cu_1, cv_0, cv_1,
                         continue  # the packet's bounds only shrink: it stays outside
                     tests += 1
                     t0 = _now(prof)
-                    if watertight:
+                    if f32 and watertight:
+                        q0u, q0v, q0k = np.float32(p0u - ru), np.float32(p0v - rv), np.float32(p0k - rk)
+                        q1u, q1v, q1k = np.float32(p1u - ru), np.float32(p1v - rv), np.float32(p1k - rk)
+                        q2u, q2v, q2k = np.float32(p2u - ru), np.float32(p2v - rv), np.float32(p2k - rk)
+                        nh, nz = _test_wt32(S32, I32, na, q0u, q0v, q0k, q1u, q1v, q1k, q2u, q2v, q2k, np.int32(f),
+                                            tmin32)
+                        hits += nh
+                        if nz > 0:
+                            hits += _fix_wt64(S32, I32, na, q0u, q0v, q0k, q1u, q1v, q1k, q2u, q2v, q2k, np.int32(f),
+                                              tmin32)
+                    elif f32:
+                        hits += _test_mt32(
+                            S32, I32, na, np.float32(np.float64(tris[f, 0, 0]) - rx),
+                            np.float32(np.float64(tris[f, 0, 1]) - ry), np.float32(np.float64(tris[f, 0, 2]) - rz),
+                            np.float32(np.float64(tris[f, 1, 0]) - rx), np.float32(np.float64(tris[f, 1, 1]) - ry),
+                            np.float32(np.float64(tris[f, 1, 2]) - rz), np.float32(np.float64(tris[f, 2, 0]) - rx),
+                            np.float32(np.float64(tris[f, 2, 1]) - ry), np.float32(np.float64(tris[f, 2, 2]) - rz),
+                            np.int32(f), tmin32)
+                    elif watertight:
                         hits += _test_wt(
                             S, na, p0u, p0v, p0k, p1u, p1v, p1k, p2u, p2v, p2k, np.float64(f), tmin)
                     else:
@@ -579,7 +854,7 @@ def _test_slice(tris, cell_start, tri_ids, ck, stU, stV, cu_0, cu_1, cv_0, cv_1,
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.inf, prof=None):
+def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.inf, prof=None, f32=False):
     """Trace rays 0..n-1 of the table io (NIO * PN,) float64 (origin, direction, tmax per ray)
     through the grid g (:class:`gridrt.trace.grids.GridArrays`).
 
@@ -598,6 +873,12 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.i
     ranges and prefetch; cell visits, mailbox and culls, with the triangle tests apart in
     P_TESTS; retiring rays; the single-ray fallback) and the counts C_* (packets, slices, cells,
     tests).  Profiling costs a counter read per phase and per test.
+
+    With ``f32`` the triangle tests run in float32 (_test_wt32, _test_mt32: twice the lanes of a
+    vector register), relative to the packet's reference origin (active ray 0's); the
+    watertight test decides rays with an edge function exactly 0 in float64.  A ray's hit and
+    its t then agree with the float64 tests' up to float32 rounding (about 1e-7 relative): at
+    near-ties in t and within that distance of an edge, the triangle may differ.
     """
     t = _now(prof)
     tris, lo, cell, inv_cell, dims = g.tris, g.lo, g.cell, g.inv_cell, g.dims
@@ -622,6 +903,12 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.i
     if neg0:
         U, V = V, U
     _setup(S, na, U, V, K)
+    S32 = S[O_F32:].view(np.float32)
+    I32 = S[O_F32:].view(np.int32)
+    ref = (S[O_OX], S[O_OY], S[O_OZ], S[O_OU], S[O_OV], S[O_OK])
+    tmin32 = _up32(tmin)
+    if f32:
+        _setup32(S, S32, I32, na, ref, watertight)
     loK, loU, loV = lo[K], lo[U], lo[V]
     cK = cell[K]
     icK, icU, icV = inv_cell[K], inv_cell[U], inv_cell[V]
@@ -686,7 +973,7 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.i
                 nc, nt, nh = _test_slice(
                     tris, cell_start, tri_ids, k * stK, stU, stV, cu_0, cu_1, cv_0, cv_1, U, V, K,
                     (ulo, uhi, vlo, vhi), (xr, pl_u0, pl_u1, pl_v0, pl_v1, sl_u0, sl_u1, sl_v0, sl_v1),
-                    S, na, mb, watertight, tmin, prof)
+                    S, na, mb, watertight, tmin, f32, S32, I32, ref, tmin32, prof)
                 t = _lap(prof, P_CELLS, t)
                 _prof_count(prof, C_SLICES, 1)
                 _prof_count(prof, C_CELLS, nc)
@@ -696,7 +983,7 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.i
                 pending += nh
                 xa = xb
                 if pending > 0:
-                    nb, pending = _step(S, na, io, xb, any_hit, watertight, tests, cells)
+                    nb, pending = _step(S, na, io, xb, any_hit, watertight, tests, cells, f32, S32, I32)
                     if nb != na:
                         na = nb
                         if na == 0:
@@ -711,7 +998,7 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.i
             xa = xm
             t = _lap(prof, P_MACRO, t)
         # once per macro slab: also retire rays whose segment has ended
-        nb, pending = _step(S, na, io, xa, any_hit, watertight, tests, cells)
+        nb, pending = _step(S, na, io, xa, any_hit, watertight, tests, cells, f32, S32, I32)
         if nb != na:
             na = nb
             if na == 0:
@@ -721,23 +1008,23 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.i
         k = kend + sK
         t = _lap(prof, P_RETIRE, t)
     for a in range(na):
-        _finish(S, a, io, tests, cells)
+        _finish(S, a, io, tests, cells, f32, S32, I32)
     _lap(prof, P_RETIRE, t)
     return 0
 
 
 @njit(cache=True, _nrt=False, error_model="numpy", inline="always")
-def trace_packet_grids(grids, n, io, io2, tmin, watertight, any_hit, S, mb, mb1):
+def trace_packet_grids(grids, n, io, io2, tmin, watertight, any_hit, S, mb, mb1, f32):
     """:func:`trace_packet` over the tuple of grids, in order (as trace_grids does for one ray):
     each later grid's rays end at the hit found before it (nearest), or are skipped where one was
     found (any_hit).  io's IO_W row tells which grid the hit is in; io2 is scratch.  Returns the
     number of rays traced by the fallback."""
-    nf = trace_packet(grids[0], n, io, tmin, watertight, any_hit, S, mb, mb1)
+    nf = trace_packet(grids[0], n, io, tmin, watertight, any_hit, S, mb, mb1, np.inf, None, f32)
     for j in range(n):
         io[IO_W * PN + j] = 0.0
     for i in range(1, len(grids)):
         _chain_rays(io, io2, n, any_hit)
-        nf += trace_packet(grids[i], n, io2, tmin, watertight, any_hit, S, mb, mb1)
+        nf += trace_packet(grids[i], n, io2, tmin, watertight, any_hit, S, mb, mb1, np.inf, None, f32)
         _merge_hits(io, io2, n, i)
     return nf
 
@@ -862,7 +1149,7 @@ def _prefetch_tile(ti, ntx, tile, W, H, img, tbuf, idbuf, costbuf, cellbuf):
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _render_tiles(
-    grids, basis, W, H, tile, t0, t1, mode, shadows, light, off, watertight,
+    grids, basis, W, H, tile, t0, t1, mode, shadows, light, off, watertight, f32,
     img, tbuf, idbuf, costbuf, cellbuf, S, io, io2, sio, sj, col, mb, mb1, acc,
 ):
     """Render tiles t0..t1-1 (row-major), each as packets of up to PK x PK pixels: trace and shade
@@ -889,7 +1176,7 @@ def _render_tiles(
                 ph = min(PK, ty1 - py0)
                 n = pw * ph
                 _camera_rays(basis, W, H, px0, py0, pw, ph, io)
-                nfb = trace_packet_grids(grids, n, io, io2, 0.0, watertight, False, S, mb, mb1)
+                nfb = trace_packet_grids(grids, n, io, io2, 0.0, watertight, False, S, mb, mb1, f32)
                 # colours into col (3 * PN), shadow rays of lit hits into sio
                 m = 0
                 for j in range(n):
@@ -928,7 +1215,7 @@ def _render_tiles(
                     col[PN + j] = g
                     col[2 * PN + j] = b
                 if light is not None and m > 0:
-                    nfb += trace_packet_grids(grids, m, sio, io2, 0.0, watertight, True, S, mb, mb1)
+                    nfb += trace_packet_grids(grids, m, sio, io2, 0.0, watertight, True, S, mb, mb1, f32)
                     for q in range(m):
                         j = sj[q]
                         r, g, b = lambert_rgb(col[j] if sio[IO_F * PN + q] < 0.0 else 0.0)
@@ -963,10 +1250,11 @@ def _chunking(W, H, tile):
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def cgt_render_kernel(
-    grids, basis, W, H, tile, mode, shadows, light, off, watertight, img, tbuf, idbuf, costbuf, cellbuf,
+    grids, basis, W, H, tile, mode, shadows, light, off, watertight, f32, img, tbuf, idbuf, costbuf, cellbuf,
 ):
-    """render_kernel (same arguments, same buffers, same shading) with primary and shadow rays
-    traced as packets of up to PK x PK pixels within each tile.  costbuf / cellbuf hold the CGT
+    """render_kernel (same arguments and f32, same buffers, same shading) with primary and shadow
+    rays traced as packets of up to PK x PK pixels within each tile, their triangle tests in
+    float32 with f32 (see trace_packet).  costbuf / cellbuf hold the CGT
     counters (see the module docstring).  Returns (4,) int64: pixels hit, the sums of costbuf and
     cellbuf, and the number of rays (primary and shadow) that took the single-ray fallback."""
     # scratch is allocated once per chunk (a run of consecutive tiles); call under
@@ -978,7 +1266,7 @@ def cgt_render_kernel(
     for ch in prange(nch):
         _render_tiles(
             unpack_grids(flat), basis, W, H, tile, ch * per, min((ch + 1) * per, ntiles), mode, shadows, light, off,
-            watertight, img.reshape(H * W * 4), tbuf.reshape(H * W), idbuf.reshape(H * W), costbuf.reshape(H * W),
+            watertight, f32, img.reshape(H * W * 4), tbuf.reshape(H * W), idbuf.reshape(H * W), costbuf.reshape(H * W),
             cellbuf.reshape(H * W), np.empty(NS * PN), np.empty(NIO * PN), np.empty(NIO * PN), np.empty(NIO * PN),
             np.empty(PN, np.int64), np.empty(3 * PN), np.empty(MBOX, np.int32), np.empty(MAILBOX, np.int32), acc[ch],
         )
@@ -986,7 +1274,7 @@ def cgt_render_kernel(
 
 
 def cgt_render_serial(
-    grids, basis, W, H, tile, mode, shadows, light, off, watertight, img, tbuf, idbuf, costbuf, cellbuf,
+    grids, basis, W, H, tile, mode, shadows, light, off, watertight, f32, img, tbuf, idbuf, costbuf, cellbuf,
 ):
     """cgt_render_kernel on one thread: all tiles in order, one scratch; the same buffers and sums
     bit for bit (tiles are independent).  A Python function around the kernel _render_tiles, so
@@ -996,7 +1284,7 @@ def cgt_render_serial(
     ntiles = ((W + tile - 1) // tile) * ((H + tile - 1) // tile)
     acc = np.zeros(4, np.int64)
     _render_tiles(
-        grids, basis, W, H, tile, 0, ntiles, mode, shadows, light, off, watertight,
+        grids, basis, W, H, tile, 0, ntiles, mode, shadows, light, off, watertight, f32,
         img.reshape(H * W * 4), tbuf.reshape(H * W), idbuf.reshape(H * W), costbuf.reshape(H * W),
         cellbuf.reshape(H * W), np.empty(NS * PN), np.empty(NIO * PN), np.empty(NIO * PN), np.empty(NIO * PN),
         np.empty(PN, np.int64), np.empty(3 * PN), np.empty(MBOX, np.int32), np.empty(MAILBOX, np.int32), acc,

@@ -34,7 +34,7 @@ import numpy as np
 from numba import njit, parallel_chunksize, prange
 
 from ..arrays import as_origin, check_ray_values, check_rays
-from ..config import DEFAULT_MAX_BYTES, RenderParams, _positive_int
+from ..config import DEFAULT_MAX_BYTES, PACKET_PRECISIONS, RenderParams, _positive_int
 from ..errors import InputError
 from ..stats import RenderStats
 from ..threads import check_threads, launch_guard, use_threads
@@ -179,7 +179,8 @@ def cast_bytes(n, chunk=None):
 
 
 def cast_batch(grid, tris, origins, dirs, origin=None, tmin=0.0, tmax=np.inf, watertight=True, any_hit=False,
-               threads=None, max_bytes=None, chunk=None, packets=True, max_cells=None) -> Hits:
+               threads=None, max_bytes=None, chunk=None, packets=True, max_cells=None,
+               packet_precision="float64") -> Hits:
     """Cast a batch of rays through ``grid`` over ``tris``, its own C-contiguous (F,3,3) float32
     triangles in the grid's frame (what :func:`_check_grid_tris` returns); ray origins are moved
     into that frame by subtracting ``origin`` ((3,) float64; None: the frame is the world's) in
@@ -194,7 +195,8 @@ def cast_batch(grid, tris, origins, dirs, origin=None, tmin=0.0, tmax=np.inf, wa
     Coherent runs of rays are traced as CGT packets (gridrt.trace.batch): ``packets=False`` traces
     every ray on its own; ``max_cells`` (default :data:`gridrt.trace.batch.MAX_CELLS`) is the
     widest slice, in cells, a run's bounds may cover to be traced as a packet.  The hits are the
-    same either way."""
+    same either way.  ``packet_precision`` "float32" runs the packets' triangle tests in float32
+    (see gridrt.trace.batch; RenderParams.packet_precision)."""
     from ..grid.layout import Grid
 
     if not isinstance(grid, Grid):
@@ -217,6 +219,10 @@ def cast_batch(grid, tris, origins, dirs, origin=None, tmin=0.0, tmax=np.inf, wa
               and math.isfinite(max_cells) and max_cells >= 0):
         raise InputError(f"max_cells must be a finite number >= 0, got {max_cells!r}")
     max_cells = float(max_cells) if packets else 0.0
+    if packet_precision not in PACKET_PRECISIONS:
+        raise InputError(f"unknown packet precision {packet_precision!r}; choose one of "
+                         f"{', '.join(PACKET_PRECISIONS)}")
+    f32 = packet_precision == "float32"
     frame = as_origin(origin)  # (RayCaster's frame, or grid.origin: both engine-made)
     frame = frame if frame.any() else None
     chunk = CAST_CHUNK if chunk is None else _positive_int("chunk", chunk)
@@ -253,13 +259,13 @@ def cast_batch(grid, tris, origins, dirs, origin=None, tmin=0.0, tmax=np.inf, wa
                 if np.may_share_memory(dc, d):
                     dc = dc.copy()  # (never write to the caller's array)
                 dc[odd] = np.ldexp(d_odd, -ex[:, None])
-            cast_grouped(g, oc, dc, tmin, tmax, wt, ah, out, max_cells)
+            cast_grouped(g, oc, dc, tmin, tmax, wt, ah, out, max_cells, f32)
             for x in np.unique(ex):
                 rows = odd[ex == x]
                 # t = t' * 2**-x for d' = d * 2**-x; a hit beyond float64's range is no hit
                 lo_t, hi_t = np.ldexp(np.array([tmin, tmax]), int(x))
                 sub = [np.empty(len(rows)), np.empty(len(rows), np.int32), np.empty(len(rows)), np.empty(len(rows))]
-                cast_grouped(g, oc[rows], dc[rows], float(lo_t), float(hi_t), wt, ah, sub, max_cells)
+                cast_grouped(g, oc[rows], dc[rows], float(lo_t), float(hi_t), wt, ah, sub, max_cells, f32)
                 with np.errstate(over="ignore"):
                     ts = np.ldexp(sub[0], -int(x))
                 gone = ~np.isfinite(ts)
@@ -271,17 +277,18 @@ def cast_batch(grid, tris, origins, dirs, origin=None, tmin=0.0, tmax=np.inf, wa
 
 
 def cast_rays(grid, tris, origins, dirs, tmin=0.0, tmax=np.inf, watertight=True, any_hit=False, threads=None,
-              max_bytes=None, packets=True):
+              max_bytes=None, packets=True, packet_precision="float64"):
     """Cast rays through a built grid. Returns Hits. Directions need not be unit length
     (t is then in units of the given direction).  Rays are cast in chunks of CAST_CHUNK, so the
     memory needed is the results (28 bytes a ray) plus a bounded scratch; a batch above
     ``max_bytes`` (default 2 GiB, GridParams' default budget) is refused before anything is
     allocated (see :func:`cast_batch`).  Coherent runs of rays go through CGT packets
     (``packets=False``: every ray on its own); the hits do not depend on it, nor on the rays'
-    order."""
+    order.  ``packet_precision="float32"``: the packets' triangle tests in float32 (see
+    :func:`cast_batch`)."""
     tris = _check_grid_tris(grid, tris)
     return cast_batch(grid, tris, origins, dirs, getattr(grid, "origin", None), tmin, tmax, watertight, any_hit,
-                      threads, max_bytes, packets=packets)
+                      threads, max_bytes, packets=packets, packet_precision=packet_precision)
 
 
 @dataclass
@@ -360,6 +367,7 @@ class Renderer:
         )
         t0 = time.perf_counter()
         if params.traversal == "cgt":
+            args = args[:10] + (params.packet_precision == "float32",) + args[10:]
             if not params.shadows:  # light None: the CGT kernel without its shadow path (compiles faster)
                 args = args[:7] + (None,) + args[8:]
             with parallel_chunksize(1):  # dynamic scheduling of the kernel's chunks of tiles

@@ -1,0 +1,215 @@
+"""CGT packet tests in float32 (``RenderParams.packet_precision="float32"``, ``cast_rays(...,
+packet_precision="float32")``): engine/trace/cgt.py's _test_wt32 / _test_mt32 and the float64
+fallback _fix_wt64.
+
+* Renders (both intersection tests; the test_cgt scenes and views) agree with the float64 brute
+  force (tests/reference.py) up to float32 rounding: every pixel that differs is a near-tie in t
+  or within F32_GRAZE (barycentric) of an edge, and t is within F32_T of the brute force's.  The
+  float64 packets, checked alike, use test_cgt's much tighter tolerances.
+* Images are identical across thread counts.
+* Far from the grid's frame (spheres 1e4 apart, a camera near one): packet coordinates are taken
+  relative to the packet's origin in float64 before rounding, so float32 keeps the precision of
+  the ray's own length; the same tolerances hold.  (float32 directions still limit where a ray
+  crosses a triangle to about 1e-7 of its length: at 1e4 pixels' distance that is an edge band
+  of 1e-3 of a pixel.)
+* The float64 fallback: rays straight down through the diagonal of a square made of two
+  triangles (the diagonal's edge function is exactly 0 in float32) and through its corner
+  vertices all hit; the float32 loop really leaves them undecided (_test_wt32's flag).
+* Batch casts: float32 packets pick the triangle, the float64 test of that triangle gives t, u
+  and v (t to 1e-9 of the brute force's where the triangle is the same), any-hit shadow rays
+  agree with the brute force; hypothesis batches of pencils of 1..200 rays (packets whose last
+  block of 16 lanes is partly empty) likewise.
+* Watertightness in float32 (star packets, camera rows): tests/test_watertight.py and
+  tests/test_soak.py (10M probes under ``-m soak``) run the float32 watertight test beside the
+  float64 one.
+"""
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import reference as R
+from conftest import icosphere_tris, random_scene
+from gridrt.camera import Camera
+from gridrt.config import GridParams, RenderParams
+from gridrt.errors import InputError
+from gridrt.grid import build_grid
+from gridrt.trace import cast_rays, cgt, render
+from gridrt.trace.grids import grid_arrays
+from gridrt.trace.traverse import MAILBOX
+from test_cgt import camera, grid_of
+
+#: float32 tolerances: t (relative), near-ties (relative), edges (barycentric)
+F32_T = 1e-5
+F32_TIE = 1e-5
+F32_GRAZE = 1e-5
+
+
+def check_f32(res, ref, label, max_grazing=0.01):
+    """A float32 render or cast against the brute force: nothing wrong beyond float32 rounding."""
+    t = res.t.reshape(-1).astype(np.float64)
+    tri = res.tri.reshape(-1)
+    diff = R.compare_hits(t, tri, ref, t_rtol=F32_T, tie_rtol=F32_TIE, graze_tol=F32_GRAZE)
+    assert len(diff.bad) == 0, (f"{label}: {len(diff.bad)} of {len(t)} rays differ from the brute force beyond "
+                                f"float32 rounding, first {diff.bad[:5]}")
+    assert len(diff.grazing) <= max_grazing * len(t) + 1, f"{label}: {len(diff.grazing)} grazing rays"
+    return diff
+
+
+@pytest.mark.parametrize("watertight", [True, False])
+@pytest.mark.parametrize("name", ["random", "icosphere", "teapot", "terrain", "cubes", "dups"])
+def test_f32_render_matches_brute_force(name, watertight):
+    tris, grid = grid_of(name)
+    W, H = 45, 37
+    for view in ("framed", "inside", "grazing", "axis", "diagonal"):
+        cam = camera(view, tris)
+        p = RenderParams(width=W, height=H, tile=8, shading="normal", watertight=watertight)
+        ref = R.ref_render(tris, cam, W, H, "normal").hits
+        r32 = render(grid, tris, cam, p.replace(packet_precision="float32"))
+        d = check_f32(r32, ref, f"{name}/{view} float32")
+        r64 = render(grid, tris, cam, p)
+        n_diff = int((r64.tri != r32.tri).sum())
+        print(f"{name}/{view} wt={watertight}: {(r32.tri >= 0).sum()} hits, {n_diff} pixels differ from the float64 "
+              f"packets, {len(d.grazing)} grazing")
+        if watertight:  # the float64 packets, with test_cgt's tolerances
+            d64 = R.compare_hits(r64.t.reshape(-1).astype(np.float64), r64.tri.reshape(-1), ref, t_rtol=1e-6,
+                                 graze_tol=1e-9)
+            assert len(d64.bad) == 0
+
+
+def test_f32_images_identical_across_threads():
+    tris, grid = grid_of("teapot")
+    cam = camera("framed", tris)
+    lo, hi = grid.spec.scene_lo, grid.spec.scene_hi
+    light = tuple(0.5 * (lo + hi) + np.array([0.3, 1.5, 0.8]) * float((hi - lo).max()))
+    p = RenderParams(width=67, height=53, tile=16, shadows=True, light=light, packet_precision="float32")
+    a = render(grid, tris, cam, p.replace(threads=1))
+    for threads in (2, 3):
+        b = render(grid, tris, cam, p.replace(threads=threads))
+        for f in ("image", "t", "tri", "cost", "cells"):
+            assert np.array_equal(getattr(a, f), getattr(b, f)), f"{f} differs at {threads} threads"
+
+
+def test_f32_far_from_the_frame():
+    """Two unit spheres 1e4 apart (the grid's frame is centred between them) and a camera 4 units
+    from one: float32 of the frame coordinates themselves (5000 * 6e-8 = 3e-4) would move edges by
+    about 2e-3 of a triangle (edges 0.15); relative to the packet's origin the error is that of a
+    ray 3 units long."""
+    one = icosphere_tris(3, radius=1.0)
+    tris = np.concatenate([one + np.float32([5000.0, 0.0, 0.0]), one - np.float32([5000.0, 0.0, 0.0])])
+    grid = build_grid(tris, GridParams())
+    cam = Camera(eye=(5001.0123457, 1.5123457, 3.5012345), target=(5000.0, 0.0, 0.0), fov=40.0)
+    W = H = 64
+    ref = R.ref_render(tris, cam, W, H, "normal").hits
+    for wt in (True, False):
+        res = render(grid, tris, cam, RenderParams(W, H, shading="normal", watertight=wt, packet_precision="float32"))
+        assert (res.tri >= 0).mean() > 0.2
+        check_f32(res, ref, f"far from the frame, wt={wt}")
+
+
+def _square():
+    """The unit square in z = 0 as two triangles sharing the diagonal (0,0)-(1,1)."""
+    return np.array([[[0, 0, 0], [1, 0, 0], [1, 1, 0]], [[0, 0, 0], [1, 1, 0], [0, 1, 0]]], np.float32)
+
+
+def _packet(g, o, d, watertight=True, f32=True):
+    n = len(o)
+    S = np.empty(cgt.NS * cgt.PN)
+    io = np.empty(cgt.NIO * cgt.PN)
+    for r, col in ((cgt.IO_OX, o[:, 0]), (cgt.IO_OY, o[:, 1]), (cgt.IO_OZ, o[:, 2]), (cgt.IO_DX, d[:, 0]),
+                   (cgt.IO_DY, d[:, 1]), (cgt.IO_DZ, d[:, 2]), (cgt.IO_TMAX, np.full(n, np.inf))):
+        io[r * cgt.PN : r * cgt.PN + n] = col
+    nf = cgt.trace_packet(g, n, io, 0.0, watertight, False, S, np.empty(cgt.MBOX, np.int32),
+                          np.empty(MAILBOX, np.int32), np.inf, None, f32)
+    return nf, io[cgt.IO_T * cgt.PN : cgt.IO_T * cgt.PN + n].copy(), io[cgt.IO_F * cgt.PN : cgt.IO_F * cgt.PN + n]
+
+
+def test_f32_fallback_on_exact_edges():
+    tris = _square()
+    grid = build_grid(tris, GridParams())
+    g = grid_arrays(grid, tris)
+    s = np.linspace(0.0, 1.0, 37)
+    # straight down through the diagonal (and its ends, the shared vertices), one packet of parallel rays
+    o = np.stack([s, s, np.full_like(s, 2.0)], 1)
+    d = np.tile([0.0, 0.0, -1.0], (len(s), 1))
+    nf, t, f = _packet(g, o, d)
+    assert nf == 0
+    assert (f >= 0).all() and np.allclose(t, 2.0, rtol=1e-7), f"rays through the shared edge missed: {f}"
+    assert (f == 0).all()  # on the edge both triangles are hit at the same t: the lower index wins
+    # the float32 loop leaves these rays to the float64 fallback: its edge function is exactly 0
+    S = np.zeros(cgt.NS * cgt.PN)
+    S32 = S[cgt.O_F32:].view(np.float32)
+    I32 = S[cgt.O_F32:].view(np.int32)
+    n = len(s)
+    S32[cgt.F_OU : cgt.F_OU + n] = o[:, 0] - o[0, 0]  # (permutation for d = -z: U = x, V = y, K = z)
+    S32[cgt.F_OV : cgt.F_OV + n] = o[:, 1] - o[0, 1]
+    S32[cgt.F_SZ : cgt.F_SZ + n] = -1.0
+    S32[cgt.F_BT : cgt.F_BT + n] = np.inf
+    I32[cgt.F_BF : cgt.F_BF + n] = -1
+    q = (tris[1] - o[0]).astype(np.float32)
+    hit, undecided = cgt._test_wt32(S32, I32, n, *q[0], *q[1], *q[2], np.int32(1), np.float32(0.0))
+    assert undecided == 1 and hit == 0
+    # a packet from one eye at the shared corner and along the diagonal: every ray hits
+    eye = np.array([0.3, 0.7, 1.5])
+    tg = np.stack([s, s, np.zeros_like(s)], 1)
+    nf, t, f = _packet(g, np.tile(eye, (len(s), 1)), tg - eye)
+    assert (f >= 0).all()
+    np.testing.assert_allclose(t, 1.0, rtol=1e-6)
+
+
+def test_f32_batch_casts():
+    tris = np.ascontiguousarray(icosphere_tris(3), np.float32)
+    grid = build_grid(tris, GridParams())
+    cam = Camera(eye=(0.4, 0.5, 2.6), target=(0.0, 0.0, 0.0), fov=55.0)
+    o, d = cam.rays(96, 80)
+    ref = R.ref_cast(tris, o, d)
+    perm = np.random.default_rng(4).permutation(len(o))
+    for oo, dd, rr in ((o, d, ref), (o[perm], d[perm], R.ref_cast(tris, o[perm], d[perm]))):
+        for threads in (1, 2):
+            h = cast_rays(grid, tris, oo, dd, threads=threads, packet_precision="float32")
+            diff = check_f32(h, rr, "camera rays", 0.002)
+            # t, u, v: the float64 test's of the triangle chosen
+            same = (h.tri == rr.tri) & (h.tri >= 0)
+            np.testing.assert_allclose(h.t[same], rr.t[same], rtol=1e-9)
+            assert ((h.u >= 0) & (h.v >= 0) & (h.u + h.v <= 1 + 1e-12))[h.tri >= 0].all()
+            assert len(diff.grazing) <= 10
+    # shadow rays towards a point, any hit
+    hit = ref.tri >= 0
+    p = o[hit] + d[hit] * (ref.t[hit] * (1 - 1e-6))[:, None]
+    sd = np.array([2.0, 3.0, 1.5])[None, :] - p
+    sref = R.ref_cast(tris, p, sd, tmax=1.0)
+    a = cast_rays(grid, tris, p, sd, tmax=1.0, any_hit=True, packet_precision="float32")
+    occl = (a.tri >= 0) != (sref.tri >= 0)
+    assert occl.sum() <= 2, f"{occl.sum()} shadow rays disagree with the brute force"
+
+
+def test_packet_precision_checked():
+    tris = np.ascontiguousarray(icosphere_tris(1), np.float32)
+    grid = build_grid(tris, GridParams())
+    o, d = Camera(eye=(0, 0, 3.0), target=(0, 0, 0)).rays(4, 4)
+    for bad in ("float16", "f32", None, 32):
+        with pytest.raises(InputError, match="packet precision"):
+            cast_rays(grid, tris, o, d, packet_precision=bad)
+        with pytest.raises(InputError, match="packet precision"):
+            RenderParams(packet_precision=bad)
+
+
+_GRID = {}
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 200), threads=st.sampled_from([1, 2, 3]))
+def test_f32_random_pencils(seed, n, threads):
+    if not _GRID:
+        tris = random_scene(np.random.default_rng(21), 300, "mixed", None, dup_frac=0.1, degen_frac=0.05)
+        _GRID["v"] = (np.ascontiguousarray(tris, np.float32), build_grid(tris, GridParams()))
+    tris, grid = _GRID["v"]
+    rng = np.random.default_rng(seed)
+    lo, hi = tris.reshape(-1, 3).min(0).astype(np.float64), tris.reshape(-1, 3).max(0).astype(np.float64)
+    eye = rng.uniform(lo - 1.0, hi + 1.0)
+    tgt = rng.uniform(lo, hi, (n, 3))
+    o = np.repeat(eye[None], n, 0)
+    d = (tgt - eye) * rng.uniform(0.1, 10.0, (n, 1))
+    h = cast_rays(grid, tris, o, d, threads=threads, packet_precision="float32")
+    check_f32(h, R.ref_cast(tris, o, d), f"seed {seed}", 0.02)
