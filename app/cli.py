@@ -5,7 +5,7 @@ from dataclasses import fields
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from gridrt.camera import Camera, check_fov
-from gridrt.config import INSERT_MODES, SHADING_MODES, TRAVERSALS, GridParams, RenderParams
+from gridrt.config import INSERT_MODES, PACKET_PRECISIONS, SHADING_MODES, TRAVERSALS, GridParams, RenderParams
 from gridrt.errors import InputError
 from gridrt.threads import MAX_THREADS
 
@@ -98,8 +98,13 @@ def add_render_args(p, default_size=(1024, 768)):
     g.add_argument("--fast-intersect", action="store_true",
                    help="Moller-Trumbore instead of the watertight test (faster, may leak at edges)")
     g.add_argument("--traversal", choices=TRAVERSALS, default=d["traversal"],
-                   help="ray traversal: single-ray 3D DDA, or coherent grid traversal of 8x8 ray packets "
+                   help="ray traversal: single-ray 3D DDA, or coherent grid traversal of ray packets "
                         "(cgt; same image, faster)")
+    g.add_argument("--packet", default="x".join(map(str, d["packet"])),
+                   help="CGT packet size in pixels, N or WxH, each 1..16 (default %(default)s)")
+    g.add_argument("--packet-precision", choices=PACKET_PRECISIONS, default=d["packet_precision"],
+                   help="precision of the CGT packets' triangle tests: float64 (the DDA's hits bit for bit) or "
+                        "float32 (twice the lanes; hits agree up to float32 rounding) (default %(default)s)")
     g.add_argument("--eye", type=vec3, default=None,
                    help="camera position X,Y,Z, with --target (default: a camera that frames the scene)")
     g.add_argument("--target", type=vec3, default=None,
@@ -132,7 +137,8 @@ def grid_params(a):
 def render_params(a):
     w, h = a.size
     return RenderParams(width=w, height=h, shading=a.shading, shadows=a.shadows, light=a.light,
-                        watertight=not a.fast_intersect, threads=a.threads, traversal=a.traversal)
+                        watertight=not a.fast_intersect, threads=a.threads, traversal=a.traversal, packet=a.packet,
+                        packet_precision=a.packet_precision)
 
 
 def camera_from_args(a):

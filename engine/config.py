@@ -14,6 +14,8 @@ SHADING_MODES = ("lambert", "normal", "cost")
 TRAVERSALS = ("dda", "cgt")
 #: precisions of the CGT packets' triangle tests (RenderParams.packet_precision)
 PACKET_PRECISIONS = ("float64", "float32")
+#: the largest CGT packet edge in pixels (RenderParams.packet)
+PACKET_MAX = 16
 #: Default ceiling on grid cells (two int32 arrays of this size plus cell lists): 256 MiB.
 DEFAULT_MAX_CELLS = 1 << 25
 #: Default memory budget of one grid (cell arrays + references): 2 GiB.
@@ -84,6 +86,22 @@ class GridParams:
         return replace(self, **kw)
 
 
+def _packet_shape(p):
+    """RenderParams.packet as (width, height): an edge n gives (n, n)."""
+    if isinstance(p, str):  # "8" or "16x4" (the command line's form)
+        parts = p.lower().split("x")
+        if len(parts) > 2 or not all(q.strip().isdigit() for q in parts):
+            raise InputError(f"packet size must be N or WxH in pixels, e.g. 8 or 16x4; got {p!r}")
+        p = tuple(int(q) for q in parts) if len(parts) == 2 else int(parts[0])
+    if isinstance(p, (tuple, list)):
+        if len(p) != 2:
+            raise InputError(f"packet size must be an edge or (width, height), got {p!r}")
+        w, h = p
+    else:
+        w = h = p
+    return (_positive_int("packet width", w, 1, PACKET_MAX), _positive_int("packet height", h, 1, PACKET_MAX))
+
+
 @dataclass(frozen=True)
 class RenderParams:
     """How to cast and shade the primary rays.
@@ -102,12 +120,15 @@ class RenderParams:
                    the default: BENCHMARKS.md section 6 finds it on the Pareto front, several times
                    faster than DDA at no measured error) or "dda" (one ray at a time); same hits
                    except at exact ties
+    packet         CGT packet size in pixels: an edge n (n x n pixels) or (width, height), each
+                   1..16; default 8 x 8 (BENCHMARKS.md, "Packet size and precision")
     packet_precision
                    "float64" (the CGT packets' triangle tests in float64: the same hits as the
                    DDA bit for bit) or "float32" (twice the rays a vector instruction; the
                    watertight test keeps its guarantee through a float64 fallback, and hits agree
                    up to float32 rounding: about 1e-7 relative in t, the triangle only at
-                   near-ties and within that distance of an edge).  CGT only.
+                   near-ties and within that distance of an edge; at that level results may
+                   then also depend on the packet size).  CGT only.
     """
 
     width: int = 640
@@ -119,6 +140,7 @@ class RenderParams:
     threads: int | None = None
     tile: int = 16
     traversal: str = "cgt"
+    packet: int | tuple = (8, 8)
     packet_precision: str = "float64"
 
     def __post_init__(self):
@@ -129,6 +151,7 @@ class RenderParams:
             raise InputError(f"unknown shading mode {self.shading!r}; choose one of {', '.join(SHADING_MODES)}")
         if self.traversal not in TRAVERSALS:
             raise InputError(f"unknown traversal {self.traversal!r}; choose one of {', '.join(TRAVERSALS)}")
+        object.__setattr__(self, "packet", _packet_shape(self.packet))
         if self.packet_precision not in PACKET_PRECISIONS:
             raise InputError(f"unknown packet precision {self.packet_precision!r}; choose one of "
                              f"{', '.join(PACKET_PRECISIONS)}")

@@ -329,3 +329,44 @@ def test_traversal_parameter():
     assert cli.render_params(p.parse_args([])).traversal == "cgt"
     with pytest.raises(SystemExit):
         p.parse_args(["--traversal", "bvh"])
+
+
+@pytest.mark.parametrize("packet", [1, 4, 16, (16, 4), (3, 7), (1, 16), (16, 8)])
+def test_cgt_packet_sizes(packet):
+    """Packets of any size and shape up to 16 x 16 (RenderParams.packet), also larger than the
+    tile: the DDA's image, t and triangles bit for bit, shadow packets included (float32 packets
+    at every size: tests/test_packet_precision.py)."""
+    for name in ("teapot", "cubes", "icosphere"):
+        tris, grid = grid_of(name)
+        lo, hi = grid.spec.scene_lo, grid.spec.scene_hi
+        light = tuple(0.5 * (lo + hi) + np.array([0.3, 1.5, 0.8]) * float((hi - lo).max()))
+        for view in ("framed", "inside", "axis"):
+            cam = camera(view, tris)
+            kw = dict(width=45, height=37, tile=12, shadows=True, light=light)
+            a = render(grid, tris, cam, RenderParams(traversal="dda", **kw))
+            b = render(grid, tris, cam, RenderParams(traversal="cgt", packet=packet, **kw))
+            assert_same(a, b, tris, cam, f"{name}/{view} packet {packet}")
+
+
+def test_packet_parameter():
+    """RenderParams.packet: an edge or (width, height), 1..16 each, "N" / "WxH" from the command
+    line (--packet); anything else is refused with a message naming it."""
+    from gridrt.app import cli
+
+    assert RenderParams().packet == (8, 8)
+    assert RenderParams(packet=16).packet == (16, 16)
+    assert RenderParams(packet=(16, 4)).packet == (16, 4)
+    assert RenderParams(packet="8x16").packet == (8, 16)
+    for bad in (0, 17, (8,), (8, 8, 8), "8x0", "big", 2.5, (4, "x")):
+        with pytest.raises(InputError, match="packet"):
+            RenderParams(packet=bad)
+    p = argparse.ArgumentParser()
+    cli.add_scene_args(p)
+    cli.add_grid_args(p)
+    cli.add_render_args(p)
+    a = p.parse_args(["--packet", "16x4", "--packet-precision", "float32"])
+    rp = cli.render_params(a)
+    assert rp.packet == (16, 4) and rp.packet_precision == "float32"
+    assert cli.render_params(p.parse_args([])).packet == (8, 8)
+    with pytest.raises(InputError, match="packet"):
+        cli.render_params(p.parse_args(["--packet", "40"]))

@@ -6,7 +6,7 @@ fallback _fix_wt64.
   force (tests/reference.py) up to float32 rounding: every pixel that differs is a near-tie in t
   or within F32_GRAZE (barycentric) of an edge, and t is within F32_T of the brute force's.  The
   float64 packets, checked alike, use test_cgt's much tighter tolerances.
-* Images are identical across thread counts.
+* Images are identical across thread counts; packets of every size agree with the brute force.
 * Far from the grid's frame (spheres 1e4 apart, a camera near one): packet coordinates are taken
   relative to the packet's origin in float64 before rounding, so float32 keeps the precision of
   the ray's own length; the same tolerances hold.  (float32 directions still limit where a ray
@@ -76,6 +76,20 @@ def test_f32_render_matches_brute_force(name, watertight):
             d64 = R.compare_hits(r64.t.reshape(-1).astype(np.float64), r64.tri.reshape(-1), ref, t_rtol=1e-6,
                                  graze_tol=1e-9)
             assert len(d64.bad) == 0
+
+
+@pytest.mark.parametrize("packet", [1, 4, 16, (16, 4), (3, 7)])
+def test_f32_packet_sizes(packet):
+    """float32 packets of every size agree with the brute force alike.  (Not bit for bit with
+    each other: a packet that straddles a change of the rays' major axis goes ray by ray through
+    the float64 DDA, and which packets do depends on their size.)"""
+    for name in ("teapot", "cubes", "icosphere"):
+        tris, grid = grid_of(name)
+        for view in ("framed", "inside", "axis"):
+            cam = camera(view, tris)
+            p = RenderParams(width=45, height=37, tile=12, shading="normal", packet=packet, packet_precision="float32")
+            check_f32(render(grid, tris, cam, p), R.ref_render(tris, cam, 45, 37, "normal").hits,
+                      f"{name}/{view} packet {packet}")
 
 
 def test_f32_images_identical_across_threads():

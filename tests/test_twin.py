@@ -38,7 +38,7 @@ def _args(grids, camera, W, H, shading=0, light=None, off=1e-6, f32=None):
     watertight) or None (the DDA kernels)."""
     bufs = (np.zeros((H, W, 4), np.uint8), np.zeros((H, W), np.float32), np.zeros((H, W), np.int32),
             np.zeros((H, W), np.int32), np.zeros((H, W), np.int32))
-    prec = () if f32 is None else (f32,)
+    prec = () if f32 is None else (f32, 8, 8)  # (and the packet shape)
     return (grids, camera.basis(), W, H, 16, shading, light is not None, light, off, True) + prec + bufs
 
 
@@ -65,7 +65,7 @@ def test_serial_twin_equals_parallel_kernel(traversal, shadows):
     if traversal == "dda" and light is None:
         light = np.zeros(3)  # the DDA kernel takes the light as an array and `shadows` as the switch
     f32 = False if traversal == "cgt" else None
-    nb = 10 if f32 is None else 11  # where the buffers start
+    nb = 10 if f32 is None else 13  # where the buffers start
     for grids in (one, two):
         a = _args(grids, cam, W, H, light=light, f32=f32)
         if traversal == "dda":

@@ -56,6 +56,8 @@ from gridrt.trace.traverse import MAILBOX
 from reference import ref_camera_rays
 
 REL = 1e-6
+#: probes of a star packet (a default 8 x 8 render packet's rays)
+PROBES = cgt.PK * cgt.PK
 #: pixels of a camera-row probe image (one row)
 ROW_WIDTH = 512
 
@@ -280,7 +282,7 @@ class ProbeMesh:
         return np.minimum.reduceat(dots, offs[:-1]) > min_cos
 
     def star_packets(self, rng, n_packets, min_cos=0.1):
-        """Packets of up to cgt.PN probes around random vertices, one eye each.
+        """Packets of up to PROBES probes around random vertices, one eye each.
 
         Packet of vertex v: v, then each vertex w of its one-ring, the midpoint of each spoke
         (v, w) and of each link edge (w, w') (the edges opposite v in its fan), then random points
@@ -303,9 +305,9 @@ class ProbeMesh:
         ring, opp = fv[r, (pos + 1) % 3], fv[r, (pos + 2) % 3]
         spoke, link = self.edge_ids(vids[owner], ring), self.edge_ids(ring, opp)
         k = np.diff(offs)
-        # slots 1..PN-1: ring vertex, spoke and link midpoints of each fan face, then random edge points
-        j = np.tile(np.arange(cgt.PN - 1), n_packets)
-        p = np.repeat(np.arange(n_packets), cgt.PN - 1)
+        # slots 1..PROBES-1: ring vertex, spoke and link midpoints of each fan face, then random edge points
+        j = np.tile(np.arange(PROBES - 1), n_packets)
+        p = np.repeat(np.arange(n_packets), PROBES - 1)
         first = j < 3 * k[p]
         jj = np.where(first, j, j - 3 * k[p])
         face = offs[p] + np.where(first, jj // 3, (jj // 2) % k[p])

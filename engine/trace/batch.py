@@ -1,15 +1,15 @@
 """Batch casting of arbitrary rays: coherent groups of rays as CGT packets, the rest one at a time.
 
 A batch (``cast_rays``, ``RayCaster.cast``) is cast in two passes over groups of up to
-:data:`gridrt.trace.cgt.PN` rays:
+:data:`RUN` rays:
 
-1. the rays in the caller's order, in runs of PN: camera rays in pixel order, the shadow rays of
+1. the rays in the caller's order, in runs of RUN: camera rays in pixel order, the shadow rays of
    a block of pixels and the like arrive coherent.  A run that is coherent (its rays agree on the
    major axis of their direction and its sign) and narrow (its bounds, those the packet traversal
    uses, cover at most ``max_cells`` cells in the widest slice they cross) is traced as one CGT
    packet (:func:`gridrt.trace.cgt.trace_packet`); the others are left for pass 2;
 2. the rays left, sorted by a key (:func:`sort_keys`: the permutation class of the direction, the
-   macro cell of the origin, then the direction's slopes on a Morton curve), again in runs of PN:
+   macro cell of the origin, then the direction's slopes on a Morton curve), again in runs of RUN:
    rays the caller shuffled come together again.  A run that passes the same test is a packet,
    the other rays are traced one at a time (:func:`gridrt.trace.traverse.trace_ray`).
 
@@ -34,6 +34,8 @@ from .cgt import IO_DX, IO_DY, IO_DZ, IO_F, IO_OX, IO_OY, IO_OZ, IO_TMAX, MBOX, 
 from .intersect import permute, shear_setup
 from .traverse import MAILBOX, TINY_DIR, _floor_clamp, _test_triangle, trace_ray
 
+#: rays in a run (a packet's worth; at most cgt.PN)
+RUN = 64
 #: a run of rays is traced as a packet when its bounds cover at most this many cells in the
 #: widest slice (measured: BENCHMARKS.md, "Batch casts")
 MAX_CELLS = 32.0
@@ -119,11 +121,11 @@ def _cast_run(g, origins, dirs, idx, s, n, tmin, tmax, watertight, any_hit, max_
 def cast_runs_kernel(g, origins, dirs, idx, tmin, tmax, watertight, any_hit, max_cells, singly, f32,
                      out_t, out_f, out_u, out_v, left):
     """Pass 1 (idx empty: the rays in order, singly False) or pass 2 (idx: the rays left, sorted;
-    singly True) of a batch cast over the grid g (GridArrays), in runs of PN rays, into the out_*
+    singly True) of a batch cast over the grid g (GridArrays), in runs of RUN rays, into the out_*
     arrays (N,).  ``left`` (N,) uint8: pass 1 sets it to 1 for the rays it leaves.  Returns the
     number of rays traced in packets.  (Call under numba.parallel_chunksize(1).)"""
     M = idx.shape[0] if idx.shape[0] > 0 else origins.shape[0]
-    nruns = (M + PN - 1) // PN
+    nruns = (M + RUN - 1) // RUN
     nitems = (nruns + GROUPS_PER_ITEM - 1) // GROUPS_PER_ITEM
     packets = np.zeros(nitems, np.int64)
     for it in prange(nitems):
@@ -132,8 +134,8 @@ def cast_runs_kernel(g, origins, dirs, idx, tmin, tmax, watertight, any_hit, max
         mb = np.empty(MBOX, np.int32)
         mb1 = np.empty(MAILBOX, np.int32)
         for run in range(it * GROUPS_PER_ITEM, min((it + 1) * GROUPS_PER_ITEM, nruns)):
-            s = run * PN
-            packets[it] += _cast_run(g, origins, dirs, idx, s, min(PN, M - s), tmin, tmax, watertight, any_hit,
+            s = run * RUN
+            packets[it] += _cast_run(g, origins, dirs, idx, s, min(RUN, M - s), tmin, tmax, watertight, any_hit,
                                      max_cells, singly, f32, io, S, mb, mb1, out_t, out_f, out_u, out_v, left)
     total = 0
     for it in range(nitems):

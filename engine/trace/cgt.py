@@ -1,8 +1,8 @@
 """Coherent grid traversal (CGT): packets of rays walked through the grid slice by slice.
 
 Wald, Ize, Kensler, Knoll, Parker, "Ray Tracing Animated Scenes using Coherent Grid Traversal",
-ACM SIGGRAPH 2006.  A packet (up to PK x PK camera rays from a square block of pixels, or the
-shadow rays of such a block) is traversed along its major axis K, one slice of cells (fixed K
+ACM SIGGRAPH 2006.  A packet (up to kw x kh camera rays from a block of pixels, 8 x 8 by default,
+or the shadow rays of such a block) is traversed along its major axis K, one slice of cells (fixed K
 index) at a time.  In each slice the cells overlapped by the packet's bounds are visited; each of
 their triangles passes a per-packet mailbox, a bounding-box cull against the packet's extent in
 the slice and a cull against the packet's four bounding planes (the paper's frustum culling), and
@@ -42,14 +42,19 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from ..config import PACKET_MAX
 from .grids import pack_grids, unpack_grids
 from .prefetch import _cycles, _prefetch_tri, _prefetch_write
 from .shade import BACKGROUND, _u8, cost_rgb, facing_normal, lambert_rgb, normal_rgb, scene_id, shadow_ray
 from .traverse import MAILBOX, TINY_DIR, _floor_clamp, trace_ray
 
-#: packet edge in pixels (a packet holds up to PK * PK rays)
+#: the render's default packet edge in pixels (RenderParams.packet: PK x PK pixels)
 PK = 8
-PN = PK * PK
+#: the largest packet edge (RenderParams.packet up to PK_MAX x PK_MAX pixels)
+PK_MAX = PACKET_MAX
+#: rays a packet table holds, and the stride of its rows: PK_MAX * PK_MAX, plus 16 so that rows
+#: 2 KiB apart do not all fall into the same few cache sets, and a multiple of L32
+PN = PK_MAX * PK_MAX + 16
 #: per-packet mailbox slots (direct-mapped by triangle id; a power of two)
 MBOX = 256
 #: the render kernel's parallel work items (runs of consecutive tiles sharing one scratch allocation)
@@ -1149,10 +1154,10 @@ def _prefetch_tile(ti, ntx, tile, W, H, img, tbuf, idbuf, costbuf, cellbuf):
 
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _render_tiles(
-    grids, basis, W, H, tile, t0, t1, mode, shadows, light, off, watertight, f32,
+    grids, basis, W, H, tile, t0, t1, mode, shadows, light, off, watertight, f32, kw, kh,
     img, tbuf, idbuf, costbuf, cellbuf, S, io, io2, sio, sj, col, mb, mb1, acc,
 ):
-    """Render tiles t0..t1-1 (row-major), each as packets of up to PK x PK pixels: trace and shade
+    """Render tiles t0..t1-1 (row-major), each as packets of up to kw x kh pixels: trace and shade
     each packet (and its shadow rays as another packet) into the flat buffers (see _write_out).
     ``light`` is None without shadows: numba then compiles no shadow path at all (a first frame
     without shadows compiles about a third less), and the (3,) light position with them.
@@ -1170,10 +1175,10 @@ def _render_tiles(
         ty1 = min(ty0 + tile, H)
         if ti + 1 < t1:  # the next tile's output lines load while this tile is traced
             _prefetch_tile(ti + 1, ntx, tile, W, H, img, tbuf, idbuf, costbuf, cellbuf)
-        for py0 in range(ty0, ty1, PK):
-            for px0 in range(tx0, tx1, PK):
-                pw = min(PK, tx1 - px0)
-                ph = min(PK, ty1 - py0)
+        for py0 in range(ty0, ty1, kh):
+            for px0 in range(tx0, tx1, kw):
+                pw = min(kw, tx1 - px0)
+                ph = min(kh, ty1 - py0)
                 n = pw * ph
                 _camera_rays(basis, W, H, px0, py0, pw, ph, io)
                 nfb = trace_packet_grids(grids, n, io, io2, 0.0, watertight, False, S, mb, mb1, f32)
@@ -1250,11 +1255,11 @@ def _chunking(W, H, tile):
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def cgt_render_kernel(
-    grids, basis, W, H, tile, mode, shadows, light, off, watertight, f32, img, tbuf, idbuf, costbuf, cellbuf,
+    grids, basis, W, H, tile, mode, shadows, light, off, watertight, f32, kw, kh, img, tbuf, idbuf, costbuf, cellbuf,
 ):
-    """render_kernel (same arguments and f32, same buffers, same shading) with primary and shadow
-    rays traced as packets of up to PK x PK pixels within each tile, their triangle tests in
-    float32 with f32 (see trace_packet).  costbuf / cellbuf hold the CGT
+    """render_kernel (same arguments and f32, kw, kh; same buffers, same shading) with primary and
+    shadow rays traced as packets of up to kw x kh pixels (at most PN rays) within each tile, their
+    triangle tests in float32 with f32 (see trace_packet).  costbuf / cellbuf hold the CGT
     counters (see the module docstring).  Returns (4,) int64: pixels hit, the sums of costbuf and
     cellbuf, and the number of rays (primary and shadow) that took the single-ray fallback."""
     # scratch is allocated once per chunk (a run of consecutive tiles); call under
@@ -1266,7 +1271,7 @@ def cgt_render_kernel(
     for ch in prange(nch):
         _render_tiles(
             unpack_grids(flat), basis, W, H, tile, ch * per, min((ch + 1) * per, ntiles), mode, shadows, light, off,
-            watertight, f32, img.reshape(H * W * 4), tbuf.reshape(H * W), idbuf.reshape(H * W), costbuf.reshape(H * W),
+            watertight, f32, kw, kh, img.reshape(H * W * 4), tbuf.reshape(H * W), idbuf.reshape(H * W), costbuf.reshape(H * W),
             cellbuf.reshape(H * W), np.empty(NS * PN), np.empty(NIO * PN), np.empty(NIO * PN), np.empty(NIO * PN),
             np.empty(PN, np.int64), np.empty(3 * PN), np.empty(MBOX, np.int32), np.empty(MAILBOX, np.int32), acc[ch],
         )
@@ -1274,7 +1279,7 @@ def cgt_render_kernel(
 
 
 def cgt_render_serial(
-    grids, basis, W, H, tile, mode, shadows, light, off, watertight, f32, img, tbuf, idbuf, costbuf, cellbuf,
+    grids, basis, W, H, tile, mode, shadows, light, off, watertight, f32, kw, kh, img, tbuf, idbuf, costbuf, cellbuf,
 ):
     """cgt_render_kernel on one thread: all tiles in order, one scratch; the same buffers and sums
     bit for bit (tiles are independent).  A Python function around the kernel _render_tiles, so
@@ -1284,7 +1289,7 @@ def cgt_render_serial(
     ntiles = ((W + tile - 1) // tile) * ((H + tile - 1) // tile)
     acc = np.zeros(4, np.int64)
     _render_tiles(
-        grids, basis, W, H, tile, 0, ntiles, mode, shadows, light, off, watertight, f32,
+        grids, basis, W, H, tile, 0, ntiles, mode, shadows, light, off, watertight, f32, kw, kh,
         img.reshape(H * W * 4), tbuf.reshape(H * W), idbuf.reshape(H * W), costbuf.reshape(H * W),
         cellbuf.reshape(H * W), np.empty(NS * PN), np.empty(NIO * PN), np.empty(NIO * PN), np.empty(NIO * PN),
         np.empty(PN, np.int64), np.empty(3 * PN), np.empty(MBOX, np.int32), np.empty(MAILBOX, np.int32), acc,

@@ -367,7 +367,7 @@ class Renderer:
         )
         t0 = time.perf_counter()
         if params.traversal == "cgt":
-            args = args[:10] + (params.packet_precision == "float32",) + args[10:]
+            args = args[:10] + (params.packet_precision == "float32", *params.packet) + args[10:]
             if not params.shadows:  # light None: the CGT kernel without its shadow path (compiles faster)
                 args = args[:7] + (None,) + args[8:]
             with parallel_chunksize(1):  # dynamic scheduling of the kernel's chunks of tiles
