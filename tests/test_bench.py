@@ -206,6 +206,19 @@ def test_bench_trade_quick_matches_an_independent_recount(tmp_path):
     assert expect > 0
     assert int(by[("resolution", "32x32")]["pixels_differ"]) == expect
     assert "Conference point" in summary and "Pareto front" in summary
+    # the CGT packets' knobs (not in the quick default set): float64 packets of every size give the
+    # same hits; float32 ones stay within float32 rounding of the brute force's t
+    out2 = tmp_path / "trade_packets"
+    assert main(["bench", "trade", "--quick", "--no-progress", "--out", str(out2), "--threads", "1",
+                 "--knobs", "packet,packet_precision"]) == 0
+    rows2, _ = check_outputs(out2, "trade.csv", ["trade.png", "trade_knobs.png"])
+    by2 = {(r["knob"], r["value"]): r for r in rows2}
+    assert set(by2) == {("packet", "8x8"), ("packet", "16x16"), ("packet_precision", "float64"),
+                        ("packet_precision", "float32")}
+    assert all(r["traversal"] == "cgt" for r in rows2)
+    f64 = [r for r in rows2 if r["packet_precision"] == "float64"]
+    assert len({(r["pixels_differ"], r["dt_max"]) for r in f64}) == 1
+    assert float(by2[("packet_precision", "float32")]["dt_rel_max"]) <= 1e-5
 
 
 def test_bench_peers_quick(tmp_path, monkeypatch):
@@ -305,6 +318,8 @@ def test_bench_packets_quick(tmp_path):
 
 @pytest.mark.parametrize("args,message", [
     (["trade", "--knobs", "insert,colour"], "unknown knob"),
+    (["trade", "--knobs", "packet", "--packets", "8,8x40"], "--packets: packet height"),
+    (["packets", "--precision", "float16"], "unknown precision"),
     (["frame", "--runs", "0"], "--runs"),
     (["build", "--strategies", "serial,fastest"], "unknown build strategy"),
     (["frame", "--scenes", "marbles:lots"], "neither a triangle count"),

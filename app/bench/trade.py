@@ -3,8 +3,9 @@
 For one scene and camera, every knob is varied alone from a baseline (the engine's defaults, with
 the DDA traversal: see :func:`baseline`): insertion test (bbox, exact), lambda (cells per
 triangle), macro-cell size, intersection test (watertight, fast Moller-Trumbore), traversal (DDA,
-CGT), render resolution, and precision (the engine stores triangles as float32 and computes in
-float64). For each setting: build ms, references, render ms, and the error it costs against
+CGT), render resolution, precision (the engine stores triangles as float32 and computes in
+float64), and the CGT packets' size and shape and the precision of their triangle tests (float64,
+float32; these rows render with CGT). For each setting: build ms, references, render ms, and the error it costs against
 independent references (:mod:`gridrt.app.bench.reference`):
 
 * pixels whose hit triangle differs from a brute-force float64 caster, on a seeded random sample
@@ -28,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 import gridrt  # noqa: F401
-from gridrt.config import TRAVERSALS, GridParams, RenderParams
+from gridrt.config import PACKET_PRECISIONS, TRAVERSALS, GridParams, RenderParams
 from gridrt.errors import InputError
 from gridrt.grid.build import GridBuilder
 from gridrt.grid.registry import get_builder
@@ -41,7 +42,11 @@ from .util import (
 )
 from .reference import HOLE_REL, brute_cast, compare_to_reference, count_holes, pixel_rays, probe_rays, sample_pixels
 
-KNOBS = ("insert", "lambda", "macro", "intersect", "traversal", "resolution", "precision")
+KNOBS = ("insert", "lambda", "macro", "intersect", "traversal", "resolution", "precision", "packet",
+         "packet_precision")
+#: knobs of the CGT packets: their rows render with the CGT traversal
+CGT_KNOBS = ("packet", "packet_precision")
+DEFAULT_PACKETS = "4,8,16,16x8,8x16"
 DEFAULT_LAMBDAS = "0.5,1,2,3,4,6,8,12"
 DEFAULT_MACROS = "1,2,4,8,16"
 DEFAULT_RESOLUTIONS = "0.25,0.5,0.75,1"
@@ -65,6 +70,8 @@ def add_parser(bsub, common):
     t.add_argument("--knobs", default=None, help=f"comma-separated of {', '.join(KNOBS)} (default: all)")
     t.add_argument("--lambdas", default=DEFAULT_LAMBDAS, help=f"lambda sweep (default {DEFAULT_LAMBDAS})")
     t.add_argument("--macros", default=DEFAULT_MACROS, help=f"macro-cell sizes (default {DEFAULT_MACROS})")
+    t.add_argument("--packets", default=DEFAULT_PACKETS,
+                   help=f"CGT packet sizes for the packet knob, N or WxH (default {DEFAULT_PACKETS})")
     t.add_argument("--resolutions", default=DEFAULT_RESOLUTIONS,
                    help=f"image edges as fractions of --size (default {DEFAULT_RESOLUTIONS})")
     t.add_argument("--time", type=float, default=0.0, help="scene time in seconds (animated scenes)")
@@ -131,23 +138,36 @@ def _default_specs(a):
 
 def baseline(size):
     """The configuration every knob is varied from, (insert, lambda, macro, watertight, resolution,
-    traversal): the engine's defaults (GridParams, RenderParams) at ``size`` x ``size``, except the
-    traversal, DDA: the holes are counted through ``cast_rays``, which has the single-ray traversal
-    only, so each row's holes are those of the traversal it renders with (the traversal knob's CGT
-    row, the engine's default, shows what the packets change)."""
+    traversal, packet, packet precision): the engine's defaults (GridParams, RenderParams) at
+    ``size`` x ``size``, except the traversal, DDA: the holes are counted through ``cast_rays`` with
+    probe rays from random origins, which it traces one by one, so each row's holes are those of
+    the traversal it renders with (the traversal knob's CGT row, the engine's default, and the
+    packet knobs' rows, which render with CGT, show what the packets change)."""
     from ..cli import defaults
 
     g, r = defaults(GridParams), defaults(RenderParams)
-    return (g["insert"], g["density"], g["macro"], r["watertight"], size, "dda")
+    return (g["insert"], g["density"], g["macro"], r["watertight"], size, "dda", tuple(r["packet"]),
+            r["packet_precision"])
 
 
 def _describe(cfg):
-    ins, lam, mac, wt, res, trav = cfg
-    return f"{ins}, lambda {lam:g}, macro {mac}, {'watertight' if wt else 'fast'}, {trav.upper()}, {res}x{res}"
+    ins, lam, mac, wt, res, trav, pk, prec = cfg
+    cgt = f" ({pk[0]}x{pk[1]} packets, {prec} tests)" if trav == "cgt" else ""
+    return f"{ins}, lambda {lam:g}, macro {mac}, {'watertight' if wt else 'fast'}, {trav.upper()}{cgt}, {res}x{res}"
+
+
+def _packet_list(text):
+    from gridrt.config import _packet_shape
+
+    try:
+        return [_packet_shape(p.strip()) for p in text.split(",") if p.strip()]
+    except InputError as e:
+        raise InputError(f"--packets: {e}") from None
 
 
 def _configs(a, knobs, size):
-    """[(knob, label, cfg)], cfg = (insert, lambda, macro, watertight, resolution, traversal)."""
+    """[(knob, label, cfg)], cfg = (insert, lambda, macro, watertight, resolution, traversal, packet,
+    packet precision)."""
     d = baseline(size)
     rows = []
     lambdas = [0.5, 4.0] if a.quick and a.lambdas == DEFAULT_LAMBDAS else float_list(a.lambdas, "--lambdas")
@@ -166,7 +186,12 @@ def _configs(a, knobs, size):
         elif k == "intersect":
             rows += [(k, "watertight" if wt else "fast", d[:3] + (wt,) + d[4:]) for wt in (True, False)]
         elif k == "traversal":
-            rows += [(k, tr, d[:5] + (tr,)) for tr in TRAVERSALS]
+            rows += [(k, tr, d[:5] + (tr,) + d[6:]) for tr in TRAVERSALS]
+        elif k == "packet":
+            shapes = [(8, 8), (16, 16)] if a.quick and a.packets == DEFAULT_PACKETS else _packet_list(a.packets)
+            rows += [(k, f"{w}x{h}", d[:5] + ("cgt", (w, h), d[7])) for w, h in dict.fromkeys(shapes + [d[6]])]
+        elif k == "packet_precision":
+            rows += [(k, prec, d[:5] + ("cgt", d[6], prec)) for prec in PACKET_PRECISIONS]
         elif k == "resolution":
             sizes = sorted({max(1, int(round(f * size))) for f in fracs} | {size})
             if max(sizes) > size:
@@ -233,12 +258,14 @@ def _options(a):
     check_runs(a.runs, a.warmup)
     knobs = KNOBS if a.knobs is None else tuple(k.strip() for k in a.knobs.split(",") if k.strip())
     if a.knobs is None and a.quick:
-        knobs = tuple(k for k in KNOBS if k != "traversal")
+        knobs = tuple(k for k in KNOBS if k != "traversal" and k not in CGT_KNOBS)
     for k in knobs:
         if k not in KNOBS:
             raise InputError(f"unknown knob {k!r}; choose from {', '.join(KNOBS)}")
     if not knobs:
         raise InputError("--knobs: need at least one knob")
+    if "packet" in knobs:
+        _packet_list(a.packets)  # (checked before the reference is computed)
     get_builder(a.strategy)
     threads = check_threads(a.threads)
     size = 64 if a.quick else a.size
@@ -309,15 +336,15 @@ def _measure(a, o, su, unique, dcfg):
     builders = {gk: GridBuilder(GridParams(strategy=a.strategy, density=gk[1], macro=gk[2], insert=gk[0],
                                            threads=threads)) for gk in gkeys}
     renderers = {cfg: Renderer() for cfg in unique}
-    rparams = {cfg: RenderParams(cfg[4], cfg[4], threads=threads, watertight=cfg[3], traversal=cfg[5])
-               for cfg in unique}
+    rparams = {cfg: RenderParams(cfg[4], cfg[4], threads=threads, watertight=cfg[3], traversal=cfg[5], packet=cfg[6],
+                                 packet_precision=cfg[7]) for cfg in unique}
     bar = progress(len(unique) + runs, "bench trade", a.no_progress)
     # pass 1: warm-up, the error figures and the holes, configuration by configuration
     grids, meas, holes_cache = {}, {}, {}
     for cfg in unique:
-        ins, lam, mac, wt, res, trav = cfg
+        ins, lam, mac, wt, res, trav, pk, prec = cfg
         gk = cfg[:3]
-        bar.set_postfix_str(f"{ins} l={lam:g} m={mac} {'wt' if wt else 'fast'} {res} {trav}")
+        bar.set_postfix_str(f"{ins} l={lam:g} m={mac} {'wt' if wt else 'fast'} {res} {trav} {pk[0]}x{pk[1]} {prec}")
         if gk not in grids:
             for _ in range(max(warmup, 1)):
                 grids[gk] = builders[gk].build(tris)
@@ -334,7 +361,7 @@ def _measure(a, o, su, unique, dcfg):
             m["cmp64"] = compare_to_reference(img.tri[ry, rx], img.t[ry, rx], ref64[1], ref64[0], ref64[2])
         hk = (ins, lam, mac, wt)
         if trav != "dda":
-            m["holes"] = None  # cast_rays has no packet traversal: not measurable with probe rays
+            m["holes"] = None  # the probe rays (random origins) go through cast_rays one by one, not as packets
         else:
             if hk not in holes_cache:
                 pg = GridBuilder(builders[gk].params).build(su.probe_tris)
@@ -391,6 +418,7 @@ def _rows(configs, unique, meas, holes_cache, dcfg, su, n_samples):
         rows.append(dict(
             knob=knob, value=label, default=int(cfg == dcfg), insert=cfg[0], **{"lambda": cfg[1]}, macro=cfg[2],
             intersection="watertight" if cfg[3] else "fast", resolution=cfg[4], traversal=cfg[5],
+            packet=f"{cfg[6][0]}x{cfg[6][1]}", packet_precision=cfg[7],
             build_ms=m["build_ms"], build_ms_min=m["build_ms_min"], build_ms_max=m["build_ms_max"],
             references=m["references"], refs_per_tri=m["refs_per_tri"], cells=m["cells"], dims=m["dims"],
             render_ms=m["render_ms"], render_ms_min=m["render_ms_min"], render_ms_max=m["render_ms_max"],
@@ -458,8 +486,9 @@ def _summary(rows, c):
         f"Holes: {c['n_probes']:,} probe rays from outside aimed exactly at shared vertices, edge midpoints and "
         f"random edge points of the closed mesh `{c['probe'].label}` ({c['probe'].scene.n_triangles:,} triangles), "
         "each from a direction in front of every face at its target; a hole is a ray that misses or hits farther "
-        f"than its target distance x (1 + {HOLE_REL:g}).  Probe rays go through `cast_rays` (DDA), so the CGT "
-        "row has no holes figure.",
+        f"than its target distance x (1 + {HOLE_REL:g}).  Probe rays (random origins) go through `cast_rays` one by "
+        "one, so the rows that render with CGT (traversal cgt, packet, packet_precision) have no holes figure "
+        "here; tests/test_watertight.py and tests/test_soak.py probe the packets, float32 included.",
         "",
     ]
     table = []
@@ -476,7 +505,8 @@ def _summary(rows, c):
     seen = set()
     names = []
     for r in sorted(front, key=lambda r: r["total_ms"]):
-        key = (r["insert"], r["lambda"], r["macro"], r["intersection"], r["resolution"], r["traversal"])
+        key = (r["insert"], r["lambda"], r["macro"], r["intersection"], r["resolution"], r["traversal"], r["packet"],
+               r["packet_precision"])
         if key in seen:
             continue
         seen.add(key)
@@ -526,7 +556,7 @@ def _summary(rows, c):
 
 
 KNOB_COLORS = {"insert": "C0", "lambda": "C1", "macro": "C2", "intersect": "C3", "traversal": "C4",
-               "resolution": "C5", "precision": "C7"}
+               "resolution": "C5", "precision": "C7", "packet": "C8", "packet_precision": "C9"}
 
 
 def _plot_trade(rows, path):

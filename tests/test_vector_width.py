@@ -1,0 +1,75 @@
+"""Vector width of the compiled kernels (gridrt.threads.wide_vector_features, GRIDRT_VECTOR_WIDTH).
+
+On a CPU with AVX-512F, gridrt lets LLVM use 512-bit registers (LLVM's tuning for these cores
+otherwise prefers 256-bit ones); on an AVX2-only CPU nothing changes.  Checked on the generated
+code itself: the float32 packet test (cgt._test_wt32) is compiled in a fresh process with a
+fresh numba cache (inspection is not available for code loaded from the cache), and its machine
+code must use zmm packed-single arithmetic with the default width on an AVX-512 CPU, and only
+ymm (no zmm packed-single) with GRIDRT_VECTOR_WIDTH=256.
+"""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from gridrt.threads import VECTOR_WIDTHS, wide_vector_features
+
+
+def _host_features():
+    import llvmlite.binding as ll
+
+    ll.initialize_native_target()
+    return ll.get_host_cpu_features().flatten()
+
+
+AVX512 = "+avx512f" in _host_features().split(",")
+
+
+def test_features_for_each_width():
+    host = _host_features()
+    assert wide_vector_features("256") is None
+    for w in ("auto", "512"):
+        f = wide_vector_features(w)
+        if AVX512:
+            assert f == host + ",-prefer-256-bit"
+        else:
+            assert f is None
+    with pytest.warns(UserWarning, match="GRIDRT_VECTOR_WIDTH"):
+        assert wide_vector_features("1024") == wide_vector_features("auto")
+    assert VECTOR_WIDTHS == ("auto", "512", "256")
+
+
+_PROBE = r"""
+import json, re
+import numpy as np
+import gridrt
+from numba.core import config
+from gridrt.trace import cgt
+S = np.zeros(cgt.NS * cgt.PN)
+S32 = S[cgt.O_F32:].view(np.float32)
+I32 = S[cgt.O_F32:].view(np.int32)
+q = [np.float32(x) for x in range(9)]
+cgt._test_wt32(S32, I32, 40, *q, np.int32(1), np.float32(0.0))
+asm = cgt._test_wt32.inspect_asm(cgt._test_wt32.signatures[0])
+ops = re.findall(r"^\s+(v(?:sub|mul|add)ps)\s+([^\n]*)", asm, re.M)
+print(json.dumps({"features": config.CPU_FEATURES or "", "zmm_ps": sum("zmm" in a for _, a in ops),
+                  "ymm_ps": sum("ymm" in a and "zmm" not in a for _, a in ops)}))
+"""
+
+
+@pytest.mark.parametrize("width", ["auto", "256"])
+def test_generated_code_width(tmp_path, width):
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CPU_FEATURES", "NUMBA_CACHE_DIR")}
+    env.update(GRIDRT_VECTOR_WIDTH=width, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    out = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    r = json.loads(out.stdout.strip().splitlines()[-1])
+    print(width, r["zmm_ps"], "zmm packed-single ops,", r["ymm_ps"], "ymm")
+    if width == "auto" and AVX512:
+        assert r["features"].endswith("-prefer-256-bit")
+        assert r["zmm_ps"] >= 30, "the float32 packet test does not use 512-bit registers"
+    else:
+        assert r["zmm_ps"] == 0 and r["ymm_ps"] >= 30, "the float32 packet test is not 8-wide ymm code"
