@@ -24,7 +24,7 @@ import time
 import numpy as np
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
-from gridrt.config import INSERT_MODES, SHADING_MODES, TRAVERSALS, GridParams, RenderParams
+from gridrt.config import INSERT_MODES, PACKET_PRECISIONS, SHADING_MODES, TRAVERSALS, GridParams, RenderParams
 from gridrt.errors import InputError
 from gridrt.grid.build import GridBuilder
 from gridrt.threads import check_threads
@@ -97,6 +97,10 @@ def add_parser(sub):
     f.add_argument("--shading", choices=SHADING_MODES, default=defaults(RenderParams)["shading"],
                    help="shading of the rendered frames (default %(default)s)")
     f.add_argument("--dt", type=float, default=1.0 / 30.0, help="seconds between frames (default 1/30)")
+    f.add_argument("--packet", default="x".join(map(str, defaults(RenderParams)["packet"])),
+                   help="CGT packet size, N or WxH (default %(default)s)")
+    f.add_argument("--packet-precision", choices=PACKET_PRECISIONS, default=defaults(RenderParams)["packet_precision"],
+                   help="precision of the CGT packets' triangle tests (default %(default)s)")
     f.set_defaults(func=run_frame)
 
     from . import packets as bench_packets, peers as bench_peers, start as bench_start, trade as bench_trade
@@ -456,6 +460,7 @@ def run_frame(a):
             raise InputError(f"unknown traversal {t!r}; choose from {', '.join(TRAVERSALS)}")
     size = 64 if a.quick else a.size
     runs, warmup = (1, 1) if a.quick else (a.runs, a.warmup)
+    packet = RenderParams(packet=a.packet).packet  # (checked here, before any scene loads)
     specs, note = scene_list(a.scenes, FRAME_SCENES, FRAME_FALLBACK, quick=["marbles:500"] if a.quick else None)
     threads = thread_list(a.threads)
     out = out_dir(a.out)
@@ -479,7 +484,8 @@ def run_frame(a):
         # other processes hits them alike
         variants = [(th, tr, sp) for s2, th, tr, sp in plan if s2 is sc]
         pipes = [FramePipeline(sc.scene, GridParams(strategy=frame_strategy(a.strategy, th), threads=th),
-                               RenderParams(size, size, shading=a.shading, threads=th, traversal=tr),
+                               RenderParams(size, size, shading=a.shading, threads=th, traversal=tr, packet=packet,
+                                            packet_precision=a.packet_precision),
                                split_static=sp, follow_camera=True) for th, tr, sp in variants]
         samples = [[] for _ in variants]
         bar.set_postfix_str(sc.label)
@@ -494,6 +500,7 @@ def run_frame(a):
             row = dict(scene=sc.label, name=sc.scene.name, triangles=s["triangles"],
                        moving_triangles=s.get("moving_triangles", s["triangles"]), threads=th,
                        strategy=frame_strategy(a.strategy, th), traversal=tr, split=int(sp and _has_split(sc.scene)),
+                       packet=f"{packet[0]}x{packet[1]}", packet_precision=a.packet_precision,
                        static=int(bool(sc.scene.static)), size=size, frames=runs, references=s["references"],
                        cells=s["cells"])
             for k in ("frame_ms", "build_ms", "render_ms", "anim_ms"):

@@ -33,10 +33,12 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 import gridrt  # noqa: F401
-from gridrt.config import TRAVERSALS, GridParams, RenderParams
+from gridrt.config import PACKET_PRECISIONS, TRAVERSALS, GridParams, RenderParams
 from gridrt.errors import InputError
 from gridrt.grid.build import GridBuilder
 from gridrt.trace.render import Renderer, cast_rays
+
+from ..cli import defaults
 
 from .util import (
     Affinity, check_frame_args, figure, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress, put_stat,
@@ -80,6 +82,10 @@ def add_parser(bsub, common):
                    help="ray sets, comma-separated: frame (the scene's camera, or one framing its bounds), fill "
                         f"(that camera moved in until at least {100 * FILL:.0f}%% of the pixels hit: a sparse view flatters "
                         "a grid), random (origins uniform in the scene's bounds, directions uniform on the sphere)")
+    p.add_argument("--packet", default="x".join(map(str, defaults(RenderParams)["packet"])),
+                   help="gridrt's CGT packet size, N or WxH (default %(default)s)")
+    p.add_argument("--packet-precision", choices=PACKET_PRECISIONS, default=defaults(RenderParams)["packet_precision"],
+                   help="precision of gridrt's CGT packet tests, in renders and casts (default %(default)s)")
     p.set_defaults(func=run_peers)
 
 
@@ -135,6 +141,7 @@ def run_peers(a):
             print(f"note: {side.label} not measured: {e}", file=sys.stderr)
     size = 64 if a.quick else a.size
     runs, warmup = (1, 1) if a.quick else (a.runs, a.warmup)
+    packet = RenderParams(packet=a.packet).packet
     specs, note = scene_list(a.scenes, PEER_SCENES, PEER_FALLBACK, quick=["icosphere:1280:twist"] if a.quick else None)
     threads = thread_list(a.threads)
     out = out_dir(a.out)
@@ -158,14 +165,17 @@ def run_peers(a):
             strat = frame_strategy(a.strategy, T)
             builder = GridBuilder(GridParams(strategy=strat, threads=T))
             renderer = Renderer()
-            rp = RenderParams(size, size, threads=T, traversal="cgt") if HAVE_CGT and view != "random" else None
+            rp = RenderParams(size, size, threads=T, traversal="cgt", packet=packet,
+                              packet_precision=a.packet_precision) if HAVE_CGT and view != "random" else None
             with Affinity(T) as aff, ThreadPoolExecutor(T) as pool:
                 affinity_ok &= aff.applied
                 frames = _time_frames(sc, origin, builder, renderer, rp, cam, emb, pool, o32, d32, o, d, T,
-                                      warmup, runs, a.dt, bar, others)
-                static = _time_static(frames, renderer, rp, cam, emb, pool, o32, d32, o, d, T, runs, others)
+                                      warmup, runs, a.dt, bar, others, a.packet_precision)
+                static = _time_static(frames, renderer, rp, cam, emb, pool, o32, d32, o, d, T, runs, others,
+                                      a.packet_precision)
                 bar.update()
             rows.append(_row(sc, T, strat, aff.applied, size, runs, emb, o, d, frames, static, rp, others, view))
+            rows[-1].update(packet=f"{packet[0]}x{packet[1]}", packet_precision=a.packet_precision)
     bar.close()
     _write(rows, out, info, emb, runs, warmup, affinity_ok, note, others, absent)
     return 0
@@ -220,7 +230,7 @@ def _camera_rays(sc, size, fill=False):
 
 
 def _time_frames(sc, origin, builder, renderer, rp, cam, emb, pool, o32, d32, o, d, T, warmup, runs, dt, bar,
-                 others=()):
+                 others=(), prec="float64"):
     """Per frame, all rebuild from scratch and cast: {samples (ms lists), last grid, triangles and hits}
     (emb None: Embree is not installed and not measured)."""
     smp = {k: [] for k in ("o_build", "o_cast", "o_frame", "o_render_cgt", "o_frame_cgt", "e_upload",
@@ -234,7 +244,7 @@ def _time_frames(sc, origin, builder, renderer, rp, cam, emb, pool, o32, d32, o,
         t0 = time.perf_counter()
         g = builder.build(tris)
         t1 = time.perf_counter()
-        ho = cast_rays(g, tris, o, d, threads=T)
+        ho = cast_rays(g, tris, o, d, threads=T, packet_precision=prec)
         t2 = time.perf_counter()
         if rp is not None:
             img = renderer.render(g, tris, cam, rp)
@@ -272,7 +282,7 @@ def _time_frames(sc, origin, builder, renderer, rp, cam, emb, pool, o32, d32, o,
                 peers=peer_hits)
 
 
-def _time_static(frames, renderer, rp, cam, emb, pool, o32, d32, o, d, T, runs, others=()):
+def _time_static(frames, renderer, rp, cam, emb, pool, o32, d32, o, d, T, runs, others=(), prec="float64"):
     """Static cast throughput on the last frame: (gridrt cast ms, Embree cast ms, gridrt CGT render ms)
     lists, and the last CGT image; the other peers' cast ms into frames["static_peers"]."""
     g, tris = frames["grid"], frames["tris"]
@@ -284,7 +294,7 @@ def _time_static(frames, renderer, rp, cam, emb, pool, o32, d32, o, d, T, runs, 
             peer.cast(pool, o32, d32, T)
             sp[peer.name].append((time.perf_counter() - t0) * 1e3)
         t0 = time.perf_counter()
-        cast_rays(g, tris, o, d, threads=T)
+        cast_rays(g, tris, o, d, threads=T, packet_precision=prec)
         t1 = time.perf_counter()
         if emb is not None:
             emb.cast(pool, o32, d32, T)
@@ -363,12 +373,18 @@ def _write(rows, out, info, emb, runs, warmup, affinity_ok, note, others=(), abs
     print(f"wrote {out}/peers.csv, peers.png, summary.md")
 
 
+def _packets(rows):
+    """How gridrt's packets were set in this run, e.g. "8x8-pixel packets (float64 tests)"."""
+    r = rows[0] if rows else {}
+    return f"{r.get('packet', '8x8')}-pixel packets ({r.get('packet_precision', 'float64')} triangle tests)"
+
+
 def _gridrt_summary(rows, runs, warmup):
     """The results without Embree: gridrt's own figures (the other peers follow)."""
     body = [f"Embree was not measured (see below).  Per frame gridrt rebuilds from scratch and casts the same "
             f"float32-rounded rays as the other peers; {warmup} warm-up + {runs} timed frames, ms median [min-max].  "
             "gridrt: build + `cast_rays` (watertight; coherent runs of rays as CGT packets, the rest by DDA); CGT "
-            "render: camera rays in 8x8-pixel packets with lambert shading.", ""]
+            f"render: camera rays in {_packets(rows)} with lambert shading.", ""]
     body += md_table(["scene", "triangles", "threads", "hit fraction", "gridrt build", "gridrt cast", "gridrt frame",
                       "gridrt CGT render", "gridrt frame (CGT)", "cast Mrays/s", "CGT render Mrays/s"],
                      [[r["scene"], f"{r['triangles']:,}", r["threads"], f"{r['hit_fraction']:.2f}",
@@ -402,7 +418,7 @@ def _summary(rows, emb, runs, warmup, affinity_ok):
     body += md_table(["scene", "triangles", "threads", "gridrt build", "gridrt cast", "gridrt frame", "Embree upload",
                       "Embree commit", "Embree cast", "Embree frame", "gridrt / Embree without upload"], table)
     if any("o_mrays_cgt" in r for r in rows):
-        body += ["", "gridrt's CGT render: the same traversal as `cast_rays`' packets in 8x8-pixel blocks, with the camera "
+        body += ["", f"gridrt's CGT render: the same traversal as `cast_rays`' packets, in {_packets(rows)}, with the camera "
                  "rays generated in the kernel (the same pixel-centre rays before their float32 rounding) and lambert "
                  "shading.  Frame = build + CGT render:", ""]
         body += md_table(["scene", "threads", "gridrt CGT render", "gridrt frame (CGT)", "Embree frame without upload",
