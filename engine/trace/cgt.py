@@ -598,9 +598,11 @@ def _retire(S, na, io, watertight, tests, cells, f32, S32, I32):
             r0, r1 = (_R_SX, _R_OX) if watertight else (_R_OX, _R_T0)
             for r in range(r0, r1):
                 S[r * PN + a] = S[r * PN + na]
-            if f32:
-                for r in range(_F_BF):
+            if f32:  # the float32 rows of the test in use, and the best t and triangle
+                q0, q1 = (_F_OU, _F_OX) if watertight else (_F_OX, _F_BT)
+                for r in range(q0, q1):
                     S32[r * PN + a] = S32[r * PN + na]
+                S32[F_BT + a] = S32[F_BT + na]
                 I32[F_BF + a] = I32[F_BF + na]
             S[O_CT0 + a] = 0.0
             a += 1
