@@ -59,6 +59,22 @@ def test_view_without_display(tmp_path, display):
 
 
 # ---------------------------------------------------------------------------------------------
+def test_traversal_choices_round_trip():
+    """The panel's traversal combo: every choice sets RenderParams that show as that choice again,
+    the default settings are one of the choices, and the choices differ."""
+    from gridrt.app.viewer.ui import TRAVERSAL_CHOICES, traversal_label, traversal_setting
+    from gridrt.config import RenderParams
+
+    assert traversal_label(RenderParams()) in TRAVERSAL_CHOICES
+    seen = set()
+    for label in TRAVERSAL_CHOICES:
+        rp = RenderParams().replace(**traversal_setting(label))
+        assert traversal_label(rp) == label
+        seen.add((rp.traversal, rp.packet, rp.packet_precision) if rp.traversal == "cgt" else "dda")
+    assert len(seen) == len(TRAVERSAL_CHOICES)
+    assert ("cgt", (8, 16), "float32") in seen
+
+
 def test_viewer_state_actions():
     from gridrt.app.viewer.state import SCALE_MIN, ViewerState
     from gridrt.config import GridParams, RenderParams
@@ -224,7 +240,7 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
         assert bg.mean() > 0.3, bg.mean()
         assert (panel.mean(axis=-1) > 170).mean() > 0.01
         for name in ("built-in", "triangles", "mesh file", "open file", "play", "time", "speed", "strategy",
-                     "threads", "lambda", "macro cell", "insertion", "intersection", "shading", "shadows",
+                     "threads", "lambda", "macro cell", "insertion", "intersection", "shading", "traversal", "shadows",
                      "resolution", "save image", "save window", "reset view", "plot"):
             x, y, w, h = st.widget_rects[name]
             assert px <= x and x + w <= px + pw and py <= y and y + h <= py + ph, name
@@ -488,7 +504,8 @@ def test_viewer_window_under_xvfb(tmp_path):
                                         macro=s6["macro"], insert=s6["insert"]),
                              RenderParams(width=W, height=H, shading=s6["shading"], shadows=True,
                                           watertight=s6["watertight"], threads=st["threads"],
-                                          traversal=s6["traversal"]))
+                                          traversal=s6["traversal"], packet=tuple(s6["packet"]),
+                                          packet_precision=s6["packet_precision"]))
         ref = pipe.step(st["t"], camera=Camera(cam["eye"], cam["target"], cam["up"], cam["fov"]))
         assert np.array_equal(shot, ref.image[..., :3])
         no_shadow = FramePipeline(make_scene("marbles", count=2000), pipe.grid_params,

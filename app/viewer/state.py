@@ -204,6 +204,8 @@ class ViewerState:
             "shadows": self.render.shadows,
             "follow_camera": self.follow_camera,
             "traversal": self.render.traversal,
+            "packet": list(self.render.packet),
+            "packet_precision": self.render.packet_precision,
             "scale": self.scale,
             "show_panel": self.show_panel,
             "busy": self.busy,

@@ -12,7 +12,7 @@ import os
 import numpy as np
 from imgui_bundle import imgui, implot
 
-from gridrt.config import INSERT_MODES, SHADING_MODES, TRAVERSALS
+from gridrt.config import INSERT_MODES, SHADING_MODES
 from gridrt.scene import BUILTIN_SCENES, DEFORM_KINDS, FRAME_EXTENSIONS, SCENE_EXTENSIONS, SceneSpec
 from gridrt.scene.assets import STATIC_ASSETS
 
@@ -25,6 +25,26 @@ PANEL_WIDTH = 320.0
 PANEL_BG = (0.09, 0.10, 0.12)
 PANEL_ALPHA = 0.92
 INTERSECTION_LABELS = ("watertight (Woop et al.)", "fast (Moller-Trumbore)")
+#: the traversals the panel offers: CGT with its packets' size and the precision of their triangle
+#: tests (BENCHMARKS.md section 12: 8x16 with float32 tests is the fastest measured, 8x8 float64
+#: the exact default), and the single-ray DDA
+TRAVERSAL_CHOICES = tuple(f"cgt {p}, {q}" for q in ("float64", "float32") for p in ("8x8", "8x16", "16x16")) + ("dda",)
+
+
+def traversal_setting(label):
+    """The RenderParams fields of a TRAVERSAL_CHOICES label ("dda", or "cgt 8x16, float32": the
+    packets' size and the precision of their tests)."""
+    if label == "dda":
+        return {"traversal": "dda"}
+    _, shape, prec = label.split(" ")
+    return {"traversal": "cgt", "packet": shape.rstrip(","), "packet_precision": prec}
+
+
+def traversal_label(rp):
+    """The panel's label of RenderParams rp's traversal, e.g. "cgt 8x8, float64" or "dda"."""
+    if rp.traversal == "dda":
+        return "dda"
+    return f"cgt {rp.packet[0]}x{rp.packet[1]}, {rp.packet_precision}"
 ERROR_COLOR = imgui.ImVec4(1.0, 0.45, 0.4, 1.0)
 DIM_COLOR = imgui.ImVec4(0.65, 0.68, 0.72, 1.0)
 _ANIMATE = ("none",) + tuple(DEFORM_KINDS)
@@ -214,9 +234,9 @@ def _draw_render(state):
     v = _combo(state, "shading", list(SHADING_MODES), rp.shading)
     if v is not None:
         state.set_render(shading=v)
-    v = _combo(state, "traversal", list(TRAVERSALS), rp.traversal)
+    v = _combo(state, "traversal", list(TRAVERSAL_CHOICES), traversal_label(rp))
     if v is not None:
-        state.set_render(traversal=v)
+        state.set_render(**traversal_setting(v))
     changed, b = imgui.checkbox("shadows", bool(rp.shadows))
     _rect(state, "shadows")
     if changed:
