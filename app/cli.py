@@ -100,11 +100,7 @@ def add_render_args(p, default_size=(1024, 768)):
     g.add_argument("--traversal", choices=TRAVERSALS, default=d["traversal"],
                    help="ray traversal: single-ray 3D DDA, or coherent grid traversal of ray packets "
                         "(cgt; same image, faster)")
-    g.add_argument("--packet", default="x".join(map(str, d["packet"])),
-                   help="CGT packet size in pixels, N or WxH, each 1..16 (default %(default)s)")
-    g.add_argument("--packet-precision", choices=PACKET_PRECISIONS, default=d["packet_precision"],
-                   help="precision of the CGT packets' triangle tests: float64 (the DDA's hits bit for bit) or "
-                        "float32 (twice the lanes; hits agree up to float32 rounding) (default %(default)s)")
+    add_packet_args(g)
     g.add_argument("--eye", type=vec3, default=None,
                    help="camera position X,Y,Z, with --target (default: a camera that frames the scene)")
     g.add_argument("--target", type=vec3, default=None,
@@ -115,6 +111,17 @@ def add_render_args(p, default_size=(1024, 768)):
     g.add_argument("--fov", type=float, default=c["fov"], help="vertical field of view in degrees")
     g.add_argument("--follow-camera", action="store_true",
                    help="look through the scene's own animated camera (BART, glTF) where it has one")
+
+
+def add_packet_args(g):
+    """--packet and --packet-precision (RenderParams.packet, packet_precision) on the parser or
+    argument group g."""
+    d = defaults(RenderParams)
+    g.add_argument("--packet", default="x".join(map(str, d["packet"])),
+                   help="CGT packet size in pixels, N or WxH, each 1..16 (default %(default)s)")
+    g.add_argument("--packet-precision", choices=PACKET_PRECISIONS, default=d["packet_precision"],
+                   help="precision of the CGT packets' triangle tests: float64 (the DDA's hits bit for bit) or "
+                        "float32 (twice the lanes; hits agree up to float32 rounding) (default %(default)s)")
 
 
 def scene_spec(a):

@@ -390,6 +390,12 @@ REL32 = 1e-5
 BESIDE_MAX = 1e-5
 
 
+def facing_eye(m, f, d):
+    """Per ray: its hit triangle f (-1: a miss, then meaningless) faces the ray (unit or not)
+    coming in along d, i.e. the ray enters the closed mesh m there."""
+    return np.einsum("kc,kc->k", m.normals[np.maximum(f, 0)], d) < 0.0
+
+
 def packet_counts(m, grid, rng, n_packets):
     """Star packets traced by the packet kernel with the three TESTS: counts (see cgt_report)."""
     eyes, d, dist, offs, kinds, _ = m.star_packets(rng, n_packets)
@@ -403,9 +409,9 @@ def packet_counts(m, grid, rng, n_packets):
         beyond = (f >= 0) & (t > dist * (1 + rel))
         hole = (f < 0) | beyond
         if f32:  # (see TESTS)
-            facing = np.einsum("kc,kc->k", m.normals[np.maximum(f, 0)], d) < 0.0
-            c[key + "_beside"] = int((beyond & facing).sum())
-            hole &= ~(beyond & facing)
+            beside = beyond & facing_eye(m, f, d)
+            c[key + "_beside"] = int(beside.sum())
+            hole &= ~beside
         c[key + "_holes"] = np.bincount(kinds[hole], minlength=4)
         c[key + "_at"] = int((np.abs(t - dist) <= rel * dist).sum())
         c[key + "_fallback"] = int(fb.sum())
@@ -430,7 +436,7 @@ def row_counts(m, grid, rng, n_cameras, width=ROW_WIDTH):
             hole = (f < 0) | (t > tr * (1 + rel))
             if f32:  # a hit beyond the target on a triangle facing the eye is not a hole (see TESTS)
                 d = ref_camera_rays(cam.eye, cam.target, cam.up, cam.fov, width, 1)[1]
-                hole &= ~((f >= 0) & (np.einsum("kc,kc->k", m.normals[np.maximum(f, 0)], d) < 0.0))
+                hole &= ~((f >= 0) & facing_eye(m, f, d))
             holes += int(hole.sum())
             at += int((np.abs(t - tr) <= rel * tr).sum())
             fb += out.stats["fallback_rays"]

@@ -24,13 +24,13 @@ import time
 import numpy as np
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
-from gridrt.config import INSERT_MODES, PACKET_PRECISIONS, SHADING_MODES, TRAVERSALS, GridParams, RenderParams
+from gridrt.config import INSERT_MODES, SHADING_MODES, TRAVERSALS, GridParams, RenderParams
 from gridrt.errors import InputError
 from gridrt.grid.build import GridBuilder
 from gridrt.threads import check_threads
 from gridrt.trace.render import Renderer
 
-from ..cli import defaults
+from ..cli import add_packet_args, defaults
 from .util import (
     check_frame_args, check_runs, facing_camera, figure, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress,
     put_stat, resolve_scene, scene_list, scenes_help, stat, thread_list, write_csv, write_json, write_summary,
@@ -97,10 +97,7 @@ def add_parser(sub):
     f.add_argument("--shading", choices=SHADING_MODES, default=defaults(RenderParams)["shading"],
                    help="shading of the rendered frames (default %(default)s)")
     f.add_argument("--dt", type=float, default=1.0 / 30.0, help="seconds between frames (default 1/30)")
-    f.add_argument("--packet", default="x".join(map(str, defaults(RenderParams)["packet"])),
-                   help="CGT packet size, N or WxH (default %(default)s)")
-    f.add_argument("--packet-precision", choices=PACKET_PRECISIONS, default=defaults(RenderParams)["packet_precision"],
-                   help="precision of the CGT packets' triangle tests (default %(default)s)")
+    add_packet_args(f)
     f.set_defaults(func=run_frame)
 
     from . import packets as bench_packets, peers as bench_peers, start as bench_start, trade as bench_trade

@@ -33,12 +33,12 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 import gridrt  # noqa: F401
-from gridrt.config import PACKET_PRECISIONS, TRAVERSALS, GridParams, RenderParams
+from gridrt.config import TRAVERSALS, GridParams, RenderParams
 from gridrt.errors import InputError
 from gridrt.grid.build import GridBuilder
 from gridrt.trace.render import Renderer, cast_rays
 
-from ..cli import defaults
+from ..cli import add_packet_args
 
 from .util import (
     Affinity, check_frame_args, figure, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress, put_stat,
@@ -82,10 +82,7 @@ def add_parser(bsub, common):
                    help="ray sets, comma-separated: frame (the scene's camera, or one framing its bounds), fill "
                         f"(that camera moved in until at least {100 * FILL:.0f}%% of the pixels hit: a sparse view flatters "
                         "a grid), random (origins uniform in the scene's bounds, directions uniform on the sphere)")
-    p.add_argument("--packet", default="x".join(map(str, defaults(RenderParams)["packet"])),
-                   help="gridrt's CGT packet size, N or WxH (default %(default)s)")
-    p.add_argument("--packet-precision", choices=PACKET_PRECISIONS, default=defaults(RenderParams)["packet_precision"],
-                   help="precision of gridrt's CGT packet tests, in renders and casts (default %(default)s)")
+    add_packet_args(p)  # (gridrt's: the precision applies to its renders and casts)
     p.set_defaults(func=run_peers)
 
 

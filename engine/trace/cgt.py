@@ -44,6 +44,7 @@ from numba import njit, prange
 
 from ..config import PACKET_MAX
 from .grids import pack_grids, unpack_grids
+from .intersect import woop_edges, woop_shear
 from .prefetch import _cycles, _prefetch_tri, _prefetch_write
 from .shade import BACKGROUND, _u8, cost_rgb, facing_normal, lambert_rgb, normal_rgb, scene_id, shadow_ray
 from .traverse import MAILBOX, TINY_DIR, _floor_clamp, trace_ray
@@ -238,30 +239,10 @@ def _test_wt(S, na, p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z, ff, tmin):
     Returns the number of rays hit."""
     nh = 0
     for i in range(na):
-        okx = S[O_OU + i]
-        oky = S[O_OV + i]
-        okz = S[O_OK + i]
-        Sx = S[O_SX + i]
-        Sy = S[O_SY + i]
         Sz = S[O_SZ + i]
-        ax = p0x - okx
-        ay = p0y - oky
-        az = p0z - okz
-        bx = p1x - okx
-        by = p1y - oky
-        bz = p1z - okz
-        cx = p2x - okx
-        cy = p2y - oky
-        cz = p2z - okz
-        Ax = ax - Sx * az
-        Ay = ay - Sy * az
-        Bx = bx - Sx * bz
-        By = by - Sy * bz
-        Cx = cx - Sx * cz
-        Cy = cy - Sy * cz
-        U = Cx * By - Cy * Bx
-        V = Ax * Cy - Ay * Cx
-        W = Bx * Ay - By * Ax
+        Ax, Ay, Bx, By, Cx, Cy, az, bz, cz = woop_shear(p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z, S[O_OU + i],
+                                                        S[O_OV + i], S[O_OK + i], S[O_SX + i], S[O_SY + i])
+        U, V, W = woop_edges(Ax, Ay, Bx, By, Cx, Cy)
         det = U + V + W
         T = U * (Sz * az) + V * (Sz * bz) + W * (Sz * cz)
         t = T / det
@@ -370,6 +351,13 @@ def _up32(x):
     return np.nextafter(b, np.float32(np.inf)) if np.float64(b) < x else b
 
 
+@njit(cache=True, _nrt=False, inline="always")
+def _sheared32(S32, i, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z):
+    """woop_shear in float32 of float32 ray i (rows of S32) and the vertices q (see _test_wt32)."""
+    return woop_shear(q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z, S32[F_OU + i], S32[F_OV + i], S32[F_OK + i],
+                      S32[F_SX + i], S32[F_SY + i])
+
+
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _test_wt32(S32, I32, na, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z, ff, tmin32):
     """_test_wt in float32 over the packet, L32 rays at a time (16 lanes of a zmm register where
@@ -386,30 +374,9 @@ def _test_wt32(S32, I32, na, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z, ff, tm
     for b in range((na + L32 - 1) // L32):
         for l in range(L32):
             i = b * L32 + l
-            okx = S32[F_OU + i]
-            oky = S32[F_OV + i]
-            okz = S32[F_OK + i]
-            Sx = S32[F_SX + i]
-            Sy = S32[F_SY + i]
             Sz = S32[F_SZ + i]
-            ax = q0x - okx
-            ay = q0y - oky
-            az = q0z - okz
-            bx = q1x - okx
-            by = q1y - oky
-            bz = q1z - okz
-            cx = q2x - okx
-            cy = q2y - oky
-            cz = q2z - okz
-            Ax = ax - Sx * az
-            Ay = ay - Sy * az
-            Bx = bx - Sx * bz
-            By = by - Sy * bz
-            Cx = cx - Sx * cz
-            Cy = cy - Sy * cz
-            U = Cx * By - Cy * Bx
-            V = Ax * Cy - Ay * Cx
-            W = Bx * Ay - By * Ax
+            Ax, Ay, Bx, By, Cx, Cy, az, bz, cz = _sheared32(S32, i, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z)
+            U, V, W = woop_edges(Ax, Ay, Bx, By, Cx, Cy)
             det = U + V + W
             T = U * (Sz * az) + V * (Sz * bz) + W * (Sz * cz)
             t = T / det
@@ -436,31 +403,15 @@ def _fix_wt64(S32, I32, na, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z, ff, tmi
     zero = np.float32(0.0)
     nh = 0
     for i in range(na):
-        okx = S32[F_OU + i]
-        oky = S32[F_OV + i]
-        okz = S32[F_OK + i]
-        Sx = S32[F_SX + i]
-        Sy = S32[F_SY + i]
         Sz = S32[F_SZ + i]
-        az = q0z - okz
-        bz = q1z - okz
-        cz = q2z - okz
-        Ax = (q0x - okx) - Sx * az
-        Ay = (q0y - oky) - Sy * az
-        Bx = (q1x - okx) - Sx * bz
-        By = (q1y - oky) - Sy * bz
-        Cx = (q2x - okx) - Sx * cz
-        Cy = (q2y - oky) - Sy * cz
-        U = Cx * By - Cy * Bx
-        V = Ax * Cy - Ay * Cx
-        W = Bx * Ay - By * Ax
+        Ax, Ay, Bx, By, Cx, Cy, az, bz, cz = _sheared32(S32, i, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z)
+        U, V, W = woop_edges(Ax, Ay, Bx, By, Cx, Cy)
         out = ((U < zero) | (V < zero) | (W < zero)) & ((U > zero) | (V > zero) | (W > zero))
         if out or not ((U == zero) | (V == zero) | (W == zero)):
             continue  # decided in float32
         # exact products of the float32 coordinates
-        U64 = np.float64(Cx) * np.float64(By) - np.float64(Cy) * np.float64(Bx)
-        V64 = np.float64(Ax) * np.float64(Cy) - np.float64(Ay) * np.float64(Cx)
-        W64 = np.float64(Bx) * np.float64(Ay) - np.float64(By) * np.float64(Ax)
+        U64, V64, W64 = woop_edges(np.float64(Ax), np.float64(Ay), np.float64(Bx), np.float64(By), np.float64(Cx),
+                                   np.float64(Cy))
         if (U64 < 0.0 or V64 < 0.0 or W64 < 0.0) and (U64 > 0.0 or V64 > 0.0 or W64 > 0.0):
             continue
         det = U64 + V64 + W64

@@ -48,13 +48,12 @@ def permute(x, y, z, kx, ky, kz):
     return _pick(x, y, z, kx), _pick(x, y, z, ky), _pick(x, y, z, kz)
 
 
-@njit(cache=True)
-def intersect_watertight(p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z, okx, oky, okz, Sx, Sy, Sz, tmin, tmax):
-    """Woop et al. 2013 watertight test; a hit needs tmin < t < tmax.
-
-    The vertices p0, p1, p2 and the origin (okx, oky, okz) are given already permuted by the
-    ray's (kx, ky, kz) (see :func:`shear_setup` and :func:`permute`).
-    """
+@njit(cache=True, inline="always")
+def woop_shear(p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z, okx, oky, okz, Sx, Sy):
+    """The vertices of Woop et al.'s test relative to the ray origin and sheared onto the plane
+    across the ray: (Ax, Ay, Bx, By, Cx, Cy, az, bz, cz), in the precision of the arguments
+    (everything permuted as for :func:`intersect_watertight`).  Inlined where it is called, so
+    the packet loops that call it still vectorize."""
     ax = p0x - okx
     ay = p0y - oky
     az = p0z - okz
@@ -64,15 +63,26 @@ def intersect_watertight(p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z, okx, oky, 
     cx = p2x - okx
     cy = p2y - oky
     cz = p2z - okz
-    Ax = ax - Sx * az
-    Ay = ay - Sy * az
-    Bx = bx - Sx * bz
-    By = by - Sy * bz
-    Cx = cx - Sx * cz
-    Cy = cy - Sy * cz
-    U = Cx * By - Cy * Bx
-    V = Ax * Cy - Ay * Cx
-    W = Bx * Ay - By * Ax
+    return ax - Sx * az, ay - Sy * az, bx - Sx * bz, by - Sy * bz, cx - Sx * cz, cy - Sy * cz, az, bz, cz
+
+
+@njit(cache=True, inline="always")
+def woop_edges(Ax, Ay, Bx, By, Cx, Cy):
+    """The edge functions (U, V, W) of a sheared triangle (see :func:`woop_shear`).  Each is a
+    difference of two products of the same vertex coordinates, so a shared edge gives the two
+    triangles exact negations in any precision."""
+    return Cx * By - Cy * Bx, Ax * Cy - Ay * Cx, Bx * Ay - By * Ax
+
+
+@njit(cache=True)
+def intersect_watertight(p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z, okx, oky, okz, Sx, Sy, Sz, tmin, tmax):
+    """Woop et al. 2013 watertight test; a hit needs tmin < t < tmax.
+
+    The vertices p0, p1, p2 and the origin (okx, oky, okz) are given already permuted by the
+    ray's (kx, ky, kz) (see :func:`shear_setup` and :func:`permute`).
+    """
+    Ax, Ay, Bx, By, Cx, Cy, az, bz, cz = woop_shear(p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z, okx, oky, okz, Sx, Sy)
+    U, V, W = woop_edges(Ax, Ay, Bx, By, Cx, Cy)
     if (U < 0.0 or V < 0.0 or W < 0.0) and (U > 0.0 or V > 0.0 or W > 0.0):
         return False, 0.0, 0.0, 0.0
     det = U + V + W
