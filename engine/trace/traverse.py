@@ -1,5 +1,6 @@
 """Single-ray traversal of the uniform grid: 3D DDA (Amanatides & Woo, "A Fast Voxel Traversal
-Algorithm for Ray Tracing", Eurographics 1987) with empty macro cells skipped in one step and a
+Algorithm for Ray Tracing", Eurographics 1987) in two nested loops: one over the macro cells (an
+empty one is crossed in one step), one over the cells of a macro cell that holds triangles; and a
 small per-ray mailbox so a triangle spanning several cells is tested once.
 
 Termination: the nearest hit found so far is kept across cells; traversal stops once it lies
@@ -74,13 +75,13 @@ def _macro_exit_t(lo, c, mi, k, n, s, o, inv_d):
 
 
 @njit(cache=True)
-def _macro_entry(cp, mi, k, n, s, exit_axis):
-    """Cell index along one axis after leaving macro cell mi at the (cell-unit) coordinate cp:
-    along the exit axis the first cell of the next macro cell, along the others the cell at cp,
-    kept within this macro cell."""
-    if exit_axis:
-        return (mi + 1) * k if s > 0 else mi * k - 1
-    return min(max(_floor_clamp(cp, n), mi * k), min((mi + 1) * k, n) - 1)
+def _entry_cell(lo, ic, n, o, d, t, c0, c1, s, entered):
+    """Cell index along one axis where a ray enters the macro cell of cells [c0, c1) at t: along
+    the axis it entered through (``entered``) the macro cell's first cell on the ray's side,
+    along the others the cell at o + t d, kept within the macro cell."""
+    if entered:
+        return c0 if s > 0 else c1 - 1
+    return min(max(_floor_clamp((o + t * d - lo) * ic, n), c0), c1 - 1)
 
 
 @njit(cache=True, _nrt=False)
@@ -148,87 +149,120 @@ def trace_ray(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbo
     cells = 0
     tests = 0
     L = cell_start.shape[0]
+    lx, ly, lz = lo[0], lo[1], lo[2]
+    cx, cy, cz = cell[0], cell[1], cell[2]
+    # two nested DDAs: over macro cells (k^3 cells), and over the cells of each macro cell that
+    # holds triangles.  The macro cell's indices and its exits along each axis are kept from
+    # step to step (no integer division in the loop); a cell's indices are found only when its
+    # macro cell holds triangles.
     k = macro
-    mx, my = mdims[0], mdims[1]
+    mx, my, mz = mdims[0], mdims[1], mdims[2]
+    mi = ix // k
+    mj = iy // k
+    mk = iz // k
+    m = mi + mx * (mj + my * mk)
+    tmx = _macro_exit_t(lx, cx, mi, k, nx, sx, ox, idx)
+    tmy = _macro_exit_t(ly, cy, mj, k, ny, sy, oy, idy)
+    tmz = _macro_exit_t(lz, cz, mk, k, nz, sz, oz, idz)
+    entered = -1  # the axis the ray entered the current macro cell through (-1: it starts in it)
+    t_in = t0
     while True:
-        mi = ix // k
-        mj = iy // k
-        mk = iz // k
-        if macro_full[mi + mx * (mj + my * mk)] == 0:
-            # leave the empty macro cell in one step
-            tx = _macro_exit_t(lo[0], cell[0], mi, k, nx, sx, ox, idx)
-            ty = _macro_exit_t(lo[1], cell[1], mj, k, ny, sy, oy, idy)
-            tz = _macro_exit_t(lo[2], cell[2], mk, k, nz, sz, oz, idz)
-            if tx <= ty and tx <= tz:
-                te = tx
-                ax = 0
-            elif ty <= tz:
-                te = ty
-                ax = 1
-            else:
-                te = tz
-                ax = 2
-            if te > t1 or best_t <= te:
+        if macro_full[m] != 0:
+            # the macro cell's cells: [x0, x1) x [y0, y1) x [z0, z1) (the last ones cut at the grid)
+            x0, y0, z0 = mi * k, mj * k, mk * k
+            x1, y1, z1 = min(x0 + k, nx), min(y0 + k, ny), min(z0 + k, nz)
+            if entered >= 0:
+                ix = _entry_cell(lx, inv_cell[0], nx, ox, dx, t_in, x0, x1, sx, entered == 0)
+                iy = _entry_cell(ly, inv_cell[1], ny, oy, dy, t_in, y0, y1, sy, entered == 1)
+                iz = _entry_cell(lz, inv_cell[2], nz, oz, dz, t_in, z0, z1, sz, entered == 2)
+            while True:
+                cells += 1
+                c = ix + nx * (iy + ny * iz)
+                # start the loads of all the cell's triangles first: their cache misses (the
+                # triangles of a cell lie anywhere in tris) then overlap instead of queueing one
+                # test at a time
+                for l in range(L):
+                    for r in range(cell_start[l, c], cell_start[l, c + 1]):
+                        _prefetch_tri(tris, tri_ids[r])
+                for l in range(L):
+                    r0 = cell_start[l, c]
+                    r1 = cell_start[l, c + 1]
+                    for r in range(r0, r1):
+                        f = tri_ids[r]
+                        slot = f & mmask
+                        if mailbox[slot] == f:
+                            continue
+                        mailbox[slot] = f
+                        tests += 1
+                        hit, t, u, v = _test_triangle(tris, f, watertight, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz,
+                                                      ox, oy, oz, dx, dy, dz, tmin, np.inf)
+                        # ties (the same t) go to the lowest triangle index, as in the packet
+                        # loops, so a ray's hit does not depend on the order in which a
+                        # traversal meets the triangles
+                        if hit and (t < best_t or (t == best_t and f < best_f)):
+                            best_t = t
+                            best_f = f
+                            best_u = u
+                            best_v = v
+                            if any_hit:
+                                return best_f, best_t, best_u, best_v, cells, tests
+                # step to the next cell, or out of the macro cell
+                tx = _cell_exit_t(lx, cx, ix, sx, ox, idx)
+                ty = _cell_exit_t(ly, cy, iy, sy, oy, idy)
+                tz = _cell_exit_t(lz, cz, iz, sz, oz, idz)
+                if tx <= ty and tx <= tz:
+                    te = tx
+                    ix += sx
+                    leaves = ix < x0 or ix >= x1
+                elif ty <= tz:
+                    te = ty
+                    iy += sy
+                    leaves = iy < y0 or iy >= y1
+                else:
+                    te = tz
+                    iz += sz
+                    leaves = iz < z0 or iz >= z1
+                if best_t <= te or te > t1:
+                    return _result(best_f, best_t, best_u, best_v, cells, tests)
+                if leaves:
+                    break
+        # step to the next macro cell (the macro DDA decides where the ray goes next, also when
+        # the cell DDA left the macro cell through another face within rounding of a corner)
+        if tmx <= tmy and tmx <= tmz:
+            te = tmx
+            entered = 0
+            mi += sx
+            if mi < 0 or mi >= mx:
                 break
-            cpx = (ox + te * dx - lo[0]) * inv_cell[0]
-            cpy = (oy + te * dy - lo[1]) * inv_cell[1]
-            cpz = (oz + te * dz - lo[2]) * inv_cell[2]
-            ix = _macro_entry(cpx, mi, k, nx, sx, ax == 0)
-            iy = _macro_entry(cpy, mj, k, ny, sy, ax == 1)
-            iz = _macro_entry(cpz, mk, k, nz, sz, ax == 2)
-            if ix < 0 or iy < 0 or iz < 0 or ix >= nx or iy >= ny or iz >= nz:
+            m += sx
+            tmx = _macro_exit_t(lx, cx, mi, k, nx, sx, ox, idx)
+        elif tmy <= tmz:
+            te = tmy
+            entered = 1
+            mj += sy
+            if mj < 0 or mj >= my:
                 break
-            continue
-
-        cells += 1
-        c = ix + nx * (iy + ny * iz)
-        # start the loads of all the cell's triangles first: their cache misses (the triangles of
-        # a cell lie anywhere in tris) then overlap instead of queueing one test at a time
-        for l in range(L):
-            for r in range(cell_start[l, c], cell_start[l, c + 1]):
-                _prefetch_tri(tris, tri_ids[r])
-        for l in range(L):
-            r0 = cell_start[l, c]
-            r1 = cell_start[l, c + 1]
-            for r in range(r0, r1):
-                f = tri_ids[r]
-                slot = f & mmask
-                if mailbox[slot] == f:
-                    continue
-                mailbox[slot] = f
-                tests += 1
-                hit, t, u, v = _test_triangle(tris, f, watertight, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz,
-                                              ox, oy, oz, dx, dy, dz, tmin, np.inf)
-                # ties (the same t) go to the lowest triangle index, as in the packet loops, so a
-                # ray's hit does not depend on the order in which a traversal meets the triangles
-                if hit and (t < best_t or (t == best_t and f < best_f)):
-                    best_t = t
-                    best_f = f
-                    best_u = u
-                    best_v = v
-                    if any_hit:
-                        return best_f, best_t, best_u, best_v, cells, tests
-        # step to the next cell
-        tx = _cell_exit_t(lo[0], cell[0], ix, sx, ox, idx)
-        ty = _cell_exit_t(lo[1], cell[1], iy, sy, oy, idy)
-        tz = _cell_exit_t(lo[2], cell[2], iz, sz, oz, idz)
-        if tx <= ty and tx <= tz:
-            te = tx
-            ix += sx
-        elif ty <= tz:
-            te = ty
-            iy += sy
+            m += sy * mx
+            tmy = _macro_exit_t(ly, cy, mj, k, ny, sy, oy, idy)
         else:
-            te = tz
-            iz += sz
-        if best_t <= te or te > t1:
+            te = tmz
+            entered = 2
+            mk += sz
+            if mk < 0 or mk >= mz:
+                break
+            m += sz * mx * my
+            tmz = _macro_exit_t(lz, cz, mk, k, nz, sz, oz, idz)
+        if te > t1 or best_t <= te:
             break
-        if ix < 0 or iy < 0 or iz < 0 or ix >= nx or iy >= ny or iz >= nz:
-            break
+        t_in = te
+    return _result(best_f, best_t, best_u, best_v, cells, tests)
+
+
+@njit(cache=True)
+def _result(best_f, best_t, best_u, best_v, cells, tests):
     if best_f < 0:
         return -1, np.inf, 0.0, 0.0, cells, tests
     return best_f, best_t, best_u, best_v, cells, tests
-
 
 
 @njit(cache=True, _nrt=False)
