@@ -61,6 +61,27 @@ def _single(g, origins, dirs, i, tmin, tmax, watertight, any_hit, mb1, out_t, ou
     out_v[i] = v
 
 
+@njit(cache=True, _nrt=False)
+def _one_class(dirs, idx, s, n, use_idx):
+    """Whether rays idx[s:s+n] (s..s+n-1 when not use_idx) all have the same permutation class
+    (major axis of the direction and its sign; cgt._classify's classes).  A run that fails this
+    cannot be a packet (its rays that meet the grid may still agree, but runs of arbitrary rays,
+    which is what fails here, almost never do), so it is left without gathering it."""
+    cmin = 6
+    cmax = -1
+    for j in range(n):
+        i = idx[s + j] if use_idx else s + j
+        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        ax, ay, az = abs(dx), abs(dy), abs(dz)
+        xmaj = (ax >= ay) & (ax >= az)
+        ymaj = (not xmaj) & (ay >= az)
+        dk = dx if xmaj else (dy if ymaj else dz)
+        c = (0 if xmaj else (2 if ymaj else 4)) + (1 if dk < 0.0 else 0)
+        cmin = min(cmin, c)
+        cmax = max(cmax, c)
+    return cmin == cmax
+
+
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _cast_run(g, origins, dirs, idx, s, n, tmin, tmax, watertight, any_hit, max_cells, singly, f32, io, S, mb,
               mb1, out_t, out_f, out_u, out_v, left):
@@ -70,7 +91,7 @@ def _cast_run(g, origins, dirs, idx, s, n, tmin, tmax, watertight, any_hit, max_
     as a packet (n or 0)."""
     use_idx = idx.shape[0] > 0
     r = -1
-    if max_cells > 0.0:
+    if max_cells > 0.0 and _one_class(dirs, idx, s, n, use_idx):
         for j in range(n):
             i = idx[s + j] if use_idx else s + j
             io[IO_OX * PN + j] = origins[i, 0]
