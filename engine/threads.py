@@ -50,9 +50,10 @@ def wide_vector_features(width):
 
     LLVM's tuning for the Intel cores with AVX-512 (Skylake-X to Sapphire Rapids) prefers 256-bit
     vectors ("prefer-256-bit"), so by default numba's loops use ymm registers even where zmm ones
-    exist.  With width "auto" or "512" and a CPU with AVX-512F, this returns the host's features
-    with that preference turned off; on a CPU without AVX-512 (AVX2 only) there is nothing wider
-    and it returns None, as it does for "256".  Any other width is reported (a warning) and
+    exist; its tuning for AMD's Zen 4 does not, and uses zmm ones.  On a CPU with AVX-512F this
+    returns the host's features with that preference turned off for width "auto" or "512", and
+    turned on for "256" (ymm registers on Intel and AMD alike); on a CPU without AVX-512 (AVX2 only)
+    there is nothing wider and it returns None.  Any other width is reported (a warning) and
     treated as "auto".  The setting is process-wide and must be made before numba is imported:
     gridrt's ``configure_env`` applies GRIDRT_VECTOR_WIDTH, unless NUMBA_CPU_FEATURES is set."""
     if width not in VECTOR_WIDTHS:
@@ -61,8 +62,6 @@ def wide_vector_features(width):
         warnings.warn(f"GRIDRT_VECTOR_WIDTH={width!r} is not one of {', '.join(VECTOR_WIDTHS)}; using auto",
                       stacklevel=3)
         width = "auto"
-    if width == "256":
-        return None
     try:
         import llvmlite.binding as ll
 
@@ -72,7 +71,7 @@ def wide_vector_features(width):
         return None
     if "+avx512f" not in features.split(","):
         return None
-    return features + ",-prefer-256-bit"
+    return features + (",+prefer-256-bit" if width == "256" else ",-prefer-256-bit")
 
 
 def _have_gomp():
