@@ -6,9 +6,9 @@ coherent runs of rays as CGT packets and the rest one at a time; the hits must n
 * they agree with the float64 brute force (tests/reference.py, with its tie and grazing rules);
 * ties (duplicated triangles: the same t by construction) go to the lower triangle index on both
   paths, so the packet and single-ray paths pick the same triangle there too;
-* the routing is real: camera rays in pixel order go through packets, most in the first pass,
-  shuffled camera rays in the second (sorted) pass, random rays one at a time (cast_grouped's
-  counts);
+* the routing is real: camera rays in pixel order go through packets in the first pass (as 8 x 8
+  tiles of the image, whose rows it recognises), shuffled camera rays in the second (sorted)
+  pass, random rays one at a time (cast_grouped's counts);
 * any-hit casts report a hit exactly where the nearest-hit cast does, and the hit is real;
 * far from the origin (a RayCaster mesh at 1e6) both paths agree;
 * hypothesis: random batches (origins inside and outside, random and aimed directions, mixed
@@ -144,7 +144,14 @@ def test_routing():
                                   out, **kw)
 
     p1, p2 = run(o, d)
-    assert p1 >= 0.5 * N and p1 + p2 >= 0.9 * N, (p1, p2)  # (runs of 64 are half rows here: some are wide)
+    assert p1 == N and p2 == 0, (p1, p2)  # (pass 1 takes the image's rows as 8 x 8 tiles)
+    real = batch.pass1_order
+    try:  # in the caller's order, runs of 64 are half rows here: some are too wide
+        batch.pass1_order = lambda o, d: batch.NO_ROWS
+        p1, p2 = run(o, d)
+    finally:
+        batch.pass1_order = real
+    assert 0.5 * N <= p1 < N and p1 + p2 >= 0.9 * N, (p1, p2)
     perm = np.random.default_rng(2).permutation(N)
     p1, p2 = run(o[perm], d[perm])
     assert p1 < 0.05 * N and p2 >= 0.8 * N, (p1, p2)
@@ -206,3 +213,52 @@ def test_random_batches(seed, n, outside, aim, coherent, threads):
     b = cast_rays(grid, tris, o, d, threads=threads)
     same(a, b, f"seed {seed}")
     check_ref(tris, o, d, b, f"seed {seed}")
+
+
+def image_rays(W, H, ortho=False, column_major=False):
+    """A W x H image's camera rays (pinhole, or orthographic: one direction, origins on a plane)."""
+    cam = Camera(eye=(0.4, 0.5, 2.6), target=(0.0, 0.0, 0.0), fov=55.0)
+    o, d = cam.rays(W, H)
+    if ortho:
+        ys, xs = np.divmod(np.arange(W * H), W)
+        o = np.stack([xs * 0.01, ys * -0.01, np.full(W * H, 3.0)], axis=1)
+        d = np.tile(np.array([[0.05, -0.02, -1.0]]), (W * H, 1))
+    if column_major:
+        o = o.reshape(H, W, 3).transpose(1, 0, 2).reshape(-1, 3)
+        d = d.reshape(H, W, 3).transpose(1, 0, 2).reshape(-1, 3)
+    return np.ascontiguousarray(o), np.ascontiguousarray(d)
+
+
+@pytest.mark.parametrize("W,H", [(96, 80), (100, 37), (640, 480), (16, 300)])
+def test_image_width(W, H):
+    """Pass 1 recognises the rows of an image (its width, and the column of the first ray) in
+    row-major, column-major and orthographic camera rays, starting anywhere in a row, and nothing
+    in rays that are not an image."""
+    o, d = image_rays(W, H)
+    assert batch.image_width(o, d) == (W, 0)
+    for k in (1, 5, W - 1, W + 3):
+        assert batch.image_width(o[k:], d[k:]) == (W, k % W), k
+    assert batch.image_width(*image_rays(W, H, ortho=True)) == (W, 0)
+    assert batch.image_width(*image_rays(W, H, column_major=True)) == (H, 0) if H >= 2 * batch.TILE else (0, 0)
+    perm = np.random.default_rng(1).permutation(len(o))
+    assert batch.image_width(o[perm], d[perm]) == (0, 0)
+    ro, rd = random_rays(np.random.default_rng(3), len(o), np.full(3, -1.0), np.full(3, 1.0), outside=0.0)
+    assert batch.image_width(ro, rd) == (0, 0)
+    assert batch.image_width(o[:W], d[:W]) == (0, 0)  # one row: no rows to tile
+    assert batch.image_width(*image_rays(10, 400)) == (0, 0)  # narrower than two tiles
+
+
+@pytest.mark.parametrize("N,W,c0", [(96 * 80, 96, 0), (96 * 80 - 7, 96, 7), (1000, 100, 0), (777, 40, 13)])
+def test_tile_order(N, W, c0):
+    """The order of pass 1 for an image: every ray once, and with a width that is a multiple of
+    TILE and full rows, each run of RUN rays is one TILE x TILE square of pixels."""
+    out = np.empty(N, np.int64)
+    assert batch.tile_order(N, W, c0, out) == N
+    assert np.array_equal(np.sort(out), np.arange(N))
+    T = batch.TILE
+    if W % T == 0 and c0 == 0 and N % (W * T) == 0:
+        assert batch.RUN == T * T
+        y, x = np.divmod(out, W)
+        for s in range(0, N, batch.RUN):
+            ys, xs = y[s : s + batch.RUN], x[s : s + batch.RUN]
+            assert ys.max() - ys.min() == T - 1 and xs.max() - xs.min() == T - 1 and ys.min() % T == 0 and xs.min() % T == 0

@@ -4,7 +4,11 @@ A batch (``cast_rays``, ``RayCaster.cast``) is cast in two passes over groups of
 :data:`RUN` rays:
 
 1. the rays in the caller's order, in runs of RUN: camera rays in pixel order, the shadow rays of
-   a block of pixels and the like arrive coherent.  A run that is coherent (its rays agree on the
+   a block of pixels and the like arrive coherent.  When the rays look like the pixels of an image
+   in row order (:func:`image_width`: neighbours in the list and one row apart are neighbours,
+   and the list jumps at every row's end), the runs are TILE x TILE squares of that image
+   (:func:`tile_order`) instead of strips of one row, which make packets several times narrower
+   (measured: BENCHMARKS.md section 13).  A run that is coherent (its rays agree on the
    major axis of their direction and its sign) and narrow (its bounds, those the packet traversal
    uses, cover at most ``max_cells`` cells in the widest slice they cross) is traced as one CGT
    packet (:func:`gridrt.trace.cgt.trace_packet`); the others are left for pass 2;
@@ -252,6 +256,82 @@ def rays_per_bin(keys, drop, max_bits):
     return keys.shape[0] / (-m * np.log(1.0 - occ / m))
 
 
+#: rays read to recognise an image's rows, and of those, how many for a median (image_width)
+ROWS_PROBE = 1 << 16
+ROWS_SAMPLE = 1024
+#: side of the square tiles pass 1 takes from an image (TILE * TILE = RUN rays)
+TILE = 8
+
+
+def image_width(origins, dirs):
+    """(W, c0) when the rays (N,3) look like the pixels of an image of width W >= 2 * TILE in
+    row-major order (or column-major: W is then the height), the first ray in column c0: rays
+    next to each other in the list, and rays W apart, are neighbours, and the list jumps at every
+    W-th ray (a row's end).  (0, 0) otherwise.  Read on the first ROWS_PROBE rays (a median and
+    the rows below on a sample of ROWS_SAMPLE of them); the results never depend on it (it only
+    decides how pass 1 groups the rays)."""
+    K = min(len(dirs), ROWS_PROBE)
+    if K < 4 * TILE * TILE:
+        return 0, 0
+    step = np.empty(K - 1)
+    every = max(1, (K - 1) // ROWS_SAMPLE)
+    for a in (dirs, origins):  # pinhole cameras differ in direction, orthographic ones in origin
+        _steps(a, step)
+        m = float(np.median(step[::every]))
+        if not (m > 0.0 and np.isfinite(m)):
+            continue
+        jumps = np.flatnonzero(step > 4.0 * m)
+        if len(jumps) < 2:
+            return 0, 0
+        gaps = np.diff(jumps)
+        W = int(np.bincount(gaps).argmax())
+        if W < 2 * TILE or W >= K or (gaps == W).mean() < 0.9:
+            return 0, 0
+        i = np.arange(0, K - W, max(1, (K - W) // ROWS_SAMPLE))
+        down = np.abs(a[i + W] - a[i]).sum(axis=1)
+        if not float(np.median(down)) <= 4.0 * m:
+            return 0, 0
+        return W, (W - 1 - int(jumps[0])) % W
+    return 0, 0
+
+
+@njit(cache=True)
+def _steps(a, out):
+    """out[i] = |a[i + 1] - a[i]| (L1) for the first len(out) + 1 rows of a (N, 3)."""
+    for i in range(out.shape[0]):
+        out[i] = abs(a[i + 1, 0] - a[i, 0]) + abs(a[i + 1, 1] - a[i, 1]) + abs(a[i + 1, 2] - a[i, 2])
+
+
+@njit(cache=True)
+def tile_order(N, W, c0, out):
+    """out (N,) int64: the rays 0..N-1 of a W-wide image whose first ray is in column c0, tile by
+    tile (TILE x TILE pixels, row-major within a tile, tiles row-major)."""
+    V = N + c0
+    H = (V + W - 1) // W
+    k = 0
+    for ty in range(0, H, TILE):
+        for tx in range(0, W, TILE):
+            for y in range(ty, min(ty + TILE, H)):
+                for x in range(tx, min(tx + TILE, W)):
+                    v = y * W + x
+                    if v >= c0 and v < V:
+                        out[k] = v - c0
+                        k += 1
+    return k
+
+
+def pass1_order(origins, dirs):
+    """The order pass 1 takes the rays in: TILE x TILE tiles when they look like an image
+    (:func:`image_width`: a run of RUN rays is then a square of pixels, not a strip of one row,
+    and makes a far narrower packet), else the caller's order (NO_ROWS)."""
+    W, c0 = image_width(origins, dirs)
+    if W == 0:
+        return NO_ROWS
+    order = np.empty(len(dirs), np.int64)
+    tile_order(len(dirs), W, c0, order)
+    return order
+
+
 def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cells=MAX_CELLS, f32=False):
     """Cast the rays (origins, dirs (N,3) float64, checked) through the grid g (GridArrays) into
     out = (t, tri, u, v) as the module docstring describes; ``max_cells`` <= 0 traces every ray
@@ -270,8 +350,8 @@ def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cel
         return 0, 0
     left = np.zeros(N, np.uint8)
     with parallel_chunksize(1):
-        p1 = cast_runs_kernel(g, origins, dirs, NO_ROWS, tmin, tmax, watertight, any_hit, max_cells, False, f32,
-                              *out, left)
+        p1 = cast_runs_kernel(g, origins, dirs, pass1_order(origins, dirs), tmin, tmax, watertight, any_hit,
+                              max_cells, False, f32, *out, left)
     rows = np.flatnonzero(left)
     if len(rows) == 0:
         return int(p1), 0
