@@ -172,6 +172,14 @@ BOUNDARIES = {
         "checks it, RayCaster holds it); rays shape/dtype, t range, threads and the memory budget, then every "
         "chunk's values (finite, non-zero directions), all before the first chunk is cast",
         ["test_guard_cast_rays", "test_stale_grid_is_refused", "test_guard_cast_batch"]),
+    "gridrt.trace.batch:image_width": (
+        "internal: called by cast_grouped only, after cast_batch's checks (rays (N, 3) float64); _steps reads rows "
+        "0..K-1 of the rays into a buffer of K - 1 it allocates, K <= N",
+        ["test_guard_cast_rays", "test_guard_cast_batch"]),
+    "gridrt.trace.batch:pass1_order": (
+        "internal: as image_width; tile_order writes each of the N rays' indices once into the (N,) buffer it "
+        "allocates (a width and first column from image_width, checked there)",
+        ["test_guard_cast_rays", "test_guard_cast_batch"]),
     "gridrt.trace.cgt:cgt_render_serial": (
         "internal: Renderer.render's one-thread CGT path (gridrt.trace.twin), called after its checks, with its "
         "buffers", ["test_guard_render", "test_stale_grid_is_refused"]),
