@@ -182,7 +182,8 @@ def test_cgt_matches_brute_force(name):
                               t_rtol=1e-6, graze_tol=GRAZE)
         assert len(diff.bad) == 0, f"{name}/{view}: {len(diff.bad)} pixels differ from the brute force"
         # the framed cubes put pixel rays within 1e-9 of cube edges, where which side a ray falls on
-        # depends on the last bits of its direction (5 of 1665 pixels with numpy 2.4.6: over the old 0.2 %)
+        # depends on the last bits of its direction: 5 of 1665 pixels on an AMD EPYC host (numpy
+        # 2.4.6), over the old bound of 0.2 % + 1; the last CI, on an Intel host, found at most 4
         assert len(diff.grazing) <= 0.004 * res.tri.size + 1
 
 
