@@ -127,7 +127,7 @@ def test_ties_go_to_the_lower_index():
     assert n_dup_hits > 50, "the scene should produce hits on duplicated triangles"
 
 
-def test_routing():
+def test_routing(monkeypatch):
     """Which path the rays take (cast_grouped's counts): camera rays in order mostly in pass 1,
     shuffled ones in pass 2, random rays from inside the bounds in neither."""
     from gridrt.trace.grids import grid_arrays
@@ -145,12 +145,9 @@ def test_routing():
 
     p1, p2 = run(o, d)
     assert p1 == N and p2 == 0, (p1, p2)  # (pass 1 takes the image's rows as 8 x 8 tiles)
-    real = batch.pass1_order
-    try:  # in the caller's order, runs of 64 are half rows here: some are too wide
-        batch.pass1_order = lambda o, d: batch.NO_ROWS
+    with monkeypatch.context() as mp:  # in the caller's order, runs of 64 are half rows here: some are too wide
+        mp.setattr(batch, "pass1_order", lambda o, d: batch.NO_ROWS)
         p1, p2 = run(o, d)
-    finally:
-        batch.pass1_order = real
     assert 0.5 * N <= p1 < N and p1 + p2 >= 0.9 * N, (p1, p2)
     perm = np.random.default_rng(2).permutation(N)
     p1, p2 = run(o[perm], d[perm])
@@ -239,7 +236,7 @@ def test_image_width(W, H):
     for k in (1, 5, W - 1, W + 3):
         assert batch.image_width(o[k:], d[k:]) == (W, k % W), k
     assert batch.image_width(*image_rays(W, H, ortho=True)) == (W, 0)
-    assert batch.image_width(*image_rays(W, H, column_major=True)) == (H, 0) if H >= 2 * batch.TILE else (0, 0)
+    assert batch.image_width(*image_rays(W, H, column_major=True)) == ((H, 0) if H >= 2 * batch.TILE else (0, 0))
     perm = np.random.default_rng(1).permutation(len(o))
     assert batch.image_width(o[perm], d[perm]) == (0, 0)
     ro, rd = random_rays(np.random.default_rng(3), len(o), np.full(3, -1.0), np.full(3, 1.0), outside=0.0)

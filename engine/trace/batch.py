@@ -34,7 +34,8 @@ rounding of an edge.
 import numpy as np
 from numba import njit, parallel_chunksize, prange
 
-from .cgt import IO_DX, IO_DY, IO_DZ, IO_F, IO_OX, IO_OY, IO_OZ, IO_TMAX, MBOX, NIO, NS, PN, trace_packet
+from .cgt import (IO_DX, IO_DY, IO_DZ, IO_F, IO_OX, IO_OY, IO_OZ, IO_TMAX, MBOX, NIO, NS, PN, direction_class,
+                  trace_packet)
 from .intersect import permute, shear_setup
 from .traverse import MAILBOX, TINY_DIR, _floor_clamp, _test_triangle, trace_ray
 
@@ -68,19 +69,14 @@ def _single(g, origins, dirs, i, tmin, tmax, watertight, any_hit, mb1, out_t, ou
 @njit(cache=True, _nrt=False)
 def _one_class(dirs, idx, s, n, use_idx):
     """Whether rays idx[s:s+n] (s..s+n-1 when not use_idx) all have the same permutation class
-    (major axis of the direction and its sign; cgt._classify's classes).  A run that fails this
+    (major axis of the direction and its sign: cgt.direction_class).  A run that fails this
     cannot be a packet (its rays that meet the grid may still agree, but runs of arbitrary rays,
     which is what fails here, almost never do), so it is left without gathering it."""
     cmin = 6
     cmax = -1
     for j in range(n):
         i = idx[s + j] if use_idx else s + j
-        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
-        ax, ay, az = abs(dx), abs(dy), abs(dz)
-        xmaj = (ax >= ay) & (ax >= az)
-        ymaj = (not xmaj) & (ay >= az)
-        dk = dx if xmaj else (dy if ymaj else dz)
-        c = (0 if xmaj else (2 if ymaj else 4)) + (1 if dk < 0.0 else 0)
+        c, _ = direction_class(dirs[i, 0], dirs[i, 1], dirs[i, 2])
         cmin = min(cmin, c)
         cmax = max(cmax, c)
     return cmin == cmax

@@ -580,6 +580,18 @@ def _step(S, na, io, xp, any_hit, watertight, tests, cells, f32, S32, I32):
     return _retire(S, na, io, watertight, tests, cells, f32, S32, I32), pend
 
 
+@njit(cache=True, inline="always")
+def direction_class(dx, dy, dz):
+    """(c, dk): the permutation class of a direction, c = 2 * major axis + 1 where its component dk
+    is negative (the watertight test's permutation, shear_setup's choice), without branches.
+    Inlined where it is called, so the loops that call it still vectorize."""
+    ax, ay, az = abs(dx), abs(dy), abs(dz)
+    xmaj = (ax >= ay) & (ax >= az)
+    ymaj = (not xmaj) & (ay >= az)
+    dk = dx if xmaj else (dy if ymaj else dz)
+    return (0 if xmaj else (2 if ymaj else 4)) + (1 if dk < 0.0 else 0), dk
+
+
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _classify(io, n, S):
     """Of rays 0..n-1 of io, clipped (S rows CT0, CT1): how many meet the box and, over those, the
@@ -591,14 +603,7 @@ def _classify(io, n, S):
     cmax = -1
     ntiny = 0
     for j in range(n):
-        dx = io[IO_DX * PN + j]
-        dy = io[IO_DY * PN + j]
-        dz = io[IO_DZ * PN + j]
-        ax, ay, az = abs(dx), abs(dy), abs(dz)
-        xmaj = (ax >= ay) & (ax >= az)
-        ymaj = (not xmaj) & (ay >= az)
-        dk = dx if xmaj else (dy if ymaj else dz)
-        c = (0 if xmaj else (2 if ymaj else 4)) + (1 if dk < 0.0 else 0)
+        c, dk = direction_class(io[IO_DX * PN + j], io[IO_DY * PN + j], io[IO_DZ * PN + j])
         inside = S[O_CT0 + j] <= S[O_CT1 + j]
         cmin = min(cmin, c if inside else 6)
         cmax = max(cmax, c if inside else -1)
