@@ -5,7 +5,7 @@ from dataclasses import fields
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from gridrt.camera import Camera, check_fov
-from gridrt.config import INSERT_MODES, PACKET_PRECISIONS, SHADING_MODES, TRAVERSALS, GridParams, RenderParams
+from gridrt.config import GRID_KINDS, INSERT_MODES, PACKET_PRECISIONS, SHADING_MODES, TRAVERSALS, GridParams, RenderParams
 from gridrt.errors import InputError
 from gridrt.threads import MAX_THREADS
 
@@ -78,6 +78,14 @@ def add_grid_args(p):
     g.add_argument("--lambda", dest="density", type=float, default=d["density"],
                    help=f"grid density: cells ~ lambda x triangles (default {d['density']:g})")
     g.add_argument("--macro", type=int, default=d["macro"], help=f"macro-cell edge in cells (default {d['macro']})")
+    g.add_argument("--grid", choices=GRID_KINDS, default=d["grid"],
+                   help="grid kind: one uniform grid, a two-level grid (a coarse grid whose non-empty cells hold "
+                        "grids of their own) or auto (two_level when the triangles crowd into few top cells; "
+                        f"default {d['grid']})")
+    g.add_argument("--top-density", type=float, default=d["top_density"],
+                   help=f"two-level grid: top cells per triangle (default {d['top_density']:g})")
+    g.add_argument("--leaf-density", type=float, default=d["leaf_density"],
+                   help=f"two-level grid: leaf cells per triangle of a top cell (default {d['leaf_density']:g})")
     g.add_argument("--insert", choices=INSERT_MODES, default=d["insert"],
                    help="triangle insertion test: bounding box (fast) or exact SAT (fewer references)")
     g.add_argument("--max-cells", type=int, default=d["max_cells"],
@@ -138,7 +146,7 @@ def scene_from_args(a):
 
 def grid_params(a):
     return GridParams(strategy=a.strategy, density=a.density, macro=a.macro, insert=a.insert, threads=a.threads,
-                      max_cells=a.max_cells)
+                      max_cells=a.max_cells, grid=a.grid, top_density=a.top_density, leaf_density=a.leaf_density)
 
 
 def render_params(a):

@@ -9,6 +9,9 @@ from dataclasses import dataclass, field, replace
 from .errors import InputError
 
 INSERT_MODES = ("bbox", "exact")
+#: Grid kinds (GridParams.grid): one uniform grid, a two-level grid (gridrt.grid.two_level), or
+#: the one of the two that the scene's spread of triangles asks for (gridrt.grid.build.choose_kind)
+GRID_KINDS = ("uniform", "two_level", "auto")
 SHADING_MODES = ("lambert", "normal", "cost")
 #: Ray traversal: single-ray 3D DDA, or coherent grid traversal of ray packets (gridrt.trace.cgt)
 TRAVERSALS = ("dda", "cgt")
@@ -20,6 +23,10 @@ PACKET_MAX = 16
 DEFAULT_MAX_CELLS = 1 << 25
 #: Default memory budget of one grid (cell arrays + references): 2 GiB.
 DEFAULT_MAX_BYTES = 1 << 31
+#: Default densities of two-level grids (top cells per triangle, leaf cells per top-cell
+#: reference): BENCHMARKS.md section 14
+DEFAULT_TOP_DENSITY = 0.0625
+DEFAULT_LEAF_DENSITY = 2.0
 
 
 def _positive_int(name, v, lo=1, hi=None):
@@ -45,6 +52,13 @@ class GridParams:
     macro      macro-cell edge k in cells (a macro cell is k**3 cells); 1 disables skipping gain
     insert     "bbox" (triangle bounding box, fast) or "exact" (separating-axis test, fewer refs)
     threads    build thread count (None: all cores); may exceed the core count
+    grid       "uniform" (one grid of about density * triangles cells), "two_level" (a coarse
+               grid of about top_density * triangles cells whose non-empty cells each hold a grid
+               of about leaf_density * (its triangles) cells: resolution where the triangles
+               are; gridrt.grid.two_level) or "auto" (two_level where the triangles crowd into
+               few top cells, uniform otherwise: gridrt.grid.build.choose_kind)
+    top_density   two_level: top-level cells per triangle
+    leaf_density  two_level: leaf cells per reference of a top cell
     max_cells  ceiling on nx*ny*nz; a larger request is reduced to it with a warning
     max_bytes  memory budget of the cell arrays plus references (thread_grids_merge: plus the
                per-thread grids it merges); a build that would need more stops with an
@@ -60,15 +74,23 @@ class GridParams:
     threads: int | None = None
     max_cells: int = DEFAULT_MAX_CELLS
     max_bytes: int = DEFAULT_MAX_BYTES
+    grid: str = "uniform"
+    top_density: float = DEFAULT_TOP_DENSITY
+    leaf_density: float = DEFAULT_LEAF_DENSITY
 
     def __post_init__(self):
-        try:
-            d = float(self.density)
-        except (TypeError, ValueError):
-            raise InputError(f"density (lambda) must be a number, got {self.density!r}") from None
-        if not math.isfinite(d) or d <= 0:
-            raise InputError(f"density (lambda) must be a positive finite number, got {self.density!r}")
-        object.__setattr__(self, "density", d)
+        for name, what in (("density", "density (lambda)"), ("top_density", "top_density"),
+                           ("leaf_density", "leaf_density")):
+            v = getattr(self, name)
+            try:
+                d = float(v)
+            except (TypeError, ValueError):
+                raise InputError(f"{what} must be a number, got {v!r}") from None
+            if not math.isfinite(d) or d <= 0:
+                raise InputError(f"{what} must be a positive finite number, got {v!r}")
+            object.__setattr__(self, name, d)
+        if self.grid not in GRID_KINDS:
+            raise InputError(f"unknown grid kind {self.grid!r}; choose one of {', '.join(GRID_KINDS)}")
         object.__setattr__(self, "macro", _positive_int("macro cell size", self.macro, 1, 64))
         if self.insert not in INSERT_MODES:
             raise InputError(f"unknown insertion test {self.insert!r}; choose one of {', '.join(INSERT_MODES)}")

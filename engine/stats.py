@@ -48,7 +48,12 @@ class BuildStats(_Row):
     triangles, cells, references, refs_per_tri, dims (e.g. "20x10x25"), macro_cells, macro_full
                      (non-empty macro cells), cells_cleared (cells the clear reset),
                      cells_inspected (cells the macro pass looked at), grid_bytes
-    counters         the strategy's own counts (bucket_entries, lock_waits)
+    counters         the strategy's own counts (bucket_entries, lock_waits; a two-level grid's
+                     top_references)
+    grid             the grid's kind, "uniform" or "two_level"; a two-level grid's cells,
+                     references and refs_per_tri are its leaf level's, its dims, macro_cells and
+                     macro_full its top level's (cells, non-empty cells), and its stages add
+                     leaf_res_ms, leaf_count_ms and leaf_scatter_ms
     """
 
     stages: dict
@@ -67,9 +72,10 @@ class BuildStats(_Row):
     dims: str
     grid_bytes: int
     counters: dict = field(default_factory=dict)
+    grid: str = "uniform"
 
     def as_row(self):
-        return {**self.stages, "build_ms": self.build_ms, **self.counters,
+        return {**self.stages, "build_ms": self.build_ms, **self.counters, "grid": self.grid,
                 "strategy": self.strategy, "threads": self.threads, "insert": self.insert,
                 "triangles": self.triangles, "cells": self.cells, "references": self.references,
                 "refs_per_tri": self.refs_per_tri, "cells_cleared": self.cells_cleared,

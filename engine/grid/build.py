@@ -207,7 +207,10 @@ class GridBuilder:
             )
         lo_scene = bb[:, 0:3].min(axis=0)
         hi_scene = bb[:, 3:6].max(axis=0)
-        spec = make_spec(lo_scene, hi_scene, F, p)
+        two_level = p.grid == "two_level"
+        # a two-level grid's top level is a uniform grid of top_density with one-cell macro cells
+        # (their flags are the top cells' occupancy)
+        spec = make_spec(lo_scene, hi_scene, F, p.replace(density=p.top_density, macro=1) if two_level else p)
         if spec.capped:
             warnings.warn(
                 f"grid resolution capped at max_cells={p.max_cells} "
@@ -225,7 +228,10 @@ class GridBuilder:
                 + (" or the thread count (this strategy keeps one grid per thread)" if layers > 1 else "")
             )
         try:
-            return self._build(tris, p, strategy, threads, spec, layers, times, t_start)
+            grid = self._build(tris, p, strategy, threads, spec, layers, times, t_start)
+            if two_level:
+                grid = self._leaves(grid, tris, p, threads, times, t_start)
+            return grid
         except BaseException:
             # a refused or interrupted build leaves counts the next clear would not know about
             self.bufs = GridBuffers()
@@ -297,6 +303,33 @@ class GridBuilder:
             grid_bytes=grid.memory_bytes(),
             counters=counters,
         )
+        return grid
+
+
+    def _leaves(self, top, tris, p, threads, times, t_start):
+        """The two-level grid over the top-level grid ``top`` just built."""
+        from .two_level import LeafBuffers, TwoLevelGrid, build_leaves
+
+        bufs = self.bufs
+        if getattr(bufs, "leaves", None) is None:
+            bufs.leaves = LeafBuffers()
+        leaf_res, leaf_first, count, start, tri_ids, refs = build_leaves(
+            top, tris, p.insert == "exact", p.leaf_density, threads, bufs.leaves, p.max_bytes, times)
+        build_ms = (time.perf_counter() - t_start) * 1e3
+        st = top.stats
+        n_leaf = int(leaf_first[-1])
+        grid = TwoLevelGrid(
+            spec=top.spec, cell_start=start.reshape(1, -1), tri_ids=tri_ids, cell_count=count.reshape(1, -1),
+            macro_full=top.macro_full, references=refs, n_triangles=top.n_triangles, generation=top.generation,
+            buffers=bufs, leaf_res=leaf_res, leaf_first=leaf_first, top_start=top.cell_start, top_ids=top.tri_ids,
+            top_references=top.references)
+        F = top.n_triangles
+        grid.stats = BuildStats(
+            stages=dict(st.stages), build_ms=build_ms, strategy=st.strategy, threads=st.threads, insert=st.insert,
+            triangles=F, cells=n_leaf, references=refs, refs_per_tri=refs / F, cells_cleared=st.cells_cleared,
+            cells_inspected=st.cells_inspected, macro_cells=st.cells, macro_full=st.macro_full, dims=st.dims,
+            grid_bytes=grid.memory_bytes(),
+            counters={**st.counters, "top_references": top.references}, grid="two_level")
         return grid
 
 

@@ -100,6 +100,9 @@ class Grid:
     buffers: object = field(default=None, repr=False)
     origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
+    #: "uniform"; a two-level grid (gridrt.grid.two_level.TwoLevelGrid) says "two_level"
+    kind = "uniform"
+
     def check_current(self):
         """Raise InputError when the builder that made this grid has built another since."""
         from ..errors import InputError

@@ -859,7 +859,7 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.i
     if na == 0:
         _lap(prof, P_SETUP, t)
         return 0
-    if not uniform:
+    if not uniform or g.leaf_first.shape[0] > 0:
         if max_cells < np.inf:
             _lap(prof, P_SETUP, t)
             return -1

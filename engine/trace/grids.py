@@ -23,11 +23,16 @@ from numba.extending import overload
 #: tris (F,3,3) float32 in the grid's frame; lo, hi, cell, inv_cell (3,) float64; dims (3,) int64;
 #: cell_start (L, C+1) int32; tri_ids (R,) int32; macro int; mdims (3,) int64; macro_full (M,)
 #: uint8; ids (F,) int32, the scene's id of each triangle, or empty when the grid's triangle
-#: indices are the scene's.
+#: indices are the scene's.  A two-level grid (gridrt.grid.two_level) is the same value: lo..dims,
+#: macro (1), mdims and macro_full describe its top level, cell_start and tri_ids its leaf cells,
+#: and leaf_first (T+1,) int32, leaf_res (T,3) int32 where each top cell's leaf cells are; a
+#: uniform grid has both empty (leaf_first of size 0), which is how kernels tell the two apart.
 GridArrays = namedtuple(
-    "GridArrays", "tris lo hi cell inv_cell dims cell_start tri_ids macro mdims macro_full ids")
+    "GridArrays", "tris lo hi cell inv_cell dims cell_start tri_ids macro mdims macro_full ids leaf_first leaf_res")
 NFIELDS = len(GridArrays._fields)
 NO_IDS = np.zeros(0, np.int32)
+NO_LEAVES = np.zeros(0, np.int32)
+NO_RES = np.zeros((0, 3), np.int32)
 
 
 def grid_arrays(grid, tris, ids=None):
@@ -38,7 +43,9 @@ def grid_arrays(grid, tris, ids=None):
     return GridArrays(
         c(tris, np.float32), c(s.lo, np.float64), c(s.hi, np.float64), c(s.cell, np.float64),
         c(s.inv_cell, np.float64), c(s.dims, np.int64), c(grid.cell_start, np.int32), c(grid.tri_ids, np.int32),
-        int(s.macro), c(s.mdims, np.int64), c(grid.macro_full, np.uint8), NO_IDS if ids is None else c(ids, np.int32))
+        int(s.macro), c(s.mdims, np.int64), c(grid.macro_full, np.uint8), NO_IDS if ids is None else c(ids, np.int32),
+        *((c(grid.leaf_first, np.int32), c(grid.leaf_res, np.int32)) if grid.kind == "two_level"
+          else (NO_LEAVES, NO_RES)))
 
 
 def pack_grids(grids):

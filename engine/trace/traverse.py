@@ -21,6 +21,7 @@ import math
 import numpy as np
 from numba import njit
 
+from ..grid.two_level import leaf_axis
 from .intersect import intersect_fast, intersect_watertight, permute, shear_setup
 from .prefetch import _prefetch_tri
 
@@ -103,6 +104,92 @@ def _test_triangle(tris, f, watertight, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz, o
         ox, oy, oz, dx, dy, dz, tmin, tmax)
 
 
+@njit(cache=True, inline="always")
+def _ray_setup(lo, inv_cell, dims, ox, oy, oz, dx, dy, dz, t0, watertight, mailbox):
+    """A DDA's start: the cell where the ray (clipped to the grid box from t0 on) starts, its
+    steps (-1, 0, 1) and 1 / direction along each axis, the watertight test's permutation, origin
+    and shear (zeros for the fast test), and the mailbox cleared (returns its index mask)."""
+    ix = _floor_clamp((ox + t0 * dx - lo[0]) * inv_cell[0], dims[0])
+    iy = _floor_clamp((oy + t0 * dy - lo[1]) * inv_cell[1], dims[1])
+    iz = _floor_clamp((oz + t0 * dz - lo[2]) * inv_cell[2], dims[2])
+    sx = 0 if abs(dx) < TINY_DIR else (1 if dx > 0.0 else -1)
+    sy = 0 if abs(dy) < TINY_DIR else (1 if dy > 0.0 else -1)
+    sz = 0 if abs(dz) < TINY_DIR else (1 if dz > 0.0 else -1)
+    idx = 1.0 / dx if sx != 0 else np.inf
+    idy = 1.0 / dy if sy != 0 else np.inf
+    idz = 1.0 / dz if sz != 0 else np.inf
+    kx = ky = kz = 0
+    okx = oky = okz = 0.0
+    Sx = Sy = Sz = 0.0
+    if watertight:
+        kx, ky, kz, Sx, Sy, Sz = shear_setup(dx, dy, dz)
+        okx, oky, okz = permute(ox, oy, oz, kx, ky, kz)
+    for s in range(mailbox.shape[0]):
+        mailbox[s] = -1
+    return ix, iy, iz, sx, sy, sz, idx, idy, idz, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz, mailbox.shape[0] - 1
+
+
+@njit(cache=True, inline="always")
+def _test_refs(tris, tri_ids, r0, r1, mailbox, mmask, watertight, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz, ox, oy, oz,
+               dx, dy, dz, tmin, any_hit, best_f, best_t, best_u, best_v, tests):
+    """The triangles tri_ids[r0:r1] of one cell against the ray, each once (the mailbox): returns
+    the nearest hit so far (best_f, best_t, best_u, best_v), the tests counted on, and whether
+    the search is over (any_hit and a hit)."""
+    for r in range(r0, r1):
+        f = tri_ids[r]
+        slot = f & mmask
+        if mailbox[slot] == f:
+            continue
+        mailbox[slot] = f
+        tests += 1
+        hit, t, u, v = _test_triangle(tris, f, watertight, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz,
+                                      ox, oy, oz, dx, dy, dz, tmin, np.inf)
+        # ties (the same t) go to the lowest triangle index, as in the packet loops, so a ray's
+        # hit does not depend on the order in which a traversal meets the triangles
+        if hit and (t < best_t or (t == best_t and f < best_f)):
+            best_t = t
+            best_f = f
+            best_u = u
+            best_v = v
+            if any_hit:
+                return best_f, best_t, best_u, best_v, tests, True
+    return best_f, best_t, best_u, best_v, tests, False
+
+
+@njit(cache=True, inline="always")
+def _next_block(tmx, tmy, tmz, mi, mj, mk, m, sx, sy, sz, mx, my, mz, k, lx, ly, lz, cx, cy, cz, nx, ny, nz, ox, oy,
+                oz, idx, idy, idz):
+    """One step of the outer DDA over blocks of k^3 cells (macro cells, or a two-level grid's top
+    cells with k = 1) of an (mx, my, mz) array of them, m the current one's linear index and
+    tmx.. its exits: returns (t where the ray leaves it, the axis it crosses, the next block's
+    indices, its linear index and exits, True when the ray leaves the grid)."""
+    if tmx <= tmy and tmx <= tmz:
+        te = tmx
+        entered = 0
+        mi += sx
+        if mi < 0 or mi >= mx:
+            return te, entered, mi, mj, mk, m, tmx, tmy, tmz, True
+        m += sx
+        tmx = _macro_exit_t(lx, cx, mi, k, nx, sx, ox, idx)
+    elif tmy <= tmz:
+        te = tmy
+        entered = 1
+        mj += sy
+        if mj < 0 or mj >= my:
+            return te, entered, mi, mj, mk, m, tmx, tmy, tmz, True
+        m += sy * mx
+        tmy = _macro_exit_t(ly, cy, mj, k, ny, sy, oy, idy)
+    else:
+        te = tmz
+        entered = 2
+        mk += sz
+        if mk < 0 or mk >= mz:
+            return te, entered, mi, mj, mk, m, tmx, tmy, tmz, True
+        m += sz * mx * my
+        tmz = _macro_exit_t(lz, cz, mk, k, nz, sz, oz, idz)
+    return te, entered, mi, mj, mk, m, tmx, tmy, tmz, False
+
+
 @njit(cache=True, _nrt=False)
 def trace_ray(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox):
     """Nearest (or, with any_hit, any) hit of one ray with tmin < t < tmax in the grid g
@@ -111,6 +198,8 @@ def trace_ray(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbo
     Returns (tri, t, u, v, cells_visited, tests); tri = -1 and t = inf on a miss.
     mailbox (MAILBOX,) int32 scratch.
     """
+    if g.leaf_first.shape[0] > 0:
+        return trace_ray_2l(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox)
     tris, lo, hi, cell, inv_cell, dims = g.tris, g.lo, g.hi, g.cell, g.inv_cell, g.dims
     cell_start, tri_ids, macro, mdims, macro_full = g.cell_start, g.tri_ids, g.macro, g.mdims, g.macro_full
     # clip the ray to the grid box (axis-parallel rays: a zero component never steps)
@@ -121,28 +210,8 @@ def trace_ray(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbo
         return -1, np.inf, 0.0, 0.0, 0, 0
 
     nx, ny, nz = dims[0], dims[1], dims[2]
-    px = ox + t0 * dx
-    py = oy + t0 * dy
-    pz = oz + t0 * dz
-    ix = _floor_clamp((px - lo[0]) * inv_cell[0], nx)
-    iy = _floor_clamp((py - lo[1]) * inv_cell[1], ny)
-    iz = _floor_clamp((pz - lo[2]) * inv_cell[2], nz)
-    sx = 0 if abs(dx) < TINY_DIR else (1 if dx > 0.0 else -1)
-    sy = 0 if abs(dy) < TINY_DIR else (1 if dy > 0.0 else -1)
-    sz = 0 if abs(dz) < TINY_DIR else (1 if dz > 0.0 else -1)
-    idx = 1.0 / dx if sx != 0 else np.inf
-    idy = 1.0 / dy if sy != 0 else np.inf
-    idz = 1.0 / dz if sz != 0 else np.inf
-
-    kx = ky = kz = 0
-    okx = oky = okz = 0.0
-    Sx = Sy = Sz = 0.0
-    if watertight:
-        kx, ky, kz, Sx, Sy, Sz = shear_setup(dx, dy, dz)
-        okx, oky, okz = permute(ox, oy, oz, kx, ky, kz)
-    for s in range(mailbox.shape[0]):
-        mailbox[s] = -1
-    mmask = mailbox.shape[0] - 1
+    (ix, iy, iz, sx, sy, sz, idx, idy, idz, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz,
+     mmask) = _ray_setup(lo, inv_cell, dims, ox, oy, oz, dx, dy, dz, t0, watertight, mailbox)
 
     best_t = tmax
     best_f = -1
@@ -187,27 +256,12 @@ def trace_ray(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbo
                     for r in range(cell_start[l, c], cell_start[l, c + 1]):
                         _prefetch_tri(tris, tri_ids[r])
                 for l in range(L):
-                    r0 = cell_start[l, c]
-                    r1 = cell_start[l, c + 1]
-                    for r in range(r0, r1):
-                        f = tri_ids[r]
-                        slot = f & mmask
-                        if mailbox[slot] == f:
-                            continue
-                        mailbox[slot] = f
-                        tests += 1
-                        hit, t, u, v = _test_triangle(tris, f, watertight, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz,
-                                                      ox, oy, oz, dx, dy, dz, tmin, np.inf)
-                        # ties (the same t) go to the lowest triangle index, as in the packet
-                        # loops, so a ray's hit does not depend on the order in which a
-                        # traversal meets the triangles
-                        if hit and (t < best_t or (t == best_t and f < best_f)):
-                            best_t = t
-                            best_f = f
-                            best_u = u
-                            best_v = v
-                            if any_hit:
-                                return best_f, best_t, best_u, best_v, cells, tests
+                    best_f, best_t, best_u, best_v, tests, done = _test_refs(
+                        tris, tri_ids, cell_start[l, c], cell_start[l, c + 1], mailbox, mmask, watertight, kx, ky,
+                        kz, okx, oky, okz, Sx, Sy, Sz, ox, oy, oz, dx, dy, dz, tmin, any_hit, best_f, best_t, best_u,
+                        best_v, tests)
+                    if done:
+                        return best_f, best_t, best_u, best_v, cells, tests
                 # step to the next cell, or out of the macro cell
                 tx = _cell_exit_t(lx, cx, ix, sx, ox, idx)
                 ty = _cell_exit_t(ly, cy, iy, sy, oy, idy)
@@ -230,30 +284,107 @@ def trace_ray(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbo
                     break
         # step to the next macro cell (the macro DDA decides where the ray goes next, also when
         # the cell DDA left the macro cell through another face within rounding of a corner)
-        if tmx <= tmy and tmx <= tmz:
-            te = tmx
-            entered = 0
-            mi += sx
-            if mi < 0 or mi >= mx:
-                break
-            m += sx
-            tmx = _macro_exit_t(lx, cx, mi, k, nx, sx, ox, idx)
-        elif tmy <= tmz:
-            te = tmy
-            entered = 1
-            mj += sy
-            if mj < 0 or mj >= my:
-                break
-            m += sy * mx
-            tmy = _macro_exit_t(ly, cy, mj, k, ny, sy, oy, idy)
-        else:
-            te = tmz
-            entered = 2
-            mk += sz
-            if mk < 0 or mk >= mz:
-                break
-            m += sz * mx * my
-            tmz = _macro_exit_t(lz, cz, mk, k, nz, sz, oz, idz)
+        te, entered, mi, mj, mk, m, tmx, tmy, tmz, out = _next_block(
+            tmx, tmy, tmz, mi, mj, mk, m, sx, sy, sz, mx, my, mz, k, lx, ly, lz, cx, cy, cz, nx, ny, nz, ox, oy, oz,
+            idx, idy, idz)
+        if out:
+            break
+        if te > t1 or best_t <= te:
+            break
+        t_in = te
+    return _result(best_f, best_t, best_u, best_v, cells, tests)
+
+
+@njit(cache=True, _nrt=False)
+def trace_ray_2l(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox):
+    """:func:`trace_ray` through a two-level grid (gridrt.grid.two_level): a DDA over the top
+    cells, and in each one that holds triangles a DDA over its own leaf cells from where the ray
+    enters it, with the same termination rule (a hit at or before the t where the ray leaves the
+    current leaf cell, or top cell, is final)."""
+    tris, lo, hi, cell, inv_cell, dims = g.tris, g.lo, g.hi, g.cell, g.inv_cell, g.dims
+    cell_start, tri_ids, leaf_first, leaf_res = g.cell_start, g.tri_ids, g.leaf_first, g.leaf_res
+    t0, t1 = _slab(ox, dx, lo[0], hi[0], tmin, tmax)
+    t0, t1 = _slab(oy, dy, lo[1], hi[1], t0, t1)
+    t0, t1 = _slab(oz, dz, lo[2], hi[2], t0, t1)
+    if not (t0 <= t1):
+        return -1, np.inf, 0.0, 0.0, 0, 0
+
+    nx, ny, nz = dims[0], dims[1], dims[2]
+    (ix, iy, iz, sx, sy, sz, idx, idy, idz, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz,
+     mmask) = _ray_setup(lo, inv_cell, dims, ox, oy, oz, dx, dy, dz, t0, watertight, mailbox)
+    lx, ly, lz = lo[0], lo[1], lo[2]
+    cx, cy, cz = cell[0], cell[1], cell[2]
+
+    best_t = tmax
+    best_f = -1
+    best_u = 0.0
+    best_v = 0.0
+    cells = 0
+    tests = 0
+    m = ix + nx * (iy + ny * iz)
+    tmx = _macro_exit_t(lx, cx, ix, 1, nx, sx, ox, idx)
+    tmy = _macro_exit_t(ly, cy, iy, 1, ny, sy, oy, idy)
+    tmz = _macro_exit_t(lz, cz, iz, 1, nz, sz, oz, idz)
+    entered = -1  # the axis the ray entered the current top cell through (-1: it starts in it)
+    t_in = t0
+    while True:
+        q0 = leaf_first[m]
+        if leaf_first[m + 1] != q0:
+            rx, ry, rz = leaf_res[m, 0], leaf_res[m, 1], leaf_res[m, 2]
+            ax, bx, jx_ = leaf_axis(lx, cx, ix, rx)
+            ay, by, jy_ = leaf_axis(ly, cy, iy, ry)
+            az, bz, jz_ = leaf_axis(lz, cz, iz, rz)
+            # the leaf cell where the ray enters (along the axis it entered through: the first
+            # one on its side)
+            if entered == 0:
+                a = 0 if sx > 0 else rx - 1
+            else:
+                a = _floor_clamp((ox + t_in * dx - ax) * jx_, rx)
+            if entered == 1:
+                b = 0 if sy > 0 else ry - 1
+            else:
+                b = _floor_clamp((oy + t_in * dy - ay) * jy_, ry)
+            if entered == 2:
+                c = 0 if sz > 0 else rz - 1
+            else:
+                c = _floor_clamp((oz + t_in * dz - az) * jz_, rz)
+            while True:
+                cells += 1
+                q = q0 + a + rx * (b + ry * c)
+                r0 = cell_start[0, q]
+                r1 = cell_start[0, q + 1]
+                for r in range(r0, r1):
+                    _prefetch_tri(tris, tri_ids[r])
+                best_f, best_t, best_u, best_v, tests, done = _test_refs(
+                    tris, tri_ids, r0, r1, mailbox, mmask, watertight, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz, ox, oy,
+                    oz, dx, dy, dz, tmin, any_hit, best_f, best_t, best_u, best_v, tests)
+                if done:
+                    return best_f, best_t, best_u, best_v, cells, tests
+                tx = _cell_exit_t(ax, bx, a, sx, ox, idx)
+                ty = _cell_exit_t(ay, by, b, sy, oy, idy)
+                tz = _cell_exit_t(az, bz, c, sz, oz, idz)
+                if tx <= ty and tx <= tz:
+                    te = tx
+                    a += sx
+                    leaves = a < 0 or a >= rx
+                elif ty <= tz:
+                    te = ty
+                    b += sy
+                    leaves = b < 0 or b >= ry
+                else:
+                    te = tz
+                    c += sz
+                    leaves = c < 0 or c >= rz
+                if best_t <= te or te > t1:
+                    return _result(best_f, best_t, best_u, best_v, cells, tests)
+                if leaves:
+                    break
+        # the next top cell
+        te, entered, ix, iy, iz, m, tmx, tmy, tmz, out = _next_block(
+            tmx, tmy, tmz, ix, iy, iz, m, sx, sy, sz, nx, ny, nz, 1, lx, ly, lz, cx, cy, cz, nx, ny, nz, ox, oy, oz,
+            idx, idy, idz)
+        if out:
+            break
         if te > t1 or best_t <= te:
             break
         t_in = te
