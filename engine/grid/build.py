@@ -207,17 +207,42 @@ class GridBuilder:
             )
         lo_scene = bb[:, 0:3].min(axis=0)
         hi_scene = bb[:, 3:6].max(axis=0)
-        two_level = p.grid == "two_level"
-        # a two-level grid's top level is a uniform grid of top_density with one-cell macro cells
-        # (their flags are the top cells' occupancy)
-        spec = make_spec(lo_scene, hi_scene, F, p.replace(density=p.top_density, macro=1) if two_level else p)
+        try:
+            if p.grid == "uniform":
+                return self._build(tris, p, strategy, threads, *self._spec(lo_scene, hi_scene, F, p, strategy, threads),
+                                   times, t_start)
+            # a two-level grid's top level is a uniform grid of top_density with one-cell macro
+            # cells (their flags are the top cells' occupancy)
+            pt = p.replace(density=p.top_density, macro=1)
+            top = self._build(tris, pt, strategy, threads, *self._spec(lo_scene, hi_scene, F, pt, strategy, threads),
+                              times, t_start)
+            crowd = crowding(top)
+            if p.grid == "auto" and crowd < AUTO_CROWDING:
+                # an even scene: the uniform grid (the top level cost this much more)
+                times = {"bounds_ms": times["bounds_ms"],
+                         "auto_top_ms": (time.perf_counter() - t_start) * 1e3 - times["bounds_ms"]}
+                grid = self._build(tris, p, strategy, threads,
+                                   *self._spec(lo_scene, hi_scene, F, p, strategy, threads), times, t_start)
+                object.__setattr__(grid.stats, "counters", {**grid.stats.counters, "crowding": crowd})
+                return grid
+            return self._leaves(top, tris, p, threads, times, t_start, crowd)
+        except BaseException:
+            # a refused or interrupted build leaves counts the next clear would not know about
+            self.bufs = GridBuffers()
+            raise
+
+    @staticmethod
+    def _spec(lo_scene, hi_scene, F, p, strategy, threads):
+        """(spec, layers) of a uniform grid at p's density and macro cells over the scene bounds,
+        refused (InputError) when its cell arrays alone exceed p.max_bytes."""
+        spec = make_spec(lo_scene, hi_scene, F, p)
         if spec.capped:
             warnings.warn(
                 f"grid resolution capped at max_cells={p.max_cells} "
                 f"(density {p.density:g} x {F} triangles asked for more); using dims "
                 f"{' x '.join(str(int(d)) for d in spec.dims)}",
                 GridCapWarning,
-                stacklevel=2,
+                stacklevel=4,
             )
         layers = strategy.layers(threads)
         cell_bytes = layers * (2 * spec.n_cells + 1) * 4
@@ -227,15 +252,7 @@ class GridBuilder:
                 f"budget max_bytes={p.max_bytes / 2**20:.0f} MiB; lower the density (lambda) or max_cells"
                 + (" or the thread count (this strategy keeps one grid per thread)" if layers > 1 else "")
             )
-        try:
-            grid = self._build(tris, p, strategy, threads, spec, layers, times, t_start)
-            if two_level:
-                grid = self._leaves(grid, tris, p, threads, times, t_start)
-            return grid
-        except BaseException:
-            # a refused or interrupted build leaves counts the next clear would not know about
-            self.bufs = GridBuffers()
-            raise
+        return spec, layers
 
     def _build(self, tris, p, strategy, threads, spec, layers, times, t_start):
         F = tris.shape[0]
@@ -306,7 +323,7 @@ class GridBuilder:
         return grid
 
 
-    def _leaves(self, top, tris, p, threads, times, t_start):
+    def _leaves(self, top, tris, p, threads, times, t_start, crowd):
         """The two-level grid over the top-level grid ``top`` just built."""
         from .two_level import LeafBuffers, TwoLevelGrid, build_leaves
 
@@ -329,8 +346,26 @@ class GridBuilder:
             triangles=F, cells=n_leaf, references=refs, refs_per_tri=refs / F, cells_cleared=st.cells_cleared,
             cells_inspected=st.cells_inspected, macro_cells=st.cells, macro_full=st.macro_full, dims=st.dims,
             grid_bytes=grid.memory_bytes(),
-            counters={**st.counters, "top_references": top.references}, grid="two_level")
+            counters={**st.counters, "top_references": top.references, "crowding": crowd}, grid="two_level")
         return grid
+
+
+#: GridParams(grid="auto") builds a two-level grid when the top level's crowding (:func:`crowding`)
+#: is at least this, a uniform grid otherwise (BENCHMARKS.md section 14)
+AUTO_CROWDING = 4.0
+
+
+def crowding(top):
+    """How unevenly the triangles of a scene fill a coarse grid ``top`` (a two-level grid's top
+    level): the mean references of the cell a reference lies in (sum n^2 / sum n over the cells'
+    reference counts n) over the mean references of a non-empty cell (sum n / non-empty cells).
+    1 when every non-empty cell holds as many; large when most triangles crowd into a few cells
+    (an interior with detailed objects, small objects in a large volume)."""
+    n = np.diff(top.cell_start, axis=1).sum(axis=0).astype(np.float64)
+    total = n.sum()
+    if total == 0:
+        return 1.0
+    return float((n * n).sum() / total / (total / np.count_nonzero(n)))
 
 
 def build_grid(tris, params: GridParams | None = None, *, origin=None, **kw) -> Grid:

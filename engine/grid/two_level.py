@@ -135,12 +135,13 @@ def _leaf_range(b0, b1, slo, isc, r):
 
 
 @njit(cache=True, _nrt=False)
-def _top_cell_leaves(tris, top_start, top_ids, t, lo, cell, dims, res, a0, exact, count, start, tri_ids, scatter):
+def _top_cell_leaves(tris, top_start, top_ids, t, lo, cell, dims, res, a0, exact, count, start, tri_ids, scatter, base0):
     """Count (scatter=False) or place (True) the leaf references of top cell t, whose leaf cells
     are a0 .. a0 + rx*ry*rz - 1 with resolution res (3,).  count holds the leaf counts (the
     count pass leaves them, the scatter pass uses them as cursors from zero), start the CSR
     offsets (the count pass writes running sums relative to the cell's first leaf; the scatter
-    pass reads finished ones).  Returns the top cell's leaf references."""
+    pass reads finished ones, but for the cell's first leaf, whose offset start[a0] the thread of
+    the top cell before may still be writing, takes base0).  Returns the top cell's leaf references."""
     nx = dims[0]
     nxy = dims[0] * dims[1]
     tk = t // nxy
@@ -175,7 +176,7 @@ def _top_cell_leaves(tris, top_start, top_ids, t, lo, cell, dims, res, a0, exact
                             continue
                         q = a0 + a + rx * (b + ry * c)
                         if scatter:
-                            tri_ids[start[q] + count[q]] = f
+                            tri_ids[(start[q] if q != a0 else base0) + count[q]] = f
                         count[q] += 1
                         total += 1
     if not scatter:
@@ -198,7 +199,7 @@ def leaf_count(tris, top_start, top_ids, lo, cell, dims, leaf_res, leaf_first, e
                 totals[t] = 0
                 continue
             totals[t] = _top_cell_leaves(tris, top_start, top_ids, t, lo, cell, dims, leaf_res[t], a0, exact, count,
-                                         start, start[:0], False)
+                                         start, start[:0], False, 0)
 
 
 @njit(cache=True, parallel=True)
@@ -217,7 +218,7 @@ def leaf_scatter(tris, top_start, top_ids, lo, cell, dims, leaf_res, leaf_first,
             for q in range(a0 + 1, a1 + 1):
                 start[q] += b
             _top_cell_leaves(tris, top_start, top_ids, t, lo, cell, dims, leaf_res[t], a0, exact, count, start,
-                             tri_ids, True)
+                             tri_ids, True, b)
 
 
 def chunk_bounds(n_refs, n_chunks):

@@ -8,7 +8,9 @@ their triangles passes a per-packet mailbox, a bounding-box cull against the pac
 the slice and a cull against the packet's four bounding planes (the paper's frustum culling), and
 is then intersected with every active ray in one loop over structure-of-arrays ray data that
 LLVM vectorizes (packed AVX2 / AVX-512VL double instructions on this machine).  Empty macro cells
-are skipped a whole macro-cell slab at a time.
+are skipped a whole macro-cell slab at a time.  A two-level grid (gridrt.grid.two_level) is walked
+one top-level slice at a time, each cut into sub-slices as fine as the finest leaf grid in reach
+along K, visiting the leaf cells of the top cells in reach (:func:`_walk_2l`).
 
 Packets: the rays must agree on the major axis of their direction and its sign (the watertight
 test's permutation, :func:`gridrt.trace.intersect.shear_setup`), so that all share the slicing
@@ -43,6 +45,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..config import PACKET_MAX
+from ..grid.two_level import _leaf_range, leaf_axis
 from .grids import pack_grids, unpack_grids
 from .intersect import woop_edges, woop_shear
 from .prefetch import _cycles, _prefetch_tri, _prefetch_write
@@ -722,6 +725,14 @@ def _extent(cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, ha, hb, eU, eV):
     return ulo, uhi, vlo, vhi
 
 
+@njit(cache=True, inline="always")
+def _cells_of(box, loU, icU, nU, loV, icV, nV):
+    """The cells [cu_0, cu_1] x [cv_0, cv_1] of a slice (nU x nV cells of size 1 / icU, 1 / icV
+    from loU, loV) that the box (ulo, uhi, vlo, vhi) overlaps."""
+    return (_floor_clamp((box[0] - loU) * icU, nU), _floor_clamp((box[1] - loU) * icU, nU),
+            _floor_clamp((box[2] - loV) * icV, nV), _floor_clamp((box[3] - loV) * icV, nV))
+
+
 @njit(cache=True, _nrt=False)
 def _any_macro_full(macro_full, mk, mu0, mu1, mv0, mv1, mstK, mstU, mstV):
     """True when a macro cell of slab mk within [mu0, mu1] x [mv0, mv1] holds triangles."""
@@ -859,7 +870,7 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.i
     if na == 0:
         _lap(prof, P_SETUP, t)
         return 0
-    if not uniform or g.leaf_first.shape[0] > 0:
+    if not uniform:
         if max_cells < np.inf:
             _lap(prof, P_SETUP, t)
             return -1
@@ -898,23 +909,37 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.i
     xr, side, xlo, xhi, cu0, cu1, cv0, cv1, su0, su1, sv0, sv1 = _reference_plane(S, na, O_DX + K * PN)
     if max_cells < np.inf:
         # the packet's extent in the slice (one cell thick) HORIZON cells along K from the
-        # reference plane, or at the far end of its K range when nearer
-        h = min(xhi - xlo, HORIZON * cK) * side
-        ulo, uhi, vlo, vhi = _extent(cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, h - cK * side, h, eU, eV)
-        if ((uhi - ulo) * icU + 1.0) * ((vhi - vlo) * icV + 1.0) > max_cells:
+        # reference plane, or at the far end of its K range when nearer; in a two-level grid, in
+        # leaf cells of the top cell the packet starts in (top cells when that one is empty)
+        hK, iU, iV = cK, icU, icV
+        if g.leaf_first.shape[0] > 0:
+            tc = (_floor_clamp((ref[0] - lo[0]) * inv_cell[0], dims[0]) + dims[0] * (
+                _floor_clamp((ref[1] - lo[1]) * inv_cell[1], dims[1])
+                + dims[1] * _floor_clamp((ref[2] - lo[2]) * inv_cell[2], dims[2])))
+            if g.macro_full[tc] != 0:
+                hK /= g.leaf_res[tc, K]
+                iU *= g.leaf_res[tc, U]
+                iV *= g.leaf_res[tc, V]
+        h = min(xhi - xlo, HORIZON * hK) * side
+        ulo, uhi, vlo, vhi = _extent(cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, h - hK * side, h, eU, eV)
+        if ((uhi - ulo) * iU + 1.0) * ((vhi - vlo) * iV + 1.0) > max_cells:
             _lap(prof, P_SETUP, t)
             return -1
 
     # first slice: where the earliest ray (in traversal order) enters the grid
     xs = xlo if sK > 0 else xhi
     k = _floor_clamp((xs - loK) * icK - sK * EPS_CELL, nK)
-
     for s in range(mb.shape[0]):
         mb[s] = -1
+    xa = loK + (k if sK > 0 else k + 1) * cK
+    if g.leaf_first.shape[0] > 0:
+        _lap(prof, P_SETUP, t)
+        _walk_2l(g, io, S, na, mb, U, V, K, sK, k, xa, xr, side, (cu0, cu1, cv0, cv1, su0, su1, sv0, sv1), eU, eV,
+                 watertight, tmin, any_hit, f32, S32, I32, ref, tmin32)
+        return 0
     tests = 0
     cells = 0
     pending = 0
-    xa = loK + (k if sK > 0 else k + 1) * cK
     t = _lap(prof, P_SETUP, t)
     while na > 0 and 0 <= k < nK:
         mk = k // M
@@ -941,10 +966,7 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.i
                 sl_u1 = su1 if side > 0 else su0
                 sl_v0 = sv0 if side > 0 else sv1
                 sl_v1 = sv1 if side > 0 else sv0
-                cu_0 = _floor_clamp((ulo - loU) * icU, nU)
-                cu_1 = _floor_clamp((uhi - loU) * icU, nU)
-                cv_0 = _floor_clamp((vlo - loV) * icV, nV)
-                cv_1 = _floor_clamp((vhi - loV) * icV, nV)
+                cu_0, cu_1, cv_0, cv_1 = _cells_of((ulo, uhi, vlo, vhi), loU, icU, nU, loV, icV, nV)
                 _prefetch_slice(tris, cell_start, tri_ids, k * stK, stU, stV, cu_0, cu_1, cv_0, cv_1)
                 t = _lap(prof, P_SLICE, t)
                 nc, nt, nh = _test_slice(
@@ -988,6 +1010,134 @@ def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.i
         _finish(S, a, io, tests, cells, f32, S32, I32)
     _lap(prof, P_RETIRE, t)
     return 0
+
+
+@njit(cache=True, inline="always")
+def _planes(xr, side, bounds, eU, eV):
+    """The packet's four bounding planes about xr (see _outside), from its bounds (cu0, cu1, cv0,
+    cv1, su0, su1, sv0, sv1 about xr; side 1: the segments lie beyond xr, -1: before it), grown
+    by (eU, eV)."""
+    cu0, cu1, cv0, cv1, su0, su1, sv0, sv1 = bounds
+    return (xr, cu0 - eU, cu1 + eU, cv0 - eV, cv1 + eV, su0 if side > 0 else su1, su1 if side > 0 else su0,
+            sv0 if side > 0 else sv1, sv1 if side > 0 else sv0)
+
+
+@njit(cache=True, inline="always")
+def _advance(S, na, io, xp, any_hit, watertight, tests, cells, f32, S32, I32, xr, bounds):
+    """_step at the K plane xp: returns (active rays, active rays with a hit, the packet's bounds
+    about xr, taken again when rays left)."""
+    nb, pending = _step(S, na, io, xp, any_hit, watertight, tests, cells, f32, S32, I32)
+    if nb != na and nb > 0:
+        bounds = _spread(S, nb, xr)
+    return nb, pending, bounds
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _walk_2l(g, io, S, na, mb, U, V, K, sK, k, xa, xr, side, bounds, eU, eV, watertight, tmin, any_hit, f32, S32, I32, ref,
+             tmin32):
+    """trace_packet's slice walk through a two-level grid g (gridrt.grid.two_level), from top
+    slice k on (the packet's rays start at the K plane xa; mb is cleared): each top slice (fixed
+    K index of the top level) that holds triangles within the packet's bounds is cut into R sub-slices, R the finest leaf resolution along K among its
+    non-empty top cells within the bounds.  In each sub-slice, every non-empty top cell the
+    packet's bounds overlap there has the leaf slices (fixed K index of its leaf grid) that the
+    sub-slice reaches and the sub-slice before did not visited (_test_slice), each once and whole:
+    the leaf cells the packet's bounds overlap over all of the leaf slice it crosses.  Then rays
+    final at the sub-slice's far plane retire (trace_packet's termination rule: every leaf cell
+    the rays crossed up to that plane has been visited).  Writes io's results for every active
+    ray."""
+    tris, lo, cell, inv_cell, dims = g.tris, g.lo, g.cell, g.inv_cell, g.dims
+    cell_start, tri_ids, leaf_first, leaf_res, macro_full = g.cell_start, g.tri_ids, g.leaf_first, g.leaf_res, \
+        g.macro_full
+    cu0, cu1, cv0, cv1, su0, su1, sv0, sv1 = bounds
+    loK, loU, loV = lo[K], lo[U], lo[V]
+    cK, cU, cV = cell[K], cell[U], cell[V]
+    icU, icV = inv_cell[U], inv_cell[V]
+    nK, nU, nV = dims[K], dims[U], dims[V]
+    stK, stU, stV = _strides(K, U, V, dims[0], dims[1])
+    tests = 0
+    cells = 0
+    pending = 0
+    while na > 0 and 0 <= k < nK:
+        xb = loK + (k + 1 if sK > 0 else k) * cK
+        ulo, uhi, vlo, vhi = _extent(cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, xa - xr, xb - xr, eU, eV)
+        tu0, tu1, tv0, tv1 = _cells_of((ulo, uhi, vlo, vhi), loU, icU, nU, loV, icV, nV)
+        # the sub-slices: as many as the finest leaf resolution along K of the non-empty top
+        # cells in reach
+        R = 0
+        for iu in range(tu0, tu1 + 1):
+            for iv in range(tv0, tv1 + 1):
+                tc = k * stK + iu * stU + iv * stV
+                if macro_full[tc] != 0:
+                    R = max(R, leaf_res[tc, K])
+        xs_a = xa
+        xt0 = min(xa, xb)  # the part of the top slice the packet still crosses
+        xt1 = max(xa, xb)
+        ptu0, ptu1, ptv0, ptv1 = 0, -1, 0, -1  # the top cells of the sub-slice before (none yet)
+        xs_p = xa
+        for sub in range(R):
+            if sub == R - 1:
+                xs_b = xb
+            else:
+                xs_b = loK + (k * cK + (sub + 1) * cK / R if sK > 0 else (k + 1) * cK - (sub + 1) * cK / R)
+            ulo, uhi, vlo, vhi = _extent(cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, xs_a - xr, xs_b - xr, eU, eV)
+            planes = _planes(xr, side, (cu0, cu1, cv0, cv1, su0, su1, sv0, sv1), eU, eV)
+            xk0 = min(xs_a, xs_b)
+            xk1 = max(xs_a, xs_b)
+            qu0, qu1, qv0, qv1 = _cells_of((ulo, uhi, vlo, vhi), loU, icU, nU, loV, icV, nV)
+            for iu in range(qu0, qu1 + 1):
+                for iv in range(qv0, qv1 + 1):
+                    tc = k * stK + iu * stU + iv * stV
+                    if macro_full[tc] == 0:
+                        continue
+                    rK = leaf_res[tc, K]
+                    sloK, scK, iscK = leaf_axis(loK, cK, k, rK)
+                    jk0, jk1 = _leaf_range(xk0, xk1, sloK, iscK, rK)
+                    if ptu0 <= iu <= ptu1 and ptv0 <= iv <= ptv1:
+                        # the leaf slices the sub-slice before reached were visited then, whole
+                        pk0, pk1 = _leaf_range(min(xs_a, xs_p), max(xs_a, xs_p), sloK, iscK, rK)
+                        if sK > 0:
+                            jk0 = max(jk0, pk1 + 1)
+                        else:
+                            jk1 = min(jk1, pk0 - 1)
+                    if jk0 > jk1:
+                        continue
+                    rU, rV = leaf_res[tc, U], leaf_res[tc, V]
+                    sloU, scU, iscU = leaf_axis(loU, cU, iu, rU)
+                    sloV, scV, iscV = leaf_axis(loV, cV, iv, rV)
+                    lK, lU, lV = _strides(K, U, V, leaf_res[tc, 0], leaf_res[tc, 1])
+                    q0 = leaf_first[tc]
+                    for jk in range(jk0, jk1 + 1):
+                        # a leaf slice is visited once, over all of it the packet crosses in
+                        # this top slice
+                        za = max(sloK + jk * scK, xt0)
+                        zb = min(sloK + (jk + 1) * scK, xt1)
+                        box = _extent(cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, za - xr, zb - xr, eU, eV)
+                        ju0, ju1, jv0, jv1 = _cells_of(box, sloU, iscU, rU, sloV, iscV, rV)
+                        _prefetch_slice(tris, cell_start, tri_ids, q0 + jk * lK, lU, lV, ju0, ju1, jv0, jv1)
+                        nc, nt, nh = _test_slice(
+                            tris, cell_start, tri_ids, q0 + jk * lK, lU, lV, ju0, ju1, jv0, jv1, U, V, K, box, planes,
+                            S, na, mb, watertight, tmin, f32, S32, I32, ref, tmin32)
+                        cells += nc
+                        tests += nt
+                        pending += nh
+            ptu0, ptu1, ptv0, ptv1 = qu0, qu1, qv0, qv1
+            xs_p = xs_a
+            xs_a = xs_b
+            if pending > 0:
+                na, pending, bounds = _advance(S, na, io, xs_b, any_hit, watertight, tests, cells, f32, S32, I32, xr,
+                                               bounds)
+                if na == 0:
+                    return
+                cu0, cu1, cv0, cv1, su0, su1, sv0, sv1 = bounds
+        xa = xb
+        # once per top slice: also retire rays whose segment has ended
+        na, pending, bounds = _advance(S, na, io, xa, any_hit, watertight, tests, cells, f32, S32, I32, xr, bounds)
+        if na == 0:
+            return
+        cu0, cu1, cv0, cv1, su0, su1, sv0, sv1 = bounds
+        k += sK
+    for a in range(na):
+        _finish(S, a, io, tests, cells, f32, S32, I32)
 
 
 @njit(cache=True, _nrt=False, error_model="numpy", inline="always")
