@@ -177,9 +177,12 @@ class GridBuilder:
     def __init__(self, params: GridParams | None = None):
         self.params = params or GridParams()
         self.bufs = GridBuffers()
+        self._auto = None  # grid="auto": (the kind chosen, triangles, builds since it was measured)
 
     def build(self, tris, params: GridParams | None = None) -> Grid:
         if params is not None:
+            if params != self.params:
+                self._auto = None
             self.params = params
         p = self.params
         strategy = get_builder(p.strategy)()
@@ -207,8 +210,19 @@ class GridBuilder:
             )
         lo_scene = bb[:, 0:3].min(axis=0)
         hi_scene = bb[:, 3:6].max(axis=0)
+        kind = p.grid
+        if kind == "auto":
+            # the choice is measured again every AUTO_RECHECK builds (or when the triangle count
+            # changes); in between the chosen kind is built directly (a two-level build measures
+            # its crowding anyway, and switches at once when it falls)
+            a = self._auto
+            if a is not None and a[1] == F and a[2] < AUTO_RECHECK:
+                kind = a[0]
+                self._auto = (a[0], F, a[2] + 1)
+            else:
+                self._auto = None
         try:
-            if p.grid == "uniform":
+            if kind == "uniform":
                 return self._build(tris, p, strategy, threads, *self._spec(lo_scene, hi_scene, F, p, strategy, threads),
                                    times, t_start)
             # a two-level grid's top level is a uniform grid of top_density with one-cell macro
@@ -217,6 +231,9 @@ class GridBuilder:
             top = self._build(tris, pt, strategy, threads, *self._spec(lo_scene, hi_scene, F, pt, strategy, threads),
                               times, t_start)
             crowd = crowding(top)
+            if p.grid == "auto":
+                self._auto = ("two_level" if crowd >= AUTO_CROWDING else "uniform", F,
+                              self._auto[2] if self._auto is not None else 0)
             if p.grid == "auto" and crowd < AUTO_CROWDING:
                 # an even scene: the uniform grid (the top level cost this much more)
                 times = {"bounds_ms": times["bounds_ms"],
@@ -353,6 +370,8 @@ class GridBuilder:
 #: GridParams(grid="auto") builds a two-level grid when the top level's crowding (:func:`crowding`)
 #: is at least this, a uniform grid otherwise (BENCHMARKS.md section 14)
 AUTO_CROWDING = 4.0
+#: GridParams(grid="auto") measures the crowding again after this many builds of a uniform grid
+AUTO_RECHECK = 30
 
 
 def crowding(top):
