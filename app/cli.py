@@ -82,16 +82,23 @@ def add_grid_args(p):
                    help="grid kind: one uniform grid, a two-level grid (a coarse grid whose non-empty cells hold "
                         "grids of their own) or auto (two_level when the triangles crowd into few top cells; "
                         f"default {d['grid']})")
-    g.add_argument("--top-density", type=float, default=d["top_density"],
-                   help=f"two-level grid: top cells per triangle (default {d['top_density']:g})")
-    g.add_argument("--leaf-density", type=float, default=d["leaf_density"],
-                   help=f"two-level grid: leaf cells per triangle of a top cell (default {d['leaf_density']:g})")
+    add_density_args(g)
     g.add_argument("--insert", choices=INSERT_MODES, default=d["insert"],
                    help="triangle insertion test: bounding box (fast) or exact SAT (fewer references)")
     g.add_argument("--max-cells", type=int, default=d["max_cells"],
                    help=f"ceiling on grid cells (default {d['max_cells']})")
     g.add_argument("--no-split", dest="split_static", action="store_false",
                    help="rebuild the whole scene every frame (default: grid static parts once, moving parts per frame)")
+
+
+def add_density_args(g):
+    """--top-density and --leaf-density (GridParams.top_density, leaf_density: a two-level grid's)
+    on the parser or argument group g."""
+    d = defaults(GridParams)
+    g.add_argument("--top-density", type=float, default=d["top_density"],
+                   help=f"two-level grid: top cells per triangle (default {d['top_density']:g})")
+    g.add_argument("--leaf-density", type=float, default=d["leaf_density"],
+                   help=f"two-level grid: leaf cells per triangle of a top cell (default {d['leaf_density']:g})")
 
 
 def add_render_args(p, default_size=(1024, 768)):

@@ -19,7 +19,9 @@ from . import cli
 
 def add_parser(sub):
     p = sub.add_parser("dump", help="render frames headless to PNG + stats.csv",
-                       description="Render an animated scene headless: DIR/frame_00000.png ... and DIR/stats.csv.")
+                       description="Render an animated scene headless: DIR/frame_00000.png ... and DIR/stats.csv "
+                                   "(a row per frame: timings, the grid's kind, densities, cells, references and "
+                                   "bytes, the rays' figures).")
     cli.add_scene_args(p)
     cli.add_grid_args(p)
     cli.add_render_args(p)
@@ -136,7 +138,8 @@ def _dump(a):
     med = lambda k: float(np.median([r[k] for r in rows]))  # noqa: E731
     print(
         f"wrote {a.frames} frames to {out}/ ({pipe.scene.name}, {rows[0]['triangles']} triangles, "
-        f"{rows[0]['width']}x{rows[0]['height']}, {rows[0]['strategy']}, {rows[0]['threads']} threads): "
+        f"{rows[0]['width']}x{rows[0]['height']}, {rows[0]['strategy']}, {rows[0]['threads']} threads, "
+        f"{rows[0]['grid']} grid of {rows[0]['bytes_per_tri']:.1f} bytes per triangle): "
         f"median build {med('build_ms'):.2f} ms, render {med('render_ms'):.2f} ms, frame {med('frame_ms'):.2f} ms"
     )
     return 0

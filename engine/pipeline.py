@@ -20,6 +20,7 @@ STATS_COLUMNS = (
     "clear_ms", "insert_ms", "macro_ms", "build_ms", "render_ms", "frame_ms",
     "anim_ms", "bounds_ms", "rebuilt", "refs_per_tri", "dims", "macro_full", "grid_bytes",
     "width", "height", "shading", "traversal", "mrays", "hit_fraction", "tests_per_ray", "cells_per_ray",
+    "grid", "top_density", "leaf_density", "bytes_per_tri",
 )
 
 
@@ -230,6 +231,7 @@ class FramePipeline:
             static=self.static_grid.stats if split is not None else None, render=res.stats,
             rebuilt=bool(rebuild), anim_ms=anim_ms, static_build_ms=static_ms,
             frame_ms=(time.perf_counter() - t_frame) * 1e3, width=rp.width, height=rp.height, shading=rp.shading,
+            top_density=gp.top_density, leaf_density=gp.leaf_density,
         )
         self.frame_index += 1
         return Frame(res.image, res.t, res.tri, stats, grid, self.origin)

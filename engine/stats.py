@@ -122,7 +122,9 @@ class FrameStats(_Row):
     """One :meth:`FramePipeline.step`: the frame's build, its render and the frame around them.
 
     frame, t, triangles   frame index, scene time, the scene's triangles
-    build                 BuildStats of the grid built this frame (a split scene: its moving part)
+    build                 BuildStats of the grid built this frame (a split scene: its moving part);
+                          its ``grid`` (the kind built: "uniform" or "two_level") is the row's
+                          ``grid`` column
     static                BuildStats of a split scene's static grid (None: not split)
     render                RenderStats
     rebuilt               whether ``build`` was built this frame (False: a static scene's grid reused,
@@ -131,6 +133,9 @@ class FrameStats(_Row):
     static_build_ms       building the static grid this frame (0 when it was reused)
     frame_ms              the whole step
     width, height, shading   the render's image
+    top_density, leaf_density   the two-level densities of the GridParams the frame was built
+                          with (None: not given); the row also has bytes_per_tri, the grids'
+                          bytes (static part included) per triangle of the scene
     """
 
     frame: int
@@ -146,6 +151,8 @@ class FrameStats(_Row):
     height: int
     shading: str
     static: BuildStats | None = None
+    top_density: float | None = None
+    leaf_density: float | None = None
 
     def _total(self, name):
         return getattr(self.build, name) + (getattr(self.static, name) if self.static is not None else 0)
@@ -181,7 +188,8 @@ class FrameStats(_Row):
             "grid_bytes": self._total("grid_bytes"), "width": self.width, "height": self.height,
             "shading": self.shading, "traversal": r.traversal, "fallback_rays": r.fallback_rays or 0,
             "mrays": r.mrays, "hit_fraction": r.hit_fraction, "tests_per_ray": r.tests_per_ray,
-            "cells_per_ray": r.cells_per_ray,
+            "cells_per_ray": r.cells_per_ray, "grid": b.grid, "top_density": self.top_density,
+            "leaf_density": self.leaf_density, "bytes_per_tri": self._total("grid_bytes") / max(self.triangles, 1),
         }
         for k, v in parts.items():  # the strategy's own stages (count_ms, bucket_ms, merge_ms, ...)
             row.setdefault(k, v)

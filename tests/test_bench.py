@@ -148,34 +148,73 @@ def test_bench_core_quick(tmp_path):
         assert float(r["min_ms"]) <= float(r["median_ms"]) <= float(r["max_ms"])
 
 
+def check_grid_columns(r, stats, triangles):
+    """A bench row's grid columns against the stats of an independent build (or frame) of the same triangles."""
+    assert r["grid_built"] == stats["grid"]
+    for k in ("cells", "references", "grid_bytes"):
+        assert int(r[k]) == stats[k], k
+    assert float(r["bytes_per_tri"]) == pytest.approx(stats["grid_bytes"] / triangles, rel=1e-6)
+
+
 def test_bench_build_quick(tmp_path):
+    """Strategies x grid kinds x threads side by side; every row's grid is the one an independent build of
+    the scene makes, and rendering it gives the row its render ms and tests and cells per ray."""
+    from gridrt import GridParams, build_grid
+    from gridrt.scene import make_scene
+
     out = tmp_path / "build"
     assert main(["bench", "build", "--quick", "--no-progress", "--out", str(out), "--strategies",
-                 "serial,sort_middle", "--threads", "1,2"]) == 0
+                 "serial,sort_middle", "--threads", "1,2", "--grid", "uniform,two_level", "--top-density", "0.125"]) == 0
     rows, summary = check_outputs(out, "build_sweep.csv", ["build_methods.png", "build_steps.png"])
-    assert {(r["strategy"], r["threads"]) for r in rows} == {(s, t) for s in ("serial", "sort_middle") for t in "12"}
-    assert len({r["references"] for r in rows}) == 1
-    assert "sort_middle" in summary and "Memory traffic" in summary
-    # the traffic model's columns ride along in the CSV; its total is the sum of its stages
+    kinds = ("uniform", "two_level")
+    assert {(r["strategy"], r["grid"], r["threads"]) for r in rows} == {
+        (s, g, t) for s in ("serial", "sort_middle") for g in kinds for t in "12"}
+    tris = make_scene("icosphere", count=1280).triangles_at(0.0)
+    for g in kinds:
+        stats = build_grid(tris, GridParams(grid=g, top_density=0.125)).stats
+        for r in (r for r in rows if r["grid"] == g):
+            check_grid_columns(r, stats, 1280)
+            assert (float(r["top_density"]), float(r["leaf_density"])) == (0.125, 2.0)
+            assert r["render_size"] == "64" and float(r["render_ms_min"]) <= float(r["render_ms"]) > 0
+            assert float(r["tests_per_ray"]) > 0 and float(r["cells_per_ray"]) > 0
+            assert (r["leaf_count_ms"] != "") == (g == "two_level")  # (the leaf passes: a two-level grid's stages)
+    assert "sort_middle (two_level)" in summary and "Memory traffic" in summary and "Grid kinds at 2 thread(s)" in summary
+    # the traffic model's columns ride along in the CSV (a uniform grid's: the model has no leaf
+    # passes); its total is the sum of its stages
     for r in rows:
         stages = [k for k in r if k.endswith("_mb") and k != "model_mb" and r[k] != ""]
+        if r["grid"] == "two_level":
+            assert r["model_mb"] == "" and not stages
+            continue
         assert {"bounds_mb", "count_mb", "scatter_mb", "macro_mb"} <= set(stages)
         assert abs(float(r["model_mb"]) - sum(float(r[k]) for k in stages)) < 1e-6 * float(r["model_mb"]) + 1e-9
 
 
 def test_bench_frame_quick(tmp_path):
+    from gridrt import GridParams, RenderParams
+    from gridrt.pipeline import FramePipeline
+    from gridrt.scene import make_scene
+
     out = tmp_path / "frame"
     assert main(["bench", "frame", "--quick", "--no-progress", "--out", str(out), "--threads", "1",
-                 "--traversal", "dda"]) == 0
+                 "--traversal", "dda", "--grid", "uniform,two_level", "--leaf-density", "3"]) == 0
     rows, summary = check_outputs(out, "frame.csv", ["frame.png"])
-    # marbles have static walls: the split is measured on and off
-    assert {r["split"] for r in rows} == {"0", "1"}
+    # marbles have static walls: the split is measured on and off, with each grid kind
+    assert {(r["split"], r["grid"]) for r in rows} == {(s, g) for s in "01" for g in ("uniform", "two_level")}
     on, off = (next(r for r in rows if r["split"] == s) for s in "10")
     assert int(on["moving_triangles"]) < int(on["triangles"]) == int(off["moving_triangles"])
     for r in rows:
         assert float(r["fps"]) == pytest.approx(1000.0 / float(r["frame_ms"]))
         assert float(r["frame_ms"]) >= float(r["build_ms"]) + float(r["render_ms"]) - 1e-6
-    assert "Static/moving split" in summary
+        assert (float(r["top_density"]), float(r["leaf_density"])) == (0.0625, 3.0)
+        assert float(r["tests_per_ray"]) > 0 and float(r["cells_per_ray"]) > 0
+        # the row's grids are those of a pipeline's frames with its settings (the quick run: one warm-up
+        # frame, then one timed at t = 1/30 s)
+        pipe = FramePipeline(make_scene("marbles", count=500), GridParams(threads=1, grid=r["grid"], leaf_density=3.0),
+                             RenderParams(8, 8, threads=1, traversal="dda"), split_static=r["split"] == "1")
+        pipe.step(0.0)
+        check_grid_columns(r, pipe.step(1 / 30).stats, 500)
+    assert "Static/moving split" in summary and "Grid kinds side by side" in summary
 
 
 def test_bench_trade_quick_matches_an_independent_recount(tmp_path):
@@ -185,16 +224,31 @@ def test_bench_trade_quick_matches_an_independent_recount(tmp_path):
     assert main(["bench", "trade", "--quick", "--no-progress", "--out", str(out), "--threads", "1"]) == 0
     rows, summary = check_outputs(out, "trade.csv", ["trade.png", "trade_knobs.png"])
     knobs = {r["knob"] for r in rows}
-    assert knobs == {"insert", "lambda", "macro", "intersect", "resolution", "precision"}
+    assert knobs == {"insert", "lambda", "macro", "intersect", "resolution", "precision", "grid", "top_density",
+                     "leaf_density"}
     by = {(r["knob"], r["value"]): r for r in rows}
     # the watertight test leaves no hole at shared edges; bbox insertion holds more references
     assert by[("intersect", "watertight")]["holes"] == "0"
     assert int(by[("insert", "exact")]["references"]) < int(by[("insert", "bbox")]["references"])
     assert any(r["pareto"] == "1" for r in rows) and by[("precision", "float32 storage")]["pareto"] == ""
-    # recount the pixel error of the half-resolution row with tests/reference.py
     from gridrt.scene import make_scene
 
     tris = make_scene("icosphere", count=1280).triangles_at(0.0)
+    # the two-level knobs: a row per grid kind, and each density swept with the other at its default,
+    # on two-level grids (the grids an independent build makes), watertight as the uniform grid
+    assert {v for k, v in by if k == "grid"} == {"uniform", "two_level", "auto"} and by[("grid", "uniform")]["default"] == "1"
+    assert {v for k, v in by if k == "top_density"} == {"0.03125", "0.0625", "0.25"}
+    assert {v for k, v in by if k == "leaf_density"} == {"1", "2", "4"}
+    for (knob, value), r in by.items():
+        if knob in ("top_density", "leaf_density") or (knob, value) == ("grid", "two_level"):
+            top = float(value) if knob == "top_density" else 0.0625
+            leaf = float(value) if knob == "leaf_density" else 2.0
+            assert (r["grid"], float(r["top_density"]), float(r["leaf_density"])) == ("two_level", top, leaf)
+            check_grid_columns(r, build_grid(tris, GridParams(grid="two_level", top_density=top, leaf_density=leaf)).stats,
+                               1280)
+            assert r["holes"] == "0" and r["pareto"] in ("0", "1") and float(r["tests_per_ray"]) > 0
+    assert by[("grid", "two_level")]["build_ms"] == by[("leaf_density", "2")]["build_ms"]  # one configuration, measured once
+    # recount the pixel error of the half-resolution row with tests/reference.py
     v = tris.reshape(-1, 3)
     cam = facing_camera(v.min(axis=0), v.max(axis=0))
     xs, ys = sample_pixels(64, 64, 256, seed=0)
@@ -267,14 +321,20 @@ def test_bench_peers_without_embreex(tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "embreex", None)  # import embreex -> ImportError
     out = tmp_path / "p"
     assert main(["bench", "peers", "--quick", "--no-progress", "--out", str(out), "--threads", "1",
-                 "--views", "fill,random"]) == 0
+                 "--views", "fill,random", "--grid", "uniform,two_level"]) == 0
     assert "pip install embreex" in capsys.readouterr().err
     rows, summary = check_outputs(out, "peers.csv", ["peers.png"])
     assert "Not measured: Embree: embreex is not installed" in summary and "pip install embreex" in summary
-    assert [r["view"] for r in rows] == ["fill", "random"]
+    # gridrt's grid kinds side by side, each with its columns; the random rays have no image, so no
+    # tests and cells per ray
+    assert [(r["view"], r["grid"]) for r in rows] == [(v, g) for v in ("fill", "random") for g in ("uniform", "two_level")]
     for r in rows:
         assert float(r["o_mrays"]) > 0 and float(r["o_frame_ms"]) > 0 and "e_mrays" not in r
+        assert r["grid_built"] == r["grid"] and int(r["cells"]) > 0 and int(r["references"]) >= 1280
+        assert float(r["bytes_per_tri"]) == pytest.approx(int(r["grid_bytes"]) / int(r["triangles"]))
+        assert (r["tests_per_ray"] != "" and float(r["cells_per_ray"]) > 0) == (r["view"] == "fill")
     assert float(rows[0]["o_mrays_cgt"]) > 0
+    assert "icosphere:1280:twist [fill] (two_level)" in summary
 
 
 def test_bench_packets_quick(tmp_path):
@@ -326,6 +386,10 @@ def test_bench_packets_quick(tmp_path):
     (["frame", "--traversal", "bvh"], "unknown traversal"),
     (["peers", "--views", "frame,sideways"], "unknown view"),
     (["packets", "--views", "random"], "unknown view"),
+    (["build", "--grid", "uniform,octree"], "unknown grid kind 'octree' in --grid"),
+    (["frame", "--grid", "two_level", "--leaf-density", "0"], "leaf_density must be a positive"),
+    (["peers", "--top-density", "nan"], "top_density must be a positive"),
+    (["trade", "--knobs", "top_density", "--top-densities", "0.5,-1"], "--top-densities: need positive"),
 ])
 def test_bench_bad_arguments(tmp_path, capsys, args, message):
     assert main(["bench", *args, "--quick", "--no-progress", "--out", str(tmp_path / "x")]) == 2

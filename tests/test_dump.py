@@ -53,6 +53,7 @@ def test_dump_all_options_and_buffers_match_brute_force(tmp_path):
         assert int(row["frame"]) == i and float(row["t"]) == pytest.approx(t)
         assert int(row["triangles"]) == 1000 and int(row["threads"]) == 3 and row["strategy"] == "serial"
         assert int(row["references"]) > 0 and int(row["cells"]) > 0
+        assert row["grid"] == "uniform" and float(row["bytes_per_tri"]) == pytest.approx(int(row["grid_bytes"]) / 1000)
         stages = sum(float(row[k]) for k in ("clear_ms", "insert_ms", "macro_ms"))
         assert 0 < stages <= float(row["build_ms"]) <= float(row["frame_ms"])
         img = np.asarray(Image.open(out / f"frame_{i:05d}.png"))
@@ -70,6 +71,43 @@ def test_dump_all_options_and_buffers_match_brute_force(tmp_path):
         # normal shading: hit pixels differ from the background colour, misses equal it
         bg = np.array([31, 33, 41], np.uint8)
         assert (img[miss][:, :3] == bg).all()
+
+
+def test_dump_two_level_grid(tmp_path):
+    """--grid two_level with its densities: stats.csv names the grid's kind, its densities, bytes and bytes
+    per triangle, equal to a FramePipeline's over the same frames (marbles: a static box and moving
+    marbles, each its own two-level grid), and the hit buffers equal brute force."""
+    from gridrt.camera import Camera
+    from gridrt.config import GridParams, RenderParams
+    from gridrt.pipeline import FramePipeline
+    from gridrt.scene import make_scene
+
+    out = tmp_path / "d"
+    eye, target, W, H = (0.5, 4.0, 14.0), (0.0, 0.8, 0.0), 24, 16
+    r = gridrt("dump", "--scene", "marbles", "--count", "600", "--frames", "2", "--size", f"{W}x{H}", "--threads", "2",
+               "--grid", "two_level", "--top-density", "0.25", "--leaf-density", "4", "--traversal", "dda",
+               "--eye", ",".join(map(str, eye)), "--target", ",".join(map(str, target)), "--save-buffers",
+               "--no-progress", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "two_level grid of" in r.stdout and "bytes per triangle" in r.stdout
+    with open(out / "stats.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    scene = make_scene("marbles", count=600)
+    pipe = FramePipeline(scene, GridParams(threads=2, grid="two_level", top_density=0.25, leaf_density=4.0),
+                         RenderParams(W, H, threads=2, traversal="dda"), camera=Camera(eye=eye, target=target))
+    o, d = ref_camera_rays(eye, target, (0.0, 1.0, 0.0), Camera.fov, W, H)
+    for i, row in enumerate(rows):
+        t = i / 30.0
+        st = pipe.step(t).stats
+        assert (row["grid"], float(row["top_density"]), float(row["leaf_density"])) == ("two_level", 0.25, 4.0)
+        for k in ("cells", "references", "grid_bytes"):
+            assert int(row[k]) == st[k], k
+        assert float(row["bytes_per_tri"]) == pytest.approx(st["grid_bytes"] / 600, rel=1e-5)
+        assert {"leaf_res_ms", "leaf_count_ms", "leaf_scatter_ms"} <= set(row)
+        ib = np.load(out / f"frame_{i:05d}_id.npy")
+        tb = np.load(out / f"frame_{i:05d}_t.npy")
+        diff = compare_hits(tb.reshape(-1), ib.reshape(-1), ref_cast(scene.triangles_at(t).copy(), o, d), t_rtol=1e-6)
+        assert len(diff.bad) == 0 and (ib >= 0).any(), f"frame {i}: {len(diff.bad)} pixels differ from brute force"
 
 
 def test_dump_imports_no_gl(tmp_path):
@@ -91,6 +129,8 @@ def test_dump_imports_no_gl(tmp_path):
         (["--threads", "0"], "thread count"),
         (["--frames", "0"], "--frames"),
         (["--lambda", "-1"], "density"),
+        (["--grid", "octree"], "invalid choice: 'octree'"),
+        (["--grid", "two_level", "--leaf-density", "0"], "leaf_density must be a positive"),
         (["--eye", "1,2,3"], "--target"),
         (["--scene", "/nonexistent/mesh.obj"], "mesh.obj"),
     ],

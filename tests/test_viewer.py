@@ -132,6 +132,14 @@ def test_viewer_state_actions():
     assert st.render_params(64, 48) == RenderParams(width=64, height=48, shading="normal", shadows=True,
                                                     watertight=False, threads=1)
     assert not st.set_grid(density=-1.0) and st.grid.density == 2.5 and "density" in st.scene_error
+    # the grid kind and a two-level grid's densities are GridParams fields too, and in the state dump
+    assert st.set_grid(grid="two_level") and st.set_grid(top_density=0.25, leaf_density=4.0)
+    assert st.grid_params() == GridParams(strategy="serial", threads=1, density=2.5, macro=3, insert="exact",
+                                          grid="two_level", top_density=0.25, leaf_density=4.0)
+    snap = st.snapshot()
+    assert (snap["grid"], snap["top_density"], snap["leaf_density"]) == ("two_level", 0.25, 4.0)
+    assert not st.set_grid(grid="octree") and st.grid.grid == "two_level" and "octree" in st.scene_error
+    assert not st.set_grid(leaf_density=0.0) and st.grid.leaf_density == 4.0 and "leaf_density" in st.scene_error
 
 
 # ---------------------------------------------------------------------------------------------
@@ -240,8 +248,8 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
         assert bg.mean() > 0.3, bg.mean()
         assert (panel.mean(axis=-1) > 170).mean() > 0.01
         for name in ("built-in", "triangles", "mesh file", "open file", "play", "time", "speed", "strategy",
-                     "threads", "lambda", "macro cell", "insertion", "intersection", "shading", "traversal", "shadows",
-                     "resolution", "save image", "save window", "reset view", "plot"):
+                     "threads", "grid", "lambda", "macro cell", "insertion", "intersection", "shading", "traversal",
+                     "shadows", "resolution", "save image", "save window", "reset view", "plot"):
             x, y, w, h = st.widget_rects[name]
             assert px <= x and x + w <= px + pw and py <= y and y + h <= py + ph, name
         assert not (tmp_path / "imgui.ini").exists()
@@ -271,6 +279,27 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
         assert st.threads == 1
         click("save window")
         assert st.want_window_shot is True
+
+        # the grid kind: a click opens the combo's list, a click on an item picks it; a two-level
+        # grid (or auto) shows its density sliders, a uniform one does not
+        from gridrt.app.viewer.ui import LEAF_DENSITY_RANGE, TOP_DENSITY_RANGE
+
+        assert st.grid.grid == "uniform" and "top density" not in st.widget_rects
+        click("grid")
+        assert {"grid: uniform", "grid: two_level", "grid: auto"} <= set(st.widget_rects)
+        click("grid: two_level")
+        assert st.grid.grid == "two_level" and "grid: auto" not in st.widget_rects
+        click("top density", 0.0)
+        assert st.grid.top_density == pytest.approx(TOP_DENSITY_RANGE[0], rel=1e-3)
+        click("leaf density", 1.0)
+        assert st.grid.leaf_density == pytest.approx(LEAF_DENSITY_RANGE[1], rel=1e-3)
+        for name in ("top density", "leaf density", "reset view", "plot"):   # the panel still shows it all
+            x, y, w, h = st.widget_rects[name]
+            assert px <= x and x + w <= px + pw and py <= y and y + h <= st.panel_rect[1] + st.panel_rect[3], name
+        click("grid")
+        click("grid: uniform")
+        assert st.grid.grid == "uniform" and "top density" not in st.widget_rects
+        assert st.grid.leaf_density == pytest.approx(LEAF_DENSITY_RANGE[1], rel=1e-3)   # kept for the next switch
 
         # the progress overlay sits in the middle of the window
         st.busy = "compiling numba kernels"
@@ -390,6 +419,25 @@ def _dist(cam):
     return float(np.linalg.norm(np.subtract(cam["eye"], cam["target"])))
 
 
+def _headless_frame(scene, s, width, height):
+    """(pipeline, frame): a headless FramePipeline over ``scene`` with the grid and render settings of
+    the viewer's state ``s`` (as the state file has it) at width x height, and its frame at the time
+    and camera of ``s``."""
+    from gridrt.camera import Camera
+    from gridrt.config import GridParams, RenderParams
+    from gridrt.pipeline import FramePipeline
+
+    st, cam = s["stats"], s["camera"]
+    pipe = FramePipeline(scene,
+                         GridParams(strategy=st["strategy"], threads=st["threads"], density=s["density"],
+                                    macro=s["macro"], insert=s["insert"], grid=s["grid"],
+                                    top_density=s["top_density"], leaf_density=s["leaf_density"]),
+                         RenderParams(width=width, height=height, shading=s["shading"], shadows=s["shadows"],
+                                      watertight=s["watertight"], threads=st["threads"], traversal=s["traversal"],
+                                      packet=tuple(s["packet"]), packet_precision=s["packet_precision"]))
+    return pipe, pipe.step(st["t"], camera=Camera(cam["eye"], cam["target"], cam["up"], cam["fov"]))
+
+
 def _check_scene_image(img):
     """A ray-traced marbles frame: background and lit geometry, many distinct colours."""
     from gridrt.trace.render import BACKGROUND
@@ -492,25 +540,15 @@ def test_viewer_window_under_xvfb(tmp_path):
         assert s6["rendered_frames"] == sp["rendered_frames"]
 
         # the same frame from a headless FramePipeline (same time, camera, parameters) is identical
-        from gridrt.camera import Camera
-        from gridrt.config import GridParams, RenderParams
         from gridrt.pipeline import FramePipeline
         from gridrt.scene import make_scene
 
-        st = s6["stats"]
-        cam = s6["camera"]
-        pipe = FramePipeline(make_scene("marbles", count=2000),
-                             GridParams(strategy=st["strategy"], threads=st["threads"], density=s6["density"],
-                                        macro=s6["macro"], insert=s6["insert"]),
-                             RenderParams(width=W, height=H, shading=s6["shading"], shadows=True,
-                                          watertight=s6["watertight"], threads=st["threads"],
-                                          traversal=s6["traversal"], packet=tuple(s6["packet"]),
-                                          packet_precision=s6["packet_precision"]))
-        ref = pipe.step(st["t"], camera=Camera(cam["eye"], cam["target"], cam["up"], cam["fov"]))
+        assert s6["shadows"] and s6["grid"] == "uniform"
+        pipe, ref = _headless_frame(make_scene("marbles", count=2000), s6, W, H)
         assert np.array_equal(shot, ref.image[..., :3])
         no_shadow = FramePipeline(make_scene("marbles", count=2000), pipe.grid_params,
                                   pipe.render_params.replace(shadows=False))
-        assert not np.array_equal(shot, no_shadow.step(st["t"], camera=pipe.camera).image[..., :3])
+        assert not np.array_equal(shot, no_shadow.step(s6["stats"]["t"], camera=pipe.camera).image[..., :3])
 
         # a click on "Save window": the window as shown, panel included
         app.click(s6, "save window")
@@ -558,19 +596,43 @@ def test_viewer_window_under_xvfb(tmp_path):
         fg = np.any(tet_img != np.round(np.asarray(BACKGROUND) * 255).astype(np.uint8), axis=-1)
         assert 0.01 < fg.mean() < 0.9   # the reframed tetrahedron fills part of the view
 
-        # resizing the window: the render resolution follows (even while paused)
-        app.xdo("windowsize", wid, 520, 400)
-        s8 = app.wait(lambda q: q["framebuffer_size"] == [520, 400] and q["stats"].get("width") == 520
-                      and q["stats"].get("height") == 400, "resize")
-        assert s8["render_size"] == [520, 400]
+        # resizing the window: the render resolution follows (even while paused); 420 pixels: the panel,
+        # scrolled by the wheel above, still shows the resolution slider
+        app.xdo("windowsize", wid, 520, 420)
+        s8 = app.wait(lambda q: q["framebuffer_size"] == [520, 420] and q["stats"].get("width") == 520
+                      and q["stats"].get("height") == 420, "resize")
+        assert s8["render_size"] == [520, 420]
         # the resolution slider at its left end: render at SCALE_MIN of the window
         from gridrt.app.viewer.state import SCALE_MIN
 
         app.click(s8, "resolution", 0.0)
-        want = [round(520 * SCALE_MIN), round(400 * SCALE_MIN)]
+        want = [round(520 * SCALE_MIN), round(420 * SCALE_MIN)]
         s9 = app.wait(lambda q: q["render_size"] == want and [q["stats"].get("width"), q["stats"].get("height")] == want,
                       "render scale")
-        assert s9["framebuffer_size"] == [520, 400] and s9["scale"] == pytest.approx(SCALE_MIN)
+        assert s9["framebuffer_size"] == [520, 420] and s9["scale"] == pytest.approx(SCALE_MIN)
+
+        # the panel's grid kind: a click opens the combo's list, a click on an item picks it; the
+        # pipeline builds a two-level grid, and the leaf density slider at its right end refines its
+        # leaves; the frame is the one a headless FramePipeline renders with those settings
+        assert s9["grid"] == "uniform" and s9["stats"]["grid"] == "uniform" and "leaf density" not in s9["widget_rects"]
+        app.click(s9, "grid")
+        app.click(app.wait(lambda q: "grid: two_level" in q["widget_rects"], "the grid kind list"), "grid: two_level")
+        s10 = app.wait(lambda q: q["grid"] == "two_level" and q["stats"].get("grid") == "two_level"
+                       and "leaf density" in q["widget_rects"], "a two-level grid", timeout=120)  # may compile
+        assert s10["stats"]["leaf_density"] == s10["leaf_density"] and s10["stats"]["top_density"] == s10["top_density"]
+        app.click(s10, "leaf density", 1.0)
+        from gridrt.app.viewer.ui import LEAF_DENSITY_RANGE
+
+        s11 = app.wait(lambda q: q["stats"].get("leaf_density") == q["leaf_density"] != s10["leaf_density"],
+                       "leaf density")
+        assert s11["leaf_density"] == pytest.approx(LEAF_DENSITY_RANGE[1], rel=1e-3)
+        assert s11["stats"]["cells"] > s10["stats"]["cells"] and s11["stats"]["grid"] == "two_level"
+        assert s11["stats"]["bytes_per_tri"] == pytest.approx(s11["stats"]["grid_bytes"] / 4)
+        app.xdo("mousemove", 400, 300, "sleep", 0.1, "key", "p")
+        s12 = app.wait(lambda q: q["last_screenshot"] != s_tet["last_screenshot"], "two-level screenshot")
+        _, ref = _headless_frame(make_scene(str(tet)), s12, *want)
+        assert ref.stats["grid"] == "two_level" and ref.stats["cells"] == s12["stats"]["cells"]
+        assert np.array_equal(np.asarray(Image.open(s12["last_screenshot"]).convert("RGB")), ref.image[..., :3])
 
         # H hides the panel; Esc quits with status 0
         app.xdo("key", "h")

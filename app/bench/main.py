@@ -6,10 +6,16 @@ after ``--warmup`` untimed runs (numba compiles, buffers grow), with min and max
 * ``core``:  serial grid build (bbox and exact insertion) and primary-ray Mrays/s (DDA and CGT)
   at 1 thread and all cores on a ~100k and a ~1M triangle mesh.
 * ``build``: build strategies x thread counts x scenes, total and per stage (Ize et al.
-  2006's "Comparison build methods" and "Individual steps"; :func:`gridrt.app.bench.sweep.run_build_sweep`).
+  2006's "Comparison build methods" and "Individual steps"; :func:`gridrt.app.bench.sweep.run_build_sweep`),
+  and a render of each configuration's grid (render ms, tests and cells per ray).
 * ``frame``: animation + rebuild + render per frame at 1024x1024 for each scene at 1 thread and
   all cores (Ize et al. 2006's "Total performance", CGT's fps table); CGT traversal by default (DDA on
   request), static/moving split on and off.
+
+``build``, ``frame`` and ``peers`` take ``--grid`` (grid kinds, comma-separated: uniform,two_level
+measures both side by side) with ``--top-density`` and ``--leaf-density``; every row records the
+grid kind asked for and built, the densities, cells (a two-level grid's leaf cells), references,
+grid bytes and bytes per triangle (:func:`gridrt.app.bench.util.grid_columns`).
 * ``trade``: every knob that trades speed for accuracy against a brute-force float64 reference
   (:mod:`gridrt.app.bench.trade`).
 * ``peers``: the same animated mesh and rays through Intel Embree (embreex) side by side
@@ -32,8 +38,9 @@ from gridrt.trace.render import Renderer
 
 from ..cli import add_packet_args, defaults
 from .util import (
-    check_frame_args, check_runs, facing_camera, figure, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress,
-    put_stat, resolve_scene, scene_list, scenes_help, stat, thread_list, write_csv, write_json, write_summary,
+    add_grid_kind_args, check_frame_args, check_runs, facing_camera, figure, finish_machine, fmt_ms, grid_columns,
+    grid_kinds, machine_info, md_table, out_dir, progress, put_stat, resolve_scene, scene_list, scenes_help, stat,
+    thread_list, write_csv, write_json, write_summary,
 )
 
 #: the fps figures of Ize et al. 2006 and of CGT (Wald et al. 2006, "Ray Tracing Animated Scenes using
@@ -77,6 +84,10 @@ def add_parser(sub):
     b.add_argument("--lambda", dest="density", type=float, default=g["density"],
                    help=f"grid density (default {g['density']:g})")
     b.add_argument("--macro", type=int, default=g["macro"], help=f"macro-cell edge in cells (default {g['macro']})")
+    add_grid_kind_args(b)
+    b.add_argument("--size", type=int, default=BUILD_RENDER_SIZE,
+                   help="square image edge of a render of each configuration's last grid, for its render ms, tests "
+                        f"and cells per ray (0: no render; default {BUILD_RENDER_SIZE})")
     b.add_argument("--back-to-back", action="store_true",
                    help="build each configuration's frames in a row, as a viewer rebuilds with one builder (its "
                         "buffers stay in cache); default: strategies round-robin, fairer under host noise but "
@@ -97,6 +108,7 @@ def add_parser(sub):
     f.add_argument("--shading", choices=SHADING_MODES, default=defaults(RenderParams)["shading"],
                    help="shading of the rendered frames (default %(default)s)")
     f.add_argument("--dt", type=float, default=1.0 / 30.0, help="seconds between frames (default 1/30)")
+    add_grid_kind_args(f)
     add_packet_args(f)
     f.set_defaults(func=run_frame)
 
@@ -281,6 +293,8 @@ def _plot_core(rows, path):
 
 BUILD_SCENES = ["marbles", "cesium", "lucy", "kitchen", "marbles:1000000", "lucy:1600000"]
 BUILD_FALLBACK = ["marbles", "icosphere:81920", "icosphere:1310720"]
+#: image edge of the render that gives each `bench build` row its render ms, tests and cells per ray
+BUILD_RENDER_SIZE = 256
 
 
 def run_build(a):
@@ -298,7 +312,12 @@ def run_build(a):
         strategies = names()
     cores = check_threads(None)
     threads = thread_list(a.threads) if a.threads else list(range(1, cores + 1))
-    params = GridParams(density=a.density, macro=a.macro, insert=a.insert)
+    kinds = grid_kinds(a)
+    params = GridParams(density=a.density, macro=a.macro, insert=a.insert, top_density=a.top_density,
+                        leaf_density=a.leaf_density)
+    if a.size < 0:
+        raise InputError(f"--size must be 0 (no render) or positive, got {a.size}")
+    size = min(a.size, 64) if a.quick else a.size
     out = out_dir(a.out)
     info = machine_info(threads)
     if note:
@@ -308,7 +327,8 @@ def run_build(a):
         sc = resolve_scene(spec)
         scenes[sc.label] = sc.scene
     rows = run_build_sweep(scenes, strategies, threads, runs=runs, warmup=warmup, out_dir=out,
-                           progress=not a.no_progress, params=params, interleave=not a.back_to_back)
+                           progress=not a.no_progress, params=params, interleave=not a.back_to_back, grids=kinds,
+                           render=size)
     from gridrt.grid.traffic import stream_bandwidth
 
     mib = 16 if a.quick else 256
@@ -316,7 +336,7 @@ def run_build(a):
     info["stream_gbs"] = {str(t): {k: round(v, 2) for k, v in d.items()} for t, d in bw.items()}
     finish_machine(info)
     write_json(info, out / "machine.json")
-    body = _build_summary(rows, scenes, strategies, threads, runs, warmup, params, bw, mib, a.back_to_back)
+    body = _build_summary(rows, scenes, strategies, threads, runs, warmup, params, bw, mib, a.back_to_back, kinds, size)
     if note:
         body += ["", f"Note: {note}."]
     write_summary(out / "summary.md", "gridrt bench build", info,
@@ -329,42 +349,79 @@ def run_build(a):
     return 0
 
 
-def _build_summary(rows, scenes, strategies, threads, runs, warmup, params, bw, mib, back_to_back=False):
+def _build_summary(rows, scenes, strategies, threads, runs, warmup, params, bw, mib, back_to_back=False,
+                   kinds=("uniform",), size=0):
+    from .sweep import line_label
+
     order = ("each configuration's builds back to back, one builder, as in a viewer" if back_to_back
              else "strategies interleaved round-robin, so a large scene's buffers are out of cache at each build")
+    two_level = f", two-level densities top {params.top_density:g}, leaf {params.leaf_density:g}" if any(
+        k != "uniform" for k in kinds) else ""
     body = [f"Grid builds per configuration: {warmup} warm-up + {runs} timed (animated scenes advance 1/30 s "
             f"per build; {order}); insertion {params.insert}, lambda {params.density:g}, "
-            f"macro {params.macro}.  Cells: build ms median [min-max].  Speed-up: serial at 1 thread / this.", ""]
+            f"macro {params.macro}{two_level}; grid {', '.join(kinds)}.  Cells: build ms median [min-max].  "
+            f"Speed-up: serial at 1 thread{' (same grid kind)' if len(kinds) > 1 else ''} / this.", ""]
     for sc in scenes:
         rs = [r for r in rows if r["scene"] == sc]
         if not rs:
             continue
         tri = rs[0]["triangles"]
-        base = next((r["build_ms"] for r in rs if r["strategy"] == "serial" and r["threads"] == 1), float("nan"))
-        body.append(f"### {sc} ({tri:,} triangles, {rs[0]['references']:,} references, {rs[0]['cells']:,} cells)")
+        base = {k: next((r["build_ms"] for r in rs if r["strategy"] == "serial" and r["threads"] == 1
+                         and r["grid"] == k), float("nan")) for k in kinds}
+        first = {k: next(r for r in rs if r["grid"] == k) for k in kinds}
+        sizes = {k: f"{r['references']:,} references, {r['cells']:,} cells" for k, r in first.items()}
+        body.append(f"### {sc} ({tri:,} triangles, "
+                    + ("; ".join(f"{k}: {v}" for k, v in sizes.items()) if len(kinds) > 1 else sizes[kinds[0]]) + ")")
         body.append("")
         table = []
         for s in strategies:
-            cells = [s]
-            for t in threads:
-                r = next((r for r in rs if r["strategy"] == s and r["threads"] == t), None)
-                cells.append(fmt_ms(r, "build_ms") + (f" ({base / r['build_ms']:.2f}x)" if r and r["build_ms"] > 0 else ""))
-            table.append(cells)
+            for k in kinds:
+                row = next((r for r in rs if r["strategy"] == s and r["grid"] == k), None)
+                cells = [line_label(row, rows)] if row else [s]
+                for t in threads:
+                    r = next((r for r in rs if r["strategy"] == s and r["grid"] == k and r["threads"] == t), None)
+                    cells.append(fmt_ms(r, "build_ms")
+                                 + (f" ({base[k] / r['build_ms']:.2f}x)" if r and r["build_ms"] > 0 else ""))
+                table.append(cells)
         body += md_table(["strategy"] + [f"{t} thread(s)" for t in threads], table)
         tmax = max(threads)
         best = min((r for r in rs if r["threads"] == tmax), key=lambda r: r["build_ms"])
-        body += ["", f"Fastest at {tmax} thread(s): {best['strategy']} ({best['build_ms']:.1f} ms, "
-                 f"{tri / best['build_ms'] / 1e3:.1f} M triangles/s).  Serial at 1 thread: {base:.1f} ms "
-                 f"({tri / base / 1e3:.1f} M triangles/s).  Stages at {tmax} thread(s), ms median:", ""]
+        b0 = base[kinds[0]]
+        body += ["", f"Fastest at {tmax} thread(s): {line_label(best, rows)} ({best['build_ms']:.1f} ms, "
+                 f"{tri / best['build_ms'] / 1e3:.1f} M triangles/s).  Serial at 1 thread"
+                 f"{f' ({kinds[0]})' if len(kinds) > 1 else ''}: {b0:.1f} ms ({tri / b0 / 1e3:.1f} M triangles/s).  "
+                 f"Stages at {tmax} thread(s), ms median{' (leaf: the two-level leaf passes)' if two_level else ''}:", ""]
         stage = []
         for s in strategies:
-            r = next((r for r in rs if r["strategy"] == s and r["threads"] == tmax), None)
-            if r:
-                stage.append([s, f"{r['bounds_ms']:.2f}", f"{r['clear_ms']:.2f}", f"{r['insert_ms']:.2f}",
-                              f"{r['macro_ms']:.2f}", f"{r['build_ms']:.2f}"])
-        body += md_table(["strategy", "bounds", "clear", "insert", "macro", "total"], stage) + [""]
+            for k in kinds:
+                r = next((r for r in rs if r["strategy"] == s and r["grid"] == k and r["threads"] == tmax), None)
+                if r:
+                    leaf = [f"{sum(r.get(f'leaf_{x}_ms', 0.0) for x in ('res', 'count', 'scatter')):.2f}"]
+                    stage.append([line_label(r, rows), f"{r['bounds_ms']:.2f}", f"{r['clear_ms']:.2f}",
+                                  f"{r['insert_ms']:.2f}", f"{r['macro_ms']:.2f}", *(leaf if two_level else []),
+                                  f"{r['build_ms']:.2f}"])
+        body += md_table(["strategy", "bounds", "clear", "insert", "macro", *(["leaf"] if two_level else []), "total"],
+                         stage) + [""]
+        body += _grid_table(rs, kinds, tmax, size)
     body += _traffic_section(rows, threads, bw, mib)
     return body
+
+
+def _grid_table(rs, kinds, tmax, size):
+    """Per grid kind of one scene, the fastest strategy at tmax threads: what the grid costs and
+    what it buys the rays."""
+    table = []
+    for k in kinds:
+        r = min((r for r in rs if r["grid"] == k and r["threads"] == tmax), key=lambda r: r["build_ms"], default=None)
+        if r is None:
+            continue
+        ray = ([fmt_ms(r, "render_ms"), f"{r['tests_per_ray']:.2f}", f"{r['cells_per_ray']:.2f}"] if size else [])
+        table.append([k, r["grid_built"], r["strategy"], f"{r['build_ms']:.2f}", f"{r['references']:,}",
+                      f"{r['cells']:,}", f"{r['bytes_per_tri']:.1f}", *ray])
+    ray = [f"render ms {size}x{size}", "tests/ray", "cells/ray"] if size else []
+    return [f"Grid kinds at {tmax} thread(s) (fastest strategy; cells: a two-level grid's leaf cells; render: the "
+            "scene's camera, lambert, the default traversal):", "",
+            *md_table(["grid", "built", "strategy", "build ms", "references", "cells", "bytes/tri", *ray], table), ""]
 
 
 def _traffic_section(rows, threads, bw, mib):
@@ -458,6 +515,7 @@ def run_frame(a):
     size = 64 if a.quick else a.size
     runs, warmup = (1, 1) if a.quick else (a.runs, a.warmup)
     packet = RenderParams(packet=a.packet).packet  # (checked here, before any scene loads)
+    kinds = grid_kinds(a)
     specs, note = scene_list(a.scenes, FRAME_SCENES, FRAME_FALLBACK, quick=["marbles:500"] if a.quick else None)
     threads = thread_list(a.threads)
     out = out_dir(a.out)
@@ -473,17 +531,18 @@ def run_frame(a):
         for th in threads:
             for tr in travs:
                 for sp in splits:
-                    plan.append((sc, th, tr, sp))
+                    plan += [(sc, th, tr, sp, gk) for gk in kinds]
     rows = []
     bar = progress(len(plan) * (runs + warmup), "bench frame", a.no_progress)
     for sc in scenes:
         # all variants of one scene advance frame by frame together (round-robin), so load from
         # other processes hits them alike
-        variants = [(th, tr, sp) for s2, th, tr, sp in plan if s2 is sc]
-        pipes = [FramePipeline(sc.scene, GridParams(strategy=frame_strategy(a.strategy, th), threads=th),
+        variants = [(th, tr, sp, gk) for s2, th, tr, sp, gk in plan if s2 is sc]
+        pipes = [FramePipeline(sc.scene, GridParams(strategy=frame_strategy(a.strategy, th), threads=th, grid=gk,
+                                                    top_density=a.top_density, leaf_density=a.leaf_density),
                                RenderParams(size, size, shading=a.shading, threads=th, traversal=tr, packet=packet,
                                             packet_precision=a.packet_precision),
-                               split_static=sp, follow_camera=True) for th, tr, sp in variants]
+                               split_static=sp, follow_camera=True) for th, tr, sp, gk in variants]
         samples = [[] for _ in variants]
         bar.set_postfix_str(sc.label)
         for i in range(warmup + runs):
@@ -492,14 +551,13 @@ def run_frame(a):
                 if i >= warmup:
                     smp.append(fr.stats)
                 bar.update()
-        for (th, tr, sp), smp in zip(variants, samples):
+        for pipe, (th, tr, sp, gk), smp in zip(pipes, variants, samples):
             s = smp[-1]
             row = dict(scene=sc.label, name=sc.scene.name, triangles=s["triangles"],
                        moving_triangles=s.get("moving_triangles", s["triangles"]), threads=th,
                        strategy=frame_strategy(a.strategy, th), traversal=tr, split=int(sp and _has_split(sc.scene)),
                        packet=f"{packet[0]}x{packet[1]}", packet_precision=a.packet_precision,
-                       static=int(bool(sc.scene.static)), size=size, frames=runs, references=s["references"],
-                       cells=s["cells"])
+                       static=int(bool(sc.scene.static)), size=size, frames=runs, **grid_columns(pipe.grid_params, s))
             for k in ("frame_ms", "build_ms", "render_ms", "anim_ms"):
                 put_stat(row, k, [x[k] for x in smp])
             put_stat(row, "build_render_ms", [x["build_ms"] + x["render_ms"] for x in smp])
@@ -538,64 +596,96 @@ def _frame_summary(rows, size, runs, warmup, strategy):
     table = []
     for r in rows:
         table.append([r["scene"], f"{r['triangles']:,}", f"{r['moving_triangles']:,}", r["threads"], r["traversal"],
-                      "on" if r["split"] else "-", fmt_ms(r, "anim_ms"), fmt_ms(r, "build_ms"), fmt_ms(r, "render_ms"),
-                      fmt_ms(r, "frame_ms"), f"{r['fps']:.2f}", f"{r['fps_build_render']:.2f}",
+                      "on" if r["split"] else "-", _kind(r), fmt_ms(r, "anim_ms"), fmt_ms(r, "build_ms"),
+                      fmt_ms(r, "render_ms"), fmt_ms(r, "frame_ms"), f"{r['fps']:.2f}", f"{r['fps_build_render']:.2f}",
                       f"{r['hit_fraction']:.2f}", f"{r['tests_per_ray']:.1f}"])
-    body += md_table(["scene", "triangles", "rebuilt", "threads", "traversal", "split", "anim ms", "build ms",
+    body += md_table(["scene", "triangles", "rebuilt", "threads", "traversal", "split", "grid", "anim ms", "build ms",
                       "render ms", "frame ms", "fps", "fps b+r", "hit fraction", "tests/ray"], table)
+    body += ["", "Grids (cells and references: a two-level grid's leaf level's; a split scene's: both grids'; "
+             "bytes/tri: the grids' bytes per triangle of the scene):", ""]
+    body += md_table(["scene", "threads", "traversal", "split", "grid", "top density", "leaf density", "cells",
+                      "references", "bytes/tri", "build ms", "render ms", "tests/ray", "cells/ray"],
+                     [[r["scene"], r["threads"], r["traversal"], "on" if r["split"] else "-", _kind(r),
+                       f"{r['top_density']:g}", f"{r['leaf_density']:g}", f"{r['cells']:,}", f"{r['references']:,}",
+                       f"{r['bytes_per_tri']:.1f}", fmt_ms(r, "build_ms"), fmt_ms(r, "render_ms"),
+                       f"{r['tests_per_ray']:.1f}", f"{r['cells_per_ray']:.1f}"] for r in rows])
     ths = sorted({r["threads"] for r in rows})
     if len(ths) > 1:
         body += ["", f"Scaling, frame ms at 1 thread / at {ths[-1]} threads:", ""]
         sc_rows = []
-        for key in dict.fromkeys((r["scene"], r["traversal"], r["split"]) for r in rows):
-            one = next((r for r in rows if (r["scene"], r["traversal"], r["split"]) == key and r["threads"] == ths[0]), None)
-            many = next((r for r in rows if (r["scene"], r["traversal"], r["split"]) == key and r["threads"] == ths[-1]), None)
+        for key in dict.fromkeys((r["scene"], r["traversal"], r["split"], r["grid"]) for r in rows):
+            one = next((r for r in rows if (r["scene"], r["traversal"], r["split"], r["grid"]) == key
+                        and r["threads"] == ths[0]), None)
+            many = next((r for r in rows if (r["scene"], r["traversal"], r["split"], r["grid"]) == key
+                         and r["threads"] == ths[-1]), None)
             if one and many:
-                sc_rows.append([key[0], key[1], "on" if key[2] else "-", f"{one['build_ms'] / max(many['build_ms'], 1e-9):.2f}x"
+                sc_rows.append([key[0], key[1], "on" if key[2] else "-", key[3],
+                                f"{one['build_ms'] / max(many['build_ms'], 1e-9):.2f}x"
                                 if many["build_ms"] > 0 else "-", f"{one['render_ms'] / many['render_ms']:.2f}x",
                                 f"{one['frame_ms'] / many['frame_ms']:.2f}x"])
-        body += md_table(["scene", "traversal", "split", "build", "render", "frame"], sc_rows)
+        body += md_table(["scene", "traversal", "split", "grid", "build", "render", "frame"], sc_rows)
     split_rows = []
     for r in rows:
         if r["split"]:
             off = next((x for x in rows if x["scene"] == r["scene"] and x["threads"] == r["threads"]
-                        and x["traversal"] == r["traversal"] and not x["split"]), None)
+                        and x["traversal"] == r["traversal"] and x["grid"] == r["grid"] and not x["split"]), None)
             if off:
-                split_rows.append([r["scene"], r["threads"], r["traversal"], f"{r['moving_triangles']:,} of {r['triangles']:,}",
+                split_rows.append([r["scene"], r["threads"], r["traversal"], r["grid"],
+                                   f"{r['moving_triangles']:,} of {r['triangles']:,}",
                                    fmt_ms(r, "build_ms"), fmt_ms(off, "build_ms"), fmt_ms(r, "render_ms"),
                                    fmt_ms(off, "render_ms")])
     if split_rows:
         body += ["", "Static/moving split (static triangles gridded once, moving ones rebuilt per frame; the ray "
                  "caster traverses both grids) against a full rebuild:", ""]
-        body += md_table(["scene", "threads", "traversal", "moving", "build ms split", "build ms full",
+        body += md_table(["scene", "threads", "traversal", "grid", "moving", "build ms split", "build ms full",
                           "render ms split", "render ms full"], split_rows)
     travs = [t for t in TRAVERSALS if any(r["traversal"] == t for r in rows)]
     if len(travs) > 1:
         body += ["", f"Render ms by traversal (DDA: one ray at a time; CGT: 8x8 packets, coherent grid traversal); "
                  f"in brackets the speed-up over {travs[0]}:", ""]
-        tr_rows = []
-        for key in dict.fromkeys((r["scene"], r["threads"], r["split"]) for r in rows):
-            sel = {r["traversal"]: r for r in rows if (r["scene"], r["threads"], r["split"]) == key}
-            if len(sel) == len(travs):
-                base = sel[travs[0]]["render_ms"]
-                tr_rows.append([key[0], key[1], "on" if key[2] else "-"]
-                               + [f"{fmt_ms(sel[t], 'render_ms')} ({base / sel[t]['render_ms']:.2f}x)" for t in travs])
-        body += md_table(["scene", "threads", "split"] + [f"render ms {t}" for t in travs], tr_rows)
+        key = ("scene", "threads", "split", "grid")
+        body += md_table([*key] + [f"render ms {t}" for t in travs],
+                         _side_by_side(rows, "traversal", travs, key, "render_ms"))
+    kinds = list(dict.fromkeys(r["grid"] for r in rows))
+    if len(kinds) > 1:
+        body += ["", f"Grid kinds side by side: frame ms, and in brackets the speed-up over {kinds[0]}:", ""]
+        key = ("scene", "threads", "traversal", "split")
+        body += md_table([*key] + [f"frame ms {k}" for k in kinds], _side_by_side(rows, "grid", kinds, key, "frame_ms"))
     body += ["", "For reference, on 2006 hardware: " + PAPER_FPS]
     return body
 
 
+def _side_by_side(rows, knob, values, key, ms):
+    """Table rows comparing the ``values`` of ``knob`` among the rows that agree on the ``key``
+    columns: those columns, then per value ms median [min-max] and the speed-up over values[0]."""
+    out = []
+    for k in dict.fromkeys(tuple(r[c] for c in key) for r in rows):
+        sel = {r[knob]: r for r in rows if tuple(r[c] for c in key) == k}
+        if len(sel) == len(values):
+            base = sel[values[0]][ms]
+            out.append([("on" if v else "-") if c == "split" else v for c, v in zip(key, k)]
+                       + [f"{fmt_ms(sel[v], ms)} ({base / sel[v][ms]:.2f}x)" for v in values])
+    return out
+
+
+def _kind(r):
+    """A row's grid kind: the kind asked for, and the kind built where they differ (auto)."""
+    return r["grid"] if r["grid"] == r["grid_built"] else f"{r['grid']} ({r['grid_built']})"
+
+
 def _plot_frame(rows, path):
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
-    variants = list(dict.fromkeys((r["threads"], r["traversal"], r["split"]) for r in rows))
+    variants = list(dict.fromkeys((r["threads"], r["traversal"], r["split"], r["grid"]) for r in rows))
+    kinds = {v[3] for v in variants}
     fig, ax = figure(1, 2, w=6.0)
     x = np.arange(len(scenes))
     w = 0.8 / max(len(variants), 1)
     for k, v in enumerate(variants):
-        fps = [next((r["fps"] for r in rows if r["scene"] == s and (r["threads"], r["traversal"], r["split"]) == v), 0)
+        fps = [next((r["fps"] for r in rows
+                     if r["scene"] == s and (r["threads"], r["traversal"], r["split"], r["grid"]) == v), 0)
                for s in scenes]
         ax[0, 0].bar(x + (k - (len(variants) - 1) / 2) * w, fps, w,
-                     label=f"{v[0]}T {v[1]}{' split' if v[2] else ''}")
+                     label=f"{v[0]}T {v[1]}{' split' if v[2] else ''}{f' {v[3]}' if len(kinds) > 1 else ''}")
     ax[0, 0].set_xticks(x, [s[:18] for s in scenes], fontsize=7, rotation=20)
     ax[0, 0].set_ylabel("fps (1000 / median frame ms)")
     ax[0, 0].set_yscale("log")

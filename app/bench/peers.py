@@ -16,6 +16,10 @@ grid's empty-space skipping), or as many random rays from inside the scene's bou
   the measured pool speed-up is reported).  embreex gives no way to set Embree's own thread
   count, so the process is pinned to ``threads`` CPUs with sched_setaffinity for both engines.
 
+With ``--grid uniform,two_level`` gridrt's grid kinds get a row each (the peers measured again
+beside each); every row records gridrt's grid (kind, densities, cells, references, bytes per
+triangle) and its CGT render's tests and cells per ray.
+
 Also: static cast throughput (Mrays/s, cast only, on the last frame) and hit agreement (same
 triangle id and t within 1e-4 relative, or both miss); disagreeing rays are checked against the
 brute-force float64 caster to tell which side is right.
@@ -41,8 +45,9 @@ from gridrt.trace.render import Renderer, cast_rays
 from ..cli import add_packet_args
 
 from .util import (
-    Affinity, check_frame_args, figure, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress, put_stat,
-    resolve_scene, scene_camera, scene_list, scenes_help, thread_list, write_csv, write_json, write_summary,
+    Affinity, add_grid_kind_args, check_frame_args, figure, finish_machine, fmt_ms, grid_columns, grid_kinds, grid_label,
+    machine_info, md_table, out_dir, progress, put_stat, resolve_scene, scene_camera, scene_list, scenes_help,
+    thread_list, write_csv, write_json, write_summary,
 )
 from .reference import brute_cast
 from .sides import (  # noqa: F401  (INSTALL_HINT)
@@ -82,6 +87,7 @@ def add_parser(bsub, common):
                    help="ray sets, comma-separated: frame (the scene's camera, or one framing its bounds), fill "
                         f"(that camera moved in until at least {100 * FILL:.0f}%% of the pixels hit: a sparse view flatters "
                         "a grid), random (origins uniform in the scene's bounds, directions uniform on the sphere)")
+    add_grid_kind_args(p)  # (gridrt's grid; each kind a row of its own, the peers measured again beside it)
     add_packet_args(p)  # (gridrt's: the precision applies to its renders and casts)
     p.set_defaults(func=run_peers)
 
@@ -139,6 +145,7 @@ def run_peers(a):
     size = 64 if a.quick else a.size
     runs, warmup = (1, 1) if a.quick else (a.runs, a.warmup)
     packet = RenderParams(packet=a.packet).packet
+    kinds = grid_kinds(a)
     specs, note = scene_list(a.scenes, PEER_SCENES, PEER_FALLBACK, quick=["icosphere:1280:twist"] if a.quick else None)
     threads = thread_list(a.threads)
     out = out_dir(a.out)
@@ -153,14 +160,17 @@ def run_peers(a):
 
     scenes = [resolve_scene(s) for s in specs]
     rows = []
-    bar = progress(len(scenes) * len(views) * len(threads) * (warmup + runs + 1), "bench peers", a.no_progress)
+    bar = progress(len(scenes) * len(views) * len(threads) * len(kinds) * (warmup + runs + 1), "bench peers",
+                   a.no_progress)
     affinity_ok = True
     for sc, view in ((sc, view) for sc in scenes for view in views):
         origin, cam, o32, d32, o, d = _rays(sc, size, view)
-        for T in threads:
-            bar.set_postfix_str(f"{sc.label} {view} T={T}")
+        for T, kind in ((T, kind) for T in threads for kind in kinds):
+            bar.set_postfix_str(f"{sc.label} {view} T={T} {kind}")
             strat = frame_strategy(a.strategy, T)
-            builder = GridBuilder(GridParams(strategy=strat, threads=T))
+            gp = GridParams(strategy=strat, threads=T, grid=kind, top_density=a.top_density,
+                            leaf_density=a.leaf_density)
+            builder = GridBuilder(gp)
             renderer = Renderer()
             rp = RenderParams(size, size, threads=T, traversal="cgt", packet=packet,
                               packet_precision=a.packet_precision) if HAVE_CGT and view != "random" else None
@@ -172,7 +182,11 @@ def run_peers(a):
                                       a.packet_precision)
                 bar.update()
             rows.append(_row(sc, T, strat, aff.applied, size, runs, emb, o, d, frames, static, rp, others, view))
-            rows[-1].update(packet=f"{packet[0]}x{packet[1]}", packet_precision=a.packet_precision)
+            rows[-1].update(packet=f"{packet[0]}x{packet[1]}", packet_precision=a.packet_precision,
+                            **grid_columns(gp, frames["grid"].stats))
+            if rp is not None:  # (the random view has no image: its rays go through cast_rays only)
+                img = frames["img"].stats
+                rows[-1].update(tests_per_ray=img.tests_per_ray, cells_per_ray=img.cells_per_ray)
     bar.close()
     _write(rows, out, info, emb, runs, warmup, affinity_ok, note, others, absent)
     return 0
@@ -358,6 +372,7 @@ def _write(rows, out, info, emb, runs, warmup, affinity_ok, note, others=(), abs
     write_json(info, out / "machine.json")
     _plot(rows, out / "peers.png", emb is not None)
     body = (_summary(rows, emb, runs, warmup, affinity_ok) if emb is not None else _gridrt_summary(rows, runs, warmup))
+    body += _grid_summary(rows)
     body += _others_summary(rows, others, absent)
     if note:
         body += ["", f"Note: {note}."]
@@ -368,6 +383,25 @@ def _write(rows, out, info, emb, runs, warmup, affinity_ok, note, others=(), abs
         if line.startswith("|"):
             print(line)
     print(f"wrote {out}/peers.csv, peers.png, summary.md")
+
+
+def _name(r, rows):
+    """A row's scene [view] in the tables, with gridrt's grid kind when the rows hold several."""
+    return r["scene"] + grid_label(r, rows)
+
+
+def _grid_summary(rows):
+    """gridrt's grids: the kind, its cells, references and bytes, and what the rays paid in it."""
+    body = ["", "gridrt's grids, last frame (cells and references: a two-level grid's leaf level's; tests and cells per "
+            "ray: the CGT render's primary rays, none for random rays):", ""]
+    return body + md_table(
+        ["scene", "threads", "grid", "built", "top density", "leaf density", "cells", "references", "bytes/tri",
+         "gridrt build", "gridrt CGT render", "tests/ray", "cells/ray"],
+        [[r["scene"], r["threads"], r["grid"], r["grid_built"], f"{r['top_density']:g}", f"{r['leaf_density']:g}",
+          f"{r['cells']:,}", f"{r['references']:,}", f"{r['bytes_per_tri']:.1f}", fmt_ms(r, "o_build_ms"),
+          fmt_ms(r, "o_render_cgt_ms") if "o_mrays_cgt" in r else "-",
+          f"{r['tests_per_ray']:.2f}" if "tests_per_ray" in r else "-",
+          f"{r['cells_per_ray']:.2f}" if "cells_per_ray" in r else "-"] for r in rows])
 
 
 def _packets(rows):
@@ -384,7 +418,7 @@ def _gridrt_summary(rows, runs, warmup):
             f"render: camera rays in {_packets(rows)} with lambert shading.", ""]
     body += md_table(["scene", "triangles", "threads", "hit fraction", "gridrt build", "gridrt cast", "gridrt frame",
                       "gridrt CGT render", "gridrt frame (CGT)", "cast Mrays/s", "CGT render Mrays/s"],
-                     [[r["scene"], f"{r['triangles']:,}", r["threads"], f"{r['hit_fraction']:.2f}",
+                     [[_name(r, rows), f"{r['triangles']:,}", r["threads"], f"{r['hit_fraction']:.2f}",
                        fmt_ms(r, "o_build_ms"), fmt_ms(r, "o_cast_ms"), fmt_ms(r, "o_frame_ms"),
                        fmt_ms(r, "o_render_cgt_ms") if "o_mrays_cgt" in r else "-",
                        fmt_ms(r, "o_frame_cgt_ms") if "o_mrays_cgt" in r else "-", f"{r['o_mrays']:.2f}",
@@ -409,7 +443,7 @@ def _summary(rows, emb, runs, warmup, affinity_ok):
     ]
     table = []
     for r in rows:
-        table.append([r["scene"], f"{r['triangles']:,}", r["threads"], fmt_ms(r, "o_build_ms"), fmt_ms(r, "o_cast_ms"),
+        table.append([_name(r, rows), f"{r['triangles']:,}", r["threads"], fmt_ms(r, "o_build_ms"), fmt_ms(r, "o_cast_ms"),
                       fmt_ms(r, "o_frame_ms"), fmt_ms(r, "e_upload_ms"), fmt_ms(r, "e_commit_ms"), fmt_ms(r, "e_cast_ms"),
                       fmt_ms(r, "e_frame_ms"), f"{r['o_frame_ms'] / r['e_frame_noupload_ms']:.2f}"])
     body += md_table(["scene", "triangles", "threads", "gridrt build", "gridrt cast", "gridrt frame", "Embree upload",
@@ -420,14 +454,14 @@ def _summary(rows, emb, runs, warmup, affinity_ok):
                  "shading.  Frame = build + CGT render:", ""]
         body += md_table(["scene", "threads", "gridrt CGT render", "gridrt frame (CGT)", "Embree frame without upload",
                           "Embree frame", "gridrt CGT / Embree without upload"],
-                         [[r["scene"], r["threads"], fmt_ms(r, "o_render_cgt_ms"), fmt_ms(r, "o_frame_cgt_ms"),
+                         [[_name(r, rows), r["threads"], fmt_ms(r, "o_render_cgt_ms"), fmt_ms(r, "o_frame_cgt_ms"),
                            fmt_ms(r, "e_frame_noupload_ms"), fmt_ms(r, "e_frame_ms"),
                            f"{r['o_frame_cgt_ms'] / r['e_frame_noupload_ms']:.2f}"] for r in rows if "o_mrays_cgt" in r])
     body += ["", "Static cast throughput (cast only, last frame) and hit agreement (same triangle and t within "
              f"{T_REL:g} relative, or both miss); disagreements checked against brute force (up to {CHECK_MAX}):", ""]
     t2 = []
     for r in rows:
-        t2.append([r["scene"], r["threads"], f"{r['hit_fraction']:.2f}", f"{r['o_mrays']:.2f}",
+        t2.append([_name(r, rows), r["threads"], f"{r['hit_fraction']:.2f}", f"{r['o_mrays']:.2f}",
                    f"{r['o_mrays_cgt']:.2f}" if "o_mrays_cgt" in r else "-", f"{r['e_mrays']:.2f}",
                    f"{100 * r['agree']:.4f}%", f"{100 * r['agree_cgt']:.4f}%" if "agree_cgt" in r else "-",
                    r["id_differs"], r["hit_miss"], r["t_off"],
@@ -441,9 +475,9 @@ def _summary(rows, emb, runs, warmup, affinity_ok):
     ths = sorted({r["threads"] for r in rows})
     if len(ths) > 1:
         sc_lines = []
-        for sc in dict.fromkeys(r["scene"] for r in rows):
-            one = next(r for r in rows if r["scene"] == sc and r["threads"] == ths[0])
-            many = next(r for r in rows if r["scene"] == sc and r["threads"] == ths[-1])
+        for sc in dict.fromkeys(_name(r, rows) for r in rows):
+            one = next(r for r in rows if _name(r, rows) == sc and r["threads"] == ths[0])
+            many = next(r for r in rows if _name(r, rows) == sc and r["threads"] == ths[-1])
             sc_lines.append(f"- {sc}: Embree cast {one['e_static_cast_ms'] / many['e_static_cast_ms']:.2f}x, commit "
                             f"{one['e_commit_ms'] / many['e_commit_ms']:.2f}x; gridrt cast "
                             f"{one['o_static_cast_ms'] / many['o_static_cast_ms']:.2f}x, build "
@@ -464,7 +498,7 @@ def _others_summary(rows, others, absent):
         table = []
         for r in rows:
             for p in others:
-                table.append([r["scene"], r["threads"], p.label, fmt_ms(r, f"{p.name}_upload_ms"),
+                table.append([_name(r, rows), r["threads"], p.label, fmt_ms(r, f"{p.name}_upload_ms"),
                               fmt_ms(r, f"{p.name}_commit_ms"), fmt_ms(r, f"{p.name}_cast_ms"),
                               fmt_ms(r, f"{p.name}_frame_ms"), f"{r[f'{p.name}_mrays']:.2f}",
                               f"{r['o_mrays']:.2f}", f"{r['o_mrays_cgt']:.2f}" if "o_mrays_cgt" in r else "-",
@@ -478,7 +512,7 @@ def _others_summary(rows, others, absent):
 
 
 def _plot(rows, path, embree=True):
-    labels = [f"{r['scene'][:16]}\n{r['threads']}T" for r in rows]
+    labels = [f"{r['scene'][:16]}\n{r['threads']}T{grid_label(r, rows)}" for r in rows]
     x = np.arange(len(rows))
     fig, ax = figure(1, 2, w=6.0)
     a = ax[0, 0]

@@ -12,11 +12,16 @@ and each stage's median, min and max over the remaining ``runs`` are recorded.
   band, one panel per scene;
 * ``build_steps.png``: median ms of each stage (clear, insert, macro-cell build) against threads,
   one line per strategy, a row of panels per scene.
+
+Grid kinds (``grids``: uniform, two_level, auto) are swept like the strategies, each a line of its
+own in the plots; with ``render`` each configuration's last grid is also rendered (its render
+ms, tests and cells per ray), so a kind's build cost and what it buys the rays sit in one row.
 """
 
 import csv
 import math
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -83,9 +88,10 @@ def _count(name, v, lo):
 
 
 def run_build_sweep(
-    scenes, strategies, threads, runs=5, warmup=2, out_dir=None, progress=True, params=None, interleave=True
+    scenes, strategies, threads, runs=5, warmup=2, out_dir=None, progress=True, params=None, interleave=True,
+    grids=None, render=0,
 ):
-    """Time grid builds for every scene x strategy x thread count.
+    """Time grid builds for every scene x strategy x grid kind x thread count.
 
     scenes      dict name -> Animation/(F,3,3) array, one scene, or a list of scenes or
                 (name, scene) pairs
@@ -94,17 +100,27 @@ def run_build_sweep(
     runs        timed builds per configuration (>= 1; the medians are meant over >= 5)
     warmup      untimed builds first (>= 0)
     out_dir     folder for build_sweep.csv, build_methods.png, build_steps.png (None: no files)
-    params      GridParams for density, macro, insert (strategy and threads are overridden)
-    interleave  True: for each scene and thread count, keep one builder per strategy and take
-                the builds round-robin (build i of every strategy, then build i + 1 ...), so
-                load from other processes on a shared machine hits all strategies alike
-                (memory: all strategies' buffers at once).  False: each configuration's builds
-                back to back.
+    params      GridParams for density, macro, insert, top_density, leaf_density (strategy,
+                threads and grid are overridden)
+    interleave  True: for each scene and thread count, keep one builder per strategy and grid
+                kind and take the builds round-robin (build i of every strategy, then build
+                i + 1 ...), so load from other processes on a shared machine hits all strategies
+                alike (memory: all strategies' buffers at once).  False: each configuration's
+                builds back to back.
+    grids       grid kinds (gridrt.config.GRID_KINDS), each swept like a strategy (None: the
+                kind of ``params``)
+    render      image edge of a render of each configuration's last grid (the scene's own camera,
+                or one along its thinnest axis; ``runs`` timed renders after one untimed; 0: no
+                render)
 
     Returns one dict per configuration: scene, triangles, strategy, threads, cores,
-    oversubscribed, insert, density, macro, runs, cells, references, and for every timed stage
-    ``<stage>`` (median), ``<stage>_min``, ``<stage>_max`` in ms (build_ms, bounds_ms, clear_ms,
-    insert_ms, macro_ms and the strategy's sub-stages), plus lock_waits (median) when reported.
+    oversubscribed, insert, density, macro, runs, the grid's columns
+    (:func:`gridrt.app.bench.util.grid_columns`: grid, grid_built, top_density, leaf_density,
+    cells, references, grid_bytes, bytes_per_tri), and for every timed stage ``<stage>``
+    (median), ``<stage>_min``, ``<stage>_max`` in ms (build_ms, bounds_ms, clear_ms, insert_ms,
+    macro_ms and the strategy's sub-stages, a two-level grid's leaf stages), plus lock_waits
+    (median) when reported; with ``render``, render_size, render_ms (median, min, max),
+    tests_per_ray, cells_per_ray and hit_fraction.
     """
     items = _scene_items(scenes)
     if isinstance(strategies, str):
@@ -124,8 +140,14 @@ def run_build_sweep(
     base = params if params is not None else GridParams()
     if not isinstance(base, GridParams):
         raise InputError(f"params must be a GridParams, got {type(base).__name__}")
+    kinds = list(dict.fromkeys([base.grid] if grids is None else ([grids] if isinstance(grids, str) else grids)))
+    if not kinds:
+        raise InputError("grids: need at least one grid kind")
+    for k in kinds:
+        base.replace(grid=k)  # (an unknown kind is refused here)
+    render = _count("render", render, 0)
 
-    total = len(items) * len(strategies) * len(threads)
+    total = len(items) * len(strategies) * len(kinds) * len(threads)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -140,21 +162,22 @@ def run_build_sweep(
                 for T in threads:
                     if bar is not None:
                         bar.set_postfix_str(f"{scene_name} T={T}")
-                    group = [base.replace(strategy=s, threads=T) for s in strategies]
-                    for p, row in zip(group, _measure(scene_name, src, group, runs, warmup, cores)):
-                        by_key[(p.strategy, T)] = row
+                    group = [base.replace(strategy=s, threads=T, grid=k) for s in strategies for k in kinds]
+                    for p, row in zip(group, _measure(scene_name, src, group, runs, warmup, cores, render)):
+                        by_key[(p.strategy, p.grid, T)] = row
                         if bar is not None:
                             bar.update(1)
-                rows += [by_key[(s, T)] for s in strategies for T in threads]
+                rows += [by_key[(s, k, T)] for s in strategies for k in kinds for T in threads]
             else:
                 for strat in strategies:
-                    for T in threads:
-                        if bar is not None:
-                            bar.set_postfix_str(f"{scene_name} {strat} T={T}")
-                        p = base.replace(strategy=strat, threads=T)
-                        rows += _measure(scene_name, src, [p], runs, warmup, cores)
-                        if bar is not None:
-                            bar.update(1)
+                    for k in kinds:
+                        for T in threads:
+                            if bar is not None:
+                                bar.set_postfix_str(f"{scene_name} {strat} {k} T={T}")
+                            p = base.replace(strategy=strat, threads=T, grid=k)
+                            rows += _measure(scene_name, src, [p], runs, warmup, cores, render)
+                            if bar is not None:
+                                bar.update(1)
     finally:
         if bar is not None:
             bar.close()
@@ -167,21 +190,50 @@ def run_build_sweep(
     return rows
 
 
-def _measure(scene_name, src, group, runs, warmup, cores):
-    """Rows for a group of configurations built round-robin on the same frames."""
+def _measure(scene_name, src, group, runs, warmup, cores, render=0):
+    """Rows for a group of configurations built round-robin on the same frames (with ``render``:
+    then each one's last grid rendered, configuration by configuration)."""
     builders = [GridBuilder(p) for p in group]
     samples = [[] for _ in group]
+    grids = [None] * len(group)
     origin = None if isinstance(src, np.ndarray) else src.frame_origin(0.0)
     for i in range(warmup + runs):
         tris = _frame(src, i, origin)
-        for b, smp in zip(builders, samples):
-            g = b.build(tris)
+        for n, (b, smp) in enumerate(zip(builders, samples)):
+            g = grids[n] = b.build(tris)
             if i >= warmup:
                 smp.append(g.stats)
-    return [_row(scene_name, p, smp, runs, cores) for p, smp in zip(group, samples)]
+    figures = [{} for _ in group]
+    if render:
+        from .util import scene_camera
+
+        last = warmup + runs - 1
+        cam = scene_camera(src, tris, 0.0 if getattr(src, "static", True) else last * FRAME_DT, origin)
+        figures = [_render_figures(g, tris, cam, p, render, runs) for g, p in zip(grids, group)]
+    return [_row(scene_name, p, smp, runs, cores, fig) for p, smp, fig in zip(group, samples, figures)]
 
 
-def _row(scene_name, p, samples, runs, cores):
+def _render_figures(grid, tris, cam, p, size, runs):
+    """The columns of ``runs`` renders of ``grid`` at size x size on p.threads threads, after one
+    untimed: render_size, render_ms (median, min, max), tests_per_ray, cells_per_ray, hit_fraction."""
+    from gridrt.config import RenderParams
+    from gridrt.trace.render import Renderer
+
+    renderer, rp = Renderer(), RenderParams(size, size, threads=p.threads)
+    res = renderer.render(grid, tris, cam, rp)  # (compiles, sizes the buffers)
+    ms = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        res = renderer.render(grid, tris, cam, rp)
+        ms.append((time.perf_counter() - t0) * 1e3)
+    st = res.stats
+    return dict(render_size=size, render_ms=float(np.median(ms)), render_ms_min=min(ms), render_ms_max=max(ms),
+                tests_per_ray=st.tests_per_ray, cells_per_ray=st.cells_per_ray, hit_fraction=st.hit_fraction)
+
+
+def _row(scene_name, p, samples, runs, cores, figures=None):
+    from .util import grid_columns
+
     last = samples[-1]
     row = dict(
         scene=scene_name,
@@ -194,9 +246,9 @@ def _row(scene_name, p, samples, runs, cores):
         density=p.density,
         macro=p.macro,
         runs=runs,
-        cells=int(last["cells"]),
-        references=int(np.median([s["references"] for s in samples])),
+        **grid_columns(p, last),
     )
+    row["references"] = int(np.median([s["references"] for s in samples]))
     keys = ["build_ms", "bounds_ms", *STAGES]
     keys += sorted({k for s in samples for k in s if k.endswith("_ms") and k not in keys})
     for k in keys:
@@ -206,10 +258,12 @@ def _row(scene_name, p, samples, runs, cores):
         row[k + "_max"] = float(v.max())
     if any("lock_waits" in s for s in samples):
         row["lock_waits"] = float(np.median([s.get("lock_waits", 0) for s in samples]))
-    for k in ("cells_cleared", "cells_inspected", "macro_cells", "bucket_entries"):
+    for k in ("cells_cleared", "cells_inspected", "macro_cells", "bucket_entries", "top_references"):
         if any(k in s for s in samples):
             row[k] = int(np.median([s.get(k, 0) for s in samples]))
-    model = stage_bytes(row)
+    row.update(figures or {})
+    # (the traffic model is the uniform grid's: a two-level grid's leaf passes are not modelled)
+    model = stage_bytes(row) if row["grid_built"] == "uniform" else None
     if model is not None:
         row["model_mb"] = sum(model.values()) / 1e6
         for k, v in model.items():
@@ -231,14 +285,23 @@ def write_csv(rows, path):
             w.writerow(r)
 
 
+def line_label(r, rows):
+    """A row's line in the plots and tables: its strategy, and its grid kind when ``rows`` hold
+    more than one."""
+    from .util import grid_label
+
+    return r["strategy"] + grid_label(r, rows)
+
+
 def _series(rows, scene, key):
-    """{strategy: (threads, median, min, max)} for one scene and one timed key."""
+    """{line (strategy, and grid kind when several): (threads, median, min, max)} for one scene and
+    one timed key."""
     out = {}
     for r in rows:
         if r["scene"] != scene:
             continue
         vals = (r.get(key, np.nan), r.get(key + "_min", np.nan), r.get(key + "_max", np.nan))
-        out.setdefault(r["strategy"], []).append((r["threads"], *vals))
+        out.setdefault(line_label(r, rows), []).append((r["threads"], *vals))
     return {s: tuple(np.array(c) for c in zip(*sorted(v))) for s, v in out.items()}
 
 

@@ -4,8 +4,10 @@ For one scene and camera, every knob is varied alone from a baseline (the engine
 the DDA traversal: see :func:`baseline`): insertion test (bbox, exact), lambda (cells per
 triangle), macro-cell size, intersection test (watertight, fast Moller-Trumbore), traversal (DDA,
 CGT), render resolution, precision (the engine stores triangles as float32 and computes in
-float64), and the CGT packets' size and shape and the precision of their triangle tests (float64,
-float32; these rows render with CGT). For each setting: build ms, references, render ms, and the error it costs against
+float64), the CGT packets' size and shape and the precision of their triangle tests (float64,
+float32; these rows render with CGT), the grid kind (uniform, two_level, auto) and a two-level
+grid's top and leaf densities (each swept with the other at its default; these rows build
+two-level grids). For each setting: build ms, references, render ms, and the error it costs against
 independent references (:mod:`gridrt.app.bench.reference`):
 
 * pixels whose hit triangle differs from a brute-force float64 caster, on a seeded random sample
@@ -25,11 +27,12 @@ import math
 import sys
 import time
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 import gridrt  # noqa: F401
-from gridrt.config import PACKET_PRECISIONS, TRAVERSALS, GridParams, RenderParams
+from gridrt.config import GRID_KINDS, PACKET_PRECISIONS, TRAVERSALS, GridParams, RenderParams
 from gridrt.errors import InputError
 from gridrt.grid.build import GridBuilder
 from gridrt.grid.registry import get_builder
@@ -37,19 +40,21 @@ from gridrt.threads import check_threads
 from gridrt.trace.render import Renderer, cast_rays
 
 from .util import (
-    check_runs, figure, finish_machine, float_list, int_list, machine_info, md_table, out_dir,
+    check_runs, figure, finish_machine, float_list, grid_columns, int_list, machine_info, md_table, out_dir,
     pareto_front, progress, put_stat, resolve_scene, scene_available, scene_camera, write_csv, write_json, write_summary,
 )
 from .reference import HOLE_REL, brute_cast, compare_to_reference, count_holes, pixel_rays, probe_rays, sample_pixels
 
 KNOBS = ("insert", "lambda", "macro", "intersect", "traversal", "resolution", "precision", "packet",
-         "packet_precision")
+         "packet_precision", "grid", "top_density", "leaf_density")
 #: knobs of the CGT packets: their rows render with the CGT traversal
 CGT_KNOBS = ("packet", "packet_precision")
 DEFAULT_PACKETS = "4,8,16,16x8,8x16"
 DEFAULT_LAMBDAS = "0.5,1,2,3,4,6,8,12"
 DEFAULT_MACROS = "1,2,4,8,16"
 DEFAULT_RESOLUTIONS = "0.25,0.5,0.75,1"
+DEFAULT_TOP_DENSITIES = "0.015625,0.03125,0.0625,0.125,0.25,0.5"
+DEFAULT_LEAF_DENSITIES = "0.5,1,2,4,8"
 
 
 def add_parser(bsub, common):
@@ -72,6 +77,12 @@ def add_parser(bsub, common):
     t.add_argument("--macros", default=DEFAULT_MACROS, help=f"macro-cell sizes (default {DEFAULT_MACROS})")
     t.add_argument("--packets", default=DEFAULT_PACKETS,
                    help=f"CGT packet sizes for the packet knob, N or WxH (default {DEFAULT_PACKETS})")
+    t.add_argument("--top-densities", default=DEFAULT_TOP_DENSITIES,
+                   help="two-level grids' top cells per triangle for the top_density knob (leaf density at its "
+                        f"default; default {DEFAULT_TOP_DENSITIES})")
+    t.add_argument("--leaf-densities", default=DEFAULT_LEAF_DENSITIES,
+                   help="two-level grids' leaf cells per reference of a top cell for the leaf_density knob (top "
+                        f"density at its default; default {DEFAULT_LEAF_DENSITIES})")
     t.add_argument("--resolutions", default=DEFAULT_RESOLUTIONS,
                    help=f"image edges as fractions of --size (default {DEFAULT_RESOLUTIONS})")
     t.add_argument("--time", type=float, default=0.0, help="scene time in seconds (animated scenes)")
@@ -136,24 +147,52 @@ def _default_specs(a):
     return scene, probe
 
 
+class Config(NamedTuple):
+    """One setting of every knob: a row's configuration (hashable; the rows that vary one knob
+    to the same setting share their measurements)."""
+
+    insert: str
+    density: float
+    macro: int
+    watertight: bool
+    resolution: int
+    traversal: str
+    packet: tuple
+    packet_precision: str
+    grid: str
+    top_density: float
+    leaf_density: float
+
+    @property
+    def grid_key(self):
+        """What the grid depends on (configurations with the same key share one grid)."""
+        return (self.insert, self.density, self.macro, self.grid, self.top_density, self.leaf_density)
+
+    def grid_params(self, strategy, threads):
+        return GridParams(strategy=strategy, density=self.density, macro=self.macro, insert=self.insert,
+                          threads=threads, grid=self.grid, top_density=self.top_density,
+                          leaf_density=self.leaf_density)
+
+
 def baseline(size):
-    """The configuration every knob is varied from, (insert, lambda, macro, watertight, resolution,
-    traversal, packet, packet precision): the engine's defaults (GridParams, RenderParams) at
-    ``size`` x ``size``, except the traversal, DDA: the holes are counted through ``cast_rays`` with
-    probe rays from random origins, which it traces one by one, so each row's holes are those of
-    the traversal it renders with (the traversal knob's CGT row, the engine's default, and the
-    packet knobs' rows, which render with CGT, show what the packets change)."""
+    """The :class:`Config` every knob is varied from: the engine's defaults (GridParams,
+    RenderParams) at ``size`` x ``size``, except the traversal, DDA: the holes are counted through
+    ``cast_rays`` with probe rays from random origins, which it traces one by one, so each row's
+    holes are those of the traversal it renders with (the traversal knob's CGT row, the engine's
+    default, and the packet knobs' rows, which render with CGT, show what the packets change)."""
     from ..cli import defaults
 
     g, r = defaults(GridParams), defaults(RenderParams)
-    return (g["insert"], g["density"], g["macro"], r["watertight"], size, "dda", tuple(r["packet"]),
-            r["packet_precision"])
+    return Config(g["insert"], g["density"], g["macro"], r["watertight"], size, "dda", tuple(r["packet"]),
+                  r["packet_precision"], g["grid"], g["top_density"], g["leaf_density"])
 
 
 def _describe(cfg):
-    ins, lam, mac, wt, res, trav, pk, prec = cfg
-    cgt = f" ({pk[0]}x{pk[1]} packets, {prec} tests)" if trav == "cgt" else ""
-    return f"{ins}, lambda {lam:g}, macro {mac}, {'watertight' if wt else 'fast'}, {trav.upper()}{cgt}, {res}x{res}"
+    cgt = f" ({cfg.packet[0]}x{cfg.packet[1]} packets, {cfg.packet_precision} tests)" if cfg.traversal == "cgt" else ""
+    grid = (f"{cfg.grid} grid (top density {cfg.top_density:g}, leaf density {cfg.leaf_density:g}), "
+            if cfg.grid != "uniform" else "uniform grid, ")
+    return (f"{grid}{cfg.insert}, lambda {cfg.density:g}, macro {cfg.macro}, {'watertight' if cfg.watertight else 'fast'}, "
+            f"{cfg.traversal.upper()}{cgt}, {cfg.resolution}x{cfg.resolution}")
 
 
 def _packet_list(text):
@@ -166,39 +205,50 @@ def _packet_list(text):
 
 
 def _configs(a, knobs, size):
-    """[(knob, label, cfg)], cfg = (insert, lambda, macro, watertight, resolution, traversal, packet,
-    packet precision)."""
+    """[(knob, label, Config)] and the baseline Config."""
     d = baseline(size)
     rows = []
     lambdas = [0.5, 4.0] if a.quick and a.lambdas == DEFAULT_LAMBDAS else float_list(a.lambdas, "--lambdas")
     macros = [1, 4] if a.quick and a.macros == DEFAULT_MACROS else int_list(a.macros, "--macros")
     fracs = [0.5, 1.0] if a.quick and a.resolutions == DEFAULT_RESOLUTIONS else float_list(a.resolutions, "--resolutions")
+    tops = ([0.03125, 0.25] if a.quick and a.top_densities == DEFAULT_TOP_DENSITIES
+            else float_list(a.top_densities, "--top-densities"))
+    leaves = ([1.0, 4.0] if a.quick and a.leaf_densities == DEFAULT_LEAF_DENSITIES
+              else float_list(a.leaf_densities, "--leaf-densities"))
+    two_level = d._replace(grid="two_level")
     for k in knobs:
         if k == "insert":
-            rows += [(k, ins, (ins,) + d[1:]) for ins in ("bbox", "exact")]
+            rows += [(k, ins, d._replace(insert=ins)) for ins in ("bbox", "exact")]
         elif k == "lambda":
-            rows += [(k, f"{lam:g}", (d[0], lam) + d[2:]) for lam in sorted(set(lambdas) | {d[1]})]
+            rows += [(k, f"{lam:g}", d._replace(density=lam)) for lam in sorted(set(lambdas) | {d.density})]
         elif k == "macro":
-            for m in sorted(set(macros) | {d[2]}):
+            for m in sorted(set(macros) | {d.macro}):
                 if m > 64:
                     raise InputError(f"--macros: macro-cell size must be at most 64, got {m}")
-                rows.append((k, str(m), d[:2] + (m,) + d[3:]))
+                rows.append((k, str(m), d._replace(macro=m)))
         elif k == "intersect":
-            rows += [(k, "watertight" if wt else "fast", d[:3] + (wt,) + d[4:]) for wt in (True, False)]
+            rows += [(k, "watertight" if wt else "fast", d._replace(watertight=wt)) for wt in (True, False)]
         elif k == "traversal":
-            rows += [(k, tr, d[:5] + (tr,) + d[6:]) for tr in TRAVERSALS]
+            rows += [(k, tr, d._replace(traversal=tr)) for tr in TRAVERSALS]
         elif k == "packet":
             shapes = [(8, 8), (16, 16)] if a.quick and a.packets == DEFAULT_PACKETS else _packet_list(a.packets)
-            rows += [(k, f"{w}x{h}", d[:5] + ("cgt", (w, h), d[7])) for w, h in dict.fromkeys(shapes + [d[6]])]
+            rows += [(k, f"{w}x{h}", d._replace(traversal="cgt", packet=(w, h)))
+                     for w, h in dict.fromkeys(shapes + [d.packet])]
         elif k == "packet_precision":
-            rows += [(k, prec, d[:5] + ("cgt", d[6], prec)) for prec in PACKET_PRECISIONS]
+            rows += [(k, prec, d._replace(traversal="cgt", packet_precision=prec)) for prec in PACKET_PRECISIONS]
         elif k == "resolution":
             sizes = sorted({max(1, int(round(f * size))) for f in fracs} | {size})
             if max(sizes) > size:
                 raise InputError("--resolutions: fractions must be at most 1 (the reference is at --size)")
-            rows += [(k, f"{r}x{r}", d[:4] + (r,) + d[5:]) for r in sizes]
+            rows += [(k, f"{r}x{r}", d._replace(resolution=r)) for r in sizes]
         elif k == "precision":
             rows.append((k, "float32 storage", d))
+        elif k == "grid":
+            rows += [(k, g, d._replace(grid=g)) for g in GRID_KINDS]
+        elif k == "top_density":
+            rows += [(k, f"{t:g}", two_level._replace(top_density=t)) for t in sorted(set(tops) | {d.top_density})]
+        elif k == "leaf_density":
+            rows += [(k, f"{v:g}", two_level._replace(leaf_density=v)) for v in sorted(set(leaves) | {d.leaf_density})]
     return rows, d
 
 
@@ -266,6 +316,10 @@ def _options(a):
         raise InputError("--knobs: need at least one knob")
     if "packet" in knobs:
         _packet_list(a.packets)  # (checked before the reference is computed)
+    if "top_density" in knobs:
+        float_list(a.top_densities, "--top-densities")
+    if "leaf_density" in knobs:
+        float_list(a.leaf_densities, "--leaf-densities")
     get_builder(a.strategy)
     threads = check_threads(a.threads)
     size = 64 if a.quick else a.size
@@ -332,19 +386,23 @@ def _measure(a, o, su, unique, dcfg):
     tris, cam, xs, ys, ref32, ref64 = su.tris, su.cam, su.xs, su.ys, su.ref32, su.ref64
     po, pd, pdist = su.probes
     po64, pd64, pdist64 = su.probes64 if su.probes64 is not None else (None, None, None)
-    gkeys = list(dict.fromkeys(c[:3] for c in unique))
-    builders = {gk: GridBuilder(GridParams(strategy=a.strategy, density=gk[1], macro=gk[2], insert=gk[0],
-                                           threads=threads)) for gk in gkeys}
+    gkeys = {}  # grid key -> the GridParams of its grid
+    for c in unique:
+        gkeys.setdefault(c.grid_key, c.grid_params(a.strategy, threads))
+    builders = {gk: GridBuilder(p) for gk, p in gkeys.items()}
     renderers = {cfg: Renderer() for cfg in unique}
-    rparams = {cfg: RenderParams(cfg[4], cfg[4], threads=threads, watertight=cfg[3], traversal=cfg[5], packet=cfg[6],
-                                 packet_precision=cfg[7]) for cfg in unique}
+    rparams = {cfg: RenderParams(cfg.resolution, cfg.resolution, threads=threads, watertight=cfg.watertight,
+                                 traversal=cfg.traversal, packet=cfg.packet, packet_precision=cfg.packet_precision)
+               for cfg in unique}
     bar = progress(len(unique) + runs, "bench trade", a.no_progress)
     # pass 1: warm-up, the error figures and the holes, configuration by configuration
     grids, meas, holes_cache = {}, {}, {}
     for cfg in unique:
-        ins, lam, mac, wt, res, trav, pk, prec = cfg
-        gk = cfg[:3]
-        bar.set_postfix_str(f"{ins} l={lam:g} m={mac} {'wt' if wt else 'fast'} {res} {trav} {pk[0]}x{pk[1]} {prec}")
+        wt, res, trav = cfg.watertight, cfg.resolution, cfg.traversal
+        gk = cfg.grid_key
+        bar.set_postfix_str(f"{cfg.insert} l={cfg.density:g} m={cfg.macro} {'wt' if wt else 'fast'} {res} {trav} "
+                            f"{cfg.packet[0]}x{cfg.packet[1]} {cfg.packet_precision} {cfg.grid} "
+                            f"t={cfg.top_density:g} f={cfg.leaf_density:g}")
         if gk not in grids:
             for _ in range(max(warmup, 1)):
                 grids[gk] = builders[gk].build(tris)
@@ -353,13 +411,13 @@ def _measure(a, o, su, unique, dcfg):
             img = renderers[cfg].render(g, tris, cam, rparams[cfg])
         rx = xs * res // size
         ry = ys * res // size
-        m = dict(references=g.references, cells=g.spec.n_cells, refs_per_tri=g.references / len(tris),
+        m = dict(grid_columns(gkeys[gk], g.stats), refs_per_tri=g.references / len(tris),
                  dims="x".join(str(int(x)) for x in g.spec.dims), hit_fraction=img.stats["hit_fraction"],
-                 tests_per_ray=img.stats["tests_per_ray"])
+                 tests_per_ray=img.stats["tests_per_ray"], cells_per_ray=img.stats["cells_per_ray"])
         m["cmp32"] = compare_to_reference(img.tri[ry, rx], img.t[ry, rx], ref32[1], ref32[0], ref32[2])
         if ref64 is not None and cfg == dcfg:
             m["cmp64"] = compare_to_reference(img.tri[ry, rx], img.t[ry, rx], ref64[1], ref64[0], ref64[2])
-        hk = (ins, lam, mac, wt)
+        hk = gk + (wt,)
         if trav != "dda":
             m["holes"] = None  # the probe rays (random origins) go through cast_rays one by one, not as packets
         else:
@@ -383,12 +441,12 @@ def _measure(a, o, su, unique, dcfg):
             bt[gk].append(grids[gk].stats["build_ms"])
         for cfg in unique:
             t0 = time.perf_counter()
-            renderers[cfg].render(grids[cfg[:3]], tris, cam, rparams[cfg])
+            renderers[cfg].render(grids[cfg.grid_key], tris, cam, rparams[cfg])
             rt[cfg].append((time.perf_counter() - t0) * 1e3)
         bar.update()
     bar.close()
     for cfg in unique:
-        put_stat(meas[cfg], "build_ms", bt[cfg[:3]])
+        put_stat(meas[cfg], "build_ms", bt[cfg.grid_key])
         put_stat(meas[cfg], "render_ms", rt[cfg])
     return meas, holes_cache
 
@@ -416,13 +474,15 @@ def _rows(configs, unique, meas, holes_cache, dcfg, su, n_samples):
         holes = holes_cache.get("precision") if prec else m["holes"]
         n_pr = len(po64) if prec and po64 is not None else len(po)
         rows.append(dict(
-            knob=knob, value=label, default=int(cfg == dcfg), insert=cfg[0], **{"lambda": cfg[1]}, macro=cfg[2],
-            intersection="watertight" if cfg[3] else "fast", resolution=cfg[4], traversal=cfg[5],
-            packet=f"{cfg[6][0]}x{cfg[6][1]}", packet_precision=cfg[7],
+            knob=knob, value=label, default=int(cfg == dcfg), insert=cfg.insert, **{"lambda": cfg.density},
+            macro=cfg.macro, intersection="watertight" if cfg.watertight else "fast", resolution=cfg.resolution,
+            traversal=cfg.traversal, packet=f"{cfg.packet[0]}x{cfg.packet[1]}", packet_precision=cfg.packet_precision,
+            grid=cfg.grid, grid_built=m["grid_built"], top_density=cfg.top_density, leaf_density=cfg.leaf_density,
             build_ms=m["build_ms"], build_ms_min=m["build_ms_min"], build_ms_max=m["build_ms_max"],
             references=m["references"], refs_per_tri=m["refs_per_tri"], cells=m["cells"], dims=m["dims"],
+            grid_bytes=m["grid_bytes"], bytes_per_tri=m["bytes_per_tri"],
             render_ms=m["render_ms"], render_ms_min=m["render_ms_min"], render_ms_max=m["render_ms_max"],
-            total_ms=m["total_ms"], tests_per_ray=m["tests_per_ray"],
+            total_ms=m["total_ms"], tests_per_ray=m["tests_per_ray"], cells_per_ray=m["cells_per_ray"],
             samples=c["samples"], pixels_differ=c["differs"], pixel_error=c["differs"] / c["samples"], ties=c["ties"],
             both_hit=c["both_hit"], dt_mean=c["dt_mean"], dt_max=c["dt_max"], dt_rel_mean=c["dt_rel_mean"],
             dt_rel_max=c["dt_rel_max"], probe_rays=n_pr if holes is not None else "",
@@ -496,17 +556,18 @@ def _summary(rows, c):
         mark = ("**default**" if r["default"] else "") + (" front" if r["pareto"] == 1 else "")
         table.append([r["knob"], r["value"], mark.strip(), f"{r['build_ms']:.1f} [{r['build_ms_min']:.1f}-{r['build_ms_max']:.1f}]",
                       f"{r['references']:,}", f"{r['render_ms']:.1f} [{r['render_ms_min']:.1f}-{r['render_ms_max']:.1f}]",
-                      f"{r['total_ms']:.1f}", f"{100 * r['pixel_error']:.3f}% ({r['pixels_differ']})", r["ties"],
+                      f"{r['total_ms']:.1f}", f"{r['bytes_per_tri']:.1f}",
+                      f"{100 * r['pixel_error']:.3f}% ({r['pixels_differ']})", r["ties"],
                       _g(r["dt_mean"]), _g(r["dt_max"]), _g(r["holes_per_million"], 4)])
     body += md_table(["knob", "value", "marks", "build ms", "references", "render ms", "build+render ms",
-                      "px differ", "ties", "mean abs dt", "max abs dt", "holes / M rays"], table)
+                      "grid bytes/tri", "px differ", "ties", "mean abs dt", "max abs dt", "holes / M rays"], table)
     body += [""]
     front = [r for r in rows if r["pareto"] == 1]
     seen = set()
     names = []
     for r in sorted(front, key=lambda r: r["total_ms"]):
         key = (r["insert"], r["lambda"], r["macro"], r["intersection"], r["resolution"], r["traversal"], r["packet"],
-               r["packet_precision"])
+               r["packet_precision"], r["grid"], r["top_density"], r["leaf_density"])
         if key in seen:
             continue
         seen.add(key)
@@ -556,7 +617,8 @@ def _summary(rows, c):
 
 
 KNOB_COLORS = {"insert": "C0", "lambda": "C1", "macro": "C2", "intersect": "C3", "traversal": "C4",
-               "resolution": "C5", "precision": "C7", "packet": "C8", "packet_precision": "C9"}
+               "resolution": "C5", "precision": "C7", "packet": "C8", "packet_precision": "C9", "grid": "C6",
+               "top_density": "navy", "leaf_density": "darkolivegreen"}
 
 
 def _plot_trade(rows, path):

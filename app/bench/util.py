@@ -181,6 +181,60 @@ def float_list(text, what):
     return list(dict.fromkeys(vals))
 
 
+def grid_list(text):
+    """Grid kinds from --grid text 'uniform,two_level' (each of gridrt.config.GRID_KINDS), in order,
+    without repeats."""
+    from gridrt.config import GRID_KINDS
+
+    kinds = list(dict.fromkeys(k.strip() for k in str(text).split(",") if k.strip()))
+    for k in kinds:
+        if k not in GRID_KINDS:
+            raise InputError(f"unknown grid kind {k!r} in --grid; choose from {', '.join(GRID_KINDS)}")
+    if not kinds:
+        raise InputError(f"--grid: need at least one of {', '.join(GRID_KINDS)}")
+    return kinds
+
+
+def add_grid_kind_args(q):
+    """--grid (grid kinds, comma-separated: measured side by side), --top-density and --leaf-density
+    (a two-level grid's densities) of a benchmark; :func:`grid_kinds` reads them."""
+    from gridrt.config import GRID_KINDS, GridParams
+
+    from ..cli import add_density_args, defaults
+
+    g = defaults(GridParams)
+    q.add_argument("--grid", default=g["grid"],
+                   help=f"grid kinds, comma-separated of {', '.join(GRID_KINDS)} (uniform,two_level measures both side "
+                        f"by side; default {g['grid']})")
+    add_density_args(q)
+
+
+def grid_kinds(a):
+    """The grid kinds of a benchmark's --grid, its --top-density and --leaf-density checked too
+    (before any scene loads)."""
+    from gridrt.config import GridParams
+
+    GridParams(top_density=a.top_density, leaf_density=a.leaf_density)
+    return grid_list(a.grid)
+
+
+def grid_columns(p, stats):
+    """The columns every benchmark row records about its grid, from the GridParams ``p`` it was built
+    with and its stats (BuildStats, or a frame's FrameStats row): the kind asked for (``grid``:
+    uniform, two_level or auto) and the kind built (``grid_built``), the two-level densities, cells
+    (a two-level grid's leaf cells), references (its leaf references), grid_bytes and bytes_per_tri
+    (grid_bytes / triangles)."""
+    return dict(grid=p.grid, grid_built=stats["grid"], top_density=p.top_density, leaf_density=p.leaf_density,
+                cells=int(stats["cells"]), references=int(stats["references"]), grid_bytes=int(stats["grid_bytes"]),
+                bytes_per_tri=int(stats["grid_bytes"]) / max(int(stats["triangles"]), 1))
+
+
+def grid_label(r, rows):
+    """A row's grid kind, as " (two_level)", for its label in a table or plot of ``rows`` that hold
+    more than one kind; "" when they hold one."""
+    return f" ({r['grid']})" if len({x.get("grid", "uniform") for x in rows}) > 1 else ""
+
+
 def thread_list(text):
     """Thread counts from '1,2' (validated), default: 1 and all cores."""
     cores = check_threads(None)

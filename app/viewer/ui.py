@@ -12,7 +12,7 @@ import os
 import numpy as np
 from imgui_bundle import imgui, implot
 
-from gridrt.config import INSERT_MODES, SHADING_MODES
+from gridrt.config import GRID_KINDS, INSERT_MODES, SHADING_MODES
 from gridrt.scene import BUILTIN_SCENES, DEFORM_KINDS, FRAME_EXTENSIONS, SCENE_EXTENSIONS, SceneSpec
 from gridrt.scene.assets import STATIC_ASSETS
 
@@ -25,6 +25,10 @@ PANEL_WIDTH = 320.0
 PANEL_BG = (0.09, 0.10, 0.12)
 PANEL_ALPHA = 0.92
 INTERSECTION_LABELS = ("watertight (Woop et al.)", "fast (Moller-Trumbore)")
+#: ranges of the panel's two-level density sliders (logarithmic): top cells per triangle, leaf
+#: cells per reference of a top cell
+TOP_DENSITY_RANGE = (1.0 / 128.0, 1.0)
+LEAF_DENSITY_RANGE = (0.25, 16.0)
 #: the traversals the panel offers: CGT with its packets' size and the precision of their triangle
 #: tests (BENCHMARKS.md section 12: 8x16 with float32 tests is the fastest measured, 8x8 float64
 #: the exact default), and the single-ray DDA
@@ -113,11 +117,23 @@ def _rect(state, name, width=None):
 
 
 def _combo(state, label, items, current):
-    i = items.index(current) if current in items else -1
+    """A combo box over ``items`` showing ``current``; the item picked this frame, or None.  While
+    its list is open, each item's rectangle is recorded as ``"<label>: <item>"``."""
     w = imgui.calc_item_width()
-    changed, j = imgui.combo(label, i, list(items))
+    opened = imgui.begin_combo(label, current if current in items else "")
     _rect(state, label, w)
-    return (items[j] if changed and 0 <= j < len(items) else None)
+    if not opened:
+        return None
+    picked = None
+    for item in items:
+        clicked, _ = imgui.selectable(item, item == current)
+        _rect(state, f"{label}: {item}")
+        if item == current:
+            imgui.set_item_default_focus()
+        if clicked:
+            picked = item
+    imgui.end_combo()
+    return picked
 
 
 def draw_panel(state, strategy_names):
@@ -197,8 +213,19 @@ def _draw_animation(state):
         state.speed = v
 
 
+def _density_slider(state, label, field, lo, hi):
+    """A logarithmic slider over GridParams field ``field`` (a positive density)."""
+    w = imgui.calc_item_width()
+    changed, d = imgui.slider_float(label, float(getattr(state.grid, field)), lo, hi, "%.3g",
+                                    imgui.SliderFlags_.logarithmic)
+    _rect(state, label, w)
+    if changed and d > 0:
+        state.set_grid(**{field: d})
+
+
 def _draw_grid(state, strategy_names):
-    """Build strategy, threads, lambda, macro-cell size and insertion test."""
+    """Build strategy, threads, grid kind (with a two-level grid's densities), lambda, macro-cell
+    size and insertion test."""
     gp = state.grid
     v = _combo(state, "strategy", list(strategy_names), gp.strategy)
     if v is not None:
@@ -208,12 +235,13 @@ def _draw_grid(state, strategy_names):
     _rect(state, "threads", w)
     if changed:
         state.set_threads(n)
-    w = imgui.calc_item_width()
-    changed, d = imgui.slider_float("lambda", float(gp.density), 0.125, 64.0, "%.3g",
-                                    imgui.SliderFlags_.logarithmic)
-    _rect(state, "lambda", w)
-    if changed and d > 0:
-        state.set_grid(density=d)
+    v = _combo(state, "grid", list(GRID_KINDS), gp.grid)
+    if v is not None:
+        state.set_grid(grid=v)
+    if gp.grid != "uniform":  # (auto builds a two-level grid with these densities when it picks one)
+        _density_slider(state, "top density", "top_density", *TOP_DENSITY_RANGE)
+        _density_slider(state, "leaf density", "leaf_density", *LEAF_DENSITY_RANGE)
+    _density_slider(state, "lambda", "density", 0.125, 64.0)
     w = imgui.calc_item_width()
     changed, m = imgui.slider_int("macro cell", int(gp.macro), 1, 16)
     _rect(state, "macro cell", w)
@@ -330,9 +358,13 @@ def _draw_stats(state):
         imgui.text("build  reused (static scene)")
     imgui.text(f"render {st['render_ms']:8.2f} ms  {st['width']}x{st['height']}, {st.get('mrays', 0):.1f} Mray/s")
     imgui.text(f"frame  {st['frame_ms']:8.2f} ms  {state.render_fps:.1f} fps (window {state.ui_fps:.0f})")
-    imgui.text(f"triangles {st['triangles']:,}   cells {st['cells']:,}")
+    kind = st.get("grid", "uniform")
+    two_level = kind == "two_level"  # its cells and references are the leaf level's, its dims the top's
+    imgui.text(f"grid {kind}   dims {_dims(st.get('dims', ''))}"
+               + (f" top, {st.get('macro_full', 0):,} full" if two_level else ""))
+    imgui.text(f"triangles {st['triangles']:,}   {'leaf cells' if two_level else 'cells'} {st['cells']:,}")
     imgui.text(f"references {st['references']:,} ({st.get('refs_per_tri', 0):.2f}/tri)")
-    imgui.text(f"grid memory {_fmt_bytes(st.get('grid_bytes', 0))}   dims {_dims(st.get('dims', ''))}")
+    imgui.text(f"grid memory {_fmt_bytes(st.get('grid_bytes', 0))}   {st.get('bytes_per_tri', 0):.1f} B/tri")
     b, r = state.history.arrays()
     if len(b) >= 2 and implot.begin_plot("##ms", imgui.ImVec2(-1, 130)):
         fit = implot.AxisFlags_.auto_fit

@@ -101,7 +101,7 @@ def initial_state(a):
 
     from .state import ViewerState
 
-    gp = cli.grid_params(a)   # validates strategy, lambda, macro, insert, threads
+    gp = cli.grid_params(a)   # validates strategy, lambda, macro, insert, threads, grid kind and densities
     w, h = a.size
     rp = cli.render_params(a)
     from gridrt.scene import BUILTIN_SCENES
@@ -371,7 +371,7 @@ class Viewer:
         elif st.cold_cache:
             st.busy = "compiling numba kernels (first run only; cached for later runs)"
         elif elapsed >= SLOW_FRAME_S:
-            st.busy = "building the grid and rendering (a strategy's first use compiles its kernels)"
+            st.busy = "building the grid and rendering (a strategy's or grid kind's first use compiles its kernels)"
         else:
             st.busy = None
 
