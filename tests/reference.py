@@ -199,6 +199,109 @@ def compare_pairs(got, ref):
     return sorted((r - g) - a), sorted((g - r) - a)
 
 
+def compare_pairs_array(got, ref):
+    """:func:`compare_pairs` for large sets, in numpy: (missing, extra) as sorted (k, 2) int64
+    arrays of (cell, tri) rows, ties removed."""
+    g = np.asarray(got, np.int64).reshape(-1, 2)
+    r, a = ref.pairs.reshape(-1, 2), ref.ambiguous.reshape(-1, 2)
+    m = 1 + max([int(x[:, 1].max()) for x in (g, r, a) if len(x)] + [0])
+    key = lambda x: np.unique(x[:, 0] * m + x[:, 1])  # noqa: E731
+    kg, kr, ka = key(g), key(r), key(a)
+    missing = np.setdiff1d(np.setdiff1d(kr, kg, assume_unique=True), ka, assume_unique=True)
+    extra = np.setdiff1d(np.setdiff1d(kg, kr, assume_unique=True), ka, assume_unique=True)
+    rows = lambda k: np.stack([k // m, k % m], axis=1).reshape(-1, 2)  # noqa: E731
+    return rows(missing), rows(extra)
+
+
+# ----------------------------------------------------------------------------------------------
+# Two-level grids
+
+
+def ref_leaf_first(leaf_res):
+    """(T + 1,) int64: the flat index of each top cell's first leaf cell, the exclusive prefix sum
+    of the leaf cell counts rx * ry * rz of ``leaf_res`` (T, 3) (the last entry: all leaf cells)."""
+    n = np.prod(np.asarray(leaf_res, np.int64).reshape(-1, 3), axis=1)
+    return np.concatenate([[0], np.cumsum(n)]).astype(np.int64)
+
+
+def _expand_ranges(i0, i1, budget=1 << 20):
+    """Yield chunks ``(row (n,), ijk (n, 3))`` of every integer point of the inclusive boxes
+    ``i0[row] .. i1[row]`` ((R, 3) int64 each; an empty box, i1 < i0 on some axis, gives none)."""
+    ext = np.maximum(i1 - i0 + 1, 0)
+    counts = ext.prod(axis=1)
+    R = len(i0)
+    s = 0
+    while s < R:
+        csum = np.cumsum(counts[s:])
+        e = s + max(1, int(np.searchsorted(csum, budget, side="right")))
+        row = np.repeat(np.arange(s, e), counts[s:e])
+        if len(row):
+            starts = np.concatenate(([0], np.cumsum(counts[s:e])[:-1]))
+            off = np.arange(len(row)) - np.repeat(starts, counts[s:e])
+            ex = ext[row]
+            a = off % ex[:, 0]
+            b = (off // ex[:, 0]) % ex[:, 1]
+            c = off // (ex[:, 0] * ex[:, 1])
+            yield row, i0[row] + np.stack([a, b, c], axis=1)
+        s = e
+
+
+def ref_pairs_two_level(tris, lo, cell, dims, leaf_res, exact, all_cells=False):
+    """Reference contents of a two-level grid: (top, leaf) :class:`RefPairs`.
+
+    The top level is the uniform grid (lo, cell, dims) under the uniform rule
+    (:func:`ref_pairs_bbox`, or :func:`ref_pairs_exact` with ``exact``).  Top cell
+    t = (i, j, k) (linear index as for any cell) is split into ``leaf_res[t]`` = (rx, ry, rz) leaf
+    cells (none when 0): its leaf grid starts at ``lo + (i, j, k) * cell`` and has cells of size
+    ``cell / (rx, ry, rz)``; a triangle is in leaf cell (a, b, c) of t when it is in t and the
+    uniform rule puts it in (a, b, c) of that leaf grid (its bounding box grown by INSERT_EPS
+    *leaf* cell sizes; exact: no separating axis with the grown leaf box).  Leaf (a, b, c) of t is
+    the flat leaf cell ``ref_leaf_first(leaf_res)[t] + a + rx * (b + ry * c)``.
+
+    A triangle whose membership of t is a tie may or may not be in t, so every leaf pair it could
+    have in t is a tie (``ambiguous``).  The leaf geometry (``leaf_res``) is an input, as lo, cell
+    and dims are; ``all_cells`` tests every leaf cell of t instead of the candidate range.
+    """
+    t64 = tris64(tris)
+    lo = np.asarray(lo, np.float64)
+    cell = np.asarray(cell, np.float64)
+    dims = np.asarray(dims, np.int64)
+    res = np.asarray(leaf_res, np.int64).reshape(-1, 3)
+    if len(res) != int(np.prod(dims)):
+        raise ValueError(f"leaf_res has {len(res)} rows for {int(np.prod(dims))} top cells")
+    top = _ref_pairs(tris, lo, cell, dims, exact)
+    first = ref_leaf_first(res)
+    # (top cell, tri) rows that are (or may be) in the top level; tie rows make ties of their leaves
+    rows = np.unique(np.concatenate([top.pairs, top.ambiguous]).reshape(-1, 2), axis=0)
+    F = len(t64)
+    tie_top = np.isin(rows[:, 0] * F + rows[:, 1], top.ambiguous[:, 0] * F + top.ambiguous[:, 1])
+    t, f = rows[:, 0], rows[:, 1]
+    r = res[t]
+    keep = r.prod(axis=1) > 0
+    t, f, r, tie_top = t[keep], f[keep], r[keep], tie_top[keep]
+    ijk = np.stack([t % dims[0], (t // dims[0]) % dims[1], t // (dims[0] * dims[1])], axis=1)
+    llo = lo + ijk * cell  # (n, 3) each row's leaf grid
+    lcell = cell / r
+    if all_cells:
+        i0 = np.zeros_like(r)
+        i1 = r - 1
+    else:
+        i0 = np.clip(np.floor((t64[f].min(axis=1) - llo) / lcell).astype(np.int64) - 1, 0, r - 1)
+        i1 = np.clip(np.floor((t64[f].max(axis=1) - llo) / lcell).astype(np.int64) + 1, 0, r - 1)
+    got, amb = [], []
+    for row, abc in _expand_ranges(i0, i1):
+        m = _sat_margins(t64[f[row]], abc, llo[row], lcell[row], exact).min(axis=1)
+        rr = r[row]
+        q = first[t[row]] + abc[:, 0] + rr[:, 0] * (abc[:, 1] + rr[:, 1] * abc[:, 2])
+        out = np.stack([q, f[row]], axis=1)
+        got.append(out[m >= 0])
+        amb.append(out[(np.abs(m) <= 1) | tie_top[row]])
+    empty = np.zeros((0, 2), np.int64)
+    leaf = RefPairs(np.unique(np.concatenate(got or [empty]), axis=0).reshape(-1, 2).astype(np.int64),
+                    np.unique(np.concatenate(amb or [empty]), axis=0).reshape(-1, 2).astype(np.int64))
+    return top, leaf
+
+
 def ref_macro_occupancy(pairs, dims, macro):
     """(mx, my, mz) bool array indexed [mi, mj, mk]: True iff any cell of that macro cell (a
     macro^3 block of cells, clipped at the grid border) holds a triangle; mdims = ceil(dims/macro).

@@ -134,6 +134,11 @@ BOUNDARIES = {
         "from the slow checks when it finds one); to_frame and first_nondegenerate write/read arrays of the "
         "checked shape",
         ["test_guard_build_triangles", "test_guard_build_nonfinite_every_strategy"]),
+    "gridrt.grid.two_level:build_leaves": (
+        "internal: the leaf level of a two-level grid over a top level just built from checked triangles; "
+        "leaf cells and then leaf references checked against int32 and max_bytes before the arrays they size "
+        "are allocated and written; leaf ranges clamped to each top cell's resolution",
+        ["test_guard_two_level_budget_before_allocation"]),
     "gridrt.grid.build:GridBuilder._build": (
         "internal: clear and macro stages index count/macro arrays sized from the spec; reached only after the "
         "triangles, params and memory budget passed; buffers reset when a build fails",
@@ -506,6 +511,32 @@ def test_guard_memory_budget_before_allocation(monkeypatch, strategy):
         monkeypatch.setattr(mod, k, lambda *a, _k=k, **kw: (_ for _ in ()).throw(KernelCalled(f"{_k} ran")))
     with pytest.raises(InputError, match="max_bytes"):  # 60 x 64000 references x 4 B = 14.6 MiB
         build_grid(tris, GridParams(strategy=strategy, threads=2, density=1e12, max_cells=1 << 16, max_bytes=8 << 20))
+
+
+def test_guard_two_level_budget_before_allocation(monkeypatch):
+    """A two-level grid's leaf level is held to max_bytes before it is written: too many leaf
+    cells stop the build before the count pass (both leaf passes are tripwires), too many leaf
+    references before the scatter pass (the count pass runs for real); the builder then builds
+    the next frame correctly."""
+    from gridrt.grid import two_level
+
+    tris = spanning_triangles(60)  # each triangle in every top cell and, at a high leaf density, every leaf
+    builder = GridBuilder()
+    for k in ("leaf_count", "leaf_scatter"):
+        monkeypatch.setattr(two_level, k, lambda *a, _k=k, **kw: (_ for _ in ()).throw(KernelCalled(f"{_k} ran")))
+    # 60 refs per top cell x about 60,000 leaf cells each x 8 B, far above 4 MiB
+    with pytest.raises(InputError, match=r"leaf cells\), above the memory budget max_bytes"):
+        builder.build(tris, GridParams(grid="two_level", leaf_density=1e3, top_density=1.0, max_bytes=4 << 20))
+    monkeypatch.undo()
+    for k in ("leaf_scatter",):
+        monkeypatch.setattr(two_level, k, lambda *a, _k=k, **kw: (_ for _ in ()).throw(KernelCalled(f"{_k} ran")))
+    # few leaf cells (60 top cells x about 60), but every triangle in each: x 60 x 4 B = about 0.8 MiB > 0.5 MiB
+    with pytest.raises(InputError, match=r"leaf references\), above the memory budget max_bytes"):
+        builder.build(tris, GridParams(grid="two_level", leaf_density=1.0, top_density=1.0, max_bytes=1 << 19))
+    monkeypatch.undo()
+    g = builder.build(tris, GridParams(grid="two_level", leaf_density=1.0, top_density=1.0))
+    # every triangle's bounding box is the whole scene: each is in every leaf cell
+    assert g.references == g.n_leaf * len(tris)
 
 
 @pytest.mark.parametrize("kw,match", [(dict(mib=0), "mib"), (dict(mib=1.5), "mib"), (dict(mib=1, runs=0), "runs"),
