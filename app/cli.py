@@ -98,7 +98,7 @@ def add_density_args(g):
     g.add_argument("--top-density", type=float, default=d["top_density"],
                    help=f"two-level grid: top cells per triangle (default {d['top_density']:g})")
     g.add_argument("--leaf-density", type=float, default=d["leaf_density"],
-                   help=f"two-level grid: leaf cells per triangle of a top cell (default {d['leaf_density']:g})")
+                   help=f"two-level grid: leaf cells per reference (triangle) of a top cell (default {d['leaf_density']:g})")
 
 
 def add_render_args(p, default_size=(1024, 768)):
