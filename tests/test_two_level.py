@@ -339,7 +339,7 @@ def check_both_inserts(tris, params, label):
     return out
 
 
-#: builds per multi-threaded case (a race shows on some builds only); more under the slow marker
+#: builds per multi-threaded case (a race shows on some builds only): threads 3 in the default run, threads 2 and 4 (more builds) under the soak marker
 REPEATS, REPEATS_SLOW = 2, 8
 
 
@@ -348,7 +348,7 @@ def _matrix():
     for strategy in STRATEGIES:
         for threads in (1, 2, 3, 4):
             for insert in ("bbox", "exact"):
-                marks = [pytest.mark.slow] if threads in (2, 4) else []
+                marks = [pytest.mark.soak] if threads in (2, 4) else []
                 out.append(pytest.param(strategy, threads, insert, marks=marks, id=f"{strategy}-{threads}-{insert}"))
     return out
 
@@ -452,7 +452,7 @@ def test_contents_random_scenes(seed, n, size_mode, flat_axis, dup_frac, degen_f
     _random_contents(seed, n, size_mode, flat_axis, dup_frac, degen_frac, top_density, leaf_density, scale, offset)
 
 
-@pytest.mark.slow
+@pytest.mark.soak
 @settings(max_examples=600, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 @given(**RANDOM)
@@ -474,7 +474,7 @@ def test_contents_flat_scene(flat_axis):
 @pytest.mark.parametrize("relpath,top_density,leaf_density", [
     (TEAPOT, 0.0625, 2.0),
     (TEAPOT, 0.01, 8.0),
-    pytest.param(ARMADILLO, 0.0625, 2.0, marks=pytest.mark.slow),
+    pytest.param(ARMADILLO, 0.0625, 2.0, marks=pytest.mark.soak),
 ])
 def test_contents_real_mesh(relpath, top_density, leaf_density):
     tris = load_tris(relpath)
@@ -726,8 +726,8 @@ def test_cgt_equals_dda(name, view):
 _CAMREF = {}
 
 
-@pytest.mark.parametrize("packet", [1, 4, 16, (16, 4), (3, 7), pytest.param((1, 16), marks=pytest.mark.slow),
-                                    pytest.param((16, 8), marks=pytest.mark.slow)])
+@pytest.mark.parametrize("packet", [1, 4, 16, (16, 4), (3, 7), pytest.param((1, 16), marks=pytest.mark.soak),
+                                    pytest.param((16, 8), marks=pytest.mark.soak)])
 def test_cgt_packet_sizes(packet):
     """Packets of any size and shape on two-level grids: the DDA's buffers in float64, the brute
     force's hits up to float32 rounding in float32 (test_packet_precision's tolerances)."""
