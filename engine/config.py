@@ -10,7 +10,8 @@ from .errors import InputError
 
 INSERT_MODES = ("bbox", "exact")
 #: Grid kinds (GridParams.grid): one uniform grid, a two-level grid (gridrt.grid.two_level), or
-#: the one of the two that the scene's spread of triangles asks for (gridrt.grid.build.choose_kind)
+#: the one of the two that the scene's spread of triangles asks for (gridrt.grid.build.crowding,
+#: AUTO_CROWDING)
 GRID_KINDS = ("uniform", "two_level", "auto")
 SHADING_MODES = ("lambert", "normal", "cost")
 #: Ray traversal: single-ray 3D DDA, or coherent grid traversal of ray packets (gridrt.trace.cgt)
@@ -56,7 +57,8 @@ class GridParams:
                grid of about top_density * triangles cells whose non-empty cells each hold a grid
                of about leaf_density * (its triangles) cells: resolution where the triangles
                are; gridrt.grid.two_level) or "auto" (two_level where the triangles crowd into
-               few top cells, uniform otherwise: gridrt.grid.build.choose_kind)
+               few top cells, uniform otherwise: gridrt.grid.build.crowding and AUTO_CROWDING;
+               a uniform choice is kept for AUTO_RECHECK builds)
     top_density   two_level: top-level cells per triangle
     leaf_density  two_level: leaf cells per reference of a top cell
     max_cells  ceiling on nx*ny*nz; a larger request is reduced to it with a warning
