@@ -105,6 +105,15 @@ def _test_triangle(tris, f, watertight, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz, o
 
 
 @njit(cache=True, inline="always")
+def _clip_box(lo, hi, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """[tmin, tmax] clipped to the grid box lo..hi (an empty range, t0 > t1, on a miss; a zero
+    direction component never steps: axis-parallel rays)."""
+    t0, t1 = _slab(ox, dx, lo[0], hi[0], tmin, tmax)
+    t0, t1 = _slab(oy, dy, lo[1], hi[1], t0, t1)
+    return _slab(oz, dz, lo[2], hi[2], t0, t1)
+
+
+@njit(cache=True, inline="always")
 def _ray_setup(lo, inv_cell, dims, ox, oy, oz, dx, dy, dz, t0, watertight, mailbox):
     """A DDA's start: the cell where the ray (clipped to the grid box from t0 on) starts, its
     steps (-1, 0, 1) and 1 / direction along each axis, the watertight test's permutation, origin
@@ -202,10 +211,7 @@ def trace_ray(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbo
         return trace_ray_2l(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox)
     tris, lo, hi, cell, inv_cell, dims = g.tris, g.lo, g.hi, g.cell, g.inv_cell, g.dims
     cell_start, tri_ids, macro, mdims, macro_full = g.cell_start, g.tri_ids, g.macro, g.mdims, g.macro_full
-    # clip the ray to the grid box (axis-parallel rays: a zero component never steps)
-    t0, t1 = _slab(ox, dx, lo[0], hi[0], tmin, tmax)
-    t0, t1 = _slab(oy, dy, lo[1], hi[1], t0, t1)
-    t0, t1 = _slab(oz, dz, lo[2], hi[2], t0, t1)
+    t0, t1 = _clip_box(lo, hi, ox, oy, oz, dx, dy, dz, tmin, tmax)
     if not (t0 <= t1):
         return -1, np.inf, 0.0, 0.0, 0, 0
 
@@ -303,9 +309,7 @@ def trace_ray_2l(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mai
     current leaf cell, or top cell, is final)."""
     tris, lo, hi, cell, inv_cell, dims = g.tris, g.lo, g.hi, g.cell, g.inv_cell, g.dims
     cell_start, tri_ids, leaf_first, leaf_res = g.cell_start, g.tri_ids, g.leaf_first, g.leaf_res
-    t0, t1 = _slab(ox, dx, lo[0], hi[0], tmin, tmax)
-    t0, t1 = _slab(oy, dy, lo[1], hi[1], t0, t1)
-    t0, t1 = _slab(oz, dz, lo[2], hi[2], t0, t1)
+    t0, t1 = _clip_box(lo, hi, ox, oy, oz, dx, dy, dz, tmin, tmax)
     if not (t0 <= t1):
         return -1, np.inf, 0.0, 0.0, 0, 0
 
