@@ -402,11 +402,34 @@ class _App:
         assert r.returncode == 0, r.stderr
         return r.stdout
 
-    def click(self, state, name, fx=0.5):
+    def click(self, state, name, fx=0.5, hold=None):
+        """Click widget ``name`` of ``state``; with ``hold`` (seconds) the pointer rests on it that
+        long before the button goes down and the button stays down that long, as a person's click
+        does (a viewer whose frames are slow, while numba compiles in the background, sees both)."""
         x, y, w, h = state["widget_rects"][name]
         px, py, pw, ph = state["panel_rect"]
         assert px <= x and x + w <= px + pw and py <= y and y + h <= py + ph, f"{name} not visible in the panel"
-        self.xdo("mousemove", int(x + min(max(fx * w, 3), w - 3)), int(y + h / 2), "sleep", 0.15, "click", 1)
+        at = (int(x + min(max(fx * w, 3), w - 3)), int(y + h / 2))
+        if hold is None:
+            self.xdo("mousemove", *at, "sleep", 0.15, "click", 1)
+        else:
+            self.xdo("mousemove", *at, "sleep", hold, "mousedown", 1, "sleep", hold, "mouseup", 1)
+
+    def pick(self, combo, item, timeout=120.0):
+        """Open the combo ``combo`` and click its item ``item`` ("combo: item" in the state's
+        widget rects) until the state says ``combo`` is ``item``; returns that state."""
+        t0 = time.time()
+        key = f"{combo}: {item}"
+        while time.time() - t0 < timeout:
+            s = self.state()
+            if s is not None and s.get(combo) == item:
+                return s
+            if s is not None and key in s["widget_rects"]:
+                self.click(s, key, hold=0.3)
+            elif s is not None and combo in s["widget_rects"]:
+                self.click(s, combo, hold=0.3)
+            time.sleep(1.0)
+        raise AssertionError(f"timed out picking {item} in {combo}; last state: {self.state()}\n{self.output()}")
 
     def close(self):
         if self.proc.poll() is None:
@@ -615,8 +638,7 @@ def test_viewer_window_under_xvfb(tmp_path):
         # pipeline builds a two-level grid, and the leaf density slider at its right end refines its
         # leaves; the frame is the one a headless FramePipeline renders with those settings
         assert s9["grid"] == "uniform" and s9["stats"]["grid"] == "uniform" and "leaf density" not in s9["widget_rects"]
-        app.click(s9, "grid")
-        app.click(app.wait(lambda q: "grid: two_level" in q["widget_rects"], "the grid kind list"), "grid: two_level")
+        app.pick("grid", "two_level")
         s10 = app.wait(lambda q: q["grid"] == "two_level" and q["stats"].get("grid") == "two_level"
                        and "leaf density" in q["widget_rects"], "a two-level grid", timeout=120)  # may compile
         assert s10["stats"]["leaf_density"] == s10["leaf_density"] and s10["stats"]["top_density"] == s10["top_density"]
