@@ -166,6 +166,24 @@ def _test_refs(tris, tri_ids, r0, r1, mailbox, mmask, watertight, kx, ky, kz, ok
 
 
 @njit(cache=True, inline="always")
+def _next_cell(lx, ly, lz, cx, cy, cz, ix, iy, iz, sx, sy, sz, ox, oy, oz, idx, idy, idz, x0, x1, y0, y1, z0, z1):
+    """One step of the inner DDA over cells of size (cx, cy, cz) from (lx, ly, lz): returns (t
+    where the ray leaves cell (ix, iy, iz), the next cell's indices, True when that one lies
+    outside the block [x0, x1) x [y0, y1) x [z0, z1) the inner DDA walks)."""
+    tx = _cell_exit_t(lx, cx, ix, sx, ox, idx)
+    ty = _cell_exit_t(ly, cy, iy, sy, oy, idy)
+    tz = _cell_exit_t(lz, cz, iz, sz, oz, idz)
+    if tx <= ty and tx <= tz:
+        ix += sx
+        return tx, ix, iy, iz, ix < x0 or ix >= x1
+    if ty <= tz:
+        iy += sy
+        return ty, ix, iy, iz, iy < y0 or iy >= y1
+    iz += sz
+    return tz, ix, iy, iz, iz < z0 or iz >= z1
+
+
+@njit(cache=True, inline="always")
 def _next_block(tmx, tmy, tmz, mi, mj, mk, m, sx, sy, sz, mx, my, mz, k, lx, ly, lz, cx, cy, cz, nx, ny, nz, ox, oy,
                 oz, idx, idy, idz):
     """One step of the outer DDA over blocks of k^3 cells (macro cells, or a two-level grid's top
@@ -269,21 +287,8 @@ def trace_ray(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbo
                     if done:
                         return best_f, best_t, best_u, best_v, cells, tests
                 # step to the next cell, or out of the macro cell
-                tx = _cell_exit_t(lx, cx, ix, sx, ox, idx)
-                ty = _cell_exit_t(ly, cy, iy, sy, oy, idy)
-                tz = _cell_exit_t(lz, cz, iz, sz, oz, idz)
-                if tx <= ty and tx <= tz:
-                    te = tx
-                    ix += sx
-                    leaves = ix < x0 or ix >= x1
-                elif ty <= tz:
-                    te = ty
-                    iy += sy
-                    leaves = iy < y0 or iy >= y1
-                else:
-                    te = tz
-                    iz += sz
-                    leaves = iz < z0 or iz >= z1
+                te, ix, iy, iz, leaves = _next_cell(lx, ly, lz, cx, cy, cz, ix, iy, iz, sx, sy, sz, ox, oy, oz, idx,
+                                                    idy, idz, x0, x1, y0, y1, z0, z1)
                 if best_t <= te or te > t1:
                     return _result(best_f, best_t, best_u, best_v, cells, tests)
                 if leaves:
@@ -364,21 +369,8 @@ def trace_ray_2l(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mai
                     oz, dx, dy, dz, tmin, any_hit, best_f, best_t, best_u, best_v, tests)
                 if done:
                     return best_f, best_t, best_u, best_v, cells, tests
-                tx = _cell_exit_t(ax, bx, a, sx, ox, idx)
-                ty = _cell_exit_t(ay, by, b, sy, oy, idy)
-                tz = _cell_exit_t(az, bz, c, sz, oz, idz)
-                if tx <= ty and tx <= tz:
-                    te = tx
-                    a += sx
-                    leaves = a < 0 or a >= rx
-                elif ty <= tz:
-                    te = ty
-                    b += sy
-                    leaves = b < 0 or b >= ry
-                else:
-                    te = tz
-                    c += sz
-                    leaves = c < 0 or c >= rz
+                te, a, b, c, leaves = _next_cell(ax, ay, az, bx, by, bz, a, b, c, sx, sy, sz, ox, oy, oz, idx, idy,
+                                                 idz, 0, rx, 0, ry, 0, rz)
                 if best_t <= te or te > t1:
                     return _result(best_f, best_t, best_u, best_v, cells, tests)
                 if leaves:
