@@ -43,8 +43,8 @@ from gridrt.grid import GridBuilder, build_grid, names
 from gridrt.pipeline import FramePipeline
 from gridrt.scene import make_scene
 from gridrt.trace import cast_rays
-from test_watertight import (ROW_WIDTH, ProbeMesh, add_counts, cgt_report, face_normals, origins_in_front,
-                             packet_counts, row_counts, targets_and_fans)
+from test_watertight import (ROW_WIDTH, ProbeMesh, add_counts, cgt_report, edge_probes, face_normals, packet_counts,
+                             row_counts)
 
 DRAGON = "static/stanford_dragon/dragon.obj"
 LUCY = "static/lucy/Lucy100k.ply"
@@ -82,13 +82,7 @@ class Prober:
 
     def batch(self, seed, n):
         """About n probes: (origins, unit directions, distance to target), float64."""
-        rng = np.random.default_rng(seed)
-        nv = min(n // 10, len(self.v))
-        tg, offs, fan = targets_and_fans(rng, self.v, self.f, nv, n // 10, n - nv - n // 10)
-        o, t, ok = origins_in_front(rng, tg, offs, fan, self.normals, self.centre, self.radius)
-        d = t - o
-        dist = np.linalg.norm(d, axis=1)
-        return o, d / dist[:, None], dist, int((~ok).sum())
+        return edge_probes(self.v, self.f, self.normals, self.centre, self.radius, seed, n)
 
 
 def holes(h, dist):

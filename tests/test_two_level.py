@@ -51,8 +51,8 @@ from test_cgt import camera as cgt_camera
 from test_cgt import scene as cgt_scene
 from test_packet_precision import check_f32
 from test_rays import GRAZE, _hard_rays, assert_hits_match, get_case
-from test_watertight import (REL, ProbeMesh, add_counts, face_normals, origins_in_front, packet_counts, row_counts,
-                             shoot, targets_and_fans)
+from test_watertight import (REL, ProbeMesh, add_counts, edge_probes, face_normals, origins_in_front, packet_counts,
+                             row_counts, shoot, targets_and_fans)
 
 STRATEGIES = names()
 #: the largest leaf cell count per axis the engine allows (two_level.leaf_resolution's max_res)
@@ -822,17 +822,6 @@ def test_watertight_jittered_sphere_from_inside(rng):
     shoot(v, f, o, tg, "jittered icosphere (inside) two-level", two_level(insert="exact"))
 
 
-def edge_probes(m, seed, n):
-    """About n probes at the mesh's shared vertices and edges: (origins, unit dirs, distances)."""
-    rng = np.random.default_rng(seed)
-    nv = min(n // 10, len(m.v))
-    tg, offs, fan = targets_and_fans(rng, m.v, m.faces, nv, n // 10, n - nv - n // 10)
-    o, t, ok = origins_in_front(rng, tg, offs, fan, m.normals, m.centre, m.radius)
-    d = t - o
-    dist = np.linalg.norm(d, axis=1)
-    return o, d / dist[:, None], dist, int((~ok).sum())
-
-
 def probe_two_level(relpath, n_probes, batch=200_000):
     """Probes at the closed mesh's shared vertices and edges through a two-level grid, DDA, in
     batches; 0 holes with the watertight test, most probes hit at their target."""
@@ -841,7 +830,7 @@ def probe_two_level(relpath, n_probes, batch=200_000):
     holes = fast = at = done = dropped = seed = 0
     t0 = time.perf_counter()
     while done < n_probes:
-        o, d, dist, drop = edge_probes(m, 500 + seed, min(batch, n_probes - done + 64))
+        o, d, dist, drop = edge_probes(m.v, m.faces, m.normals, m.centre, m.radius, 500 + seed, min(batch, n_probes - done + 64))
         o, d, dist = o[: n_probes - done], d[: n_probes - done], dist[: n_probes - done]
         seed += 1
         dropped += drop

@@ -243,6 +243,19 @@ def _unit(x):
     return x / np.linalg.norm(x, axis=-1, keepdims=True)
 
 
+def edge_probes(v, faces, normals, centre, radius, seed, n):
+    """About n probes at a closed mesh's shared vertices and edges (faces' outward unit normals,
+    bounding sphere centre and radius), from in front of every face at their targets: (origins,
+    unit directions, distances to the targets, probes dropped for want of such an origin)."""
+    rng = np.random.default_rng(seed)
+    nv = min(n // 10, len(v))
+    tg, offs, fan = targets_and_fans(rng, v, faces, nv, n // 10, n - nv - n // 10)
+    o, t, ok = origins_in_front(rng, tg, offs, fan, normals, centre, radius)
+    d = t - o
+    dist = np.linalg.norm(d, axis=1)
+    return o, d / dist[:, None], dist, int((~ok).sum())
+
+
 class ProbeMesh:
     """A closed mesh with the tables the packet probes need: unique edges and their two faces,
     vertex fans (CSR), outward unit normals, bounding sphere."""
