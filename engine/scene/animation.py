@@ -164,7 +164,47 @@ class Animation(ABC):
     time_range: tuple | None = None
     static_mask: np.ndarray | None = None
 
+    #: the scene's materials, textures and per-corner attributes (gridrt.scene.surface.Surface), or None
+    surface = None
+
     _buffer: np.ndarray | None = None
+    _normal_buffer: np.ndarray | None = None
+
+    def lights_at(self, t):
+        """The scene's own lights at time ``t``: an (L, 8) float64 array in world coordinates (see
+        gridrt.scene.surface; L = 0 when the scene has none, and renderers then use a default light)."""
+        check_time(t)
+        from .surface import no_lights
+
+        return no_lights()
+
+    def normals_at(self, t, out=None):
+        """The unit shading normals per triangle corner at time ``t``, (F, 3, 3) float32, or None when
+        the scene has none (the geometric normals are then used).  A zero normal stands for the
+        geometric normal.  Pure in ``t``; without ``out`` one internal buffer is reused, as
+        :meth:`triangles_at` does.  Static scenes return ``surface.normals`` (read-only) as they are."""
+        t = check_time(t)
+        s = self.surface
+        if s is None or s.normals is None:
+            return None
+        if self.static and out is None:
+            return s.normals
+        if out is None:
+            if self._normal_buffer is None:
+                self._normal_buffer = np.zeros((self.n_triangles, 3, 3), TRI_DTYPE)
+            out = self._normal_buffer
+        elif not (isinstance(out, np.ndarray) and out.shape == (self.n_triangles, 3, 3) and out.dtype == TRI_DTYPE
+                  and out.flags.c_contiguous and out.flags.writeable):
+            raise InputError(f"out must be a writable C-contiguous ({self.n_triangles}, 3, 3) float32 array")
+        if self.static:
+            np.copyto(out, s.normals)
+            return out
+        return out if self._fill_normals(t, out) else None
+
+    def _fill_normals(self, t, out):
+        """Write the normals at validated time ``t`` into ``out``; return False when the scene cannot
+        move its normals (the geometric normals are then used).  Loaders with normals override it."""
+        return False
 
     def camera_at(self, t):
         """The scene's own camera at time ``t`` (an :class:`gridrt.camera.Camera`), or None.
@@ -276,6 +316,7 @@ class StaticMesh(Animation):
         self._tris = mesh.triangles()
         self._tris.setflags(write=False)
         self._local = (np.zeros(3), self._tris)  # (origin, triangles in its frame), last frame asked for
+        self.surface = getattr(mesh, "surface", None)
         self.static_mask = as_static_mask(np.ones(self.n_triangles, dtype=bool), self.n_triangles)
 
     def _fill(self, t, out, origin):

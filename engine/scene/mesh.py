@@ -48,6 +48,8 @@ class Mesh:
         Short name (the file stem for loaded meshes).
     path : pathlib.Path or None
         The file the mesh came from, None for generated meshes.
+    surface : gridrt.scene.surface.Surface or None
+        The mesh's materials, textures and per-corner attributes (one row per face), or None.
 
     Construction validates with :func:`gridrt.arrays.as_mesh` (shapes, NaN/inf, index range,
     all-degenerate) and raises InputError; the arrays are copied, so the caller's arrays are
@@ -58,6 +60,7 @@ class Mesh:
     faces: np.ndarray
     name: str = "mesh"
     path: Path | None = None
+    surface: object = None
 
     vertices64: np.ndarray = field(default=None, init=False, repr=False)
 
@@ -73,6 +76,9 @@ class Mesh:
         object.__setattr__(self, "faces", f)
         if self.path is not None:
             object.__setattr__(self, "path", Path(self.path))
+        if self.surface is not None and getattr(self.surface, "n_triangles", None) != len(f):
+            raise InputError(f"mesh {self.name!r}: its surface describes {getattr(self.surface, 'n_triangles', '?')} "
+                             f"triangles, the mesh has {len(f)}")
 
     @property
     def n_triangles(self):
