@@ -30,7 +30,11 @@ FALLOFF_NONE (E = colour, BART) or FALLOFF_INVERSE_SQUARE (E = colour / d^2, glT
 KHR_lights_punctual point lights, colour = colour * intensity in candela).
 """
 
+import contextlib
+import contextvars
+import warnings
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -38,7 +42,8 @@ from ..errors import InputError
 
 __all__ = [
     "FALLOFF_INVERSE_SQUARE", "FALLOFF_NONE", "LIGHT_COLUMNS", "LIGHT_DIRECTIONAL", "LIGHT_POINT", "WRAP_MODES",
-    "PackedSurface", "Surface", "SurfaceBuilder", "Texture", "as_lights", "no_lights",
+    "PackedSurface", "Surface", "SurfaceBuilder", "Texture", "TextureWarning", "as_lights", "load_texture", "no_lights",
+    "texture_progress",
 ]
 
 #: texture wrap modes: glTF's REPEAT (10497), CLAMP_TO_EDGE (33071), MIRRORED_REPEAT (33648)
@@ -48,6 +53,50 @@ LIGHT_DIRECTIONAL = 1.0
 FALLOFF_NONE = 0.0
 FALLOFF_INVERSE_SQUARE = 1.0
 LIGHT_COLUMNS = 8
+
+
+class TextureWarning(UserWarning):
+    """A texture could not be read (missing, unreadable or not an image): the scene loads without it."""
+
+
+_progress = contextvars.ContextVar("texture_progress", default=None)
+
+
+@contextlib.contextmanager
+def texture_progress(callback):
+    """Within the block, :func:`load_texture` calls ``callback(name, nbytes)`` after each texture it
+    reads (the viewer's loading display)."""
+    token = _progress.set(callback)
+    try:
+        yield
+    finally:
+        _progress.reset(token)
+
+
+def load_texture(path, wrap=("repeat", "repeat"), data=None, name=None):
+    """Read an image file (PNG, JPEG, PPM/PGM, BMP, PCX, ... whatever Pillow reads) or the bytes
+    ``data`` of one (embedded images) into a :class:`Texture`; None, with a :class:`TextureWarning`
+    naming the file and the problem, when it cannot be read."""
+    from io import BytesIO
+
+    from PIL import Image, UnidentifiedImageError
+
+    label = name or (str(path) if path is not None else "embedded image")
+    try:
+        with Image.open(BytesIO(data) if data is not None else Path(path)) as im:
+            im.load()
+            rgb = np.asarray(im.convert("RGB"), np.uint8)
+    except FileNotFoundError:
+        warnings.warn(f"texture {label}: file not found; drawn without it", TextureWarning, stacklevel=2)
+        return None
+    except (OSError, UnidentifiedImageError, ValueError, SyntaxError) as e:
+        warnings.warn(f"texture {label}: not a readable image ({e}); drawn without it", TextureWarning, stacklevel=2)
+        return None
+    tex = Texture(rgb, wrap, label)
+    cb = _progress.get()
+    if cb is not None:
+        cb(label, tex.nbytes)
+    return tex
 
 
 @dataclass(frozen=True, eq=False)
