@@ -13,7 +13,9 @@ INSERT_MODES = ("bbox", "exact")
 #: the one of the two that the scene's spread of triangles asks for (gridrt.grid.build.crowding,
 #: AUTO_CROWDING)
 GRID_KINDS = ("uniform", "two_level", "auto")
-SHADING_MODES = ("lambert", "normal", "cost")
+#: Shading modes (RenderParams.shading): "auto" is "material" for a scene with materials
+#: (Animation.surface) and "lambert" for one without (resolve_shading)
+SHADING_MODES = ("auto", "material", "lambert", "normal", "cost")
 #: Ray traversal: single-ray 3D DDA, or coherent grid traversal of ray packets (gridrt.trace.cgt)
 TRAVERSALS = ("dda", "cgt")
 #: precisions of the CGT packets' triangle tests (RenderParams.packet_precision)
@@ -131,11 +133,16 @@ class RenderParams:
     """How to cast and shade the primary rays.
 
     width, height  image size in pixels (each 1..16384)
-    shading        "lambert" (headlight, or the point light when shadows are on), "normal"
-                   (geometric normal facing the viewer, mapped to RGB) or "cost" (heat map of
-                   triangle tests per ray)
-    shadows        cast one hard shadow ray per hit towards ``light``
-    light          point-light position (3 floats); None: above and behind the camera
+    shading        "auto" (the default: "material" for a scene with materials, else "lambert"),
+                   "material" (the scene's materials, textures, smooth normals and lights:
+                   gridrt.trace.material), "lambert" (one colour; a headlight, or the point
+                   light when shadows are on), "normal" (geometric normal facing the viewer,
+                   mapped to RGB) or "cost" (heat map of triangle tests per ray)
+    shadows        cast hard shadow rays: towards ``light`` (lambert), or towards each of the
+                   scene's lights (material)
+    light          point-light position (3 floats); None: above and behind the camera (lambert;
+                   material: the scene's own lights, or that default light when it has none).
+                   Given, it replaces the scene's lights in the material mode
     watertight     Woop-Benthin-Wald watertight ray-triangle test (True) or the faster
                    Moller-Trumbore test (False)
     threads        render thread count (None: all cores)
@@ -157,7 +164,7 @@ class RenderParams:
 
     width: int = 640
     height: int = 480
-    shading: str = "lambert"
+    shading: str = "auto"
     shadows: bool = False
     light: tuple | None = None
     watertight: bool = True
@@ -194,3 +201,10 @@ class RenderParams:
 
     def replace(self, **kw):
         return replace(self, **kw)
+
+    def resolved(self, has_materials):
+        """The shading mode to render with: "auto" is "material" when ``has_materials`` (the scene
+        has a surface), else "lambert"; the others are themselves."""
+        if self.shading != "auto":
+            return self.shading
+        return "material" if has_materials else "lambert"

@@ -12,7 +12,7 @@ from .grid.build import GridBuilder
 from .precision import warn_detail
 from .stats import FrameStats
 from .threads import use_threads
-from .trace.render import Renderer
+from .trace.render import Looks, Renderer
 
 #: columns every stats row has, in this order (the dump's stats.csv header starts with them)
 STATS_COLUMNS = (
@@ -20,7 +20,7 @@ STATS_COLUMNS = (
     "clear_ms", "insert_ms", "macro_ms", "build_ms", "render_ms", "frame_ms",
     "anim_ms", "bounds_ms", "rebuilt", "refs_per_tri", "dims", "macro_full", "grid_bytes",
     "width", "height", "shading", "traversal", "mrays", "hit_fraction", "tests_per_ray", "cells_per_ray",
-    "grid", "top_density", "leaf_density", "bytes_per_tri",
+    "grid", "top_density", "leaf_density", "bytes_per_tri", "lights", "shadow_rays_per_pixel", "shade_ms",
 )
 
 
@@ -181,6 +181,15 @@ class FramePipeline:
         self._built_params = gp
         return self.grid, split, True, static_ms
 
+    def _looks(self, t, tris):
+        """The material mode's Looks of the frame at t: the scene's triangles (in the pipeline's
+        frame), surface, normals at t and lights at t moved into the frame."""
+        lights = np.array(self.scene.lights_at(t), np.float64)
+        if len(lights) and self.origin.any():
+            point = lights[:, 0] == 0.0
+            lights[point, 1:4] -= self.origin
+        return Looks(tris, self.scene.surface, self.scene.normals_at(t), lights)
+
     def step(self, t, camera=None):
         """Render the scene at time t; returns a Frame. ``camera`` overrides the pipeline's."""
         t_frame = time.perf_counter()
@@ -220,17 +229,20 @@ class FramePipeline:
         rp = self.render_params
         if rp.light is not None and self.origin.any():
             rp = rp.replace(light=tuple(np.asarray(rp.light, np.float64) - self.origin))
+        shading = rp.resolved(self.scene.surface is not None)
+        looks = self._looks(float(t), tris) if shading == "material" else None
         if split is not None:
-            res = self.renderer.render(self.static_grid, split.static_tris, local_cam, rp, second=split.second(grid))
+            res = self.renderer.render(self.static_grid, split.static_tris, local_cam, rp, second=split.second(grid),
+                                       looks=looks)
         else:
-            res = self.renderer.render(grid, tris, local_cam, rp)
+            res = self.renderer.render(grid, tris, local_cam, rp, looks=looks)
         self.last_camera = cam
         rp = self.render_params
         stats = FrameStats(
             frame=self.frame_index, t=float(t), triangles=self.scene.n_triangles, build=grid.stats,
             static=self.static_grid.stats if split is not None else None, render=res.stats,
             rebuilt=bool(rebuild), anim_ms=anim_ms, static_build_ms=static_ms,
-            frame_ms=(time.perf_counter() - t_frame) * 1e3, width=rp.width, height=rp.height, shading=rp.shading,
+            frame_ms=(time.perf_counter() - t_frame) * 1e3, width=rp.width, height=rp.height, shading=shading,
             top_density=gp.top_density, leaf_density=gp.leaf_density,
         )
         self.frame_index += 1

@@ -93,6 +93,10 @@ class RenderStats(_Row):
     render_threads, traversal      how it ran
     fallback_rays  rays the packet traversal traced alone (their packet disagreed on the major
                    axis); None for the single-ray traversal, which has no packets
+    lights         lights the hits were shaded with (the ``material`` mode: the scene's, or 1 for
+                   the default light; the other modes: 1 with shadows, else 0, a headlight)
+    shadow_rays_per_pixel   shadow rays cast, per pixel
+    shade_ms       of render_ms, the ``material`` mode's shading pass and its shadow rays (0 otherwise)
     """
 
     render_ms: float
@@ -103,6 +107,9 @@ class RenderStats(_Row):
     render_threads: int
     traversal: str
     fallback_rays: int | None = None
+    lights: int = 0
+    shadow_rays_per_pixel: float = 0.0
+    shade_ms: float = 0.0
 
     @property
     def stages(self):
@@ -111,7 +118,8 @@ class RenderStats(_Row):
     def as_row(self):
         row = {"render_ms": self.render_ms, "mrays": self.mrays, "hit_fraction": self.hit_fraction,
                "tests_per_ray": self.tests_per_ray, "cells_per_ray": self.cells_per_ray,
-               "render_threads": self.render_threads, "traversal": self.traversal}
+               "render_threads": self.render_threads, "traversal": self.traversal, "lights": self.lights,
+               "shadow_rays_per_pixel": self.shadow_rays_per_pixel, "shade_ms": self.shade_ms}
         if self.fallback_rays is not None:
             row["fallback_rays"] = self.fallback_rays
         return row
@@ -183,13 +191,17 @@ class FrameStats(_Row):
             "clear_ms": parts.get("clear_ms", 0.0), "insert_ms": parts.get("insert_ms", 0.0),
             "macro_ms": parts.get("macro_ms", 0.0), "build_ms": b.build_ms if self.rebuilt else 0.0,
             "render_ms": r.render_ms, "anim_ms": self.anim_ms, "bounds_ms": parts.get("bounds_ms", 0.0),
-            "rebuilt": int(self.rebuilt), "refs_per_tri": b.refs_per_tri, "moving_triangles": b.triangles,
+            # references per triangle of the whole scene (both parts of a split scene); the moving
+            # part's own figure is moving_refs_per_tri
+            "rebuilt": int(self.rebuilt), "refs_per_tri": self._total("references") / max(self._total("triangles"), 1),
+            "moving_triangles": b.triangles, "moving_refs_per_tri": b.refs_per_tri,
             "static_build_ms": self.static_build_ms, "dims": b.dims, "macro_full": b.macro_full,
             "grid_bytes": self._total("grid_bytes"), "width": self.width, "height": self.height,
             "shading": self.shading, "traversal": r.traversal, "fallback_rays": r.fallback_rays or 0,
             "mrays": r.mrays, "hit_fraction": r.hit_fraction, "tests_per_ray": r.tests_per_ray,
             "cells_per_ray": r.cells_per_ray, "grid": b.grid, "top_density": self.top_density,
             "leaf_density": self.leaf_density, "bytes_per_tri": self._total("grid_bytes") / max(self.triangles, 1),
+            "lights": r.lights, "shadow_rays_per_pixel": r.shadow_rays_per_pixel, "shade_ms": r.shade_ms,
         }
         for k, v in parts.items():  # the strategy's own stages (count_ms, bucket_ms, merge_ms, ...)
             row.setdefault(k, v)

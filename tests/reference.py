@@ -565,3 +565,137 @@ def ref_render(tris, camera, width, height, shading="lambert", light=None, shado
         tri=h.tri.reshape(height, width),
         hits=h,
     )
+
+
+# ----------------------------------------------------------------------------------------------
+# material shading (engine/scene/surface.py and engine/trace/material.py, re-implemented from
+# their docstrings)
+
+WRAPS = ("repeat", "clamp", "mirror")
+
+
+def ref_texel_index(i, n, wrap):
+    """Integer texel indices i (any ints) wrapped into [0, n): repeat, clamp to edge, mirrored repeat."""
+    i = np.asarray(i, np.int64)
+    if wrap == "clamp":
+        return np.clip(i, 0, n - 1)
+    if wrap == "mirror":
+        m = np.mod(i, 2 * n)
+        return np.where(m < n, m, 2 * n - 1 - m)
+    return np.mod(i, n)
+
+
+def ref_bilinear(texels, wrap, u, v):
+    """Bilinear lookup of texels (H, W, 3) uint8 at (u, v) (N,) (image convention: (0, 0) the
+    top-left corner, texel centres at ((i + 1/2) / W, (j + 1/2) / H)); clamp mode clamps the
+    coordinate to [0, 1] first.  Returns (N, 3) float64 in [0, 1]."""
+    H, W = texels.shape[:2]
+    u = np.asarray(u, np.float64)
+    v = np.asarray(v, np.float64)
+    if wrap[0] == "clamp":
+        u = np.clip(u, 0.0, 1.0)
+    if wrap[1] == "clamp":
+        v = np.clip(v, 0.0, 1.0)
+    x = u * W - 0.5
+    y = v * H - 0.5
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    fx = (x - x0)[:, None]
+    fy = (y - y0)[:, None]
+    xs = [ref_texel_index(x0, W, wrap[0]), ref_texel_index(x0 + 1, W, wrap[0])]
+    ys = [ref_texel_index(y0, H, wrap[1]), ref_texel_index(y0 + 1, H, wrap[1])]
+    t = texels.astype(np.float64) / 255.0
+    return ((1 - fx) * (1 - fy) * t[ys[0], xs[0]] + fx * (1 - fy) * t[ys[0], xs[1]]
+            + (1 - fx) * fy * t[ys[1], xs[0]] + fx * fy * t[ys[1], xs[1]])
+
+
+@dataclass
+class RefLooks:
+    """A scene's looks for :func:`ref_material`, plain arrays: material (F,), diffuse (M, 3),
+    ambient (M, 3), texture (M,) (-1: none), textures [(texels (H, W, 3) uint8, (wrap u, wrap v))],
+    uv (F, 3, 2) or None, colors (F, 3, 3) or None, normals (F, 3, 3) or None; lights [(kind
+    "point"/"directional", (x, y, z) position or unit vector to the light, (r, g, b), inverse
+    square falloff True/False)]."""
+
+    material: np.ndarray
+    diffuse: np.ndarray
+    ambient: np.ndarray
+    texture: np.ndarray
+    textures: list
+    uv: np.ndarray = None
+    colors: np.ndarray = None
+    normals: np.ndarray = None
+    lights: list = None
+
+
+def ref_material(tris, camera, width, height, looks, shadows=False, shadow_offset=0.0):
+    """Reference image of the ``material`` shading mode: per hit (float64 brute force, barycentrics
+    w = (1 - u - v, u, v)), c = T(uv) V (A + D sum_l E_l vis_l max(0, n_s . l)) where a light counts
+    only when also n_g . l > 0; n_g is the unit geometric normal turned towards the viewer, n_s the
+    normalised barycentric blend of the corner normals (n_g when that blend is zero) turned to n_g's
+    side; E = colour (/ d^2 with falloff); vis = 0 when the segment from p + n_g * shadow_offset to
+    a point light (or the ray towards a directional one) hits a triangle.  Returns a RefImage."""
+    o, d = ref_camera_rays(camera.eye, camera.target, camera.up, camera.fov, width, height)
+    h = ref_cast(tris, o, d)
+    N = len(o)
+    col = np.empty((N, 3))
+    col[:] = BACKGROUND
+    hit = np.flatnonzero(h.tri >= 0)
+    f = h.tri[hit]
+    T = tris64(tris)[f]
+    w = np.stack([1.0 - h.u[hit] - h.v[hit], h.u[hit], h.v[hit]], axis=1)  # (n, 3)
+    p = np.einsum("nk,nkc->nc", w, T)
+    dh = d[hit]
+    ng = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
+    ng /= np.linalg.norm(ng, axis=1, keepdims=True)
+    ng = np.where(((ng * dh).sum(axis=1) > 0)[:, None], -ng, ng)
+    ns = ng.copy()
+    if looks.normals is not None:
+        b = np.einsum("nk,nkc->nc", w, np.asarray(looks.normals, np.float64)[f])
+        ln = np.linalg.norm(b, axis=1)
+        ok = ln > 1e-12
+        ns[ok] = b[ok] / ln[ok, None]
+        ns = np.where(((ns * ng).sum(axis=1) < 0)[:, None], -ns, ns)
+    m = np.asarray(looks.material)[f]
+    tex = np.ones((len(hit), 3))
+    for k, (texels, wrap) in enumerate(looks.textures):
+        sel = np.asarray(looks.texture)[m] == k
+        if sel.any():
+            uv = np.einsum("nk,nkc->nc", w[sel], np.asarray(looks.uv, np.float64)[f[sel]])
+            tex[sel] = ref_bilinear(texels, wrap, uv[:, 0], uv[:, 1])
+    if looks.colors is not None:
+        tex *= np.einsum("nk,nkc->nc", w, np.asarray(looks.colors, np.float64)[f])
+    D = np.asarray(looks.diffuse, np.float64)[m]
+    A = np.asarray(looks.ambient, np.float64)[m]
+    light_sum = np.zeros((len(hit), 3))
+    for kind, xyz, rgb, falloff in looks.lights:
+        xyz = np.asarray(xyz, np.float64)
+        if kind == "point":
+            lv = xyz - p
+            dist = np.linalg.norm(lv, axis=1)
+            lu = lv / dist[:, None]
+        else:
+            lu = np.broadcast_to(xyz, p.shape)
+            dist = np.full(len(p), np.inf)
+        s = (ns * lu).sum(axis=1)
+        s = np.where(((ng * lu).sum(axis=1) > 0) & (s > 0), s, 0.0)
+        if falloff and kind == "point":
+            s = s / dist**2
+        if shadows:
+            lit = np.flatnonzero(s > 0)
+            po = p[lit] + ng[lit] * shadow_offset
+            if kind == "point":
+                seg = np.asarray(xyz) - po
+                tmax = np.linalg.norm(seg, axis=1)
+                dirs = seg / tmax[:, None]
+            else:
+                dirs, tmax = lu[lit], np.inf
+            blocked = ref_cast(tris, po, dirs, 0.0, tmax).tri >= 0
+            s[lit[blocked]] = 0.0
+        light_sum += s[:, None] * np.asarray(rgb, np.float64)
+    col[hit] = tex * (A + D * light_sum)
+    img = np.empty((N, 4), np.uint8)
+    img[:, :3] = to_u8(col)
+    img[:, 3] = 255
+    return RefImage(image=img.reshape(height, width, 4), t=h.t.reshape(height, width),
+                    tri=h.tri.reshape(height, width), hits=h)

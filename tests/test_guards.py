@@ -191,6 +191,12 @@ BOUNDARIES = {
     "gridrt.trace.render:Renderer.render": (
         "as cast_rays, plus the second grid's tris and id maps; image buffers sized W x H",
         ["test_guard_render", "test_stale_grid_is_refused"]),
+    "gridrt.trace.render:Renderer._shade_material": (
+        "the material pass: called by Renderer.render after _check_looks (the scene's triangles (F, 3, 3) "
+        "float32 and finite, F the grids' triangles; a Surface of F triangles, validated and frozen when made: "
+        "material and texture indices in range, texels, uv/colour/normal shapes; normals (F, 3, 3) float32 "
+        "finite; lights (L, 8) finite, known kinds, unit directions); buffers sized W x H",
+        ["test_guard_render_material"]),
     "gridrt.scene.animation:gather_unchecked": (
         "reads vertices[faces] unchecked: reached from gather_triangles after its shape, dtype and index checks, "
         "and from the loaders' per-frame paths whose faces were validated at load time",
@@ -319,6 +325,7 @@ def test_tripwires_cover_the_boundaries():
             lambda: GridBuilder().build(GOOD),
             lambda: cast_rays(grid, GOOD, [[0.2, 0.2, 2]], [[0, 0, -1]]),
             lambda: render(grid, GOOD, Camera(), RenderParams(width=4, height=4)),
+            lambda: render(grid, GOOD, Camera(), RenderParams(width=4, height=4, shading="material")),
             lambda: render(grid, GOOD, Camera(), RenderParams(width=4, height=4, traversal="cgt")),
             lambda: Camera().rays(4, 4),
             lambda: gather_triangles(v, f, np.empty((2, 3, 3), np.float32)),
@@ -652,6 +659,34 @@ def test_guard_render(good_grid, tripwires):
         expect_guard(lambda: RenderParams(**kw), match)
     for kw in (dict(eye=(np.nan, 0, 0)), dict(fov=0.0), dict(eye=(0, 0, 0), target=(0, 0, 0)), dict(up=(0, 0, 0))):
         expect_guard(lambda: Camera(**kw), "camera")
+
+
+def test_guard_render_material(good_grid, tripwires):
+    """The material mode checks the scene's looks before the shading kernels; a Surface refuses bad
+    tables when it is made."""
+    from gridrt.scene.surface import Surface, Texture
+    from gridrt.trace.render import Looks, Renderer
+
+    cam = Camera()
+    r = Renderer()
+    p = RenderParams(width=4, height=4, shading="material")
+    surf = Surface(np.zeros(2, np.int32), [[1, 1, 1]], [[0, 0, 0]], [-1])
+    for looks, match in ((Looks(GOOD[:1], surf), "looks.tris"), (Looks(GOOD.astype(np.float64), surf), "looks.tris"),
+                         (Looks(np.full((2, 3, 3), np.nan, np.float32), surf), "NaN"),
+                         (Looks(GOOD, surf.subset([0])), "looks.surface"),
+                         (Looks(GOOD, surf, np.zeros((2, 3, 2), np.float32)), "looks.normals"),
+                         (Looks(GOOD, surf, np.full((2, 3, 3), np.inf, np.float32)), "NaN"),
+                         (Looks(GOOD, surf, None, np.full((1, 8), np.nan)), "NaN"),
+                         (Looks(GOOD, surf, None, np.array([[7.0, 0, 0, 0, 1, 1, 1, 0]])), "kind"),
+                         (Looks(GOOD, surf, None, np.array([[1.0, 0, 0, 0, 1, 1, 1, 0]])), "unit vector")):
+        expect_guard(lambda: r.render(good_grid, GOOD, cam, p, looks=looks), match)
+    for kw, match in ((dict(material=[0, 5]), "material index"), (dict(texture=[2]), "texture index"),
+                      (dict(material=[[0, 0]]), "material must be"), (dict(diffuse=[[1, 1]]), "diffuse"),
+                      (dict(diffuse=[[np.nan, 1, 1]]), "finite"), (dict(uv=np.zeros((3, 3, 2))), "uv")):
+        args = dict(material=[0, 0], diffuse=[[1, 1, 1]], ambient=[[0, 0, 0]], texture=[-1]) | kw
+        expect_guard(lambda: Surface(**args), match)
+    expect_guard(lambda: Texture(np.zeros((2, 2), np.float32)), "uint8")
+    expect_guard(lambda: Texture(np.zeros((2, 2, 3), np.uint8), ("repeat", "wrap")), "wrap")
 
 
 def test_guard_camera_rays(tripwires):

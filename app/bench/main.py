@@ -105,7 +105,7 @@ def add_parser(sub):
                    "takes seconds per frame on some scenes)")
     f.add_argument("--split", choices=("both", "on", "off"), default="both",
                    help="static/moving split for scenes with static parts (default both: measure on and off)")
-    f.add_argument("--shading", choices=SHADING_MODES, default=defaults(RenderParams)["shading"],
+    f.add_argument("--shading", choices=SHADING_MODES, default="lambert",
                    help="shading of the rendered frames (default %(default)s)")
     f.add_argument("--dt", type=float, default=1.0 / 30.0, help="seconds between frames (default 1/30)")
     add_grid_kind_args(f)

@@ -116,7 +116,7 @@ class Texture:
             raise InputError(f"texture {self.name!r}: texels must be (H, W, 3) (or RGBA, or grey), got {a.shape}")
         if a.dtype != np.uint8:
             raise InputError(f"texture {self.name!r}: texels must be uint8, got {a.dtype}")
-        a = np.ascontiguousarray(a[:, :, :3])
+        a = np.array(a[:, :, :3], order="C")  # a copy: the caller's array is never frozen
         a.setflags(write=False)
         object.__setattr__(self, "texels", a)
         wrap = tuple(self.wrap)
@@ -135,7 +135,7 @@ def _per_corner(a, F, k, what):
     a = np.asarray(a)
     if a.shape != (F, 3, k) or a.dtype.kind not in "fiu":
         raise InputError(f"surface {what} must be ({F}, 3, {k}) numbers, got {a.shape} {a.dtype}")
-    a = np.ascontiguousarray(a, np.float32)
+    a = np.array(a, np.float32, order="C")  # a copy: the caller's array is never frozen
     if not np.isfinite(a).all():
         raise InputError(f"surface {what} contain NaN or infinity")
     a.setflags(write=False)
@@ -162,13 +162,13 @@ class Surface:
         if mat.ndim != 1 or mat.dtype.kind not in "iu":
             raise InputError(f"surface material must be (F,) integers, got {mat.shape} {mat.dtype}")
         F = len(mat)
-        mat = mat.astype(np.int32)
+        mat = mat.astype(np.int32)  # (a copy)
         cols = []
         for name in ("diffuse", "ambient"):
             c = np.asarray(getattr(self, name))
             if c.ndim != 2 or c.shape[1] != 3 or c.dtype.kind not in "fiu":
                 raise InputError(f"surface {name} must be (M, 3) colours, got {c.shape} {c.dtype}")
-            c = np.ascontiguousarray(c, np.float32)
+            c = np.array(c, np.float32, order="C")
             if not np.isfinite(c).all() or (c < 0).any():
                 raise InputError(f"surface {name} colours must be finite and >= 0")
             cols.append(c)
@@ -177,7 +177,7 @@ class Surface:
         if tex.shape != (M,) or tex.dtype.kind not in "iu" or cols[1].shape[0] != M:
             raise InputError(f"surface: diffuse {cols[0].shape}, ambient {cols[1].shape} and texture {tex.shape} "
                              "must have one row per material")
-        tex = tex.astype(np.int32)
+        tex = tex.astype(np.int32)  # (a copy)
         textures = tuple(self.textures)
         if not all(isinstance(t, Texture) for t in textures):
             raise InputError("surface textures must be Texture objects")

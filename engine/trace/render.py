@@ -38,6 +38,7 @@ from ..config import DEFAULT_MAX_BYTES, PACKET_PRECISIONS, RenderParams, _positi
 from ..errors import InputError
 from ..stats import RenderStats
 from ..threads import check_threads, launch_guard, use_threads
+from ..scene.surface import as_lights
 from .batch import MAX_CELLS, cast_grouped, odd_directions
 from .traverse import MAILBOX, trace_grids
 from .twin import TWINS
@@ -51,7 +52,7 @@ from .shade import (  # noqa: F401  (the shading constants stay importable from 
 
 #: shadow-ray origins move off the surface by this fraction of the scene's bounding-box diagonal
 SHADOW_OFFSET = 1e-6
-SHADING_CODES = {"lambert": 0, "normal": 1, "cost": 2}
+SHADING_CODES = {"lambert": 0, "normal": 1, "cost": 2, "material": 0}
 
 
 @njit(cache=True)
@@ -292,6 +293,50 @@ def cast_rays(grid, tris, origins, dirs, tmin=0.0, tmax=np.inf, watertight=True,
 
 
 @dataclass
+class Looks:
+    """What the ``material`` shading mode needs beyond the grids (gridrt.trace.material).
+
+    tris     (F, 3, 3) float32: the scene's triangles in the coordinates the grids were built in,
+             indexed by scene id (for one grid without ids: the grid's own triangles)
+    surface  gridrt.scene.surface.Surface of those triangles, or None (one default material)
+    normals  (F, 3, 3) float32 shading normals per corner, or None (geometric normals)
+    lights   (L, 8) float64 lights in world coordinates (gridrt.scene.surface), or None / empty
+             (the default light)
+    """
+
+    tris: np.ndarray
+    surface: object = None
+    normals: np.ndarray | None = None
+    lights: np.ndarray | None = None
+
+
+def _check_looks(looks, n_scene):
+    from ..scene.surface import Surface, as_lights
+
+    if not isinstance(looks, Looks):
+        raise InputError(f"looks must be a gridrt.trace.render.Looks, got {type(looks).__name__}")
+    tris = looks.tris
+    if not (isinstance(tris, np.ndarray) and tris.dtype == np.float32 and tris.shape == (n_scene, 3, 3)):
+        raise InputError(f"looks.tris must be the scene's ({n_scene}, 3, 3) float32 triangles, got "
+                         f"{getattr(tris, 'shape', None)} {getattr(tris, 'dtype', type(tris))}")
+    if not np.isfinite(tris).all():
+        raise InputError("looks.tris contain NaN or infinity")
+    surface = looks.surface
+    if surface is not None and (not isinstance(surface, Surface) or surface.n_triangles != n_scene):
+        raise InputError(f"looks.surface must be a Surface of the scene's {n_scene} triangles, got "
+                         f"{getattr(surface, 'n_triangles', type(surface).__name__)}")
+    normals = looks.normals
+    if normals is not None:
+        if not (isinstance(normals, np.ndarray) and normals.dtype == np.float32 and normals.shape == (n_scene, 3, 3)):
+            raise InputError(f"looks.normals must be ({n_scene}, 3, 3) float32, got "
+                             f"{getattr(normals, 'shape', None)} {getattr(normals, 'dtype', type(normals))}")
+        if not np.isfinite(normals).all():
+            raise InputError("looks.normals contain NaN or infinity")
+    return (np.ascontiguousarray(tris), surface, None if normals is None else np.ascontiguousarray(normals),
+            as_lights(looks.lights, "looks.lights"))
+
+
+@dataclass
 class RenderResult:
     """image (H,W,4) uint8; t (H,W) float32 hit distance (inf: miss); tri (H,W) int32 (-1: miss);
     cost (H,W) int32 triangle tests per primary ray; cells (H,W) int32 cells visited; stats
@@ -322,15 +367,27 @@ class Renderer:
             )
         return self._bufs
 
-    def render(self, grid, tris, camera, params: RenderParams | None = None, second=None) -> RenderResult:
+    def render(self, grid, tris, camera, params: RenderParams | None = None, second=None,
+               looks: Looks | None = None) -> RenderResult:
         """Render ``grid`` over ``tris``; ``second`` = (grid_b, tris_b, ids_a, ids_b) adds a second
         grid traversed together with the first (static and moving parts of one scene); the tri
         buffer then holds scene ids through ids_a / ids_b ((F_a,), (F_b,) int32).
+
+        ``looks`` (:class:`Looks`) gives the ``material`` mode the scene's triangles, surface,
+        normals and lights; shading "auto" is "material" when it has a surface, else "lambert".
 
         ``tris``, ``camera`` and ``params.light`` are in world coordinates; a grid built in a
         frame centred on the scene (``grid.origin``, see build_grid) gets them moved there."""
         params = params or RenderParams()
         tris = _check_grid_tris(grid, tris)
+        n_scene = len(tris) + (len(second[1]) if second is not None else 0)
+        if looks is not None:
+            looks = _check_looks(looks, n_scene)
+        shading = params.resolved(looks is not None and looks[1] is not None)
+        if shading == "material" and looks is None:
+            if second is not None:
+                raise InputError("the material shading of two grids needs looks= (the scene's triangles by scene id)")
+            looks = (tris, None, None, as_lights(None))
         if not isinstance(camera, Camera):
             raise InputError(f"camera must be an gridrt.Camera, got {type(camera).__name__}")
         camera = camera.moved(-grid.origin)  # world -> the grid's frame (a no-op at origin 0)
@@ -361,14 +418,15 @@ class Renderer:
         else:
             light = default_light(diag, camera)
         use_threads(threads)
+        material = shading == "material"
         args = (
-            grids, basis, W, H, params.tile, SHADING_CODES[params.shading], bool(params.shadows), light,
+            grids, basis, W, H, params.tile, SHADING_CODES[shading], bool(params.shadows) and not material, light,
             SHADOW_OFFSET * diag, bool(params.watertight), img, tb, ib, cb, nb,
         )
         t0 = time.perf_counter()
         if params.traversal == "cgt":
             args = args[:10] + (params.packet_precision == "float32", *params.packet) + args[10:]
-            if not params.shadows:  # light None: the CGT kernel without its shadow path (compiles faster)
+            if not params.shadows or material:  # light None: the CGT kernel without its shadow path (compiles faster)
                 args = args[:7] + (None,) + args[8:]
             with parallel_chunksize(1):  # dynamic scheduling of the kernel's chunks of tiles
                 # the parallel kernel, or its serial twin on one thread and while the parallel one
@@ -376,8 +434,16 @@ class Renderer:
                 sums = TWINS(threads, cgt_render_kernel, cgt_render_serial, *args)
         else:
             TWINS(threads, render_kernel, render_serial, *args)
+        shade_ms, n_lights, n_shadow = 0.0, (1 if params.shadows else 0), None
+        if material:
+            t1 = time.perf_counter()
+            n_lights, n_shadow = self._shade_material(grids, looks, params, camera, grid.origin, light, diag, threads)
+            shade_ms = (time.perf_counter() - t1) * 1e3
         ms = (time.perf_counter() - t0) * 1e3
         n = W * H
+        if n_shadow is None:  # lambert's shadow rays (one per hit facing the light) are not counted
+            n_shadow = float("nan") if params.shadows else 0
+        extra = dict(lights=n_lights, shadow_rays_per_pixel=n_shadow / n, shade_ms=shade_ms)
         stats = RenderStats(
             render_ms=ms,
             mrays=n / (ms * 1e3) if ms > 0 else float("nan"),
@@ -386,6 +452,7 @@ class Renderer:
             cells_per_ray=float(nb.mean()),
             render_threads=threads,
             traversal=params.traversal,
+            **extra,
         ) if params.traversal == "dda" else RenderStats(
             # the CGT kernel sums (hits, costbuf, cellbuf, fallback rays) as it writes the buffers
             render_ms=ms,
@@ -396,8 +463,67 @@ class Renderer:
             render_threads=threads,
             traversal=params.traversal,
             fallback_rays=int(sums[3]),
+            **extra,
         )
         return RenderResult(img, tb, ib, cb, nb, stats)
+
+    def _shade_material(self, grids, looks, params, camera, origin, default, diag, threads):
+        """The material pass over the hits in the tri buffer (gridrt.trace.material); returns (lights
+        used, shadow rays cast)."""
+        from . import material as M
+        from .batch import cast_grouped
+
+        stris, surface, normals, lights = looks
+        W, H = params.width, params.height
+        img, tb, ib, cb, nb = self.buffers(W, H)
+        if params.light is not None or len(lights) == 0:
+            # an explicit light replaces the scene's; a scene without lights gets the default one
+            lights = np.array([[0.0, *default, 1.0, 1.0, 1.0, 0.0]])
+        else:
+            lights = lights.copy()
+            point = lights[:, 0] == 0.0
+            lights[point, 1:4] -= origin  # world -> the grid's frame
+        if surface is None:
+            surface = M.default_surface(len(stris))
+        ps = surface.packed
+        nrm = normals if normals is not None else np.zeros((0, 3, 3), np.float32)
+        n = W * H
+        deferred = bool(params.shadows)
+        if deferred:
+            pos, ngb = np.empty((n, 3)), np.empty((n, 3))
+            nsb, tvd, acc = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
+        else:
+            pos = ngb = np.empty((0, 3))
+            nsb = tvd = acc = np.empty((0, 3), np.float32)
+        TWINS(threads, M.shade_kernel, M.shade_serial, camera.basis(), W, H, ib, stris, nrm, ps.material, ps.diffuse,
+              ps.ambient, ps.texture, ps.tex_data, ps.tex_info, ps.uv, ps.colors, lights, deferred, img, pos, ngb,
+              nsb, tvd, acc)
+        if not deferred:
+            return len(lights), 0
+        need = np.empty(n, np.uint8)
+        origins, dirs, weight = np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.float64)
+        off, far = SHADOW_OFFSET * diag, 2.0 * max(diag, 1e-300)
+        max_cells = MAX_CELLS if params.traversal == "cgt" else 0.0
+        f32 = params.packet_precision == "float32"
+        cast = 0
+        for li in range(len(lights)):
+            M.light_rays(lights, li, pos, ngb, nsb, acc, off, far, need, origins, dirs, weight)
+            rows = np.flatnonzero(need)
+            cast += len(rows)
+            o, d = origins[rows], dirs[rows]
+            blocked = np.zeros(len(rows), bool)
+            for g in grids:  # any hit in any grid shadows
+                live = np.flatnonzero(~blocked)
+                if len(live) == 0:
+                    break
+                out = (np.empty(len(live)), np.empty(len(live), np.int32), np.empty(len(live)), np.empty(len(live)))
+                cast_grouped(g, np.ascontiguousarray(o[live]), np.ascontiguousarray(d[live]), 0.0, 1.0,
+                             bool(params.watertight), True, out, max_cells, f32)
+                blocked[live[out[1] >= 0]] = True
+            tri = np.where(blocked, 0, -1).astype(np.int32)
+            M.add_light(rows, tri, weight, tvd, float(lights[li, 4]), float(lights[li, 5]), float(lights[li, 6]), acc)
+        M.compose(W, H, acc, img)
+        return len(lights), cast
 
 
 def default_light(diag, camera):

@@ -1,0 +1,298 @@
+"""The ``material`` shading mode: a pass over the primary hits that colours them with the scene's
+materials, textures, smooth normals and lights (gridrt.scene.surface has the formula).
+
+It runs after the render kernel has filled the hit distance and triangle buffers (DDA or CGT, any
+grid kind, one grid or the static/moving split: it reads only the scene ids of the hits), so the
+traversal kernels stay as they are.  Per hit pixel:
+
+* the hit's barycentrics (w0, w1, w2) = (1 - u - v, u, v) come from the float64 ray-triangle
+  test of the triangle hit (the camera ray against the scene's triangle in the render's frame),
+  clamped onto the triangle; the hit point is the triangle's point of those barycentrics, so it
+  lies on the triangle's plane to float64 precision (not t's float32);
+* uv, vertex colour and shading normal are the corners' values weighted by the barycentrics;
+  the normal is normalised, and a zero normal (no normals in the file) is the geometric one;
+  the geometric normal n_g is turned towards the viewer and the shading normal n_s to n_g's side;
+* the texel is filtered bilinearly between the four texels around (u W - 1/2, v H - 1/2), each
+  wrapped by the texture's mode (repeat, clamp to edge, mirrored repeat);
+* a light lights the hit when it lies on the visible side of the surface (n_g . l > 0) and
+  n_s . l > 0; its weight is n_s . l (times 1 / d^2 with inverse-square falloff).  With shadows a
+  shadow ray from p + n_g * off towards the light (its direction the vector to a point light, or
+  2 * diag times the unit vector to a directional one, tmax 1) must hit nothing; shadow rays are
+  cast as a batch per light (gridrt.trace.batch: coherent runs as CGT packets with the ``cgt``
+  traversal, one at a time with ``dda``).
+
+A scene without lights is lit by one default light (gridrt.trace.render.default_light, colour 1,
+no falloff); a render without a scene surface uses one material of gridrt's default colours.
+"""
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from ..camera import pixel_dir
+from ..scene.surface import FALLOFF_INVERSE_SQUARE, LIGHT_DIRECTIONAL, LIGHT_POINT
+from .shade import AMBIENT, ALBEDO, BACKGROUND, put_pixel, unit_normal
+
+
+@njit(cache=True, _nrt=False)
+def barycentrics(tris, f, ex, ey, ez, dx, dy, dz):
+    """(w0, w1, w2) of the ray eye + t d on triangle f of tris (F,3,3) float32, in float64, clamped
+    onto the triangle (each >= 0, sum 1); the centroid for a degenerate triangle."""
+    v0x, v0y, v0z = np.float64(tris[f, 0, 0]), np.float64(tris[f, 0, 1]), np.float64(tris[f, 0, 2])
+    e1x, e1y, e1z = tris[f, 1, 0] - v0x, tris[f, 1, 1] - v0y, tris[f, 1, 2] - v0z
+    e2x, e2y, e2z = tris[f, 2, 0] - v0x, tris[f, 2, 1] - v0y, tris[f, 2, 2] - v0z
+    px = dy * e2z - dz * e2y
+    py = dz * e2x - dx * e2z
+    pz = dx * e2y - dy * e2x
+    det = e1x * px + e1y * py + e1z * pz
+    if det == 0.0 or not math.isfinite(det):
+        return 1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0
+    sx, sy, sz = ex - v0x, ey - v0y, ez - v0z
+    u = (sx * px + sy * py + sz * pz) / det
+    qx = sy * e1z - sz * e1y
+    qy = sz * e1x - sx * e1z
+    qz = sx * e1y - sy * e1x
+    v = (dx * qx + dy * qy + dz * qz) / det
+    if not (math.isfinite(u) and math.isfinite(v)):
+        return 1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0
+    u = max(u, 0.0)
+    v = max(v, 0.0)
+    s = u + v
+    if s > 1.0:
+        u /= s
+        v /= s
+    return 1.0 - u - v, u, v
+
+
+@njit(cache=True, _nrt=False)
+def _wrap(i, n, mode):
+    """Texel index i wrapped into [0, n) by mode (0 repeat, 1 clamp, 2 mirror)."""
+    if mode == 1:
+        return 0 if i < 0 else (n - 1 if i >= n else i)
+    if mode == 2:
+        m = i % (2 * n)
+        return m if m < n else 2 * n - 1 - m
+    return i % n
+
+
+@njit(cache=True, _nrt=False)
+def _reduce(c, mode):
+    """A texture coordinate brought into [0, 1] (clamp), [0, 1) (repeat) or [0, 2) (mirror) before
+    it is scaled to texels, so a huge coordinate never overflows an integer."""
+    if mode == 1:
+        return min(max(c, 0.0), 1.0)
+    if mode == 2:
+        return c - 2.0 * math.floor(0.5 * c)
+    return c - math.floor(c)
+
+
+@njit(cache=True, _nrt=False)
+def sample_bilinear(tex_data, tex_info, k, u, v):
+    """Texture k at (u, v) (image convention: (0, 0) top-left), bilinearly filtered: (r, g, b) in [0, 1]."""
+    off, w, h, wu, wv = tex_info[k, 0], tex_info[k, 1], tex_info[k, 2], tex_info[k, 3], tex_info[k, 4]
+    x = _reduce(u, wu) * w - 0.5
+    y = _reduce(v, wv) * h - 0.5
+    x0 = math.floor(x)
+    y0 = math.floor(y)
+    fx = x - x0
+    fy = y - y0
+    ix0 = _wrap(np.int64(x0), w, wu)
+    ix1 = _wrap(np.int64(x0) + 1, w, wu)
+    iy0 = _wrap(np.int64(y0), h, wv)
+    iy1 = _wrap(np.int64(y0) + 1, h, wv)
+    a = off + (iy0 * w + ix0) * 3
+    b = off + (iy0 * w + ix1) * 3
+    c = off + (iy1 * w + ix0) * 3
+    d = off + (iy1 * w + ix1) * 3
+    w00 = (1.0 - fx) * (1.0 - fy)
+    w01 = fx * (1.0 - fy)
+    w10 = (1.0 - fx) * fy
+    w11 = fx * fy
+    r = w00 * tex_data[a] + w01 * tex_data[b] + w10 * tex_data[c] + w11 * tex_data[d]
+    g = w00 * tex_data[a + 1] + w01 * tex_data[b + 1] + w10 * tex_data[c + 1] + w11 * tex_data[d + 1]
+    bl = w00 * tex_data[a + 2] + w01 * tex_data[b + 2] + w10 * tex_data[c + 2] + w11 * tex_data[d + 2]
+    return r / 255.0, g / 255.0, bl / 255.0
+
+
+@njit(cache=True, _nrt=False)
+def light_weight(lights, li, px, py, pz, ngx, ngy, ngz, nsx, nsy, nsz):
+    """(weight, lx, ly, lz, dist) of light li at the hit p with facing normals n_g, n_s: the unit
+    vector l to the light, its distance (inf for a directional light) and weight n_s . l (over d^2
+    with inverse-square falloff), 0 when the light is behind the surface."""
+    if lights[li, 0] == LIGHT_DIRECTIONAL:
+        lx, ly, lz = lights[li, 1], lights[li, 2], lights[li, 3]
+        dist = np.inf
+    else:
+        lx = lights[li, 1] - px
+        ly = lights[li, 2] - py
+        lz = lights[li, 3] - pz
+        dist = math.sqrt(lx * lx + ly * ly + lz * lz)
+        if not (dist > 0.0) or not math.isfinite(dist):
+            return 0.0, 0.0, 0.0, 0.0, 0.0
+        lx /= dist
+        ly /= dist
+        lz /= dist
+    if ngx * lx + ngy * ly + ngz * lz <= 0.0:
+        return 0.0, lx, ly, lz, dist
+    s = nsx * lx + nsy * ly + nsz * lz
+    if s <= 0.0:
+        return 0.0, lx, ly, lz, dist
+    if lights[li, 7] == FALLOFF_INVERSE_SQUARE and lights[li, 0] == LIGHT_POINT:
+        s /= dist * dist
+    return s, lx, ly, lz, dist
+
+
+@njit(cache=True, _nrt=False)
+def surface_at(stris, normals, material, diffuse, ambient, texture, tex_data, tex_info, uv, colors,
+               f, ex, ey, ez, dx, dy, dz):
+    """What the camera ray eye + t d sees on scene triangle f: (p, n_g, n_s, tv, tvd, tva) with p
+    the hit point (float64), n_g and n_s the facing geometric and shading normals, tvd = T V D and
+    tva = T V A the colours the lights and the ambient term multiply."""
+    w0, w1, w2 = barycentrics(stris, f, ex, ey, ez, dx, dy, dz)
+    px = w0 * stris[f, 0, 0] + w1 * stris[f, 1, 0] + w2 * stris[f, 2, 0]
+    py = w0 * stris[f, 0, 1] + w1 * stris[f, 1, 1] + w2 * stris[f, 2, 1]
+    pz = w0 * stris[f, 0, 2] + w1 * stris[f, 1, 2] + w2 * stris[f, 2, 2]
+    # geometric normal (v1 - v0) x (v2 - v0), towards the viewer (against the ray when degenerate)
+    gx, gy, gz = unit_normal(stris, f)
+    if gx == 0.0 and gy == 0.0 and gz == 0.0:
+        gx, gy, gz = -dx, -dy, -dz
+    if gx * dx + gy * dy + gz * dz > 0.0:
+        gx, gy, gz = -gx, -gy, -gz
+    sx, sy, sz = gx, gy, gz
+    if normals.shape[0] > 0:
+        nx = w0 * normals[f, 0, 0] + w1 * normals[f, 1, 0] + w2 * normals[f, 2, 0]
+        ny = w0 * normals[f, 0, 1] + w1 * normals[f, 1, 1] + w2 * normals[f, 2, 1]
+        nz = w0 * normals[f, 0, 2] + w1 * normals[f, 1, 2] + w2 * normals[f, 2, 2]
+        nn = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if nn > 1e-12 and math.isfinite(nn):
+            sx, sy, sz = nx / nn, ny / nn, nz / nn
+            if sx * gx + sy * gy + sz * gz < 0.0:
+                sx, sy, sz = -sx, -sy, -sz
+    m = material[f]
+    tr, tg, tb = 1.0, 1.0, 1.0
+    k = texture[m]
+    if k >= 0:
+        u = w0 * uv[f, 0, 0] + w1 * uv[f, 1, 0] + w2 * uv[f, 2, 0]
+        v = w0 * uv[f, 0, 1] + w1 * uv[f, 1, 1] + w2 * uv[f, 2, 1]
+        tr, tg, tb = sample_bilinear(tex_data, tex_info, k, u, v)
+    if colors.shape[0] > 0:
+        tr *= w0 * colors[f, 0, 0] + w1 * colors[f, 1, 0] + w2 * colors[f, 2, 0]
+        tg *= w0 * colors[f, 0, 1] + w1 * colors[f, 1, 1] + w2 * colors[f, 2, 1]
+        tb *= w0 * colors[f, 0, 2] + w1 * colors[f, 1, 2] + w2 * colors[f, 2, 2]
+    return (px, py, pz, gx, gy, gz, sx, sy, sz,
+            tr * diffuse[m, 0], tg * diffuse[m, 1], tb * diffuse[m, 2],
+            tr * ambient[m, 0], tg * ambient[m, 1], tb * ambient[m, 2])
+
+
+@njit(cache=True, _nrt=False)
+def _shade_row(y, basis, W, H, ibuf, stris, normals, material, diffuse, ambient, texture, tex_data, tex_info, uv,
+               colors, lights, deferred, img, pos, ngb, nsb, tvd, acc):
+    ex, ey, ez = basis[0, 0], basis[0, 1], basis[0, 2]
+    for x in range(W):
+        f = ibuf[y, x]
+        i = y * W + x
+        if f < 0:
+            if deferred:
+                acc[i, 0] = -1.0
+            else:
+                put_pixel(img, y, x, BACKGROUND[0], BACKGROUND[1], BACKGROUND[2])
+            continue
+        dx, dy, dz = pixel_dir(basis, W, H, x, y)
+        px, py, pz, gx, gy, gz, sx, sy, sz, dr, dg, db, ar, ag, ab = surface_at(
+            stris, normals, material, diffuse, ambient, texture, tex_data, tex_info, uv, colors,
+            f, ex, ey, ez, dx, dy, dz)
+        if deferred:  # the lights are added once their shadow rays are cast
+            pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
+            ngb[i, 0], ngb[i, 1], ngb[i, 2] = gx, gy, gz
+            nsb[i, 0], nsb[i, 1], nsb[i, 2] = sx, sy, sz
+            tvd[i, 0], tvd[i, 1], tvd[i, 2] = dr, dg, db
+            acc[i, 0], acc[i, 1], acc[i, 2] = ar, ag, ab
+            continue
+        r, g, b = ar, ag, ab
+        for li in range(lights.shape[0]):
+            s, lx, ly, lz, dist = light_weight(lights, li, px, py, pz, gx, gy, gz, sx, sy, sz)
+            if s > 0.0:
+                r += dr * lights[li, 4] * s
+                g += dg * lights[li, 5] * s
+                b += db * lights[li, 6] * s
+        put_pixel(img, y, x, r, g, b)
+
+
+@njit(cache=True, parallel=True)
+def shade_kernel(basis, W, H, ibuf, stris, normals, material, diffuse, ambient, texture, tex_data, tex_info, uv,
+                 colors, lights, deferred, img, pos, ngb, nsb, tvd, acc):
+    """Colour every pixel of img (H,W,4) from the hits in ibuf (scene ids, -1 a miss) with the
+    surface and the lights (L, 8) (frame coordinates), or with ``deferred`` (shadows) write each
+    hit's point, normals, T V D and T V A (acc; -1 in acc[:, 0] for a miss) into the flat (W*H, 3)
+    buffers for :func:`light_rays`, :func:`add_light` and :func:`compose`."""
+    for y in prange(H):
+        _shade_row(y, basis, W, H, ibuf, stris, normals, material, diffuse, ambient, texture, tex_data, tex_info,
+                   uv, colors, lights, deferred, img, pos, ngb, nsb, tvd, acc)
+
+
+@njit(cache=True)
+def shade_serial(basis, W, H, ibuf, stris, normals, material, diffuse, ambient, texture, tex_data, tex_info, uv,
+                 colors, lights, deferred, img, pos, ngb, nsb, tvd, acc):
+    """shade_kernel on one thread (gridrt.trace.twin)."""
+    for y in range(H):
+        _shade_row(y, basis, W, H, ibuf, stris, normals, material, diffuse, ambient, texture, tex_data, tex_info,
+                   uv, colors, lights, deferred, img, pos, ngb, nsb, tvd, acc)
+
+
+@njit(cache=True, parallel=True)
+def light_rays(lights, li, pos, ngb, nsb, acc, off, far, need, origins, dirs, weight):
+    """The shadow rays of light li from every hit (acc[i, 0] >= 0) it lights: need[i] = 1, the
+    origin p + n_g * off, the direction to the light (a point light's vector to it, or far times a
+    directional light's unit vector; tmax 1) and the light's weight in weight[i]."""
+    for i in prange(pos.shape[0]):
+        need[i] = 0
+        if acc[i, 0] < 0.0:
+            continue
+        px, py, pz = pos[i, 0], pos[i, 1], pos[i, 2]
+        gx, gy, gz = ngb[i, 0], ngb[i, 1], ngb[i, 2]
+        s, lx, ly, lz, dist = light_weight(lights, li, px, py, pz, gx, gy, gz,
+                                           np.float64(nsb[i, 0]), np.float64(nsb[i, 1]), np.float64(nsb[i, 2]))
+        if s <= 0.0:
+            continue
+        need[i] = 1
+        weight[i] = s
+        ox, oy, oz = px + gx * off, py + gy * off, pz + gz * off
+        origins[i, 0], origins[i, 1], origins[i, 2] = ox, oy, oz
+        if lights[li, 0] == LIGHT_DIRECTIONAL:
+            dirs[i, 0], dirs[i, 1], dirs[i, 2] = lx * far, ly * far, lz * far
+        else:
+            dirs[i, 0] = lights[li, 1] - ox
+            dirs[i, 1] = lights[li, 2] - oy
+            dirs[i, 2] = lights[li, 3] - oz
+
+
+@njit(cache=True, parallel=True)
+def add_light(rows, tri, weight, tvd, r, g, b, acc):
+    """acc[rows[j]] += tvd * (r, g, b) * weight for every shadow ray j that hit nothing (tri[j] < 0)."""
+    for j in prange(rows.shape[0]):
+        if tri[j] < 0:
+            i = rows[j]
+            s = weight[i]
+            acc[i, 0] += tvd[i, 0] * r * s
+            acc[i, 1] += tvd[i, 1] * g * s
+            acc[i, 2] += tvd[i, 2] * b * s
+
+
+@njit(cache=True, parallel=True)
+def compose(W, H, acc, img):
+    """img from the accumulated colours (the background where acc[i, 0] < 0)."""
+    for y in prange(H):
+        for x in range(W):
+            i = y * W + x
+            if acc[i, 0] < 0.0:
+                put_pixel(img, y, x, BACKGROUND[0], BACKGROUND[1], BACKGROUND[2])
+            else:
+                put_pixel(img, y, x, acc[i, 0], acc[i, 1], acc[i, 2])
+
+
+def default_surface(n_triangles):
+    """One material of gridrt's default colours (ALBEDO, ambient AMBIENT * ALBEDO) for every triangle."""
+    from ..scene.surface import Surface
+
+    return Surface.plain(n_triangles, ALBEDO, tuple(AMBIENT * c for c in ALBEDO))

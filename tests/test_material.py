@@ -1,0 +1,290 @@
+"""The ``material`` shading mode (issue 16) against the independent reference
+(tests/reference.py ref_material: float64 brute-force hits and barycentrics, the shading formula
+re-typed from engine/scene/surface.py): textures with every wrap mode and bilinear filtering,
+vertex colours, smooth normals, lights with and without falloff, hard shadows; for DDA and CGT,
+uniform and two-level grids, one grid and the static/moving split, 1 and 3 threads; far from the
+origin; and the analytic normals of a sphere.
+"""
+
+import numpy as np
+import pytest
+
+import reference as R
+from gridrt.camera import Camera
+from gridrt.config import GridParams, RenderParams
+from gridrt.errors import InputError
+from gridrt.grid import GridBuilder
+from gridrt.pipeline import FramePipeline
+from gridrt.scene.animation import Animation, StaticMesh
+from gridrt.scene.mesh import Mesh
+from gridrt.scene.surface import Surface, Texture
+from gridrt.trace.render import Looks, Renderer
+
+W, H = 64, 48
+
+
+def _quad(x0, x1, z0, z1, y):
+    a, b, c, d = (x0, y, z0), (x1, y, z0), (x1, y, z1), (x0, y, z1)
+    return [[a, b, c], [a, c, d]]
+
+
+def scene(rng):
+    """A floor of three textured quads (repeat, clamp, mirror; uv beyond [0, 1]), a blocker
+    casting a shadow on it, and a fan of random triangles with vertex colours and normals."""
+    tris = []
+    tris += _quad(-3, -1, -2, 2, 0.0) + _quad(-1, 1, -2, 2, 0.0) + _quad(1, 3, -2, 2, 0.0)
+    tris += [[(-0.5, 1.0, -0.5), (0.5, 1.0, -0.5), (0.0, 1.0, 0.6)]]  # blocker
+    n_rand = 12
+    c = rng.uniform([-2.5, 0.4, -1.5], [2.5, 1.6, 1.5], (n_rand, 1, 3))
+    tris += list(c + rng.normal(0, 0.35, (n_rand, 3, 3)))
+    tris = np.asarray(tris, np.float32)
+    F = len(tris)
+    uv = np.zeros((F, 3, 2), np.float32)
+    quad_uv = np.array([[[-1.3, -0.7], [2.7, -0.7], [2.7, 1.9]], [[-1.3, -0.7], [2.7, 1.9], [-1.3, 1.9]]])
+    for q in range(3):
+        uv[2 * q : 2 * q + 2] = quad_uv
+    textures = [(rng.integers(0, 256, (5, 7, 3), dtype=np.uint8), (w, w)) for w in ("repeat", "clamp", "mirror")]
+    material = np.array([0, 0, 1, 1, 2, 2, 3] + [4 + (i % 2) for i in range(n_rand)], np.int32)
+    diffuse = np.array([[0.9, 0.8, 0.7], [0.6, 0.9, 0.8], [0.8, 0.8, 0.95], [0.5, 0.5, 0.5], [0.9, 0.3, 0.2],
+                        [0.2, 0.5, 0.9]], np.float32)
+    ambient = (diffuse * np.float32(0.15)).astype(np.float32)
+    texture = np.array([0, 1, 2, -1, -1, -1], np.int32)
+    colors = np.ones((F, 3, 3), np.float32)
+    colors[7:] = rng.uniform(0.2, 1.0, (n_rand, 3, 3))
+    normals = np.zeros((F, 3, 3), np.float32)  # floor and blocker: geometric
+    g = np.cross(tris[7:, 1] - tris[7:, 0], tris[7:, 2] - tris[7:, 0])
+    g /= np.linalg.norm(g, axis=1, keepdims=True)
+    nr = g[:, None, :] + rng.normal(0, 0.3, (n_rand, 3, 3))
+    normals[7:] = nr / np.linalg.norm(nr, axis=2, keepdims=True)
+    lights = [("point", (0.3, 3.0, 0.2), (0.7, 0.7, 0.6), False),
+              ("point", (-2.0, 2.0, 2.0), (3.0, 2.0, 2.0), True),
+              ("directional", tuple(np.array([0.3, 1.0, -0.4]) / np.linalg.norm([0.3, 1.0, -0.4])), (0.3, 0.3, 0.4),
+               False)]
+    looks = R.RefLooks(material, diffuse, ambient, texture, textures, uv, colors, normals, lights)
+    return tris, looks
+
+
+def engine_surface(looks):
+    texs = tuple(Texture(t, wrap, f"t{k}") for k, (t, wrap) in enumerate(looks.textures))
+    return Surface(looks.material, looks.diffuse, looks.ambient, looks.texture, texs, looks.uv, looks.colors,
+                   looks.normals)
+
+
+def engine_lights(looks):
+    rows = []
+    for kind, xyz, rgb, falloff in looks.lights:
+        rows.append([0.0 if kind == "point" else 1.0, *xyz, *rgb, 1.0 if falloff else 0.0])
+    return np.array(rows)
+
+
+CAM = Camera(eye=(0.5, 4.5, 5.5), target=(0.0, 0.3, 0.0), fov=50.0)
+
+
+def _diag(tris):
+    p = tris.reshape(-1, 3).astype(np.float64)
+    return float(np.linalg.norm(p.max(0) - p.min(0)))
+
+
+def compare(got, ref, shadows):
+    """Pixels where both hit the same triangle (away from edges) agree within one level; with shadows a
+    few pixels on shadow boundaries (a shadow ray grazing an edge) may differ."""
+    same = (got.tri == ref.tri)
+    assert same.mean() > 0.99
+    edge = ref.hits.edge.reshape(ref.tri.shape)
+    inside = same & ((ref.tri < 0) | (edge > 1e-4))
+    diff = np.abs(got.image[..., :3].astype(int) - ref.image[..., :3].astype(int)).max(axis=2)
+    bad = inside & (diff > 1)
+    allowed = 0.004 * inside.sum() if shadows else 0
+    assert bad.sum() <= allowed, (bad.sum(), np.argwhere(bad)[:5], diff[bad][:5])
+    return inside
+
+
+@pytest.mark.parametrize("shadows", [False, True])
+@pytest.mark.parametrize("traversal,grid,threads", [("dda", "uniform", 1), ("cgt", "uniform", 3),
+                                                    ("cgt", "two_level", 2), ("dda", "two_level", 3)])
+def test_material_matches_reference(rng, shadows, traversal, grid, threads):
+    tris, looks = scene(rng)
+    ref = R.ref_material(tris, CAM, W, H, looks, shadows=shadows, shadow_offset=1e-6 * _diag(tris))
+    g = GridBuilder().build(tris, GridParams(grid=grid))
+    params = RenderParams(width=W, height=H, shading="material", shadows=shadows, traversal=traversal, threads=threads)
+    res = Renderer().render(g, tris, CAM, params, looks=Looks(tris, engine_surface(looks), looks.normals,
+                                                              engine_lights(looks)))
+    inside = compare(res, ref, shadows)
+    # the picture is not trivial: textures, several materials and (with shadows) shadowed floor
+    assert len(np.unique(res.image[inside][:, :3], axis=0)) > 200
+    assert res.stats["lights"] == 3
+    if shadows:
+        assert 0 < res.stats["shadow_rays_per_pixel"] <= 3
+    else:
+        assert res.stats["shadow_rays_per_pixel"] == 0
+
+
+def test_shadow_pixel_dark_and_lit_pixel_lit():
+    """A floor under a blocker and one point light: the floor point below the blocker gets only the
+    ambient term, one beside it the light too (expected colours computed here)."""
+    floor = _quad(-2, 2, -2, 2, 0.0)
+    blocker = [[(-0.5, 1.0, -0.5), (0.5, 1.0, -0.5), (0.0, 1.0, 0.5)]]
+    tris = np.asarray(floor + blocker, np.float32)
+    surf = Surface(np.zeros(3, np.int32), [[0.8, 0.6, 0.4]], [[0.1, 0.1, 0.1]], [-1])
+    light = np.array([[0.0, 3.0, 3.0, 0.0, 1.0, 1.0, 1.0, 0.0]])  # the blocker's shadow falls about (-1.5, 0, -0.2)
+    cam = Camera(eye=(0.0, 6.0, 0.01), target=(0, 0, 0), fov=60.0)
+    g = GridBuilder().build(tris)
+    res = Renderer().render(g, tris, cam, RenderParams(width=101, height=101, shading="material", shadows=True),
+                            looks=Looks(tris, surf, None, light))
+    # pixel rays, to find the pixels whose hits are at (-1.5, 0, -0.2) (in the shadow) and (1.5, 0, 1.5)
+    o, d = R.ref_camera_rays(cam.eye, cam.target, cam.up, cam.fov, 101, 101)
+    t = -o[:, 1] / d[:, 1]
+    p = o + t[:, None] * d
+    under = np.argmin(np.linalg.norm(p - (-1.5, 0.0, -0.2), axis=1))
+    beside = np.argmin(np.linalg.norm(p - (1.5, 0.0, 1.5), axis=1))
+    img = res.image.reshape(-1, 4)[:, :3].astype(int)
+    assert res.tri.reshape(-1)[under] in (0, 1) and res.tri.reshape(-1)[beside] in (0, 1)
+    assert np.abs(img[under] - R.to_u8([0.1, 0.1, 0.1])).max() <= 1  # ambient only
+    lv = np.array([3.0, 3.0, 0.0]) - p[beside]
+    s = lv[1] / np.linalg.norm(lv)
+    assert np.abs(img[beside] - R.to_u8(np.array([0.1, 0.1, 0.1]) + np.array([0.8, 0.6, 0.4]) * s)).max() <= 1
+
+
+def test_sphere_normals_match_the_analytic_normal():
+    """Smooth normals interpolated on an icosphere: the shading of each hit is that of the sphere's
+    analytic normal (p / |p|) within 2 levels (the corners' normals are the unit vertices, so their
+    blend points at p exactly); flat shading (no normals) is visibly off."""
+    from gridrt.scene import icosphere_mesh
+
+    mesh = icosphere_mesh(5120)
+    v = mesh.vertices64 / np.linalg.norm(mesh.vertices64, axis=1, keepdims=True)
+    tris = mesh.triangles()
+    normals = v[mesh.faces].astype(np.float32)
+    surf = Surface(np.zeros(len(tris), np.int32), [[1.0, 1.0, 1.0]], [[0.0, 0.0, 0.0]], [-1], normals=normals)
+    ldir = np.array([0.4, 0.5, 0.76])
+    ldir /= np.linalg.norm(ldir)
+    light = np.array([[1.0, *ldir, 1.0, 1.0, 1.0, 0.0]])
+    cam = Camera(eye=(0.0, 0.0, 3.5), target=(0, 0, 0), fov=40.0)
+    g = GridBuilder().build(tris)
+    n = 96
+    o, d = R.ref_camera_rays(cam.eye, cam.target, cam.up, cam.fov, n, n)
+    h = R.ref_cast(tris, o, d)
+    hit = h.tri >= 0
+    p = o[hit] + h.t[hit, None] * d[hit]
+    cos = (p / np.linalg.norm(p, axis=1, keepdims=True)) @ ldir
+    expect = R.to_u8(np.maximum(cos, 0.0))
+    # away from the terminator, where a facet's geometric normal may already face away from the
+    # light (a light counts only where both normals face it)
+    away = cos > 0.1
+    for nrm, tol in ((normals, 2), (None, None)):
+        res = Renderer().render(g, tris, cam, RenderParams(width=n, height=n, shading="material"),
+                                looks=Looks(tris, surf if nrm is not None else
+                                            Surface(surf.material, surf.diffuse, surf.ambient, surf.texture),
+                                            nrm, light))
+        got = res.image.reshape(-1, 4)[hit, 0].astype(int)
+        err = np.abs(got - expect.astype(int))[away]
+        if tol is not None:
+            assert err.max() <= tol
+        else:
+            assert err.max() >= 8  # facets show
+
+
+class _Moving(Animation):
+    """The reference scene with its random triangles sliding along x: a static floor and blocker."""
+
+    def __init__(self, tris, surface):
+        self._tris0 = tris
+        self.n_triangles = len(tris)
+        self.name = "moving"
+        self.surface = surface
+        mask = np.zeros(len(tris), bool)
+        mask[:7] = True
+        self.static_mask = mask
+        self.duration = 1.0
+
+    def _fill_normals(self, t, out):
+        out[:] = self.surface.normals  # a translation leaves the normals as they are
+        return True
+
+    def _fill(self, t, out, origin):
+        tri = self._tris0.astype(np.float64).copy()
+        tri[7:, :, 0] += 0.3 * np.sin(2 * np.pi * t)
+        out[:] = (tri - origin).astype(np.float32)
+
+
+@pytest.mark.parametrize("split", [True, False])
+def test_pipeline_material_split_and_far_origin(rng, split):
+    """The frame pipeline's material mode (scene ids through the static/moving split, lights moved
+    into the frame of a scene far from the origin) against the reference of the world scene."""
+    tris, looks = scene(rng)
+    surf = engine_surface(looks)
+    lights = engine_lights(looks)
+    for shift in (np.zeros(3), np.array([3.0e6, -2.0e6, 1.0e6])):
+        class Scene(_Moving):
+            def lights_at(self, t):
+                li = lights.copy()
+                li[li[:, 0] == 0.0, 1:4] += shift
+                return li
+
+        sc = Scene((tris.astype(np.float64) + shift), surf)
+        cam = Camera(eye=tuple(np.array(CAM.eye) + shift), target=tuple(np.array(CAM.target) + shift), fov=CAM.fov)
+        pipe = FramePipeline(sc, GridParams(), RenderParams(width=W, height=H, shadows=True), camera=cam,
+                             split_static=split)
+        fr = pipe.step(0.25)
+        assert fr.stats["shading"] == "material"  # auto: the scene has a surface
+        world = sc.triangles_at(0.25) if not shift.any() else None
+        if world is not None:
+            ref = R.ref_material(world, cam, W, H, looks, shadows=True, shadow_offset=1e-6 * _diag(world))
+            compare(fr, ref, True)
+            base = fr.image.copy()
+        else:
+            # far away: the same picture as at the origin (the frame keeps float32's precision)
+            diff = np.abs(fr.image[..., :3].astype(int) - base[..., :3].astype(int)).max(axis=2)
+            assert (diff > 1).mean() < 0.003
+
+
+def test_auto_is_lambert_without_a_surface_and_material_has_a_default():
+    from gridrt.scene import icosphere_mesh
+
+    sc = StaticMesh(icosphere_mesh(320))
+    fr = FramePipeline(sc, render_params=RenderParams(width=32, height=24)).step(0.0)
+    assert fr.stats["shading"] == "lambert"
+    fr2 = FramePipeline(sc, render_params=RenderParams(width=32, height=24, shading="material")).step(0.0)
+    assert fr2.stats["shading"] == "material" and fr2.stats["lights"] == 1
+    assert (fr2.tri == fr.tri).all()
+
+
+def test_extreme_uv_and_degenerate_inputs(rng):
+    """uv of 1e15 and -1e15 (every wrap mode) and a zero-normal corner render finite colours and
+    the reference's texel (the coordinate is reduced before it is scaled to texels)."""
+    tris, looks = scene(rng)
+    looks.uv[:6] = looks.uv[:6] + np.float32(2.0**40)  # huge, but exactly representable shifts: same texels
+    ref = R.ref_material(tris, CAM, W, H, looks)
+    g = GridBuilder().build(tris)
+    res = Renderer().render(g, tris, CAM, RenderParams(width=W, height=H, shading="material"),
+                            looks=Looks(tris, engine_surface(looks), looks.normals, engine_lights(looks)))
+    compare(res, ref, False)
+    looks.uv[:6] = np.float32(1e15)
+    looks.uv[6:] = np.float32(-1e30)
+    res = Renderer().render(g, tris, CAM, RenderParams(width=W, height=H, shading="material"),
+                            looks=Looks(tris, engine_surface(looks), looks.normals, engine_lights(looks)))
+    assert (res.tri >= 0).any()
+
+
+def test_bad_looks_are_refused(rng):
+    tris, looks = scene(rng)
+    g = GridBuilder().build(tris)
+    p = RenderParams(width=8, height=8, shading="material")
+    surf = engine_surface(looks)
+    for bad, what in ((Looks(tris[:-1], surf), "looks.tris"), (Looks(tris, surf.subset(np.arange(3))), "looks.surface"),
+                      (Looks(tris, surf, np.zeros((3, 3, 3), np.float32)), "looks.normals"),
+                      (Looks(tris, surf, None, np.zeros((1, 5))), "looks.lights"),
+                      (Looks(tris, surf, None, np.array([[1.0, 0, 0, 2.0, 1, 1, 1, 0]])), "unit vector"),
+                      ("nope", "Looks")):
+        with pytest.raises(InputError, match=what):
+            Renderer().render(g, tris, CAM, p, looks=bad)
+    with pytest.raises(InputError, match="texture index"):
+        Surface(np.zeros(len(tris), np.int32), [[1, 1, 1]], [[0, 0, 0]], [3], uv=looks.uv)
+    with pytest.raises(InputError, match="uv"):
+        Surface(np.zeros(len(tris), np.int32), [[1, 1, 1]], [[0, 0, 0]], [0], (Texture(np.zeros((2, 2, 3), np.uint8)),))
+    with pytest.raises(InputError, match="material index"):
+        Surface(np.full(len(tris), 2, np.int32), [[1, 1, 1]], [[0, 0, 0]], [-1])
+    with pytest.raises(InputError, match="NaN"):
+        Surface(np.zeros(len(tris), np.int32), [[1, 1, 1]], [[0, 0, 0]], [-1], normals=np.full((len(tris), 3, 3), np.nan))
+    with pytest.raises(InputError, match="surface describes"):
+        Mesh(np.eye(3), [[0, 1, 2]], surface=surf)
