@@ -142,6 +142,144 @@ def test_viewer_state_actions():
     assert not st.set_grid(leaf_density=0.0) and st.grid.leaf_density == 4.0 and "leaf_density" in st.scene_error
 
 
+def test_scene_camera_state():
+    """The "scene camera" box: on for a scene with its own camera when the viewer wants it, never
+    for one without; turning it off or moving the camera keeps the view on screen; Reset view
+    returns to it when the scene started on it, else to the home camera."""
+    from gridrt.app.viewer.state import ViewerState
+    from gridrt.camera import Camera
+
+    st = ViewerState(max_threads=2)
+    st.scene_loaded(has_camera=False, want=True)
+    assert not st.follow_camera and not st.scene_camera
+    st.set_scene_camera(True)                       # no camera of its own: the box stays off
+    assert not st.follow_camera
+    home = Camera(eye=(0.0, 0.0, 5.0), target=(0.0, 0.0, 0.0))
+    st.home = st.camera = home
+    st.scene_loaded(has_camera=True, want=True)
+    assert st.follow_camera and st.scene_camera
+    shown = Camera(eye=(1.0, 2.0, 3.0), target=(0.0, 1.0, 0.0))   # the scene's camera of the frame on screen
+    st.camera = shown
+    st.set_scene_camera(False)
+    assert not st.follow_camera and st.camera == shown
+    st.set_scene_camera(True)
+    st.leave_scene_camera()                         # a drag, the wheel or a fly key
+    assert not st.follow_camera and st.camera == shown
+    st.reset_view()
+    assert st.follow_camera and st.camera == shown  # back on the scene's camera
+    st.scene_loaded(has_camera=True, want=False)    # --no-scene-camera
+    assert not st.follow_camera and st.scene_camera
+    st.reset_view()
+    assert not st.follow_camera and st.camera == home
+    snap = st.snapshot()
+    assert (snap["scene_camera"], snap["follow_camera"]) == (True, False)
+
+
+@pytest.mark.parametrize("argv, first, later", [
+    ([], True, True),
+    (["--no-scene-camera"], False, False),
+    (["--follow-camera"], True, True),
+    (["--eye", "0,0,5", "--target", "0,0,0"], False, True),
+    (["--eye", "0,0,5", "--target", "0,0,0", "--follow-camera"], True, True),
+])
+def test_scene_camera_options(argv, first, later):
+    """The viewer starts on the scene's own camera unless --no-scene-camera, or an explicit
+    --eye/--target without --follow-camera (that one for the command line's scene only)."""
+    from gridrt.app.__main__ import build_parser
+    from gridrt.app.viewer.view import initial_state, start_on_scene_camera
+
+    a = build_parser().parse_args(["view", "--scene", "marbles", *argv])
+    assert start_on_scene_camera(a) is first
+    assert initial_state(a).prefer_scene_camera is later
+
+
+def _textured_gltf(folder):
+    """(path, texel bytes of each texture): a glTF file in ``folder`` with two quads, each with
+    its own PNG texture (tex0.png, tex1.png next to it), and a perspective camera node whose
+    translation is animated (0..2 s), so that the file loads as an animation with a camera."""
+    import base64
+
+    folder = Path(folder)
+    pos = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float32)
+    pos = np.concatenate([pos, pos + np.float32([1.5, 0, 0])])
+    uv = np.array([[0, 1], [1, 1], [1, 0], [0, 0]] * 2, np.float32)
+    idx = np.array([0, 1, 2, 0, 2, 3], np.uint16)
+    times = np.array([0.0, 2.0], np.float32)
+    moves = np.array([[1.25, 0.5, 3.0], [1.25, 0.5, 4.0]], np.float32)
+    parts = [pos, uv, idx, idx + np.uint16(4), times, moves]
+    offsets = np.concatenate([[0], np.cumsum([a.nbytes for a in parts])]).tolist()
+    blob = b"".join(a.tobytes() for a in parts)
+    sizes = []
+    for i, colour in enumerate(((200, 40, 40), (40, 40, 200))):
+        img = np.zeros((8, 16, 3), np.uint8)
+        img[:] = colour
+        img[::2, ::2] = 255
+        Image.fromarray(img).save(folder / f"tex{i}.png")
+        sizes.append(img.nbytes)
+    kinds = [(5126, "VEC3"), (5126, "VEC2"), (5123, "SCALAR"), (5123, "SCALAR"), (5126, "SCALAR"), (5126, "VEC3")]
+    accessors = [{"bufferView": i, "componentType": c, "count": len(a), "type": k}
+                 for i, (a, (c, k)) in enumerate(zip(parts, kinds))]
+    accessors[0].update(min=pos.min(0).tolist(), max=pos.max(0).tolist())
+    accessors[4].update(min=[0.0], max=[2.0])
+    doc = {
+        "asset": {"version": "2.0"},
+        "scene": 0, "scenes": [{"nodes": [0, 1]}],
+        "nodes": [{"mesh": 0}, {"camera": 0, "translation": [1.25, 0.5, 3.0]}],
+        "cameras": [{"type": "perspective", "perspective": {"yfov": 0.8, "znear": 0.01, "aspectRatio": 1.333}}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2 + i, "material": i}
+                                   for i in range(2)]}],
+        "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": i}}} for i in range(2)],
+        "textures": [{"source": i} for i in range(2)],
+        "images": [{"uri": f"tex{i}.png"} for i in range(2)],
+        "buffers": [{"byteLength": len(blob),
+                     "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}],
+        "bufferViews": [{"buffer": 0, "byteOffset": offsets[i], "byteLength": a.nbytes} for i, a in enumerate(parts)],
+        "accessors": accessors,
+        "animations": [{"channels": [{"sampler": 0, "target": {"node": 1, "path": "translation"}}],
+                        "samplers": [{"input": 4, "output": 5}]}],
+    }
+    path = folder / "quads.gltf"
+    path.write_text(json.dumps(doc))
+    return path, sizes
+
+
+def test_worker_texture_progress(tmp_path):
+    """A scene load on the viewer's worker counts the textures its loader reads (texture_progress):
+    :meth:`RenderWorker.progress` has the running count during the load (read here from inside it,
+    where the pipeline is made), the LoadResult the totals, and whether the scene has a camera."""
+    from gridrt.app.viewer.worker import LoadJob, RenderWorker, TextureProgress
+    from gridrt.config import GridParams, RenderParams
+    from gridrt.scene import SceneSpec
+
+    path, sizes = _textured_gltf(tmp_path)
+    seen = {}
+
+    def factory(scene, job):   # on the worker thread, after the loader, before the load ends
+        seen["progress"], seen["scene"] = worker.progress(), scene
+        return scene
+
+    worker = RenderWorker(factory)
+    try:
+        assert worker.progress() is None
+        worker.submit(LoadJob(SceneSpec(source=str(path)), GridParams(threads=1), RenderParams(threads=1)))
+        res, t0 = [], time.time()
+        while not res and time.time() - t0 < 300:
+            res = worker.take()
+            time.sleep(0.02)
+        assert worker.progress() is None   # no load runs
+    finally:
+        worker.stop()
+    [r] = res
+    assert r.error is None and r.has_camera and r.triangles == 4
+    p = seen["progress"]
+    assert (p.count, p.nbytes) == (2, sum(sizes)) and p.last.endswith("tex1.png")
+    assert p.label() == f"loading textures: 2 read ({sum(sizes) / 2**20:.2f} MiB), last: {p.last}"
+    assert r.textures.as_dict() == {"count": 2, "bytes": sum(sizes), "last": p.last}
+    scene = seen["scene"]
+    assert scene.surface is not None and len(scene.surface.textures) == 2 and scene.camera_at(0.0) is not None
+    assert TextureProgress().label() == ""
+
+
 # ---------------------------------------------------------------------------------------------
 def _pattern(w, h):
     """A test image whose every row and column differs: (h, w, 4) uint8."""
@@ -189,7 +327,7 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
     from gridrt.config import GridParams
     from gridrt.stats import BuildStats, FrameStats, RenderStats
 
-    W, H = 640, 800   # tall enough for the whole panel (the viewer scrolls it in smaller windows)
+    W, H = 640, 840   # tall enough for the whole panel (the viewer scrolls it in smaller windows)
     fbo = ctx.simple_framebuffer((W, H), components=4)
     ui = ImguiRuntime()
     blit = Blitter(ctx)
@@ -201,9 +339,9 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
                        cells_cleared=0, cells_inspected=0, macro_cells=0, macro_full=0, dims="20x10x25",
                        grid_bytes=65536)
     render = RenderStats(render_ms=4.0, mrays=10.0, hit_fraction=0.5, tests_per_ray=1.0, cells_per_ray=1.0,
-                         render_threads=2, traversal="cgt")
+                         render_threads=2, traversal="cgt", lights=2, shadow_rays_per_pixel=1.5, shade_ms=3.25)
     st.stats = FrameStats(frame=1, t=0.0, triangles=1234, build=build, render=render, rebuilt=True, anim_ms=0.1,
-                          static_build_ms=0.0, frame_ms=6.5, width=W, height=H, shading="lambert")
+                          static_build_ms=0.0, frame_ms=6.5, width=W, height=H, shading="material")
     for i in range(60):   # render time falls steadily, build time stays flat
         st.history.add(dict(build_ms=1.0, render_ms=6.0 - 0.08 * i, frame_ms=7.0))
     names = ["serial", "other"]
@@ -280,6 +418,45 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
         click("save window")
         assert st.want_window_shot is True
 
+        # the stats: the material pass's time, lights and shadow rays; the whole scene's references
+        # per triangle (8000 / 1234, not the build's own 6.5), and for a split scene both parts'
+        # together, with the moving part's own figure after them
+        assert st.panel_text["shade"] == "shade      3.25 ms  material"
+        assert st.panel_text["lights"] == "lights 2   shadow rays 1.50/px"
+        assert st.panel_text["references"] == f"references 8,000 ({8000 / 1234:.2f}/tri)"
+        static = BuildStats(stages=dict(insert_ms=9.0), build_ms=9.0, strategy="serial", threads=2, insert="bbox",
+                            triangles=10000, cells=40000, references=30000, refs_per_tri=3.0, cells_cleared=0,
+                            cells_inspected=0, macro_cells=0, macro_full=0, dims="40x20x50", grid_bytes=1 << 20)
+        single = st.stats
+        st.stats = FrameStats(frame=2, t=0.0, triangles=11234, build=build, render=render, rebuilt=True,
+                              anim_ms=0.1, static_build_ms=0.0, frame_ms=6.5, width=W, height=H, shading="material",
+                              static=static)
+        frame()
+        assert st.panel_text["references"] == f"references 38,000 ({38000 / 11234:.2f}/tri, moving 6.50)"
+        st.stats = single
+        # the shading combo offers the modes; "auto" shows what it resolved to in the last frame
+        from gridrt.app.viewer.ui import shading_label
+        from gridrt.config import SHADING_MODES
+
+        assert shading_label("auto", st.stats) == "auto: material" and shading_label("normal", st.stats) == "normal"
+        assert shading_label("auto", None) == "auto"
+        assert st.render.shading == "auto"
+        click("shading")
+        assert {f"shading: {m}" for m in SHADING_MODES} <= set(st.widget_rects)
+        click("shading: material")
+        assert st.render.shading == "material" and "shading: auto" not in st.widget_rects
+        # the scene camera box: greyed out (a click does nothing) for a scene without a camera;
+        # for one with a camera a click turns it off and on
+        assert not st.scene_camera and not st.follow_camera
+        click("scene camera", 0.05)
+        assert not st.follow_camera
+        st.scene_loaded(has_camera=True, want=True)
+        assert st.follow_camera
+        click("scene camera", 0.05)
+        assert not st.follow_camera and st.scene_camera
+        click("scene camera", 0.05)
+        assert st.follow_camera
+
         # the grid kind: a click opens the combo's list, a click on an item picks it; a two-level
         # grid (or auto) shows its density sliders, a uniform one does not
         from gridrt.app.viewer.ui import LEAF_DENSITY_RANGE, TOP_DENSITY_RANGE
@@ -348,15 +525,15 @@ class _X:
 
 
 class _App:
-    def __init__(self, display, tmp):
+    def __init__(self, display, tmp, scene=("--scene", "marbles", "--count", "2000"), extra=()):
         self.display = display
         self.cwd = tmp / "cwd"
         self.cwd.mkdir()
         self.shots = tmp / "shots"
         self.state_file = tmp / "state.json"
         self.log = open(tmp / "app.log", "w+")
-        cmd = [sys.executable, "-m", "gridrt", "view", "--scene", "marbles", "--count", "2000", "--size", f"{W}x{H}",
-               "--state-file", str(self.state_file), "--screenshot-dir", str(self.shots)]
+        cmd = [sys.executable, "-m", "gridrt", "view", *scene, "--size", f"{W}x{H}",
+               "--state-file", str(self.state_file), "--screenshot-dir", str(self.shots), *extra]
         self.proc = subprocess.Popen(cmd, cwd=self.cwd, env=_app_env(DISPLAY=display), stdout=self.log,
                                      stderr=subprocess.STDOUT, text=True)
 
@@ -664,6 +841,129 @@ def test_viewer_window_under_xvfb(tmp_path):
         out = app.output()
         assert f"saved screenshot {shot_path}" in out
         assert list(app.cwd.iterdir()) == []   # nothing written where the viewer was started
+    finally:
+        if app is not None:
+            app.close()
+        x.close()
+
+
+def _same_camera(cam_json, cam):
+    """The state file's camera is ``cam`` (a gridrt Camera): every coordinate, up and fov."""
+    got = [*cam_json["eye"], *cam_json["target"], *cam_json["up"], cam_json["fov"]]
+    want = [*cam.eye, *cam.target, *cam.up, cam.fov]
+    return np.allclose(got, want, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.skipif(shutil.which("Xvfb") is None or shutil.which("xdotool") is None,
+                    reason="needs Xvfb and xdotool (apt-get install xvfb xauth xdotool)")
+def test_viewer_scene_camera_under_xvfb(tmp_path):
+    """The viewer on a BART scene (the museum): it starts looking through the scene's own camera
+    (the state's camera is the scene's at the frame's time, computed here); the "scene camera" box
+    turns it off where the view is, C turns it on again, a drag leaves it from the view on screen
+    and R returns to it; the stats show the whole scene's references per triangle (both grids of
+    the split scene, built here); the shading combo offers material; a textured glTF file opened
+    from the panel reports its textures (the texture_progress callback's counts) and its camera."""
+    import warnings
+
+    from gridrt.scene import make_scene
+    from gridrt.scene.surface import TextureWarning
+
+    museum = REPO / "assets" / "museum" / "museum5.aff"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", TextureWarning)   # the museum's paintings are not in the repository
+        scene = make_scene(str(museum))
+    assert scene.camera_at(0.0) is not None and scene.n_static not in (0, scene.n_triangles)   # a split scene
+    x = _X()
+    app = None
+    try:
+        app = _App(x.display, tmp_path, scene=("--scene", str(museum)), extra=("--paused", "--scale", "0.5"))
+        s = app.wait(lambda q: q["rendered_frames"] >= 1 and q["camera"] and q["stats"].get("t") is not None,
+                     "the first museum frame", timeout=600)   # a cold cache compiles the material kernels
+        assert s["scene_camera"] and s["follow_camera"] and s["scene_name"] == "museum5"
+        assert _same_camera(s["camera"], scene.camera_at(s["stats"]["t"]))
+        # "auto" shading resolves to the scene's materials when it has them, and the panel says so
+        assert s["shading"] == "auto"
+        assert s["stats"]["shading"] == ("material" if scene.surface is not None else "lambert")
+        assert s["panel_text"]["shade"].endswith(f" ms  {s['stats']['shading']}")
+        assert s["panel_text"]["lights"] == (f"lights {s['stats']['lights']}   "
+                                             f"shadow rays {s['stats']['shadow_rays_per_pixel']:.2f}/px")
+
+        # references per triangle: the whole scene's (static and moving grids), as the grids built
+        # here with the viewer's settings have them
+        pipe, _ = _headless_frame(scene, s, 16, 12)
+        grids = [pipe.grid, pipe.static_grid]
+        assert pipe.static_grid is not None
+        for g in grids:
+            if g.kind == "uniform":
+                assert g.references == int(g.cell_start[:, -1].sum())
+        whole = sum(g.references for g in grids) / sum(g.n_triangles for g in grids)
+        assert sum(g.n_triangles for g in grids) == scene.n_triangles
+        assert s["stats"]["refs_per_tri"] == pytest.approx(whole, rel=1e-12)
+        assert f"({whole:.2f}/tri, moving {pipe.grid.references / pipe.grid.n_triangles:.2f})" \
+            in s["panel_text"]["references"]
+
+        wid = app.xdo("search", "--sync", "--name", "^gridrt$").split()[0]
+        app.xdo("windowfocus", "--sync", wid)
+        # playing: the scene's camera moves and the view follows it
+        app.xdo("mousemove", 500, 300, "key", "space")
+        s2 = app.wait(lambda q: q["playing"] and q["stats"]["t"] > s["stats"]["t"] + 0.05, "the camera moving",
+                      timeout=60)
+        assert _same_camera(s2["camera"], scene.camera_at(s2["stats"]["t"])) and s2["camera"] != s["camera"]
+        # paused, the box off: the view stays where the scene's camera had it, also while playing on
+        app.xdo("key", "space")
+        sp = app.settled("paused")
+        assert _same_camera(sp["camera"], scene.camera_at(sp["stats"]["t"]))
+        app.click(sp, "scene camera", 0.05)
+        s3 = app.wait(lambda q: not q["follow_camera"], "scene camera off")
+        assert s3["camera"] == sp["camera"] and s3["scene_camera"]
+        app.xdo("mousemove", 500, 300, "key", "space")
+        s4 = app.wait(lambda q: q["stats"]["t"] > sp["stats"]["t"] + 0.05, "frames off the scene camera",
+                      timeout=60)
+        assert s4["camera"] == sp["camera"] and not _same_camera(s4["camera"], scene.camera_at(s4["stats"]["t"]))
+        # C: back on the scene's camera
+        app.xdo("key", "c")
+        app.wait(lambda q: q["follow_camera"] and _same_camera(q["camera"], scene.camera_at(q["stats"]["t"]))
+                      and q["camera"] != sp["camera"], "the scene's camera again")
+        # paused, a left drag on the image leaves the scene's camera: it orbits the view on screen
+        app.xdo("key", "space")
+        sp2 = app.settled("paused again")
+        assert sp2["follow_camera"] and not sp2["playing"]
+        app.xdo("mousemove", 480, 300, "sleep", 0.2, "mousedown", 1, "sleep", 0.2, "mousemove", 520, 290,
+                "sleep", 0.2, "mouseup", 1)
+        s6 = app.wait(lambda q: not q["follow_camera"] and q["camera"]["eye"] != sp2["camera"]["eye"], "orbit")
+        assert s6["camera"]["target"] == sp2["camera"]["target"]
+        assert _dist(s6["camera"]) == pytest.approx(_dist(sp2["camera"]), rel=1e-9)
+        # R: back to the scene's camera (the scene started on it)
+        app.xdo("key", "r")
+        app.wait(lambda q: q["follow_camera"] and q["camera"] == sp2["camera"], "view reset to the scene camera")
+
+        # the shading combo offers material (and the other modes); picking one renders with it
+        app.pick("shading", "normal")
+        app.wait(lambda q: q["stats"].get("shading") == "normal", "normal shading")
+        app.pick("shading", "material")
+        s8 = app.wait(lambda q: q["stats"].get("shading") == "material" and q["shading"] == "material",
+                      "material shading", timeout=120)
+
+        # a textured glTF file, opened from the panel: its textures are counted while it loads
+        # (texture_progress), and it starts on its own (animated) camera
+        path, sizes = _textured_gltf(tmp_path)
+        app.click(s8, "mesh file")
+        app.xdo("sleep", 0.2, "keydown", "ctrl", "sleep", 0.1, "key", "a", "sleep", 0.1, "keyup", "ctrl", "sleep", 0.1,
+                "key", "BackSpace")
+        app.xdo("type", "--delay", 5, str(path))
+        app.xdo("key", "Return")
+        s9 = app.wait(lambda q: q["triangles"] == 4 and q["stats"].get("triangles") == 4, "the glTF file loaded",
+                      timeout=120)
+        assert s9["textures"]["count"] == 2 and s9["textures"]["bytes"] == sum(sizes)
+        assert s9["textures"]["last"].endswith("tex1.png")
+        assert s9["scene_camera"] and s9["follow_camera"]
+        quads = make_scene(str(path))
+        assert _same_camera(s9["camera"], quads.camera_at(s9["stats"]["t"]))
+        app.xdo("mousemove", 500, 300, "key", "Escape")
+        assert app.proc.wait(30) == 0, app.output()
+        out = app.output()
+        assert f"({sum(sizes) / 2**20:.2f} MiB)" in out and "2 textures" in out
+        assert "looking through its camera" in out
     finally:
         if app is not None:
             app.close()

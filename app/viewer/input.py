@@ -8,8 +8,13 @@ camera.  A drag belongs to whoever got its button press.
 
 Keys (when the panel does not want the keyboard): left drag orbit, right or middle drag pan,
 wheel zoom, W/S forward/back, A/D left/right, Q/E down/up, Shift flies 4x faster, R reset view,
-Space play/pause, F12 or P screenshot, H hide/show panel, [ and ] previous/next strategy, - and =
+C scene camera on/off, Space play/pause, F12 or P screenshot, H hide/show panel, [ and ] previous/next strategy, - and =
 fewer/more threads, Esc quit.
+
+The scene's own camera (BART, glTF; the panel's "scene camera" box, on by default for a scene that
+has one): any camera move (drag, wheel, fly keys) leaves it, starting from the view on screen, as
+grabbing the view does in a DCC tool's camera view; C or the box returns to it, and R (Reset view)
+returns to it when the scene started on it.
 """
 
 import time
@@ -21,7 +26,7 @@ from gridrt.scene import SceneSpec
 
 #: keys listed in the panel's help line
 KEY_HELP = (
-    "L-drag orbit | R/M-drag pan | wheel zoom | WASD/QE fly (Shift fast) | R reset | "
+    "L-drag orbit | R/M-drag pan | wheel zoom | WASD/QE fly (Shift fast) | R reset | C scene camera | "
     "Space play | P/F12 shot | H panel | [ ] strategy | - = threads | Esc quit"
 )
 #: wheel notch -> distance factor
@@ -89,6 +94,7 @@ class InputHandler:
                 self._drag(a, b)
             elif kind == "scroll":
                 if not ui_mouse and st.camera is not None and b != 0:
+                    st.leave_scene_camera()
                     st.camera = cc.dolly(st.camera, ZOOM_STEP ** b)
             elif kind == "key" and b in (glfw.PRESS, glfw.REPEAT) and not ui_keys:
                 self._key(a, b, mods)
@@ -115,6 +121,8 @@ class InputHandler:
             st.show_panel = not st.show_panel
         elif key == glfw.KEY_R:
             st.reset_view()
+        elif key == glfw.KEY_C:
+            st.set_scene_camera(not st.follow_camera)
         elif key == glfw.KEY_LEFT_BRACKET:
             st.cycle_strategy(self.strategy_names, -1)
         elif key == glfw.KEY_RIGHT_BRACKET:
@@ -136,8 +144,10 @@ class InputHandler:
             return
         h = max(glfw.get_window_size(self.window)[1], 1)
         if self.owner.get(glfw.MOUSE_BUTTON_LEFT) == "camera":
+            st.leave_scene_camera()
             st.camera = cc.orbit_from_drag(st.camera, dx, dy, h)
         elif "camera" in (self.owner.get(glfw.MOUSE_BUTTON_RIGHT), self.owner.get(glfw.MOUSE_BUTTON_MIDDLE)):
+            st.leave_scene_camera()
             st.camera = cc.pan(st.camera, dx, dy, h)
 
     def _fly(self, dt):
@@ -153,5 +163,6 @@ class InputHandler:
             self.last_event = time.perf_counter()   # a held key keeps the loop awake
             fast = 4.0 if (down(glfw.KEY_LEFT_SHIFT) or down(glfw.KEY_RIGHT_SHIFT)) else 1.0
             step = FLY_SPEED * st.scene_radius * fast * min(dt, 0.1)
+            st.leave_scene_camera()
             st.camera = cc.fly(st.camera, f * step, r * step, u * step)
 

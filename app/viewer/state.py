@@ -65,6 +65,7 @@ class ViewerState:
     file_text: str = ""                     # the panel's "mesh file" text box
     scene_request: SceneSpec | None = None  # set by the panel; the loop starts the load
     scene_error: str = ""
+    textures: dict | None = None            # the last load's textures: {"count", "bytes", "last"}
     # animation
     playing: bool = True
     time: float = 0.0
@@ -73,8 +74,17 @@ class ViewerState:
     grid: GridParams = field(default_factory=GridParams)
     render: RenderParams = field(default_factory=RenderParams)
     max_threads: int = 1
-    follow_camera: bool = False  # look through the scene's animated camera (BART, glTF)
     scale: float = 1.0
+    # the scene's own camera (BART, glTF): ``follow_camera`` is the panel's "scene camera" box,
+    # on only while the loaded scene has a camera (``scene_camera``).  A scene with a camera
+    # starts on it when ``prefer_scene_camera`` (the default; --no-scene-camera clears it; an
+    # explicit --eye/--target without --follow-camera keeps the command line's scene off it).
+    # While it is on, ``camera`` is the camera of the frame on screen (the scene's at the frame's
+    # time), so leaving it (the box, or any camera move: :meth:`leave_scene_camera`) keeps that view.
+    follow_camera: bool = False
+    scene_camera: bool = False
+    prefer_scene_camera: bool = True
+    scene_camera_home: bool = False         # Reset view returns to the scene camera (else to ``home``)
     # camera
     camera: Camera | None = None
     home: Camera | None = None
@@ -103,6 +113,7 @@ class ViewerState:
     render_fps: float = 0.0
     panel_rect: tuple = (0.0, 0.0, 0.0, 0.0)   # x, y, w, h in window pixels
     widget_rects: dict = field(default_factory=dict)  # label -> (x, y, w, h), for tests
+    panel_text: dict = field(default_factory=dict)    # name -> a line of the panel's stats, for tests
 
     def __post_init__(self):
         # one thread count for build and render, a concrete one (None: all cores)
@@ -176,8 +187,28 @@ class ViewerState:
         self.set_threads(self.threads + step)
 
     def reset_view(self):
-        if self.home is not None:
+        """Back to the starting view: the scene's camera when the scene started on it, else ``home``."""
+        if self.scene_camera_home and self.scene_camera:
+            self.follow_camera = True
+        elif self.home is not None:
             self.camera = self.home
+
+    def set_scene_camera(self, on):
+        """The "scene camera" box: look through the scene's own camera (only when it has one).
+        Turned off, the view stays where the scene's camera had it (``camera`` is the camera of
+        the frame on screen)."""
+        self.follow_camera = bool(on) and self.scene_camera
+
+    def leave_scene_camera(self):
+        """A camera move (drag, wheel, fly keys) starts here: it leaves the scene's camera, and
+        moves on from the view on screen."""
+        self.follow_camera = False
+
+    def scene_loaded(self, has_camera, want):
+        """A scene was loaded: look through its camera when it has one and ``want`` (the viewer
+        wants to: see gridrt.app.viewer.view); Reset view returns to it then."""
+        self.scene_camera = bool(has_camera)
+        self.follow_camera = self.scene_camera_home = bool(want) and self.scene_camera
 
     def snapshot(self):
         """A JSON-ready dict of the state (the --state-file dump)."""
@@ -206,6 +237,8 @@ class ViewerState:
             "shading": self.render.shading,
             "shadows": self.render.shadows,
             "follow_camera": self.follow_camera,
+            "scene_camera": self.scene_camera,
+            "textures": self.textures,
             "traversal": self.render.traversal,
             "packet": list(self.render.packet),
             "packet_precision": self.render.packet_precision,
@@ -222,6 +255,7 @@ class ViewerState:
             "message": self.message,
             "panel_rect": list(self.panel_rect),
             "widget_rects": {k: list(v) for k, v in self.widget_rects.items()},
+            "panel_text": dict(self.panel_text),
             "stats": st,
             "ui_fps": self.ui_fps,
             "render_fps": self.render_fps,

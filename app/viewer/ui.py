@@ -44,6 +44,15 @@ def traversal_setting(label):
     return {"traversal": "cgt", "packet": shape.rstrip(","), "packet_precision": prec}
 
 
+def shading_label(mode, stats):
+    """The shading combo's text: the mode, and for "auto" the mode it resolved to in the last frame
+    (the stats row's ``shading``), e.g. "auto: material"."""
+    resolved = stats.get("shading") if stats else None
+    if mode == "auto" and resolved and resolved != "auto":
+        return f"auto: {resolved}"
+    return mode
+
+
 def traversal_label(rp):
     """The panel's label of RenderParams rp's traversal, e.g. "cgt 8x8, float64" or "dda"."""
     if rp.traversal == "dda":
@@ -116,11 +125,12 @@ def _rect(state, name, width=None):
     state.widget_rects[name] = (float(p.x), float(p.y), w, float(s.y))
 
 
-def _combo(state, label, items, current):
-    """A combo box over ``items`` showing ``current``; the item picked this frame, or None.  While
-    its list is open, each item's rectangle is recorded as ``"<label>: <item>"``."""
+def _combo(state, label, items, current, preview=None):
+    """A combo box over ``items`` showing ``current`` (or the text ``preview``); the item picked
+    this frame, or None.  While its list is open, each item's rectangle is recorded as
+    ``"<label>: <item>"``."""
     w = imgui.calc_item_width()
-    opened = imgui.begin_combo(label, current if current in items else "")
+    opened = imgui.begin_combo(label, preview if preview is not None else (current if current in items else ""))
     _rect(state, label, w)
     if not opened:
         return None
@@ -259,7 +269,7 @@ def _draw_render(state):
     v = _combo(state, "intersection", list(INTERSECTION_LABELS), INTERSECTION_LABELS[0 if rp.watertight else 1])
     if v is not None:
         state.set_render(watertight=v == INTERSECTION_LABELS[0])
-    v = _combo(state, "shading", list(SHADING_MODES), rp.shading)
+    v = _combo(state, "shading", list(SHADING_MODES), rp.shading, shading_label(rp.shading, state.stats))
     if v is not None:
         state.set_render(shading=v)
     v = _combo(state, "traversal", list(TRAVERSAL_CHOICES), traversal_label(rp))
@@ -270,10 +280,15 @@ def _draw_render(state):
     if changed:
         state.set_render(shadows=b)
     imgui.same_line()
+    imgui.begin_disabled(not state.scene_camera)
     changed, b = imgui.checkbox("scene camera", bool(state.follow_camera))
+    imgui.end_disabled()
     _rect(state, "scene camera")
     if changed:
-        state.follow_camera = b
+        state.set_scene_camera(b)
+    if imgui.is_item_hovered(imgui.HoveredFlags_.allow_when_disabled):
+        imgui.set_tooltip("look through the scene's own (animated) camera (C); moving the view leaves it"
+                          if state.scene_camera else "this scene has no camera of its own")
     w = imgui.calc_item_width()
     changed, sc = imgui.slider_float("resolution", float(state.scale), SCALE_MIN, SCALE_MAX, "%.2fx")
     _rect(state, "resolution", w)
@@ -341,8 +356,42 @@ def _dims(d):
     return str(d)
 
 
+def _line(state, name, text, color=None):
+    """One line of the stats (wrapped at the panel's edge), also kept in ``state.panel_text[name]``
+    (the state dump's; for tests)."""
+    state.panel_text[name] = text
+    imgui.push_text_wrap_pos(0.0)
+    if color is None:
+        imgui.text(text)
+    else:
+        imgui.text_colored(color, text)
+    imgui.pop_text_wrap_pos()
+
+
+def shade_line(st):
+    """The stats' shading line: the material pass's time (its shading and shadow rays, part of
+    the render's) and the mode the frame was shaded with (an "auto" resolved)."""
+    return f"shade  {float(st.get('shade_ms', 0.0) or 0.0):8.2f} ms  {st.get('shading', '')}"
+
+
+def lights_line(st):
+    """The stats' lights line: the lights the hits were shaded with and the shadow rays per pixel."""
+    return (f"lights {int(st.get('lights', 0) or 0)}   "
+            f"shadow rays {float(st.get('shadow_rays_per_pixel', 0.0) or 0.0):.2f}/px")
+
+
+def references_line(st):
+    """The stats' references line: the whole scene's references and references per triangle (a
+    split scene's static and moving parts together), and a split scene's moving part's figure."""
+    text = f"references {st['references']:,} ({st.get('refs_per_tri', 0):.2f}/tri"
+    if getattr(st, "static", None) is not None:
+        text += f", moving {st.get('moving_refs_per_tri', 0):.2f}"
+    return text + ")"
+
+
 def _draw_stats(state):
     st = state.stats
+    state.panel_text = {}
     if not st:
         imgui.text_colored(DIM_COLOR, "no frame yet")
         return
@@ -350,21 +399,24 @@ def _draw_stats(state):
     if st.static is not None:
         stages.append(("static build", st.static_build_ms))
     if st.get("rebuilt", 1):
-        imgui.text(f"build  {st['build_ms']:8.2f} ms  {st['strategy']}, {st['threads']} thr")
+        _line(state, "build", f"build  {st['build_ms']:8.2f} ms  {st['strategy']}, {st['threads']} thr")
         imgui.push_text_wrap_pos(0.0)
         imgui.text_colored(DIM_COLOR, "  " + "  ".join(f"{k} {v:.2f}" for k, v in stages))
         imgui.pop_text_wrap_pos()
     else:
-        imgui.text("build  reused (static scene)")
-    imgui.text(f"render {st['render_ms']:8.2f} ms  {st['width']}x{st['height']}, {st.get('mrays', 0):.1f} Mray/s")
-    imgui.text(f"frame  {st['frame_ms']:8.2f} ms  {state.render_fps:.1f} fps (window {state.ui_fps:.0f})")
+        _line(state, "build", "build  reused (static scene)")
+    _line(state, "render",
+          f"render {st['render_ms']:8.2f} ms  {st['width']}x{st['height']}, {st.get('mrays', 0):.1f} Mray/s")
+    _line(state, "shade", shade_line(st))
+    _line(state, "lights", lights_line(st))
+    _line(state, "frame", f"frame  {st['frame_ms']:8.2f} ms  {state.render_fps:.1f} fps (window {state.ui_fps:.0f})")
     kind = st.get("grid", "uniform")
     two_level = kind == "two_level"  # its cells and references are the leaf level's, its dims the top's
-    imgui.text(f"grid {kind}   dims {_dims(st.get('dims', ''))}"
-               + (f" top, {st.get('macro_full', 0):,} full" if two_level else ""))
-    imgui.text(f"triangles {st['triangles']:,}   {'leaf cells' if two_level else 'cells'} {st['cells']:,}")
-    imgui.text(f"references {st['references']:,} ({st.get('refs_per_tri', 0):.2f}/tri)")
-    imgui.text(f"grid memory {_fmt_bytes(st.get('grid_bytes', 0))}   {st.get('bytes_per_tri', 0):.1f} B/tri")
+    _line(state, "grid", f"grid {kind}   dims {_dims(st.get('dims', ''))}"
+          + (f" top, {st.get('macro_full', 0):,} full" if two_level else ""))
+    _line(state, "triangles", f"triangles {st['triangles']:,}   {'leaf cells' if two_level else 'cells'} {st['cells']:,}")
+    _line(state, "references", references_line(st))
+    _line(state, "memory", f"grid memory {_fmt_bytes(st.get('grid_bytes', 0))}   {st.get('bytes_per_tri', 0):.1f} B/tri")
     b, r = state.history.arrays()
     if len(b) >= 2 and implot.begin_plot("##ms", imgui.ImVec2(-1, 130)):
         fit = implot.AxisFlags_.auto_fit

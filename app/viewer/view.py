@@ -30,6 +30,8 @@ IDLE_WAIT_S = 0.25
 SLOW_FRAME_S = 1.5
 #: a scene load shows the overlay once it has run this long (seconds)
 SLOW_LOAD_S = 0.15
+#: a slow texture load prints a progress line to stderr at most this often (seconds)
+PROGRESS_PRINT_S = 1.0
 
 
 def add_parser(sub):
@@ -48,6 +50,11 @@ def add_parser(sub):
                    help="render resolution as a fraction of the window (0.1..2; default 1)")
     g.add_argument("--paused", action="store_true", help="start with the animation paused")
     g.add_argument("--hide-panel", action="store_true", help="start with the panel hidden (H toggles)")
+    g.add_argument("--no-scene-camera", dest="scene_camera", action="store_false",
+                   help="start on a camera that frames the scene, not on the scene's own camera (BART, glTF; "
+                        "the viewer's default where the scene has one, as with --follow-camera; an explicit "
+                        "--eye/--target also starts off it unless --follow-camera is given). The panel's "
+                        "\"scene camera\" box or the C key switches it")
     g.add_argument("--screenshot-dir", type=Path, default=None,
                    help="folder for F12/P screenshots (default: the current directory, only when asked)")
     g.add_argument("--state-file", type=Path, default=None,
@@ -94,6 +101,14 @@ def run(a):
     return viewer.run()
 
 
+def start_on_scene_camera(a):
+    """Whether the command line's scene starts on its own camera (when it has one): by default,
+    unless --no-scene-camera, or an explicit --eye/--target without --follow-camera."""
+    if a.follow_camera:
+        return True
+    return bool(getattr(a, "scene_camera", True)) and a.eye is None and a.target is None
+
+
 def initial_state(a):
     """A ViewerState from the parsed arguments (validating them the same way dump does)."""
     from gridrt.threads import check_threads, max_threads
@@ -117,7 +132,7 @@ def initial_state(a):
         render=rp.replace(threads=threads),
         max_threads=max_threads(),
         playing=not a.paused,
-        follow_camera=a.follow_camera,
+        prefer_scene_camera=bool(getattr(a, "scene_camera", True)) or a.follow_camera,
     )
     st.scale = float(a.scale)
     st.fov = a.fov
@@ -156,6 +171,7 @@ class Viewer:
         self.glfw_error = ""
         self._last_state_write = 0.0
         self._last_result_time = None
+        self._progress_printed = (0.0, 0)   # (perf_counter, textures) of the last console progress line
 
     # ---- lifecycle ------------------------------------------------------------------------
     def run(self):
@@ -196,7 +212,7 @@ class Viewer:
             blitter = Blitter(ctx)
             worker = RenderWorker(self._make_pipeline, on_result=glfw.post_empty_event)
             self.ui, self.blitter, self.worker = ui, blitter, worker
-            self._start_load(st.scene, keep_camera=True)
+            self._start_load(st.scene, keep_camera=True, scene_camera=start_on_scene_camera(self.args))
             self._loop()
             return 0
         finally:
@@ -235,7 +251,9 @@ class Viewer:
 
         return FramePipeline(scene, job.grid_params, job.render_params, camera=job.camera, fov=job.fov, up=job.up)
 
-    def _start_load(self, spec, keep_camera=False):
+    def _start_load(self, spec, keep_camera=False, scene_camera=None):
+        """Load ``spec`` on the worker; ``scene_camera``: look through the scene's own camera once
+        loaded, when it has one (None: the state's prefer_scene_camera)."""
         from .worker import LoadJob
 
         st = self.state
@@ -243,8 +261,10 @@ class Viewer:
         rw, rh = st.render_size_for(*self._fb_size())
         self.worker.submit(LoadJob(spec, st.grid_params(), st.render_params(rw, rh),
                                    camera=st.camera if keep_camera else None, keep_camera=keep_camera,
+                                   scene_camera=st.prefer_scene_camera if scene_camera is None else scene_camera,
                                    fov=st.fov, up=st.up, label=f"loading {spec.label()}"))
         self.last_key = None
+        self._progress_printed = (0.0, 0)
 
     def _fb_size(self):
         fw, fh = self.glfw.get_framebuffer_size(self.win)
@@ -325,12 +345,18 @@ class Viewer:
                 st.scene = res.spec
                 if not res.keep_camera:
                     st.camera = st.home = None   # frame the new scene
+                st.scene_loaded(res.has_camera, res.job is None or res.job.scene_camera)
                 st.scene_name, st.triangles = res.scene_name, res.triangles
                 st.duration, st.static = res.duration, res.static
                 st.time = 0.0 if res.duration is None else math.fmod(st.time, res.duration)
                 st.history.clear()
+                tex = res.textures
+                st.textures = tex.as_dict() if tex is not None else None
+                tex_text = "" if tex is None or not tex.count else (
+                    f", {tex.count} texture{'s' if tex.count != 1 else ''} ({tex.nbytes / 2**20:.2f} MiB)")
                 st.message = f"loaded {res.scene_name} in {res.seconds:.2f} s"
-                print(f"gridrt view: loaded {res.scene_name} ({res.triangles} triangles) in {res.seconds:.2f} s",
+                print(f"gridrt view: loaded {res.scene_name} ({res.triangles} triangles{tex_text}) "
+                      f"in {res.seconds:.2f} s" + ("; looking through its camera" if st.follow_camera else ""),
                       flush=True)
                 self.last_key = None
             elif res.job.generation != self.generation:
@@ -343,6 +369,8 @@ class Viewer:
                 self.image = res.image
                 self.blitter.upload(res.image)
                 st.stats = res.stats
+                if res.job.follow_camera and st.follow_camera and res.camera is not None:
+                    st.camera = res.camera   # the scene's camera at the frame's time: the view on screen
                 st.history.add(res.stats)
                 st.rendered_frames += 1
                 st.cold_cache = False
@@ -367,13 +395,24 @@ class Viewer:
         if job is None:
             st.busy = None
         elif isinstance(job, LoadJob):
-            st.busy = job.label if elapsed >= SLOW_LOAD_S else None
+            progress = self.worker.progress()
+            line = progress.label() if progress is not None else ""
+            st.busy = (job.label + ("\n" + line if line else "")) if elapsed >= SLOW_LOAD_S else None
+            self._print_progress(now, elapsed, progress, line)
         elif st.cold_cache:
             st.busy = "compiling numba kernels (first run only; cached for later runs)"
         elif elapsed >= SLOW_FRAME_S:
             st.busy = "building the grid and rendering (a strategy's or grid kind's first use compiles its kernels)"
         else:
             st.busy = None
+
+    def _print_progress(self, now, elapsed, progress, line):
+        """A console line for a slow texture load (one running PROGRESS_PRINT_S or longer): at most
+        one each PROGRESS_PRINT_S, while the count grows."""
+        last_t, last_n = self._progress_printed
+        if line and elapsed >= PROGRESS_PRINT_S and progress.count != last_n and now - last_t >= PROGRESS_PRINT_S:
+            self._progress_printed = (now, progress.count)
+            print(f"gridrt view: {line}", file=sys.stderr, flush=True)
 
     def _submit_frame(self):
         from gridrt.errors import InputError
@@ -392,7 +431,9 @@ class Viewer:
         except InputError as e:
             st.scene_error = str(e)
             return
-        key = (st.time, st.camera, gp, rp, st.follow_camera)
+        # while the scene's camera is on, the viewer's camera does not choose the frame (it is the
+        # last frame's, from the scene): a paused frame is not rendered again when it arrives
+        key = (st.time, None if st.follow_camera else st.camera, gp, rp, st.follow_camera)
         if key == self.last_key:
             return
         self.last_key = key

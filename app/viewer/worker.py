@@ -5,6 +5,10 @@ The window thread submits jobs and polls for results; the worker runs one job at
 submitted job replaces one that has not started yet (only the latest request matters).  Results
 are plain objects handed over under a lock; the worker copies the image out of the renderer's
 reused buffer before publishing it.
+
+While a scene loads, the textures its loader reads are counted (gridrt.scene.surface's
+texture_progress): :meth:`RenderWorker.progress` has the running count for the window's loading
+display, and the LoadResult the totals.
 """
 
 import threading
@@ -27,6 +31,7 @@ class LoadJob:
     render_params: object
     camera: object = None   # explicit camera, or None to frame the scene
     keep_camera: bool = False  # keep the viewer's camera (else reframe once loaded)
+    scene_camera: bool = True  # look through the scene's own camera once loaded, when it has one
     fov: float = Camera.fov
     up: tuple = Camera.up
     label: str = "loading scene"
@@ -46,6 +51,29 @@ class FrameJob:
 
 
 @dataclass
+class TextureProgress:
+    """Textures read so far by a scene load: how many, their bytes (decoded texels) and the last one's name."""
+
+    count: int = 0
+    nbytes: int = 0
+    last: str = ""
+
+    def add(self, name, nbytes):
+        self.count += 1
+        self.nbytes += int(nbytes)
+        self.last = str(name)
+
+    def label(self):
+        """"loading textures: N read (X MiB), last: name" ("" before the first texture)."""
+        if not self.count:
+            return ""
+        return f"loading textures: {self.count} read ({self.nbytes / 2**20:.2f} MiB), last: {self.last}"
+
+    def as_dict(self):
+        return {"count": self.count, "bytes": self.nbytes, "last": self.last}
+
+
+@dataclass
 class LoadResult:
     spec: object
     scene_name: str = ""
@@ -55,6 +83,9 @@ class LoadResult:
     keep_camera: bool = False
     error: str | None = None
     seconds: float = 0.0
+    has_camera: bool = False   # the scene has its own camera (scene.camera_at(0) is a Camera)
+    textures: TextureProgress | None = None
+    job: object = None         # the LoadJob
 
 
 @dataclass
@@ -79,6 +110,7 @@ class RenderWorker:
         self._results = []
         self._current = None
         self._started_at = 0.0
+        self._progress = None             # TextureProgress of the load in progress
         self._stop = False
         self.pipeline = None
         self._thread = threading.Thread(target=self._run, name="gridrt-render", daemon=True)
@@ -108,6 +140,12 @@ class RenderWorker:
             if self._current is None:
                 return None, 0.0
             return self._current, time.perf_counter() - self._started_at
+
+    def progress(self):
+        """A copy of the running load's TextureProgress (None when no load runs)."""
+        with self._cond:
+            p = self._progress
+            return None if p is None else TextureProgress(p.count, p.nbytes, p.last)
 
     def detach(self):
         """Stop calling on_result (before the window system shuts down)."""
@@ -139,23 +177,40 @@ class RenderWorker:
                 msg = str(e) if isinstance(e, GridrtError) else f"{type(e).__name__}: {e}"
                 if not isinstance(e, GridrtError):
                     traceback.print_exc()
-                res = (LoadResult(job.spec, error=msg) if isinstance(job, LoadJob)
+                res = (LoadResult(job.spec, error=msg, job=job) if isinstance(job, LoadJob)
                        else FrameResult(None, None, job.camera, 1.0, job, error=msg))
             with self._cond:
                 self._results.append(res)
                 self._current = None
+                self._progress = None
             notify = self._on_result
             if notify is not None:
                 notify()
 
     def _load(self, job):
+        from gridrt.scene.surface import texture_progress
+
         t0 = time.perf_counter()
         s = job.spec
-        scene = s.make()
+        with self._cond:
+            self._progress = TextureProgress()
+
+        def on_texture(name, nbytes):   # on this thread, from the loader
+            with self._cond:
+                if self._progress is not None:
+                    self._progress.add(name, nbytes)
+            notify = self._on_result
+            if notify is not None:
+                notify()                 # wake the window to show it
+
+        with texture_progress(on_texture):
+            scene = s.make()
+        has_camera = scene.camera_at(0.0) is not None
         self.pipeline = self._factory(scene, job)
+        textures = self.progress()
         return LoadResult(s, scene_name=scene.name, triangles=int(scene.n_triangles), duration=scene.duration,
                           static=bool(scene.static), keep_camera=job.keep_camera,
-                          seconds=time.perf_counter() - t0)
+                          seconds=time.perf_counter() - t0, has_camera=has_camera, textures=textures, job=job)
 
     def _frame(self, job):
         pipe = self.pipeline
