@@ -288,3 +288,85 @@ def test_bad_looks_are_refused(rng):
         Surface(np.zeros(len(tris), np.int32), [[1, 1, 1]], [[0, 0, 0]], [-1], normals=np.full((len(tris), 3, 3), np.nan))
     with pytest.raises(InputError, match="surface describes"):
         Mesh(np.eye(3), [[0, 1, 2]], surface=surf)
+
+
+def _write_checker_gltf(path, colours, uv):
+    """A unit quad in the plane z = 0 (normal +z) with the 8x8 texture whose 2x2 blocks are the 4x4
+    ``colours``, its uv per vertex, and a directional light of intensity 0.85 shining along -z."""
+    import base64
+    import io
+    import json
+
+    from PIL import Image
+
+    texels = np.repeat(np.repeat(colours, 2, axis=0), 2, axis=1)  # (8, 8, 3)
+    png = io.BytesIO()
+    Image.fromarray(texels).save(png, format="PNG")
+    pos = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float32)
+    idx = np.array([0, 1, 2, 0, 2, 3], np.uint16)
+    blob = pos.tobytes() + uv.astype(np.float32).tobytes() + idx.tobytes()
+    img_off = len(blob) + (-len(blob)) % 4
+    blob = blob + b"\0" * (img_off - len(blob)) + png.getvalue()
+    tree = {
+        "asset": {"version": "2.0"},
+        "extensionsUsed": ["KHR_lights_punctual"],
+        "extensions": {"KHR_lights_punctual": {"lights": [{"type": "directional", "intensity": 0.85}]}},
+        "buffers": [{"byteLength": len(blob), "uri": "data:application/octet-stream;base64,"
+                     + base64.b64encode(blob).decode()}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 48}, {"buffer": 0, "byteOffset": 48, "byteLength": 32},
+                        {"buffer": 0, "byteOffset": 80, "byteLength": 12},
+                        {"buffer": 0, "byteOffset": img_off, "byteLength": len(png.getvalue())}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [-1, -1, 0], "max": [1, 1, 0]},
+            {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"},
+            {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"}],
+        "images": [{"bufferView": 3, "mimeType": "image/png"}],
+        "samplers": [{"wrapS": 33071, "wrapT": 33071}],
+        "textures": [{"source": 0, "sampler": 0}],
+        "materials": [{"pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1], "baseColorTexture": {"index": 0}}}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2, "material": 0}]}],
+        "nodes": [{"mesh": 0}, {"extensions": {"KHR_lights_punctual": {"light": 0}}}],
+        "scenes": [{"nodes": [0, 1]}],
+        "scene": 0,
+    }
+    path.write_text(json.dumps(tree))
+    return texels
+
+
+@pytest.mark.parametrize("traversal", ["cgt", "dda"])
+def test_gltf_checkerboard_texels(tmp_path, rng, traversal):
+    """A glTF written here: every pixel whose hit (float64 brute force, its barycentrics) lands inside
+    a checker square, away from the square's border by more than the bilinear footprint, has that
+    square's colour; the light (0.85, along the normal) plus the ambient 0.15 give the texel itself."""
+    from gridrt.scene import make_scene
+
+    colours = rng.integers(0, 256, (4, 4, 3), dtype=np.uint8)
+    uv = np.array([[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]])  # image top-left at the quad's top-left
+    _write_checker_gltf(tmp_path / "checker.gltf", colours, uv)
+    sc = make_scene(tmp_path / "checker.gltf")
+    assert sc.surface is not None and sc.surface.textured and len(sc.lights_at(0.0)) == 1
+    cam = Camera(eye=(0.3, -0.2, 3.0), target=(0.0, 0.0, 0.0), fov=50.0)
+    n = 80
+    fr = FramePipeline(sc, render_params=RenderParams(width=n, height=n, traversal=traversal), camera=cam).step(0.0)
+    assert fr.stats["shading"] == "material"
+    o, d = R.ref_camera_rays(cam.eye, cam.target, cam.up, cam.fov, n, n)
+    tris = sc.triangles_at(0.0).copy()
+    h = R.ref_cast(tris, o, d)
+    hit = np.flatnonzero(h.tri >= 0)
+    w = np.stack([1 - h.u[hit] - h.v[hit], h.u[hit], h.v[hit]], axis=1)
+    # the scene's triangle f is the file's (one primitive, in order); match by position to be sure
+    corner_uv = np.empty((2, 3, 2))
+    pos = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float64)
+    for f in range(2):
+        for j in range(3):
+            k = int(np.argmin(np.linalg.norm(pos - tris[f, j], axis=1)))
+            corner_uv[f, j] = uv[k]
+    uvh = np.einsum("nk,nkc->nc", w, corner_uv[h.tri[hit]])
+    tx, ty = uvh[:, 0] * 8, uvh[:, 1] * 8  # texel coordinates; a square is 2 texels
+    fx, fy = np.mod(tx, 2.0), np.mod(ty, 2.0)
+    inside = (fx > 0.55) & (fx < 1.45) & (fy > 0.55) & (fy < 1.45)
+    assert inside.sum() > 300
+    sq = colours[(ty // 2).astype(int)[inside].clip(0, 3), (tx // 2).astype(int)[inside].clip(0, 3)]
+    got = fr.image.reshape(-1, 4)[hit[inside], :3].astype(int)
+    assert np.abs(got - sq.astype(int)).max() <= 1
+    assert len(np.unique(got, axis=0)) == 16  # every square seen

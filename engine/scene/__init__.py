@@ -254,8 +254,10 @@ def _file_scene(path, animate, amplitude, speed, clip, subdivide, fps):
         if not path.exists():
             raise SceneFileError(path, "file not found")
         scene = GltfAnimation(path, clip=clip)
-        if not scene.static or (scene.clip is not None and animate is None and subdivide is None):
-            # animated, or only its camera moves: keep the clip
+        keep = animate is None and subdivide is None and (
+            scene.clip is not None or scene.camera_at(0.0) is not None or len(scene.lights_at(0.0)) > 0)
+        if not scene.static or keep:
+            # animated, or only its camera moves, or a still scene with its own camera or lights: keep them
             _animated_only(what, animate, subdivide)
             return scene
         mesh = scene.to_mesh()

@@ -85,7 +85,9 @@ def load_texture(path, wrap=("repeat", "repeat"), data=None, name=None):
     try:
         with Image.open(BytesIO(data) if data is not None else Path(path)) as im:
             im.load()
-            rgb = np.asarray(im.convert("RGB"), np.uint8)
+            if im.mode != "RGB":  # (a palette with transparency goes through RGBA, as Pillow asks)
+                im = im.convert("RGBA" if im.mode == "P" and "transparency" in im.info else "RGB")
+            rgb = np.asarray(im)
     except FileNotFoundError:
         warnings.warn(f"texture {label}: file not found; drawn without it", TextureWarning, stacklevel=2)
         return None
