@@ -337,6 +337,40 @@ def test_bench_peers_without_embreex(tmp_path, monkeypatch, capsys):
     assert "icosphere:1280:twist [fill] (two_level)" in summary
 
 
+def test_bench_looks_quick(tmp_path):
+    """bench looks: lambert, material and material with shadows per thread count, on the shipped Cesium
+    Man; its texture's texels and bytes are those of the image in the file (read here with pygltflib
+    and Pillow), and the rows' counts are the render's."""
+    import io
+
+    import pygltflib
+
+    from gridrt.scene.assets import asset_path
+
+    out = tmp_path / "looks"
+    assert main(["bench", "looks", "--quick", "--no-progress", "--out", str(out)]) == 0
+    rows = read_csv(out / "looks.csv")
+    assert [(r["shading"], r["threads"]) for r in rows] == [
+        (m, t) for t in ("1", "2") for m in ("lambert", "material", "material + shadows")]
+    g = pygltflib.GLTF2().load(str(asset_path("cesium_man")))
+    blob = g.binary_blob()
+    texels = 0
+    for im in g.images:
+        bv = g.bufferViews[im.bufferView]
+        with Image.open(io.BytesIO(blob[bv.byteOffset or 0:(bv.byteOffset or 0) + bv.byteLength])) as pic:
+            texels += pic.size[0] * pic.size[1]
+    for r in rows:
+        assert int(r["texels"]) == texels and int(r["texture_bytes"]) == 3 * texels
+        assert float(r["render_ms"]) > 0 and float(r["shade_ms"]) >= 0
+        if r["shading"] == "lambert":
+            assert float(r["vs_lambert"]) == 1.0 and float(r["shade_ms"]) == 0.0
+        else:
+            assert int(r["lights"]) == 1  # Cesium Man has no lights: the default one
+            assert (float(r["shadow_rays_per_pixel"]) > 0) == (r["shading"] == "material + shadows")
+            assert float(r["shadow_rays_per_pixel"]) <= float(r["hit_fraction"])
+    assert "bytes/texel" in (out / "summary.md").read_text()
+
+
 def test_bench_packets_quick(tmp_path):
     """The packet profile: its counts equal the CGT render's own (tests per packet from the cost
     buffer, independently), every phase is measured, and profiling leaves every traced result as

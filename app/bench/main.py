@@ -112,12 +112,14 @@ def add_parser(sub):
     add_packet_args(f)
     f.set_defaults(func=run_frame)
 
-    from . import packets as bench_packets, peers as bench_peers, start as bench_start, trade as bench_trade
+    from . import looks as bench_looks, packets as bench_packets, peers as bench_peers, start as bench_start
+    from . import trade as bench_trade
 
     bench_trade.add_parser(bsub, common)
     bench_peers.add_parser(bsub, common)
     bench_start.add_parser(bsub, common)
     bench_packets.add_parser(bsub, common)
+    bench_looks.add_parser(bsub, common)
     return p
 
 
