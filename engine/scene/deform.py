@@ -21,6 +21,18 @@ Two kinds, both pure functions of ``t`` and periodic with ``duration = 1 / |spee
         y' = y + amplitude * sin(2 pi (x / wavelength + speed t)),  wavelength = (x_max - x_min) / 2
 
     so two wave crests fit across the mesh.
+
+The mesh's looks (``Mesh.surface``: materials, textures, uv, colours) move with it.  Its smooth
+normals are transformed with the deformation (:meth:`Deform.normals_at`): a normal n at rest point
+p becomes ``J^-T n``, normalised, with J the deformation's Jacobian at p, exactly:
+
+* twist, ``k = alpha sin(2 pi speed t) / (y_max - y_min)``: ``J = R(theta) (I + u e_y^T)`` with
+  ``u = k (-(z - cz), 0, x - cx)``, so ``n' = R(theta) (n - e_y (u . n))``;
+* wave: ``J = I + e_y w^T`` with ``w = (g, 0, 0)``,
+  ``g = amplitude 2 pi / wavelength cos(2 pi (x / wavelength + speed t))``, so
+  ``n' = (n_x - g n_y, n_y, n_z)``.
+
+A zero normal ("the geometric normal") stays zero.
 """
 
 import math
@@ -161,6 +173,7 @@ class Deform(Animation):
             self.wavelength = 0.5 * extent
 
         self._vertices = np.zeros(mesh.vertices.shape, dtype=TRI_DTYPE)
+        self.surface = mesh.surface
 
     def vertices_at(self, t, out=None, origin=None):
         """Deformed vertices at time ``t``: (V, 3) float32 (in the frame of ``origin``, as
@@ -187,3 +200,31 @@ class Deform(Animation):
 
     def _fill(self, t, out, origin):
         gather_unchecked(self.vertices_at(t, origin=origin), self.mesh.faces, out)
+
+    def _fill_normals(self, t, out):
+        """The rest normals moved by the deformation at ``t`` (the module docstring's J^-T n),
+        per corner in float32 (the per-vertex factors in float64)."""
+        n = self.surface.normals
+        rest = self.mesh.vertices64
+        f = self.mesh.faces
+        nx, ny, nz = n[..., 0], n[..., 1], n[..., 2]
+        if self.kind == "twist":
+            angle = self.max_angle * math.sin(2.0 * math.pi * ((self.speed * t) % 1.0))
+            k = angle * self._inv_height
+            cx, cz = self.axis
+            theta = k * (rest[:, 1] - self._y0)
+            c, s = np.cos(theta).astype(TRI_DTYPE)[f], np.sin(theta).astype(TRI_DTYPE)[f]
+            # u . n with u = k (-(z - cz), 0, x - cx): k x and k z per vertex
+            kx = (k * (rest[:, 0] - cx)).astype(TRI_DTYPE)[f]
+            kz = (k * (rest[:, 2] - cz)).astype(TRI_DTYPE)[f]
+            out[..., 0] = nx * c - nz * s
+            out[..., 1] = ny - (nz * kx - nx * kz)
+            out[..., 2] = nx * s + nz * c
+        else:
+            g = (self.amplitude * 2.0 * math.pi / self.wavelength) * np.cos(
+                2.0 * math.pi * (rest[:, 0] / self.wavelength + (self.speed * t) % 1.0))
+            out[...] = n
+            out[..., 0] -= g.astype(TRI_DTYPE)[f] * ny
+        length = np.sqrt((out * out).sum(axis=-1, keepdims=True))
+        np.divide(out, length, out=out, where=length > 0)
+        return True

@@ -162,7 +162,10 @@ def load_frame_folder(folder, fps=30.0):
     """A :class:`KeyframeMesh` from a folder of frame meshes (``f000.obj``, ``f001.obj``, ...).
 
     Every frame must have the vertex count and faces of the first; frames are ``1 / fps`` seconds
-    apart and the sequence does not wrap.  Raises SceneFileError naming the offending frame file.
+    apart and the sequence does not wrap.  The scene's surface is the first frame's (materials,
+    textures, uv, colours) without its normals, which would not follow the moving vertices (the
+    geometric normals are used); the other frames' looks are not read.  Raises SceneFileError
+    naming the offending frame file.
     """
     from .mesh import load_mesh
 
@@ -175,15 +178,22 @@ def load_frame_folder(folder, fps=30.0):
     frames = np.empty((len(files),) + first.vertices.shape, dtype=np.float64)
     frames[0] = first.vertices64
     for k, p in enumerate(files[1:], 1):
-        m = load_mesh(p)
+        m = load_mesh(p, looks=False)
         if m.vertices.shape != first.vertices.shape or not np.array_equal(m.faces, first.faces):
             raise SceneFileError(
                 p, f"frame has {m.n_vertices} vertices and {m.n_triangles} faces but {files[0].name} has "
                    f"{first.n_vertices} and {first.n_triangles} (or different faces): all frames must share "
                    "one connectivity")
         frames[k] = m.vertices64
-    return KeyframeMesh(frames, first.faces, fps, wrap=False, name=folder.name,
-                        frame_names=[p.name for p in files])
+    scene = KeyframeMesh(frames, first.faces, fps, wrap=False, name=folder.name,
+                         frame_names=[p.name for p in files])
+    s = first.surface
+    if s is not None and (s.normals is None or s.uv is not None or s.colors is not None or s.n_materials > 1
+                          or s.textured):
+        from .surface import Surface
+
+        scene.surface = Surface(s.material, s.diffuse, s.ambient, s.texture, s.textures, s.uv, s.colors, None)
+    return scene
 
 
 def is_frame_folder(path):
