@@ -40,9 +40,12 @@ SHIPPED = {
     "animated/animated_morph_sphere/AnimatedMorphSphere.gltf": "AnimatedMorphSphere.gltf",
     "animated/animated_morph_sphere/AnimatedMorphSphere.bin": "AnimatedMorphSphere.bin",
     "animated/md2_sydney/sydney.md2": "sydney.md2",
+    "animated/md2_sydney/sydney.bmp": "sydney.bmp",
     "animated/bart/museum/aff": "museum",
     **{f"animated/bart/museum/aff/{n}.aff": f"museum/{n}.aff"
        for n in ("museum5", "animart5", "block", "camera", "paintings", "pillar", "room")},
+    **{f"animated/bart/museum/TextureFiles/{n}.ppm": f"museum/TextureFiles/{n}.ppm"
+       for n in ("balls4", "checkmarb1", "gears4", "mount6", "tetra6")},
 }
 #: data set meshes that assets/ ships converted (the same vertices as float32, the same
 #: faces, another format) -> their name in assets/

@@ -54,7 +54,9 @@ def test_readme_checksums_match_every_shipped_file():
     for name, digest in sums.items():
         assert hashlib.sha256((ASSETS / name).read_bytes()).hexdigest() == digest, name
     total = sum((ASSETS / n).stat().st_size for n in files)
-    assert total < 5_000_000, f"assets/ holds {total:,} bytes: at most a few MB"
+    # a few MB: the meshes (4 MB) and the museum's five textures (3.8 MB of PPM, so that the shipped
+    # BART scene looks like itself in a clone without the data set)
+    assert total < 8_500_000, f"assets/ holds {total:,} bytes: at most a few MB"
 
 
 def test_shipped_copies_are_the_shared_data_files():
