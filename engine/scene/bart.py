@@ -18,8 +18,43 @@
   eye = translation, view direction = -z and up = +y of the rotation).
 
 Spheres (``s``) and cones (``c``) are not triangles; they are counted in
-:attr:`BartAnimation.skipped` and not rendered.  Lights, materials and textures do not affect
-geometry and are read over.
+:attr:`BartAnimation.skipped` and not rendered.
+
+The scene's looks (:attr:`BartAnimation.surface`, a :class:`gridrt.scene.surface.Surface`, and
+:meth:`BartAnimation.lights_at`):
+
+* **Materials.**  ``f r g b Kd Ks Shine T ior`` (NFF) gives the diffuse colour ``Kd * (r, g, b)``
+  and, as NFF has no ambient term, the ambient reflectance :data:`AMBIENT_DEFAULT` times that;
+  ``fm ar ag ab  dr dg db  sr sg sb  Shine T ior`` gives the ambient reflectance (ar, ag, ab) and the
+  diffuse colour (dr, dg, db).  A material's ambient colour is its ambient reflectance times the
+  scene's one ambient light, ``am r g b`` (1, 1, 1 without one; the last ``am`` of the scene counts,
+  wherever it stands).  Specular colour, Shine, T and ior are read and not used.  The material is
+  one global state, as in BART's reference parser: each ``f``/``fm`` holds for every polygon, mesh
+  and triangle read after it (in include order) until the next one, whatever ``{ }`` blocks or
+  included files it stands in (the scenes rely on this: ``i 0 param_wood.aff`` sets the material
+  of what follows).  Triangles read before any material get :data:`DEFAULT_DIFFUSE` (gridrt's
+  default grey) and an ambient reflectance of :data:`AMBIENT_DEFAULT` times it.
+* **Textures.**  ``m`` meshes with ``texturecoords N file``, and ``tt``/``ttp`` triangles, name an
+  image (PPM in the BART scenes), read once per file with :func:`gridrt.scene.surface.load_texture`
+  and looked for like includes (the including file's folder, then the root's) and then in a
+  ``TextureFiles`` folder inside or beside either (the BART distribution's ``aff/`` +
+  ``TextureFiles/`` layout).  A missing or unreadable image warns (TextureWarning) and its
+  triangles are drawn untextured.  Texturing repeats (OpenGL REPEAT, as the BART report says) and
+  modulates the material's colours.  BART's (u, v) are stored as they are: v = 0 is the image
+  file's first row, as the surface's image convention has it.  The scenes show it: the museum's
+  paintings and the kitchen's garden (upright images) have v = 0 along their top edge, and the
+  robots' signs, whose images are stored upside down, have v = 1 there; only the kitchen car's
+  number plate would read upside down.
+* **Normals.**  ``normals N`` in meshes, ``pp`` and ``ttp`` vertex normals and the per-key normals of
+  ``tpa`` triangles become per-corner shading normals: ``surface.normals`` holds them at t = 0 in
+  world orientation, :meth:`BartAnimation.normals_at` at any t (rotated by the inverse transpose of
+  their transform's matrix; ``tpa`` normals interpolated between keys like the positions).
+  Triangles without normals in the file get zero normals ("use the geometric normal").
+* **Lights.**  ``l x y z [r g b]`` is a point light of the given colour (1, 1, 1 by default) and no
+  falloff, at (x, y, z) in world coordinates (as BART's reference parser, lights ignore enclosing
+  transforms).  ``la name x y z [r g b]`` is the same, animated by the ``transl`` keys of the
+  ``k name`` block when there is one: its position at time t is that spline's value (as the
+  camera's eye is), else (x, y, z).
 """
 
 import math
@@ -33,10 +68,23 @@ from ..arrays import TRI_DTYPE, storage_centre
 from ..errors import InputError, SceneFileError
 from . import kernels as K
 from .animation import Animation, as_static_mask, check_time, gather_unchecked, pose_moving_vertices
+from .surface import FALLOFF_NONE, LIGHT_POINT, SurfaceBuilder, as_lights, load_texture
 
-__all__ = ["BartAnimation", "kb_position_coefficients", "kb_rotation_segments"]
+__all__ = ["AMBIENT_DEFAULT", "BartAnimation", "DEFAULT_DIFFUSE", "kb_position_coefficients",
+           "kb_rotation_segments"]
 
 _MAX_INCLUDE_DEPTH = 32
+_ZERO3 = np.zeros(3)
+_RGB = ("red", "green", "blue")
+
+#: diffuse colour of triangles read before any ``f``/``fm`` material: gridrt's default grey
+#: (gridrt.trace.shade.ALBEDO)
+DEFAULT_DIFFUSE = (0.85, 0.78, 0.66)
+#: ambient reflectance of NFF ``f`` materials (and of the default material) as a fraction of their
+#: diffuse colour: NFF has no ambient term (gridrt.trace.shade.AMBIENT is the same fraction)
+AMBIENT_DEFAULT = 0.15
+#: the largest colour, texture coordinate or normal component that float32 storage holds
+_F32_MAX = float(np.finfo(np.float32).max)
 
 
 # ------------------------------------------------------------------------------ splines
@@ -245,10 +293,17 @@ def _animate_nodes(t, p_tmin, p_tmax, p_coef, p_start, p_count, r_tmin, r_tmax, 
 
 
 class _Tokens:
-    """Whitespace tokens of one AFF file with their line numbers; comments (# or %) removed."""
+    """Whitespace tokens of one AFF file with their line numbers; comments (# or %) removed.
 
-    def __init__(self, path):
+    ``cache`` (a dict, optional) keeps each file's tokens under ``key`` (its resolved path) for the
+    files a scene includes more than once (the robots' parts, the kitchen's stools and wheels)."""
+
+    def __init__(self, path, cache=None, key=None):
         self.path = path
+        self.i = 0
+        if cache is not None and key in cache:
+            self.toks, self.lines = cache[key]
+            return
         try:
             raw = path.read_bytes()
         except PermissionError as e:
@@ -259,18 +314,21 @@ class _Tokens:
             raise SceneFileError(path, "file is empty")
         text = raw.decode("latin-1")
         toks, lines = [], []
-        for ln, line in enumerate(text.splitlines(), 1):
-            for c in "#%":
-                k = line.find(c)
-                if k >= 0:
-                    line = line[:k]
-            parts = line.replace("{", " { ").replace("}", " } ").split()
+        for ln, line in enumerate(text.splitlines(), 1):  # (the common lines take the fast tests only)
+            if "#" in line:
+                line = line[:line.find("#")]
+            if "%" in line:
+                line = line[:line.find("%")]
+            if "{" in line or "}" in line:
+                line = line.replace("{", " { ").replace("}", " } ")
+            parts = line.split()
             if parts:
-                toks.extend(parts)
-                lines.extend([ln] * len(parts))
+                toks += parts
+                lines += [ln] * len(parts)
         self.toks = toks
         self.lines = lines
-        self.i = 0
+        if cache is not None:
+            cache[key] = (toks, lines)
 
     def fail(self, problem, at=None):
         k = self.i if at is None else at
@@ -349,6 +407,18 @@ def _static_matrix(values):
     return m
 
 
+def _unit_rows(v):
+    """(..., 3) float64 vectors scaled to unit length (zero vectors stay zero), without overflow
+    or underflow for any finite input.  (Written component by component: numpy's reductions over
+    a last axis of 3 are several times slower.)"""
+    v = np.asarray(v, np.float64)
+    a = np.abs(v)
+    big = np.maximum(np.maximum(a[..., 0], a[..., 1]), a[..., 2])[..., None]
+    v = v / np.where(big > 0, big, 1.0)  # the largest component is now +-1 (or the row is zero)
+    n = np.sqrt(v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1] + v[..., 2] * v[..., 2])[..., None]
+    return v / np.where(n > 0, n, 1.0)
+
+
 class _Parser:
     def __init__(self, root):
         self.root = root
@@ -356,8 +426,21 @@ class _Parser:
         self.node_matrix = [np.eye(4)]
         self.node_name = [None]
         self.stack = [0]
-        self.blocks = []  # (node, vertices (n,3), faces (m,3))
-        self.tpa = []  # (node, times (K,), vertices (K, 3, 3))
+        # (node, vertices (n,3), faces (m,3), looks): looks = (material id, Texture or None,
+        # uv (m,3,2) float64 as the Surface stores them or None, normals or None: (the file's
+        # normal vectors (k,3) float64, normalized when the scene is laid out, and each
+        # triangle's corners' rows of them (m,3) int64))
+        self.blocks = []
+        self.tpa = []  # (node, times (K,), vertices (K, 3, 3), normals as in the file (K, 3, 3), material id)
+        # materials: (diffuse (3,), ambient reflectance (3,), (file, line)); 0 is the default one
+        default = np.array(DEFAULT_DIFFUSE)
+        self.materials = [(default, AMBIENT_DEFAULT * default, (root, 0))]
+        self.material = 0
+        self.ambient_light = None  # (colour (3,), (file, line)) of the last am line
+        self.lights = []  # (name or None, position (3,), colour (3,))
+        self.texture_files = {}  # resolved path -> Texture or None
+        self.texture_lookups = {}  # (file, name) -> Texture or None
+        self.token_cache = {}  # resolved path -> (tokens, line numbers) of the files read
         self.anims = {}
         self.view = None
         self.anim_params = None
@@ -369,10 +452,12 @@ class _Parser:
         path = Path(path)
         if len(chain) > _MAX_INCLUDE_DEPTH:
             raise SceneFileError(path, f"includes nested deeper than {_MAX_INCLUDE_DEPTH} levels")
-        if path.resolve() in chain:
+        real = path.resolve()
+        if real in chain:
             raise SceneFileError(path, "include cycle: the file includes itself")
         self.files.append(path)
-        tk = _Tokens(path)
+        tk = _Tokens(path, self.token_cache, real)
+        inner = chain + (real,)
         while tk.more():
             at = tk.i
             cmd = tk.next("a command")
@@ -384,7 +469,7 @@ class _Parser:
             elif handler is None:
                 tk.fail(f"unknown AFF command {cmd!r}", at=at)
             else:
-                handler(tk, chain + (path.resolve(),))
+                handler(tk, inner)
         if path == self.root and len(self.stack) != 1:
             tk.fail(f"{len(self.stack) - 1} transform block(s) not closed with '}}'")
 
@@ -396,26 +481,55 @@ class _Parser:
             view[word] = tk.numbers(n, f"viewpoint '{word}'")
         self.view = view
 
+    def _numbers_with_colours(self, tk, n, colours, what):
+        """The next n numbers, of which the first ones, named by ``colours`` (one name each), must
+        be colour values: 0 or more and within float32."""
+        at = tk.i
+        v = tk.numbers(n, what)
+        c = v[:len(colours)]
+        if not (c.min() >= 0 and c.max() <= _F32_MAX):
+            k = int(np.argmax((c < 0) | (c > _F32_MAX)))
+            tk.fail(f"{what} {colours[k]}: {tk.toks[at + k]!r} is not a colour value (0 or more, within float32)",
+                    at=at + k)
+        return v
+
+    def _light(self, tk, name):
+        pos = tk.numbers(3, "light position")
+        colour = self._numbers_with_colours(tk, 3, _RGB, "light colour") if tk.peek_is_number() else np.ones(3)
+        self.lights.append((name, pos, colour))
+
     def _cmd_l(self, tk, chain):
-        tk.numbers(3, "light position")
-        if tk.peek_is_number():
-            tk.numbers(3, "light colour")
+        self._light(tk, None)
 
     def _cmd_la(self, tk, chain):
-        tk.next("animated light name")
-        self._cmd_l(tk, chain)
+        at = tk.i
+        name = tk.next("animated light name")
+        if name in ("{", "}"):
+            tk.fail("animated light (la) needs a name", at=at)
+        self._light(tk, name)
 
     def _cmd_b(self, tk, chain):
         tk.numbers(3, "background colour")
 
     def _cmd_f(self, tk, chain):
-        tk.numbers(8, "fill material (f)")
+        line = tk.lines[tk.i - 1]
+        v = self._numbers_with_colours(tk, 8, ("colour",) * 3 + ("Kd",), "fill material (f)")
+        with np.errstate(over="ignore"):
+            diffuse = v[3] * v[:3]
+        if diffuse.max() > _F32_MAX:
+            tk.fail("fill material (f): Kd times the colour exceeds float32")
+        self.materials.append((diffuse, AMBIENT_DEFAULT * diffuse, (tk.path, line)))
+        self.material = len(self.materials) - 1
 
     def _cmd_fm(self, tk, chain):
-        tk.numbers(12, "fill material (fm)")
+        line = tk.lines[tk.i - 1]
+        v = self._numbers_with_colours(tk, 12, ("ambient",) * 3 + ("diffuse",) * 3, "fill material (fm)")
+        self.materials.append((v[3:6], v[:3], (tk.path, line)))
+        self.material = len(self.materials) - 1
 
     def _cmd_am(self, tk, chain):
-        tk.numbers(3, "ambient light (am)")
+        line = tk.lines[tk.i - 1]
+        self.ambient_light = (self._numbers_with_colours(tk, 3, _RGB, "ambient light (am)"), (tk.path, line))
 
     def _cmd_a(self, tk, chain):
         v = tk.numbers(3, "animation parameters (a start end frames)")
@@ -505,18 +619,58 @@ class _Parser:
                 tk.fail(f"unknown keyframe type {motion!r} in {name!r} (transl, rot, scale or visibility)", at=at)
         self.anims[name] = anim
 
+    # --- textures
+    def _texture(self, tk, name, at):
+        """The Texture of image file ``name`` (token ``at`` of ``tk``), or None (warned) when it
+        cannot be found or read; each file is read once."""
+        key = (tk.path, name)
+        if key in self.texture_lookups:
+            return self.texture_lookups[key]
+        here = tk.path.parent
+        top = self.root.parent
+        dirs = list(dict.fromkeys([here, top, here / "TextureFiles", here.parent / "TextureFiles",
+                                   top / "TextureFiles", top.parent / "TextureFiles"]))
+        tex = None
+        for d in dirs:
+            c = d / name
+            try:
+                found = c.is_file()
+                real = c.resolve() if found else None
+            except (OSError, ValueError):
+                found = False
+            if found:
+                if real not in self.texture_files:
+                    self.texture_files[real] = load_texture(c, name=str(c))
+                tex = self.texture_files[real]
+                break
+        else:
+            where = f"line {tk.lines[min(at, len(tk.lines) - 1)]}"
+            label = (f"{name!r} ({tk.path}, {where}; looked in {', '.join(str(d) for d in dirs)})")
+            tex = load_texture(dirs[0] / name, name=label)
+        self.texture_lookups[key] = tex
+        return tex
+
+    def _uv(self, tk, uv, at, what):
+        """Texture coordinates (..., 2) as the Surface stores them (as in the file: see the module's
+        docstring), float64."""
+        uv = np.asarray(uv, np.float64)
+        if len(uv) and np.abs(uv).max() > _F32_MAX:
+            tk.fail(f"{what}: a texture coordinate exceeds float32", at=at)
+        return uv
+
     # --- geometry
-    def _add(self, vertices, faces):
-        self.blocks.append((self.stack[-1], vertices, faces))
+    def _add(self, vertices, faces, texture=None, uv=None, normals=None):
+        self.blocks.append((self.stack[-1], vertices, faces, (self.material, texture, uv, normals)))
 
     def _polygon(self, tk, patch):
         n = tk.count("polygon vertex count")
         if n < 3:
             tk.fail(f"a polygon needs at least 3 vertices, got {n}")
         w = 6 if patch else 3
-        v = tk.numbers(n * w, "polygon vertices").reshape(n, w)[:, :3]
+        rec = tk.numbers(n * w, "polygon vertices").reshape(n, w)
         i = np.arange(1, n - 1)
-        self._add(v, np.stack([np.zeros(n - 2, dtype=np.int64), i, i + 1], axis=1))
+        faces = np.stack([np.zeros(n - 2, dtype=np.int64), i, i + 1], axis=1)
+        self._add(rec[:, :3], faces, normals=(rec[:, 3:6], faces) if patch else None)
 
     def _cmd_p(self, tk, chain):
         self._polygon(tk, False)
@@ -525,10 +679,14 @@ class _Parser:
         self._polygon(tk, True)
 
     def _textured(self, tk, patch):
-        tk.next("texture name")
+        at = tk.i
+        name = tk.next("texture name")
         w = 8 if patch else 5
-        v = tk.numbers(3 * w, "textured triangle").reshape(3, w)[:, :3]
-        self._add(v, np.array([[0, 1, 2]]))
+        what = "textured triangle patch (ttp)" if patch else "textured triangle (tt)"
+        rec = tk.numbers(3 * w, what).reshape(3, w)
+        uv = self._uv(tk, rec[None, :, w - 2:], at, what)
+        one = np.array([[0, 1, 2]])
+        self._add(rec[:, :3], one, self._texture(tk, name, at), uv, (rec[:, 3:6], one) if patch else None)
 
     def _cmd_tt(self, tk, chain):
         self._textured(tk, False)
@@ -544,38 +702,55 @@ class _Parser:
         times = rec[:, 0]
         if (np.diff(times) < 0).any():
             tk.fail("animated triangle (tpa): key times decrease")
-        verts = rec[:, 1:].reshape(n, 3, 6)[:, :, :3]
-        self.tpa.append((self.stack[-1], times, verts))
+        corners = rec[:, 1:].reshape(n, 3, 6)
+        self.tpa.append((self.stack[-1], times, corners[:, :, :3], corners[:, :, 3:], self.material))
 
     def _cmd_m(self, tk, chain):
         tk.expect("vertices", "mesh (m)")
         nv = tk.count("mesh vertices")
         v = tk.numbers(3 * nv, "mesh vertices").reshape(nv, 3)
         word = tk.next("mesh")
-        has_n = has_t = False
+        normals = coords = None
         if word == "normals":
             nn = tk.count("mesh normals")
-            tk.numbers(3 * nn, "mesh normals")
-            has_n = True
+            normals = tk.numbers(3 * nn, "mesh normals").reshape(nn, 3)
             word = tk.next("mesh")
         if word == "texturecoords":
             nt = tk.count("mesh texture coordinates")
-            tk.next("texture name")
-            tk.numbers(2 * nt, "mesh texture coordinates")
-            has_t = True
+            tex_at = tk.i
+            name = tk.next("texture name")
+            coords = tk.numbers(2 * nt, "mesh texture coordinates").reshape(nt, 2)
             word = tk.next("mesh")
         if word != "triangles":
             tk.fail(f"expected 'triangles' in mesh, got {word!r}", at=tk.i - 1)
         nf = tk.count("mesh triangles")
-        w = 3 * (1 + has_n + has_t)
+        # each triangle: vertex indices, then normal indices, then texture coordinate indices
+        parts = [("vertex", "vertices", nv)]
+        if normals is not None:
+            parts.append(("normal", "normals", len(normals)))
+        if coords is not None:
+            parts.append(("texture coordinate", "texture coordinates", len(coords)))
+        w = 3 * len(parts)
         at = tk.i
-        idx = tk.numbers(w * nf, "mesh triangle indices").reshape(nf, w)[:, :3]
-        if nf and ((idx != np.round(idx)).any() or idx.min() < 0 or idx.max() >= nv):
-            bad = int(np.argmax((idx < 0).any(1) | (idx >= nv).any(1) | (idx != np.round(idx)).any(1)))
-            tk.fail(f"mesh triangle {bad} has a vertex index out of range for {nv} vertices "
-                    f"({idx[bad].tolist()})", at=at + bad * w)
-        if nf:
-            self._add(v, idx.astype(np.int64))
+        rows = tk.numbers(w * nf, "mesh triangle indices").reshape(nf, w)
+        if not nf:
+            return
+        limit = np.repeat([n for _, _, n in parts], 3)
+        wrong = (rows < 0) | (rows >= limit) | (rows != np.round(rows))
+        if wrong.any():
+            bad, col = divmod(int(np.argmax(wrong.ravel())), w)
+            what, plural, n = parts[col // 3]
+            k = 3 * (col // 3)
+            tk.fail(f"mesh triangle {bad} has a {what} index out of range for {n} {plural} "
+                    f"({rows[bad, k:k + 3].tolist()})", at=at + bad * w + k)
+        idx = rows.astype(np.int64)
+        tex = uv = nrm = None
+        if normals is not None:
+            nrm = (normals, idx[:, 3:6])
+        if coords is not None:
+            tex = self._texture(tk, name, tex_at)
+            uv = self._uv(tk, coords, tex_at, "mesh texture coordinates")[idx[:, w - 3:]]
+        self._add(v, idx[:, :3], tex, uv, nrm)
 
 
 # ------------------------------------------------------------------------------ laying out the scene
@@ -649,11 +824,41 @@ def _moving_nodes(parent, moved):
 
 def _tpa_groups(tpa):
     """The ``tpa`` triangles grouped by their key times: key-times bytes -> (times, [(node, keyed
-    vertices (K, 3, 3)), ...]), groups and members in file order."""
+    vertices (K, 3, 3), keyed normals (K, 3, 3), material id), ...]), groups and members in file order."""
     groups = {}
-    for node, times, tv in tpa:
-        groups.setdefault(times.tobytes(), (times, []))[1].append((node, tv))
+    for node, times, tv, tn, mat in tpa:
+        groups.setdefault(times.tobytes(), (times, []))[1].append((node, tv, tn, mat))
     return groups
+
+
+def _key_blend(times, tb):
+    """(k, k1, s): time ``tb`` lies between keys k and k1 of ``times`` at fraction s (clamped at the ends)."""
+    if tb <= times[0]:
+        k, s = 0, 0.0
+    elif tb >= times[-1]:
+        k, s = len(times) - 1, 0.0
+    else:
+        k = int(np.searchsorted(times, tb, side="right") - 1)
+        s = (tb - times[k]) / (times[k + 1] - times[k])
+    return k, min(k + 1, len(times) - 1), float(s)
+
+
+def _inverse_transposes(world):
+    """(N, 4, 4) float64: each node's inverse transpose of its world matrix's linear part, times a
+    positive factor that brings its largest entry to 1 (the normals it turns are normalized after),
+    in the upper-left 3x3 and zero elsewhere.  A singular part (an invisible node) gives its
+    cofactor matrix, zero when the part is zero."""
+    a = world[:, :3, :3]
+    big = np.abs(a).max(axis=(1, 2), keepdims=True)
+    a = np.divide(a, big, out=np.zeros_like(a), where=big > 0)
+    c0, c1, c2 = a[:, :, 0], a[:, :, 1], a[:, :, 2]
+    cof = np.stack([np.cross(c1, c2), np.cross(c2, c0), np.cross(c0, c1)], axis=2)  # columns: det * inv^T
+    det = (c0 * cof[:, :, 0]).sum(axis=1)
+    cof *= np.where(det < 0, -1.0, 1.0)[:, None, None]
+    big = np.abs(cof).max(axis=(1, 2), keepdims=True)
+    out = np.zeros((len(world), 4, 4))
+    np.divide(cof, big, out=out[:, :3, :3], where=big > 0)
+    return out
 
 
 # ------------------------------------------------------------------------------ the scene
@@ -685,8 +890,13 @@ class BartAnimation(Animation):
         detail level.
     files : list of Path
         Every file read, root first.
+    surface : gridrt.scene.surface.Surface
+        The materials, textures, uv and normals (at t = 0) of the triangles, in the order of
+        ``triangles_at``; :meth:`normals_at` and :meth:`lights_at` give the normals and lights at
+        time t (see the module's docstring).
 
-    Raises SceneFileError (naming the file and line) for missing, unreadable or malformed files.
+    Raises SceneFileError (naming the file and line) for missing, unreadable or malformed files;
+    images that cannot be read warn (gridrt.scene.surface.TextureWarning) and are left out.
     """
 
     def __init__(self, path):
@@ -719,6 +929,7 @@ class BartAnimation(Animation):
         cam = ps.anims.get("camera", {})
         self._cam_t = splines.add_position(cam["transl"], "transl keys of 'camera'") if "transl" in cam else -1
         self._cam_r = splines.add_rotation(cam["rot"], "rot keys of 'camera'") if "rot" in cam else -1
+        self._read_lights(ps, splines)
         self._splines = splines.arrays()
 
         moving = _moving_nodes(parent, moved)
@@ -737,6 +948,7 @@ class BartAnimation(Animation):
         self.static_mask = as_static_mask(mask, self.n_triangles)
         self._set_time_range(ps.anim_params, key_lo, key_hi)
         self._pose_first_frame(vert_moving)
+        self._build_surface(ps, tri_moving)
 
     def _read_transform_animations(self, ps, splines):
         """The splines of the ``k`` blocks that animate ``x`` transforms (their indices by name in
@@ -777,26 +989,38 @@ class BartAnimation(Animation):
     def _lay_out_geometry(self, ps, moving, groups):
         """The vertices and faces: static blocks first in file order, then the tpa triangles by
         groups of key times.  Sets ``self._local`` (float32, relative to ``self._centre``),
-        ``self._faces``, ``self._vinst`` (each vertex's node) and ``self._tpa`` (per group: key
-        times, keyed vertices, first and end vertex).  Returns the (V,) vertices and (F,) triangles
-        that can move: under a moving node, or tpa triangles whose keys differ."""
+        ``self._faces``, ``self._vinst`` (each vertex's node), ``self._tpa`` (per group: key
+        times, keyed vertices, first and end vertex), ``self._tpa_normal_keys`` (per group: keyed
+        normals) and ``self._looks`` (the parser's looks of each piece, in the same triangle order).
+        Returns the (V,) vertices and (F,) triangles that can move: under a moving node, or tpa
+        triangles whose keys differ."""
         verts, faces, tri_moving, vnode = [], [], [], []
+        self._looks = []  # per piece of triangles, in triangle order: (count, node, looks as the parser made them)
         v0 = 0
-        for node, v, f in ps.blocks:
+        for node, v, f, looks in ps.blocks:
             verts.append(v)
             faces.append(f + v0)
             tri_moving.append(np.full(len(f), moving[node]))
             vnode.append(np.full(len(v), node, dtype=np.int32))
+            self._looks.append((len(f), node, looks))
             v0 += len(v)
         # float32 storage relative to a float64 centre when the scene lies far from the origin
-        centre = storage_centre(np.concatenate([b[1] for b in ps.blocks] + [tv[0] for _, _, tv in ps.tpa])
+        centre = storage_centre(np.concatenate([b[1] for b in ps.blocks] + [t[2][0] for t in ps.tpa])
                                 if ps.blocks or ps.tpa else np.zeros((0, 3)))
         self._tpa = []
+        self._tpa_normal_keys = []  # per group: keyed normals (K, 3m, 3) float32
         for times, members in groups.values():
-            frames = np.concatenate([tv for _, tv in members], axis=1)  # (K, 3m, 3)
-            nodes = np.repeat([nd for nd, _ in members], 3).astype(np.int32)
+            frames = np.concatenate([m[1] for m in members], axis=1)  # (K, 3m, 3)
+            nodes = np.repeat([m[0] for m in members], 3).astype(np.int32)
             n = frames.shape[1]
             self._tpa.append((times, np.ascontiguousarray(frames - centre, dtype=TRI_DTYPE), v0, v0 + n))
+            # Each corner's normals are interpolated like the positions and normalized after, so only
+            # their directions and relative lengths matter: each corner's keys are scaled by one factor.
+            nk = np.concatenate([m[2] for m in members], axis=1)  # (K, 3m, 3)
+            big = np.abs(nk).max(axis=(0, 2), keepdims=True)
+            nk = np.divide(nk, big, out=np.zeros_like(nk), where=big > 0)
+            self._tpa_normal_keys.append(np.ascontiguousarray(nk, dtype=TRI_DTYPE))
+            self._looks.extend((1, m[0], (m[3], None, None, "tpa")) for m in members)
             verts.append(frames[0])
             faces.append(np.arange(v0, v0 + n).reshape(-1, 3))
             moves = moving[nodes[::3]] | (np.ptp(frames, axis=0).reshape(-1, 9).max(axis=1) > 0)
@@ -814,6 +1038,117 @@ class BartAnimation(Animation):
         vert_moving = np.zeros(len(self._local), dtype=bool)
         vert_moving[self._faces[tri_moving].ravel()] = True
         return vert_moving, tri_moving
+
+    def _read_lights(self, ps, splines):
+        """The ``l``/``la`` lights as a light array (``self._lights``) and, for each ``la`` light
+        with ``transl`` keys, its row and position spline (``self._light_splines``)."""
+        rows, self._light_splines = [], []
+        for i, (name, pos, colour) in enumerate(ps.lights):
+            rows.append([LIGHT_POINT, *pos, *colour, FALLOFF_NONE])
+            keys = ps.anims.get(name, {}).get("transl") if name is not None else None
+            if keys is not None:
+                self._light_splines.append((i, splines.add_position(keys, f"transl keys of light {name!r}")))
+        self._lights = as_lights(np.array(rows, np.float64).reshape(-1, 8))
+
+    def _build_surface(self, ps, tri_moving):
+        """``self.surface`` from the looks of the laid-out triangles (``self._looks``), and what
+        :meth:`_fill_normals` takes (see :meth:`_lay_out_normals`)."""
+        rest = self._lay_out_normals(tri_moving)
+        am = ps.ambient_light[0] if ps.ambient_light is not None else np.ones(3)
+        builder = SurfaceBuilder()
+        rows = {}
+        f0 = 0
+        for n, _, (mid, tex, uv, normals) in self._looks:
+            key = (mid, id(tex))
+            if key not in rows:
+                diffuse, reflectance, (path, line) = ps.materials[mid]
+                with np.errstate(over="ignore"):
+                    ambient = reflectance * am
+                if ambient.max() > _F32_MAX:
+                    raise SceneFileError(path, f"line {line}: the material's ambient colour times the ambient light "
+                                               "(am) exceeds float32")
+                rows[key] = builder.material_index(diffuse, ambient, tex)
+            builder.add(n, None, None, uv=uv, material=rows[key],
+                        normals=None if normals is None else rest[f0:f0 + n])
+            f0 += n
+        del self._looks
+        self.surface = builder.build()
+
+    def _lay_out_normals(self, tri_moving):
+        """The shading normals: every distinct normal of the file is one row of a table
+        ``self._normal_rows`` (R, 3) float32 (row 0 is the zero normal of the triangles without
+        any) and ``self._normal_corners`` (F, 3) int32 names each triangle corner's row, so the
+        normals at time t are a gather of the table.  The rows that can turn (under a moving
+        transform, and those of ``tpa`` triangles, last) form the table's tail from row
+        ``self._normal_set[0]``, posed again for each t from their rows in their node's frame.
+        Returns the (F, 3, 3) float32 normals at time 0, or None when the file has no normals."""
+        F = self.n_triangles
+        corners = np.zeros((F, 3), np.int64)
+        parts = ([], [])  # (unit vectors' sources, node, first triangle, corner rows) of static / turning pieces
+        f0 = 0
+        for n, node, (_, _, _, normals) in self._looks:
+            if normals is not None and not isinstance(normals, str):
+                parts[bool(tri_moving[f0])].append((normals[0], node, f0, n, normals[1]))
+            f0 += n
+        tpa_tris = np.arange(F - sum(k.shape[1] for k in self._tpa_normal_keys) // 3, F)
+        self._normal_set = None
+        if not (parts[0] or parts[1] or len(tpa_tris)):
+            return None
+        row = 1
+        vectors, nodes = [], []
+        for group in parts:
+            for vecs, node, f0, n, idx in group:
+                corners[f0:f0 + n] = idx + row
+                vectors.append(vecs)
+                nodes.append(np.full(len(vecs), node, np.int32))
+                row += len(vecs)
+            if group is parts[0]:
+                first_turning = row
+        corners[tpa_tris] = row + np.arange(3 * len(tpa_tris)).reshape(-1, 3)
+        nodes.append(np.repeat(self._tri_node(tpa_tris), 3).astype(np.int32))
+        n_rows = row + 3 * len(tpa_tris)
+        local = np.zeros((n_rows - 1, 3), TRI_DTYPE)  # rows 1.. in their node's frame; tpa rows filled when posed
+        if vectors:
+            local[:row - 1] = _unit_rows(np.concatenate(vectors))
+        nodes = np.concatenate(nodes)
+        self._normal_corners = np.ascontiguousarray(corners, dtype=np.int32)
+        self._normal_rows = np.zeros((n_rows, 3), TRI_DTYPE)
+        every = (1, local, nodes, np.arange(len(local), dtype=np.int64), np.empty_like(local))
+        self._pose_normal_rows(self.bart_time(0.0), every)
+        rest = np.empty((F, 3, 3), TRI_DTYPE)
+        gather_unchecked(self._normal_rows, self._normal_corners, rest)
+        k = first_turning - 1
+        if n_rows > first_turning:
+            self._normal_set = (first_turning, np.ascontiguousarray(local[k:]), nodes[k:],
+                                np.arange(len(local) - k, dtype=np.int64), np.empty_like(local[k:]))
+        return rest
+
+    def _tri_node(self, tris):
+        """The node of each of the triangles ``tris``."""
+        return self._vinst[self._faces[tris, 0]]
+
+    def _pose_normal_rows(self, tb, normal_set):
+        """Write the rows ``first..`` of ``self._normal_rows`` at BART time ``tb``: a normal set
+        (first, local rows (R, 3) float32 in their node's frame, the last ones those of the ``tpa``
+        triangles, nodes (R,) int32, row ids (R,) int64, scratch (R, 3) float32) whose ``tpa`` rows
+        are interpolated between their keys, then every row turned by its node's inverse transpose
+        (the rigid posing kernel with matrices of no translation) and normalized (zero stays zero)."""
+        first, rows, nodes, vids, posed = normal_set
+        start = len(rows) - sum(k.shape[1] for k in self._tpa_normal_keys)
+        for (times, _, _, _), keys in zip(self._tpa, self._tpa_normal_keys):
+            k, k1, s = _key_blend(times, tb)
+            K.lerp_rows(keys[k], keys[k1], s, rows[start:start + keys.shape[1]])
+            start += keys.shape[1]
+        self._update_world(tb)
+        inst_first, node, skinned, mbase, mcount, woff = self._inst
+        j, jw, d, w, pal = self._dummy
+        K.deform_vertices(vids, rows, nodes, inst_first, node, skinned, j, jw, mbase, mcount, woff, d, w,
+                          _inverse_transposes(self._world), pal, _ZERO3, _ZERO3, posed)
+        # each component is at most 3 in size: the rows' components and the matrices' entries are at most 1
+        n2 = np.einsum("ij,ij->i", posed, posed)
+        inv = np.zeros_like(n2)
+        np.divide(1.0, np.sqrt(n2), out=inv, where=n2 > 0)
+        np.multiply(posed, inv[:, None], out=self._normal_rows[first:])
 
     def _set_node_arrays(self, parent, node_matrix):
         """The node hierarchy, and one rigid "instance" per node for the shared deform kernel."""
@@ -883,15 +1218,8 @@ class BartAnimation(Animation):
 
     def _pose(self, tb, vids):
         for times, frames, a, b in self._tpa:
-            if tb <= times[0]:
-                k, s = 0, 0.0
-            elif tb >= times[-1]:
-                k, s = len(times) - 1, 0.0
-            else:
-                k = int(np.searchsorted(times, tb, side="right") - 1)
-                s = (tb - times[k]) / (times[k + 1] - times[k])
-            k1 = min(k + 1, len(times) - 1)
-            K.lerp_rows(frames[k], frames[k1], float(s), self._local[a:b])
+            k, k1, s = _key_blend(times, tb)
+            K.lerp_rows(frames[k], frames[k1], s, self._local[a:b])
         self._update_world(tb)
         first, node, skinned, mbase, mcount, woff = self._inst
         j, jw, d, w, pal = self._dummy
@@ -901,6 +1229,25 @@ class BartAnimation(Animation):
     def _fill(self, t, out, origin):
         pose_moving_vertices(self, self.bart_time(t), origin)
         gather_unchecked(self._verts, self._faces, out)
+
+    def _fill_normals(self, t, out):
+        """The normals at time t: the rows of the normals that turn posed at t, then gathered."""
+        if self._normal_set is not None:
+            self._pose_normal_rows(self.bart_time(t), self._normal_set)
+        gather_unchecked(self._normal_rows, self._normal_corners, out)
+        return True
+
+    def lights_at(self, t):
+        """The ``l`` and ``la`` lights at time ``t`` (an (L, 8) float64 light array, see
+        gridrt.scene.surface): point lights without falloff, ``la`` lights with ``transl`` keys
+        at that spline's value."""
+        tb = self.bart_time(t)
+        if not self._light_splines:
+            return self._lights
+        a = self._lights.copy()
+        for row, spline in self._light_splines:
+            a[row, 1:4] = self.spline_value("position", spline, tb)
+        return as_lights(a)
 
     def spline_value(self, kind, index, tb):
         """Evaluate position spline (kind "position") or rotation spline ("rotation") ``index`` at

@@ -6,8 +6,8 @@ A scene that carries its looks has a :class:`Surface` (``Animation.surface``), f
   ``diffuse`` (M, 3) and ``ambient`` (M, 3) float32 colours and ``texture`` (M,) int32 (an index
   into ``textures``, -1: none);
 * ``uv`` (F, 3, 2) float32 texture coordinates per triangle corner, in the image's convention:
-  (0, 0) is the top-left corner of the image, u goes right and v goes down (glTF's convention;
-  loaders of OBJ, BART and other bottom-up formats store ``1 - v``); None without textures;
+  (0, 0) is the top-left corner of the image, u goes right and v goes down (glTF's, BART's and
+  MD2's convention; OBJ's v goes up, and its loader stores ``1 - v``); None when the file has none;
 * ``colors`` (F, 3, 3) float32 vertex colours per corner (multiplying the material's), or None;
 * ``normals`` (F, 3, 3) float32 unit shading normals per corner at rest, or None.  A zero
   normal means "the geometric normal" (a part of a scene whose file has no normals).  An
@@ -56,7 +56,8 @@ LIGHT_COLUMNS = 8
 
 
 class TextureWarning(UserWarning):
-    """A texture could not be read (missing, unreadable or not an image): the scene loads without it."""
+    """A texture could not be read (missing, unreadable or not an image), or a file the looks come
+    from (an MTL library, a material name, an MD2 skin) is missing: the scene loads without it."""
 
 
 _progress = contextvars.ContextVar("texture_progress", default=None)
