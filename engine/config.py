@@ -133,7 +133,8 @@ class RenderParams:
     """How to cast and shade the primary rays.
 
     width, height  image size in pixels (each 1..16384)
-    shading        "auto" (the default: "material" for a scene with materials, else "lambert"),
+    shading        "auto" (the default: "material" for a scene with materials, textures or vertex
+                   colours (Surface.has_materials), else "lambert"),
                    "material" (the scene's materials, textures, smooth normals and lights:
                    gridrt.trace.material), "lambert" (one colour; a headlight, or the point
                    light when shadows are on), "normal" (geometric normal facing the viewer,

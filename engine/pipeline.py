@@ -229,7 +229,8 @@ class FramePipeline:
         rp = self.render_params
         if rp.light is not None and self.origin.any():
             rp = rp.replace(light=tuple(np.asarray(rp.light, np.float64) - self.origin))
-        shading = rp.resolved(self.scene.surface is not None)
+        surface = self.scene.surface
+        shading = rp.resolved(surface is not None and surface.has_materials)
         looks = self._looks(float(t), tris) if shading == "material" else None
         if split is not None:
             res = self.renderer.render(self.static_grid, split.static_tris, local_cam, rp, second=split.second(grid),

@@ -370,3 +370,25 @@ def test_gltf_checkerboard_texels(tmp_path, rng, traversal):
     got = fr.image.reshape(-1, 4)[hit[inside], :3].astype(int)
     assert np.abs(got - sq.astype(int)).max() <= 1
     assert len(np.unique(got, axis=0)) == 16  # every square seen
+
+
+def test_auto_keeps_lambert_for_a_file_with_normals_only(tmp_path):
+    """An OBJ whose only looks are its normals renders as before (auto = lambert); the same file with
+    a material of its own renders in the material mode; the default material's colour is lambert's."""
+    from gridrt.scene import make_scene
+    from gridrt.scene.surface import AMBIENT_FRACTION, DEFAULT_DIFFUSE
+
+    assert DEFAULT_DIFFUSE == R.ALBEDO and AMBIENT_FRACTION == R.AMBIENT
+    body = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0.2\nvn 0 0 1\nvn 0.1 0 1\nvn 0 0.1 1\nvn 0.1 0.1 1\n"
+    (tmp_path / "n.obj").write_text(body + "f 1//1 2//2 3//3\nf 2//2 4//4 3//3\n")
+    (tmp_path / "m.mtl").write_text("newmtl red\nKd 0.9 0.1 0.1\n")
+    (tmp_path / "m.obj").write_text("mtllib m.mtl\n" + body + "usemtl red\nf 1//1 2//2 3//3\nf 2//2 4//4 3//3\n")
+    rp = RenderParams(width=24, height=24)
+    plain, red = make_scene(tmp_path / "n.obj"), make_scene(tmp_path / "m.obj")
+    assert plain.surface is not None and plain.surface.normals is not None and not plain.surface.has_materials
+    assert red.surface.has_materials
+    assert FramePipeline(plain, render_params=rp).step(0.0).stats["shading"] == "lambert"
+    fr = FramePipeline(red, render_params=rp).step(0.0)
+    assert fr.stats["shading"] == "material"
+    lit = fr.image[fr.tri >= 0][:, :3].astype(int)
+    assert (lit[:, 0] > 3 * lit[:, 1]).all()  # red

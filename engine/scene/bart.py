@@ -79,10 +79,10 @@ _RGB = ("red", "green", "blue")
 
 #: diffuse colour of triangles read before any ``f``/``fm`` material: gridrt's default grey
 #: (gridrt.trace.shade.ALBEDO)
-DEFAULT_DIFFUSE = (0.85, 0.78, 0.66)
+from .surface import AMBIENT_FRACTION, DEFAULT_DIFFUSE  # noqa: E402
 #: ambient reflectance of NFF ``f`` materials (and of the default material) as a fraction of their
 #: diffuse colour: NFF has no ambient term (gridrt.trace.shade.AMBIENT is the same fraction)
-AMBIENT_DEFAULT = 0.15
+AMBIENT_DEFAULT = AMBIENT_FRACTION
 #: the largest colour, texture coordinate or normal component that float32 storage holds
 _F32_MAX = float(np.finfo(np.float32).max)
 

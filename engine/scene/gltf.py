@@ -108,10 +108,10 @@ _MAX_JOINT_SETS = 4
 # sampler wrapS / wrapT -> gridrt.scene.surface.WRAP_MODES key
 _WRAP = {10497: "repeat", 33071: "clamp", 33648: "mirror"}
 
-#: A glTF material's ambient colour as a fraction of its base colour.  glTF has no ambient term (its
-#: viewers light scenes with an environment); this much keeps the sides the lights miss readable
-#: without washing out the lit ones.
-AMBIENT_FRACTION = 0.15
+#: AMBIENT_FRACTION: a glTF material's ambient colour as a fraction of its base colour.  glTF has no
+#: ambient term (its viewers light scenes with an environment); this much keeps the sides the lights
+#: miss readable without washing out the lit ones.
+from .surface import AMBIENT_FRACTION  # noqa: E402
 
 
 def _is_int(v):

@@ -199,13 +199,10 @@ def _check_gltf(path, ext):
 
 # ----------------------------------------------------------------------------- looks
 
-#: diffuse colour of the default material (faces without a material, files whose only looks are
-#: normals): gridrt's grey, the same as ``gridrt.trace.shade.ALBEDO``
-DEFAULT_DIFFUSE = (0.85, 0.78, 0.66)
-#: every loaded material's ambient colour is AMBIENT_FRACTION * its diffuse colour (MTL ``Ka`` is
-#: ignored: exporters write 1 1 1, 0 0 0, a copy of Kd or nothing); the same fraction as the
-#: ``lambert`` mode's ambient term (gridrt.trace.shade.AMBIENT)
-AMBIENT_FRACTION = 0.15
+#: DEFAULT_DIFFUSE: the default material (faces without a material, files whose only looks are
+#: normals); every loaded material's ambient colour is AMBIENT_FRACTION * its diffuse colour (MTL
+#: ``Ka`` is ignored: exporters write 1 1 1, 0 0 0, a copy of Kd or nothing)
+from .surface import AMBIENT_FRACTION, DEFAULT_DIFFUSE  # noqa: E402
 #: image files a material or skin may name (what Pillow reads; lower case)
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".pcx", ".tga", ".ppm", ".pgm", ".gif", ".tif", ".tiff")
 

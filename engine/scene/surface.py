@@ -41,11 +41,18 @@ import numpy as np
 from ..errors import InputError
 
 __all__ = [
-    "FALLOFF_INVERSE_SQUARE", "FALLOFF_NONE", "LIGHT_COLUMNS", "LIGHT_DIRECTIONAL", "LIGHT_POINT", "WRAP_MODES",
+    "AMBIENT_FRACTION", "DEFAULT_DIFFUSE", "FALLOFF_INVERSE_SQUARE", "FALLOFF_NONE", "LIGHT_COLUMNS", "LIGHT_DIRECTIONAL", "LIGHT_POINT", "WRAP_MODES",
     "PackedSurface", "Surface", "SurfaceBuilder", "Texture", "TextureWarning", "as_lights", "load_texture", "no_lights",
     "texture_progress",
 ]
 
+#: the default material's diffuse colour (triangles a file gives no material, files whose only looks
+#: are normals): gridrt's grey, the same as gridrt.trace.shade.ALBEDO (a test keeps them equal)
+DEFAULT_DIFFUSE = (0.85, 0.78, 0.66)
+#: a material's ambient colour as a fraction of its diffuse colour where the file has no ambient
+#: term of its own (NFF ``f``, MTL, glTF, MD2, the default material): the same fraction as the
+#: ``lambert`` mode's ambient term (gridrt.trace.shade.AMBIENT)
+AMBIENT_FRACTION = 0.15
 #: texture wrap modes: glTF's REPEAT (10497), CLAMP_TO_EDGE (33071), MIRRORED_REPEAT (33648)
 WRAP_MODES = {"repeat": 0, "clamp": 1, "mirror": 2}
 LIGHT_POINT = 0.0
@@ -59,6 +66,9 @@ class TextureWarning(UserWarning):
     """A texture could not be read (missing, unreadable or not an image), or a file the looks come
     from (an MTL library, a material name, an MD2 skin) is missing: the scene loads without it."""
 
+
+#: the Pillow formats load_texture reads
+TEXTURE_FORMATS = ("PNG", "JPEG", "PPM", "BMP", "PCX", "TGA", "GIF", "TIFF", "WEBP")
 
 _progress = contextvars.ContextVar("texture_progress", default=None)
 
@@ -84,7 +94,9 @@ def load_texture(path, wrap=("repeat", "repeat"), data=None, name=None):
 
     label = name or (str(path) if path is not None else "embedded image")
     try:
-        with Image.open(BytesIO(data) if data is not None else Path(path)) as im:
+        # only the image formats scene files use: a plugin another library registers must not take a
+        # file that is no image for one
+        with Image.open(BytesIO(data) if data is not None else Path(path), formats=TEXTURE_FORMATS) as im:
             im.load()
             if im.mode != "RGB":  # (a palette with transparency goes through RGBA, as Pillow asks)
                 im = im.convert("RGBA" if im.mode == "P" and "transparency" in im.info else "RGB")
@@ -211,6 +223,21 @@ class Surface:
     @property
     def n_materials(self):
         return int(len(self.diffuse))
+
+    @property
+    def has_materials(self):
+        """True when the file gave the triangles looks of their own: a texture, vertex colours, or a
+        material other than a default one (gridrt's grey DEFAULT_DIFFUSE, or glTF's white, each with
+        AMBIENT_FRACTION of it as ambient).  A surface of normals only has none: shading "auto" then
+        keeps the ``lambert`` look, and "material" gives its smooth normals."""
+        if self.textured or self.colors is not None:
+            return True
+        for d in (DEFAULT_DIFFUSE, (1.0, 1.0, 1.0)):
+            dd = np.asarray(d, np.float32)
+            if np.allclose(self.diffuse, dd, atol=1e-6) and np.allclose(self.ambient, np.float32(AMBIENT_FRACTION) * dd,
+                                                                            atol=1e-6):
+                return False
+        return True
 
     @property
     def textured(self):
