@@ -35,7 +35,7 @@ from ..scene.surface import FALLOFF_INVERSE_SQUARE, LIGHT_DIRECTIONAL, LIGHT_POI
 from .shade import AMBIENT, ALBEDO, BACKGROUND, put_pixel, unit_normal
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def barycentrics(tris, f, ex, ey, ez, dx, dy, dz):
     """(w0, w1, w2) of the ray eye + t d on triangle f of tris (F,3,3) float32, in float64, clamped
     onto the triangle (each >= 0, sum 1); the centroid for a degenerate triangle."""
@@ -48,35 +48,39 @@ def barycentrics(tris, f, ex, ey, ez, dx, dy, dz):
     det = e1x * px + e1y * py + e1z * pz
     if det == 0.0 or not math.isfinite(det):
         return 1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0
+    inv = 1.0 / det  # (one division: a division's latency is most of a hit's shading)
     sx, sy, sz = ex - v0x, ey - v0y, ez - v0z
-    u = (sx * px + sy * py + sz * pz) / det
+    u = (sx * px + sy * py + sz * pz) * inv
     qx = sy * e1z - sz * e1y
     qy = sz * e1x - sx * e1z
     qz = sx * e1y - sy * e1x
-    v = (dx * qx + dy * qy + dz * qz) / det
+    v = (dx * qx + dy * qy + dz * qz) * inv
     if not (math.isfinite(u) and math.isfinite(v)):
         return 1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0
     u = max(u, 0.0)
     v = max(v, 0.0)
     s = u + v
     if s > 1.0:
-        u /= s
-        v /= s
+        r = 1.0 / s
+        u *= r
+        v *= r
     return 1.0 - u - v, u, v
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _wrap(i, n, mode):
-    """Texel index i wrapped into [0, n) by mode (0 repeat, 1 clamp, 2 mirror)."""
+    """Texel index i in [-1, 2n] (the reduced coordinate's, see _reduce) wrapped into [0, n) by mode
+    (0 repeat, 1 clamp, 2 mirror), with compares: an integer division costs more than the rest of
+    the lookup."""
     if mode == 1:
         return 0 if i < 0 else (n - 1 if i >= n else i)
     if mode == 2:
-        m = i % (2 * n)
+        m = i + 2 * n if i < 0 else (i - 2 * n if i >= 2 * n else i)
         return m if m < n else 2 * n - 1 - m
-    return i % n
+    return i + n if i < 0 else (i - n if i >= n else i)
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _reduce(c, mode):
     """A texture coordinate brought into [0, 1] (clamp), [0, 1) (repeat) or [0, 2) (mirror) before
     it is scaled to texels, so a huge coordinate never overflows an integer."""
@@ -87,7 +91,7 @@ def _reduce(c, mode):
     return c - math.floor(c)
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def sample_bilinear(tex_data, tex_info, k, u, v):
     """Texture k at (u, v) (image convention: (0, 0) top-left), bilinearly filtered: (r, g, b) in [0, 1]."""
     off, w, h, wu, wv = tex_info[k, 0], tex_info[k, 1], tex_info[k, 2], tex_info[k, 3], tex_info[k, 4]
@@ -112,14 +116,16 @@ def sample_bilinear(tex_data, tex_info, k, u, v):
     r = w00 * tex_data[a] + w01 * tex_data[b] + w10 * tex_data[c] + w11 * tex_data[d]
     g = w00 * tex_data[a + 1] + w01 * tex_data[b + 1] + w10 * tex_data[c + 1] + w11 * tex_data[d + 1]
     bl = w00 * tex_data[a + 2] + w01 * tex_data[b + 2] + w10 * tex_data[c + 2] + w11 * tex_data[d + 2]
-    return r / 255.0, g / 255.0, bl / 255.0
+    k255 = 1.0 / 255.0
+    return r * k255, g * k255, bl * k255
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def light_weight(lights, li, px, py, pz, ngx, ngy, ngz, nsx, nsy, nsz):
     """(weight, lx, ly, lz, dist) of light li at the hit p with facing normals n_g, n_s: the unit
     vector l to the light, its distance (inf for a directional light) and weight n_s . l (over d^2
     with inverse-square falloff), 0 when the light is behind the surface."""
+    r = 1.0
     if lights[li, 0] == LIGHT_DIRECTIONAL:
         lx, ly, lz = lights[li, 1], lights[li, 2], lights[li, 3]
         dist = np.inf
@@ -130,20 +136,21 @@ def light_weight(lights, li, px, py, pz, ngx, ngy, ngz, nsx, nsy, nsz):
         dist = math.sqrt(lx * lx + ly * ly + lz * lz)
         if not (dist > 0.0) or not math.isfinite(dist):
             return 0.0, 0.0, 0.0, 0.0, 0.0
-        lx /= dist
-        ly /= dist
-        lz /= dist
+        r = 1.0 / dist
+        lx *= r
+        ly *= r
+        lz *= r
     if ngx * lx + ngy * ly + ngz * lz <= 0.0:
         return 0.0, lx, ly, lz, dist
     s = nsx * lx + nsy * ly + nsz * lz
     if s <= 0.0:
         return 0.0, lx, ly, lz, dist
     if lights[li, 7] == FALLOFF_INVERSE_SQUARE and lights[li, 0] == LIGHT_POINT:
-        s /= dist * dist
+        s *= r * r
     return s, lx, ly, lz, dist
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def surface_at(stris, normals, material, diffuse, ambient, texture, tex_data, tex_info, uv, colors,
                f, ex, ey, ez, dx, dy, dz):
     """What the camera ray eye + t d sees on scene triangle f: (p, n_g, n_s, tv, tvd, tva) with p
@@ -166,7 +173,8 @@ def surface_at(stris, normals, material, diffuse, ambient, texture, tex_data, te
         nz = w0 * normals[f, 0, 2] + w1 * normals[f, 1, 2] + w2 * normals[f, 2, 2]
         nn = math.sqrt(nx * nx + ny * ny + nz * nz)
         if nn > 1e-12 and math.isfinite(nn):
-            sx, sy, sz = nx / nn, ny / nn, nz / nn
+            r = 1.0 / nn
+            sx, sy, sz = nx * r, ny * r, nz * r
             if sx * gx + sy * gy + sz * gz < 0.0:
                 sx, sy, sz = -sx, -sy, -sz
     m = material[f]
@@ -185,7 +193,7 @@ def surface_at(stris, normals, material, diffuse, ambient, texture, tex_data, te
             tr * ambient[m, 0], tg * ambient[m, 1], tb * ambient[m, 2])
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _shade_row(y, basis, W, H, ibuf, stris, normals, material, diffuse, ambient, texture, tex_data, tex_info, uv,
                colors, lights, deferred, img, pos, ngb, nsb, tvd, acc):
     ex, ey, ez = basis[0, 0], basis[0, 1], basis[0, 2]
@@ -219,7 +227,7 @@ def _shade_row(y, basis, W, H, ibuf, stris, normals, material, diffuse, ambient,
         put_pixel(img, y, x, r, g, b)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, error_model="numpy")
 def shade_kernel(basis, W, H, ibuf, stris, normals, material, diffuse, ambient, texture, tex_data, tex_info, uv,
                  colors, lights, deferred, img, pos, ngb, nsb, tvd, acc):
     """Colour every pixel of img (H,W,4) from the hits in ibuf (scene ids, -1 a miss) with the
@@ -231,7 +239,7 @@ def shade_kernel(basis, W, H, ibuf, stris, normals, material, diffuse, ambient, 
                    uv, colors, lights, deferred, img, pos, ngb, nsb, tvd, acc)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def shade_serial(basis, W, H, ibuf, stris, normals, material, diffuse, ambient, texture, tex_data, tex_info, uv,
                  colors, lights, deferred, img, pos, ngb, nsb, tvd, acc):
     """shade_kernel on one thread (gridrt.trace.twin)."""
@@ -240,7 +248,7 @@ def shade_serial(basis, W, H, ibuf, stris, normals, material, diffuse, ambient, 
                    uv, colors, lights, deferred, img, pos, ngb, nsb, tvd, acc)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, error_model="numpy")
 def light_rays(lights, li, pos, ngb, nsb, acc, off, far, need, origins, dirs, weight):
     """The shadow rays of light li from every hit (acc[i, 0] >= 0) it lights: need[i] = 1, the
     origin p + n_g * off, the direction to the light (a point light's vector to it, or far times a
@@ -267,7 +275,7 @@ def light_rays(lights, li, pos, ngb, nsb, acc, off, far, need, origins, dirs, we
             dirs[i, 2] = lights[li, 3] - oz
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, error_model="numpy")
 def add_light(rows, tri, weight, tvd, r, g, b, acc):
     """acc[rows[j]] += tvd * (r, g, b) * weight for every shadow ray j that hit nothing (tri[j] < 0)."""
     for j in prange(rows.shape[0]):
@@ -279,7 +287,7 @@ def add_light(rows, tri, weight, tvd, r, g, b, acc):
             acc[i, 2] += tvd[i, 2] * b * s
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, error_model="numpy")
 def compose(W, H, acc, img):
     """img from the accumulated colours (the background where acc[i, 0] < 0)."""
     for y in prange(H):
