@@ -32,7 +32,7 @@ from numba import njit, prange
 
 from ..camera import pixel_dir
 from ..scene.surface import FALLOFF_INVERSE_SQUARE, LIGHT_DIRECTIONAL, LIGHT_POINT
-from .shade import AMBIENT, ALBEDO, BACKGROUND, put_pixel, unit_normal
+from .shade import AMBIENT, ALBEDO, put_pixel, unit_normal
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
@@ -200,11 +200,9 @@ def _shade_row(y, basis, W, H, ibuf, stris, normals, material, diffuse, ambient,
     for x in range(W):
         f = ibuf[y, x]
         i = y * W + x
-        if f < 0:
+        if f < 0:  # a miss: the render kernel has written the background already
             if deferred:
                 acc[i, 0] = -1.0
-            else:
-                put_pixel(img, y, x, BACKGROUND[0], BACKGROUND[1], BACKGROUND[2])
             continue
         dx, dy, dz = pixel_dir(basis, W, H, x, y)
         px, py, pz, gx, gy, gz, sx, sy, sz, dr, dg, db, ar, ag, ab = surface_at(
@@ -230,7 +228,8 @@ def _shade_row(y, basis, W, H, ibuf, stris, normals, material, diffuse, ambient,
 @njit(cache=True, parallel=True, error_model="numpy")
 def shade_kernel(basis, W, H, ibuf, stris, normals, material, diffuse, ambient, texture, tex_data, tex_info, uv,
                  colors, lights, deferred, img, pos, ngb, nsb, tvd, acc):
-    """Colour every pixel of img (H,W,4) from the hits in ibuf (scene ids, -1 a miss) with the
+    """Colour the hit pixels of img (H,W,4) (ibuf: scene ids, -1 a miss, whose background the render
+    kernel wrote) with the
     surface and the lights (L, 8) (frame coordinates), or with ``deferred`` (shadows) write each
     hit's point, normals, T V D and T V A (acc; -1 in acc[:, 0] for a miss) into the flat (W*H, 3)
     buffers for :func:`light_rays`, :func:`add_light` and :func:`compose`."""
@@ -289,13 +288,12 @@ def add_light(rows, tri, weight, tvd, r, g, b, acc):
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def compose(W, H, acc, img):
-    """img from the accumulated colours (the background where acc[i, 0] < 0)."""
+    """img from the accumulated colours of the hits (acc[i, 0] >= 0; the render kernel has written
+    the background of the misses)."""
     for y in prange(H):
         for x in range(W):
             i = y * W + x
-            if acc[i, 0] < 0.0:
-                put_pixel(img, y, x, BACKGROUND[0], BACKGROUND[1], BACKGROUND[2])
-            else:
+            if acc[i, 0] >= 0.0:
                 put_pixel(img, y, x, acc[i, 0], acc[i, 1], acc[i, 2])
 
 
