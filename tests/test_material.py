@@ -392,3 +392,77 @@ def test_auto_keeps_lambert_for_a_file_with_normals_only(tmp_path):
     assert fr.stats["shading"] == "material"
     lit = fr.image[fr.tri >= 0][:, :3].astype(int)
     assert (lit[:, 0] > 3 * lit[:, 1]).all()  # red
+
+
+def _pixel_of(cam, n, point):
+    """The pixel (row-major index) whose ray passes closest to ``point``, and the ray's direction."""
+    o, d = R.ref_camera_rays(cam.eye, cam.target, cam.up, cam.fov, n, n)
+    v = np.asarray(point, np.float64) - o
+    t = (v * d).sum(axis=1)
+    i = int(np.argmin(np.linalg.norm(v - t[:, None] * d, axis=1)))
+    return i, d[i]
+
+
+def test_bart_material_colours_at_chosen_pixels(tmp_path):
+    """A BART file written here: two quads with their own fm materials under an am ambient light and
+    one point light; the pixels at chosen points of each have c = amb * am + diff * light * cos,
+    computed here (the scene's camera from its v block)."""
+    from gridrt.scene import make_scene
+
+    aff = """v
+from 0 0 6
+at 0 0 0
+up 0 1 0
+angle 40
+hither 0.01
+resolution 64 64
+am 0.5 0.5 0.5
+l 1 2 4 0.8 0.7 0.6
+fm 0.2 0.1 0.1  0.7 0.2 0.1  0 0 0  0 0 0
+p 4  -2 -1 0  0 -1 0  0 1 0  -2 1 0
+fm 0.05 0.1 0.2  0.1 0.3 0.8  0 0 0  0 0 0
+p 4  0 -1 0  2 -1 0  2 1 0  0 1 0
+"""
+    (tmp_path / "two.aff").write_text(aff)
+    sc = make_scene(tmp_path / "two.aff")
+    cam = sc.camera_at(0.0)
+    n = 64
+    fr = FramePipeline(sc, render_params=RenderParams(width=n, height=n), follow_camera=True).step(0.0)
+    assert fr.stats["shading"] == "material" and fr.stats["lights"] == 1
+    for point, amb, diff in (((-1.0, 0.2, 0.0), (0.2, 0.1, 0.1), (0.7, 0.2, 0.1)),
+                             ((1.2, -0.4, 0.0), (0.05, 0.1, 0.2), (0.1, 0.3, 0.8))):
+        i, _ = _pixel_of(cam, n, point)
+        lv = np.array([1.0, 2.0, 4.0]) - np.asarray(point)
+        cos = lv[2] / np.linalg.norm(lv)  # the quads' normal is +z, facing the camera
+        expect = np.array(amb) * 0.5 + np.array(diff) * np.array([0.8, 0.7, 0.6]) * cos
+        got = fr.image.reshape(-1, 4)[i, :3].astype(int)
+        # (the pixel's hit is within half a pixel of the point: cos changes by far less than a level)
+        assert np.abs(got - R.to_u8(expect).astype(int)).max() <= 1, (point, got, R.to_u8(expect))
+
+
+def test_mtl_kd_at_chosen_pixels(tmp_path):
+    """An OBJ quad with an MTL Kd and no lights of its own, lit by the documented default light
+    (eye + (0.6 right + up) * diag, colour 1): c = Kd * (0.15 + cos) at a chosen pixel."""
+    from gridrt.scene import make_scene
+
+    (tmp_path / "k.mtl").write_text("newmtl k\nKd 0.2 0.6 0.4\n")
+    (tmp_path / "k.obj").write_text("mtllib k.mtl\nv -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nusemtl k\nf 1 2 3 4\n")
+    sc = make_scene(tmp_path / "k.obj")
+    cam = Camera(eye=(0.2, 0.1, 4.0), target=(0.0, 0.0, 0.0), fov=45.0)
+    n = 48
+    fr = FramePipeline(sc, render_params=RenderParams(width=n, height=n), camera=cam).step(0.0)
+    assert fr.stats["shading"] == "material"
+    eye = np.array(cam.eye)
+    fwd = -eye / np.linalg.norm(eye)
+    right = np.cross(fwd, (0.0, 1.0, 0.0))
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    diag = np.linalg.norm([2.0, 2.0, 0.0])
+    light = eye + (0.6 * right + up) * diag
+    for point in ((0.3, -0.5, 0.0), (-0.6, 0.4, 0.0)):
+        i, _ = _pixel_of(cam, n, point)
+        lv = light - np.asarray(point)
+        cos = lv[2] / np.linalg.norm(lv)
+        expect = np.array([0.2, 0.6, 0.4]) * (0.15 + cos)
+        got = fr.image.reshape(-1, 4)[i, :3].astype(int)
+        assert np.abs(got - R.to_u8(expect).astype(int)).max() <= 1, (point, got, R.to_u8(expect))
