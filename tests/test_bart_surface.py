@@ -8,7 +8,6 @@ under any transform); and, on the real scenes, counts and values read from the .
 small scanner below (materials in use, textured triangles, referenced images, lights, tpa keys).
 """
 
-import math
 import re
 import warnings
 from collections import Counter
@@ -24,6 +23,7 @@ from gridrt.scene.bart import AMBIENT_DEFAULT, DEFAULT_DIFFUSE
 from gridrt.scene.surface import FALLOFF_NONE, LIGHT_POINT, TextureWarning
 
 from conftest import NO_SHARED_DATA, SHARED_DATA, data_path
+from test_bart import rodrigues
 
 no_texture_warnings = pytest.mark.filterwarnings("ignore::gridrt.scene.surface.TextureWarning")
 
@@ -40,14 +40,6 @@ def write_ppm(path, texels):
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_bytes(f"P6\n# written by the test\n{w} {h}\n255\n".encode() + np.ascontiguousarray(texels).tobytes())
     return path
-
-
-def rodrigues(axis, degrees):
-    a = np.asarray(axis, dtype=np.float64)
-    a = a / np.linalg.norm(a)
-    th = math.radians(degrees)
-    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    return np.eye(3) + math.sin(th) * k + (1 - math.cos(th)) * (k @ k)
 
 
 def unit(v):
@@ -67,6 +59,17 @@ def colours(s):
 
 
 TRI = "p 3  0 0 {z}  1 0 {z}  0 1 {z}\n"
+#: the rotation keys of a transform named spin: a quarter turn about y a second, -1 s to 3 s
+SPIN_KEYS = """k spin
+{
+  rot 5
+  -1  0 1 0 -90  0 0 0
+   0  0 1 0   0  0 0 0
+   1  0 1 0  90  0 0 0
+   2  0 1 0 180  0 0 0
+   3  0 1 0 270  0 0 0
+}
+"""
 
 
 def test_defaults_match_gridrt_shading():
@@ -207,16 +210,7 @@ x spin
    normals 2    0 0 2  1 0 0
    triangles 1  0 1 2  0 1 0
 }
-k spin
-{
-  rot 5
-  -1  0 1 0 -90  0 0 0
-   0  0 1 0   0  0 0 0
-   1  0 1 0  90  0 0 0
-   2  0 1 0 180  0 0 0
-   3  0 1 0 270  0 0 0
-}
-"""
+""" + SPIN_KEYS
 
 
 def test_mesh_normals_turn_with_their_transform(tmp_path):
@@ -317,16 +311,7 @@ tpa 3
 }
 fm 0.1 0.1 0.1  0.1 0.9 0.1  0 0 0  0 0 0
 m vertices 3  5 5 5  6 5 5  5 6 5  normals 1  0 1 0  triangles 1  0 1 2  0 0 0
-k spin
-{
-  rot 5
-  -1  0 1 0 -90  0 0 0
-   0  0 1 0   0  0 0 0
-   1  0 1 0  90  0 0 0
-   2  0 1 0 180  0 0 0
-   3  0 1 0 270  0 0 0
-}
-"""
+""" + SPIN_KEYS
 TPA_KEYS = np.array([[[0, 0, 1], [0, 0, 2], [1, 0, 0]],
                      [[0, 1, 0], [0, 0, 1], [0, 3, 0]],
                      [[1, 0, 0], [0, 0, -1], [0, 0, 5]]], dtype=np.float64)

@@ -32,7 +32,7 @@ from numba import njit, prange
 
 from ..camera import pixel_dir
 from ..scene.surface import FALLOFF_INVERSE_SQUARE, LIGHT_DIRECTIONAL, LIGHT_POINT
-from .shade import AMBIENT, ALBEDO, put_pixel, unit_normal
+from .shade import put_pixel, unit_normal
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
@@ -275,10 +275,10 @@ def light_rays(lights, li, pos, ngb, nsb, acc, off, far, need, origins, dirs, we
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def add_light(rows, tri, weight, tvd, r, g, b, acc):
-    """acc[rows[j]] += tvd * (r, g, b) * weight for every shadow ray j that hit nothing (tri[j] < 0)."""
+def add_light(rows, blocked, weight, tvd, r, g, b, acc):
+    """acc[rows[j]] += tvd * (r, g, b) * weight for every shadow ray j that hit nothing (not blocked[j])."""
     for j in prange(rows.shape[0]):
-        if tri[j] < 0:
+        if not blocked[j]:
             i = rows[j]
             s = weight[i]
             acc[i, 0] += tvd[i, 0] * r * s
@@ -298,7 +298,8 @@ def compose(W, H, acc, img):
 
 
 def default_surface(n_triangles):
-    """One material of gridrt's default colours (ALBEDO, ambient AMBIENT * ALBEDO) for every triangle."""
-    from ..scene.surface import Surface
+    """One material of gridrt's default colours (DEFAULT_DIFFUSE, the lambert mode's ALBEDO, and
+    AMBIENT_FRACTION of it as ambient) for every triangle."""
+    from ..scene.surface import AMBIENT_FRACTION, DEFAULT_DIFFUSE, Surface
 
-    return Surface.plain(n_triangles, ALBEDO, tuple(AMBIENT * c for c in ALBEDO))
+    return Surface.plain(n_triangles, DEFAULT_DIFFUSE, tuple(AMBIENT_FRACTION * c for c in DEFAULT_DIFFUSE))

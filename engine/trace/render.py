@@ -520,8 +520,7 @@ class Renderer:
                 cast_grouped(g, np.ascontiguousarray(o[live]), np.ascontiguousarray(d[live]), 0.0, 1.0,
                              bool(params.watertight), True, out, max_cells, f32)
                 blocked[live[out[1] >= 0]] = True
-            tri = np.where(blocked, 0, -1).astype(np.int32)
-            M.add_light(rows, tri, weight, tvd, float(lights[li, 4]), float(lights[li, 5]), float(lights[li, 6]), acc)
+            M.add_light(rows, blocked, weight, tvd, float(lights[li, 4]), float(lights[li, 5]), float(lights[li, 6]), acc)
         M.compose(W, H, acc, img)
         return len(lights), cast
 
