@@ -506,9 +506,43 @@ def frame_strategy(name, threads):
     return name
 
 
-def run_frame(a):
+def frame_pipeline(scene, variant, strategy, size, shading, packet, packet_precision, top_density, leaf_density):
+    """The FramePipeline of one ``bench frame`` configuration: variant = (threads, traversal,
+    split, grid kind)."""
     from gridrt.pipeline import FramePipeline
 
+    th, tr, sp, gk = variant
+    return FramePipeline(scene, GridParams(strategy=frame_strategy(strategy, th), threads=th, grid=gk,
+                                           top_density=top_density, leaf_density=leaf_density),
+                         RenderParams(size, size, shading=shading, threads=th, traversal=tr, packet=packet,
+                                      packet_precision=packet_precision),
+                         split_static=sp, follow_camera=True)
+
+
+def frame_row(sc, pipe, variant, smp, strategy, packet, packet_precision, size, runs):
+    """The ``bench frame`` row of one configuration (``sc`` a BenchScene, ``smp`` its timed
+    frames' stats)."""
+    th, tr, sp, gk = variant
+    s = smp[-1]
+    row = dict(scene=sc.label, name=sc.scene.name, triangles=s["triangles"],
+               moving_triangles=s.get("moving_triangles", s["triangles"]), threads=th,
+               strategy=frame_strategy(strategy, th), traversal=tr, split=int(sp and _has_split(sc.scene)),
+               packet=f"{packet[0]}x{packet[1]}", packet_precision=packet_precision,
+               static=int(bool(sc.scene.static)), size=size, frames=runs, **grid_columns(pipe.grid_params, s))
+    for k in ("frame_ms", "build_ms", "render_ms", "anim_ms"):
+        put_stat(row, k, [x[k] for x in smp])
+    put_stat(row, "build_render_ms", [x["build_ms"] + x["render_ms"] for x in smp])
+    row["fps"] = 1e3 / row["frame_ms"]
+    row["fps_build_render"] = 1e3 / row["build_render_ms"]
+    row["mrays"] = float(np.median([x["mrays"] for x in smp]))
+    row["hit_fraction"] = float(np.median([x["hit_fraction"] for x in smp]))
+    row["rebuilt"] = float(np.mean([x["rebuilt"] for x in smp]))
+    row["tests_per_ray"] = float(np.median([x["tests_per_ray"] for x in smp]))
+    row["cells_per_ray"] = float(np.median([x["cells_per_ray"] for x in smp]))
+    return row
+
+
+def run_frame(a):
     check_frame_args(a)
     travs = [t.strip() for t in a.traversal.split(",") if t.strip()]
     for t in travs:
@@ -540,11 +574,8 @@ def run_frame(a):
         # all variants of one scene advance frame by frame together (round-robin), so load from
         # other processes hits them alike
         variants = [(th, tr, sp, gk) for s2, th, tr, sp, gk in plan if s2 is sc]
-        pipes = [FramePipeline(sc.scene, GridParams(strategy=frame_strategy(a.strategy, th), threads=th, grid=gk,
-                                                    top_density=a.top_density, leaf_density=a.leaf_density),
-                               RenderParams(size, size, shading=a.shading, threads=th, traversal=tr, packet=packet,
-                                            packet_precision=a.packet_precision),
-                               split_static=sp, follow_camera=True) for th, tr, sp, gk in variants]
+        pipes = [frame_pipeline(sc.scene, v, a.strategy, size, a.shading, packet, a.packet_precision, a.top_density,
+                                a.leaf_density) for v in variants]
         samples = [[] for _ in variants]
         bar.set_postfix_str(sc.label)
         for i in range(warmup + runs):
@@ -553,24 +584,8 @@ def run_frame(a):
                 if i >= warmup:
                     smp.append(fr.stats)
                 bar.update()
-        for pipe, (th, tr, sp, gk), smp in zip(pipes, variants, samples):
-            s = smp[-1]
-            row = dict(scene=sc.label, name=sc.scene.name, triangles=s["triangles"],
-                       moving_triangles=s.get("moving_triangles", s["triangles"]), threads=th,
-                       strategy=frame_strategy(a.strategy, th), traversal=tr, split=int(sp and _has_split(sc.scene)),
-                       packet=f"{packet[0]}x{packet[1]}", packet_precision=a.packet_precision,
-                       static=int(bool(sc.scene.static)), size=size, frames=runs, **grid_columns(pipe.grid_params, s))
-            for k in ("frame_ms", "build_ms", "render_ms", "anim_ms"):
-                put_stat(row, k, [x[k] for x in smp])
-            put_stat(row, "build_render_ms", [x["build_ms"] + x["render_ms"] for x in smp])
-            row["fps"] = 1e3 / row["frame_ms"]
-            row["fps_build_render"] = 1e3 / row["build_render_ms"]
-            row["mrays"] = float(np.median([x["mrays"] for x in smp]))
-            row["hit_fraction"] = float(np.median([x["hit_fraction"] for x in smp]))
-            row["rebuilt"] = float(np.mean([x["rebuilt"] for x in smp]))
-            row["tests_per_ray"] = float(np.median([x["tests_per_ray"] for x in smp]))
-            row["cells_per_ray"] = float(np.median([x["cells_per_ray"] for x in smp]))
-            rows.append(row)
+        for pipe, v, smp in zip(pipes, variants, samples):
+            rows.append(frame_row(sc, pipe, v, smp, a.strategy, packet, a.packet_precision, size, runs))
         del pipes
     bar.close()
     finish_machine(info)
