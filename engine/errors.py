@@ -20,3 +20,6 @@ class SceneFileError(GridrtError, ValueError):
         self.path = str(path)
         self.problem = problem
         super().__init__(f"{self.path}: {problem}")
+
+    def __reduce__(self):  # pickled whole (a worker process's error reaches the client as raised)
+        return (type(self), (self.path, self.problem))
