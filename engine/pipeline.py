@@ -8,6 +8,7 @@ import numpy as np
 
 from .camera import Camera
 from .config import GridParams, RenderParams
+from .errors import InputError
 from .grid.build import GridBuilder
 from .precision import warn_detail
 from .stats import FrameStats
@@ -109,6 +110,7 @@ class FramePipeline:
         self.grid_params = grid_params or GridParams()
         self.render_params = render_params or RenderParams()
         self.camera = camera
+        self._camera0 = camera  # the camera asked for (None: frame the scene at the first frame)
         self.builder = GridBuilder(self.grid_params)
         self.renderer = Renderer()
         self.grid = None
@@ -124,6 +126,8 @@ class FramePipeline:
         self._local_camera = (None, None, None)  # (world camera, origin, the camera in that frame)
         self.recentred = 0  # how often the frame was chosen again after the first frame
         self.precision_warning = None  # the PrecisionWarning message of the first frame, if any
+        self._first_t = None  # the time of the first frame (resume)
+        self._origin0 = None  # the origin the first frame left (resume)
 
     def _set_origin(self, origin):
         """Work in the frame of ``origin`` from now on: every grid is rebuilt in it."""
@@ -190,9 +194,10 @@ class FramePipeline:
             lights[point, 1:4] -= self.origin
         return Looks(tris, self.scene.surface, self.scene.normals_at(t), lights)
 
-    def step(self, t, camera=None):
-        """Render the scene at time t; returns a Frame. ``camera`` overrides the pipeline's."""
-        t_frame = time.perf_counter()
+    def _place(self, t, camera=None):
+        """The first half of a frame: the scene at t in the pipeline's frame (chosen at the first
+        frame, moved when the scene drifts away) and its grid, and the camera.  Returns (tris,
+        grid, split, rebuilt?, static_build_ms, anim_ms, camera in world, camera in the frame)."""
         t0 = time.perf_counter()
         # the animation's parallel kernels run at the rebuild's thread count, not at whatever count
         # the last kernel anywhere in the process left behind (another pipeline's render, say)
@@ -225,7 +230,51 @@ class FramePipeline:
             local = Camera.frame(lo, hi, fov=self.fov, up=self.up)
             cam = self.camera = local.moved(self.origin)
             self._local_camera = (cam, self.origin, local)
-        local_cam = self._in_frame(cam)
+        return tris, grid, split, rebuild, static_ms, anim_ms, cam, self._in_frame(cam)
+
+    def resume(self, frame, t_first, origin=None):
+        """Go on with a sequence at its frame number ``frame`` as this pipeline would had it
+        stepped through frames 0 .. frame-1 itself, the first at time ``t_first``: the frames of
+        one sequence rendered by several pipelines (processes, machines) in pieces are then those
+        of one pipeline, bit for bit.
+
+        ``frame`` 0 starts afresh (as a new pipeline).  Otherwise the pipeline takes the state
+        its first frame leaves (the frame's origin and, with no camera of its own, the camera
+        that frames the scene), placing that frame itself (the grid is built, nothing is
+        rendered) unless it already has, and then the frame's ``origin`` ((3,) float64: where the
+        pipeline stood after frame ``frame``-1; None: where the first frame left it, right unless
+        the scene drifted far enough to move the frame since).  Grids are kept when nothing
+        changes (a static scene is not gridded again).
+        """
+        frame = int(frame)
+        if frame < 0:
+            raise InputError(f"resume: frame must be >= 0, got {frame}")
+        if frame == 0 or self._first_t != float(t_first):
+            self.camera = self._camera0
+            self._local_camera = (None, None, None)
+            self.origin = None
+            self.grid = self.static_grid = None
+            self.recentred = 0
+            self._first_t = None
+        if frame > 0:
+            if self.origin is None:
+                self._place(float(t_first))
+                self._first_t, self._origin0 = float(t_first), self.origin
+            origin = self._origin0 if origin is None else np.asarray(origin, np.float64)
+            if origin.shape != (3,) or not np.isfinite(origin).all():
+                raise InputError(f"resume: origin must be 3 finite numbers, got {origin!r}")
+            if not np.array_equal(origin, self.origin):
+                self._set_origin(origin)
+        self.frame_index = frame
+
+    def step(self, t, camera=None):
+        """Render the scene at time t; returns a Frame. ``camera`` overrides the pipeline's."""
+        t_frame = time.perf_counter()
+        first = self.origin is None
+        tris, grid, split, rebuild, static_ms, anim_ms, cam, local_cam = self._place(t, camera)
+        if first:
+            self._first_t, self._origin0 = float(t), self.origin
+        gp = self.grid_params
         rp = self.render_params
         if rp.light is not None and self.origin.any():
             rp = rp.replace(light=tuple(np.asarray(rp.light, np.float64) - self.origin))
