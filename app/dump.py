@@ -33,6 +33,11 @@ def add_parser(sub):
                    help="also write frame_NNNNN_t.npy (float32 hit distance, inf: miss) and "
                         "frame_NNNNN_id.npy (int32 triangle id, -1: miss), shape (height, width)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    from .cluster import add_cluster_args
+
+    g = add_cluster_args(p)
+    g.add_argument("--chunk", type=int, default=None,
+                   help="frames per task on a cluster (default: about four tasks per worker, at most 16 frames)")
     p.set_defaults(func=run)
     return p
 
@@ -43,6 +48,14 @@ def run(a):
     for name in ("t0", "dt"):
         if not math.isfinite(getattr(a, name)):
             raise InputError(f"--{name} must be finite")
+    from .cluster import wants_cluster
+
+    if wants_cluster(a):  # (imports Dask only then)
+        from .dump_cluster import dump_on_cluster
+
+        return dump_on_cluster(a)
+    if a.chunk is not None:
+        raise InputError("--chunk applies to a cluster run: give it with --workers or --scheduler")
     # the notice appears when numba really starts compiling (a cold cache, or settings whose kernels
     # this machine has not compiled yet), not when every kernel loads from the cache; then, unless
     # --no-progress, which kernel compiles and how many are done

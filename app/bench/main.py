@@ -37,6 +37,7 @@ from gridrt.threads import check_threads
 from gridrt.trace.render import Renderer
 
 from ..cli import add_packet_args, defaults
+from ..cluster import add_cluster_args, wants_cluster
 from .util import (
     add_grid_kind_args, check_frame_args, check_runs, facing_camera, figure, finish_machine, fmt_ms, grid_columns,
     grid_kinds, machine_info, md_table, out_dir, progress, put_stat, resolve_scene, scene_list, scenes_help, stat,
@@ -92,6 +93,7 @@ def add_parser(sub):
                    help="build each configuration's frames in a row, as a viewer rebuilds with one builder (its "
                         "buffers stay in cache); default: strategies round-robin, fairer under host noise but "
                         "every build of a large scene starts with its buffers out of cache")
+    add_cluster_args(b, "configurations (each measured whole by one worker, its builds back to back)")
     b.set_defaults(func=run_build)
 
     f = bsub.add_parser("frame", help="rebuild + render per frame at 1024x1024 per scene, 1 thread and all cores")
@@ -110,6 +112,7 @@ def add_parser(sub):
     f.add_argument("--dt", type=float, default=1.0 / 30.0, help="seconds between frames (default 1/30)")
     add_grid_kind_args(f)
     add_packet_args(f)
+    add_cluster_args(f, "configurations (each measured whole by one worker)")
     f.set_defaults(func=run_frame)
 
     from . import looks as bench_looks, packets as bench_packets, peers as bench_peers, start as bench_start
@@ -312,14 +315,19 @@ def run_build(a):
             get_builder(s)
     else:
         strategies = names()
-    cores = check_threads(None)
-    threads = thread_list(a.threads) if a.threads else list(range(1, cores + 1))
     kinds = grid_kinds(a)
     params = GridParams(density=a.density, macro=a.macro, insert=a.insert, top_density=a.top_density,
                         leaf_density=a.leaf_density)
     if a.size < 0:
         raise InputError(f"--size must be 0 (no render) or positive, got {a.size}")
+    if a.threads:
+        thread_list(a.threads)  # (checked before a cluster starts)
     size = min(a.size, 64) if a.quick else a.size
+    mib = 16 if a.quick else 256
+    if wants_cluster(a):
+        return _run_build_cluster(a, specs, note, strategies, kinds, params, size, runs, warmup, mib)
+    cores = check_threads(None)
+    threads = thread_list(a.threads) if a.threads else list(range(1, cores + 1))
     out = out_dir(a.out)
     info = machine_info(threads)
     if note:
@@ -333,8 +341,40 @@ def run_build(a):
                            render=size)
     from gridrt.grid.traffic import stream_bandwidth
 
-    mib = 16 if a.quick else 256
     bw = stream_bandwidth(mib, threads, runs=3 if a.quick else 5)
+    return _finish_build(a, out, info, rows, scenes, strategies, threads, runs, warmup, params, bw, mib, kinds, size,
+                         note)
+
+
+def _run_build_cluster(a, specs, note, strategies, kinds, params, size, runs, warmup, mib):
+    """``bench build`` on a Dask cluster: every configuration (scene, strategy, grid kind,
+    threads) measured whole by one worker, its builds back to back (a worker holds one
+    configuration at a time; nothing interleaves them)."""
+    from . import on_cluster
+    from .sweep import plot_methods, plot_steps, write_csv as write_sweep_csv
+
+    out = out_dir(a.out)
+    if note:
+        print(f"note: {note}", file=sys.stderr)
+    with on_cluster.open_cluster(a) as cl:
+        threads = thread_list(a.threads) if a.threads else list(range(1, on_cluster.worker_cores(cl) + 1))
+        info = machine_info(threads)
+        info["cluster"] = cl.where
+        calls = on_cluster.build_calls(specs, strategies, kinds, threads, params, runs, warmup, size)
+        rows, machines = on_cluster.run_configs(cl, calls, "build sweep (cluster)", a.no_progress)
+        bw, where = on_cluster.stream_on_worker(cl, mib, threads, 3 if a.quick else 5, a.no_progress)
+    info["workers"] = machines
+    info["stream_measured_on"] = where
+    write_sweep_csv(rows, out / "build_sweep.csv")
+    plot_methods(rows, out / "build_methods.png")
+    plot_steps(rows, out / "build_steps.png")
+    scenes = {r["scene"]: None for r in rows}
+    a.back_to_back = True
+    return _finish_build(a, out, info, rows, scenes, strategies, threads, runs, warmup, params, bw, mib, kinds, size,
+                         note)
+
+
+def _finish_build(a, out, info, rows, scenes, strategies, threads, runs, warmup, params, bw, mib, kinds, size, note):
     info["stream_gbs"] = {str(t): {k: round(v, 2) for k, v in d.items()} for t, d in bw.items()}
     finish_machine(info)
     write_json(info, out / "machine.json")
@@ -554,6 +594,8 @@ def run_frame(a):
     kinds = grid_kinds(a)
     specs, note = scene_list(a.scenes, FRAME_SCENES, FRAME_FALLBACK, quick=["marbles:500"] if a.quick else None)
     threads = thread_list(a.threads)
+    if wants_cluster(a):
+        return _run_frame_cluster(a, specs, note, travs, kinds, size, runs, warmup, packet)
     out = out_dir(a.out)
     info = machine_info(threads)
     if note:
@@ -561,9 +603,7 @@ def run_frame(a):
     scenes = [resolve_scene(s) for s in specs]
     plan = []
     for sc in scenes:
-        splits = [True]
-        if _has_split(sc.scene):
-            splits = {"both": [True, False], "on": [True], "off": [False]}[a.split]
+        splits = _split_choices(a, _has_split(sc.scene))
         for th in threads:
             for tr in travs:
                 for sp in splits:
@@ -588,6 +628,37 @@ def run_frame(a):
             rows.append(frame_row(sc, pipe, v, smp, a.strategy, packet, a.packet_precision, size, runs))
         del pipes
     bar.close()
+    return _finish_frame(a, out, info, rows, size, runs, warmup, note)
+
+
+def _split_choices(a, has_split):
+    return {"both": [True, False], "on": [True], "off": [False]}[a.split] if has_split else [True]
+
+
+def _run_frame_cluster(a, specs, note, travs, kinds, size, runs, warmup, packet):
+    """``bench frame`` on a Dask cluster: every configuration (scene, threads, traversal, split,
+    grid kind) runs its warm-up and timed frames whole on one worker."""
+    from . import on_cluster
+
+    out = out_dir(a.out)
+    if note:
+        print(f"note: {note}", file=sys.stderr)
+    with on_cluster.open_cluster(a) as cl:
+        threads = thread_list(a.threads) if a.threads else sorted({1, on_cluster.worker_cores(cl)})
+        info = machine_info(threads)
+        info["cluster"] = cl.where
+        facts = on_cluster.scene_facts(cl, specs, a.no_progress)
+        plan = [(s, (th, tr, sp, gk)) for s, f in zip(specs, facts) for th in threads for tr in travs
+                for sp in _split_choices(a, f["has_split"]) for gk in kinds]
+        settings = dict(strategy=a.strategy, size=size, shading=a.shading, packet=packet,
+                        packet_precision=a.packet_precision, top_density=a.top_density, leaf_density=a.leaf_density)
+        rows, machines = on_cluster.run_configs(cl, on_cluster.frame_calls(plan, settings, runs, warmup, a.dt),
+                                                "bench frame (cluster)", a.no_progress)
+    info["workers"] = machines
+    return _finish_frame(a, out, info, rows, size, runs, warmup, note)
+
+
+def _finish_frame(a, out, info, rows, size, runs, warmup, note):
     finish_machine(info)
     write_csv(rows, out / "frame.csv")
     write_json(info, out / "machine.json")

@@ -483,6 +483,13 @@ def machine_md(info):
         f"{info.get('load_average_end')}",
         f"- command: `{info['command']}`",
     ]
+    if info.get("workers"):
+        lines.append(f"- measured on {info.get('cluster', 'a Dask cluster')}; each row names its worker (CSV columns "
+                     "worker, worker_cpu, worker_cores, worker_load_start); the workers' machines:")
+        for addr, w in sorted(info["workers"].items()):
+            lines.append(f"  - `{addr}`: {w.get('cpu')}; {w.get('cores')} cores; memory {w.get('memory')}; python "
+                         f"{w.get('python')}, numpy {w.get('numpy')}, numba {w.get('numba')}; commit `{w.get('commit')}`; "
+                         f"effective cores {w.get('effective_cores_start')}")
     eff = [x for x in (info.get("effective_cores_start"), info.get("effective_cores_end")) if x is not None]
     if eff:
         lines.append(f"- effective cores ({info['cores']} busy processes at once against one alone): "
