@@ -102,6 +102,9 @@ class Cluster:
                                              silence_logs=logging.ERROR, dashboard_address=":8787")
             try:
                 self.client = dist.Client(self.cluster)
+                from .cluster_plugin import IgnoreSigint
+
+                self.client.register_plugin(IgnoreSigint())  # (a worker restarted later ignores Ctrl-C too)
             except BaseException:
                 self.cluster.close()
                 raise
@@ -142,6 +145,44 @@ class Cluster:
 
     def __exit__(self, *exc):
         self.close()
+
+
+class CtrlC:
+    """Ctrl-C during a cluster run, as a context manager around the cluster: while a ``local``
+    cluster starts (a second or two) SIGINT is ignored (its worker processes share the terminal's
+    process group, so Ctrl-C reaches them too; they inherit "ignore" and leave it to the client,
+    which stops them); after :meth:`listen` (at once for an existing cluster) it raises a flag, which the client's loop checks between
+    frames (``ctrl_c()`` is true once pressed: the loop stops with every frame written whole).
+    The handler in place before is restored on exit.  Outside the main thread it does nothing."""
+
+    def __init__(self, local=True):
+        self.flag = threading.Event()
+        self.old = None
+        self.local = local
+
+    def __enter__(self):
+        import signal
+
+        if threading.current_thread() is threading.main_thread():
+            self.old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+            if not self.local:  # no worker processes start here: heard at once, acted on once connected
+                self.listen()
+        return self
+
+    def listen(self):
+        import signal
+
+        if self.old is not None:
+            signal.signal(signal.SIGINT, lambda *_: self.flag.set())
+
+    def __call__(self):
+        return self.flag.is_set()
+
+    def __exit__(self, *exc):
+        import signal
+
+        if self.old is not None:
+            signal.signal(signal.SIGINT, self.old)
 
 
 def _host(address):
@@ -251,19 +292,6 @@ class Stop(Exception):
     """Ctrl-C during a cluster run (raised after the cluster's work is cancelled)."""
 
 
-def _sigint_flag():
-    """Install a SIGINT handler that only raises a flag (the client's loop checks it between
-    frames, so a frame is written whole or not at all); returns (flag, restore)."""
-    import signal
-
-    flag = threading.Event()
-    if threading.current_thread() is not threading.main_thread():
-        return flag, lambda: None
-    old = signal.getsignal(signal.SIGINT)
-    signal.signal(signal.SIGINT, lambda *_: flag.set())
-    return flag, lambda: signal.signal(signal.SIGINT, old)
-
-
 def task_error(fut):
     """The exception of a failed future as one to raise on the client: gridrt's own errors as
     they are (the same message as a local run), a worker lost too often as a GridrtError."""
@@ -286,10 +314,11 @@ def default_chunk(frames, workers):
     return max(1, min(16, -(-frames // (4 * max(1, workers)))))
 
 
-def run_chunks(cl, args, frames, size, write, on_frame=None):
+def run_chunks(cl, args, frames, size, write, pressed=lambda: False):
     """Render ``frames`` frames of the dump ``args`` (dict) on the Cluster ``cl`` in chunks of
     ``size`` and hand each frame, in order, to ``write(i, item, worker)`` (exactly once each).
-    Ctrl-C stops the run between frames: raises :class:`Stop` with the frames written.
+    Ctrl-C (``pressed()``: a :class:`CtrlC`) stops the run between frames: raises
+    :class:`Stop` with the frames written.
     Returns the workers' thread counts seen."""
     from distributed import wait
 
@@ -308,13 +337,12 @@ def run_chunks(cl, args, frames, size, write, on_frame=None):
 
     for c in range(len(parts)):
         submit(c, None)
-    flag, restore = _sigint_flag()
     results, threads = {}, set()
     nxt, last = 0, None  # next chunk to write; the origin the last chunk written ended with
     written = 0
     try:
         while nxt < len(parts):
-            if flag.is_set():
+            if pressed():
                 raise Stop(written)
             live = [f for c, f in futs.items() if c >= nxt and c not in results]
             try:
@@ -331,7 +359,7 @@ def run_chunks(cl, args, frames, size, write, on_frame=None):
                     if "error" in results[c]:
                         raise results[c]["error"]
                 # "cancelled": replaced by a resubmission; "lost" is retried by Dask
-            while nxt in results and not flag.is_set():
+            while nxt in results and not pressed():
                 r = results[nxt]
                 if nxt > 0 and not np.array_equal(r["origin_in"], last):
                     del results[nxt]  # started from a stale frame of reference: again, from the right one
@@ -339,12 +367,10 @@ def run_chunks(cl, args, frames, size, write, on_frame=None):
                     break
                 first = r["origins"][0] if nxt == 0 else r["origin_in"]
                 for k, item in enumerate(r["frames"]):
-                    if flag.is_set():
+                    if pressed():
                         raise Stop(written)
                     write(r["start"] + k, item, r["worker"])
                     written += 1
-                    if on_frame is not None:
-                        on_frame(item)
                 threads.add(r["threads"])
                 last = r["origins"][-1]
                 if not np.array_equal(last, first):
@@ -357,10 +383,9 @@ def run_chunks(cl, args, frames, size, write, on_frame=None):
                 del results[nxt]
                 futs.pop(nxt).release()
                 nxt += 1
-        if flag.is_set():
+        if pressed():
             raise Stop(written)
     finally:
-        restore()
         for f in futs.values():
             f.cancel()
     return threads

@@ -15,7 +15,7 @@ from gridrt.errors import InputError
 from gridrt.pipeline import STATS_COLUMNS
 
 from . import cli
-from .cluster import Cluster, Stop, default_chunk, run_chunks
+from .cluster import Cluster, CtrlC, Stop, default_chunk, run_chunks
 
 
 def _check(a):
@@ -57,7 +57,9 @@ def dump_on_cluster(a):
     except OSError as e:
         raise InputError(f"cannot create output folder {out}: {e.strerror}") from None
     t_start = time.perf_counter()
-    with Cluster(workers=a.workers, scheduler=a.scheduler, threads=a.threads) as cl:
+    with CtrlC(local=a.workers is not None) as pressed, \
+            Cluster(workers=a.workers, scheduler=a.scheduler, threads=a.threads) as cl:
+        pressed.listen()
         up_s = time.perf_counter() - t_start
         each = f"{cl.threads} threads each" if cl.threads else "threads: each machine's cores divided among its workers"
         print(f"gridrt: rendering on {cl.where} ({each}; up in {up_s:.1f} s); dashboard: {cl.dashboard}",
@@ -88,7 +90,7 @@ def dump_on_cluster(a):
                 bar.set_postfix(build=f"{stats['build_ms']:.1f}ms", render=f"{stats['render_ms']:.1f}ms")
 
             try:
-                threads = run_chunks(cl, _worker_args(a), a.frames, size, write)
+                threads = run_chunks(cl, _worker_args(a), a.frames, size, write, pressed)
             except Stop as s:
                 bar.close()
                 print(f"gridrt: interrupted: {s.args[0]} of {a.frames} frames written to {out}/ (each whole, "

@@ -356,13 +356,13 @@ def _run_build_cluster(a, specs, note, strategies, kinds, params, size, runs, wa
     out = out_dir(a.out)
     if note:
         print(f"note: {note}", file=sys.stderr)
-    with on_cluster.open_cluster(a) as cl:
+    with on_cluster.open_cluster(a) as (cl, pressed):
         threads = thread_list(a.threads) if a.threads else list(range(1, on_cluster.worker_cores(cl) + 1))
         info = machine_info(threads)
         info["cluster"] = cl.where
         calls = on_cluster.build_calls(specs, strategies, kinds, threads, params, runs, warmup, size)
-        rows, machines = on_cluster.run_configs(cl, calls, "build sweep (cluster)", a.no_progress)
-        bw, where = on_cluster.stream_on_worker(cl, mib, threads, 3 if a.quick else 5, a.no_progress)
+        rows, machines = on_cluster.run_configs(cl, calls, "build sweep (cluster)", a.no_progress, pressed=pressed)
+        bw, where = on_cluster.stream_on_worker(cl, mib, threads, 3 if a.quick else 5, a.no_progress, pressed)
     info["workers"] = machines
     info["stream_measured_on"] = where
     write_sweep_csv(rows, out / "build_sweep.csv")
@@ -643,17 +643,17 @@ def _run_frame_cluster(a, specs, note, travs, kinds, size, runs, warmup, packet)
     out = out_dir(a.out)
     if note:
         print(f"note: {note}", file=sys.stderr)
-    with on_cluster.open_cluster(a) as cl:
+    with on_cluster.open_cluster(a) as (cl, pressed):
         threads = thread_list(a.threads) if a.threads else sorted({1, on_cluster.worker_cores(cl)})
         info = machine_info(threads)
         info["cluster"] = cl.where
-        facts = on_cluster.scene_facts(cl, specs, a.no_progress)
+        facts = on_cluster.scene_facts(cl, specs, a.no_progress, pressed)
         plan = [(s, (th, tr, sp, gk)) for s, f in zip(specs, facts) for th in threads for tr in travs
                 for sp in _split_choices(a, f["has_split"]) for gk in kinds]
         settings = dict(strategy=a.strategy, size=size, shading=a.shading, packet=packet,
                         packet_precision=a.packet_precision, top_density=a.top_density, leaf_density=a.leaf_density)
         rows, machines = on_cluster.run_configs(cl, on_cluster.frame_calls(plan, settings, runs, warmup, a.dt),
-                                                "bench frame (cluster)", a.no_progress)
+                                                "bench frame (cluster)", a.no_progress, pressed=pressed)
     info["workers"] = machines
     return _finish_frame(a, out, info, rows, size, runs, warmup, note)
 

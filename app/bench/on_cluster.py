@@ -11,12 +11,13 @@ neighbours are busy competes with them.  For scaling figures comparable with a l
 each worker a machine of its own (or run one worker per machine).
 """
 
+import contextlib
 import os
 import sys
 
 from gridrt.errors import GridrtError
 
-from ..cluster import _LOCK, Cluster, Stop, _sigint_flag, task_error, worker_address
+from ..cluster import _LOCK, Cluster, CtrlC, Stop, task_error, worker_address
 
 _WORKER = {"machine": None}
 _BENCH_SCENES = {}
@@ -94,11 +95,14 @@ def _frame_config(text, variant, settings, runs, warmup, dt):
                       settings["size"], runs)]
 
 
+@contextlib.contextmanager
 def open_cluster(a):
-    """The Cluster of the bench's --workers/--scheduler (one task slot per worker), announced."""
-    cl = Cluster(workers=a.workers, scheduler=a.scheduler, threads=None)
-    print(f"gridrt: measuring on {cl.where}; dashboard: {cl.dashboard}", file=sys.stderr, flush=True)
-    return cl
+    """The Cluster of the bench's --workers/--scheduler (one task slot per worker), announced,
+    with Ctrl-C handled between configurations (:class:`gridrt.app.cluster.CtrlC`): yields (cluster, pressed)."""
+    with CtrlC(local=a.workers is not None) as pressed, Cluster(workers=a.workers, scheduler=a.scheduler) as cl:
+        pressed.listen()
+        print(f"gridrt: measuring on {cl.where}; dashboard: {cl.dashboard}", file=sys.stderr, flush=True)
+        yield cl, pressed
 
 
 def worker_cores(cl):
@@ -109,7 +113,7 @@ def worker_cores(cl):
     return max(1, min(min(cores.values() or [1]), max_threads()))
 
 
-def run_configs(cl, calls, desc, no_progress=False, unit="config"):
+def run_configs(cl, calls, desc, no_progress=False, unit="config", pressed=lambda: False):
     """Each ``(fn, args)`` of ``calls`` as one task; returns (rows in the order of ``calls``,
     {worker: machine record}).  The first error stops the run and is raised; Ctrl-C cancels
     the cluster's work and raises KeyboardInterrupt."""
@@ -121,10 +125,9 @@ def run_configs(cl, calls, desc, no_progress=False, unit="config"):
     futs = [client.submit(_run, fn, *args, pure=False) for fn, args in calls]
     results = [None] * len(futs)
     bar = progress(len(futs), desc, no_progress)
-    flag, restore = _sigint_flag()
     try:
         while any(r is None for r in results):
-            if flag.is_set():
+            if pressed():
                 raise Stop(sum(r is not None for r in results))
             live = [f for f, r in zip(futs, results) if r is None]
             try:
@@ -148,7 +151,6 @@ def run_configs(cl, calls, desc, no_progress=False, unit="config"):
               file=sys.stderr, flush=True)
         raise KeyboardInterrupt from None
     finally:
-        restore()
         bar.close()
         for f in futs:
             f.cancel()
@@ -159,8 +161,9 @@ def run_configs(cl, calls, desc, no_progress=False, unit="config"):
     return rows, machines
 
 
-def scene_facts(cl, specs, no_progress=False):
-    rows, _ = run_configs(cl, [(_scene_facts, (s,)) for s in specs], "loading scenes", no_progress, unit="scene")
+def scene_facts(cl, specs, no_progress=False, pressed=lambda: False):
+    rows, _ = run_configs(cl, [(_scene_facts, (s,)) for s in specs], "loading scenes", no_progress, unit="scene",
+                          pressed=pressed)
     return rows
 
 
@@ -181,8 +184,9 @@ def _stream(mib, threads, runs):
     return [{"stream": stream_bandwidth(mib, threads, runs=runs)}]
 
 
-def stream_on_worker(cl, mib, threads, runs, no_progress=False):
+def stream_on_worker(cl, mib, threads, runs, no_progress=False, pressed=lambda: False):
     """The STREAM-like bandwidth figures measured on one worker (the traffic model's machine
     figure: a worker's, since workers measured the builds), and that worker's address."""
-    rows, _ = run_configs(cl, [(_stream, (mib, threads, runs))], "memory bandwidth", no_progress, unit="measurement")
+    rows, _ = run_configs(cl, [(_stream, (mib, threads, runs))], "memory bandwidth", no_progress, unit="measurement",
+                          pressed=pressed)
     return rows[0]["stream"], rows[0]["worker"]
