@@ -46,10 +46,10 @@ CONNECT_TIMEOUT = 5
 def add_cluster_args(p, what="frames"):
     g = p.add_argument_group("cluster (Dask; needs the extra: pip install 'gridrt[cluster]')")
     g.add_argument("--workers", type=int, default=None,
-                   help=f"render the {what} on a local Dask cluster of this many worker processes, each with "
+                   help=f"spread the {what} over a local Dask cluster of this many worker processes, each with "
                         "--threads threads (default: the cores divided among the workers)")
     g.add_argument("--scheduler", default=None,
-                   help=f"render the {what} on an existing Dask cluster: its scheduler's address, e.g. "
+                   help=f"spread the {what} over an existing Dask cluster: its scheduler's address, e.g. "
                         "tcp://10.0.0.5:8786 (start one with `dask scheduler` and `dask worker ADDRESS --nthreads 1`; "
                         "each worker uses --threads threads, default: its machine's cores divided among the "
                         "workers on it)")

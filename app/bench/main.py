@@ -22,6 +22,11 @@ grid bytes and bytes per triangle (:func:`gridrt.app.bench.util.grid_columns`).
   (:mod:`gridrt.app.bench.peers`).
 * ``start``: cold (fresh numba cache) and warm start of ``gridrt dump --frames 1`` to its first
   frame, wall and CPU time (:mod:`gridrt.app.bench.start`).
+* ``cluster``: frames/s of a dump in one process against local Dask clusters
+  (:mod:`gridrt.app.bench.cluster_bench`).
+
+``build`` and ``frame`` take ``--workers N`` / ``--scheduler ADDRESS`` to spread their
+configurations over a Dask cluster (:mod:`gridrt.app.bench.on_cluster`).
 """
 
 import sys
@@ -115,6 +120,7 @@ def add_parser(sub):
     add_cluster_args(f, "configurations (each measured whole by one worker)")
     f.set_defaults(func=run_frame)
 
+    from . import cluster_bench as bench_cluster
     from . import looks as bench_looks, packets as bench_packets, peers as bench_peers, start as bench_start
     from . import trade as bench_trade
 
@@ -123,6 +129,7 @@ def add_parser(sub):
     bench_start.add_parser(bsub, common)
     bench_packets.add_parser(bsub, common)
     bench_looks.add_parser(bsub, common)
+    bench_cluster.add_parser(bsub, common)
     return p
 
 
