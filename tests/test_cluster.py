@@ -274,7 +274,7 @@ def test_worker_killed_mid_run_loses_no_frame(tmp_path, slow_ref, dask_cluster):
     dead = dask_cluster.addresses["w0"]
     workers = worker_column(out)
     last_dead = max((i for i, w in enumerate(workers) if w == dead), default=-1)
-    assert last_dead < written + 2 * 2, "the killed worker kept rendering"  # (chunks of 2 in flight, at most)
+    assert last_dead < written + 4 * 2, "the killed worker kept rendering"  # (results ahead of the writes: a few chunks of 2)
     assert workers[-1] == dask_cluster.addresses["w1"]
 
 

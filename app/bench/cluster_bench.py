@@ -6,7 +6,9 @@ frames and size: one process with T threads, a local cluster of N workers x 1 th
 1 worker x T threads (T, N: the cores; ``--configs`` chooses others).  The figures come from
 outside the command: its wall time from start to exit, and the write times (mtime) of its first
 and last PNG, so that a process's start (Python, the scene's load, the kernels' warm-up, a
-cluster's start) is kept apart from its steady rate, (frames - 1) / (last write - first write).
+cluster's start) is kept apart from its steady rate: the frames written in the middle half of the
+run over its duration (a cluster's client writes a chunk of frames at once: a rate from the
+first write would count the first chunks as free).
 The cluster's own start (the dump prints it) and the bytes the client received are reported too.
 Configurations are run in turns, ``runs`` times; medians [min-max].
 """
@@ -74,11 +76,44 @@ def _one(args, out, cfg):
     if r.returncode != 0:
         raise InputError(f"{label}: the dump failed: {r.stderr.strip().splitlines()[-1] if r.stderr.strip() else r.returncode}")
     pngs = sorted(Path(out).glob("frame_*.png"))
-    first, last = pngs[0].stat().st_mtime, pngs[-1].stat().st_mtime
+    times = np.sort([p.stat().st_mtime for p in pngs])
+    n = len(times)
+    a, b = n // 4, (3 * n) // 4
     m = re.search(r"cluster start ([\d.]+) s", r.stdout)
-    return {"wall_s": wall, "first_frame_s": first - t0, "steady_fps": (len(pngs) - 1) / max(last - first, 1e-9),
-            "fps": len(pngs) / wall, "cluster_start_s": float(m.group(1)) if m else float("nan"),
+    return {"wall_s": wall, "first_frame_s": times[0] - t0, "steady_fps": (b - a) / max(times[b] - times[a], 1e-9),
+            "fps": n / wall, "cluster_start_s": float(m.group(1)) if m else float("nan"),
             "png_mb": sum(p.stat().st_size for p in pngs) / 1e6}
+
+
+def _costs(source, args, png, runs=5):
+    """What the model of a large cluster needs, measured here: the scene's load (s), a PNG's
+    encoding and its write by the client (ms), medians of ``runs``."""
+    import io
+
+    from PIL import Image
+
+    from gridrt.scene import make_scene
+
+    from ..dump_cluster import _write_atomic
+
+    load = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        make_scene(source)
+        load.append(time.perf_counter() - t0)
+    img = np.asarray(Image.open(png).convert("RGB"))
+    enc, write = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for i in range(runs):
+            t0 = time.perf_counter()
+            buf = io.BytesIO()
+            Image.fromarray(img).save(buf, format="PNG")
+            enc.append((time.perf_counter() - t0) * 1e3)
+            t0 = time.perf_counter()
+            _write_atomic(Path(tmp) / f"frame_{i:05d}.png", buf.getvalue())
+            write.append((time.perf_counter() - t0) * 1e3)
+    return {"load_s": float(np.median(load)), "png_encode_ms": float(np.median(enc)),
+            "client_write_ms": float(np.median(write))}
 
 
 def run_cluster_bench(a):
@@ -106,7 +141,9 @@ def run_cluster_bench(a):
                 if i >= a.warmup:
                     samples[cfg[0]].append(fig)
                 bar.update(1)
+        costs = _costs(source, args, next((Path(tmp)).glob("*/frame_00000.png")))
     bar.close()
+    info["costs"] = costs
     rows = []
     for label, workers, threads in configs:
         smp = samples[label]
@@ -125,7 +162,8 @@ def run_cluster_bench(a):
         return f"{f.format(r[k])} [{f.format(r[k + '_min'])}-{f.format(r[k + '_max'])}]"
 
     body = [f"`gridrt dump {' '.join(args)}` per configuration, {a.runs} run(s) each after {a.warmup} warm-up, "
-            f"in turns; medians [min-max].  Steady frames/s: (frames - 1) / (last PNG written - first PNG written); "
+            f"in turns; medians [min-max].  Steady frames/s: the frames written in the middle half of the run over its "
+            f"duration (PNG write times); "
             f"first frame: from the command's start to its first PNG (Python, the scene's load, the kernels' "
             f"warm-up, a cluster's start).", "",
             *md_table(["configuration", "frames/s (steady)", f"vs {rows[0]['config']}", "frames/s (whole command)",
@@ -133,7 +171,10 @@ def run_cluster_bench(a):
                       [[r["config"], cell(r, "steady_fps"), f"{r['steady_fps'] / base:.2f}x", cell(r, "fps"),
                         cell(r, "first_frame_s"), "-" if r["workers"] == 0 else cell(r, "cluster_start_s"),
                         cell(r, "wall_s", "{:.1f}")] for r in rows]),
-            "", f"PNG output: {rows[0]['png_mb']:.1f} MB for {frames} frames ({rows[0]['png_mb'] / frames:.2f} MB a frame)."]
+            "", f"PNG output: {rows[0]['png_mb']:.1f} MB for {frames} frames ({rows[0]['png_mb'] / frames:.2f} MB a frame).  "
+            f"Measured in this process: the scene loads in {costs['load_s']:.2f} s, a frame's PNG encodes in "
+            f"{costs['png_encode_ms']:.1f} ms (on a worker, in its frame time) and the client writes it in "
+            f"{costs['client_write_ms']:.2f} ms."]
     write_summary(out / "summary.md", "gridrt bench cluster", info, [("Results", body)])
     for line in body:
         if line.startswith("|"):
