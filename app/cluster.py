@@ -36,8 +36,13 @@ import numpy as np
 
 from gridrt.errors import GridrtError, InputError
 
-#: how to get the cluster extra, named by every message about it missing
-INSTALL = "pip install 'gridrt[cluster]'   (from a checkout: pip install -e '.[cluster]'; or pip install distributed bokeh)"
+def install_hint():
+    """How to get the cluster extra, with the pip of the running interpreter."""
+    from gridrt.commands import pip_command
+
+    pip = pip_command()
+    return (f"{pip} install 'gridrt[cluster]' (in a checkout: {pip} install -e '.[cluster]'; or {pip} install "
+            "distributed bokeh)")
 
 #: seconds to wait for a --scheduler to answer
 CONNECT_TIMEOUT = 5
@@ -74,7 +79,7 @@ def import_distributed():
         import distributed
     except ImportError as e:
         raise InputError(f"--workers and --scheduler need Dask's distributed scheduler, which is not installed "
-                         f"({e}); install the cluster extra: {INSTALL}") from None
+                         f"({e}); install the cluster extra: {install_hint()}") from None
     return distributed
 
 

@@ -353,7 +353,7 @@ def test_missing_extra_says_how_to_install_it(tmp_path):
         r = subprocess.run([sys.executable, "-c", hide, "dump", "--frames", "1", *flag, "--out", tmp_path / "d"],
                            cwd=REPO, capture_output=True, text=True, timeout=300)
         assert r.returncode == 2, r.stderr
-        assert "pip install 'gridrt[cluster]'" in r.stderr and "Traceback" not in r.stderr
+        assert "python -m pip install 'gridrt[cluster]'" in r.stderr and "Traceback" not in r.stderr
     probe = ("import sys; from gridrt.app.__main__ import main; rc = main(sys.argv[1:]); "
              "print('DASK', sorted(m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed'))); "
              "sys.exit(rc)")
