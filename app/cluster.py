@@ -31,6 +31,7 @@ raised once, on the client, and stops the run.
 import io
 import os
 import threading
+import warnings
 
 import numpy as np
 
@@ -243,13 +244,17 @@ def render_chunk(args, start, stop, origin, per_host=None):
     as its one-process run would render them; ``origin``: where the pipeline stood after frame
     ``start``-1 (None: where the first frame left it).  Returns a dict: ``origin_in`` (the
     origin the chunk started from; None for frame 0), ``origins`` (after each frame), ``worker``,
-    ``threads``, and ``frames``: per frame its PNG bytes, ``.npy`` bytes of the buffers when
-    asked, and its stats row."""
+    ``threads``, ``warnings`` ((category, message) pairs) and ``frames``: per frame its PNG
+    bytes, ``.npy`` bytes of the buffers when asked, and its stats row."""
     import argparse
 
     with _LOCK:
         try:
-            return _render_chunk(argparse.Namespace(**args), start, stop, origin, per_host)
+            with warnings.catch_warnings(record=True) as caught:  # (warned again on the client, once)
+                warnings.simplefilter("always")
+                r = _render_chunk(argparse.Namespace(**args), start, stop, origin, per_host)
+            r["warnings"] = list(dict.fromkeys((w.category, str(w.message)) for w in caught))
+            return r
         except GridrtError as e:  # the run's own error (a scene that does not load...): a result, not a failure
             return {"error": e}
 
@@ -342,20 +347,23 @@ def run_chunks(cl, args, frames, size, write, pressed=lambda: False):
 
     for c in range(len(parts)):
         submit(c, None)
-    results, threads = {}, set()
+    results, threads, warned = {}, set(), set()
+    ahead = 2 * max(1, sum(per_host.values())) + 2
     nxt, last = 0, None  # next chunk to write; the origin the last chunk written ended with
     written = 0
     try:
         while nxt < len(parts):
             if pressed():
                 raise Stop(written)
-            live = [f for c, f in futs.items() if c >= nxt and c not in results]
+            # results are fetched up to ``ahead`` chunks past the next to write; later ones wait on
+            # their workers (the client holds a few chunks, not the sequence, when it falls behind)
+            live = [f for c, f in futs.items() if nxt <= c < nxt + ahead and c not in results]
             try:
                 wait(live, timeout=0.2, return_when="FIRST_COMPLETED")
             except TimeoutError:
                 pass
             for c, f in list(futs.items()):
-                if c < nxt or c in results or f.status == "pending":
+                if c < nxt or c >= nxt + ahead or c in results or f.status == "pending":
                     continue
                 if f.status == "error":
                     raise task_error(f)
@@ -363,6 +371,10 @@ def run_chunks(cl, args, frames, size, write, pressed=lambda: False):
                     results[c] = f.result()
                     if "error" in results[c]:
                         raise results[c]["error"]
+                    for category, message in results[c]["warnings"]:
+                        if (category, message) not in warned:  # once, as a one-process dump warns
+                            warned.add((category, message))
+                            warnings.warn(message, category, stacklevel=2)
                 # "cancelled": replaced by a resubmission; "lost" is retried by Dask
             while nxt in results and not pressed():
                 r = results[nxt]

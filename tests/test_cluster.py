@@ -333,6 +333,30 @@ def test_scene_that_fails_to_load_gives_the_local_error_once(tmp_path):
     assert not list((tmp_path / "b").glob("*.png"))
 
 
+def test_a_warning_is_printed_once_as_a_local_run_prints_it(tmp_path):
+    """A scene whose detail is under float32's floor (80 triangles 1e-3 across beside one 1e4
+    across): every worker's pipeline warns at its first frame; the client prints the warning once,
+    the line a one-process dump prints."""
+    from gridrt.scene import icosphere_mesh
+
+    ico = icosphere_mesh(80)
+    path = tmp_path / "fine.obj"
+    with open(path, "w") as fh:
+        fh.writelines(f"v {float(x) * 1e-3!r} {float(y) * 1e-3!r} {float(z) * 1e-3!r}\n" for x, y, z in ico.vertices64)
+        fh.write("v 1e4 0 0\nv 0 1e4 0\nv 0 0 1e4\n")
+        fh.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in ico.faces)
+        n = len(ico.vertices64)
+        fh.write(f"f {n + 1} {n + 2} {n + 3}\n")
+    args = ["dump", "--scene", path, "--frames", "8", "--size", "16x12", "--no-progress"]
+    local = gridrt(*args, "--out", tmp_path / "a")
+    assert local.returncode == 0, local.stderr
+    warned = [line for line in local.stderr.splitlines() if line.startswith("gridrt: warning:")]
+    assert len(warned) == 1 and "float32" in warned[0], local.stderr
+    r = gridrt(*args, "--workers", 2, "--chunk", 1, "--out", tmp_path / "b")
+    assert r.returncode == 0, r.stderr
+    assert [line for line in r.stderr.splitlines() if "warning" in line.lower()] == warned
+
+
 def test_unreachable_scheduler_is_a_clear_error_within_seconds(tmp_path):
     port = free_port()
     t0 = time.perf_counter()
