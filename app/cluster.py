@@ -102,6 +102,10 @@ class Cluster:
             cores = os.cpu_count() or 1
             if threads is None:
                 self.threads = max(1, cores // workers)
+            if workers * self.threads > cores:
+                warnings.warn(f"{workers} workers x {self.threads} threads = {workers * self.threads} threads on "
+                              f"{cores} cores: they compete for them (--threads sets the threads per worker)",
+                              stacklevel=2)
             # one task at a time per worker (a chunk or a configuration uses its own threads);
             # logs above errors only: a worker killed on purpose is not news
             self.cluster = dist.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,

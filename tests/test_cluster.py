@@ -181,6 +181,14 @@ def test_local_cluster_dump_is_the_one_process_dump(tmp_path, fast_ref):
     assert "a local cluster of 2 worker processes" in r.stdout
 
 
+def test_more_threads_than_cores_are_warned_about(tmp_path):
+    cores = os.cpu_count() or 1
+    r = gridrt("dump", "--frames", "2", "--size", "16x12", "--workers", 2, "--threads", cores, "--no-progress",
+               "--out", tmp_path / "d")
+    assert r.returncode == 0, r.stderr
+    assert f"gridrt: warning: 2 workers x {cores} threads = {2 * cores} threads on {cores} cores" in r.stderr
+
+
 def test_settable_threads_and_a_scene_with_looks(tmp_path):
     """``--threads 1`` per worker is taken; a scene with textures and lights (the shipped MD2 with
     its skin) renders the same on the cluster as in one process."""
