@@ -90,14 +90,13 @@ class Cluster:
     a local cluster's cores divided among its workers; an existing cluster's workers divide their
     own machine's cores among the workers on it)."""
 
-    def __init__(self, workers=None, scheduler=None, threads=None, log=None):
+    def __init__(self, workers=None, scheduler=None, threads=None):
         dist = import_distributed()
         import logging
 
         self.threads = threads
         self.cluster = None
         self.client = None
-        self.log = log or (lambda s: None)
         if workers is not None:
             cores = os.cpu_count() or 1
             if threads is None:
@@ -208,7 +207,7 @@ def _host(address):
 #: one task at a time per worker process: a chunk and its pipeline, or a configuration, use the
 #: worker's threads, and pipelines are not shared between threads
 _LOCK = threading.Lock()
-#: the worker's scenes (SceneSpec -> Animation), kept for its next tasks; and its pipeline
+#: the worker's scenes (worker_cached), kept for its next tasks; and its pipeline
 _SCENES = {}
 _PIPE = {}
 
@@ -233,14 +232,15 @@ def worker_threads(threads, per_host):
     return max(1, min((os.cpu_count() or 1) // n, max_threads()))
 
 
-def worker_scene(spec):
-    """The scene of ``spec`` (a SceneSpec), loaded once per worker process."""
-    scene = _SCENES.get(spec)
-    if scene is None:
+def worker_cached(key, make):
+    """``make()``, made once per worker process for ``key`` and kept for its next tasks (a
+    scene; at most four kept)."""
+    value = _SCENES.get(key)
+    if value is None:
         if len(_SCENES) >= 4:
             _SCENES.clear()
-        scene = _SCENES[spec] = spec.make()
-    return scene
+        value = _SCENES[key] = make()
+    return value
 
 
 def render_chunk(args, start, stop, origin, per_host=None):
@@ -273,7 +273,7 @@ def _render_chunk(a, start, stop, origin, per_host):
     pipe = _PIPE.get(key)
     if pipe is None:
         _PIPE.clear()
-        pipe = _PIPE[key] = cli.pipeline_from_args(a, scene=worker_scene(cli.scene_spec(a)))
+        pipe = _PIPE[key] = cli.pipeline_from_args(a, scene=worker_cached(cli.scene_spec(a), cli.scene_spec(a).make))
     pipe.resume(start, a.t0, origin)
     origin_in = None if start == 0 else pipe.origin.copy()
     frames, origins = [], []
@@ -317,6 +317,29 @@ def task_error(fut):
     return exc
 
 
+def fetch_done(futs, timeout=0.2):
+    """Wait up to ``timeout`` s for one of ``futs`` ({key: future}) to finish; returns {key:
+    result} of those finished.  A task that failed, or returned gridrt's own error
+    (``{"error": e}``), raises here.  (Cancelled ones were replaced by a resubmission; lost ones
+    Dask runs again.)"""
+    from distributed import wait
+
+    try:
+        wait(list(futs.values()), timeout=timeout, return_when="FIRST_COMPLETED")
+    except TimeoutError:
+        pass
+    out = {}
+    for k, f in futs.items():
+        if f.status == "error":
+            raise task_error(f)
+        if f.status == "finished":
+            r = f.result()
+            if "error" in r:
+                raise r["error"]
+            out[k] = r
+    return out
+
+
 def chunks(n, size):
     """[(start, stop)] cutting frames 0 .. n-1 into chunks of ``size`` consecutive frames."""
     return [(s, min(s + size, n)) for s in range(0, n, size)]
@@ -334,8 +357,6 @@ def run_chunks(cl, args, frames, size, write, pressed=lambda: False):
     Ctrl-C (``pressed()``: a :class:`CtrlC`) stops the run between frames: raises
     :class:`Stop` with the frames written.
     Returns the workers' thread counts seen."""
-    from distributed import wait
-
     client = cl.client
     per_host = cl.hosts()
     parts = chunks(frames, size)
@@ -361,25 +382,13 @@ def run_chunks(cl, args, frames, size, write, pressed=lambda: False):
                 raise Stop(written)
             # results are fetched up to ``ahead`` chunks past the next to write; later ones wait on
             # their workers (the client holds a few chunks, not the sequence, when it falls behind)
-            live = [f for c, f in futs.items() if nxt <= c < nxt + ahead and c not in results]
-            try:
-                wait(live, timeout=0.2, return_when="FIRST_COMPLETED")
-            except TimeoutError:
-                pass
-            for c, f in list(futs.items()):
-                if c < nxt or c >= nxt + ahead or c in results or f.status == "pending":
-                    continue
-                if f.status == "error":
-                    raise task_error(f)
-                if f.status == "finished":
-                    results[c] = f.result()
-                    if "error" in results[c]:
-                        raise results[c]["error"]
-                    for category, message in results[c]["warnings"]:
-                        if (category, message) not in warned:  # once, as a one-process dump warns
-                            warned.add((category, message))
-                            warnings.warn(message, category, stacklevel=2)
-                # "cancelled": replaced by a resubmission; "lost" is retried by Dask
+            window = {c: f for c, f in futs.items() if nxt <= c < nxt + ahead and c not in results}
+            for c, r in fetch_done(window).items():
+                results[c] = r
+                for category, message in r["warnings"]:
+                    if (category, message) not in warned:  # once, as a one-process dump warns
+                        warned.add((category, message))
+                        warnings.warn(message, category, stacklevel=2)
             while nxt in results and not pressed():
                 r = results[nxt]
                 if nxt > 0 and not np.array_equal(r["origin_in"], last):

@@ -17,22 +17,14 @@ import sys
 
 from gridrt.errors import GridrtError
 
-from ..cluster import _LOCK, Cluster, CtrlC, Stop, task_error, worker_address
+from ..cluster import _LOCK, Cluster, CtrlC, Stop, fetch_done, worker_address, worker_cached
 
 _WORKER = {"machine": None}
-_BENCH_SCENES = {}
-
-
 def _bench_scene(text):
     """The worker's BenchScene of a --scenes entry, loaded once per worker process."""
     from .util import resolve_scene
 
-    sc = _BENCH_SCENES.get(text)
-    if sc is None:
-        if len(_BENCH_SCENES) >= 4:
-            _BENCH_SCENES.clear()
-        sc = _BENCH_SCENES[text] = resolve_scene(text)
-    return sc
+    return worker_cached(("bench", text), lambda: resolve_scene(text))
 
 
 def _machine():
@@ -117,8 +109,6 @@ def run_configs(cl, calls, desc, no_progress=False, unit="config", pressed=lambd
     """Each ``(fn, args)`` of ``calls`` as one task; returns (rows in the order of ``calls``,
     {worker: machine record}).  The first error stops the run and is raised; Ctrl-C cancels
     the cluster's work and raises KeyboardInterrupt."""
-    from distributed import wait
-
     from .util import progress
 
     client = cl.client
@@ -129,22 +119,9 @@ def run_configs(cl, calls, desc, no_progress=False, unit="config", pressed=lambd
         while any(r is None for r in results):
             if pressed():
                 raise Stop(sum(r is not None for r in results))
-            live = [f for f, r in zip(futs, results) if r is None]
-            try:
-                wait(live, timeout=0.2, return_when="FIRST_COMPLETED")
-            except TimeoutError:
-                pass
-            for i, f in enumerate(futs):
-                if results[i] is not None or f.status == "pending":
-                    continue
-                if f.status == "error":
-                    raise task_error(f)
-                if f.status == "finished":
-                    r = f.result()
-                    if "error" in r:
-                        raise r["error"]
-                    results[i] = r
-                    bar.update(1)
+            for i, r in fetch_done({i: f for i, (f, r) in enumerate(zip(futs, results)) if r is None}).items():
+                results[i] = r
+                bar.update(1)
     except Stop as s:
         bar.close()
         print(f"gridrt: interrupted after {s.args[0]} of {len(futs)} {unit}s; the cluster's work is cancelled",
