@@ -29,6 +29,7 @@ from .arrays import as_mesh, as_triangles, float_contiguous
 from .config import GridParams
 from .errors import InputError
 from .grid.build import GridBuilder
+from .memory import allocating
 from .precision import ONE_SHOT_SAMPLE, PrecisionWarning, detail_warning, warn_detail
 from .threads import launch_guard
 from .trace.render import Hits, cast_batch
@@ -141,11 +142,12 @@ class RayCaster:
 
     def __init__(self, vertices, faces, params: GridParams | None = None):
         self.params = params or GridParams()
-        origin, verts, self.faces, tris, big = _centred_mesh(vertices, faces)
-        self.precision_warning = warn_detail(tris, "RayCaster mesh", big=big, sample=ONE_SHOT_SAMPLE)
-        builder = GridBuilder(self.params)
-        with launch_guard():
-            grid = builder.build(tris, self.params)
+        with allocating(lambda: f"building a RayCaster over {len(faces):,} triangles"):
+            origin, verts, self.faces, tris, big = _centred_mesh(vertices, faces)
+            self.precision_warning = warn_detail(tris, "RayCaster mesh", big=big, sample=ONE_SHOT_SAMPLE)
+            builder = GridBuilder(self.params)
+            with launch_guard():
+                grid = builder.build(tris, self.params)
         self._snap = _Snapshot(origin, verts, tris, grid, builder)
         self._lock = threading.Lock()  # guards _snap, its users counts and _spare
         self._update_lock = threading.Lock()  # one update at a time
@@ -177,13 +179,17 @@ class RayCaster:
     def update(self, vertices):
         """New vertex positions (same count and order); rebuilds the grid.  On an error the
         caster keeps its previous mesh.  Casts running meanwhile finish on the previous mesh."""
+        with allocating(f"updating a RayCaster of {len(self.faces):,} triangles"):
+            return self._update(vertices)
+
+    def _update(self, vertices):
         origin, verts, tris, big = _centred_vertices(vertices, self.faces, self._snap.vertices.shape)
         # a cheap look (1024 triangles' edges, the extent from the vertices): warn when the mesh has
         # just become too fine for float32 at its size, not on every update of such a mesh
         if len(verts):
             msg = detail_warning(tris, "RayCaster mesh", sample=1024, big=big)
             if msg is not None and self.precision_warning is None:
-                warnings.warn(msg, PrecisionWarning, stacklevel=2)
+                warnings.warn(msg, PrecisionWarning, stacklevel=3)
             self.precision_warning = msg
         with self._update_lock:
             with self._lock:
@@ -220,8 +226,9 @@ class RayCaster:
             snap = self._snap
             snap.users += 1
         try:
-            return cast_batch(snap.grid, snap.triangles, origins, directions, snap.origin, tmin, tmax, watertight,
-                              any_hit, threads, self.params.max_bytes if max_bytes is None else max_bytes,
-                              packets=packets, packet_precision=packet_precision)
+            with allocating(lambda: f"casting {len(origins):,} rays", "cast fewer rays at a time"):
+                return cast_batch(snap.grid, snap.triangles, origins, directions, snap.origin, tmin, tmax, watertight,
+                                  any_hit, threads, self.params.max_bytes if max_bytes is None else max_bytes,
+                                  packets=packets, packet_precision=packet_precision)
         finally:
             self._release(snap)

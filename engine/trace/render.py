@@ -36,6 +36,7 @@ from numba import njit, parallel_chunksize, prange
 from ..arrays import as_origin, check_ray_values, check_rays
 from ..config import DEFAULT_MAX_BYTES, PACKET_PRECISIONS, RenderParams, _positive_int
 from ..errors import InputError
+from ..memory import check_fits
 from ..stats import RenderStats
 from ..threads import check_threads, launch_guard, use_threads
 from ..scene.surface import as_lights
@@ -235,6 +236,8 @@ def cast_batch(grid, tris, origins, dirs, origin=None, tmin=0.0, tmax=np.inf, wa
             f"casting {N} rays at once needs {need / 2**20:.0f} MiB ({HIT_BYTES} bytes a ray for the hits, plus "
             f"scratch), above the memory budget max_bytes={budget / 2**20:.0f} MiB; cast fewer rays at a time "
             f"or raise max_bytes")
+    check_fits(need, f"casting {N:,} rays", "hits, triangle ids, barycentrics and scratch",
+               lambda avail: f"cast in batches of at most {max(0, (avail - need + HIT_BYTES * N) // HIT_BYTES):,} rays")
     for s in range(0, N, chunk):
         check_ray_values(o[s : s + chunk], d[s : s + chunk], s, frame)
     hits = Hits(np.empty(N), np.empty(N, np.int32), np.empty(N), np.empty(N))
