@@ -222,7 +222,8 @@ def _shade_row(y, basis, W, H, ibuf, stris, normals, material, diffuse, ambient,
                 r += dr * lights[li, 4] * s
                 g += dg * lights[li, 5] * s
                 b += db * lights[li, 6] * s
-        put_pixel(img, y, x, r, g, b)
+        # clamped here: a huge light or colour (1e38) must saturate, and beyond int64 put_pixel's rounding is undefined
+        put_pixel(img, y, x, min(r, 1.0), min(g, 1.0), min(b, 1.0))
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
@@ -294,7 +295,7 @@ def compose(W, H, acc, img):
         for x in range(W):
             i = y * W + x
             if acc[i, 0] >= 0.0:
-                put_pixel(img, y, x, acc[i, 0], acc[i, 1], acc[i, 2])
+                put_pixel(img, y, x, min(acc[i, 0], 1.0), min(acc[i, 1], 1.0), min(acc[i, 2], 1.0))  # (as _shade_row)
 
 
 def default_surface(n_triangles):
