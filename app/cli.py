@@ -67,6 +67,10 @@ def add_scene_args(p):
                         "default: none)")
     g.add_argument("--fps", type=float, default=d["fps"],
                    help="keyframe rate of MD2 models and frame folders (default: 10 for MD2, 30 for frames)")
+    g.add_argument("--allow-outside-refs", dest="allow_outside", action="store_true",
+                   help="trust the files a scene file names (glTF buffers and images, OBJ materials and textures, "
+                        "BART includes and textures, MD2 skins) outside the scene file's folder, symlinks followed "
+                        "(default: refused; a material or texture outside is left out with a warning)")
 
 
 def add_grid_args(p):
@@ -144,7 +148,7 @@ def scene_spec(a):
     from gridrt.scene.spec import SceneSpec
 
     return SceneSpec(source=a.scene, count=a.count, animate=a.animate, amplitude=a.amplitude, speed=a.speed,
-                     seed=a.seed, clip=a.clip, subdivide=a.subdivide, fps=a.fps)
+                     seed=a.seed, clip=a.clip, subdivide=a.subdivide, fps=a.fps, allow_outside=a.allow_outside)
 
 
 def scene_from_args(a):

@@ -156,7 +156,8 @@ def write_aff(tmp_path, root=AFF_OK, part=PART):
     (AFF_OK + "}\n", PART, ["without a matching"], False),
     (AFF_OK + "xs 1 1 1 0 0 1 0 0 0 0 {\n", PART, ["not closed"], False),
     (AFF_OK, PART.replace("0 2 3", "0 2 7"), ["out of range", "line 2"], True),
-    (AFF_OK, PART.replace("1 1 0", "1 one 0"), ["expected a number", "'one'"], True),
+    (AFF_OK, PART.replace("1 1 0", "1 one 0"), ["expected a number", "not quoted"], True),  # an included file
+    (AFF_OK + "l 1 one 0\n", PART, ["expected a number", "'one'", "line 21"], False),  # the root file is quoted
     (AFF_OK, PART[:40], ["unexpected end of file"], True),
     (AFF_OK, PART.replace("0 0 1  1 0 1", "0 0 nan  1 0 1"), ["non-finite"], True),
     (AFF_OK.replace("rot 4", "rot 3"), PART, ["at least 4 keys"], False),

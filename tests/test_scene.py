@@ -30,6 +30,7 @@ from gridrt.scene import (
     make_scene,
     subdivide_mesh,
 )
+from gridrt.scene import files as files_module
 from gridrt.scene import mesh as mesh_module
 from gridrt.scene.animation import as_static_mask
 
@@ -490,12 +491,12 @@ def test_unreadable_file(tmp_path, monkeypatch):
     p = tmp_path / "locked.obj"
     write_obj(p, OCTA_V, OCTA_F)
     p.chmod(0)
-    if os.access(p, os.R_OK):  # root ignores permissions: make open() fail as it would for a user
+    if os.access(p, os.R_OK):  # root ignores permissions: make opening fail as it would for a user
 
         def denied(path, *args, **kwargs):
             raise PermissionError(13, "Permission denied", str(path))
 
-        monkeypatch.setattr(mesh_module, "open", denied, raising=False)
+        monkeypatch.setattr(files_module, "open_regular", denied)
     try:
         _raises_file_error(p, "permission denied")
     finally:

@@ -134,7 +134,7 @@ def _no(option, value, default, what):
 
 
 def make_scene(name_or_path, count=None, animate=None, amplitude=None, speed=1.0, seed=0, *,
-               clip=None, subdivide=None, fps=None):
+               clip=None, subdivide=None, fps=None, allow_outside=False):
     """Build an :class:`Animation` from a built-in scene name, a scene file or a folder of frames.
 
     Parameters
@@ -163,6 +163,12 @@ def make_scene(name_or_path, count=None, animate=None, amplitude=None, speed=1.0
         triangles (e.g. Lucy 100k -> 1.6M -> 6.4M); combine with ``animate`` to move it.
     fps : float, optional
         Keyframe rate of MD2 models (default 10) and frame folders (default 30).
+    allow_outside : bool
+        Trust the files a scene file names (glTF buffers and images, OBJ material libraries and
+        textures, BART includes and textures, MD2 skins, a frame folder's files) where they resolve
+        outside the scene file's folder (the frame folder), symlinks followed.  By default such a
+        geometry file (a buffer, an include, a frame) is a SceneFileError and such a material or
+        texture is left out with a TextureWarning; see :mod:`gridrt.scene.files`.
 
     Raises
     ------
@@ -201,7 +207,7 @@ def make_scene(name_or_path, count=None, animate=None, amplitude=None, speed=1.0
                          f"folder; a scene may be {scene_choices()}")
     if count is not None:
         raise InputError("count applies to built-in scenes only, not to scene files")
-    return _file_scene(path, animate, amplitude, speed, clip, subdivide, fps)
+    return _file_scene(path, animate, amplitude, speed, clip, subdivide, fps, bool(allow_outside))
 
 
 def _marbles_scene(count, animate, amplitude, speed, seed, clip, subdivide, fps):
@@ -227,7 +233,7 @@ def _asset_file(key, count):
     return path
 
 
-def _file_scene(path, animate, amplitude, speed, clip, subdivide, fps):
+def _file_scene(path, animate, amplitude, speed, clip, subdivide, fps, allow_outside):
     """The scene in a file or a folder of frames, by its extension; the options that do not apply
     to its kind are refused."""
     what = f"{path.name}"
@@ -236,7 +242,7 @@ def _file_scene(path, animate, amplitude, speed, clip, subdivide, fps):
             raise SceneFileError(path, f"folder holds no frame files ({', '.join(FRAME_EXTENSIONS)})")
         _no("clip", clip, None, "a folder of frames")
         _animated_only(what, animate, subdivide)
-        return load_frame_folder(path, fps=30.0 if fps is None else fps)
+        return load_frame_folder(path, fps=30.0 if fps is None else fps, allow_outside=allow_outside)
     ext = path.suffix.lower()
     if ext not in SCENE_EXTENSIONS:
         what_ext = f"unsupported file extension {ext!r}" if ext else "no file extension"
@@ -245,15 +251,15 @@ def _file_scene(path, animate, amplitude, speed, clip, subdivide, fps):
         _no("clip", clip, None, "BART scenes")
         _no("fps", fps, None, "BART scenes (their keys are in seconds)")
         _animated_only(what, animate, subdivide)
-        return BartAnimation(path)
+        return BartAnimation(path, allow_outside=allow_outside)
     if ext == ".md2":
         _animated_only(what, animate, subdivide)
-        return Md2Model(path, clip=clip, fps=10.0 if fps is None else fps)
+        return Md2Model(path, clip=clip, fps=10.0 if fps is None else fps, allow_outside=allow_outside)
     _no("fps", fps, None, f"{ext or 'mesh'} files")
     if ext in (".gltf", ".glb"):
         if not path.exists():
             raise SceneFileError(path, "file not found")
-        scene = GltfAnimation(path, clip=clip)
+        scene = GltfAnimation(path, clip=clip, allow_outside=allow_outside)
         keep = animate is None and subdivide is None and (
             scene.clip is not None or scene.camera_at(0.0) is not None or len(scene.lights_at(0.0)) > 0)
         if not scene.static or keep:
@@ -263,7 +269,7 @@ def _file_scene(path, animate, amplitude, speed, clip, subdivide, fps):
         mesh = scene.to_mesh()
     else:
         _no("clip", clip, None, f"{ext or 'mesh'} files (only glTF and MD2 have clips)")
-        mesh = load_mesh(path)
+        mesh = load_mesh(path, allow_outside=allow_outside)
     return _static_or_deformed(mesh, subdivide, animate, amplitude, speed)
 
 

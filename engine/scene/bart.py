@@ -38,13 +38,13 @@ The scene's looks (:attr:`BartAnimation.surface`, a :class:`gridrt.scene.surface
   image (PPM in the BART scenes), read once per file with :func:`gridrt.scene.surface.load_texture`
   and looked for like includes (the including file's folder, then the root's) and then in a
   ``TextureFiles`` folder inside or beside either (the BART distribution's ``aff/`` +
-  ``TextureFiles/`` layout).  A missing or unreadable image warns (TextureWarning) and its
-  triangles are drawn untextured.  Texturing repeats (OpenGL REPEAT, as the BART report says) and
-  modulates the material's colours.  BART's (u, v) are stored as they are: v = 0 is the image
-  file's first row, as the surface's image convention has it.  The scenes show it: the museum's
-  paintings and the kitchen's garden (upright images) have v = 0 along their top edge, and the
-  robots' signs, whose images are stored upside down, have v = 1 there; only the kitchen car's
-  number plate would read upside down.
+  ``TextureFiles/`` layout).  A missing, unreadable or refused image (see "Files" below) warns
+  (TextureWarning) and its triangles are drawn untextured.  Texturing repeats (OpenGL REPEAT, as
+  the BART report says) and modulates the material's colours.  BART's (u, v) are stored as they
+  are: v = 0 is the image file's first row, as the surface's image convention has it.  The scenes
+  show it: the museum's paintings and the kitchen's garden (upright images) have v = 0 along their
+  top edge, and the robots' signs, whose images are stored upside down, have v = 1 there; only the
+  kitchen car's number plate would read upside down.
 * **Normals.**  ``normals N`` in meshes, ``pp`` and ``ttp`` vertex normals and the per-key normals of
   ``tpa`` triangles become per-corner shading normals: ``surface.normals`` holds them at t = 0 in
   world orientation, :meth:`BartAnimation.normals_at` at any t (rotated by the inverse transpose of
@@ -55,10 +55,21 @@ The scene's looks (:attr:`BartAnimation.surface`, a :class:`gridrt.scene.surface
   transforms).  ``la name x y z [r g b]`` is the same, animated by the ``transl`` keys of the
   ``k name`` block when there is one: its position at time t is that spline's value (as the
   camera's eye is), else (x, y, z).
+
+Files.  A scene is untrusted input (:mod:`gridrt.scene.files`): every include and texture must
+resolve, symlinks followed, inside the folder of the root .aff file, with one exception for
+textures only: the folder ``TextureFiles`` beside it (``<root's folder>/../TextureFiles``, exactly
+that folder, resolved), where the BART distribution keeps the images of the scenes in its ``aff/``
+folder (``kitchen/aff/kitchen.aff`` and ``kitchen/TextureFiles/*.ppm``).  An include outside is a
+SceneFileError, a texture outside is drawn without (TextureWarning); ``allow_outside=True`` (the
+command line's ``--allow-outside-refs``) trusts them.  Error messages quote the text of the root
+file only: an included file may be no scene file at all, so its errors name the file and the line
+and quote none of its text.
 """
 
 import math
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -68,12 +79,14 @@ from ..arrays import TRI_DTYPE, storage_centre
 from ..errors import InputError, SceneFileError
 from . import kernels as K
 from .animation import Animation, as_static_mask, check_time, gather_unchecked, pose_moving_vertices
-from .surface import FALLOFF_NONE, LIGHT_POINT, SurfaceBuilder, as_lights, load_texture
+from .files import ALLOW_HINT, SceneFolder, read_scene_file
+from .surface import FALLOFF_NONE, LIGHT_POINT, SurfaceBuilder, TextureWarning, as_lights, load_texture
 
 __all__ = ["AMBIENT_DEFAULT", "BartAnimation", "DEFAULT_DIFFUSE", "kb_position_coefficients",
            "kb_rotation_segments"]
 
 _MAX_INCLUDE_DEPTH = 32
+_MOTIONS = ("transl", "rot", "scale", "visibility")
 _ZERO3 = np.zeros(3)
 _RGB = ("red", "green", "blue")
 
@@ -296,20 +309,18 @@ class _Tokens:
     """Whitespace tokens of one AFF file with their line numbers; comments (# or %) removed.
 
     ``cache`` (a dict, optional) keeps each file's tokens under ``key`` (its resolved path) for the
-    files a scene includes more than once (the robots' parts, the kitchen's stools and wheels)."""
+    files a scene includes more than once (the robots' parts, the kitchen's stools and wheels).
+    ``quote``: messages may quote the file's text (:meth:`q`); False for included files, which
+    may be no scene file at all (a file of secrets named by ``i``)."""
 
-    def __init__(self, path, cache=None, key=None):
+    def __init__(self, path, cache=None, key=None, quote=True):
         self.path = path
         self.i = 0
+        self.quote = quote
         if cache is not None and key in cache:
             self.toks, self.lines = cache[key]
             return
-        try:
-            raw = path.read_bytes()
-        except PermissionError as e:
-            raise SceneFileError(path, "permission denied: the file is not readable") from e
-        except OSError as e:
-            raise SceneFileError(path, f"cannot read the file ({e.strerror or e})") from e
+        raw = read_scene_file(path)
         if not raw.strip():
             raise SceneFileError(path, "file is empty")
         text = raw.decode("latin-1")
@@ -329,6 +340,11 @@ class _Tokens:
         self.lines = lines
         if cache is not None:
             cache[key] = (toks, lines)
+
+    def q(self, tok):
+        """``tok`` (text of this file) as a message quotes it: repr for the scene file the user
+        named, a placeholder for an included file (its text never reaches a message)."""
+        return repr(tok) if self.quote else "[text of an included file, not quoted]"
 
     def fail(self, problem, at=None):
         k = self.i if at is None else at
@@ -374,11 +390,11 @@ class _Tokens:
                 try:
                     float(tok)
                 except ValueError:
-                    self.fail(f"expected a number in {what}, got {tok!r}", at=self.i + k)
+                    self.fail(f"expected a number in {what}, got {self.q(tok)}", at=self.i + k)
             raise
         if not np.isfinite(a).all():
             k = int(np.argmin(np.isfinite(a)))
-            self.fail(f"{what} contains a non-finite number {chunk[k]!r}", at=self.i + k)
+            self.fail(f"{what} contains a non-finite number {self.q(chunk[k])}", at=self.i + k)
         self.i += n
         return a
 
@@ -387,15 +403,15 @@ class _Tokens:
         try:
             n = int(tok)
         except ValueError:
-            self.fail(f"expected a count for {what}, got {tok!r}", at=self.i - 1)
+            self.fail(f"expected a count for {what}, got {self.q(tok)}", at=self.i - 1)
         if not 0 <= n <= limit:
-            self.fail(f"{what} count {n} is out of range", at=self.i - 1)
+            self.fail(f"{what} count{f' {n}' if self.quote else ''} is out of range", at=self.i - 1)
         return n
 
     def expect(self, word, what):
         tok = self.next(what)
         if tok != word:
-            self.fail(f"expected '{word}' in {what}, got {tok!r}", at=self.i - 1)
+            self.fail(f"expected '{word}' in {what}, got {self.q(tok)}", at=self.i - 1)
 
 
 def _static_matrix(values):
@@ -420,8 +436,11 @@ def _unit_rows(v):
 
 
 class _Parser:
-    def __init__(self, root):
+    def __init__(self, root, allow_outside=False):
         self.root = root
+        self.folder = SceneFolder(root, allow_outside)
+        # the BART distribution's textures: TextureFiles beside the aff/ folder of the scenes
+        self.texture_folders = (self.folder.root.parent / "TextureFiles",)
         self.node_parent = [-1]
         self.node_matrix = [np.eye(4)]
         self.node_name = [None]
@@ -456,7 +475,7 @@ class _Parser:
         if real in chain:
             raise SceneFileError(path, "include cycle: the file includes itself")
         self.files.append(path)
-        tk = _Tokens(path, self.token_cache, real)
+        tk = _Tokens(path, self.token_cache, real, quote=not chain)
         inner = chain + (real,)
         while tk.more():
             at = tk.i
@@ -467,7 +486,7 @@ class _Parser:
                     tk.fail("'}' without a matching transform '{'", at=at)
                 self.stack.pop()
             elif handler is None:
-                tk.fail(f"unknown AFF command {cmd!r}", at=at)
+                tk.fail(f"unknown AFF command {tk.q(cmd)}", at=at)
             else:
                 handler(tk, inner)
         if path == self.root and len(self.stack) != 1:
@@ -489,7 +508,7 @@ class _Parser:
         c = v[:len(colours)]
         if not (c.min() >= 0 and c.max() <= _F32_MAX):
             k = int(np.argmax((c < 0) | (c > _F32_MAX)))
-            tk.fail(f"{what} {colours[k]}: {tk.toks[at + k]!r} is not a colour value (0 or more, within float32)",
+            tk.fail(f"{what} {colours[k]}: {tk.q(tk.toks[at + k])} is not a colour value (0 or more, within float32)",
                     at=at + k)
         return v
 
@@ -534,7 +553,8 @@ class _Parser:
     def _cmd_a(self, tk, chain):
         v = tk.numbers(3, "animation parameters (a start end frames)")
         if not v[1] > v[0] or v[2] < 1 or v[2] != int(v[2]):
-            tk.fail(f"animation parameters need end > start and a positive frame count, got {v.tolist()}")
+            tk.fail("animation parameters need end > start and a positive frame count" +
+                    (f", got {v.tolist()}" if tk.quote else ""))
         self.anim_params = (float(v[0]), float(v[1]), int(v[2]))
 
     def _cmd_d(self, tk, chain):
@@ -558,10 +578,15 @@ class _Parser:
         here = tk.path.parent
         candidates = [here / name, self.root.parent / name]
         for c in candidates:
-            if c.is_file():
+            if c.exists():
+                if not self.folder.is_inside(c):
+                    tk.fail(f"include {tk.q(name)} leads outside the scene's folder ({self.folder.root}); "
+                            f"{ALLOW_HINT}", at=at)
+                if not c.is_file():
+                    tk.fail(f"include {tk.q(name)} is not a regular file", at=at)
                 self.parse_file(c, chain)
                 return
-        tk.fail(f"included file {name!r} not found (looked in {here})", at=at)
+        tk.fail(f"included file {tk.q(name)} not found (looked in {here})", at=at)
 
     # --- transforms
     def _open(self, tk, matrix, name):
@@ -585,15 +610,16 @@ class _Parser:
 
     def _cmd_k(self, tk, chain):
         name = tk.next("keyframe block name")
-        tk.expect("{", f"keyframes of {name!r}")
+        name_q = tk.q(name)
+        tk.expect("{", f"keyframes of {name_q}")
         anim = {}
         while True:
             at = tk.i
-            motion = tk.next(f"keyframes of {name!r}")
+            motion = tk.next(f"keyframes of {name_q}")
             if motion == "}":
                 break
-            n = tk.count(f"{motion} keys of {name!r}", limit=10_000_000)
-            what = f"{motion} keys of {name!r}"
+            what = f"{tk.q(motion) if motion not in _MOTIONS else motion} keys of {name_q}"
+            n = tk.count(what, limit=10_000_000)
             if motion in ("transl", "scale", "rot"):
                 if n < 4:
                     tk.fail(f"{what}: Kochanek-Bartels splines need at least 4 keys, got {n}", at=at)
@@ -602,7 +628,8 @@ class _Parser:
                 t = keys[:, 0]
                 if not ((t[2:] != t[:-2]).all()):
                     k = int(np.argmin(t[2:] != t[:-2]))
-                    tk.fail(f"{what}: keys {k} and {k + 2} have the same time {t[k]}, which leaves the "
+                    when = f" {t[k]}" if tk.quote else ""
+                    tk.fail(f"{what}: keys {k} and {k + 2} have the same time{when}, which leaves the "
                             "spline tangent undefined", at=at)
                 if motion == "rot":
                     axis = keys[:, 1:4]
@@ -616,7 +643,7 @@ class _Parser:
                     tk.fail(f"{what}: key times decrease", at=at)
                 anim[motion] = keys
             else:
-                tk.fail(f"unknown keyframe type {motion!r} in {name!r} (transl, rot, scale or visibility)", at=at)
+                tk.fail(f"unknown keyframe type {tk.q(motion)} in {name_q} (transl, rot, scale or visibility)", at=at)
         self.anims[name] = anim
 
     # --- textures
@@ -638,6 +665,12 @@ class _Parser:
                 real = c.resolve() if found else None
             except (OSError, ValueError):
                 found = False
+            if found and not self.folder.is_inside(c, self.texture_folders):
+                where = f"line {tk.lines[min(at, len(tk.lines) - 1)]}"
+                warnings.warn(f"texture {tk.q(name)} ({tk.path}, {where}): leads outside the scene's folder "
+                              f"({self.folder.root}, or {self.texture_folders[0]} for textures); {ALLOW_HINT}; "
+                              "drawn without it", TextureWarning, stacklevel=2)
+                break
             if found:
                 if real not in self.texture_files:
                     self.texture_files[real] = load_texture(c, name=str(c))
@@ -645,7 +678,7 @@ class _Parser:
                 break
         else:
             where = f"line {tk.lines[min(at, len(tk.lines) - 1)]}"
-            label = (f"{name!r} ({tk.path}, {where}; looked in {', '.join(str(d) for d in dirs)})")
+            label = (f"{tk.q(name)} ({tk.path}, {where}; looked in {', '.join(str(d) for d in dirs)})")
             tex = load_texture(dirs[0] / name, name=label)
         self.texture_lookups[key] = tex
         return tex
@@ -722,7 +755,7 @@ class _Parser:
             coords = tk.numbers(2 * nt, "mesh texture coordinates").reshape(nt, 2)
             word = tk.next("mesh")
         if word != "triangles":
-            tk.fail(f"expected 'triangles' in mesh, got {word!r}", at=tk.i - 1)
+            tk.fail(f"expected 'triangles' in mesh, got {tk.q(word)}", at=tk.i - 1)
         nf = tk.count("mesh triangles")
         # each triangle: vertex indices, then normal indices, then texture coordinate indices
         parts = [("vertex", "vertices", nv)]
@@ -742,7 +775,8 @@ class _Parser:
             what, plural, n = parts[col // 3]
             k = 3 * (col // 3)
             tk.fail(f"mesh triangle {bad} has a {what} index out of range for {n} {plural} "
-                    f"({rows[bad, k:k + 3].tolist()})", at=at + bad * w + k)
+                    + (f"({rows[bad, k:k + 3].tolist()})" if tk.quote else "(not quoted: an included file)"),
+                    at=at + bad * w + k)
         idx = rows.astype(np.int64)
         tex = uv = nrm = None
         if normals is not None:
@@ -872,6 +906,10 @@ class BartAnimation(Animation):
     path : str or os.PathLike
         The root .aff file; includes are resolved relative to the including file's folder (then the
         root's).
+    allow_outside : bool
+        Trust includes and textures that resolve outside the root file's folder (see the module's
+        docstring, "Files"); by default such an include is a SceneFileError and such a texture is
+        left out with a TextureWarning.
 
     Attributes
     ----------
@@ -899,7 +937,7 @@ class BartAnimation(Animation):
     images that cannot be read warn (gridrt.scene.surface.TextureWarning) and are left out.
     """
 
-    def __init__(self, path):
+    def __init__(self, path, *, allow_outside=False):
         if not isinstance(path, (str, os.PathLike)):
             raise InputError(f"AFF path must be a str or path-like object, got {type(path).__name__}")
         p = Path(path)
@@ -907,7 +945,7 @@ class BartAnimation(Animation):
             raise SceneFileError(p, "file not found")
         if p.is_dir():
             raise SceneFileError(p, "is a directory, not an .aff file")
-        ps = _Parser(p)
+        ps = _Parser(p, allow_outside)
         ps.parse_file(p)
         if not ps.blocks and not ps.tpa:
             raise SceneFileError(p, "the scene holds no triangles")

@@ -158,7 +158,7 @@ def frame_files(folder):
     return files
 
 
-def load_frame_folder(folder, fps=30.0):
+def load_frame_folder(folder, fps=30.0, *, allow_outside=False):
     """A :class:`KeyframeMesh` from a folder of frame meshes (``f000.obj``, ``f001.obj``, ...).
 
     Every frame must have the vertex count and faces of the first; frames are ``1 / fps`` seconds
@@ -166,7 +166,13 @@ def load_frame_folder(folder, fps=30.0):
     textures, uv, colours) without its normals, which would not follow the moving vertices (the
     geometric normals are used); the other frames' looks are not read.  Raises SceneFileError
     naming the offending frame file.
+
+    Every file read (the frames, the first frame's material libraries and textures) must resolve
+    inside the folder, symlinks followed (:mod:`gridrt.scene.files`): a frame that is a symlink
+    leading out is a SceneFileError, a material or texture outside is left out with a warning,
+    unless ``allow_outside`` trusts them.
     """
+    from .files import SceneFolder
     from .mesh import load_mesh
 
     folder = Path(folder)
@@ -174,11 +180,14 @@ def load_frame_folder(folder, fps=30.0):
         raise SceneFileError(folder, "not a folder of frames")
     fps = check_fps(fps)
     files = frame_files(folder)
-    first = load_mesh(files[0])
+    scene = SceneFolder(folder, allow_outside, folder=True)
+    for p in files:
+        scene.check(p, "frame file", p.name, folder)
+    first = load_mesh(files[0], folder=scene)
     frames = np.empty((len(files),) + first.vertices.shape, dtype=np.float64)
     frames[0] = first.vertices64
     for k, p in enumerate(files[1:], 1):
-        m = load_mesh(p, looks=False)
+        m = load_mesh(p, looks=False, folder=scene)
         if m.vertices.shape != first.vertices.shape or not np.array_equal(m.faces, first.faces):
             raise SceneFileError(
                 p, f"frame has {m.n_vertices} vertices and {m.n_triangles} faces but {files[0].name} has "

@@ -31,7 +31,8 @@ Looks (:attr:`GltfAnimation.surface`, a :class:`gridrt.scene.surface.Surface`, a
   has only ``KHR_materials_pbrSpecularGlossiness`` gives its diffuseFactor/diffuseTexture),
   ambient = :data:`AMBIENT_FRACTION` * diffuse;
 * ``baseColorTexture``: the image (PNG or JPEG, embedded in a buffer view or a data: URI, or a file
-  named relative to the .gltf) read with Pillow, wrapped as its sampler's wrapS/wrapT say, on the
+  named relative to the .gltf, inside its folder: :mod:`gridrt.scene.files`) read with Pillow,
+  wrapped as its sampler's wrapS/wrapT say, on the
   primitive's ``TEXCOORD_<texCoord>`` (glTF's uv are stored as they are: both use the image's
   top-left origin).  An image that cannot be read, and a texCoord set the primitive lacks, warn
   (:class:`gridrt.scene.surface.TextureWarning`) and the triangles are drawn without the texture.
@@ -64,7 +65,6 @@ import json
 import math
 import os
 import struct
-import urllib.parse
 import warnings
 from numbers import Integral, Real
 from pathlib import Path
@@ -78,6 +78,7 @@ from ..commands import pip_command
 from ..errors import InputError, SceneFileError
 from . import kernels as K
 from .animation import Animation, as_static_mask, check_time, gather_unchecked, pose_moving_vertices
+from .files import NotRegularFile, OutsideReference, SceneFolder, open_regular, os_problem, read_scene_file
 from .surface import (FALLOFF_INVERSE_SQUARE, FALLOFF_NONE, LIGHT_COLUMNS, LIGHT_DIRECTIONAL, LIGHT_POINT,
                       SurfaceBuilder, Texture, TextureWarning, as_lights, load_texture, no_lights)
 
@@ -163,8 +164,9 @@ def glb_version_problem(version):
 class _Reader:
     """The JSON tree, buffers and decoded accessors of one glTF file; every failure names the file."""
 
-    def __init__(self, path):
+    def __init__(self, path, folder):
         self.path = Path(path)
+        self.folder = folder  # the SceneFolder its buffers and images must lie in
         self._bin = None
         self._buffers = {}
         self._accessors = {}
@@ -189,12 +191,7 @@ class _Reader:
     # ---------------------------------------------------------------- file containers
 
     def _read_tree(self):
-        try:
-            raw = self.path.read_bytes()
-        except PermissionError as e:
-            raise SceneFileError(self.path, "permission denied: the file is not readable") from e
-        except OSError as e:
-            raise SceneFileError(self.path, f"cannot read the file ({e.strerror or e})") from e
+        raw = read_scene_file(self.path)
         if not raw:
             self.fail("file is empty (0 bytes)")
         if raw[:4] == _GLB_MAGIC:
@@ -297,15 +294,17 @@ class _Reader:
             except (binascii.Error, ValueError) as e:
                 self.fail(f"buffer {index}: data URI is not valid base64 ({e})")
         else:
-            if "://" in uri:
-                self.fail(f"buffer {index} refers to a remote URI ({uri}); only local files are supported")
-            p = self.path.parent / urllib.parse.unquote(uri)
+            p = self.folder.uri(self.path.parent, f"buffer {index}", uri, self.path)
             try:
-                data = p.read_bytes()
+                with open_regular(p) as (fh, size):
+                    if size < length:
+                        self.fail(f"buffer {index} is truncated: {p} has {size} bytes, byteLength says {length}")
+                    data = fh.read(length)  # (no more than the scene declares)
             except FileNotFoundError:
                 self.fail(f"buffer {index} refers to a missing file: {p}")
             except OSError as e:
-                self.fail(f"buffer {index}: cannot read {p} ({e.strerror or e})")
+                self.fail(f"buffer {index}: {p} {os_problem(e)}" if isinstance(e, NotRegularFile)
+                          else f"buffer {index}: cannot read {p} ({e.strerror or e})")
         if len(data) < length:
             self.fail(f"buffer {index} is truncated: {len(data)} bytes, byteLength says {length}")
         self._buffers[index] = data
@@ -535,11 +534,11 @@ class _Looks:
             else:
                 tex = load_texture(None, data=data, name=label)
         elif isinstance(uri, str) and uri:
-            if "://" in uri:
-                warnings.warn(f"texture {label}: remote image {uri} (only local files are read); drawn without it",
-                              TextureWarning, stacklevel=4)
+            try:
+                path = r.folder.uri(r.path.parent, "its uri", uri, r.path)
+            except OutsideReference as e:
+                warnings.warn(f"texture {label}: {e.problem}; drawn without it", TextureWarning, stacklevel=4)
             else:
-                path = r.path.parent / urllib.parse.unquote(uri)
                 tex = load_texture(path, name=str(path))
         else:
             warnings.warn(f"texture {label}: the image has neither a uri nor a bufferView; drawn without it",
@@ -1358,6 +1357,10 @@ class GltfAnimation(Animation):
         such as COLLADA2GLTF split one clip into one animation per joint), else animation 0.
     scene : int, optional
         Index of the glTF scene to show (default: the file's ``scene``, else 0).
+    allow_outside : bool
+        Trust the file's buffer and image URIs that lead outside its folder (see
+        :mod:`gridrt.scene.files`); by default such a buffer is a SceneFileError and such an image
+        is drawn without (TextureWarning).
 
     Attributes
     ----------
@@ -1383,13 +1386,14 @@ class GltfAnimation(Animation):
     ------
     SceneFileError
         Missing, unreadable, truncated or malformed file (every index is checked, materials, textures,
-        samplers and lights included); Draco geometry without DracoPy; no triangles.  An image that
-        cannot be read only warns (TextureWarning).
+        samplers and lights included); Draco geometry without DracoPy; no triangles; a buffer that
+        leads outside the file's folder, is not a regular file or is shorter than its byteLength.
+        An image that cannot be read (or is refused) only warns (TextureWarning).
     InputError
         ``clip`` is not an index/name of the file's animations (the message lists them).
     """
 
-    def __init__(self, path, clip=None, scene=None):
+    def __init__(self, path, clip=None, scene=None, *, allow_outside=False):
         if not isinstance(path, (str, os.PathLike)):
             raise InputError(f"glTF path must be a str or path-like object, got {type(path).__name__}")
         p = Path(path)
@@ -1397,7 +1401,7 @@ class GltfAnimation(Animation):
             raise SceneFileError(p, "file not found")
         if p.is_dir():
             raise SceneFileError(p, "is a directory, not a glTF file")
-        r = _Reader(p)
+        r = _Reader(p, SceneFolder(p, allow_outside))
         self.path = p
         try:
             self._build(r, clip, scene)

@@ -130,12 +130,17 @@ class _Md2Data:
 
 
 def _decode(p):
+    from .files import open_regular, os_problem
+
     try:
-        raw = p.read_bytes()
-    except PermissionError as e:
-        raise SceneFileError(p, "permission denied: the file is not readable") from e
+        with open_regular(p) as (fh, size):
+            head = fh.read(_HEADER.size)
+            end = _HEADER.unpack_from(head, 0)[-1] if len(head) == _HEADER.size else 0
+            if head[:4] == _MAGIC and end > size:  # (the size the header declares: checked before reading on)
+                raise SceneFileError(p, f"truncated MD2 file: the header says {end} bytes, the file has {size}")
+            raw = head + fh.read()
     except OSError as e:
-        raise SceneFileError(p, f"cannot read the file ({e.strerror or e})") from e
+        raise SceneFileError(p, os_problem(e)) from e
     if not raw:
         raise SceneFileError(p, "file is empty (0 bytes)")
     if len(raw) < _HEADER.size:
@@ -254,6 +259,9 @@ class Md2Model(KeyframeMesh):
         default: all frames.
     fps : float
         Frames per second (Quake II: 10).
+    allow_outside : bool
+        Trust a skin that resolves outside the model's folder (a symlink leading out; see
+        :mod:`gridrt.scene.files`); by default it is left out with a TextureWarning.
 
     Attributes
     ----------
@@ -271,7 +279,7 @@ class Md2Model(KeyframeMesh):
         :meth:`normals_at` gives them at any time.
     """
 
-    def __init__(self, path, clip=None, fps=10.0):
+    def __init__(self, path, clip=None, fps=10.0, *, allow_outside=False):
         if not isinstance(path, (str, os.PathLike)):
             raise InputError(f"MD2 path must be a str or path-like object, got {type(path).__name__}")
         p = Path(path)
@@ -322,17 +330,25 @@ class Md2Model(KeyframeMesh):
         self._normals = np.ascontiguousarray((table @ MD2_TO_GRIDRT.T)[data.normal_ids[sel]], dtype=np.float32)
         self._vnormals = np.zeros(self._normals.shape[1:], dtype=np.float32)
         self.skin = find_skin(p, data.skins)
-        self.surface = self._looks(data)
+        self.surface = self._looks(data, allow_outside)
 
-    def _looks(self, data):
+    def _looks(self, data, allow_outside):
         """The model's Surface: one material, white times the skin when there is one (and uv), else
-        the default grey; uv from the st block; the first frame's normals at rest."""
+        the default grey; uv from the st block; the first frame's normals at rest.  A skin that
+        resolves outside the model's folder (a symlink leading out) is left out with a warning
+        unless ``allow_outside``."""
+        from .files import SceneFolder
         from .mesh import DEFAULT_DIFFUSE
         from .surface import Surface, TextureWarning, load_texture
 
         if self.skin is None and data.skins and data.uv is not None:
             warnings.warn(f"{self.path}: skin {data.skins[0]!r} not found beside the model (nor an image named "
                           f"{self.path.stem}.*); drawn untextured", TextureWarning, stacklevel=3)
+        folder = SceneFolder(self.path, allow_outside)
+        if self.skin is not None and not folder.is_inside(self.skin):
+            warnings.warn(f"{folder.refusal('skin', self.skin.name, self.path)}; drawn untextured", TextureWarning,
+                          stacklevel=3)
+            self.skin = None
         tex = load_texture(self.skin) if (self.skin is not None and data.uv is not None) else None
         diffuse = np.array([(1.0, 1.0, 1.0) if tex is not None else DEFAULT_DIFFUSE], np.float32)
         rest = self._normals[0][self._faces]

@@ -15,7 +15,8 @@ Looks (``Mesh.surface``, a :class:`gridrt.scene.surface.Surface` with one row pe
   ignored); ``vt`` texture coordinates (stored as ``(u, 1 - v)``: OBJ's v goes up the image),
   ``vn`` normals (normalised) and ``v x y z r g b`` vertex colours, per face corner.  MTL ``Ka``
   is ignored: exporters disagree about it (1 1 1, 0 0 0, a copy of Kd, or nothing), so every
-  material's ambient colour is ``AMBIENT_FRACTION * diffuse``.  A missing library or texture
+  material's ambient colour is ``AMBIENT_FRACTION * diffuse``.  A missing library or texture, or
+  one outside the OBJ file's folder (:mod:`gridrt.scene.files`), or a texture that cannot be read,
   warns (:class:`gridrt.scene.surface.TextureWarning`) and the mesh loads without it; faces
   without a material, or naming one no library defines, get the default grey
   (:data:`DEFAULT_DIFFUSE`).  An OBJ file with none of usemtl, vt, vn or vertex colours has no
@@ -179,8 +180,9 @@ def _gltf_json(path, ext):
         raise SceneFileError(path, f"malformed .glb file: JSON chunk is not valid JSON ({e})") from e
 
 
-def _check_gltf(path, ext):
-    """Reject glTF files whose geometry trimesh would silently replace with zeros."""
+def _check_gltf(path, ext, folder):
+    """Reject glTF files whose geometry trimesh would silently replace with zeros, and those whose
+    buffers or images (which trimesh reads) lie outside the SceneFolder ``folder``."""
     tree = _gltf_json(path, ext)
     if not isinstance(tree, dict):
         raise SceneFileError(path, f"malformed {ext} file: top-level JSON is not an object")
@@ -195,6 +197,14 @@ def _check_gltf(path, ext):
         raise SceneFileError(path, f"geometry is Draco-compressed (KHR_draco_mesh_compression); {DRACO_HINT}")
     if "EXT_meshopt_compression" in required:
         raise SceneFileError(path, "geometry uses EXT_meshopt_compression, which trimesh cannot decode")
+    for key in ("buffers", "images"):
+        items = tree.get(key)
+        for i, item in enumerate(items if isinstance(items, list) else ()):
+            uri = item.get("uri") if isinstance(item, dict) else None
+            if isinstance(uri, str) and uri and not uri.startswith("data:"):
+                ref = folder.uri(path.parent, f"{key[:-1]} {i}", uri, path)
+                if ref.exists() and not ref.is_file():  # (a FIFO or a device: trimesh would read it)
+                    raise SceneFileError(path, f"{key[:-1]} {i} {uri!r} is not a regular file")
 
 
 # ----------------------------------------------------------------------------- looks
@@ -483,7 +493,7 @@ def _obj_resolve(raw, count, bases, key, what, corner_face):
     return idx
 
 
-def read_obj(path, looks=True):
+def read_obj(path, looks=True, folder=None):
     """Read an OBJ file: ``(vertices (V, 3) float64, faces (F, 3) int64, surface or None)``.
 
     The vertices are the ``v`` positions that faces use, in file order (unused ones are dropped,
@@ -491,15 +501,17 @@ def read_obj(path, looks=True):
     ``(0, i, i + 1)``, in file order; ``surface`` (see the module docstring; None without looks or
     with ``looks=False``) has one row per triangle.  Indices may be negative (relative to the
     statements before the face).  Raises SceneFileError naming the file (and the line) for a
-    malformed statement or an index out of range, the MTL file for a malformed colour.
+    malformed statement or an index out of range, the MTL file (and the line, not its text) for a
+    malformed colour.  The MTL libraries and their textures must lie inside ``folder`` (a
+    :class:`gridrt.scene.files.SceneFolder`; default: the OBJ file's folder, untrusted): one
+    outside is dropped with a TextureWarning.
     """
+    from .files import SceneFolder, read_scene_file
     from .textenc import decode_text
 
     p = Path(path)
-    try:
-        raw = p.read_bytes()
-    except OSError as e:
-        raise SceneFileError(p, f"cannot read the file ({e.strerror or e})") from e
+    folder = SceneFolder(p) if folder is None else folder
+    raw = read_scene_file(p)
     try:
         text = decode_text(raw)[0]
     except UnicodeDecodeError as e:
@@ -517,13 +529,13 @@ def read_obj(path, looks=True):
                 nv = len(parsed.pos)
                 raise SceneFileError(p, "file contains no triangles (no faces" + (f", only {nv} vertices)" if nv
                                                                                   else ")"))
-            return _obj_build(p, parsed, looks)
+            return _obj_build(p, parsed, looks, folder)
     except _ObjError as e:
         n = _obj_line_number(text, e.key, e.row)
         raise SceneFileError(p, (f"line {n}: " if n else "") + e.problem) from None
 
 
-def _obj_build(p, r, looks):
+def _obj_build(p, r, looks, folder):
     lens, F = r.lens, len(r.lens)
     corner_face = np.repeat(np.arange(F), lens)
     vi = _obj_resolve(r.fv, len(r.pos), r.bases[:, 0], "v", "vertex", corner_face)
@@ -579,7 +591,7 @@ def _obj_build(p, r, looks):
         ids = np.array([number[name] for _, name in r.usemtl], np.int64)
         last = np.searchsorted(starts, np.arange(F), side="right") - 1  # the last usemtl before each face
         slot = np.where(last >= 0, ids[np.maximum(last, 0)], -1)
-    library, complete = _obj_materials(p, r.mtllibs) if r.usemtl else ({}, True)
+    library, complete = _obj_materials(p, r.mtllibs, folder) if r.usemtl else ({}, True)
     unknown = sorted(n for n in names if n not in library and n)
     if unknown and complete:
         warnings.warn(f"{p}: material{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))} not defined "
@@ -658,10 +670,12 @@ def _find_file(folder, name):
     return None
 
 
-def _obj_materials(obj_path, mtllibs):
+def _obj_materials(obj_path, mtllibs, scene):
     """``({material name: (Kd or None, Texture or None)}, all libraries read)`` of the MTL
-    libraries an OBJ file names, relative to its folder; a missing library warns (TextureWarning);
-    a malformed colour raises SceneFileError naming the MTL file and line."""
+    libraries an OBJ file names, relative to its folder; a missing library, or one or a texture
+    outside the SceneFolder ``scene``, warns (TextureWarning) and is left out; a malformed colour
+    raises SceneFileError naming the MTL file and line (not its text: the file may be none)."""
+    from .files import OutsideReference, os_problem, read_regular
     from .surface import load_texture
     from .textenc import decode_text
 
@@ -679,11 +693,17 @@ def _obj_materials(obj_path, mtllibs):
             files = [f for f in files if f is not None]
         for mtl in files:
             try:
-                text = decode_text(mtl.read_bytes())[0]
+                scene.check(mtl, "material library", lib, obj_path)
+                text = decode_text(read_regular(mtl))[0]
+            except OutsideReference as e:
+                complete = False
+                warnings.warn(f"{e}; its materials are drawn in the default grey", TextureWarning, stacklevel=4)
+                continue
             except (OSError, UnicodeDecodeError) as e:
                 complete = False
-                warnings.warn(f"material library {mtl}: cannot be read ({e}); its materials are drawn in the default "
-                              "grey", TextureWarning, stacklevel=4)
+                why = os_problem(e) if isinstance(e, OSError) else f"cannot be read ({e.reason})"
+                warnings.warn(f"material library {mtl}: {why}; its materials are drawn in the default grey",
+                              TextureWarning, stacklevel=4)
                 continue
             name, kd, tex = None, None, None
 
@@ -712,13 +732,18 @@ def _obj_materials(obj_path, mtllibs):
                     if len(vals) == 1:
                         vals = vals * 3
                     if len(vals) < 3 or not all(math.isfinite(x) and x >= 0 for x in vals[:3]):
-                        raise SceneFileError(mtl, f"line {n}: 'Kd {rest.strip()}': Kd needs 3 numbers >= 0")
+                        raise SceneFileError(mtl, f"line {n}: Kd needs 3 numbers >= 0")
                     kd = tuple(vals[:3])
                 elif key == "map_kd":
                     file, clamp = _map_kd(rest)
                     img = _find_file(mtl.parent, file)
                     where = img if img is not None else mtl.parent / file.replace("\\", "/")
                     k = (str(where), clamp)
+                    if not scene.is_inside(where):
+                        warnings.warn(f"texture {str(where) + (' (clamped)' if clamp else '')}: "
+                                      f"{scene.refusal('map_Kd', file, mtl).problem}; drawn without it",
+                                      TextureWarning, stacklevel=4)
+                        textures[k] = None
                     if k not in textures:
                         textures[k] = load_texture(where, ("clamp", "clamp") if clamp else ("repeat", "repeat"),
                                                    name=str(where) + (" (clamped)" if clamp else ""))
@@ -799,7 +824,7 @@ def _ply_surface(loaded, faces):
                    None, colors, normals)
 
 
-def load_mesh(path, looks=True):
+def load_mesh(path, looks=True, *, allow_outside=False, folder=None):
     """Load a static triangle mesh from a file.
 
     Parameters
@@ -809,6 +834,12 @@ def load_mesh(path, looks=True):
     looks : bool
         False: leave the materials, textures and per-corner attributes out (``surface`` None; no
         MTL or image file is read).
+    allow_outside : bool
+        Trust the file's references (OBJ ``mtllib`` and ``map_Kd``, glTF buffers and images) that
+        lead outside its folder (see :mod:`gridrt.scene.files`); by default a material or texture
+        outside is left out with a TextureWarning and a glTF buffer or image outside is an error.
+    folder : gridrt.scene.files.SceneFolder, optional
+        The folder the references must lie in instead (a frame folder's), with its trust.
 
     Returns
     -------
@@ -837,20 +868,21 @@ def load_mesh(path, looks=True):
     if ext not in SUPPORTED_EXTENSIONS:
         what = f"unsupported file extension {ext!r}" if ext else "no file extension"
         raise SceneFileError(p, f"{what}; supported extensions: {supported}")
+    from .files import SceneFolder, open_regular, os_problem
+
+    folder = SceneFolder(p, allow_outside) if folder is None else folder
     try:
-        with open(p, "rb") as fh:
+        with open_regular(p) as (fh, _):
             first = fh.read(1)
-    except PermissionError as e:
-        raise SceneFileError(p, "permission denied: the file is not readable") from e
     except OSError as e:
-        raise SceneFileError(p, f"cannot read the file ({e.strerror or e})") from e
+        raise SceneFileError(p, os_problem(e)) from e
     if not first:
         raise SceneFileError(p, "file is empty (0 bytes)")
     if ext in (".glb", ".gltf"):
-        _check_gltf(p, ext)
+        _check_gltf(p, ext, folder)
     if ext == ".obj":
         try:
-            v, f, surface = read_obj(p, looks=looks)
+            v, f, surface = read_obj(p, looks=looks, folder=folder)
         except SceneFileError:
             raise
         except MemoryError as e:

@@ -18,6 +18,7 @@ class SceneSpec:
     clip       animation clip (glTF animation or MD2 clip) by name or index
     subdivide  split a static mesh's triangles 1->4 until at least this many
     fps        keyframe rate of MD2 models and frame folders
+    allow_outside  trust the files a scene file names outside its folder (gridrt.scene.files)
     """
 
     source: str = "marbles"
@@ -29,6 +30,7 @@ class SceneSpec:
     clip: int | str | None = None
     subdivide: int | None = None
     fps: float | None = None
+    allow_outside: bool = False
 
     def __post_init__(self):
         object.__setattr__(self, "source", str(self.source))
@@ -47,7 +49,8 @@ class SceneSpec:
         from . import make_scene
 
         return make_scene(self.source, count=self.count, animate=self.animate, amplitude=self.amplitude,
-                          speed=self.speed, seed=self.seed, clip=self.clip, subdivide=self.subdivide, fps=self.fps)
+                          speed=self.speed, seed=self.seed, clip=self.clip, subdivide=self.subdivide, fps=self.fps,
+                          allow_outside=self.allow_outside)
 
     def label(self):
         return self.source if self.count is None else f"{self.source} ({self.count} triangles)"

@@ -32,9 +32,9 @@ KHR_lights_punctual point lights, colour = colour * intensity in candela).
 
 import contextlib
 import contextvars
+import re
 import warnings
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -42,6 +42,7 @@ from ..errors import InputError
 
 __all__ = [
     "AMBIENT_FRACTION", "DEFAULT_DIFFUSE", "FALLOFF_INVERSE_SQUARE", "FALLOFF_NONE", "LIGHT_COLUMNS", "LIGHT_DIRECTIONAL", "LIGHT_POINT", "WRAP_MODES",
+    "MAX_TEXTURE_PIXELS",
     "PackedSurface", "Surface", "SurfaceBuilder", "Texture", "TextureWarning", "as_lights", "load_texture", "no_lights",
     "texture_progress",
 ]
@@ -70,6 +71,10 @@ class TextureWarning(UserWarning):
 #: the Pillow formats load_texture reads
 TEXTURE_FORMATS = ("PNG", "JPEG", "PPM", "BMP", "PCX", "TGA", "GIF", "TIFF", "WEBP")
 
+#: the most pixels a texture may have: a larger image (a "decompression bomb" among them: a few
+#: bytes that decode to gigabytes) is dropped with a TextureWarning before it is decoded
+MAX_TEXTURE_PIXELS = 8192 * 8192
+
 _progress = contextvars.ContextVar("texture_progress", default=None)
 
 
@@ -87,31 +92,55 @@ def texture_progress(callback):
 def load_texture(path, wrap=("repeat", "repeat"), data=None, name=None):
     """Read an image file (PNG, JPEG, PPM/PGM, BMP, PCX, ... whatever Pillow reads) or the bytes
     ``data`` of one (embedded images) into a :class:`Texture`; None, with a :class:`TextureWarning`
-    naming the file and the problem, when it cannot be read."""
+    naming the file and the problem, when it cannot be read: missing, not a regular file (a FIFO
+    or a device is never opened for reading), not an image, or larger than
+    :data:`MAX_TEXTURE_PIXELS` (checked from the image's header, before decoding)."""
     from io import BytesIO
 
     from PIL import Image, UnidentifiedImageError
 
+    from .files import open_regular, os_problem
+
     label = name or (str(path) if path is not None else "embedded image")
+
+    def drop(problem):
+        warnings.warn(f"texture {label}: {problem}; drawn without it", TextureWarning, stacklevel=3)
+
     try:
-        # only the image formats scene files use: a plugin another library registers must not take a
-        # file that is no image for one
-        with Image.open(BytesIO(data) if data is not None else Path(path), formats=TEXTURE_FORMATS) as im:
+        with contextlib.ExitStack() as stack:
+            fh = BytesIO(data)
+            if data is None:
+                try:
+                    fh = stack.enter_context(open_regular(path))[0]
+                except OSError as e:
+                    return drop(os_problem(e))
+            with warnings.catch_warnings():
+                warnings.simplefilter("error", Image.DecompressionBombWarning)  # (refused below as one)
+                # only the image formats scene files use: a plugin another library registers must not take
+                # a file that is no image for one
+                im = stack.enter_context(Image.open(fh, formats=TEXTURE_FORMATS))
+            w, h = im.size
+            if w * h > MAX_TEXTURE_PIXELS:
+                return drop(_too_large(f"{w} x {h} pixels"))
             im.load()
             if im.mode != "RGB":  # (a palette with transparency goes through RGBA, as Pillow asks)
                 im = im.convert("RGBA" if im.mode == "P" and "transparency" in im.info else "RGB")
             rgb = np.asarray(im)
-    except FileNotFoundError:
-        warnings.warn(f"texture {label}: file not found; drawn without it", TextureWarning, stacklevel=2)
-        return None
-    except (OSError, UnidentifiedImageError, ValueError, SyntaxError) as e:
-        warnings.warn(f"texture {label}: not a readable image ({e}); drawn without it", TextureWarning, stacklevel=2)
-        return None
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as e:
+        m = re.search(r"\((\d+) pixels\)", str(e))
+        return drop(_too_large(f"{int(m.group(1)):,} pixels" if m else "its size"))
+    except (OSError, UnidentifiedImageError, ValueError, SyntaxError, MemoryError) as e:
+        return drop(f"not a readable image ({e})")
     tex = Texture(rgb, wrap, label)
     cb = _progress.get()
     if cb is not None:
         cb(label, tex.nbytes)
     return tex
+
+
+def _too_large(size):
+    return (f"image of {size}, more than the limit of {MAX_TEXTURE_PIXELS:,} pixels "
+            f"(gridrt.scene.surface.MAX_TEXTURE_PIXELS)")
 
 
 @dataclass(frozen=True, eq=False)
