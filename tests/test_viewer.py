@@ -327,7 +327,7 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
     from gridrt.config import GridParams
     from gridrt.stats import BuildStats, FrameStats, RenderStats
 
-    W, H = 640, 840   # tall enough for the whole panel (the viewer scrolls it in smaller windows)
+    W, H = 640, 870   # tall enough for the whole panel (the viewer scrolls it in smaller windows)
     fbo = ctx.simple_framebuffer((W, H), components=4)
     ui = ImguiRuntime()
     blit = Blitter(ctx)
@@ -391,6 +391,16 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
             x, y, w, h = st.widget_rects[name]
             assert px <= x and x + w <= px + pw and py <= y and y + h <= py + ph, name
         assert not (tmp_path / "imgui.ini").exists()
+        # the file box's trust checkbox: what "Open file" loads carries it
+        assert not st.file_allow_outside
+        click("trust outside refs", 0.05)
+        assert st.file_allow_outside
+        st.file_text = str(tmp_path / "scene.gltf")
+        click("open file")
+        assert st.scene_request.source == st.file_text and st.scene_request.allow_outside
+        st.scene_request = None
+        click("trust outside refs", 0.05)
+        assert not st.file_allow_outside
         # the implot plot draws the history: the "render" line (implot's second default colour,
         # orange) falls from left to right
         sy, sx = _rect_slice(st.widget_rects["plot"])

@@ -63,6 +63,9 @@ class ViewerState:
     duration: float | None = None
     static: bool = False
     file_text: str = ""                     # the panel's "mesh file" text box
+    # the panel's "trust references outside the scene's folder" box: SceneSpec.allow_outside of the file
+    # opened from the text box (starts as the command line's scene has it: --allow-outside-refs)
+    file_allow_outside: bool = False
     scene_request: SceneSpec | None = None  # set by the panel; the loop starts the load
     scene_error: str = ""
     textures: dict | None = None            # the last load's textures: {"count", "bytes", "last"}
@@ -121,6 +124,7 @@ class ViewerState:
         self.grid = self.grid.replace(threads=threads)
         self.render = self.render.replace(threads=threads)
         self.max_threads = max(self.max_threads, threads)
+        self.file_allow_outside = bool(self.file_allow_outside or self.scene.allow_outside)
 
     # ---- settings: widgets replace fields of the frozen params -----------------------------
     @property
@@ -221,6 +225,8 @@ class ViewerState:
             "scene_name": self.scene_name,
             "triangles": self.triangles,
             "scene_error": self.scene_error,
+            "allow_outside": self.scene.allow_outside,
+            "file_allow_outside": self.file_allow_outside,
             "playing": self.playing,
             "time": self.time,
             "speed": self.speed,

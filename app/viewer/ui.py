@@ -327,7 +327,8 @@ def _draw_scene(state):
         if v is not None:
             s = state.scene
             state.scene_request = SceneSpec(source=s.source, count=s.count,
-                                            animate=None if v == "none" else v, seed=s.seed)
+                                            animate=None if v == "none" else v, seed=s.seed,
+                                            allow_outside=s.allow_outside)
     w = imgui.calc_item_width()
     enter, txt = imgui.input_text_with_hint("##file", "mesh file path", state.file_text,
                                              imgui.InputTextFlags_.enter_returns_true)
@@ -338,8 +339,16 @@ def _draw_scene(state):
                           f"({' '.join(FRAME_EXTENSIONS)}); Enter or Open loads it (or drop a file on the window)")
     imgui.same_line()
     if (imgui.button("Open file") or enter) and state.file_text.strip():
-        state.scene_request = SceneSpec(source=os.path.expanduser(state.file_text.strip()))
+        state.scene_request = SceneSpec(source=os.path.expanduser(state.file_text.strip()),
+                                        allow_outside=state.file_allow_outside)
     _rect(state, "open file")
+    changed, b = imgui.checkbox("trust references outside the scene's folder", bool(state.file_allow_outside))
+    _rect(state, "trust outside refs")
+    if changed:
+        state.file_allow_outside = b
+    if imgui.is_item_hovered():
+        imgui.set_tooltip("the file opened from the box may read the files it names (buffers, images, materials, "
+                          "includes, textures) outside its own folder (--allow-outside-refs); off: they are refused")
 
 
 def _fmt_bytes(n):
