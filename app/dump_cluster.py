@@ -33,7 +33,7 @@ def _worker_args(a):
     """The options a worker needs to build the dump's pipeline (a plain dict): a scene file
     given by a path that exists here is made absolute (a local cluster's workers, or workers that
     see the same folders, find it from any working directory)."""
-    skip = {"func", "workers", "scheduler", "chunk", "no_progress", "out", "command"}
+    skip = {"func", "workers", "scheduler", "listen", "chunk", "no_progress", "out", "command"}
     args = {k: v for k, v in vars(a).items() if k not in skip}
     if os.path.exists(a.scene):
         args["scene"] = os.path.abspath(a.scene)
@@ -58,7 +58,7 @@ def dump_on_cluster(a):
         raise InputError(f"cannot create output folder {out}: {e.strerror}") from None
     t_start = time.perf_counter()
     with CtrlC(local=a.workers is not None) as pressed, \
-            Cluster(workers=a.workers, scheduler=a.scheduler, threads=a.threads) as cl:
+            Cluster(workers=a.workers, scheduler=a.scheduler, threads=a.threads, listen=a.listen) as cl:
         pressed.listen()
         up_s = time.perf_counter() - t_start
         each = f"{cl.threads} threads each" if cl.threads else "threads: each machine's cores divided among its workers"

@@ -91,7 +91,8 @@ def _frame_config(text, variant, settings, runs, warmup, dt):
 def open_cluster(a):
     """The Cluster of the bench's --workers/--scheduler (one task slot per worker), announced,
     with Ctrl-C handled between configurations (:class:`gridrt.app.cluster.CtrlC`): yields (cluster, pressed)."""
-    with CtrlC(local=a.workers is not None) as pressed, Cluster(workers=a.workers, scheduler=a.scheduler) as cl:
+    with CtrlC(local=a.workers is not None) as pressed, \
+            Cluster(workers=a.workers, scheduler=a.scheduler, listen=a.listen) as cl:
         pressed.listen()
         print(f"gridrt: measuring on {cl.where}; dashboard: {cl.dashboard}", file=sys.stderr, flush=True)
         yield cl, pressed
