@@ -2,6 +2,7 @@
 
 import argparse
 import contextlib
+import os
 import sys
 import warnings
 
@@ -83,8 +84,38 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
         pass
 
 
+def leave(code):
+    """The program's exit status ``code`` once its work is done; when a parallel kernel is still
+    compiling in the background (gridrt.trace.twin), says so in one line and ends the process at
+    once (os._exit, after flushing stdout and stderr) instead of waiting for the compile: the
+    interpreter's shutdown then never runs beside the compiling thread, and numba's cache stays
+    consistent (see gridrt.trace.twin)."""
+    twin = sys.modules.get("gridrt.trace.twin")
+    kernels = twin.TWINS.compiling() if twin is not None else []
+    if not kernels:
+        return code
+    try:
+        print(f"gridrt: not waiting for the background compile of {', '.join(kernels)} (it compiles again next start)",
+              file=sys.stderr)
+    except (OSError, ValueError):
+        pass
+    for f in (sys.stdout, sys.stderr):
+        try:
+            f.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
+
+
 def main(argv=None):
-    argv = sys.argv[1:] if argv is None else list(argv)
+    """The command line (``argv``: the arguments, default sys.argv's).  Run as the program (no
+    ``argv``), it leaves through :func:`leave`; with ``argv`` (in-process) it returns the status."""
+    if argv is None:
+        return leave(_main(sys.argv[1:]))
+    return _main(list(argv))
+
+
+def _main(argv):
     args = build_parser("dump" if argv[:1] == ["dump"] else None).parse_args(argv)
     if args.command == "bench":  # warm-up runs compile the parallel render kernels the timed runs use
         from gridrt.trace.twin import parallel_first

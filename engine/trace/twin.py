@@ -21,8 +21,15 @@ Benchmarks run under :func:`parallel_first`: their untimed warm-up runs then com
 kernel as before (on first use, in the caller's thread), so that timed runs never time the serial
 kernel standing in for it.
 
-The background compile is an ordinary (non-daemon) thread: a process that ends while it runs
-waits for it, and the compiled kernel lands in the on-disk cache for the next start.
+The background compile is a daemon thread: a process that ends while it runs does not wait for it
+(the kernel then compiles again on the next start).  The command line leaves at once with
+os._exit after saying so (gridrt.app.__main__.leave, :meth:`Twins.compiling`), so that the
+interpreter's shutdown never runs beside a compiling thread.  The on-disk cache stays consistent:
+numba writes each cache file under a temporary name and renames it into place (os.replace, in
+numba.core.caching's IndexDataCacheFile._open_for_write), so no file is ever seen half written; an
+abandoned compile leaves at most a stray ``*.tmp.*`` file, or an index entry whose data file was
+not written yet, which numba's loader (IndexDataCacheFile.load) takes for a miss and compiles
+again.
 """
 
 import threading
@@ -99,7 +106,9 @@ class Twins:
             if has_cache_entry(parallel, sig):  # it loads from the on-disk cache in milliseconds
                 return parallel
             if key in self._seen:
-                job = threading.Thread(target=self._compile, args=(parallel, sig), name="gridrt-compile-parallel")
+                job = threading.Thread(target=self._compile, args=(parallel, sig), name="gridrt-compile-parallel",
+                                       daemon=True)
+                job.kernel = parallel.py_func.__qualname__
                 self._compiling[key] = job
                 job.start()
             else:
@@ -113,6 +122,11 @@ class Twins:
             self._failed[id(parallel)] = e
         with self._lock:
             self._compiling.pop((id(parallel), sig), None)
+
+    def compiling(self):
+        """The names of the parallel kernels whose background compile is still running (sorted)."""
+        with self._lock:
+            return sorted({job.kernel for job in self._compiling.values() if job.is_alive()})
 
     def wait(self):
         """Block until background compiles started so far have ended (tests, benchmarks)."""

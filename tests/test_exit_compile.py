@@ -1,0 +1,130 @@
+"""Leaving never waits on a background compile (gridrt.trace.twin, gridrt.app.__main__.leave).
+
+* A real dump with an empty numba cache (``slow``: it compiles every kernel, minutes on a loaded
+  machine): from its second frame on the parallel render kernel compiles in the background; the
+  dump ends after its last frame with every frame and stats row written, exit status 0 and the
+  one-line notice that it did not wait.  A second run with the same cache folder works (the cache
+  the abandoned compile left is consistent) and writes the same images.
+* The exit path itself (the one ``gridrt dump`` and ``gridrt view`` share), in a subprocess with a
+  stand-in compile that would run for ten minutes: the notice, the status, the output written
+  before it, and no wait.  In-process callers of main (argv given) never leave the process.
+* Twins' background compile of a real numba kernel runs on a daemon thread, is listed by
+  ``compiling()`` while it runs, and ``wait()`` still waits for it (the benchmarks' and tests' use).
+"""
+
+import csv
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+NOTICE = "gridrt: not waiting for the background compile of "
+
+
+def run(args, env=None, timeout=900):
+    return subprocess.run([sys.executable, *args], cwd=REPO, capture_output=True, text=True, timeout=timeout,
+                          env={**os.environ, **(env or {})})
+
+
+def frames_complete(out, n):
+    """The dump folder holds frames 0..n-1, each a whole PNG with its stats row."""
+    from PIL import Image
+
+    names = sorted(p.name for p in out.glob("frame_*.png"))
+    assert names == [f"frame_{i:05d}.png" for i in range(n)]
+    images = []
+    for name in names:
+        with Image.open(out / name) as im:
+            im.load()
+            images.append(np.asarray(im))
+    with open(out / "stats.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(r["frame"]) for r in rows] == list(range(n))
+    return images
+
+
+@pytest.mark.slow
+def test_dump_with_a_cold_cache_leaves_without_the_background_compile(tmp_path):
+    cache = tmp_path / "cache"
+    env = {"NUMBA_CACHE_DIR": str(cache)}
+    args = ["-m", "gridrt", "dump", "--scene", "icosphere", "--frames", "4", "--size", "16x12", "--threads", "2",
+            "--traversal", "dda", "--no-progress"]
+    r = run(args + ["--out", str(tmp_path / "a")], env)
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr
+    notice = [ln for ln in r.stderr.splitlines() if ln.startswith(NOTICE)]
+    assert notice == [NOTICE + "render_kernel (it compiles again next start)"], r.stderr
+    assert "wrote 4 frames" in r.stdout
+    first = frames_complete(tmp_path / "a", 4)
+    # the same cache again: whatever the abandoned compile left, the run loads or compiles cleanly
+    r = run(args + ["--out", str(tmp_path / "b")], env)
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr and "error" not in r.stderr.lower(), r.stderr
+    second = frames_complete(tmp_path / "b", 4)
+    assert all(np.array_equal(a, b) for a, b in zip(first, second))
+
+
+STAND_IN = """
+import sys, threading, time
+from gridrt.trace.twin import TWINS
+from gridrt.app.__main__ import leave
+
+job = threading.Thread(target=time.sleep, args=(600,), daemon=True)
+job.kernel = "cgt_render_kernel"
+TWINS._compiling[("stand-in",)] = job
+job.start()
+print("the frames are written", flush=False)
+sys.exit(leave({code}))
+"""
+
+
+@pytest.mark.parametrize("code", [0, 3])
+def test_leave_does_not_wait_for_a_compile(code):
+    r = run(["-c", textwrap.dedent(STAND_IN.format(code=code))], timeout=300)  # (it would take 600 s to wait)
+    assert r.returncode == code, r.stderr
+    assert r.stdout == "the frames are written\n"  # (flushed before leaving)
+    assert r.stderr == NOTICE + "cgt_render_kernel (it compiles again next start)\n"
+
+
+def test_leave_without_a_compile_and_in_process():
+    from gridrt.app.__main__ import leave, main
+    from gridrt.trace.twin import TWINS
+
+    assert TWINS.compiling() == []
+    assert leave(5) == 5
+    # main with arguments runs in-process and returns its status (it never ends the process)
+    assert main(["strategies"]) == 0
+
+
+def test_background_compile_is_a_daemon_and_listed():
+    from numba import njit, prange
+
+    from gridrt.trace.twin import Twins
+
+    @njit(parallel=True)
+    def twice(a):
+        for i in prange(a.shape[0]):
+            a[i] *= 2.0
+
+    @njit
+    def twice_serial(a):
+        for i in range(a.shape[0]):
+            a[i] *= 2.0
+
+    tw = Twins()
+    a = np.ones(8)
+    for _ in range(2):  # the second call starts the background compile
+        tw(2, twice, twice_serial, a)
+    jobs = list(tw._compiling.values())
+    assert len(jobs) == 1 and jobs[0].daemon
+    assert tw.compiling() in (["test_background_compile_is_a_daemon_and_listed.<locals>.twice"], [])
+    tw.wait()
+    assert tw.compiling() == [] and not jobs[0].is_alive()
+    tw(2, twice, twice_serial, a)  # now the parallel kernel
+    assert len(twice.signatures) == 1
+    np.testing.assert_array_equal(a, 8.0)
