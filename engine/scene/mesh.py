@@ -180,9 +180,25 @@ def _gltf_json(path, ext):
         raise SceneFileError(path, f"malformed .glb file: JSON chunk is not valid JSON ({e})") from e
 
 
+class _FolderResolver:
+    """What trimesh reads for a glTF file's URIs: only regular files inside the SceneFolder
+    ``folder`` (else OSError or OutsideReference: trimesh leaves such an image out; the buffers
+    are checked before, by :func:`_check_gltf`)."""
+
+    def __init__(self, folder, path):
+        self.folder, self.path = folder, Path(path)
+
+    def get(self, name):
+        from .files import read_regular
+
+        return read_regular(self.folder.uri(self.path.parent, "file", name, self.path))
+
+    __getitem__ = get
+
+
 def _check_gltf(path, ext, folder):
     """Reject glTF files whose geometry trimesh would silently replace with zeros, and those whose
-    buffers or images (which trimesh reads) lie outside the SceneFolder ``folder``."""
+    buffers lie outside the SceneFolder ``folder`` or are not regular files."""
     tree = _gltf_json(path, ext)
     if not isinstance(tree, dict):
         raise SceneFileError(path, f"malformed {ext} file: top-level JSON is not an object")
@@ -197,14 +213,13 @@ def _check_gltf(path, ext, folder):
         raise SceneFileError(path, f"geometry is Draco-compressed (KHR_draco_mesh_compression); {DRACO_HINT}")
     if "EXT_meshopt_compression" in required:
         raise SceneFileError(path, "geometry uses EXT_meshopt_compression, which trimesh cannot decode")
-    for key in ("buffers", "images"):
-        items = tree.get(key)
-        for i, item in enumerate(items if isinstance(items, list) else ()):
-            uri = item.get("uri") if isinstance(item, dict) else None
-            if isinstance(uri, str) and uri and not uri.startswith("data:"):
-                ref = folder.uri(path.parent, f"{key[:-1]} {i}", uri, path)
-                if ref.exists() and not ref.is_file():  # (a FIFO or a device: trimesh would read it)
-                    raise SceneFileError(path, f"{key[:-1]} {i} {uri!r} is not a regular file")
+    buffers = tree.get("buffers")
+    for i, item in enumerate(buffers if isinstance(buffers, list) else ()):
+        uri = item.get("uri") if isinstance(item, dict) else None
+        if isinstance(uri, str) and uri and not uri.startswith("data:"):
+            ref = folder.uri(path.parent, f"buffer {i}", uri, path)
+            if ref.exists() and not ref.is_file():  # (a FIFO or a device)
+                raise SceneFileError(path, f"buffer {i} {uri!r} is not a regular file")
 
 
 # ----------------------------------------------------------------------------- looks
@@ -903,6 +918,8 @@ def load_mesh(path, looks=True, *, allow_outside=False, folder=None):
             # text (OBJ/MTL, OFF, ASCII STL, PLY headers) in UTF-16, Latin-1, ...: decoded by textenc, as
             # trimesh would need the optional charset_normalizer (and guess)
             src, kw = utf8_source(p) if ext in TEXT_EXTENSIONS else (str(p), {})
+            if ext in (".glb", ".gltf"):
+                kw["resolver"] = _FolderResolver(folder, p)
             loaded = trimesh.load(src, file_type=ext[1:], force="mesh", process=False, **kw)
         except SceneFileError:
             raise
