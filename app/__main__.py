@@ -8,6 +8,7 @@ import warnings
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from gridrt.errors import GridrtError
+from gridrt.memory import allocating
 
 from . import dump
 
@@ -126,7 +127,8 @@ def _main(argv):
     with warnings.catch_warnings(), kernels:  # restores the formatter when main returns (main may run in-process)
         warnings.showwarning = _show_warning
         try:
-            return args.func(args) or 0
+            with allocating(f"in gridrt {args.command}"):  # (a MemoryError the estimates missed: one line too)
+                return args.func(args) or 0
         except GridrtError as e:
             print(f"gridrt: error: {e}", file=sys.stderr)
             return 2

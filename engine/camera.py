@@ -163,11 +163,16 @@ class Camera:
         return b
 
     def rays(self, width, height):
-        """Primary rays, row-major from the top-left pixel: (origins, dirs), each (H*W, 3) float64."""
-        from .config import _positive_int
+        """Primary rays, row-major from the top-left pixel: (origins, dirs), each (H*W, 3) float64;
+        InputError before allocating when their 48 bytes a pixel exceed the memory left
+        (gridrt.memory)."""
+        from .config import MAX_IMAGE_SIDE, _positive_int
+        from .memory import check_fits
 
-        W = _positive_int("image width", width, 1, 16384)
-        H = _positive_int("image height", height, 1, 16384)
+        W = _positive_int("image width", width, 1, MAX_IMAGE_SIDE)
+        H = _positive_int("image height", height, 1, MAX_IMAGE_SIDE)
+        check_fits(48 * W * H, f"making the primary rays of {W:,}x{H:,} pixels", "float64 origins and directions",
+                   lambda avail: f"ask for at most {avail // 48:,} pixels")
         o = np.empty((W * H, 3))
         d = np.empty((W * H, 3))
         _fill_rays(self.basis(), W, H, o, d)

@@ -22,6 +22,8 @@ TRAVERSALS = ("dda", "cgt")
 PACKET_PRECISIONS = ("float64", "float32")
 #: the largest CGT packet edge in pixels (RenderParams.packet)
 PACKET_MAX = 16
+#: the largest image width or height (RenderParams)
+MAX_IMAGE_SIDE = 16384
 #: Default ceiling on grid cells (two int32 arrays of this size plus cell lists): 256 MiB.
 DEFAULT_MAX_CELLS = 1 << 25
 #: Default memory budget of one grid (cell arrays + references): 2 GiB.
@@ -132,7 +134,9 @@ def _packet_shape(p):
 class RenderParams:
     """How to cast and shade the primary rays.
 
-    width, height  image size in pixels (each 1..16384)
+    width, height  image size in pixels (each 1..MAX_IMAGE_SIDE); a size whose buffers
+                   (gridrt.trace.render.render_bytes) exceed the memory this process has left
+                   (gridrt.memory) is refused, stating both
     shading        "auto" (the default: "material" for a scene with materials, textures or vertex
                    colours (Surface.has_materials), else "lambert"),
                    "material" (the scene's materials, textures, smooth normals and lights:
@@ -176,8 +180,13 @@ class RenderParams:
     packet_precision: str = "float64"
 
     def __post_init__(self):
-        object.__setattr__(self, "width", _positive_int("image width", self.width, 1, 16384))
-        object.__setattr__(self, "height", _positive_int("image height", self.height, 1, 16384))
+        W, H = _positive_int("image width", self.width, 1), _positive_int("image height", self.height, 1)
+        from .trace.render import check_render_fits
+
+        # (shading "auto" with shadows: FramePipeline.step checks the shadow rays once it is resolved)
+        check_render_fits(W, H, self.shading == "material" and bool(self.shadows))
+        object.__setattr__(self, "width", _positive_int("image width", W, 1, MAX_IMAGE_SIDE))
+        object.__setattr__(self, "height", _positive_int("image height", H, 1, MAX_IMAGE_SIDE))
         object.__setattr__(self, "tile", _positive_int("tile size", self.tile, 1, 256))
         if self.shading not in SHADING_MODES:
             raise InputError(f"unknown shading mode {self.shading!r}; choose one of {', '.join(SHADING_MODES)}")

@@ -10,10 +10,11 @@ from .camera import Camera
 from .config import GridParams, RenderParams
 from .errors import InputError
 from .grid.build import GridBuilder
+from .memory import allocating
 from .precision import warn_detail
 from .stats import FrameStats
 from .threads import use_threads
-from .trace.render import Looks, Renderer
+from .trace.render import Looks, Renderer, check_render_fits
 
 #: columns every stats row has, in this order (the dump's stats.csv header starts with them)
 STATS_COLUMNS = (
@@ -128,6 +129,7 @@ class FramePipeline:
         self.precision_warning = None  # the PrecisionWarning message of the first frame, if any
         self._first_t = None  # the time of the first frame (resume)
         self._origin0 = None  # the origin the first frame left (resume)
+        self._rendered_size = None  # (width, height) of the renderer's buffers
 
     def _set_origin(self, origin):
         """Work in the frame of ``origin`` from now on: every grid is rebuilt in it."""
@@ -268,24 +270,38 @@ class FramePipeline:
         self.frame_index = frame
 
     def step(self, t, camera=None):
-        """Render the scene at time t; returns a Frame. ``camera`` overrides the pipeline's."""
+        """Render the scene at time t; returns a Frame. ``camera`` overrides the pipeline's.  A
+        render whose buffers and shadow rays (gridrt.trace.render.render_bytes) exceed the memory
+        left (gridrt.memory) is refused before they are allocated, as are grids (GridBuilder); a
+        MemoryError all the same becomes an InputError naming the frame."""
+        rp = self.render_params
+        with allocating(lambda: f"rendering frame {self.frame_index} ({rp.width}x{rp.height} pixels, "
+                                f"{self.scene.n_triangles:,} triangles)", "ask for a smaller image or scene"):
+            return self._step(t, camera)
+
+    def _step(self, t, camera=None):
         t_frame = time.perf_counter()
+        rp = self.render_params
+        surface = self.scene.surface
+        shading = rp.resolved(surface is not None and surface.has_materials)
+        W, H = rp.width, rp.height
+        # the render's buffers and shadow rays, before the scene and its grid take their memory
+        check_render_fits(W, H, shading == "material" and bool(rp.shadows), self._rendered_size != (W, H),
+                          "rendering a frame of")
         first = self.origin is None
         tris, grid, split, rebuild, static_ms, anim_ms, cam, local_cam = self._place(t, camera)
         if first:
             self._first_t, self._origin0 = float(t), self.origin
         gp = self.grid_params
-        rp = self.render_params
         if rp.light is not None and self.origin.any():
             rp = rp.replace(light=tuple(np.asarray(rp.light, np.float64) - self.origin))
-        surface = self.scene.surface
-        shading = rp.resolved(surface is not None and surface.has_materials)
         looks = self._looks(float(t), tris) if shading == "material" else None
         if split is not None:
             res = self.renderer.render(self.static_grid, split.static_tris, local_cam, rp, second=split.second(grid),
                                        looks=looks)
         else:
             res = self.renderer.render(grid, tris, local_cam, rp, looks=looks)
+        self._rendered_size = (W, H)
         self.last_camera = cam
         rp = self.render_params
         stats = FrameStats(

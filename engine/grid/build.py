@@ -9,6 +9,7 @@ import numpy as np
 from ..arrays import TRI_DTYPE
 from ..config import GridParams
 from ..errors import InputError
+from ..memory import check_fits
 from ..threads import check_threads, use_threads
 from . import common
 from ..stats import BuildStats
@@ -76,6 +77,27 @@ def make_spec(lo_scene, hi_scene, n_tris, params):
                     scene_lo=lo_scene, scene_hi=hi_scene)
 
 
+def grown(n, factor):
+    """The size an array of buffers kept from build to build is given when ``n`` elements do not
+    fit: ``factor`` times more (room for the next frames) and 16."""
+    return int(n * factor) + 16
+
+
+#: growth of the cell arrays (and the strategies' scratch arrays) and of the references
+CELL_GROWTH, REF_GROWTH = 1.25, 1.5
+
+
+def build_bytes(cells, references, triangles, layers=1):
+    """Bytes a fresh GridBuilder allocates to build a uniform grid of ``cells`` cells (in
+    ``layers`` layers) holding ``references`` over ``triangles`` triangles: the int32 counts and
+    offsets (:meth:`GridBuffers.prepare`), the int32 references (:meth:`GridBuffers.refs`) and
+    the int32 cell ranges, six a triangle (gridrt.grid.strategies.shared.ranges), each grown
+    (:func:`grown`).  Each is checked against the memory left (gridrt.memory) before it is
+    allocated."""
+    return 4 * (grown(layers * cells, CELL_GROWTH) + grown(layers * (cells + 1), CELL_GROWTH)
+                + grown(references, REF_GROWTH) + grown(6 * triangles, CELL_GROWTH))
+
+
 class GridBuffers:
     """Arrays kept from one build to the next; they grow only when they must.
 
@@ -100,11 +122,15 @@ class GridBuffers:
         """Size the views for this build. Returns True when count is known to be all zero."""
         C = spec.n_cells
         fresh = False
-        if self._count.size < layers * C:
-            self._count = np.zeros(int(layers * C * 1.25) + 16, np.int32)
+        new = [grown(n, CELL_GROWTH) if have < n else 0
+               for have, n in ((self._count.size, layers * C), (self._start.size, layers * (C + 1)))]
+        check_fits(4 * sum(new), f"a grid of {layers * C:,} cells", "int32 counts and offsets",
+                   "lower the density (lambda) or max_cells")
+        if new[0]:
+            self._count = np.zeros(new[0], np.int32)
             fresh = True
-        if self._start.size < layers * (C + 1):
-            self._start = np.zeros(int(layers * (C + 1) * 1.25) + 16, np.int32)
+        if new[1]:
+            self._start = np.zeros(new[1], np.int32)
         return fresh
 
     def set_views(self, spec, layers):
@@ -147,7 +173,9 @@ class GridBuffers:
                     f"(lambda), use exact insertion or raise max_bytes"
                 )
         if self._refs.size < n:
-            self._refs = np.empty(int(n * 1.5) + 16, np.int32)
+            check_fits(4 * grown(n, REF_GROWTH), f"a grid of {n:,} references", "int32 triangle ids of its cells",
+                       "lower the density (lambda) or use exact insertion")
+            self._refs = np.empty(grown(n, REF_GROWTH), np.int32)
         return self._refs[:n]
 
     @property

@@ -180,6 +180,14 @@ def cast_bytes(n, chunk=None):
     return HIT_BYTES * n + CAST_SCRATCH_BYTES * min(n, CAST_CHUNK if chunk is None else chunk)
 
 
+def cast_rays_within(nbytes, chunk=None):
+    """The most rays a cast can take within ``nbytes`` (:func:`cast_bytes`), 0 when not one."""
+    chunk = CAST_CHUNK if chunk is None else chunk
+    if nbytes >= cast_bytes(chunk, chunk):
+        return int((nbytes - CAST_SCRATCH_BYTES * chunk) // HIT_BYTES)
+    return int(max(0, nbytes) // (HIT_BYTES + CAST_SCRATCH_BYTES))
+
+
 def cast_batch(grid, tris, origins, dirs, origin=None, tmin=0.0, tmax=np.inf, watertight=True, any_hit=False,
                threads=None, max_bytes=None, chunk=None, packets=True, max_cells=None,
                packet_precision="float64") -> Hits:
@@ -237,7 +245,7 @@ def cast_batch(grid, tris, origins, dirs, origin=None, tmin=0.0, tmax=np.inf, wa
             f"scratch), above the memory budget max_bytes={budget / 2**20:.0f} MiB; cast fewer rays at a time "
             f"or raise max_bytes")
     check_fits(need, f"casting {N:,} rays", "hits, triangle ids, barycentrics and scratch",
-               lambda avail: f"cast in batches of at most {max(0, (avail - need + HIT_BYTES * N) // HIT_BYTES):,} rays")
+               lambda avail: f"cast in batches of at most {cast_rays_within(avail, chunk):,} rays")
     for s in range(0, N, chunk):
         check_ray_values(o[s : s + chunk], d[s : s + chunk], s, frame)
     hits = Hits(np.empty(N), np.empty(N, np.int32), np.empty(N), np.empty(N))
@@ -351,6 +359,33 @@ class RenderResult:
     cost: np.ndarray
     cells: np.ndarray
     stats: RenderStats
+
+
+#: bytes per pixel a render allocates: its image, t, triangle, cost and cell buffers (4 each, kept
+#: from frame to frame by a Renderer) and the hit mask of its statistics (1)
+RENDER_PIXEL_BYTES = 21
+#: bytes per pixel of the material pass's shadows (Renderer._shade_material): the deferred surface
+#: points, normals, light terms and sums (84), a light's need flags, shadow rays and weights (57),
+#: and the cast of a light's rays, at most one a pixel: their rows (8), origins and directions
+#: (48) and their contiguous copies (48), blocked and live flags and rows (17), results (28) and
+#: their grouping into packets (33)
+SHADOW_PIXEL_BYTES = 323
+
+
+def render_bytes(width, height, shadows=False, buffers=True):
+    """Bytes a render of ``width`` x ``height`` pixels allocates at its peak: the output buffers
+    (``buffers=False``: a Renderer that already holds them at that size) and, for the material
+    mode with shadows (``shadows``), the scratch of its shadow rays."""
+    n = int(width) * int(height)
+    return n * ((RENDER_PIXEL_BYTES if buffers else 1) + (SHADOW_PIXEL_BYTES if shadows else 0))
+
+
+def check_render_fits(width, height, shadows=False, buffers=True, what="rendering"):
+    """InputError (gridrt.memory.check_fits) when :func:`render_bytes` exceed the memory this
+    process has left, stating both and the most pixels that fit."""
+    check_fits(render_bytes(width, height, shadows, buffers), f"{what} {width:,}x{height:,} pixels",
+               "image, depth, triangle, cost and cell buffers" + (" and shadow rays" if shadows else ""),
+               lambda avail: f"ask for at most {avail // render_bytes(1, 1, shadows):,} pixels")
 
 
 class Renderer:

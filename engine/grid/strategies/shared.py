@@ -14,6 +14,7 @@ import numpy as np
 from numba import njit, prange
 
 from ...errors import InputError
+from ...memory import check_fits
 from ..common import cell_ranges_into, scan_into, sum_of
 from .base import timed
 
@@ -166,7 +167,11 @@ def scratch(bufs, name, n, dtype):
     store = _SCRATCH.setdefault(bufs, {})
     a = store.get(name)
     if a is None or a.size < n or a.dtype != np.dtype(dtype):
-        a = np.zeros(int(n * 1.25) + 16, dtype)
+        from ..build import CELL_GROWTH, grown
+
+        check_fits(np.dtype(dtype).itemsize * grown(n, CELL_GROWTH), f"a grid build's {n:,} scratch values ({name})",
+                   "kept for later frames", "lower the density (lambda), max_cells or the thread count")
+        a = np.zeros(grown(n, CELL_GROWTH), dtype)
         store[name] = a
     return a[:n]
 
