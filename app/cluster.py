@@ -98,11 +98,23 @@ def wants_cluster(a):
         raise InputError("--scheduler needs an address, e.g. tcp://127.0.0.1:8786")
     if listen is not None and workers is None:
         raise InputError("--listen applies to a local cluster: give it with --workers")
-    if listen is not None and not str(listen).strip():
-        raise InputError(f"--listen needs an address of this machine, e.g. {LOOPBACK} (the default)")
     if workers is not None:
+        listen_host(listen)
         check_workers(workers)
     return workers is not None or scheduler is not None
+
+
+def listen_host(listen):
+    """The host a local cluster listens on: ``listen`` (--listen), or :data:`LOOPBACK` for None;
+    an InputError for an empty one or an IPv6 address (Dask's dashboard takes none: a port alone
+    would open it on every interface)."""
+    host = LOOPBACK if listen is None else str(listen).strip()
+    if not host:
+        raise InputError(f"--listen needs an address of this machine, e.g. {LOOPBACK} (the default)")
+    if ":" in host:
+        raise InputError(f"--listen {host}: give an IPv4 address or a host name (Dask's dashboard cannot listen on "
+                         f"an IPv6 address); default {LOOPBACK}")
+    return host
 
 
 def usable_cores():
@@ -321,8 +333,8 @@ class Cluster:
                 warnings.warn(f"{workers} workers x {self.threads} threads = {workers * self.threads} threads on "
                               f"{cores} cores: they compete for them (--threads sets the threads per worker)",
                               stacklevel=2)
-            host = LOOPBACK if listen is None else str(listen).strip()
-            dashboard = f"[{host}]:{DASHBOARD_PORT}" if ":" in host else f"{host}:{DASHBOARD_PORT}"
+            host = listen_host(listen)
+            dashboard = f"{host}:{DASHBOARD_PORT}"
             # one task at a time per worker (a chunk or a configuration uses its own threads);
             # logs above errors only: a worker killed on purpose is not news
             try:

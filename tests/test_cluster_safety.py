@@ -135,6 +135,17 @@ def test_listen_is_for_a_local_cluster_and_an_address_of_this_machine(tmp_path):
     assert "did not start on 192.0.2.1" in line and "--listen" in line
 
 
+@pytest.mark.parametrize("listen,problem", [(" ", "needs an address"), ("::1", "IPv6"), ("[::1]", "IPv6")])
+def test_listen_refuses_what_dask_cannot_bind_alone(tmp_path, listen, problem):
+    """Before anything starts (the dump's folder included): an empty --listen, or an IPv6
+    address, for which Dask's dashboard would fall back to every interface."""
+    out = tmp_path / "d"
+    line = one_error_line(gridrt("dump", "--frames", "1", "--workers", "1", "--listen", listen, "--out", out))
+    assert problem in line and not out.exists()
+    with pytest.raises(InputError, match=problem):
+        cluster.Cluster(workers=1, listen=listen)
+
+
 def test_listen_help_says_it_exposes_the_cluster():
     r = gridrt("dump", "--help")
     text = " ".join(r.stdout.split())
