@@ -130,12 +130,16 @@ def load_texture(path, wrap=("repeat", "repeat"), data=None, name=None):
         m = re.search(r"\((\d+) pixels\)", str(e))
         return drop(_too_large(f"{int(m.group(1)):,} pixels" if m else "its size"))
     except (OSError, UnidentifiedImageError, ValueError, SyntaxError, MemoryError) as e:
-        return drop(f"not a readable image ({e})")
+        # (bytes Pillow quotes from the file, such as a chunk name, are left out: the file may be no scene's)
+        return drop(f"not a readable image ({_QUOTED_BYTES.sub('[bytes of the file]', str(e))})")
     tex = Texture(rgb, wrap, label)
     cb = _progress.get()
     if cb is not None:
         cb(label, tex.nbytes)
     return tex
+
+
+_QUOTED_BYTES = re.compile(r"b'(?:[^'\\]|\\.)*'" + r'|b"(?:[^"\\]|\\.)*"')  # a Python bytes repr
 
 
 def _too_large(size):
