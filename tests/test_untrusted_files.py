@@ -210,6 +210,11 @@ with warnings.catch_warnings(record=True) as w:
     warnings.simplefilter("always")
     s = make_scene(sys.argv[2])
 print("TEXTURE", s.surface.textured, *[str(x.message) for x in w])
+for root in sys.argv[3:]:
+    try:
+        make_scene(root)
+    except SceneFileError as e:
+        print("ROOT", e)
 """
 
 
@@ -221,11 +226,16 @@ def test_fifo_buffer_and_texture_do_not_hang(tmp_path):
     g = write_gltf(scene / "f.gltf", buffer_uri="pipe.bin")
     o = write_obj(scene / "f.obj", "mtllib f.mtl\n", "usemtl a\n")
     (scene / "f.mtl").write_text("newmtl a\nKd 1 1 1\nmap_Kd pipe.png\n")
-    r = subprocess.run([sys.executable, "-c", FIFO_SCRIPT, str(g), str(o)], capture_output=True, text=True,
-                       timeout=300, cwd=REPO)
+    roots = [scene / f"root{ext}" for ext in (".obj", ".gltf", ".aff", ".md2")]   # the scene file itself
+    for p in roots:
+        os.mkfifo(p)
+    r = subprocess.run([sys.executable, "-c", FIFO_SCRIPT, str(g), str(o), *map(str, roots)], capture_output=True,
+                       text=True, timeout=300, cwd=REPO)
     assert r.returncode == 0, r.stderr[-3000:]
     assert "BUFFER" in r.stdout and "FIFO, not a regular file" in r.stdout, r.stdout
     assert "TEXTURE False" in r.stdout and "pipe.png: is a FIFO" in r.stdout, r.stdout
+    for p in roots:
+        assert f"ROOT {p}: is a FIFO, not a regular file" in r.stdout, r.stdout
 
 
 # ----------------------------------------------------------------------------- OBJ
