@@ -136,14 +136,17 @@ def test_listen_is_for_a_local_cluster_and_an_address_of_this_machine(tmp_path):
 
 
 @pytest.mark.parametrize("listen,problem", [(" ", "needs an address"), ("::1", "IPv6"), ("[::1]", "IPv6")])
-def test_listen_refuses_what_dask_cannot_bind_alone(tmp_path, listen, problem):
-    """Before anything starts (the dump's folder included): an empty --listen, or an IPv6
-    address, for which Dask's dashboard would fall back to every interface."""
-    out = tmp_path / "d"
-    line = one_error_line(gridrt("dump", "--frames", "1", "--workers", "1", "--listen", listen, "--out", out))
-    assert problem in line and not out.exists()
+def test_listen_refuses_what_dask_cannot_bind_alone(listen, problem):
+    """An empty --listen, or an IPv6 address (for which Dask's dashboard would fall back to
+    every interface)."""
     with pytest.raises(InputError, match=problem):
         cluster.Cluster(workers=1, listen=listen)
+
+
+def test_cli_listen_is_refused_before_anything_starts(tmp_path):
+    out = tmp_path / "d"
+    line = one_error_line(gridrt("dump", "--frames", "1", "--workers", "1", "--listen", "::1", "--out", out))
+    assert "IPv6" in line and not out.exists()  # (the dump's folder is not even made)
 
 
 def test_listen_help_says_it_exposes_the_cluster():
@@ -262,16 +265,16 @@ def timeouts(monkeypatch):
 @pytest.mark.parametrize("name", list(BEHAVIOURS))
 def test_anything_but_a_scheduler_is_one_line_within_the_deadline(name, fake_server, timeouts):
     """A fake server of each kind: an InputError of one line naming the address; the socket is
-    never given more time than the deadline (2 s here), and nothing is read beyond the first
+    never given more time than the deadline (1 s here), and nothing is read beyond the first
     message's bound whatever the peer claims."""
     srv = fake_server(BEHAVIOURS[name])
     t0 = time.monotonic()
     with pytest.raises(InputError) as e:
-        cluster.connect_scheduler(srv.address, timeout=2)
+        cluster.connect_scheduler(srv.address, timeout=1)
     assert time.monotonic() - t0 < SLACK_S
     message = str(e.value)
     assert "\n" not in message and f"127.0.0.1:{srv.port}" in message
-    assert timeouts and all(t is not None and 0 < t <= 2 for t in timeouts), timeouts
+    assert timeouts and all(t is not None and 0 < t <= 1 for t in timeouts), timeouts
 
 
 def test_the_deadline_is_the_issues_and_reaches_the_socket(fake_server, timeouts):
@@ -319,11 +322,11 @@ def test_a_real_schedulers_greeting_passes_and_the_client_connects():
             assert "localhost" in cl.where and "(0 workers)" in cl.where
 
 
-@pytest.mark.parametrize("behaviour", ["http", "huge length"])
-def test_cli_scheduler_answering_like_http_is_one_line(tmp_path, fake_server, behaviour):
-    """From the command line: a server that answers with HTTP at once, or with an exabyte length
-    header: exit status 2, one line, no traceback, no allocation from the header."""
-    srv = fake_server(BEHAVIOURS[behaviour])
+def test_cli_scheduler_answering_like_http_is_one_line(tmp_path, fake_server):
+    """From the command line: a server that answers with HTTP at once (whose first 8 bytes,
+    read as Dask's length header, claim exabytes): exit status 2, one line, no traceback, no
+    allocation from the header."""
+    srv = fake_server(BEHAVIOURS["http"])
     t0 = time.monotonic()
     line = one_error_line(gridrt("dump", "--frames", "2", "--scheduler", srv.address, "--out", tmp_path / "d"))
     assert time.monotonic() - t0 < SLACK_S
