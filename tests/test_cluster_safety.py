@@ -431,6 +431,10 @@ def test_cli_workers_beyond_the_machine_are_refused_before_anything_starts(tmp_p
     line = one_error_line(gridrt("bench", "build", "--quick", "--workers", "1000", "--out", tmp_path / "b",
                                  timeout=120))
     assert f"1000 workers on {cores} cores" in line
+    # bench cluster checks each of its configurations before running the first
+    line = one_error_line(gridrt("bench", "cluster", "--quick", "--configs", f"1p1,{cores + 1}x1",
+                                 "--out", tmp_path / "c", timeout=120))
+    assert f"{cores + 1} workers on {cores} cores" in line and not (tmp_path / "c" / "cluster.csv").exists()
 
 
 def test_workers_are_checked_against_cores_and_memory(monkeypatch):

@@ -117,12 +117,14 @@ def _costs(source, args, png, runs=5):
 
 
 def run_cluster_bench(a):
-    from ..cluster import import_distributed
+    from ..cluster import check_workers, import_distributed
 
     check_runs(a.runs, a.warmup)
     import_distributed()
     cores = os.cpu_count() or 1
     configs = parse_configs(a.configs, cores)
+    for workers in sorted({w for _, w, _ in configs if w is not None}):  # (before any run starts)
+        check_workers(workers)
     frames, size = (6, 64) if a.quick else (a.frames, a.size)
     if frames < 2:
         raise InputError(f"--frames must be at least 2, got {frames}")
