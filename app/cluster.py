@@ -28,7 +28,6 @@ Faults: a worker that dies loses its chunks to Dask, which runs them again on th
 raised once, on the client, and stops the run.
 """
 
-import io
 import os
 import socket
 import struct
@@ -514,7 +513,8 @@ def render_chunk(args, start, stop, origin, per_host=None):
     ``start``-1 (None: where the first frame left it).  Returns a dict: ``origin_in`` (the
     origin the chunk started from; None for frame 0), ``origins`` (after each frame), ``worker``,
     ``threads``, ``warnings`` ((category, message) pairs) and ``frames``: per frame its PNG
-    bytes, ``.npy`` bytes of the buffers when asked, and its stats row."""
+    bytes, ``.npy`` bytes of the buffers when asked, its stats row and origin
+    (:func:`gridrt.app.frame_out.encode_frame`)."""
     import argparse
 
     with _LOCK:
@@ -529,9 +529,8 @@ def render_chunk(args, start, stop, origin, per_host=None):
 
 
 def _render_chunk(a, start, stop, origin, per_host):
-    from PIL import Image
-
     from . import cli
+    from .frame_out import encode_frame
 
     a.threads = worker_threads(a.threads, per_host)
     key = repr(sorted(vars(a).items()))
@@ -544,21 +543,10 @@ def _render_chunk(a, start, stop, origin, per_host):
     frames, origins = [], []
     for i in range(start, stop):
         fr = pipe.step(a.t0 + i * a.dt)
-        buf = io.BytesIO()
-        Image.fromarray(fr.image[:, :, :3]).save(buf, format="PNG")
-        item = {"png": buf.getvalue(), "stats": dict(fr.stats)}
-        if a.save_buffers:
-            item["t"], item["id"] = _npy(fr.t), _npy(fr.tri)
-        frames.append(item)
+        frames.append(encode_frame(fr, a.save_buffers))  # (the files of a one-process dump, by construction)
         origins.append(pipe.origin.copy())
     return {"start": start, "stop": stop, "origin_in": origin_in, "origins": origins,
             "worker": worker_address(), "threads": a.threads, "frames": frames}
-
-
-def _npy(arr):
-    buf = io.BytesIO()
-    np.save(buf, arr)
-    return buf.getvalue()
 
 
 
@@ -605,9 +593,9 @@ def fetch_done(futs, timeout=0.2):
     return out
 
 
-def chunks(n, size):
-    """[(start, stop)] cutting frames 0 .. n-1 into chunks of ``size`` consecutive frames."""
-    return [(s, min(s + size, n)) for s in range(0, n, size)]
+def chunks(n, size, begin=0):
+    """[(start, stop)] cutting frames ``begin`` .. n-1 into chunks of ``size`` consecutive frames."""
+    return [(s, min(s + size, n)) for s in range(begin, n, size)]
 
 
 def default_chunk(frames, workers):
@@ -616,15 +604,17 @@ def default_chunk(frames, workers):
     return max(1, min(16, -(-frames // (4 * max(1, workers)))))
 
 
-def run_chunks(cl, args, frames, size, write, pressed=lambda: False):
+def run_chunks(cl, args, frames, size, write, pressed=lambda: False, begin=0, origin=None):
     """Render ``frames`` frames of the dump ``args`` (dict) on the Cluster ``cl`` in chunks of
     ``size`` and hand each frame, in order, to ``write(i, item, worker)`` (exactly once each).
+    ``begin``: the first frame to render (a resumed dump), ``origin``: where the pipeline stood
+    after the frame before it.
     Ctrl-C (``pressed()``: a :class:`CtrlC`) stops the run between frames: raises
     :class:`Stop` with the frames written.
     Returns the workers' thread counts seen."""
     client = cl.client
     per_host = cl.hosts()
-    parts = chunks(frames, size)
+    parts = chunks(frames, size, begin)
     futs, sent = {}, {}
 
     def submit(c, origin):
@@ -636,10 +626,10 @@ def run_chunks(cl, args, frames, size, write, pressed=lambda: False):
                                 key=f"gridrt-frames-{s:05d}-{e - 1:05d}-{os.urandom(4).hex()}")
 
     for c in range(len(parts)):
-        submit(c, None)
+        submit(c, origin)
     results, threads, warned = {}, set(), set()
     ahead = 2 * max(1, sum(per_host.values())) + 2
-    nxt, last = 0, None  # next chunk to write; the origin the last chunk written ended with
+    nxt, last = 0, origin  # next chunk to write; the origin the last chunk written ended with
     written = 0
     try:
         while nxt < len(parts):
@@ -656,11 +646,11 @@ def run_chunks(cl, args, frames, size, write, pressed=lambda: False):
                         warnings.warn(message, category, stacklevel=2)
             while nxt in results and not pressed():
                 r = results[nxt]
-                if nxt > 0 and not np.array_equal(r["origin_in"], last):
+                if last is not None and not np.array_equal(r["origin_in"], last):
                     del results[nxt]  # started from a stale frame of reference: again, from the right one
                     submit(nxt, last)
                     break
-                first = r["origins"][0] if nxt == 0 else r["origin_in"]
+                first = r["origins"][0] if r["origin_in"] is None else r["origin_in"]
                 for k, item in enumerate(r["frames"]):
                     if pressed():
                         raise Stop(written)

@@ -1,20 +1,19 @@
 """Headless frame dump: PNG per frame plus a per-frame stats CSV.  Imports neither glfw nor
 moderngl; runs the same FramePipeline as the viewer."""
 
-import csv
 import math
+import signal
 import sys
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 from tqdm import tqdm
 
 from gridrt.errors import InputError
-from gridrt.pipeline import STATS_COLUMNS
 from gridrt.warmup import compile_progress
 
 from . import cli
+from .frame_out import FrameWriteError, FrameWriter, StopSignals, encode_frame, run_settings
 
 
 def add_parser(sub):
@@ -28,7 +27,15 @@ def add_parser(sub):
     p.add_argument("--frames", type=int, default=60, help="number of frames (default 60)")
     p.add_argument("--t0", type=float, default=0.0, help="time of the first frame, seconds")
     p.add_argument("--dt", type=float, default=1.0 / 30.0, help="time step between frames, seconds")
-    p.add_argument("--out", type=Path, default=Path("out/dump"), help="output folder (created)")
+    p.add_argument("--out", type=Path, default=Path("out/dump"),
+                   help="output folder (created); one that holds another dump is refused unless --overwrite or "
+                        "--resume")
+    again = p.add_mutually_exclusive_group()
+    again.add_argument("--overwrite", action="store_true",
+                       help="replace the dump in --out: its frames, buffers, stats.csv and run.json are removed first")
+    again.add_argument("--resume", action="store_true",
+                       help="continue the dump in --out after its last complete frame (same options; --frames and "
+                            "--threads may differ); the frames are those of one run")
     p.add_argument("--save-buffers", action="store_true",
                    help="also write frame_NNNNN_t.npy (float32 hit distance, inf: miss) and "
                         "frame_NNNNN_id.npy (int32 triangle id, -1: miss), shape (height, width)")
@@ -121,44 +128,66 @@ class CompileDisplay:
 
 
 def _dump(a):
-    pipe = cli.pipeline_from_args(a)
     out = Path(a.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise InputError(f"cannot create output folder {out}: {e.strerror}") from None
+    writer = FrameWriter(out, run_settings(a), a.frames, mode=replace_mode(a))
     rows = []
-    extra = []
-    bar = tqdm(range(a.frames), desc=f"dump {pipe.scene.name}", unit="frame", disable=a.no_progress,
-               file=sys.stderr)
-    with open(out / "stats.csv", "w", newline="") as fh:
-        writer = None
-        for i in bar:
-            t = a.t0 + i * a.dt
-            fr = pipe.step(t)
-            name = f"frame_{i:05d}"
-            Image.fromarray(fr.image[:, :, :3]).save(out / f"{name}.png")
-            if a.save_buffers:
-                np.save(out / f"{name}_t.npy", fr.t)
-                np.save(out / f"{name}_id.npy", fr.tri)
-            if writer is None:
-                extra = [k for k in fr.stats if k not in STATS_COLUMNS]
-                writer = csv.DictWriter(fh, fieldnames=list(STATS_COLUMNS) + extra, extrasaction="ignore")
-                writer.writeheader()
-            writer.writerow({k: _fmt(v) for k, v in fr.stats.items()})
-            rows.append(fr.stats)
-            bar.set_postfix(build=f"{fr.stats['build_ms']:.1f}ms", render=f"{fr.stats['render_ms']:.1f}ms")
+    bar = error = None
+    with StopSignals() as stop:
+        try:
+            start = writer.check()
+            if start >= a.frames:
+                return nothing_to_do(writer, start)
+            pipe = cli.pipeline_from_args(a)
+            if start:
+                pipe.resume(start, a.t0, writer.origin)
+            with stop.deferred():
+                writer.begin()
+            bar = tqdm(range(start, a.frames), desc=f"dump {pipe.scene.name}", unit="frame", disable=a.no_progress,
+                       file=sys.stderr, initial=start, total=a.frames)
+            for i in bar:
+                if stop():
+                    break
+                # a signal while the frame renders stops the run at once (nothing of the frame is
+                # written yet); while it is written, after the frame
+                fr = pipe.step(a.t0 + i * a.dt)
+                item = encode_frame(fr, a.save_buffers)
+                with stop.deferred():
+                    writer.write(i, item)
+                rows.append(fr.stats)
+                bar.set_postfix(build=f"{fr.stats['build_ms']:.1f}ms", render=f"{fr.stats['render_ms']:.1f}ms")
+        except FrameWriteError as e:
+            error = e
+        except KeyboardInterrupt:  # a signal while the scene loaded or a frame rendered
+            stop.signum = stop.signum or signal.SIGINT
+        finally:
+            if bar is not None:
+                bar.close()
+            writer.close()
+    if error is not None or stop():
+        return writer.stopped(error=error, signum=stop.signum)
     med = lambda k: float(np.median([r[k] for r in rows]))  # noqa: E731
     print(
-        f"wrote {a.frames} frames to {out}/ ({pipe.scene.name}, {rows[0]['triangles']} triangles, "
-        f"{rows[0]['width']}x{rows[0]['height']}, {rows[0]['strategy']}, {rows[0]['threads']} threads, "
+        f"wrote {len(rows)} frames to {out}/{resumed(start, a.frames)} ({pipe.scene.name}, {rows[0]['triangles']} "
+        f"triangles, {rows[0]['width']}x{rows[0]['height']}, {rows[0]['strategy']}, {rows[0]['threads']} threads, "
         f"{rows[0]['grid']} grid of {rows[0]['bytes_per_tri']:.1f} bytes per triangle): "
         f"median build {med('build_ms'):.2f} ms, render {med('render_ms'):.2f} ms, frame {med('frame_ms'):.2f} ms"
     )
     return 0
 
 
-def _fmt(v):
-    if isinstance(v, float):
-        return f"{v:.6g}"
-    return v
+def replace_mode(a):
+    """What to do with another dump in --out: None (refuse it), "overwrite" or "resume"."""
+    return "overwrite" if a.overwrite else "resume" if a.resume else None
+
+
+def resumed(start, frames):
+    """How a summary says that a run went on after ``start`` complete frames ("" for a fresh run)."""
+    return f" (frames {start}-{frames - 1}, after the {start} already there)" if start else ""
+
+
+def nothing_to_do(writer, done):
+    print(f"gridrt: nothing to do: {writer.out}/ already holds {done} complete frames (--frames {writer.frames})",
+          file=sys.stderr, flush=True)
+    return 0
+
+

@@ -66,7 +66,7 @@ def assert_same_dump(got, ref, frames=None):
         assert untimed(a) == untimed(b)
     names = sorted(p.name for p in Path(ref).iterdir() if p.suffix in (".png", ".npy")
                    and int(p.name[6:11]) < n)
-    assert sorted(p.name for p in Path(got).iterdir() if p.name != "stats.csv") == names
+    assert sorted(p.name for p in Path(got).iterdir() if p.name not in ("stats.csv", "run.json")) == names
     for name in names:
         assert (Path(got) / name).read_bytes() == (Path(ref) / name).read_bytes(), name
 

@@ -179,7 +179,7 @@ def test_compile_notice_only_when_compiling(tmp_path):
     before = {}
     for i, extra in enumerate([(), (), ("--strategy", "thread_grids")]):
         r = gridrt("dump", "--frames", "2", "--size", "8x8", "--traversal", "dda", "--no-progress",
-                   "--out", str(tmp_path / "d"), *extra, env=env)
+                   "--out", str(tmp_path / f"d{i}"), *extra, env=env)
         assert r.returncode == 0, r.stderr
         after = cache_files(cache)
         compiled = after != before

@@ -94,7 +94,7 @@ def _costs(source, args, png, runs=5):
 
     from gridrt.scene import make_scene
 
-    from ..dump_cluster import _write_atomic
+    from ..frame_out import write_file
 
     load = []
     for _ in range(runs):
@@ -110,7 +110,7 @@ def _costs(source, args, png, runs=5):
             Image.fromarray(img).save(buf, format="PNG")
             enc.append((time.perf_counter() - t0) * 1e3)
             t0 = time.perf_counter()
-            _write_atomic(Path(tmp) / f"frame_{i:05d}.png", buf.getvalue())
+            write_file(Path(tmp) / f"frame_{i:05d}.png", buf.getvalue())
             write.append((time.perf_counter() - t0) * 1e3)
     return {"load_s": float(np.median(load)), "png_encode_ms": float(np.median(enc)),
             "client_write_ms": float(np.median(write))}

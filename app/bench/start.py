@@ -58,7 +58,7 @@ def dump_once(cache_dir, out, extra=(), env=None):
     wall_s, cpu_s, load (1-minute load average before the run), kernels (compiled; 0 when warm)."""
     e = dict(os.environ if env is None else env)
     e["NUMBA_CACHE_DIR"] = str(cache_dir)
-    cmd = [sys.executable, "-m", "gridrt", "dump", "--frames", "1", "--out", str(out), *extra]
+    cmd = [sys.executable, "-m", "gridrt", "dump", "--frames", "1", "--out", str(out), "--overwrite", *extra]
     load = _load()
     c0 = _cpu()
     t0 = time.perf_counter()
@@ -82,8 +82,8 @@ def run_start(a):
         extra = shlex.split(a.dump_args)
     except ValueError as e:
         raise InputError(f"--dump-args: {e}") from None
-    if any(x in ("--frames", "--out", "--no-progress") for x in extra):
-        raise InputError("--dump-args sets --frames, --out and the progress display itself")
+    if any(x in ("--frames", "--out", "--no-progress", "--overwrite", "--resume") for x in extra):
+        raise InputError("--dump-args sets --frames, --out, --overwrite and the progress display itself")
     if a.quick:
         cold_runs, runs, warmup, extra = min(cold_runs, 1), 1, 1, ["--size", "16x12", *extra]
     else:
