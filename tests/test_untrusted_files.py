@@ -538,3 +538,33 @@ def test_cli_flag_and_viewer_state_carry_the_trust():
     # the viewer's file box starts trusted when the command line's scene is (view --allow-outside-refs)
     assert ViewerState(scene=spec).file_allow_outside is True
     assert ViewerState(scene=spec.replace(allow_outside=False)).file_allow_outside is False
+
+
+class _FakeGlfw:
+    """Just what InputHandler calls at set-up (callbacks are recorded, none fire)."""
+
+    PRESS, REPEAT, RELEASE = 1, 2, 0
+
+    def get_cursor_pos(self, window):
+        return (0.0, 0.0)
+
+    def __getattr__(self, name):
+        if name.startswith("set_") and name.endswith("_callback"):
+            return lambda window, fn: None
+        raise AttributeError(name)
+
+
+@pytest.mark.parametrize("trusted", [False, True])
+def test_a_file_dropped_on_the_viewer_takes_the_file_box_trust(trusted):
+    from types import SimpleNamespace
+
+    from gridrt.app.viewer.input import InputHandler
+    from gridrt.app.viewer.state import ViewerState
+
+    st = ViewerState()
+    st.file_allow_outside = trusted
+    h = InputHandler(_FakeGlfw(), None, st, ["serial"])
+    h._on_drop(None, ["/somewhere/scene.gltf"])
+    h.process(SimpleNamespace(want_capture_mouse=False, want_capture_keyboard=True), 0.0)
+    assert st.scene_request.source == "/somewhere/scene.gltf"
+    assert st.scene_request.allow_outside is trusted

@@ -99,7 +99,7 @@ class InputHandler:
             elif kind == "key" and b in (glfw.PRESS, glfw.REPEAT) and not ui_keys:
                 self._key(a, b, mods)
         if self.dropped:
-            st.scene_request = SceneSpec(source=str(self.dropped[-1]))
+            st.scene_request = SceneSpec(source=str(self.dropped[-1]), allow_outside=st.file_allow_outside)
             st.file_text = self.dropped[-1]
             self.dropped.clear()
         if not ui_keys:
