@@ -277,9 +277,9 @@ class FramePipeline:
         rp = self.render_params
         with allocating(lambda: f"rendering frame {self.frame_index} ({rp.width}x{rp.height} pixels, "
                                 f"{self.scene.n_triangles:,} triangles)", "ask for a smaller image or scene"):
-            return self._step(t, camera)
+            return self._render_frame(t, camera)
 
-    def _step(self, t, camera=None):
+    def _render_frame(self, t, camera=None):
         t_frame = time.perf_counter()
         rp = self.render_params
         surface = self.scene.surface
