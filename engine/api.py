@@ -174,7 +174,9 @@ class RayCaster:
         if t.ndim != 3 or t.shape[1:] != (3, 3):
             as_triangles(t)  # raises with the shape in the message
         F = len(t)
-        return cls(_vertices64(t.reshape(-1, 3), "triangles"), np.arange(3 * F, dtype=np.int32).reshape(F, 3), params)
+        with allocating(f"building a RayCaster over {F:,} triangles"):
+            v, f = _vertices64(t.reshape(-1, 3), "triangles"), np.arange(3 * F, dtype=np.int32).reshape(F, 3)
+        return cls(v, f, params)
 
     def update(self, vertices):
         """New vertex positions (same count and order); rebuilds the grid.  On an error the
@@ -216,7 +218,8 @@ class RayCaster:
         """Nearest hit per ray (any hit with any_hit=True). origins, directions: (N,3), world
         coordinates, any real dtype and strides (read in chunks, not copied).  Memory: the
         results (28 bytes a ray) plus a bounded scratch; a batch needing more than ``max_bytes``
-        (default: params.max_bytes) is refused before anything is allocated.  Coherent runs of
+        (default: params.max_bytes) or than this process has left (gridrt.memory) is refused
+        before anything is allocated.  Coherent runs of
         rays (camera rays, shadow rays towards a point, in any order) go through CGT packets
         (``packets=False``: every ray on its own); the hits do not depend on it, nor on the rays'
         order or grouping.  ``packet_precision="float32"`` runs the packets' triangle tests in

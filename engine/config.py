@@ -70,7 +70,8 @@ class GridParams:
                per-thread grids it merges); a build that would need more stops with an
                InputError before allocating.  RayCaster.cast holds a batch's results plus its
                scratch to the same budget (cast_rays: the default one), refusing a batch before
-               allocating
+               allocating.  Whatever the budget, each of these allocations is also refused
+               beforehand when it exceeds the memory this process has left (gridrt.memory)
     """
 
     strategy: str = "serial"

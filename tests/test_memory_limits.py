@@ -374,8 +374,8 @@ def test_render_refused_with_estimate_and_limit(monkeypatch):
 
 def test_memory_error_becomes_one_input_error(caster, monkeypatch):
     """A MemoryError that gets past the estimates (another process took the memory) becomes an
-    InputError naming what was being allocated: RayCaster.cast, FramePipeline.step, make_scene's
-    subdivide."""
+    InputError naming what was being allocated: RayCaster's construction, update and cast,
+    FramePipeline.step, make_scene's subdivide."""
     import gridrt.api as api
     import gridrt.scene.subdivide as sub
     from gridrt.pipeline import FramePipeline
@@ -386,6 +386,17 @@ def test_memory_error_becomes_one_input_error(caster, monkeypatch):
 
     o = np.zeros((10, 3)) + [0, 0, -5.0]
     d = np.zeros((10, 3)) + [0, 0, 1.0]
+    n = len(caster.faces)
+    with monkeypatch.context() as m:
+        m.setattr(api, "_vertices64", boom)
+        with pytest.raises(InputError, match=r"^out of memory building a RayCaster over 2 triangles; "):
+            gridrt.RayCaster.from_triangles(PLANE)
+        m.setattr(api, "_centred_mesh", boom)
+        with pytest.raises(InputError, match=r"^out of memory building a RayCaster over 2 triangles; "):
+            gridrt.RayCaster(PLANE.reshape(-1, 3), [[0, 1, 2], [3, 4, 5]])
+        m.setattr(api, "_centred_vertices", boom)
+        with pytest.raises(InputError, match=rf"^out of memory updating a RayCaster of {n:,} triangles; "):
+            caster.update(caster.vertices)
     monkeypatch.setattr(api, "cast_batch", boom)
     with pytest.raises(InputError, match=r"^out of memory casting 10 rays; .* is available .*; cast fewer rays"):
         caster.cast(o, d)
