@@ -16,6 +16,8 @@ from .errors import InputError
 
 TRI_DTYPE = np.float32
 INDEX_DTYPE = np.int32
+#: the largest coordinate magnitude of scenes, cameras and ray origins (gridrt.camera.COORD_LIMIT)
+COORD_LIMIT = 1e30
 
 
 def _finite_check(a, what):
@@ -186,11 +188,12 @@ def check_rays(origins, directions):
 
 
 def check_ray_values(o, d, first=0, frame=None):
-    """InputError for NaN/inf origins or directions, or a zero direction, in rays ``o``, ``d``
-    (N, 3) as returned by :func:`check_rays`: a slice of a batch whose first ray is number
-    ``first`` (the messages give batch indices).  ``frame``: (3,) float64 origin of the frame the
-    rays will be moved into (``o - frame`` must be finite too).  Allocates (N, 3) booleans (and
-    for a dtype wider than float64 or a frame beyond 2**969, one (N, 3) float64 array)."""
+    """InputError for NaN/inf origins or directions, origins beyond COORD_LIMIT, or a zero
+    direction, in rays ``o``, ``d`` (N, 3) as returned by :func:`check_rays`: a slice of a batch
+    whose first ray is number ``first`` (the messages give batch indices).  ``frame``: (3,)
+    float64 origin of the frame the rays will be moved into (``o - frame`` must be finite too).
+    Allocates (N, 3) booleans (and for a dtype wider than float64 or a frame beyond 2**969, one
+    (N, 3) float64 array)."""
     for a, name in ((o, "ray origins"), (d, "ray directions")):
         if a.dtype.kind != "f":
             continue
@@ -208,6 +211,10 @@ def check_ray_values(o, d, first=0, frame=None):
             bad = np.argwhere(~np.isfinite(moved))[0]
             raise InputError(f"ray origin {int(bad[0]) + first} is beyond float64 range once moved into the frame "
                              f"centred at {tuple(float(x) for x in frame)}")
+    if len(o) and not max(float(o.max()), -float(o.min())) <= COORD_LIMIT:  # (no temporaries)
+        bad = int(np.argmax(np.abs(o).max(axis=1)))
+        raise InputError(f"ray origin {bad + first} {tuple(float(x) for x in o[bad])} is beyond the coordinate limit "
+                         f"of {COORD_LIMIT:g} (the limit for scene and camera coordinates too)")
     nonzero = (d[:, 0] != 0) | (d[:, 1] != 0) | (d[:, 2] != 0)  # (4x faster than an axis-1 any)
     if not nonzero.all():
         raise InputError(f"ray direction {int(np.argmin(nonzero)) + first} is the zero vector")

@@ -37,7 +37,7 @@ from numba import njit, parallel_chunksize, prange
 from .cgt import (IO_DX, IO_DY, IO_DZ, IO_F, IO_OX, IO_OY, IO_OZ, IO_TMAX, MBOX, NIO, NS, PN, direction_class,
                   trace_packet)
 from .intersect import permute, shear_setup
-from .traverse import MAILBOX, TINY_DIR, _floor_clamp, _test_triangle, trace_ray
+from .traverse import MAILBOX, MOVED, TINY_DIR, _floor_clamp, _test_triangle, far_interval, far_shift, far_t, trace_ray
 
 #: rays in a run (a packet's worth; at most cgt.PN)
 RUN = 64
@@ -120,13 +120,21 @@ def _cast_run(g, origins, dirs, idx, s, n, tmin, tmax, watertight, any_hit, max_
             out_u[i] = 0.0
             out_v[i] = 0.0
             continue
-        # the single-ray test of the triangle hit: the packet's t bit for bit, and u, v
+        # the single-ray test of the triangle hit: the packet's t bit for bit, and u, v (from
+        # where the packet traced the ray: a far one from just before the grid box)
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        verdict, mx, my, mz, th, tl = far_shift(g.lo, g.hi, ox, oy, oz, dx, dy, dz)
+        t_lo = tmin
+        if verdict == MOVED:
+            ox, oy, oz = mx, my, mz
+            t_lo = far_interval(tmin, np.inf, th, tl)[0]
         kx, ky, kz, Sx, Sy, Sz = shear_setup(dx, dy, dz)
         okx, oky, okz = permute(ox, oy, oz, kx, ky, kz)
         hit, t, u, v = _test_triangle(tris, f, watertight, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz,
-                                      ox, oy, oz, dx, dy, dz, tmin, np.inf)
+                                      ox, oy, oz, dx, dy, dz, t_lo, np.inf)
+        if verdict == MOVED:
+            t = far_t(t, th, tl)
         if f32 and not (hit and t < tmax):
             # the float32 tests chose a triangle the float64 test misses (within float32 rounding
             # of an edge or of tmax): the ray goes again in float64, on its own

@@ -50,7 +50,7 @@ from .grids import pack_grids, unpack_grids
 from .intersect import woop_edges, woop_shear
 from .prefetch import _cycles, _prefetch_tri, _prefetch_write
 from .shade import BACKGROUND, _u8, cost_rgb, facing_normal, lambert_rgb, normal_rgb, scene_id, shadow_ray
-from .traverse import MAILBOX, TINY_DIR, _floor_clamp, trace_ray
+from .traverse import MAILBOX, MOVED, NEAR, TINY_DIR, _floor_clamp, far_interval, far_shift, far_t, trace_ray
 
 #: the render's default packet edge in pixels (RenderParams.packet: PK x PK pixels)
 PK = 8
@@ -119,7 +119,10 @@ O_CT0, O_CT1 = _R_CT0 * PN, _R_CT1 * PN
 # inputs (origin, direction, tmax), then results
 IO_OX, IO_OY, IO_OZ, IO_DX, IO_DY, IO_DZ, IO_TMAX = 0, 1, 2, 3, 4, 5, 6
 IO_T, IO_F, IO_NT, IO_NC, IO_W = 7, 8, 9, 10, 11  # t (inf: miss), triangle (-1), tests, cells, grid number
-NIO = 12
+# a far ray's (trace_packet, far_shift): its own origin and tmax while it is traced from nearer, its
+# shift (double-double) and far_shift's verdict
+IO_XO, IO_YO, IO_ZO, IO_TMO, IO_SH, IO_SL, IO_MV = 12, 13, 14, 15, 16, 17, 18
+NIO = 19
 _U_OX, _U_OY, _U_OZ = np.uint64(IO_OX * PN), np.uint64(IO_OY * PN), np.uint64(IO_OZ * PN)
 _U_DX, _U_DY, _U_DZ = np.uint64(IO_DX * PN), np.uint64(IO_DY * PN), np.uint64(IO_DZ * PN)
 _U_TMAX = np.uint64(IO_TMAX * PN)
@@ -835,8 +838,89 @@ def _test_slice(tris, cell_start, tri_ids, ck, stU, stV, cu_0, cu_1, cv_0, cv_1,
     return cells, tests, hits
 
 
+@njit(cache=True, _nrt=False)
+def _move_far(g, n, io):
+    """Rays 0..n-1 of io whose origins lie far outside the grid box start from just before it
+    (:func:`gridrt.trace.traverse.far_shift`): their own origins and tmax go to rows XO, YO, ZO,
+    TMO, their shifts to SH, SL and the verdict to MV; a ray that misses the box by far gets tmax
+    -inf.  Returns how many rays are not NEAR."""
+    k = 0
+    lo, hi = g.lo, g.hi
+    for j in range(n):
+        ox, oy, oz = io[IO_OX * PN + j], io[IO_OY * PN + j], io[IO_OZ * PN + j]
+        v, mx, my, mz, th, tl = far_shift(lo, hi, ox, oy, oz, io[IO_DX * PN + j], io[IO_DY * PN + j],
+                                          io[IO_DZ * PN + j])
+        io[IO_MV * PN + j] = v
+        if v == NEAR:
+            continue
+        k += 1
+        tmax = io[IO_TMAX * PN + j]
+        io[IO_XO * PN + j] = ox
+        io[IO_YO * PN + j] = oy
+        io[IO_ZO * PN + j] = oz
+        io[IO_TMO * PN + j] = tmax
+        if v == MOVED:
+            io[IO_OX * PN + j] = mx
+            io[IO_OY * PN + j] = my
+            io[IO_OZ * PN + j] = mz
+            io[IO_TMAX * PN + j] = far_interval(0.0, tmax, th, tl)[1]
+            io[IO_SH * PN + j] = th
+            io[IO_SL * PN + j] = tl
+        else:
+            io[IO_TMAX * PN + j] = -np.inf
+    return k
+
+
+@njit(cache=True, _nrt=False)
+def _restore_far(n, io, results):
+    """Undo _move_far: the rays' own origins and tmax, and with ``results`` their hits' t from
+    their own origins."""
+    for j in range(n):
+        v = io[IO_MV * PN + j]
+        if v == NEAR:
+            continue
+        io[IO_OX * PN + j] = io[IO_XO * PN + j]
+        io[IO_OY * PN + j] = io[IO_YO * PN + j]
+        io[IO_OZ * PN + j] = io[IO_ZO * PN + j]
+        io[IO_TMAX * PN + j] = io[IO_TMO * PN + j]
+        if results and v == MOVED:
+            io[IO_T * PN + j] = far_t(io[IO_T * PN + j], io[IO_SH * PN + j], io[IO_SL * PN + j])
+
+
+@njit(cache=True, _nrt=False)
+def _trace_rows_singly(g, n, io, tmin, watertight, any_hit, mb1):
+    """Rays 0..n-1 of io, each through trace_ray."""
+    for j in range(n):
+        f, t, u, v, nc, nt = trace_ray(g, io[IO_OX * PN + j], io[IO_OY * PN + j], io[IO_OZ * PN + j],
+                                       io[IO_DX * PN + j], io[IO_DY * PN + j], io[IO_DZ * PN + j], tmin,
+                                       io[IO_TMAX * PN + j], watertight, any_hit, mb1)
+        io[IO_T * PN + j] = t
+        io[IO_F * PN + j] = f
+        io[IO_NT * PN + j] = nt
+        io[IO_NC * PN + j] = nc
+
+
 @njit(cache=True, _nrt=False, error_model="numpy")
 def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.inf, prof=None, f32=False):
+    """:func:`_trace_packet`, with rays from far outside the grid traced from just before its box
+    as trace_ray traces them (:func:`gridrt.trace.traverse.far_shift`; with tmin > 0 such a
+    packet's rays go one by one through trace_ray, or with a finite max_cells it returns -1).
+    io's input rows are as they were on return."""
+    if _move_far(g, n, io) == 0:
+        return _trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells, prof, f32)
+    if tmin > 0.0:  # (the packet's rays share tmin; moved rays' would differ)
+        _restore_far(n, io, False)
+        if max_cells < np.inf:
+            return -1
+        _trace_rows_singly(g, n, io, tmin, watertight, any_hit, mb1)
+        return n
+    r = _trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells, prof, f32)
+    _restore_far(n, io, r >= 0)
+    return r
+
+
+@njit(cache=True, _nrt=False, error_model="numpy")
+def _trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells, prof, f32):
     """Trace rays 0..n-1 of the table io (NIO * PN,) float64 (origin, direction, tmax per ray)
     through the grid g (:class:`gridrt.trace.grids.GridArrays`).
 

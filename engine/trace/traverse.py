@@ -9,6 +9,17 @@ insertion is conservative (every cell a triangle's grown bounds touch), no neare
 be waiting in a later cell, and a triangle tested early whose hit lies in a later cell is not
 lost to the mailbox.
 
+Far origins: a ray whose origin lies far outside the grid (more than FAR_RADII half diagonals of
+its box from the box's centre) is traced from a point of itself just before the box
+(:func:`far_shift`, exact to that point's float64 rounding) and its t is measured from its own
+origin again.  The packets (gridrt.trace.cgt.trace_packet) and the batch caster move such a ray
+alike, so every traversal gives it the same hit: the exact ray's, for origins anywhere within the
+coordinate limit (1e30; gridrt.arrays.check_ray_values).  What float64 cannot keep stays lost
+before the traversal: a far origin moved into the frame of a scene far from the world origin
+(``o - frame``, gridrt.trace.render.cast_batch, Camera.moved) is rounded at its own magnitude, and
+shading from a far camera starts its shadow rays at ``eye + t d`` (exact within about 1e9 scene
+sizes, where its rounding stays below the shadow offset).
+
 Per-ray helpers that take arrays are compiled with ``_nrt=False``: they never allocate, and
 without it numba reference-counts every array argument on every call (measured: about 90 ns of a
 110 ns ray that misses the grid).  Such a function is not inlined into its callers, though, and a
@@ -30,6 +41,15 @@ MAILBOX = 32
 #: direction components smaller than this never step the DDA (their inverse would overflow to
 #: inf and turn 0 * inf into NaN); over any representable t they move the ray by nothing.
 TINY_DIR = 1e-300
+#: a ray whose origin lies farther than this many half diagonals of the grid box from the box's
+#: centre (along some axis) is traced from just before the box (:func:`far_shift`): from far away
+#: the float64 t of the box's near and far sides differ by a few ulps or not at all (at 3e16 from
+#: a unit mesh), and the traversal's and the tests' differences of coordinates lose the mesh
+FAR_RADII = 1024.0
+#: origins farther than this from the box's centre are not moved (coordinates are limited to 1e30)
+FAR_MAX = 2.0**110
+#: far_shift's verdicts: the origin is near (traced as it is), moved, or the ray misses the box by far
+NEAR, MOVED, FAR_MISS = 0, 1, 2
 
 
 @njit(cache=True)
@@ -85,6 +105,99 @@ def _entry_cell(lo, ic, n, o, d, t, c0, c1, s, entered):
     if entered:
         return c0 if s > 0 else c1 - 1
     return min(max(_floor_clamp((o + t * d - lo) * ic, n), c0), c1 - 1)
+
+
+@njit(cache=True)
+def _two_sum(a, b):
+    """(s, e) with s = fl(a + b) and s + e = a + b exactly (Knuth)."""
+    s = a + b
+    bb = s - a
+    return s, (a - (s - bb)) + (b - bb)
+
+
+@njit(cache=True)
+def _two_prod(a, b):
+    """(p, e) with p = fl(a * b) and p + e = a * b exactly (Dekker; |a|, |b| far below 1e290)."""
+    p = a * b
+    c = 134217729.0 * a  # 2**27 + 1
+    ah = c - (c - a)
+    al = a - ah
+    c = 134217729.0 * b
+    bh = c - (c - b)
+    bl = b - bh
+    return p, ((ah * bh - p) + ah * bl + al * bh) + al * bl
+
+
+@njit(cache=True)
+def _add_prod(h, l, w, d):
+    """The double-double h + l plus w * d (the product exact), as a double-double."""
+    ph, pl = _two_prod(w, d)
+    a, b = _two_sum(h, ph)
+    c = b + (l + pl)
+    s = a + c
+    return s, c - (s - a)
+
+
+@njit(cache=True)
+def far_shift(lo, hi, ox, oy, oz, dx, dy, dz):
+    """Where a ray from far outside the box lo..hi starts instead: (verdict, mx, my, mz, th, tl).
+
+    NEAR: the origin lies within FAR_RADII half diagonals r of the box's centre c (or beyond
+    FAR_MAX), and is traced as it is.  FAR_MISS: the ray heads away from the box (it cannot come
+    within several r of c).  MOVED: (mx, my, mz) = o + (th + tl) d is a point 2 r to 4 r before
+    the ray's closest approach to c, so outside the box (more than r from c), and the ray is
+    traced from there with t measured from it: a hit t' from there is t = th + (tl + t') from o, tmin and
+    tmax become (tmin - th) - tl (at least 0) and (tmax - th) - tl.
+
+    The point is computed in steps, each aiming at 3 r before the closest approach from the point
+    the last step reached (its aim is off by about 1e-16 of the distance it covers), adding w * d
+    to the point exactly as a double-double per coordinate (Dekker's product, Knuth's sum), until
+    the aim is within r: so the moved point lies on the ray up to its float64 rounding, for any
+    distance up to FAR_MAX (float64 arithmetic on o itself would lose the mesh altogether).
+    Every traversal (trace_ray, the packets of gridrt.trace.cgt, the batch caster's re-test)
+    moves a ray alike, so all give it the same hit."""
+    cx = 0.5 * (lo[0] + hi[0])
+    cy = 0.5 * (lo[1] + hi[1])
+    cz = 0.5 * (lo[2] + hi[2])
+    ex = hi[0] - lo[0]
+    ey = hi[1] - lo[1]
+    ez = hi[2] - lo[2]
+    r = 0.5 * math.sqrt(ex * ex + ey * ey + ez * ez)
+    m = max(abs(ox - cx), abs(oy - cy), abs(oz - cz))
+    if not (m > FAR_RADII * r and m <= FAR_MAX and r > 0.0):
+        return NEAR, ox, oy, oz, 0.0, 0.0
+    dd = dx * dx + dy * dy + dz * dz
+    dn = math.sqrt(dd)
+    back = 3.0 * r / dn
+    close = r / dn
+    xh, yh, zh = ox, oy, oz
+    xl = yl = zl = 0.0
+    th = tl = 0.0
+    for step in range(64):
+        w = ((cx - (xh + xl)) * dx + (cy - (yh + yl)) * dy + (cz - (zh + zl)) * dz) / dd - back
+        if step == 0 and not (w > 0.0):
+            return FAR_MISS, ox, oy, oz, 0.0, 0.0
+        if abs(w) <= close:
+            break
+        xh, xl = _add_prod(xh, xl, w, dx)
+        yh, yl = _add_prod(yh, yl, w, dy)
+        zh, zl = _add_prod(zh, zl, w, dz)
+        th, e = _two_sum(th, w)
+        tl += e
+        th, tl = th + tl, tl - ((th + tl) - th)
+    return MOVED, xh + xl, yh + yl, zh + zl, th, tl
+
+
+@njit(cache=True)
+def far_interval(tmin, tmax, th, tl):
+    """(tmin, tmax) of a ray moved by far_shift's th + tl, from its new origin."""
+    return max(0.0, (tmin - th) - tl), (tmax - th) - tl
+
+
+@njit(cache=True)
+def far_t(t, th, tl):
+    """t from a ray's own origin for t from the origin far_shift moved it to (inf stays inf)."""
+    return th + (tl + t)
 
 
 @njit(cache=True, inline="always")
@@ -223,8 +336,22 @@ def trace_ray(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbo
     (:class:`gridrt.trace.grids.GridArrays`).
 
     Returns (tri, t, u, v, cells_visited, tests); tri = -1 and t = inf on a miss.
-    mailbox (MAILBOX,) int32 scratch.
+    mailbox (MAILBOX,) int32 scratch.  A ray from far outside the grid is traced from just
+    before its box (:func:`far_shift`).
     """
+    verdict, mx, my, mz, th, tl = far_shift(g.lo, g.hi, ox, oy, oz, dx, dy, dz)
+    if verdict == NEAR:
+        return _trace_near(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox)
+    if verdict == FAR_MISS:
+        return -1, np.inf, 0.0, 0.0, 0, 0
+    t0, t1 = far_interval(tmin, tmax, th, tl)
+    f, t, u, v, nc, nt = _trace_near(g, mx, my, mz, dx, dy, dz, t0, t1, watertight, any_hit, mailbox)
+    return f, far_t(t, th, tl), u, v, nc, nt
+
+
+@njit(cache=True, _nrt=False)
+def _trace_near(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox):
+    """:func:`trace_ray` from the origin as it is."""
     if g.leaf_first.shape[0] > 0:
         return trace_ray_2l(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox)
     tris, lo, hi, cell, inv_cell, dims = g.tris, g.lo, g.hi, g.cell, g.inv_cell, g.dims
