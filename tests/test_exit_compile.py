@@ -128,3 +128,36 @@ def test_background_compile_is_a_daemon_and_listed():
     tw(2, twice, twice_serial, a)  # now the parallel kernel
     assert len(twice.signatures) == 1
     np.testing.assert_array_equal(a, 8.0)
+
+
+def test_viewer_leaves_without_a_busy_render_thread(capsys):
+    """The viewer's exit (after Esc, the window gone): a render thread still busy with its frame
+    (here a pipeline that would take ten minutes to make) is left behind after STOP_WAIT_S (at most
+    2 s) with one line; an idle one stops.  (The window itself needs Xvfb: tests/test_viewer.py.)"""
+    import threading
+
+    from gridrt.app.viewer.state import SceneSpec
+    from gridrt.app.viewer.view import STOP_WAIT_S, Viewer
+    from gridrt.app.viewer.worker import LoadJob, RenderWorker
+    from gridrt.config import GridParams, RenderParams
+
+    assert STOP_WAIT_S <= 2.0
+    started, release = threading.Event(), threading.Event()
+
+    def slow_pipeline(scene, job):
+        started.set()
+        release.wait(600)
+
+    worker = RenderWorker(slow_pipeline)
+    worker.submit(LoadJob(SceneSpec(source="icosphere"), GridParams(threads=1), RenderParams(8, 6, threads=1)))
+    assert started.wait(300)
+    try:
+        assert Viewer._stop_worker(None, worker) is False
+        err = capsys.readouterr().err
+        assert err == ("gridrt view: not waiting for the render thread (still rendering or compiling a frame); "
+                       "exiting without it\n")
+    finally:
+        release.set()
+    idle = RenderWorker(slow_pipeline)
+    assert Viewer._stop_worker(None, idle) is True
+    assert capsys.readouterr().err == ""

@@ -32,6 +32,8 @@ SLOW_FRAME_S = 1.5
 SLOW_LOAD_S = 0.15
 #: a slow texture load prints a progress line to stderr at most this often (seconds)
 PROGRESS_PRINT_S = 1.0
+#: how long the viewer waits at exit for the render thread to finish its frame
+STOP_WAIT_S = 1.5
 
 
 def add_parser(sub):
@@ -233,14 +235,15 @@ class Viewer:
                 os._exit(0)
 
     def _stop_worker(self, worker):
-        """Stop the render thread (the window is already gone); True when it finished."""
+        """Stop the render thread (the window is already gone); True when it finished within
+        STOP_WAIT_S.  Otherwise it is still rendering (or compiling the kernels of) a frame: the
+        viewer says so in one line and leaves without it (run's os._exit), so that Esc never waits
+        on it."""
         worker.detach()
-        if worker.stop(timeout=1.0):
+        if worker.stop(timeout=STOP_WAIT_S):
             return True
-        print("gridrt view: waiting for the render thread to finish its frame...", file=sys.stderr, flush=True)
-        if worker.stop(timeout=10.0):
-            return True
-        print("gridrt view: the render thread is still busy; exiting without it", file=sys.stderr, flush=True)
+        print("gridrt view: not waiting for the render thread (still rendering or compiling a frame); exiting "
+              "without it", file=sys.stderr, flush=True)
         return False
 
     def _on_glfw_error(self, code, description):
