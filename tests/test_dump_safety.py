@@ -314,6 +314,22 @@ def test_a_real_full_file_system(small_fs, tmp_path):
     assert whole_frames(out, buffers=True) == n
 
 
+def test_a_real_full_file_system_under_a_cluster_dump(small_fs):
+    """The same on a cluster (--workers 1): the client stops at the write that fails, with one
+    line, and the folder holds whole frames only."""
+    pytest.importorskip("distributed", reason="the cluster extra is not installed")
+    out = small_fs / "d"
+    p = gridrt("dump", "--scene", "icosphere", "--count", "320", "--frames", "40", "--size", "48x32",
+               "--save-buffers", "--no-progress", "--workers", "1", "--chunk", "4", "--out", out)
+    _, err = p.communicate(timeout=600)
+    assert p.returncode == 2, err
+    lines = [x for x in err.splitlines() if x.startswith("gridrt: stopped")]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    n = check_stop_line(lines[0], out, 40, "no space left on device")
+    assert 1 <= n < 40
+    assert whole_frames(out, buffers=True) == n
+
+
 def test_a_real_read_only_file_system(small_fs):
     subprocess.run(["mount", "-o", "remount,ro", str(small_fs)], check=True, timeout=30)
     p = gridrt("dump", *SMALL, "--out", small_fs)
@@ -359,6 +375,22 @@ def test_another_dump_is_refused_and_overwrite_removes_it_first(tmp_path, monkey
     assert whole_frames(out) == 2 and {p.name for p in out.iterdir()} == {
         "frame_00000.png", "frame_00001.png", "stats.csv", "run.json"}
     assert rows_of(out)[0]["width"] == "24"
+
+
+def test_a_cluster_dump_refuses_another_dump_before_its_cluster_starts(tmp_path, monkeypatch, capsys, small_ref):
+    from gridrt.app import dump_cluster
+
+    def no_cluster(*a, **kw):
+        raise AssertionError("a cluster was started for a folder that is refused")
+
+    monkeypatch.setattr(dump_cluster, "Cluster", no_cluster)
+    out = tmp_path / "d"
+    shutil.copytree(small_ref, out)
+    before = snapshot(out)
+    rc, err = dump(capsys, *SMALL, "--workers", 1, "--out", out)
+    assert rc == 2
+    assert "already holds another dump (3 frames, stats.csv); give --overwrite" in one_line(err)
+    assert snapshot(out) == before
 
 
 def test_overwrite_and_resume_exclude_each_other(tmp_path, capsys):
