@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from gridrt.errors import InputError
+from gridrt.errors import GridrtError, InputError
 from gridrt.warmup import compile_progress
 
 from . import cli
@@ -20,7 +20,8 @@ def add_parser(sub):
     p = sub.add_parser("dump", help="render frames headless to PNG + stats.csv",
                        description="Render an animated scene headless: DIR/frame_00000.png ... and DIR/stats.csv "
                                    "(a row per frame: timings, the grid's kind, densities, cells, references and "
-                                   "bytes, the rays' figures).")
+                                   "bytes, the rays' figures), and DIR/run.json (the run's settings, for --resume). "
+                                   "Whatever stops a dump, DIR holds whole frames only, each with its row.")
     cli.add_scene_args(p)
     cli.add_grid_args(p)
     cli.add_render_args(p)
@@ -155,7 +156,9 @@ def _dump(a):
                     writer.write(i, item)
                 rows.append(fr.stats)
                 bar.set_postfix(build=f"{fr.stats['build_ms']:.1f}ms", render=f"{fr.stats['render_ms']:.1f}ms")
-        except FrameWriteError as e:
+        except GridrtError as e:
+            if not isinstance(e, FrameWriteError) and (not writer.begun or writer.done == 0):
+                raise  # (no frame to speak of: the error as it is)
             error = e
         except KeyboardInterrupt:  # a signal while the scene loaded or a frame rendered
             stop.signum = stop.signum or signal.SIGINT

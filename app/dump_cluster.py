@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from gridrt.errors import InputError
+from gridrt.errors import GridrtError, InputError
 
 from . import cli
 from .cluster import Cluster, CtrlC, Stop, default_chunk, run_chunks
@@ -83,7 +83,9 @@ def dump_on_cluster(a):
                     signum = signal.SIGINT if pressed() else signal.SIGTERM
                 finally:
                     bar.close()
-        except FrameWriteError as e:
+        except GridrtError as e:
+            if not isinstance(e, FrameWriteError) and (not writer.begun or writer.done == 0):
+                raise  # (no frame to speak of: the error as a one-process run gives it)
             error = e
         except KeyboardInterrupt:  # Ctrl-C before the cluster started
             signum = signal.SIGINT

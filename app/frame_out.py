@@ -423,11 +423,13 @@ class FrameWriter:
         return f"{which}, in {self.out}/"
 
     def stopped(self, error=None, signum=None):
-        """Say on stderr, in one line, that the run stopped (``error``: a FrameWriteError, else
+        """Say on stderr, in one line, that the run stopped (``error``: a GridrtError, else
         ``signum``: the signal) with how many frames are complete; returns the exit status (130
         for SIGINT, 143 for SIGTERM, 2 for an error)."""
-        if error is not None:
+        if isinstance(error, FrameWriteError):
             code, why = 2, f"{error}; free space or fix the folder, then give --resume to continue"
+        elif error is not None:
+            code, why = 2, str(error)
         else:
             code, why = SIGNALS.get(signum, SIGNALS[signal.SIGINT])
             why += "; give --resume to continue"

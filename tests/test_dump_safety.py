@@ -245,6 +245,33 @@ def test_folder_renamed_mid_run_keeps_the_whole_run(tmp_path, monkeypatch, capsy
         assert whole_frames(moved, buffers=True) == 3
 
 
+def test_an_error_mid_run_says_which_frames_are_complete(tmp_path, monkeypatch, capsys):
+    """gridrt's own error at the third frame (injected into the pipeline): exit 2, one line with
+    the two complete frames and the error; an error before any frame is the plain error line."""
+    from gridrt.errors import InputError
+    from gridrt.pipeline import FramePipeline
+
+    step = FramePipeline.step
+
+    def fails_at(k):
+        def spy(self, t, *a, **kw):
+            if self.frame_index == k:
+                raise InputError("the injected error")
+            return step(self, t, *a, **kw)
+        return spy
+
+    monkeypatch.setattr(FramePipeline, "step", fails_at(2))
+    out = tmp_path / "d"
+    rc, err = dump(capsys, *SMALL, "--out", out)
+    assert rc == 2
+    assert check_stop_line(one_line(err), out, 3, "the injected error") == 2
+    assert whole_frames(out, buffers=True) == 2
+    monkeypatch.setattr(FramePipeline, "step", fails_at(0))
+    rc, err = dump(capsys, *SMALL, "--out", tmp_path / "e")
+    assert rc == 2 and one_line(err) == "gridrt: error: the injected error"
+    assert list((tmp_path / "e").iterdir()) == []
+
+
 def test_read_only_folder_fails_before_rendering(tmp_path, monkeypatch, capsys):
     """A folder that refuses new files (EROFS from every os.open that creates one): one line,
     exit 2, nothing rendered (the pipeline is never built) and nothing written."""
