@@ -163,9 +163,10 @@ def _dump(a):
         except KeyboardInterrupt:  # a signal while the scene loaded or a frame rendered
             stop.signum = stop.signum or signal.SIGINT
         finally:
-            if bar is not None:
-                bar.close()
-            writer.close()
+            with stop.deferred():  # (temporary files go whatever comes now)
+                if bar is not None:
+                    bar.close()
+                writer.close()
     if error is not None or stop():
         return writer.stopped(error=error, signum=stop.signum)
     med = lambda k: float(np.median([r[k] for r in rows]))  # noqa: E731
