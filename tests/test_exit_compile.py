@@ -8,12 +8,15 @@
 * The exit path itself (the one ``gridrt dump`` and ``gridrt view`` share), in a subprocess with a
   stand-in compile that would run for ten minutes: the notice, the status, the output written
   before it, and no wait.  In-process callers of main (argv given) never leave the process.
+* The viewer: Esc under Xvfb with an empty numba cache (``slow``) ends with status 0 and the
+  notice; a render thread still busy with its frame is left behind after at most 2 s.
 * Twins' background compile of a real numba kernel runs on a daemon thread, is listed by
   ``compiling()`` while it runs, and ``wait()`` still waits for it (the benchmarks' and tests' use).
 """
 
 import csv
 import os
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -161,3 +164,29 @@ def test_viewer_leaves_without_a_busy_render_thread(capsys):
     idle = RenderWorker(slow_pipeline)
     assert Viewer._stop_worker(None, idle) is True
     assert capsys.readouterr().err == ""
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("Xvfb") is None or shutil.which("xdotool") is None,
+                    reason="needs Xvfb and xdotool (apt-get install xvfb xauth xdotool)")
+def test_viewer_esc_with_a_cold_cache(tmp_path, monkeypatch):
+    """The viewer on 2 threads with an empty numba cache (tests/test_viewer.py's Xvfb harness):
+    after its first frames (the parallel kernel compiles in the background from the second on)
+    Esc ends it with status 0 and the notice that it did not wait for that compile."""
+    from test_viewer import _App, _X
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
+    x = _X()
+    app = None
+    try:
+        app = _App(x.display, tmp_path, extra=("--threads", "2", "--traversal", "dda"))
+        app.wait(lambda s: s["rendered_frames"] >= 3, "the first frames", timeout=900)
+        app.xdo("key", "Escape")
+        assert app.proc.wait(120) == 0, app.output()
+        out = app.output()
+        assert NOTICE + "render_kernel (it compiles again next start)" in out.splitlines(), out
+        assert "Traceback" not in out
+    finally:
+        if app is not None:
+            app.close()
+        x.close()
