@@ -29,7 +29,7 @@ from .arrays import as_mesh, as_triangles, float_contiguous
 from .config import GridParams
 from .errors import InputError
 from .grid.build import GridBuilder
-from .memory import allocating
+from .memory import allocating, check_fits
 from .precision import ONE_SHOT_SAMPLE, PrecisionWarning, detail_warning, warn_detail
 from .threads import launch_guard
 from .trace.render import Hits, cast_batch
@@ -119,6 +119,27 @@ def _centred_vertices(vertices, faces, shape):
     return _in_centred_frame(v, lo, hi, faces, "update")
 
 
+#: bytes a RayCaster's mesh takes beyond its grid (which GridBuilder checks itself): per vertex its
+#: float32 copy in the caster's frame, per face the int32 indices and the float32 triangles
+MESH_VERTEX_BYTES, MESH_FACE_BYTES, TRIANGLE_BYTES = 12, 48, 36
+
+
+def _check_mesh_fits(what, n_vertices, n_faces, face_bytes):
+    """InputError before the mesh arrays of a RayCaster (``face_bytes`` a face) are allocated
+    when they exceed the memory left (gridrt.memory)."""
+    check_fits(MESH_VERTEX_BYTES * n_vertices + face_bytes * n_faces, f"{what} ({n_faces:,} triangles)",
+               "vertices, faces and triangles in the caster's frame, before its grid",
+               "split the mesh or free memory")
+
+
+def _rows(a):
+    """len(a), or 0 for what has none (refused later, with its own message)."""
+    try:
+        return len(a)
+    except TypeError:
+        return 0
+
+
 class _Snapshot:
     """One mesh as casts see it; never modified after construction (``users`` aside: the casts
     holding it, counted under the caster's lock)."""
@@ -142,6 +163,7 @@ class RayCaster:
 
     def __init__(self, vertices, faces, params: GridParams | None = None):
         self.params = params or GridParams()
+        _check_mesh_fits("building a RayCaster", _rows(vertices), _rows(faces), MESH_FACE_BYTES)
         with allocating(lambda: f"building a RayCaster over {len(faces):,} triangles"):
             origin, verts, self.faces, tris, big = _centred_mesh(vertices, faces)
             self.precision_warning = warn_detail(tris, "RayCaster mesh", big=big, sample=ONE_SHOT_SAMPLE)
@@ -185,6 +207,7 @@ class RayCaster:
             return self._update(vertices)
 
     def _update(self, vertices):
+        _check_mesh_fits("updating a RayCaster", len(self._snap.vertices), len(self.faces), TRIANGLE_BYTES)
         origin, verts, tris, big = _centred_vertices(vertices, self.faces, self._snap.vertices.shape)
         # a cheap look (1024 triangles' edges, the extent from the vertices): warn when the mesh has
         # just become too fine for float32 at its size, not on every update of such a mesh

@@ -164,6 +164,43 @@ def test_cast_estimate_matches_peak(caster, odd):
     assert LOW <= cast_bytes(n) / peak <= HIGH, (cast_bytes(n), peak)
 
 
+@pytest.mark.parametrize("dtypes", [(np.float32, np.int64), (np.float64, np.int32)])
+def test_caster_estimate_matches_peak(dtypes):
+    """A RayCaster's mesh arrays (MESH_VERTEX_BYTES, MESH_FACE_BYTES) plus its grid's build_bytes
+    against tracemalloc's peak of its construction, from float32 vertices with int64 faces and
+    float64 vertices with int32 faces."""
+    from gridrt.api import MESH_FACE_BYTES, MESH_VERTEX_BYTES
+    from gridrt.grid.build import build_bytes
+
+    v, f = icosphere(5)
+    v, f = v.astype(dtypes[0]), f.astype(dtypes[1])
+    gridrt.RayCaster(v, f)  # (kernels loaded outside the measurement)
+    c, peak = traced_peak(lambda: gridrt.RayCaster(v, f))
+    g = c.grid
+    est = MESH_VERTEX_BYTES * len(v) + MESH_FACE_BYTES * len(f) + build_bytes(g.spec.n_cells, g.references, len(f))
+    assert LOW <= est / peak <= HIGH, (est, peak)
+
+
+def test_caster_refused_with_estimate_and_limit(caster, monkeypatch):
+    """A RayCaster, and an update of one, whose mesh arrays exceed the limit: refused before they
+    are allocated (the caster keeps its mesh)."""
+    from gridrt.api import MESH_FACE_BYTES, MESH_VERTEX_BYTES, TRIANGLE_BYTES
+
+    v, f = icosphere(5)
+    limit_to(monkeypatch, 100_000)
+    need = MESH_VERTEX_BYTES * len(v) + MESH_FACE_BYTES * len(f)
+    with pytest.raises(InputError, match=rf"^building a RayCaster \(20,480 triangles\) needs about "
+                                         rf"{memory.human(need)} \(.*100 kB is available \(test limit\)"):
+        gridrt.RayCaster(v, f)
+    before = caster.vertices
+    limit_to(monkeypatch, 1000)
+    need = MESH_VERTEX_BYTES * len(before) + TRIANGLE_BYTES * len(caster.faces)
+    with pytest.raises(InputError, match=rf"^updating a RayCaster \({len(caster.faces):,} triangles\) needs about "
+                                         rf"{memory.human(need)} "):
+        caster.update(before * 2)
+    assert caster.vertices is before
+
+
 def indexed_icosphere(subdivisions):
     v, f = icosphere(subdivisions)
     return v, f.astype(np.int32)
