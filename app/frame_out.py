@@ -128,13 +128,14 @@ def put_temp(path, data, dir_fd=None):
     tmp = os.path.join(head, temp_name(name))
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | getattr(os, "O_CLOEXEC", 0), 0o666, dir_fd=dir_fd)
     try:
-        _write_all(fd, data)
-        os.fsync(fd)
+        try:
+            _write_all(fd, data)
+            os.fsync(fd)
+        finally:
+            os.close(fd)  # (some file systems report a failed write here)
     except BaseException:
-        os.close(fd)
         remove(tmp, dir_fd)
         raise
-    os.close(fd)
     return tmp
 
 
@@ -333,7 +334,7 @@ class FrameWriter:
         if "t" in item:
             files += [(f"{name}_t.npy", item["t"]), (f"{name}_id.npy", item["id"])]
         origin = [float(x) for x in item["origin"]]
-        landed = []
+        landed, size = [], self.size
         what = files[0][0]
         try:
             temps = []
@@ -360,6 +361,8 @@ class FrameWriter:
         except BaseException as e:
             if self.origins and self.origins[-1][0] == i:
                 self.origins.pop()
+            if self.size != size:  # the row went in: out again
+                self._cut(size)
             for fname in landed:
                 remove(self._at(fname), self.dir)
             self._drop_temps()
@@ -382,14 +385,19 @@ class FrameWriter:
             _write_all(self.fd, data)
             os.fsync(self.fd)
         except BaseException:
-            try:  # back to the last whole row
-                os.ftruncate(self.fd, self.size)
-            except OSError:
-                pass
-            if self.size == 0:
-                self.columns = None
+            self._cut(self.size)
             raise
         self.size += len(data)
+
+    def _cut(self, size):
+        """stats.csv back to its first ``size`` bytes (its last whole row then)."""
+        try:
+            os.ftruncate(self.fd, size)
+        except OSError:
+            pass
+        self.size = size
+        if size == 0:
+            self.columns = None
 
     # -- after the run ----------------------------------------------------------------------
 
