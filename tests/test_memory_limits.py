@@ -18,7 +18,6 @@
   command is one line.
 """
 
-import os
 import resource
 import subprocess
 import sys
@@ -486,7 +485,8 @@ def test_real_rlimit_cast_is_one_line(tmp_path):
     lines = r.stdout.splitlines()
     assert r.returncode == 0 and "Traceback" not in r.stderr and "ArrayMemoryError" not in r.stdout + r.stderr, r
     assert len(lines) == 2, r.stdout
-    assert lines[0].startswith("casting 50,000,000 rays needs about 1.5 GB (hits, triangle ids, barycentrics and scratch); ")
+    assert lines[0].startswith("casting 50,000,000 rays needs about 1.5 GB "
+                               "(hits, triangle ids, barycentrics and scratch); ")
     assert "is available (RLIMIT_AS); cast in batches of at most " in lines[0]
     assert number_in(lines[0], "at most ") < 50_000_000 * 0.9
     assert lines[1].startswith("out of memory casting 50,000,000 rays; ") and "(RLIMIT_AS)" in lines[1], lines[1]
