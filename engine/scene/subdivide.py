@@ -124,8 +124,7 @@ def _passes(F, V, target):
 def subdivide_bytes(mesh, target):
     """Bytes :func:`subdivide_mesh` allocates at its peak to split ``mesh`` up to ``target``
     triangles: the larger of a split's peak (split_once, split_surface, beside the mesh being
-    split) and the final Mesh's check beside its vertices, faces and surface (the larger one for
-    every mesh of 4 or more faces)."""
+    split) and the final Mesh's check beside its vertices, faces and surface."""
     vs = 8 if storage_centre(mesh.vertices64).any() else 4
     s = mesh.surface
     K = sum(a.shape[2] for a in ((s.uv, s.colors, s.normals) if s is not None else ()) if a is not None)
