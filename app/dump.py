@@ -133,9 +133,14 @@ def _dump(a):
     writer = FrameWriter(out, run_settings(a), a.frames, mode=replace_mode(a))
     rows = []
     bar = error = None
-    with StopSignals() as stop:
+
+    def stop_now(signum):  # nothing of a frame is being written: end without waiting for it
+        writer.exit_now(signum, lead="\n" if bar is not None and not bar.disable else "")
+
+    with StopSignals(now=stop_now) as stop:
         try:
-            start = writer.check()
+            with stop.deferred():
+                start = writer.check()
             if start >= a.frames:
                 return nothing_to_do(writer, start)
             pipe = cli.pipeline_from_args(a)
@@ -148,7 +153,7 @@ def _dump(a):
             for i in bar:
                 if stop():
                     break
-                # a signal while the frame renders stops the run at once (nothing of the frame is
+                # a signal while the frame renders ends the run at once (nothing of the frame is
                 # written yet); while it is written, after the frame
                 fr = pipe.step(a.t0 + i * a.dt)
                 item = encode_frame(fr, a.save_buffers)
@@ -160,7 +165,7 @@ def _dump(a):
             if not isinstance(e, FrameWriteError) and (not writer.begun or writer.done == 0):
                 raise  # (no frame to speak of: the error as it is)
             error = e
-        except KeyboardInterrupt:  # a signal while the scene loaded or a frame rendered
+        except KeyboardInterrupt:  # (one raised before the handlers were in place)
             stop.signum = stop.signum or signal.SIGINT
         finally:
             with stop.deferred():  # (temporary files go whatever comes now)

@@ -17,7 +17,8 @@ dump's files is refused unless the run says ``overwrite`` (they are removed firs
 
 A run that stops early (:meth:`FrameWriter.stopped`) says so in one line on stderr, with the
 frames complete and why, and exits with 130 (SIGINT), 143 (SIGTERM) or 2 (a write that failed).
-SIGINT and SIGTERM (:class:`StopSignals`) never cut a frame's writing short.
+SIGINT and SIGTERM (:class:`StopSignals`) never cut a frame's writing short: while files are
+written they stop the run after them; otherwise (a frame rendering) they end it at once.
 """
 
 import contextlib
@@ -430,10 +431,10 @@ class FrameWriter:
             which = f"frames 0-{self.done - 1} complete, each with its stats row"
         return f"{which}, in {self.out}/"
 
-    def stopped(self, error=None, signum=None):
-        """Say on stderr, in one line, that the run stopped (``error``: a GridrtError, else
-        ``signum``: the signal) with how many frames are complete; returns the exit status (130
-        for SIGINT, 143 for SIGTERM, 2 for an error)."""
+    def stop_line(self, error=None, signum=None):
+        """(exit status, line) of a run stopped by ``error`` (a GridrtError), else by the signal
+        ``signum``: 130 for SIGINT, 143 for SIGTERM, 2 for an error; the line says how many
+        frames are complete, where, and why the run stopped."""
         if isinstance(error, FrameWriteError):
             code, why = 2, f"{error}; free space or fix the folder, then give --resume to continue"
         elif error is not None:
@@ -441,30 +442,52 @@ class FrameWriter:
         else:
             code, why = SIGNALS.get(signum, SIGNALS[signal.SIGINT])
             why += "; give --resume to continue"
-        print(f"gridrt: stopped after {self.done} of {self.frames} frames ({self.complete()}): {why}",
-              file=sys.stderr, flush=True)
+        return code, f"gridrt: stopped after {self.done} of {self.frames} frames ({self.complete()}): {why}"
+
+    def stopped(self, error=None, signum=None):
+        """Print :meth:`stop_line` on stderr; returns the exit status."""
+        code, line = self.stop_line(error, signum)
+        print(line, file=sys.stderr, flush=True)
         return code
+
+    def exit_now(self, signum, lead=""):
+        """End the process at once for the signal ``signum``, the folder closed (a run with no
+        frame leaves nothing) and the stop line written straight to stderr (after ``lead``): for
+        a signal that comes while nothing is being written (a scene loading, a frame rendering,
+        maybe a kernel compiling, which a raised KeyboardInterrupt would break with a traceback)."""
+        self.close()
+        code, line = self.stop_line(signum=signum)
+        try:
+            os.write(2, f"{lead}{line}\n".encode())
+        except OSError:
+            pass
+        os._exit(code)
 
 
 class StopSignals:
     """SIGINT and SIGTERM (``signals``) during a dump, as a context manager: a signal is recorded
-    (:attr:`signum`; calling the object says whether one came).  Inside :meth:`deferred` (a frame
+    (:attr:`signum`; calling the object says whether one came).  Inside :meth:`deferred` (files
     being written), or always with ``defer``, that is all: the run stops at its next check,
-    between frames.  Elsewhere (a scene loading, a frame rendering: nothing is being written) it
-    also raises KeyboardInterrupt at once, so that a long render or compile does not hold the run.
-    The handlers in place before are restored on exit.  Outside the main thread it does nothing."""
+    between frames.  Elsewhere (nothing is being written: a scene loading, a frame rendering) it
+    calls ``now(signum)`` at once, so that a long render or compile does not hold the run (without
+    ``now``, it raises KeyboardInterrupt).  The handlers in place before are restored on exit.
+    Outside the main thread it does nothing."""
 
-    def __init__(self, signals=(signal.SIGINT, signal.SIGTERM), defer=False):
+    def __init__(self, signals=(signal.SIGINT, signal.SIGTERM), defer=False, now=None):
         self.signals = signals
         self.defer = defer
+        self.now = now
         self.signum = None
         self.old = {}
 
     def _heard(self, signum, frame):
         if self.signum is None:
             self.signum = signum
-        if not self.defer:
-            raise KeyboardInterrupt
+        if self.defer:
+            return
+        if self.now is not None:
+            self.now(signum)
+        raise KeyboardInterrupt
 
     def __call__(self):
         return self.signum is not None

@@ -537,6 +537,26 @@ def test_signal_at_a_random_moment_of_a_dump(tmp_path, sig, code, why, seed):
     assert whole_frames(out, buffers=True) == n
 
 
+def test_sigint_during_a_cold_compile_ends_the_dump_at_once(tmp_path):
+    """Ctrl-C while numba compiles the first frame's kernels (an empty numba cache): the dump ends
+    with 130 and its one line (no frame, so no run.json and no stats.csv left), without waiting
+    for the compile and without a traceback from inside numba."""
+    out = tmp_path / "d"
+    p = gridrt("dump", *SMALL, "--out", out, env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")},
+               start_new_session=True)
+    try:
+        wait_for(out, p)
+        time.sleep(random.Random(4).uniform(0.5, 1.5))
+        os.killpg(p.pid, signal.SIGINT)
+        _, err = p.communicate(timeout=300)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    assert p.returncode == 130, err
+    n = check_stop_line(one_line(err), out, 3, "interrupted (SIGINT)")
+    assert whole_frames(out, buffers=True) == n
+
+
 def test_sigterm_stops_a_cluster_dump_with_whole_frames_and_it_resumes(tmp_path):
     """SIGTERM to a cluster dump (--workers 1) once frames land: exit 143, one line, the workers
     gone, whole frames only; resumed on the cluster for five frames more, the folder is the
