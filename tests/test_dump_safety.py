@@ -507,6 +507,23 @@ def wait_for(path, proc, timeout=300):
         time.sleep(0.01)
 
 
+def signal_after(proc, path, delay, sig, group=False, before=lambda: None):
+    """Send ``sig`` to ``proc`` (its process group with ``group``, as a terminal sends Ctrl-C)
+    ``delay`` s after ``path`` appears (and ``before()``); its stderr once it ended."""
+    try:
+        wait_for(path, proc)
+        time.sleep(delay)
+        before()
+        if group:
+            os.killpg(proc.pid, sig)
+        else:
+            proc.send_signal(sig)
+        return proc.communicate(timeout=300)[1]
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+
+
 @pytest.mark.parametrize("seed", [1, 2])
 @pytest.mark.parametrize("sig, code, why", [
     (signal.SIGINT, 130, "interrupted (SIGINT)"),
@@ -520,17 +537,7 @@ def test_signal_at_a_random_moment_of_a_dump(tmp_path, sig, code, why, seed):
     out = tmp_path / "d"
     p = gridrt("dump", "--scene", "marbles", "--count", "400", "--frames", "3000", "--size", "64x48",
                "--save-buffers", "--no-progress", "--out", out, start_new_session=True)
-    try:
-        wait_for(out, p)
-        time.sleep(delay)
-        if sig == signal.SIGINT:
-            os.killpg(p.pid, sig)
-        else:
-            p.send_signal(sig)
-        _, err = p.communicate(timeout=300)
-    finally:
-        if p.poll() is None:
-            os.killpg(p.pid, signal.SIGKILL)
+    err = signal_after(p, out, delay, sig, group=sig == signal.SIGINT)
     assert p.returncode == code, err
     n = check_stop_line(one_line(err), out, 3000, why)
     assert n < 3000, "the dump ended before the signal: make it longer"
@@ -544,14 +551,7 @@ def test_sigint_during_a_cold_compile_ends_the_dump_at_once(tmp_path):
     out = tmp_path / "d"
     p = gridrt("dump", *SMALL, "--out", out, env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")},
                start_new_session=True)
-    try:
-        wait_for(out, p)
-        time.sleep(random.Random(4).uniform(0.5, 1.5))
-        os.killpg(p.pid, signal.SIGINT)
-        _, err = p.communicate(timeout=300)
-    finally:
-        if p.poll() is None:
-            os.killpg(p.pid, signal.SIGKILL)
+    err = signal_after(p, out, random.Random(4).uniform(0.5, 1.5), signal.SIGINT, group=True)
     assert p.returncode == 130, err
     n = check_stop_line(one_line(err), out, 3, "interrupted (SIGINT)")
     assert whole_frames(out, buffers=True) == n
@@ -568,15 +568,9 @@ def test_sigterm_stops_a_cluster_dump_with_whole_frames_and_it_resumes(tmp_path)
     out = tmp_path / "d"
     p = gridrt("dump", *args, "--frames", "2000", "--workers", "1", "--chunk", "4", "--out", out,
                start_new_session=True)
-    try:
-        wait_for(out / "frame_00002.png", p)
-        time.sleep(random.Random(3).uniform(0.0, 0.5))
-        children = psutil.Process(p.pid).children(recursive=True)
-        p.send_signal(signal.SIGTERM)
-        _, err = p.communicate(timeout=120)
-    finally:
-        if p.poll() is None:
-            os.killpg(p.pid, signal.SIGKILL)
+    children = []
+    err = signal_after(p, out / "frame_00002.png", random.Random(3).uniform(0.0, 0.5), signal.SIGTERM,
+                       before=lambda: children.extend(psutil.Process(p.pid).children(recursive=True)))
     assert p.returncode == 143, err
     lines = [x for x in err.splitlines() if x.startswith("gridrt: stopped")]
     assert len(lines) == 1 and "Traceback" not in err, err
