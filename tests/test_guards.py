@@ -922,6 +922,8 @@ for line in sys.stdin:
     if req.get("crash"):  # the harness's self-test: a real segfault
         import ctypes
         ctypes.string_at(0)
+    if req.get("hang"):  # the harness's self-test: a real block (reading a FIFO nobody writes)
+        open(req["path"]).read()
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
         try:
@@ -1219,8 +1221,8 @@ def test_fuzz_real_files_soak(fuzz_env, name):
 
 def test_worker_reports_crashes_and_hangs(tmp_path):
     """The fuzz harness itself: a case that kills the worker (a real segfault) is a 'crash', one
-    that blocks past its limit (opening a FIFO nobody writes) a 'timeout', and the next case runs
-    in a fresh worker."""
+    that blocks past its limit (reading a FIFO nobody writes: the loaders refuse one, so the worker
+    reads it itself) a 'timeout', and the next case runs in a fresh worker."""
     w = LoaderWorker()
     try:
         missing = tmp_path / "missing.obj"
@@ -1232,8 +1234,8 @@ def test_worker_reports_crashes_and_hangs(tmp_path):
         fifo = tmp_path / "hang.obj"
         os.mkfifo(fifo)
         t0 = time.perf_counter()
-        res = w.load(fifo, timeout=3.0)
-        assert res["outcome"] == "timeout" and w.proc is None and time.perf_counter() - t0 < 10
+        res = w.load(fifo, timeout=3.0, hang=True)
+        assert res["outcome"] == "timeout" and w.proc is None and time.perf_counter() - t0 < 60
         assert w.load(missing, timeout=300)["outcome"] == "scene_error" and w.restarts == 3
     finally:
         w.stop()
