@@ -589,6 +589,20 @@ class _App:
         assert r.returncode == 0, r.stderr
         return r.stdout
 
+    def scroll_to(self, state, name):
+        """Wheel notches over the panel until widget ``name`` lies inside it (the panel scrolls in a
+        window shorter than itself); the state it then shows."""
+        for _ in range(12):
+            x, y, w, h = state["widget_rects"][name]
+            px, py, pw, ph = state["panel_rect"]
+            if py <= y and y + h <= py + ph:
+                return state
+            notch = 5 if y + h > py + ph else 4
+            self.xdo("mousemove", int(px + pw / 2), int(py + ph / 2), "sleep", 0.2, "click", notch, "sleep", 0.3)
+            frames = self.state()["ui_frames"]
+            state = self.wait(lambda q: q["ui_frames"] > frames + 1, f"the panel scrolled towards {name}")
+        return state
+
     def click(self, state, name, fx=0.5, hold=None):
         """Click widget ``name`` of ``state``; with ``hold`` (seconds) the pointer rests on it that
         long before the button goes down and the button stays down that long, as a person's click
@@ -806,8 +820,8 @@ def test_viewer_window_under_xvfb(tmp_path):
         fg = np.any(tet_img != np.round(np.asarray(BACKGROUND) * 255).astype(np.uint8), axis=-1)
         assert 0.01 < fg.mean() < 0.9   # the reframed tetrahedron fills part of the view
 
-        # resizing the window: the render resolution follows (even while paused); 420 pixels: the panel,
-        # scrolled by the wheel above, still shows the resolution slider
+        # resizing the window: the render resolution follows (even while paused); in 420 pixels the
+        # panel scrolls (by the wheel) to show the resolution slider
         app.xdo("windowsize", wid, 520, 420)
         s8 = app.wait(lambda q: q["framebuffer_size"] == [520, 420] and q["stats"].get("width") == 520
                       and q["stats"].get("height") == 420, "resize")
@@ -815,6 +829,7 @@ def test_viewer_window_under_xvfb(tmp_path):
         # the resolution slider at its left end: render at SCALE_MIN of the window
         from gridrt.app.viewer.state import SCALE_MIN
 
+        s8 = app.scroll_to(s8, "resolution")
         app.click(s8, "resolution", 0.0)
         want = [round(520 * SCALE_MIN), round(420 * SCALE_MIN)]
         s9 = app.wait(lambda q: q["render_size"] == want and [q["stats"].get("width"), q["stats"].get("height")] == want,
