@@ -152,6 +152,10 @@ class CompileProgress:
         return True
 
     def _end(self, kernel):
+        if not self._stack or self._stack[-1] is not kernel:
+            # the end of a compile that was under way before this progress began following (a
+            # background compile from an earlier run in this process): not one of its compiles
+            return False
         self._stack.pop()
         ours = self._ours(kernel)
         if ours:

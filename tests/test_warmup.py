@@ -72,6 +72,25 @@ def test_compile_progress_names_kernels_and_counts_them():
     assert len(_alone.signatures) == 2 and len(events) == n + 4
 
 
+@njit
+def _late(x):
+    return x + 3
+
+
+def test_compile_progress_ignores_a_compile_it_did_not_see_start():
+    """A compile already under way in another thread when the progress begins (an earlier run's
+    background compile in the same process) ends under it: that end is not one of its compiles,
+    and numba's event, raised inside the compile, must not fail."""
+    from numba.core import event
+
+    events = []
+    with compile_progress(lambda p, started: events.append((started, p.done)), package=PACKAGE) as progress:
+        event.end_event("numba:compile", data={"dispatcher": _top, "args": (), "return_type": None})
+        assert (progress.done, progress.expected, events) == (0, 0, [])
+        assert _late(1) == 4  # a compile it sees whole is counted as before
+        assert (progress.done, progress.expected) == (1, 1) and events == [(True, 0), (False, 1)]
+
+
 def gridrt(*args, env):
     return subprocess.run([sys.executable, "-m", "gridrt", *args], cwd=REPO, capture_output=True, text=True,
                           env={**os.environ, **env}, timeout=900)
