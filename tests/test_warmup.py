@@ -146,7 +146,7 @@ def test_cold_dump_shows_what_compiles_and_warm_dump_compiles_nothing(tmp_path):
     assert all(name in named for name in again)
     assert len(shown) == len(named) + len(again), "a kernel named again without 'again'"
 
-    r = gridrt(*args, env=env)
+    r = gridrt(*args, "--overwrite", env=env)  # the same folder: replace the first dump's frame
     assert r.returncode == 0, r.stderr
     assert "Compiling numba kernels" not in r.stderr and "gridrt: compil" not in r.stderr, r.stderr
     assert index_files(cache) == compiled, "the warm run compiled something"
