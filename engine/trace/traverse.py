@@ -138,6 +138,20 @@ def _add_prod(h, l, w, d):
     return s, c - (s - a)
 
 
+@njit(cache=True, inline="always")
+def is_far(lo, hi, ox, oy, oz):
+    """True when far_shift moves the origin (ox, oy, oz): it lies more than FAR_RADII half
+    diagonals r of the box lo..hi from the box's centre along some axis (squares compared: no
+    square root on the path of every ray), within FAR_MAX, and the box is not a point.  Callers
+    test it inline and call far_shift only for a far origin."""
+    ex = hi[0] - lo[0]
+    ey = hi[1] - lo[1]
+    ez = hi[2] - lo[2]
+    s = ex * ex + ey * ey + ez * ez
+    m = max(abs(ox - 0.5 * (lo[0] + hi[0])), abs(oy - 0.5 * (lo[1] + hi[1])), abs(oz - 0.5 * (lo[2] + hi[2])))
+    return m <= FAR_MAX and s > 0.0 and m * m > (0.25 * FAR_RADII * FAR_RADII) * s
+
+
 @njit(cache=True)
 def far_shift(lo, hi, ox, oy, oz, dx, dy, dz):
     """Where a ray from far outside the box lo..hi starts instead: (verdict, mx, my, mz, th, tl).
@@ -156,6 +170,8 @@ def far_shift(lo, hi, ox, oy, oz, dx, dy, dz):
     distance up to FAR_MAX (float64 arithmetic on o itself would lose the mesh altogether).
     Every traversal (trace_ray, the packets of gridrt.trace.cgt, the batch caster's re-test)
     moves a ray alike, so all give it the same hit."""
+    if not is_far(lo, hi, ox, oy, oz):
+        return NEAR, ox, oy, oz, 0.0, 0.0
     cx = 0.5 * (lo[0] + hi[0])
     cy = 0.5 * (lo[1] + hi[1])
     cz = 0.5 * (lo[2] + hi[2])
@@ -163,9 +179,6 @@ def far_shift(lo, hi, ox, oy, oz, dx, dy, dz):
     ey = hi[1] - lo[1]
     ez = hi[2] - lo[2]
     r = 0.5 * math.sqrt(ex * ex + ey * ey + ez * ez)
-    m = max(abs(ox - cx), abs(oy - cy), abs(oz - cz))
-    if not (m > FAR_RADII * r and m <= FAR_MAX and r > 0.0):
-        return NEAR, ox, oy, oz, 0.0, 0.0
     dd = dx * dx + dy * dy + dz * dz
     dn = math.sqrt(dd)
     back = 3.0 * r / dn
@@ -339,17 +352,24 @@ def trace_ray(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbo
     mailbox (MAILBOX,) int32 scratch.  A ray from far outside the grid is traced from just
     before its box (:func:`far_shift`).
     """
-    verdict, mx, my, mz, th, tl = far_shift(g.lo, g.hi, ox, oy, oz, dx, dy, dz)
-    if verdict == NEAR:
-        return _trace_near(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox)
-    if verdict == FAR_MISS:
-        return -1, np.inf, 0.0, 0.0, 0, 0
-    t0, t1 = far_interval(tmin, tmax, th, tl)
-    f, t, u, v, nc, nt = _trace_near(g, mx, my, mz, dx, dy, dz, t0, t1, watertight, any_hit, mailbox)
-    return f, far_t(t, th, tl), u, v, nc, nt
+    moved = False
+    th = tl = 0.0
+    if is_far(g.lo, g.hi, ox, oy, oz):
+        verdict, mx, my, mz, th, tl = far_shift(g.lo, g.hi, ox, oy, oz, dx, dy, dz)
+        if verdict == FAR_MISS:
+            return -1, np.inf, 0.0, 0.0, 0, 0
+        if verdict == MOVED:
+            moved = True
+            ox, oy, oz = mx, my, mz
+            tmin, tmax = far_interval(tmin, tmax, th, tl)
+    # one call site, inlined: a near ray pays one inline test for the far case
+    f, t, u, v, nc, nt = _trace_near(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox)
+    if moved:
+        t = far_t(t, th, tl)
+    return f, t, u, v, nc, nt
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, inline="always")
 def _trace_near(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox):
     """:func:`trace_ray` from the origin as it is."""
     if g.leaf_first.shape[0] > 0:
