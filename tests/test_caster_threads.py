@@ -1,4 +1,4 @@
-"""One RayCaster shared by Python threads (issue 12, point 2): casts and updates from any number
+"""One RayCaster shared by Python threads: casts and updates from any number
 of threads, no crash, and every cast sees one whole mesh (before or after a concurrent update).
 
 The stress runs in a subprocess (a crash, which is what two updating threads used to cause, is

@@ -1,4 +1,4 @@
-"""Frame dumps and benchmark sweeps on a Dask cluster (issue 17), with real components only: the
+"""Frame dumps and benchmark sweeps on a Dask cluster, with real components only: the
 real command line in a subprocess, a local cluster of 2 worker processes (``--workers 2``), and
 a real ``dask scheduler`` with two ``dask worker`` processes started here on 127.0.0.1 (random
 free ports, torn down at the end).

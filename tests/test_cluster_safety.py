@@ -29,7 +29,7 @@ from gridrt.app import cluster  # noqa: E402
 from gridrt.errors import InputError  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
-#: a generous bound on a refused --scheduler run (the issue asks for 10 s; Python's start and a loaded
+#: a generous bound on a refused --scheduler run (the aim is an answer within 10 s; Python's start and a loaded
 #: machine come on top of the code's deadline)
 SLACK_S = 30
 

@@ -1,4 +1,4 @@
-"""Every entry point works in a frame centred on the scene (issue 12, point 1).
+"""Every entry point works in a frame centred on the scene.
 
 A real mesh, an animated glTF and a BART scene are moved far from the world origin (1e3 .. 1e9)
 by writing them into new files with the offset in their coordinates (or in a root transform),

@@ -1,5 +1,5 @@
 """Every numba kernel that could read or write out of bounds on bad data is guarded at the Python
-boundary (issue 7, parts 3 and 5).
+boundary.
 
 numba kernels do no bounds checks, so bad indices, shapes, dtypes, sizes or NaN coordinates must be
 refused before a kernel runs.  This module

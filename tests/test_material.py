@@ -1,4 +1,4 @@
-"""The ``material`` shading mode (issue 16) against the independent reference
+"""The ``material`` shading mode against the independent reference
 (tests/reference.py ref_material: float64 brute-force hits and barycentrics, the shading formula
 re-typed from engine/scene/surface.py): textures with every wrap mode and bilinear filtering,
 vertex colours, smooth normals, lights with and without falloff, hard shadows; for DDA and CGT,

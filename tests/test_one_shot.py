@@ -1,4 +1,4 @@
-"""One-shot builds (issue 14, point 3): build_grid and RayCaster validate and convert their input in
+"""One-shot builds: build_grid and RayCaster validate and convert their input in
 one or two passes (gridrt.grid.common.bounds_f64, to_frame, first_nondegenerate) instead of a dozen
 numpy passes.  Checked against numpy references written here:
 

@@ -1,6 +1,6 @@
 """FramePipeline.resume: a pipeline that takes a sequence up at frame k renders frames k.. as one
 pipeline stepping from frame 0 does (images, hit buffers and every stats column but timings), so
-a sequence cut into pieces over processes is the one-process sequence bit for bit (issue 17)."""
+a sequence cut into pieces over processes is the one-process sequence bit for bit."""
 
 import numpy as np
 import pytest

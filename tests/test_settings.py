@@ -1,4 +1,4 @@
-"""One home per setting (issue 13, point 4): the CLI's defaults are the dataclasses', one SceneSpec
+"""One home per setting: the CLI's defaults are the dataclasses', one SceneSpec
 serves cli, viewer, worker and bench, and stats are typed (gridrt.stats) with stages and counters
 apart and one as_row()."""
 

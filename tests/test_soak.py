@@ -1,4 +1,4 @@
-"""Watertightness at scale and a long-run soak (issue 7, parts 2 and 4).
+"""Watertightness at scale and a long-run soak.
 
 Watertightness: probe rays aimed exactly at shared vertices, edge midpoints and random points of
 shared edges of closed real meshes (the shipped Armadillo; dragon and Lucy from the development data set, when present), each from an

@@ -1,4 +1,4 @@
-"""Numerical stability at the extremes (issue 7, part 1): hits against the float64 brute force.
+"""Numerical stability at the extremes: hits against the float64 brute force.
 
 Every test casts rays through the engine and compares each ray's triangle and t with
 ``tests/reference.py`` (plain numpy float64 Moller-Trumbore over all triangles, on the same

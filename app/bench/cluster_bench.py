@@ -1,5 +1,5 @@
 """``gridrt bench cluster``: a frame dump in one process against the same dump on local Dask
-clusters (issue 17).
+clusters.
 
 Each configuration is the real command, ``gridrt dump`` in a subprocess, with the same scene,
 frames and size: one process with T threads, a local cluster of N workers x 1 thread, and one of

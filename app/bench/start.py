@@ -25,7 +25,7 @@ from gridrt.errors import InputError
 
 from .util import finish_machine, machine_info, md_table, out_dir, progress, write_csv, write_json, write_summary
 
-#: the cold start's aim (seconds of wall time to the first frame) and the warm start's (issue 13, point 8)
+#: the cold start's aim (seconds of wall time to the first frame) and the warm start's
 COLD_AIM_S = 15.0
 WARM_AIM_S = 0.8
 _COMPILED = re.compile(r"gridrt: compiled (\d+)/(\d+) kernels in ([\d.]+) s")
