@@ -109,6 +109,14 @@ def one_line(err):
     return lines[0]
 
 
+def stop_line(err):
+    """The one ``gridrt: stopped`` line of a cluster dump's stderr (other lines, from the cluster's
+    start, may stand beside it), with no traceback."""
+    lines = [x for x in err.splitlines() if x.startswith("gridrt: stopped")]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
 def check_stop_line(line, folder, frames, why):
     """``line`` says how many frames of ``frames`` are complete (the folder's count) and ``why``."""
     m = STOP_LINE.match(line)
@@ -350,9 +358,7 @@ def test_a_real_full_file_system_under_a_cluster_dump(small_fs):
                "--save-buffers", "--no-progress", "--workers", "1", "--chunk", "4", "--out", out)
     _, err = p.communicate(timeout=600)
     assert p.returncode == 2, err
-    lines = [x for x in err.splitlines() if x.startswith("gridrt: stopped")]
-    assert len(lines) == 1 and "Traceback" not in err, err
-    n = check_stop_line(lines[0], out, 40, "no space left on device")
+    n = check_stop_line(stop_line(err), out, 40, "no space left on device")
     assert 1 <= n < 40
     assert whole_frames(out, buffers=True) == n
 
@@ -572,9 +578,7 @@ def test_sigterm_stops_a_cluster_dump_with_whole_frames_and_it_resumes(tmp_path)
     err = signal_after(p, out / "frame_00002.png", random.Random(3).uniform(0.0, 0.5), signal.SIGTERM,
                        before=lambda: children.extend(psutil.Process(p.pid).children(recursive=True)))
     assert p.returncode == 143, err
-    lines = [x for x in err.splitlines() if x.startswith("gridrt: stopped")]
-    assert len(lines) == 1 and "Traceback" not in err, err
-    n = check_stop_line(lines[0], out, 2000, "terminated (SIGTERM)")
+    n = check_stop_line(stop_line(err), out, 2000, "terminated (SIGTERM)")
     assert 3 <= n < 2000
     assert whole_frames(out, buffers=True) == n
     _, alive = psutil.wait_procs(children, timeout=30)
