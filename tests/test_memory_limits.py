@@ -169,7 +169,7 @@ def test_caster_estimate_matches_peak(dtypes):
     against tracemalloc's peak of its construction, from float32 vertices with int64 faces and
     float64 vertices with int32 faces."""
     from gridrt.api import MESH_FACE_BYTES, MESH_VERTEX_BYTES
-    from gridrt.grid.build import build_bytes
+    from gridrt.grid.buffers import build_bytes
 
     v, f = icosphere(5)
     v, f = v.astype(dtypes[0]), f.astype(dtypes[1])
@@ -237,7 +237,8 @@ def test_subdivide_estimate_matches_peak(kind):
 def test_grid_estimate_matches_peak(strategy):
     """build_bytes (cells, references, triangles, layers: read off the grid built) against
     tracemalloc's peak of a fresh GridBuilder's build, at three densities."""
-    from gridrt.grid.build import GridBuilder, build_bytes
+    from gridrt.grid.buffers import build_bytes
+    from gridrt.grid.build import GridBuilder
 
     tris = icosphere_tris(4)
     for density in (1.0, 4.0, 16.0):
@@ -274,7 +275,7 @@ def test_frame_estimate_matches_peak():
     """A FramePipeline's first frame of a static plane at 800x600: the render's estimate plus the
     grid's (build_bytes of the grid it built) and the scene's float32 triangles, against
     tracemalloc's peak of the step."""
-    from gridrt.grid.build import build_bytes
+    from gridrt.grid.buffers import build_bytes
     from gridrt.pipeline import FramePipeline
     from gridrt.scene import make_scene
     from gridrt.trace.render import render_bytes
@@ -359,7 +360,7 @@ def test_subdivide_refused_with_estimate_and_limit(monkeypatch):
 def test_grid_refused_with_estimate_and_limit(monkeypatch):
     """A grid whose cell arrays, then one whose references, exceed the limit: refused before they
     are allocated, naming the cells or references, the bytes and the limit."""
-    from gridrt.grid.build import CELL_GROWTH, grown
+    from gridrt.grid.buffers import CELL_GROWTH, grown
 
     tris = icosphere_tris(3)
     limit_to(monkeypatch, 2_000_000)

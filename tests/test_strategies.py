@@ -27,7 +27,8 @@ from gridrt.camera import Camera
 from gridrt.config import GridParams, RenderParams
 from gridrt.errors import InputError
 from gridrt.grid import GridBuilder, get_builder, names
-from gridrt.grid.build import GridBuffers, make_spec
+from gridrt.grid.buffers import GridBuffers
+from gridrt.grid.build import make_spec
 from gridrt.grid.strategies.base import Strategy
 from gridrt.grid.strategies.shared import parallel_scan, part, ranges
 from gridrt.threads import max_threads, use_threads

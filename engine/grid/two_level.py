@@ -38,8 +38,6 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import InputError
-from ..memory import check_fits
-from .build import CELL_GROWTH, REF_GROWTH, grown
 from .common import EPS, cell_overlaps
 from .layout import Grid
 
@@ -234,37 +232,6 @@ def chunk_bounds(n_refs, n_chunks):
     targets = (np.arange(1, n_chunks, dtype=np.int64) * total) // n_chunks
     cuts = np.searchsorted(csum, targets, side="right")
     return np.unique(np.concatenate(([0], cuts, [T]))).astype(np.int64)
-
-
-class LeafBuffers:
-    """The leaf level's arrays, kept from one build to the next; they grow only when they must."""
-
-    def __init__(self):
-        self.res = np.zeros((0, 3), np.int32)
-        self.first = np.zeros(1, np.int32)
-        self._count = np.zeros(0, np.int32)
-        self._start = np.zeros(1, np.int32)
-        self._refs = np.zeros(0, np.int32)
-
-    def leaf_arrays(self, n_leaf):
-        new = [grown(n, CELL_GROWTH) if have < n else 0 for have, n in ((self._count.size, n_leaf),
-                                                                         (self._start.size, n_leaf + 1))]
-        check_fits(4 * sum(new), f"a two-level grid of {n_leaf:,} leaf cells", "int32 counts and offsets",
-                   "lower the leaf or top density")
-        if new[0]:
-            self._count = np.zeros(new[0], np.int32)
-        if new[1]:
-            self._start = np.zeros(new[1], np.int32)
-        start = self._start[: n_leaf + 1]
-        start[0] = 0
-        return self._count[:n_leaf], start
-
-    def refs(self, n):
-        if self._refs.size < n:
-            check_fits(4 * grown(n, REF_GROWTH), f"a two-level grid of {n:,} leaf references",
-                       "int32 triangle ids of its leaf cells", "lower the leaf or top density or use exact insertion")
-            self._refs = np.empty(grown(n, REF_GROWTH), np.int32)
-        return self._refs[:n]
 
 
 def build_leaves(top, tris, exact, leaf_density, threads, bufs, max_bytes, times):

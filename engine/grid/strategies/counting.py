@@ -23,7 +23,8 @@ from ..atomics import atomic_add
 from ..common import cell_overlaps
 from ..registry import register
 from .base import Strategy, timed
-from .shared import check_total, exclusive, parallel_scan_exclusive, part, range_volumes, ranges, scratch
+from ..buffers import scratch
+from .shared import check_total, exclusive, parallel_scan_exclusive, part, range_volumes, ranges
 
 
 @njit(cache=True, _nrt=False)

@@ -8,13 +8,11 @@ first write), so each page is first touched by the thread that fills it, which i
 machine needs to place it on that thread's node (Ize et al. 2006, "Targeting NUMA").
 """
 
-import weakref
-
 import numpy as np
 from numba import njit, prange
 
 from ...errors import InputError
-from ...memory import check_fits
+from ..buffers import scratch
 from ..common import cell_ranges_into, scan_into, sum_of
 from .base import timed
 
@@ -155,39 +153,3 @@ def range_volumes(rng, n_threads, sums):
         sums[t] = _volume_sum(rng[part(F, t, n_threads):part(F, t + 1, n_threads)])
 
 
-# ---------------------------------------------------------------------------------------------
-# scratch arrays kept per GridBuffers (so a GridBuilder reuses them frame to frame)
-
-_SCRATCH = weakref.WeakKeyDictionary()
-
-
-def scratch(bufs, name, n, dtype):
-    """A reusable (n,) array of ``dtype`` held alongside ``bufs``; contents are whatever the
-    previous user left, except that a newly allocated array is zero.  Grows by 1.25x."""
-    store = _SCRATCH.setdefault(bufs, {})
-    a = store.get(name)
-    if a is None or a.size < n or a.dtype != np.dtype(dtype):
-        from ..build import CELL_GROWTH, grown
-
-        check_fits(np.dtype(dtype).itemsize * grown(n, CELL_GROWTH), f"a grid build's {n:,} scratch values ({name})",
-                   "kept for later frames", "lower the density (lambda), max_cells or the thread count")
-        a = np.zeros(grown(n, CELL_GROWTH), dtype)
-        store[name] = a
-    return a[:n]
-
-
-def zero_scratch(bufs, name, n, dtype):
-    """Like :func:`scratch` for an array that users keep all zero between builds (they zero
-    what they wrote when they consume it).  Call :func:`scratch_done` once it is zero again;
-    a build that stopped half-way leaves it marked dirty and the next call zeroes it."""
-    store = _SCRATCH.setdefault(bufs, {})
-    a = scratch(bufs, name, n, dtype)
-    if store.get(name + "/dirty", False):
-        store[name].fill(0)
-    store[name + "/dirty"] = True
-    return a
-
-
-def scratch_done(bufs, name):
-    """Mark a :func:`zero_scratch` array as all zero again."""
-    _SCRATCH.setdefault(bufs, {})[name + "/dirty"] = False

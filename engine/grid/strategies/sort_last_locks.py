@@ -28,7 +28,8 @@ from ..atomics import spin_lock, spin_unlock
 from ..common import cell_overlaps
 from ..registry import register
 from .base import Strategy, timed
-from .shared import parallel_scan, part, ranges, scratch
+from ..buffers import scratch
+from .shared import parallel_scan, part, ranges
 
 #: lock granularity codes passed to the kernels
 GLOBAL, PER_CELL, PER_MACRO = 0, 1, 2

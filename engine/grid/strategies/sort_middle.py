@@ -22,7 +22,8 @@ from numba import njit, prange
 from ..common import RANGE_LANES, cell_overlaps, cell_ranges_into
 from ..registry import register
 from .base import Strategy, timed
-from .shared import parallel_scan, part, scratch
+from ..buffers import scratch
+from .shared import parallel_scan, part
 
 
 @njit(cache=True, _nrt=False)

@@ -28,7 +28,8 @@ from numba import njit, prange
 from ..common import cell_overlaps
 from ..registry import register
 from .base import Strategy, timed
-from .shared import check_total, exclusive, part, ranges, scratch, scratch_done, zero_scratch
+from ..buffers import scratch, scratch_done, zero_scratch
+from .shared import check_total, exclusive, part, ranges
 
 
 @njit(cache=True, parallel=True)
