@@ -46,7 +46,7 @@ def test_cli_defaults_are_the_dataclasses():
 
 
 def test_one_scene_spec_everywhere():
-    from gridrt.app.bench.util import resolve_scene, scene_spec
+    from gridrt.app.bench.scenes import resolve_scene, scene_spec
     from gridrt.app.viewer import state
 
     assert state.SceneSpec is SceneSpec

@@ -25,10 +25,10 @@ import numpy as np
 
 from gridrt.errors import InputError
 
-from .util import (
-    check_runs, finish_machine, machine_info, md_table, out_dir, progress, scene_available, scene_spec, write_csv,
-    write_json, write_summary,
-)
+from .machine import finish_machine, machine_info
+from .options import check_runs
+from .output import md_table, out_dir, progress, write_csv, write_json, write_summary
+from .scenes import scene_available, scene_spec
 
 CLUSTER_SCENE = "kitchen"
 CLUSTER_FALLBACK = "marbles"

@@ -17,10 +17,11 @@ import gridrt  # noqa: F401
 from gridrt.config import GridParams, RenderParams
 from gridrt.pipeline import FramePipeline
 
-from .util import (
-    check_runs, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress, put_stat, resolve_scene,
-    scene_list, thread_list, write_csv, write_json, write_summary,
-)
+from .machine import finish_machine, machine_info
+from .options import check_runs, thread_list
+from .output import md_table, out_dir, progress, write_csv, write_json, write_summary
+from .scenes import resolve_scene, scene_list
+from .stats import fmt_ms, put_stat
 
 LOOKS_SCENES = ["kitchen", "cesium", "tokyo"]
 LOOKS_FALLBACK = ["cesium_man", "museum"]

@@ -15,7 +15,7 @@ after ``--warmup`` untimed runs (numba compiles, buffers grow), with min and max
 ``build``, ``frame`` and ``peers`` take ``--grid`` (grid kinds, comma-separated: uniform,two_level
 measures both side by side) with ``--top-density`` and ``--leaf-density``; every row records the
 grid kind asked for and built, the densities, cells (a two-level grid's leaf cells), references,
-grid bytes and bytes per triangle (:func:`gridrt.app.bench.util.grid_columns`).
+grid bytes and bytes per triangle (:func:`gridrt.app.bench.output.grid_columns`).
 * ``trade``: every knob that trades speed for accuracy against a brute-force float64 reference
   (:mod:`gridrt.app.bench.trade`).
 * ``peers``: the same animated mesh and rays through Intel Embree (embreex) side by side
@@ -43,11 +43,11 @@ from gridrt.trace.render import Renderer
 
 from ..cli import add_packet_args, defaults
 from ..cluster import add_cluster_args, wants_cluster
-from .util import (
-    add_grid_kind_args, check_frame_args, check_runs, facing_camera, figure, finish_machine, fmt_ms, grid_columns,
-    grid_kinds, machine_info, md_table, out_dir, progress, put_stat, resolve_scene, scene_list, scenes_help, stat,
-    thread_list, write_csv, write_json, write_summary,
-)
+from .machine import finish_machine, machine_info
+from .options import add_grid_kind_args, check_frame_args, check_runs, grid_kinds, thread_list
+from .output import figure, grid_columns, md_table, out_dir, progress, write_csv, write_json, write_summary
+from .scenes import facing_camera, resolve_scene, scene_list, scenes_help
+from .stats import fmt_ms, put_stat, stat, timings
 
 #: the fps figures of Ize et al. 2006 and of CGT (Wald et al. 2006, "Ray Tracing Animated Scenes using
 #: Coherent Grid Traversal"), quoted in summaries
@@ -140,18 +140,6 @@ def add_parser(sub):
 CORE_ALIASES = {"bunny16": "bunny:1000000", "ico82k": "icosphere:81920", "ico1m": "icosphere:1310720"}
 CORE_SCENES = ["lucy", "bunny:1000000"]
 CORE_FALLBACK = ["icosphere:81920", "icosphere:1310720"]
-
-
-def timings(fn, runs, warmup=1):
-    """(median, min, max) ms of ``runs`` calls of fn after ``warmup`` untimed calls."""
-    for _ in range(warmup):
-        fn()
-    ts = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        fn()
-        ts.append((time.perf_counter() - t0) * 1e3)
-    return stat(ts)
 
 
 def _one_shot_rows(tris, label, runs, warmup):
@@ -358,7 +346,7 @@ def _run_build_cluster(a, specs, note, strategies, kinds, params, size, runs, wa
     threads) measured whole by one worker, its builds back to back (a worker holds one
     configuration at a time; nothing interleaves them)."""
     from . import on_cluster
-    from .sweep import plot_methods, plot_steps, write_csv as write_sweep_csv
+    from .sweep import plot_methods, plot_steps
 
     out = out_dir(a.out)
     if note:
@@ -372,7 +360,7 @@ def _run_build_cluster(a, specs, note, strategies, kinds, params, size, runs, wa
         bw, where = on_cluster.stream_on_worker(cl, mib, threads, 3 if a.quick else 5, a.no_progress, pressed)
     info["workers"] = machines
     info["stream_measured_on"] = where
-    write_sweep_csv(rows, out / "build_sweep.csv")
+    write_csv(rows, out / "build_sweep.csv")
     plot_methods(rows, out / "build_methods.png")
     plot_steps(rows, out / "build_steps.png")
     scenes = {r["scene"]: None for r in rows}

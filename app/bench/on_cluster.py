@@ -22,14 +22,14 @@ from ..cluster import _LOCK, Cluster, CtrlC, Stop, fetch_done, worker_address, w
 _WORKER = {"machine": None}
 def _bench_scene(text):
     """The worker's BenchScene of a --scenes entry, loaded once per worker process."""
-    from .util import resolve_scene
+    from .scenes import resolve_scene
 
     return worker_cached(("bench", text), lambda: resolve_scene(text))
 
 
 def _machine():
     """This worker's machine record (measured once per worker process)."""
-    from .util import machine_info
+    from .machine import machine_info
 
     if _WORKER["machine"] is None:
         info = machine_info([])
@@ -110,7 +110,7 @@ def run_configs(cl, calls, desc, no_progress=False, unit="config", pressed=lambd
     """Each ``(fn, args)`` of ``calls`` as one task; returns (rows in the order of ``calls``,
     {worker: machine record}).  The first error stops the run and is raised; Ctrl-C cancels
     the cluster's work and raises KeyboardInterrupt."""
-    from .util import progress
+    from .output import progress
 
     client = cl.client
     futs = [client.submit(_run, fn, *args, pure=False) for fn, args in calls]

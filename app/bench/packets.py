@@ -22,12 +22,12 @@ from gridrt.trace.grids import grid_arrays
 from gridrt.trace.render import Renderer
 from gridrt.trace.traverse import MAILBOX
 
-from .main import timings
 from .peers import _camera_rays
-from .util import (
-    check_runs, finish_machine, machine_info, md_table, out_dir, progress, resolve_scene, scene_list, write_csv,
-    write_json, write_summary,
-)
+from .machine import finish_machine, machine_info
+from .options import check_runs
+from .output import md_table, out_dir, progress, write_csv, write_json, write_summary
+from .scenes import resolve_scene, scene_list
+from .stats import timings
 
 PACKET_SCENES = ["lucy:twist", "icosphere:1310720:twist"]
 PACKET_FALLBACK = ["icosphere:81920:twist", "icosphere:1310720:twist"]

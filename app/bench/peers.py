@@ -44,11 +44,12 @@ from gridrt.trace.render import Renderer, cast_rays
 
 from ..cli import add_packet_args
 
-from .util import (
-    Affinity, add_grid_kind_args, check_frame_args, figure, finish_machine, fmt_ms, grid_columns, grid_kinds, grid_label,
-    machine_info, md_table, out_dir, progress, put_stat, resolve_scene, scene_camera, scene_list, scenes_help,
-    thread_list, write_csv, write_json, write_summary,
-)
+from .affinity import Affinity
+from .machine import finish_machine, machine_info
+from .options import add_grid_kind_args, check_frame_args, grid_kinds, thread_list
+from .output import figure, grid_columns, grid_label, md_table, out_dir, progress, write_csv, write_json, write_summary
+from .scenes import resolve_scene, scene_camera, scene_list, scenes_help
+from .stats import fmt_ms, put_stat
 from .reference import brute_cast
 from .sides import (  # noqa: F401  (INSTALL_HINT)
     INSTALL_HINT, EmbreeFastSide, EmbreeRobustSide, EmbreeSide, MissingPeer, MitsubaSide, Open3DSide,

@@ -18,7 +18,6 @@ own in the plots; with ``render`` each configuration's last grid is also rendere
 ms, tests and cells per ray), so a kind's build cost and what it buys the rays sit in one row.
 """
 
-import csv
 import math
 import os
 import time
@@ -32,6 +31,8 @@ from gridrt.grid.build import GridBuilder
 from gridrt.grid.registry import get_builder
 from gridrt.grid.traffic import stage_bytes
 from gridrt.threads import check_threads
+
+from .output import write_csv
 
 #: the three build stages of Ize et al. 2006, in plot order
 STAGES = ("clear_ms", "insert_ms", "macro_ms")
@@ -115,7 +116,7 @@ def run_build_sweep(
 
     Returns one dict per configuration: scene, triangles, strategy, threads, cores,
     oversubscribed, insert, density, macro, runs, the grid's columns
-    (:func:`gridrt.app.bench.util.grid_columns`: grid, grid_built, top_density, leaf_density,
+    (:func:`gridrt.app.bench.output.grid_columns`: grid, grid_built, top_density, leaf_density,
     cells, references, grid_bytes, bytes_per_tri), and for every timed stage ``<stage>``
     (median), ``<stage>_min``, ``<stage>_max`` in ms (build_ms, bounds_ms, clear_ms, insert_ms,
     macro_ms and the strategy's sub-stages, a two-level grid's leaf stages), plus lock_waits
@@ -205,7 +206,7 @@ def _measure(scene_name, src, group, runs, warmup, cores, render=0):
                 smp.append(g.stats)
     figures = [{} for _ in group]
     if render:
-        from .util import scene_camera
+        from .scenes import scene_camera
 
         last = warmup + runs - 1
         cam = scene_camera(src, tris, 0.0 if getattr(src, "static", True) else last * FRAME_DT, origin)
@@ -232,7 +233,7 @@ def _render_figures(grid, tris, cam, p, size, runs):
 
 
 def _row(scene_name, p, samples, runs, cores, figures=None):
-    from .util import grid_columns
+    from .output import grid_columns
 
     last = samples[-1]
     row = dict(
@@ -271,24 +272,10 @@ def _row(scene_name, p, samples, runs, cores, figures=None):
     return row
 
 
-def write_csv(rows, path):
-    """Write rows (dicts, possibly with different keys) to a CSV; missing cells are empty."""
-    cols = []
-    for r in rows:
-        for k in r:
-            if k not in cols:
-                cols.append(k)
-    with open(path, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=cols, restval="")
-        w.writeheader()
-        for r in rows:
-            w.writerow(r)
-
-
 def line_label(r, rows):
     """A row's line in the plots and tables: its strategy, and its grid kind when ``rows`` hold
     more than one."""
-    from .util import grid_label
+    from .output import grid_label
 
     return r["strategy"] + grid_label(r, rows)
 

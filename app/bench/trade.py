@@ -39,10 +39,11 @@ from gridrt.grid.registry import get_builder
 from gridrt.threads import check_threads
 from gridrt.trace.render import Renderer, cast_rays
 
-from .util import (
-    check_runs, figure, finish_machine, float_list, grid_columns, int_list, machine_info, md_table, out_dir,
-    pareto_front, progress, put_stat, resolve_scene, scene_available, scene_camera, write_csv, write_json, write_summary,
-)
+from .machine import finish_machine, machine_info
+from .options import check_runs, float_list, int_list
+from .output import figure, grid_columns, md_table, out_dir, progress, write_csv, write_json, write_summary
+from .scenes import resolve_scene, scene_available, scene_camera
+from .stats import pareto_front, put_stat
 from .reference import HOLE_REL, brute_cast, compare_to_reference, count_holes, pixel_rays, probe_rays, sample_pixels
 
 KNOBS = ("insert", "lambda", "macro", "intersect", "traversal", "resolution", "precision", "packet",
