@@ -16,6 +16,10 @@ from .errors import InputError
 
 #: default viewing direction (from target towards eye) for automatic framing
 FRAME_DIR = (0.55, 0.45, 1.0)
+#: default vertical field of view in degrees (Camera, automatic framing, gridrt.frame.ViewSpec)
+DEFAULT_FOV = 45.0
+#: default up vector (Camera, automatic framing, gridrt.frame.ViewSpec)
+DEFAULT_UP = (0.0, 1.0, 0.0)
 
 
 #: largest eye/target coordinate magnitude (the scenes' own limit, gridrt.grid.common.BAD_MAGNITUDE)
@@ -51,6 +55,14 @@ def check_fov(fov):
     if not (0.0 < f < 180.0):
         raise InputError(f"camera fov must be between 0 and 180 degrees (exclusive), got {f:g}")
     return f
+
+
+def check_up(up):
+    """``up`` as a tuple of 3 finite floats, not all zero; InputError naming the up vector otherwise."""
+    u = _vec3(up, "up")
+    if _unit(u) is None:
+        raise InputError("camera up vector is zero")
+    return tuple(u.tolist())
 
 
 def _unit(v):
@@ -101,8 +113,8 @@ class Camera:
 
     eye: tuple = (0.0, 0.0, 5.0)
     target: tuple = (0.0, 0.0, 0.0)
-    up: tuple = (0.0, 1.0, 0.0)
-    fov: float = 45.0
+    up: tuple = DEFAULT_UP
+    fov: float = DEFAULT_FOV
 
     def __post_init__(self):
         eye = _vec3(self.eye, "eye")
@@ -127,7 +139,7 @@ class Camera:
         object.__setattr__(self, "fov", fov)
 
     @classmethod
-    def frame(cls, lo, hi, fov=45.0, direction=FRAME_DIR, up=(0.0, 1.0, 0.0)):
+    def frame(cls, lo, hi, fov=DEFAULT_FOV, direction=FRAME_DIR, up=DEFAULT_UP):
         """A camera looking at the centre of the box [lo, hi] from ``direction``, far enough
         that the box's bounding sphere fits the vertical field of view (with a 5% margin)."""
         fov = check_fov(fov)

@@ -34,6 +34,19 @@ DEFAULT_TOP_DENSITY = 0.0625
 DEFAULT_LEAF_DENSITY = 2.0
 
 
+def check_finite(name, v):
+    """``v`` as a finite float; InputError naming ``name`` for anything else (a bool too)."""
+    if isinstance(v, bool) or type(v).__name__ == "bool_":
+        raise InputError(f"{name} must be a number, got {v!r}")
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a number, got {v!r}") from None
+    if not math.isfinite(f):
+        raise InputError(f"{name} must be finite, got {v!r}")
+    return f
+
+
 def _positive_int(name, v, lo=1, hi=None):
     if isinstance(v, bool) or not isinstance(v, int):
         try:

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .camera import Camera
+from .camera import DEFAULT_FOV, DEFAULT_UP, Camera
 from .config import GridParams, RenderParams
 from .errors import InputError
 from .grid.build import GridBuilder
@@ -103,7 +103,7 @@ class FramePipeline:
     caster traverses both; triangle ids in the output stay the scene's.
     """
 
-    def __init__(self, scene, grid_params=None, render_params=None, camera=None, fov=45.0, up=(0.0, 1.0, 0.0),
+    def __init__(self, scene, grid_params=None, render_params=None, camera=None, fov=DEFAULT_FOV, up=DEFAULT_UP,
                  split_static=True, follow_camera=False):
         self.scene = scene
         self.fov = fov
