@@ -338,7 +338,7 @@ def test_subdivide_refused_with_estimate_and_limit(monkeypatch):
     limit), and the next pass would not."""
     from gridrt.memory import human
     from gridrt.scene import make_scene
-    from gridrt.scene.mesh import load_mesh
+    from gridrt.scene.loader import load_mesh
     from gridrt.scene.subdivide import subdivide_bytes
 
     mesh = load_mesh(TEAPOT)
@@ -504,7 +504,7 @@ def run_cli(argv, capsys):
 def test_cli_subdivide_refused(tmp_path, capsys, monkeypatch):
     """``gridrt dump --subdivide 100000000`` (the largest target): one line stating the estimate
     and the limit, exit 2, and under 64 MB allocated on the way (the refusal comes first)."""
-    from gridrt.scene.mesh import load_mesh
+    from gridrt.scene.loader import load_mesh
     from gridrt.scene.subdivide import subdivide_bytes
 
     monkeypatch.setattr(memory, "available", lambda: (8 * 10**9, "MemAvailable"))

@@ -37,9 +37,10 @@ from .bart import BartAnimation
 from .deform import DEFORM_KINDS, Deform
 from .frames import FRAME_EXTENSIONS, KeyframeMesh, check_fps, is_frame_folder, load_frame_folder
 from .gltf import DRACO_HINT, GltfAnimation
+from .loader import SUPPORTED_EXTENSIONS, load_mesh
 from .marbles import Marbles
 from .md2 import Md2Model
-from .mesh import SUPPORTED_EXTENSIONS, Mesh, load_mesh, quiet_trimesh
+from .mesh import Mesh, quiet_trimesh
 from .spec import SceneSpec
 from .subdivide import subdivide_mesh
 

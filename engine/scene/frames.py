@@ -173,7 +173,7 @@ def load_frame_folder(folder, fps=30.0, *, allow_outside=False):
     unless ``allow_outside`` trusts them.
     """
     from .files import SceneFolder
-    from .mesh import load_mesh
+    from .loader import load_mesh
 
     folder = Path(folder)
     if not folder.is_dir():
