@@ -31,7 +31,7 @@ from gridrt.scene import (
     subdivide_mesh,
 )
 from gridrt.scene import files as files_module
-from gridrt.scene import mesh as mesh_module
+from gridrt.scene import loader as loader_module
 from gridrt.scene.animation import as_static_mask
 
 from conftest import ASSETS, available, data_path
@@ -337,7 +337,7 @@ def hide_dracopy(monkeypatch):
     import importlib.util
 
     real = importlib.util.find_spec
-    monkeypatch.setattr(mesh_module.importlib.util, "find_spec",
+    monkeypatch.setattr(loader_module.importlib.util, "find_spec",
                         lambda name, *a: None if name == "DracoPy" else real(name, *a))
 
 
@@ -985,7 +985,7 @@ def test_icosphere_count_beyond_the_largest_warns_with_the_count_made(monkeypatc
     """The icosphere caps at 20 x 4^9 triangles; a larger count once gave that silently."""
     import warnings
 
-    import gridrt.scene as scene_module
+    from gridrt.scene import make as scene_module
 
     monkeypatch.setattr(scene_module, "_ICOSPHERE_MAX_SUBDIVISIONS", 2)  # a small cap keeps the test fast
     with pytest.warns(scene_module.SceneCountWarning) as caught:
