@@ -208,7 +208,7 @@ def compile_progress(report, package="gridrt"):
 def _kernels(traversal="dda"):
     """The render kernels a first frame of this traversal may run: the parallel one and its serial
     twin (gridrt.trace.twin; the serial one runs while the parallel one is not compiled)."""
-    from .trace.cgt import _render_tiles, cgt_render_kernel
+    from .trace.cgt.frame import _render_tiles, cgt_render_kernel
     from .trace.render import render_kernel, render_serial
 
     # (the serial CGT render is a Python function around the kernel _render_tiles)

@@ -44,7 +44,7 @@ from .batch import MAX_CELLS, cast_grouped, odd_directions
 from .traverse import MAILBOX, trace_grids
 from .twin import TWINS
 from ..camera import Camera, pixel_dir
-from .cgt import cgt_render_kernel, cgt_render_serial
+from .cgt.frame import cgt_render_kernel, cgt_render_serial
 from .grids import grid_arrays, pack_grids, unpack_grids
 from .shade import (  # noqa: F401  (the shading constants stay importable from here)
     AMBIENT, ALBEDO, BACKGROUND, COST_SCALE, cost_rgb, facing_normal, lambert_rgb, normal_rgb, put_pixel, scene_id,
