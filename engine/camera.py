@@ -12,7 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
+from .checks import MAX_IMAGE_SIDE, _positive_int
 from .errors import InputError
+from .memory import check_fits
 
 #: default viewing direction (from target towards eye) for automatic framing
 FRAME_DIR = (0.55, 0.45, 1.0)
@@ -178,9 +180,6 @@ class Camera:
         """Primary rays, row-major from the top-left pixel: (origins, dirs), each (H*W, 3) float64;
         InputError before allocating when their 48 bytes a pixel exceed the memory left
         (gridrt.memory)."""
-        from .config import MAX_IMAGE_SIDE, _positive_int
-        from .memory import check_fits
-
         W = _positive_int("image width", width, 1, MAX_IMAGE_SIDE)
         H = _positive_int("image height", height, 1, MAX_IMAGE_SIDE)
         check_fits(48 * W * H, f"making the primary rays of {W:,}x{H:,} pixels", "float64 origins and directions",

@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from .config import check_finite
+from .checks import check_finite
 from .errors import InputError
 
 #: smallest angle (radians) between the viewing axis and the world up axis that orbit allows

@@ -6,6 +6,7 @@ Each dataclass validates itself in ``__post_init__`` and raises InputError namin
 import math
 from dataclasses import dataclass, field, replace
 
+from .checks import MAX_IMAGE_SIDE, _positive_int, check_finite
 from .errors import InputError
 
 INSERT_MODES = ("bbox", "exact")
@@ -22,8 +23,6 @@ TRAVERSALS = ("dda", "cgt")
 PACKET_PRECISIONS = ("float64", "float32")
 #: the largest CGT packet edge in pixels (RenderParams.packet)
 PACKET_MAX = 16
-#: the largest image width or height (RenderParams)
-MAX_IMAGE_SIDE = 16384
 #: Default ceiling on grid cells (two int32 arrays of this size plus cell lists): 256 MiB.
 DEFAULT_MAX_CELLS = 1 << 25
 #: Default memory budget of one grid (cell arrays + references): 2 GiB.
@@ -32,33 +31,6 @@ DEFAULT_MAX_BYTES = 1 << 31
 #: reference): BENCHMARKS.md section 14
 DEFAULT_TOP_DENSITY = 0.0625
 DEFAULT_LEAF_DENSITY = 2.0
-
-
-def check_finite(name, v):
-    """``v`` as a finite float; InputError naming ``name`` for anything else (a bool too)."""
-    if isinstance(v, bool) or type(v).__name__ == "bool_":
-        raise InputError(f"{name} must be a number, got {v!r}")
-    try:
-        f = float(v)
-    except (TypeError, ValueError):
-        raise InputError(f"{name} must be a number, got {v!r}") from None
-    if not math.isfinite(f):
-        raise InputError(f"{name} must be finite, got {v!r}")
-    return f
-
-
-def _positive_int(name, v, lo=1, hi=None):
-    if isinstance(v, bool) or not isinstance(v, int):
-        try:
-            if int(v) != v:
-                raise ValueError
-            v = int(v)
-        except (TypeError, ValueError):
-            raise InputError(f"{name} must be an integer, got {v!r}") from None
-    if v < lo or (hi is not None and v > hi):
-        rng = f">= {lo}" if hi is None else f"between {lo} and {hi}"
-        raise InputError(f"{name} must be {rng}, got {v}")
-    return v
 
 
 @dataclass(frozen=True)

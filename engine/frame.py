@@ -16,7 +16,8 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 
 from .camera import DEFAULT_FOV, DEFAULT_UP, Camera, check_fov, check_up
-from .config import GridParams, RenderParams, check_finite
+from .checks import check_finite
+from .config import GridParams, RenderParams
 from .errors import InputError
 from .scene.spec import SceneSpec
 

@@ -3,7 +3,7 @@ render worker's load job, a benchmark's scene spec) with :meth:`SceneSpec.make` 
 
 from dataclasses import dataclass, fields, replace
 
-from ..config import check_finite
+from ..checks import check_finite
 from ..errors import InputError
 
 
