@@ -60,21 +60,21 @@ def _run(fn, *args):
 
 
 def _scene_facts(text):
-    from .main import _has_split
+    from .frame import _has_split
 
     sc = _bench_scene(text)
     return [{"label": sc.label, "has_split": _has_split(sc.scene)}]
 
 
 def _build_config(text, params, runs, warmup, render):
-    from .sweep import _measure
+    from .build import _measure
 
     sc = _bench_scene(text)
     return _measure(sc.label, sc.scene, [params], runs, warmup, os.cpu_count() or 1, render)
 
 
 def _frame_config(text, variant, settings, runs, warmup, dt):
-    from .main import frame_pipeline, frame_row
+    from .frame import frame_pipeline, frame_row
 
     sc = _bench_scene(text)
     pipe = frame_pipeline(sc.scene, variant, **settings)

@@ -157,7 +157,7 @@ def run_peers(a):
         info[peer.name] = peer.version
     if note:
         print(f"note: {note}", file=sys.stderr)
-    from .main import frame_strategy
+    from .frame import frame_strategy
 
     scenes = [resolve_scene(s) for s in specs]
     rows = []

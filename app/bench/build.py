@@ -20,6 +20,7 @@ ms, tests and cells per ray), so a kind's build cost and what it buys the rays s
 
 import math
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -32,7 +33,12 @@ from gridrt.grid.registry import get_builder
 from gridrt.grid.traffic import stage_bytes
 from gridrt.threads import check_threads
 
-from .output import write_csv
+from ..cluster import wants_cluster
+from .machine import finish_machine, machine_info
+from .options import check_runs, grid_kinds, thread_list
+from .output import md_table, out_dir, write_csv, write_json, write_summary
+from .scenes import resolve_scene, scene_list
+from .stats import fmt_ms
 
 #: the three build stages of Ize et al. 2006, in plot order
 STAGES = ("clear_ms", "insert_ms", "macro_ms")
@@ -364,3 +370,226 @@ def plot_steps(rows, path):
     _legend(fig, axes)
     fig.suptitle("Individual steps (median, band: min..max)")
     fig.savefig(path, dpi=110, bbox_inches="tight")
+
+
+BUILD_SCENES = ["marbles", "cesium", "lucy", "kitchen", "marbles:1000000", "lucy:1600000"]
+BUILD_FALLBACK = ["marbles", "icosphere:81920", "icosphere:1310720"]
+#: image edge of the render that gives each `bench build` row its render ms, tests and cells per ray
+BUILD_RENDER_SIZE = 256
+
+
+def run_build(a):
+    from gridrt.grid.registry import get_builder, names
+
+    check_runs(a.runs, a.warmup)
+    runs, warmup = (1, 2) if a.quick else (a.runs, a.warmup)  # 2: a builder's first build clears nothing
+    specs, note = scene_list(a.scenes, BUILD_SCENES, BUILD_FALLBACK, quick=["icosphere:1280"] if a.quick else None)
+    if a.strategies:
+        strategies = [s.strip() for s in a.strategies.split(",") if s.strip()]
+        for s in strategies:
+            get_builder(s)
+    else:
+        strategies = names()
+    kinds = grid_kinds(a)
+    params = GridParams(density=a.density, macro=a.macro, insert=a.insert, top_density=a.top_density,
+                        leaf_density=a.leaf_density)
+    if a.size < 0:
+        raise InputError(f"--size must be 0 (no render) or positive, got {a.size}")
+    if a.threads:
+        thread_list(a.threads)  # (checked before a cluster starts)
+    size = min(a.size, 64) if a.quick else a.size
+    mib = 16 if a.quick else 256
+    if wants_cluster(a):
+        return _run_build_cluster(a, specs, note, strategies, kinds, params, size, runs, warmup, mib)
+    cores = check_threads(None)
+    threads = thread_list(a.threads) if a.threads else list(range(1, cores + 1))
+    out = out_dir(a.out)
+    info = machine_info(threads)
+    if note:
+        print(f"note: {note}", file=sys.stderr)
+    scenes = {}
+    for spec in specs:
+        sc = resolve_scene(spec)
+        scenes[sc.label] = sc.scene
+    rows = run_build_sweep(scenes, strategies, threads, runs=runs, warmup=warmup, out_dir=out,
+                           progress=not a.no_progress, params=params, interleave=not a.back_to_back, grids=kinds,
+                           render=size)
+    from gridrt.grid.traffic import stream_bandwidth
+
+    bw = stream_bandwidth(mib, threads, runs=3 if a.quick else 5)
+    return _finish_build(a, out, info, rows, scenes, strategies, threads, runs, warmup, params, bw, mib, kinds, size,
+                         note)
+
+
+def _run_build_cluster(a, specs, note, strategies, kinds, params, size, runs, warmup, mib):
+    """``bench build`` on a Dask cluster: every configuration (scene, strategy, grid kind,
+    threads) measured whole by one worker, its builds back to back (a worker holds one
+    configuration at a time; nothing interleaves them)."""
+    from . import on_cluster
+
+    out = out_dir(a.out)
+    if note:
+        print(f"note: {note}", file=sys.stderr)
+    with on_cluster.open_cluster(a) as (cl, pressed):
+        threads = thread_list(a.threads) if a.threads else list(range(1, on_cluster.worker_cores(cl) + 1))
+        info = machine_info(threads)
+        info["cluster"] = cl.where
+        calls = on_cluster.build_calls(specs, strategies, kinds, threads, params, runs, warmup, size)
+        rows, machines = on_cluster.run_configs(cl, calls, "build sweep (cluster)", a.no_progress, pressed=pressed)
+        bw, where = on_cluster.stream_on_worker(cl, mib, threads, 3 if a.quick else 5, a.no_progress, pressed)
+    info["workers"] = machines
+    info["stream_measured_on"] = where
+    write_csv(rows, out / "build_sweep.csv")
+    plot_methods(rows, out / "build_methods.png")
+    plot_steps(rows, out / "build_steps.png")
+    scenes = {r["scene"]: None for r in rows}
+    a.back_to_back = True
+    return _finish_build(a, out, info, rows, scenes, strategies, threads, runs, warmup, params, bw, mib, kinds, size,
+                         note)
+
+
+def _finish_build(a, out, info, rows, scenes, strategies, threads, runs, warmup, params, bw, mib, kinds, size, note):
+    info["stream_gbs"] = {str(t): {k: round(v, 2) for k, v in d.items()} for t, d in bw.items()}
+    finish_machine(info)
+    write_json(info, out / "machine.json")
+    body = _build_summary(rows, scenes, strategies, threads, runs, warmup, params, bw, mib, a.back_to_back, kinds, size)
+    if note:
+        body += ["", f"Note: {note}."]
+    write_summary(out / "summary.md", "gridrt bench build", info,
+                  [("Results", body), ("Figures", ["![build methods](build_methods.png)", "",
+                                                   "![build steps](build_steps.png)"])])
+    for line in body:
+        if line.startswith("|") or line.startswith("###"):
+            print(line)
+    print(f"wrote {out}/build_sweep.csv, build_methods.png, build_steps.png, summary.md")
+    return 0
+
+
+def _build_summary(rows, scenes, strategies, threads, runs, warmup, params, bw, mib, back_to_back=False,
+                   kinds=("uniform",), size=0):
+    order = ("each configuration's builds back to back, one builder, as in a viewer" if back_to_back
+             else "strategies interleaved round-robin, so a large scene's buffers are out of cache at each build")
+    two_level = f", two-level densities top {params.top_density:g}, leaf {params.leaf_density:g}" if any(
+        k != "uniform" for k in kinds) else ""
+    body = [f"Grid builds per configuration: {warmup} warm-up + {runs} timed (animated scenes advance 1/30 s "
+            f"per build; {order}); insertion {params.insert}, lambda {params.density:g}, "
+            f"macro {params.macro}{two_level}; grid {', '.join(kinds)}.  Cells: build ms median [min-max].  "
+            f"Speed-up: serial at 1 thread{' (same grid kind)' if len(kinds) > 1 else ''} / this.", ""]
+    for sc in scenes:
+        rs = [r for r in rows if r["scene"] == sc]
+        if not rs:
+            continue
+        tri = rs[0]["triangles"]
+        base = {k: next((r["build_ms"] for r in rs if r["strategy"] == "serial" and r["threads"] == 1
+                         and r["grid"] == k), float("nan")) for k in kinds}
+        first = {k: next(r for r in rs if r["grid"] == k) for k in kinds}
+        sizes = {k: f"{r['references']:,} references, {r['cells']:,} cells" for k, r in first.items()}
+        body.append(f"### {sc} ({tri:,} triangles, "
+                    + ("; ".join(f"{k}: {v}" for k, v in sizes.items()) if len(kinds) > 1 else sizes[kinds[0]]) + ")")
+        body.append("")
+        table = []
+        for s in strategies:
+            for k in kinds:
+                row = next((r for r in rs if r["strategy"] == s and r["grid"] == k), None)
+                cells = [line_label(row, rows)] if row else [s]
+                for t in threads:
+                    r = next((r for r in rs if r["strategy"] == s and r["grid"] == k and r["threads"] == t), None)
+                    cells.append(fmt_ms(r, "build_ms")
+                                 + (f" ({base[k] / r['build_ms']:.2f}x)" if r and r["build_ms"] > 0 else ""))
+                table.append(cells)
+        body += md_table(["strategy"] + [f"{t} thread(s)" for t in threads], table)
+        tmax = max(threads)
+        best = min((r for r in rs if r["threads"] == tmax), key=lambda r: r["build_ms"])
+        b0 = base[kinds[0]]
+        body += ["", f"Fastest at {tmax} thread(s): {line_label(best, rows)} ({best['build_ms']:.1f} ms, "
+                 f"{tri / best['build_ms'] / 1e3:.1f} M triangles/s).  Serial at 1 thread"
+                 f"{f' ({kinds[0]})' if len(kinds) > 1 else ''}: {b0:.1f} ms ({tri / b0 / 1e3:.1f} M triangles/s).  "
+                 f"Stages at {tmax} thread(s), ms median{' (leaf: the two-level leaf passes)' if two_level else ''}:", ""]
+        stage = []
+        for s in strategies:
+            for k in kinds:
+                r = next((r for r in rs if r["strategy"] == s and r["grid"] == k and r["threads"] == tmax), None)
+                if r:
+                    leaf = [f"{sum(r.get(f'leaf_{x}_ms', 0.0) for x in ('res', 'count', 'scatter')):.2f}"]
+                    stage.append([line_label(r, rows), f"{r['bounds_ms']:.2f}", f"{r['clear_ms']:.2f}",
+                                  f"{r['insert_ms']:.2f}", f"{r['macro_ms']:.2f}", *(leaf if two_level else []),
+                                  f"{r['build_ms']:.2f}"])
+        body += md_table(["strategy", "bounds", "clear", "insert", "macro", *(["leaf"] if two_level else []), "total"],
+                         stage) + [""]
+        body += _grid_table(rs, kinds, tmax, size)
+    body += _traffic_section(rows, threads, bw, mib)
+    return body
+
+
+def _grid_table(rs, kinds, tmax, size):
+    """Per grid kind of one scene, the fastest strategy at tmax threads: what the grid costs and
+    what it buys the rays."""
+    table = []
+    for k in kinds:
+        r = min((r for r in rs if r["grid"] == k and r["threads"] == tmax), key=lambda r: r["build_ms"], default=None)
+        if r is None:
+            continue
+        ray = ([fmt_ms(r, "render_ms"), f"{r['tests_per_ray']:.2f}", f"{r['cells_per_ray']:.2f}"] if size else [])
+        table.append([k, r["grid_built"], r["strategy"], f"{r['build_ms']:.2f}", f"{r['references']:,}",
+                      f"{r['cells']:,}", f"{r['bytes_per_tri']:.1f}", *ray])
+    ray = [f"render ms {size}x{size}", "tests/ray", "cells/ray"] if size else []
+    return [f"Grid kinds at {tmax} thread(s) (fastest strategy; cells: a two-level grid's leaf cells; render: the "
+            "scene's camera, lambert, the default traversal):", "",
+            *md_table(["grid", "built", "strategy", "build ms", "references", "cells", "bytes/tri", *ray], table), ""]
+
+
+def _traffic_section(rows, threads, bw, mib):
+    """Bytes moved per build (gridrt.grid.traffic model) against measured streaming bandwidth."""
+    body = ["### Memory traffic: bytes moved per build against streaming bandwidth", "",
+            f"Sequential streaming bandwidth over {mib} MiB, numba kernels, each thread its own part (GB/s):", ""]
+    body += md_table(["threads", "read", "write", "copy (read + write)"],
+                     [[str(t), f"{bw[t]['read']:.1f}", f"{bw[t]['write']:.1f}", f"{bw[t]['copy']:.1f}"]
+                      for t in threads])
+    modelled = [r for r in rows if r.get("model_mb")]
+    if not modelled:
+        return body + ["", "No modelled build in this sweep (model: serial, counting, sort_middle, bbox insertion)."]
+    big = max(r["triangles"] for r in modelled)
+    for sc in dict.fromkeys(r["scene"] for r in modelled if r["triangles"] >= min(big, 500_000)):
+        body += _traffic_scene(rows, sc, threads, bw)
+    return body
+
+
+def _traffic_scene(rows, sc, threads, bw):
+    from gridrt.grid.traffic import MODELLED
+
+    body = ["", f"#### {sc}", "", "Bytes each stage reads and writes (engine/grid/traffic.py counts every array "
+            "element once per pass that touches it, so it is a floor), the time measured, and the rate that "
+            "makes.  'floor ms' = bytes / the copy bandwidth at that thread count: the time the stage would take "
+            "if memory bandwidth were its only limit.", ""]
+    def row(strategy, t):
+        return next((r for r in rows if r["scene"] == sc and r["strategy"] == strategy and r["threads"] == t
+                     and r.get("model_mb")), None)
+
+    def rate(r, t):
+        gbs = r["model_mb"] / r["build_ms"]
+        return (f"moving {r['model_mb']:.0f} MB in {r['build_ms']:.1f} ms = {gbs:.1f} GB/s against "
+                f"{bw[t]['copy']:.1f} GB/s of copy bandwidth ({gbs / bw[t]['copy'] * 100:.0f}%)")
+
+    table = []
+    for s in MODELLED:
+        for t in threads if s != "serial" else threads[:1]:  # serial runs one thread whatever it is given
+            r = row(s, t)
+            if r is None:
+                continue
+            stages = [k[:-3] for k in r if k.endswith("_mb") and k != "model_mb"]
+            for st in stages + ["build"]:
+                mb = r["model_mb"] if st == "build" else r[st + "_mb"]
+                ms = r[st + "_ms"]
+                table.append([s if st == stages[0] else "", str(t) if st == stages[0] else "",
+                              "**total**" if st == "build" else st, f"{mb:.1f}", f"{ms:.2f}",
+                              f"{mb / ms:.1f}" if ms > 0 else "-", f"{mb / bw[t]['copy']:.2f}"])
+    body += md_table(["strategy", "threads", "stage", "MB moved", "ms", "GB/s achieved", "floor ms"], table)
+    tmax = max(threads)
+    ser = row("serial", 1)
+    lines = [f"serial at 1 thread: {rate(ser, 1)}."] if ser is not None else []
+    for s in ("counting", "sort_middle"):
+        r = row(s, tmax)
+        if r is not None and ser is not None:
+            lines.append(f"{s} at {tmax} threads: {ser['build_ms'] / r['build_ms']:.2f}x serial, {rate(r, tmax)}.")
+    body += [""] + [f"- {x}" for x in lines]
+    return body
