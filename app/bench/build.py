@@ -1,5 +1,9 @@
-"""Build-time sweep over strategies and thread counts: the "Comparison build methods" and
-"Individual steps" measurements of Ize, Wald, Robertson, Parker, RT 2006.
+"""``gridrt bench build``: build strategies x thread counts x grid kinds x scenes, total and per
+stage (the "Comparison build methods" and "Individual steps" measurements of Ize, Wald,
+Robertson, Parker, RT 2006), a render of each configuration's grid (render ms, tests and cells
+per ray), and the bytes each stage moves against measured streaming bandwidth.  With
+``--workers N`` / ``--scheduler ADDRESS`` the configurations spread over a Dask cluster
+(:mod:`gridrt.app.bench.on_cluster`).
 
 For every scene, strategy and thread count one :class:`~gridrt.grid.GridBuilder` rebuilds the
 grid ``warmup + runs`` times, by default round-robin over the strategies (see ``interleave``).
@@ -26,16 +30,17 @@ from pathlib import Path
 
 import numpy as np
 
-from gridrt.config import GridParams
+from gridrt.config import INSERT_MODES, GridParams
 from gridrt.errors import InputError
 from gridrt.grid.build import GridBuilder
 from gridrt.grid.registry import get_builder
 from gridrt.grid.traffic import stage_bytes
 from gridrt.threads import check_threads
 
-from ..cluster import wants_cluster
+from ..cli import defaults
+from ..cluster import add_cluster_args, wants_cluster
 from .machine import finish_machine, machine_info
-from .options import check_runs, grid_kinds, thread_list
+from .options import add_grid_kind_args, check_runs, grid_kinds, thread_list
 from .output import md_table, out_dir, write_csv, write_json, write_summary
 from .scenes import resolve_scene, scene_list
 from .stats import fmt_ms
@@ -376,6 +381,29 @@ BUILD_SCENES = ["marbles", "cesium", "lucy", "kitchen", "marbles:1000000", "lucy
 BUILD_FALLBACK = ["marbles", "icosphere:81920", "icosphere:1310720"]
 #: image edge of the render that gives each `bench build` row its render ms, tests and cells per ray
 BUILD_RENDER_SIZE = 256
+
+
+def add_parser(bsub, common):
+    p = bsub.add_parser("build", help="build strategies x threads x scenes, total and per stage")
+    common(p, "build", warmup=2, scenes=(BUILD_SCENES, BUILD_FALLBACK))
+    p.add_argument("--strategies", default=None, help="comma-separated strategy names (default: all)")
+    p.add_argument("--threads", default=None, help="thread counts (default: 1 .. all cores)")
+    g = defaults(GridParams)
+    p.add_argument("--insert", choices=INSERT_MODES, default=g["insert"],
+                   help=f"insertion test (default {g['insert']})")
+    p.add_argument("--lambda", dest="density", type=float, default=g["density"],
+                   help=f"grid density (default {g['density']:g})")
+    p.add_argument("--macro", type=int, default=g["macro"], help=f"macro-cell edge in cells (default {g['macro']})")
+    add_grid_kind_args(p)
+    p.add_argument("--size", type=int, default=BUILD_RENDER_SIZE,
+                   help="square image edge of a render of each configuration's last grid, for its render ms, tests "
+                        f"and cells per ray (0: no render; default {BUILD_RENDER_SIZE})")
+    p.add_argument("--back-to-back", action="store_true",
+                   help="build each configuration's frames in a row, as a viewer rebuilds with one builder (its "
+                        "buffers stay in cache); default: strategies round-robin, fairer under host noise but "
+                        "every build of a large scene starts with its buffers out of cache")
+    add_cluster_args(p, "configurations (each measured whole by one worker, its builds back to back)")
+    p.set_defaults(func=run_build)
 
 
 def run_build(a):

@@ -22,6 +22,16 @@ CORE_SCENES = ["lucy", "bunny:1000000"]
 CORE_FALLBACK = ["icosphere:81920", "icosphere:1310720"]
 
 
+def add_parser(bsub, common):
+    p = bsub.add_parser("core", help="serial build ms (bbox, exact) and primary-ray Mrays/s on ~100k and ~1M triangles")
+    common(p, "core", scenes=(CORE_SCENES, CORE_FALLBACK))
+    p.add_argument("--size", type=int, default=1024, help="square image edge for the ray figures (default 1024)")
+    p.add_argument("--threads", default=None, help="thread counts for the ray figures (default: 1 and all cores)")
+    p.add_argument("--traversal", default=",".join(TRAVERSALS), help=f"ray traversals, comma-separated of "
+                   f"{', '.join(TRAVERSALS)} (default {','.join(TRAVERSALS)}: DDA and CGT side by side)")
+    p.set_defaults(func=run_core)
+
+
 def _one_shot_rows(tris, label, runs, warmup):
     """One-shot builds against a reused builder's rebuild of the same triangles (serial strategy, one
     thread, default parameters), timed in turns so that load falls on all alike: build_grid of the

@@ -1,17 +1,20 @@
 """``gridrt bench frame``: animation + rebuild + render per frame at 1024x1024 for each scene at 1
-thread and all cores (Ize et al. 2006's "Total performance", CGT's fps table)."""
+thread and all cores (Ize et al. 2006's "Total performance", CGT's fps table); CGT traversal by
+default (DDA on request), static/moving split on and off, grid kinds side by side (``--grid``).
+With ``--workers N`` / ``--scheduler ADDRESS`` the configurations spread over a Dask cluster
+(:mod:`gridrt.app.bench.on_cluster`)."""
 
 import sys
 
 import numpy as np
 
-from gridrt.config import TRAVERSALS, GridParams, RenderParams
+from gridrt.config import SHADING_MODES, TRAVERSALS, GridParams, RenderParams
 from gridrt.errors import InputError
 
-from ..cli import defaults
-from ..cluster import wants_cluster
+from ..cli import add_packet_args, defaults
+from ..cluster import add_cluster_args, wants_cluster
 from .machine import finish_machine, machine_info
-from .options import check_frame_args, grid_kinds, thread_list
+from .options import add_grid_kind_args, check_frame_args, grid_kinds, thread_list
 from .output import figure, grid_columns, md_table, out_dir, progress, write_csv, write_json, write_summary
 from .scenes import resolve_scene, scene_list
 from .stats import fmt_ms, put_stat
@@ -25,6 +28,27 @@ PAPER_FPS = ("Ize et al. 2006 (16 threads, 8 dual-core Opteron 880, rebuild + ra
 FRAME_TRAVERSAL = defaults(RenderParams)["traversal"]  # the engine's default, the packet traversal (CGT)
 FRAME_SCENES = ["marbles", "cesium", "robots", "kitchen", "lucy:twist", "lucy:1600000:twist"]
 FRAME_FALLBACK = ["marbles", "icosphere:20480:twist", "icosphere:1310720:twist"]
+
+
+def add_parser(bsub, common):
+    p = bsub.add_parser("frame", help="rebuild + render per frame at 1024x1024 per scene, 1 thread and all cores")
+    common(p, "frame", warmup=2, scenes=(FRAME_SCENES, FRAME_FALLBACK))
+    p.add_argument("--threads", default=None, help="thread counts (default: 1 and all cores)")
+    p.add_argument("--size", type=int, default=1024, help="square image edge (default 1024)")
+    p.add_argument("--strategy", default="auto",
+                   help="build strategy (default auto: serial at 1 thread, sort_middle above)")
+    p.add_argument("--traversal", default=FRAME_TRAVERSAL, help=f"comma-separated of {', '.join(TRAVERSALS)} (default "
+                   f"{FRAME_TRAVERSAL}: the packet traversal the fps figures of Ize et al. 2006 and CGT used; single-ray DDA "
+                   "takes seconds per frame on some scenes)")
+    p.add_argument("--split", choices=("both", "on", "off"), default="both",
+                   help="static/moving split for scenes with static parts (default both: measure on and off)")
+    p.add_argument("--shading", choices=SHADING_MODES, default="lambert",
+                   help="shading of the rendered frames (default %(default)s)")
+    p.add_argument("--dt", type=float, default=1.0 / 30.0, help="seconds between frames (default 1/30)")
+    add_grid_kind_args(p)
+    add_packet_args(p)
+    add_cluster_args(p, "configurations (each measured whole by one worker)")
+    p.set_defaults(func=run_frame)
 
 
 def _has_split(scene):
