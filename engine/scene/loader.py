@@ -1,5 +1,21 @@
-"""load_mesh: a static triangle mesh from a file, by its extension (OBJ by :mod:`gridrt.scene.obj`,
-the others by trimesh)."""
+"""load_mesh: a static triangle mesh from a file, by its extension.
+
+Static meshes are read with trimesh (PLY, STL, OFF, glTF 2.0 as .glb or .gltf) or, for OBJ, with
+gridrt's own reader (:func:`gridrt.scene.obj.read_obj`).  Polygons (quads, pentagons, ...) are
+triangulated (OBJ: as fans ``(0, i, i + 1)`` in file order); a glTF file with several meshes is
+flattened into one mesh with every node transform applied, in its bind pose (skins, morph targets
+and animation clips are ignored here).  Every failure raises :class:`gridrt.errors.SceneFileError`
+naming the file and the problem.
+
+Looks (``Mesh.surface``, a :class:`gridrt.scene.surface.Surface` with one row per face):
+
+* OBJ: the materials of its MTL libraries, texture coordinates, normals and vertex colours
+  (:mod:`gridrt.scene.obj`).
+* PLY: vertex colours (``red``/``green``/``blue``, bytes or floats; alpha ignored) per corner
+  with a white material (the colours replace the grey), per-face colours likewise, and vertex
+  normals ``nx``/``ny``/``nz`` (with the default grey when there are no colours).
+* Other formats: no surface.
+"""
 
 import importlib.util
 import json
@@ -10,8 +26,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, SceneFileError
+from .files import SceneFolder, open_regular, os_problem, read_regular
+from .gltf import DRACO_HINT, glb_version_problem, gltf_version_problem
 from .mesh import DEFAULT_DIFFUSE, Mesh, _material_row, _unit_rows, quiet_trimesh
 from .obj import read_obj
+from .surface import Surface
 from .textenc import TEXT_EXTENSIONS, utf8_source
 
 __all__ = ["SUPPORTED_EXTENSIONS", "load_mesh"]
@@ -35,8 +54,6 @@ def _gltf_json(path, ext):
         if len(header) < 20 or header[:4] != _GLB_MAGIC:
             raise SceneFileError(path, "malformed .glb file: missing the 'glTF' binary header")
         _, version, _, chunk_len, chunk_type = struct.unpack("<4sIIII", header)
-        from .gltf import glb_version_problem
-
         if glb_version_problem(version):
             raise SceneFileError(path, glb_version_problem(version))
         if chunk_type != _GLB_JSON_CHUNK:
@@ -59,8 +76,6 @@ class _FolderResolver:
         self.folder, self.path = folder, Path(path)
 
     def get(self, name):
-        from .files import read_regular
-
         return read_regular(self.folder.uri(self.path.parent, "file", name, self.path))
 
     __getitem__ = get
@@ -72,14 +87,10 @@ def _check_gltf(path, ext, folder):
     tree = _gltf_json(path, ext)
     if not isinstance(tree, dict):
         raise SceneFileError(path, f"malformed {ext} file: top-level JSON is not an object")
-    from .gltf import gltf_version_problem  # here: gltf imports this module (through animation)
-
     if gltf_version_problem(tree):
         raise SceneFileError(path, gltf_version_problem(tree))
     required = set(tree.get("extensionsRequired") or ())
     if "KHR_draco_mesh_compression" in required and importlib.util.find_spec("DracoPy") is None:
-        from .gltf import DRACO_HINT
-
         raise SceneFileError(path, f"geometry is Draco-compressed (KHR_draco_mesh_compression); {DRACO_HINT}")
     if "EXT_meshopt_compression" in required:
         raise SceneFileError(path, "geometry uses EXT_meshopt_compression, which trimesh cannot decode")
@@ -157,8 +168,6 @@ def _ply_surface(loaded, faces):
             normals = _unit_rows(n)[faces]
     if colors is None and normals is None:
         return None
-    from .surface import Surface
-
     diffuse, ambient = _material_row((1.0, 1.0, 1.0) if colors is not None else DEFAULT_DIFFUSE)
     return Surface(np.zeros(len(faces), np.int32), diffuse[None], ambient[None], np.full(1, -1, np.int32), (),
                    None, colors, normals)
@@ -208,8 +217,6 @@ def load_mesh(path, looks=True, *, allow_outside=False, folder=None):
     if ext not in SUPPORTED_EXTENSIONS:
         what = f"unsupported file extension {ext!r}" if ext else "no file extension"
         raise SceneFileError(p, f"{what}; supported extensions: {supported}")
-    from .files import SceneFolder, open_regular, os_problem
-
     folder = SceneFolder(p, allow_outside) if folder is None else folder
     try:
         with open_regular(p) as (fh, _):
@@ -237,7 +244,7 @@ def load_mesh(path, looks=True, *, allow_outside=False, folder=None):
     # np.errstate: trimesh's arithmetic on a malformed file's values (overflowing casts, normals of
     # huge or NaN vertices) must not print numpy RuntimeWarnings; the values are validated below
     with quiet_trimesh(), np.errstate(all="ignore"):
-        import trimesh
+        import trimesh  # deferred: trimesh (about 0.6 s to load), for non-OBJ files only
 
         try:
             # text (OBJ/MTL, OFF, ASCII STL, PLY headers) in UTF-16, Latin-1, ...: decoded by textenc, as

@@ -63,7 +63,7 @@ def icosphere_mesh(count=_ICOSPHERE_DEFAULT):
                       f"{_ICOSPHERE_MAX_SUBDIVISIONS}); made {made:,} triangles", SceneCountWarning, stacklevel=2)
     k = min(max(k, 0), _ICOSPHERE_MAX_SUBDIVISIONS)
     with quiet_trimesh():
-        import trimesh
+        import trimesh  # deferred: trimesh (about 0.6 s to load), for the icosphere only
 
         ico = trimesh.creation.icosphere(subdivisions=k, radius=1.0)
     return Mesh(np.asarray(ico.vertices), np.asarray(ico.faces), name="icosphere")

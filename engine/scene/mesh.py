@@ -1,30 +1,7 @@
-"""Indexed triangle meshes and loading them from files.
-
-Static meshes are read with trimesh (PLY, STL, OFF, glTF 2.0 as .glb or .gltf) or, for OBJ, with
-gridrt's own reader (:func:`read_obj`).  Polygons (quads, pentagons, ...) are triangulated (OBJ:
-as fans ``(0, i, i + 1)`` in file order); a glTF file with several meshes is flattened into one
-mesh with every node transform applied, in its bind pose (skins, morph targets and animation clips
-are ignored here).  Every failure raises :class:`gridrt.errors.SceneFileError` naming the file and
-the problem.
-
-Looks (``Mesh.surface``, a :class:`gridrt.scene.surface.Surface` with one row per face):
-
-* OBJ: the materials of the MTL libraries (``mtllib``) that the faces name (``usemtl``): ``Kd``
-  is the diffuse colour and ``map_Kd`` its texture (a path relative to the .mtl file, multiplied
-  by ``Kd`` as the MTL specification says; ``-clamp on`` clamps it, the other options are
-  ignored); ``vt`` texture coordinates (stored as ``(u, 1 - v)``: OBJ's v goes up the image),
-  ``vn`` normals (normalised) and ``v x y z r g b`` vertex colours, per face corner.  MTL ``Ka``
-  is ignored: exporters disagree about it (1 1 1, 0 0 0, a copy of Kd, or nothing), so every
-  material's ambient colour is ``AMBIENT_FRACTION * diffuse``.  A missing library or texture, or
-  one outside the OBJ file's folder (:mod:`gridrt.scene.files`), or a texture that cannot be read,
-  warns (:class:`gridrt.scene.surface.TextureWarning`) and the mesh loads without it; faces
-  without a material, or naming one no library defines, get the default grey
-  (:data:`DEFAULT_DIFFUSE`).  An OBJ file with none of usemtl, vt, vn or vertex colours has no
-  surface (None).
-* PLY: vertex colours (``red``/``green``/``blue``, bytes or floats; alpha ignored) per corner
-  with a white material (the colours replace the grey), per-face colours likewise, and vertex
-  normals ``nx``/``ny``/``nz`` (with the default grey when there are no colours).
-* Other formats: no surface.
+"""Indexed triangle meshes (:class:`Mesh`) and what the mesh loaders share: the default looks
+(:data:`DEFAULT_DIFFUSE`, :data:`AMBIENT_FRACTION`), the image files a material may name
+(:data:`IMAGE_EXTENSIONS`) and :func:`quiet_trimesh`.  :func:`gridrt.scene.loader.load_mesh`
+reads a mesh from a file (OBJ with :mod:`gridrt.scene.obj`).
 """
 
 import contextlib

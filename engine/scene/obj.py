@@ -1,5 +1,19 @@
-"""The OBJ reader (with its MTL materials): :func:`read_obj`, which :func:`gridrt.scene.loader.load_mesh`
-calls for .obj files."""
+"""The OBJ reader: :func:`read_obj`, which :func:`gridrt.scene.loader.load_mesh` calls for .obj files.
+
+Polygons (quads, pentagons, ...) are triangulated as fans ``(0, i, i + 1)`` in file order.  Looks
+(a :class:`gridrt.scene.surface.Surface` with one row per face): the materials of the MTL
+libraries (``mtllib``) that the faces name (``usemtl``): ``Kd`` is the diffuse colour and
+``map_Kd`` its texture (a path relative to the .mtl file, multiplied by ``Kd`` as the MTL
+specification says; ``-clamp on`` clamps it, the other options are ignored); ``vt`` texture
+coordinates (stored as ``(u, 1 - v)``: OBJ's v goes up the image), ``vn`` normals (normalised) and
+``v x y z r g b`` vertex colours, per face corner.  MTL ``Ka`` is ignored: exporters disagree about
+it (1 1 1, 0 0 0, a copy of Kd, or nothing), so every material's ambient colour is
+``AMBIENT_FRACTION * diffuse``.  A missing library or texture, or one outside the OBJ file's
+folder (:mod:`gridrt.scene.files`), or a texture that cannot be read, warns
+(:class:`gridrt.scene.surface.TextureWarning`) and the mesh loads without it; faces without a
+material, or naming one no library defines, get the default grey (:data:`DEFAULT_DIFFUSE`).  An
+OBJ file with none of usemtl, vt, vn or vertex colours has no surface (None).
+"""
 
 import math
 import warnings
@@ -8,8 +22,10 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, SceneFileError
+from .files import OutsideReference, SceneFolder, os_problem, read_regular, read_scene_file
 from .mesh import AMBIENT_FRACTION, DEFAULT_DIFFUSE, _unit_rows
-from .surface import TextureWarning
+from .surface import Surface, TextureWarning, load_texture
+from .textenc import decode_text
 
 # ----------------------------------------------------------------------------- OBJ
 #
@@ -287,9 +303,6 @@ def read_obj(path, looks=True, folder=None):
     :class:`gridrt.scene.files.SceneFolder`; default: the OBJ file's folder, untrusted): one
     outside is dropped with a TextureWarning.
     """
-    from .files import SceneFolder, read_scene_file
-    from .textenc import decode_text
-
     p = Path(path)
     folder = SceneFolder(p) if folder is None else folder
     raw = read_scene_file(p)
@@ -395,8 +408,6 @@ def _obj_build(p, r, looks, folder):
     rows = sorted(table.items(), key=lambda kv: kv[1])
     diffuse = np.array([k[0] for k, _ in rows], np.float32)
     material = slot_row[slot][tri_face].astype(np.int32)
-    from .surface import Surface
-
     try:
         surface = Surface(material, diffuse, (np.float32(AMBIENT_FRACTION) * diffuse).astype(np.float32),
                           np.array([k[1] for k, _ in rows], np.int32), tuple(textures), uv, colors, normals)
@@ -456,10 +467,6 @@ def _obj_materials(obj_path, mtllibs, scene):
     libraries an OBJ file names, relative to its folder; a missing library, or one or a texture
     outside the SceneFolder ``scene``, warns (TextureWarning) and is left out; a malformed colour
     raises SceneFileError naming the MTL file and line (not its text: the file may be none)."""
-    from .files import OutsideReference, os_problem, read_regular
-    from .surface import load_texture
-    from .textenc import decode_text
-
     folder = obj_path.parent
     out = {}
     textures = {}
