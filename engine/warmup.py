@@ -18,11 +18,12 @@ them from the on-disk cache.
   (:func:`kernels_reached`), less the ones whose cache entry numba will load instead.
 """
 
-import os
 import threading
 import time
 import types as _pytypes
 from contextlib import contextmanager
+
+from .trace.twin import has_cache_entry
 
 
 @contextmanager
@@ -213,22 +214,6 @@ def _kernels(traversal="dda"):
 
     # (the serial CGT render is a Python function around the kernel _render_tiles)
     return [cgt_render_kernel, _render_tiles] if traversal == "cgt" else [render_kernel, render_serial]
-
-
-def has_cache_entry(kernel, sig=None):
-    """True when the kernel's on-disk cache index holds a compiled version for this machine (CPU
-    and numba version) and the kernel's current source, as numba's own loader requires; for the
-    argument types ``sig`` (a tuple of numba types) when given, else for any."""
-    cache = getattr(kernel, "_cache", None)
-    try:
-        index = cache._cache_file._load_index()  # {} when absent, from another numba, or stale
-        codegen = kernel.targetctx.codegen()
-        if sig is not None:
-            return cache._index_key(tuple(sig), codegen) in index
-        return any(cache._index_key(key[0], codegen) == key for key in index)
-    except Exception:  # numba's internals moved: fall back to the existence of the index file
-        path = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
-        return path is not None and os.path.exists(path)
 
 
 def cache_is_cold(traversal="dda"):

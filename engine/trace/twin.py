@@ -32,10 +32,27 @@ not written yet, which numba's loader (IndexDataCacheFile.load) takes for a miss
 again.
 """
 
+import os
 import threading
 from contextlib import contextmanager
 
 import numpy as np
+
+
+def has_cache_entry(kernel, sig=None):
+    """True when the kernel's on-disk cache index holds a compiled version for this machine (CPU
+    and numba version) and the kernel's current source, as numba's own loader requires; for the
+    argument types ``sig`` (a tuple of numba types) when given, else for any."""
+    cache = getattr(kernel, "_cache", None)
+    try:
+        index = cache._cache_file._load_index()  # {} when absent, from another numba, or stale
+        codegen = kernel.targetctx.codegen()
+        if sig is not None:
+            return cache._index_key(tuple(sig), codegen) in index
+        return any(cache._index_key(key[0], codegen) == key for key in index)
+    except Exception:  # numba's internals moved: fall back to the existence of the index file
+        path = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
+        return path is not None and os.path.exists(path)
 
 
 def _fingerprint(a):
@@ -101,8 +118,6 @@ class Twins:
                 return parallel
             if key in self._compiling:
                 return serial  # still compiling
-            from ..warmup import has_cache_entry
-
             if has_cache_entry(parallel, sig):  # it loads from the on-disk cache in milliseconds
                 return parallel
             if key in self._seen:
