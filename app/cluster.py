@@ -38,6 +38,10 @@ import warnings
 import numpy as np
 
 from gridrt.errors import GridrtError, InputError
+from gridrt.frame import FrameSpec
+from gridrt.pipeline import FramePipeline
+
+from .frame_out import encode_frame
 
 def install_hint():
     """How to get the cluster extra, with the pip of the running interpreter."""
@@ -507,46 +511,42 @@ def worker_cached(key, make):
     return value
 
 
-def render_chunk(args, start, stop, origin, per_host=None):
-    """Frames ``start`` .. ``stop``-1 of the dump ``args`` (the dump's parsed options, a dict),
-    as its one-process run would render them; ``origin``: where the pipeline stood after frame
+def render_chunk(wire, save_buffers, start, stop, origin, per_host=None):
+    """Frames ``start`` .. ``stop``-1 of the dump of the FrameSpec ``wire`` (:meth:`FrameSpec.to_wire`,
+    read back and checked here by :meth:`FrameSpec.from_wire`) with its ``.npy`` buffers when
+    ``save_buffers``, as its one-process run would render them; ``origin``: where the pipeline stood after frame
     ``start``-1 (None: where the first frame left it).  Returns a dict: ``origin_in`` (the
     origin the chunk started from; None for frame 0), ``origins`` (after each frame), ``worker``,
     ``threads``, ``warnings`` ((category, message) pairs) and ``frames``: per frame its PNG
     bytes, ``.npy`` bytes of the buffers when asked, its stats row and origin
     (:func:`gridrt.app.frame_out.encode_frame`)."""
-    import argparse
-
     with _LOCK:
         try:
             with warnings.catch_warnings(record=True) as caught:  # (warned again on the client, once)
                 warnings.simplefilter("always")
-                r = _render_chunk(argparse.Namespace(**args), start, stop, origin, per_host)
+                r = _render_chunk(FrameSpec.from_wire(wire), bool(save_buffers), start, stop, origin, per_host)
             r["warnings"] = list(dict.fromkeys((w.category, str(w.message)) for w in caught))
             return r
         except GridrtError as e:  # the run's own error (a scene that does not load...): a result, not a failure
             return {"error": e}
 
 
-def _render_chunk(a, start, stop, origin, per_host):
-    from . import cli
-    from .frame_out import encode_frame
-
-    a.threads = worker_threads(a.threads, per_host)
-    key = repr(sorted(vars(a).items()))
-    pipe = _PIPE.get(key)
+def _render_chunk(spec, save_buffers, start, stop, origin, per_host):
+    threads = worker_threads(spec.grid.threads, per_host)
+    spec = spec.replace(grid=spec.grid.replace(threads=threads), render=spec.render.replace(threads=threads))
+    pipe = _PIPE.get(spec)
     if pipe is None:
         _PIPE.clear()
-        pipe = _PIPE[key] = cli.pipeline_from_args(a, scene=worker_cached(cli.scene_spec(a), cli.scene_spec(a).make))
-    pipe.resume(start, a.t0, origin)
+        pipe = _PIPE[spec] = FramePipeline.from_spec(spec, scene=worker_cached(spec.scene, spec.scene.make))
+    pipe.resume(start, spec.view.t0, origin)
     origin_in = None if start == 0 else pipe.origin.copy()
     frames, origins = [], []
     for i in range(start, stop):
-        fr = pipe.step(a.t0 + i * a.dt)
-        frames.append(encode_frame(fr, a.save_buffers))  # (the files of a one-process dump, by construction)
+        fr = pipe.step(spec.view.time(i))
+        frames.append(encode_frame(fr, save_buffers))  # (the files of a one-process dump, by construction)
         origins.append(pipe.origin.copy())
     return {"start": start, "stop": stop, "origin_in": origin_in, "origins": origins,
-            "worker": worker_address(), "threads": a.threads, "frames": frames}
+            "worker": worker_address(), "threads": threads, "frames": frames}
 
 
 
@@ -604,8 +604,9 @@ def default_chunk(frames, workers):
     return max(1, min(16, -(-frames // (4 * max(1, workers)))))
 
 
-def run_chunks(cl, args, frames, size, write, pressed=lambda: False, begin=0, origin=None):
-    """Render ``frames`` frames of the dump ``args`` (dict) on the Cluster ``cl`` in chunks of
+def run_chunks(cl, spec, save_buffers, frames, size, write, pressed=lambda: False, begin=0, origin=None):
+    """Render ``frames`` frames of the FrameSpec ``spec`` (shipped as :meth:`FrameSpec.to_wire`; with
+    its ``.npy`` buffers when ``save_buffers``) on the Cluster ``cl`` in chunks of
     ``size`` and hand each frame, in order, to ``write(i, item, worker)`` (exactly once each).
     ``begin``: the first frame to render (a resumed dump), ``origin``: where the pipeline stood
     after the frame before it.
@@ -616,13 +617,14 @@ def run_chunks(cl, args, frames, size, write, pressed=lambda: False, begin=0, or
     per_host = cl.hosts()
     parts = chunks(frames, size, begin)
     futs, sent = {}, {}
+    wire = spec.to_wire()
 
     def submit(c, origin):
         if c in futs:
             futs[c].cancel()
         s, e = parts[c]
         sent[c] = origin
-        futs[c] = client.submit(render_chunk, args, s, e, origin, per_host, pure=False,
+        futs[c] = client.submit(render_chunk, wire, save_buffers, s, e, origin, per_host, pure=False,
                                 key=f"gridrt-frames-{s:05d}-{e - 1:05d}-{os.urandom(4).hex()}")
 
     for c in range(len(parts)):

@@ -13,37 +13,27 @@ from tqdm import tqdm
 
 from gridrt.errors import GridrtError, InputError
 
-from . import cli
 from .cluster import Cluster, CtrlC, Stop, default_chunk, run_chunks
 from .frame_out import FrameWriteError, FrameWriter, StopSignals, run_settings
 
 
-def _check(a):
-    """Everything the client can check without loading the scene (the workers load it; --frames,
-    --t0 and --dt are checked by the dump already)."""
-    if a.chunk is not None and a.chunk < 1:
-        raise InputError(f"--chunk must be at least 1, got {a.chunk}")
-    cli.camera_from_args(a)
-    cli.grid_params(a)
-    cli.render_params(a)
-    cli.scene_spec(a)
+def worker_spec(spec):
+    """The FrameSpec the workers render: ``spec`` with a scene file given by a path that exists
+    here made absolute (a local cluster's workers, or workers that see the same folders, find it
+    from any working directory)."""
+    source = spec.scene.source
+    if os.path.exists(source):
+        spec = spec.replace(scene=spec.scene.replace(source=os.path.abspath(source)))
+    return spec
 
 
-def _worker_args(a):
-    """The options a worker needs to build the dump's pipeline (a plain dict): a scene file
-    given by a path that exists here is made absolute (a local cluster's workers, or workers that
-    see the same folders, find it from any working directory)."""
-    skip = {"func", "workers", "scheduler", "listen", "chunk", "no_progress", "out", "command", "overwrite", "resume"}
-    args = {k: v for k, v in vars(a).items() if k not in skip}
-    if os.path.exists(a.scene):
-        args["scene"] = os.path.abspath(a.scene)
-    return args
-
-
-def dump_on_cluster(a):
+def dump_on_cluster(a, spec):
+    """The dump of ``spec`` (FrameSpec, checked on the client: the workers load the scene) with
+    the options ``a`` (frames, output, cluster) on a Dask cluster."""
     from .dump import nothing_to_do, replace_mode, resumed
 
-    _check(a)
+    if a.chunk is not None and a.chunk < 1:
+        raise InputError(f"--chunk must be at least 1, got {a.chunk}")
     out = Path(a.out)
     writer = FrameWriter(out, run_settings(a), a.frames, mode=replace_mode(a))
     rows = []
@@ -77,7 +67,8 @@ def dump_on_cluster(a):
                     bar.set_postfix(build=f"{stats['build_ms']:.1f}ms", render=f"{stats['render_ms']:.1f}ms")
 
                 try:
-                    threads = run_chunks(cl, _worker_args(a), a.frames, size, write, lambda: pressed() or term(),
+                    threads = run_chunks(cl, worker_spec(spec), a.save_buffers, a.frames, size, write,
+                                         lambda: pressed() or term(),
                                          begin=start, origin=writer.origin)
                 except Stop:
                     signum = signal.SIGINT if pressed() else signal.SIGTERM

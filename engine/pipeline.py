@@ -131,6 +131,16 @@ class FramePipeline:
         self._origin0 = None  # the origin the first frame left (resume)
         self._rendered_size = None  # (width, height) of the renderer's buffers
 
+    @classmethod
+    def from_spec(cls, spec, scene=None):
+        """The pipeline of the FrameSpec ``spec``: its grid and render parameters and its view
+        (camera, fov, up, static split, follow-camera); ``scene``: the Animation of ``spec.scene``
+        when already loaded (else it is loaded here).  Frame ``i`` of the spec is
+        ``step(spec.view.time(i))``."""
+        v = spec.view
+        return cls(spec.scene.make() if scene is None else scene, spec.grid, spec.render, camera=v.camera(),
+                   fov=v.fov, up=v.up, split_static=v.split_static, follow_camera=v.follow_camera)
+
     def _set_origin(self, origin):
         """Work in the frame of ``origin`` from now on: every grid is rebuilt in it."""
         self.origin = np.asarray(origin, np.float64).copy()

@@ -529,6 +529,7 @@ def test_cli_flag_and_viewer_state_carry_the_trust():
 
     from gridrt.app import cli
     from gridrt.app.viewer.state import ViewerState
+    from gridrt.frame import FrameSpec
 
     p = argparse.ArgumentParser()
     cli.add_scene_args(p)
@@ -536,8 +537,8 @@ def test_cli_flag_and_viewer_state_carry_the_trust():
     spec = cli.scene_spec(p.parse_args(["--scene", "x.gltf", FLAG]))
     assert spec.allow_outside is True
     # the viewer's file box starts trusted when the command line's scene is (view --allow-outside-refs)
-    assert ViewerState(scene=spec).file_allow_outside is True
-    assert ViewerState(scene=spec.replace(allow_outside=False)).file_allow_outside is False
+    assert ViewerState(spec=FrameSpec(scene=spec)).file_allow_outside is True
+    assert ViewerState(spec=FrameSpec(scene=spec.replace(allow_outside=False))).file_allow_outside is False
 
 
 class _FakeGlfw:

@@ -325,6 +325,7 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
     from gridrt.app.viewer.state import ViewerState
     from gridrt.app.viewer.ui import ImguiRuntime, draw_overlay, draw_panel
     from gridrt.config import GridParams
+    from gridrt.frame import FrameSpec
     from gridrt.stats import BuildStats, FrameStats, RenderStats
 
     W, H = 640, 870   # tall enough for the whole panel (the viewer scrolls it in smaller windows)
@@ -333,7 +334,7 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
     blit = Blitter(ctx)
     img = _pattern(W, H)
     blit.upload(img)
-    st = ViewerState(grid=GridParams(threads=2), max_threads=8, triangles=1234, scene_name="marbles")
+    st = ViewerState(spec=FrameSpec(grid=GridParams(threads=2)), max_threads=8, triangles=1234, scene_name="marbles")
     build = BuildStats(stages=dict(clear_ms=0.1, insert_ms=1.5, macro_ms=0.2), build_ms=1.8, strategy="serial",
                        threads=2, insert="bbox", triangles=1234, cells=5000, references=8000, refs_per_tri=6.5,
                        cells_cleared=0, cells_inspected=0, macro_cells=0, macro_full=0, dims="20x10x25",
