@@ -74,7 +74,7 @@ def fmt(v):
 def encode_frame(fr, save_buffers):
     """A rendered Frame as the dump writes it: ``{"png": bytes, "stats": dict, "origin": (3,)
     float64}``, plus ``"t"`` and ``"id"`` (``.npy`` bytes) with ``save_buffers``."""
-    from PIL import Image
+    from PIL import Image  # deferred: Pillow loads when a dump encodes a frame, not for every gridrt command
 
     buf = io.BytesIO()
     Image.fromarray(fr.image[:, :, :3]).save(buf, format="PNG")

@@ -7,7 +7,7 @@ where ``fwd = normalize(target - eye)``, ``right = normalize(fwd x up)``, ``up' 
 """
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numba import njit, prange
@@ -200,6 +200,4 @@ class Camera:
                       up=self.up, fov=self.fov)
 
     def replace(self, **kw):
-        from dataclasses import replace
-
         return replace(self, **kw)

@@ -5,7 +5,7 @@ import math
 
 from .errors import InputError
 
-#: the largest image width or height (RenderParams)
+#: the largest image width or height (RenderParams, Camera.rays)
 MAX_IMAGE_SIDE = 16384
 
 

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field, replace
 
 from .checks import MAX_IMAGE_SIDE, _positive_int, check_finite
 from .errors import InputError
+from .threads import check_threads
 
 INSERT_MODES = ("bbox", "exact")
 #: Grid kinds (GridParams.grid): one uniform grid, a two-level grid (gridrt.grid.two_level), or
@@ -89,8 +90,6 @@ class GridParams:
         object.__setattr__(self, "max_cells", _positive_int("max_cells", self.max_cells, 1, (1 << 31) - 2))
         object.__setattr__(self, "max_bytes", _positive_int("max_bytes", self.max_bytes, 1))
         if self.threads is not None:
-            from .threads import check_threads
-
             object.__setattr__(self, "threads", check_threads(self.threads))
         from .grid.registry import get_builder
 
@@ -191,8 +190,6 @@ class RenderParams:
                 raise InputError(f"light must be 3 finite numbers, got {self.light!r}")
             object.__setattr__(self, "light", light)
         if self.threads is not None:
-            from .threads import check_threads
-
             object.__setattr__(self, "threads", check_threads(self.threads))
 
     def replace(self, **kw):

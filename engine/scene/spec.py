@@ -5,6 +5,7 @@ from dataclasses import dataclass, fields, replace
 
 from ..checks import check_finite
 from ..errors import InputError
+from .make import make_scene
 
 
 def _number(name, v, optional=True):
@@ -77,8 +78,6 @@ class SceneSpec:
 
     def make(self):
         """Load the scene: :func:`gridrt.scene.make_scene` with these options."""
-        from . import make_scene
-
         return make_scene(self.source, count=self.count, animate=self.animate, amplitude=self.amplitude,
                           speed=self.speed, seed=self.seed, clip=self.clip, subdivide=self.subdivide, fps=self.fps,
                           allow_outside=self.allow_outside)
