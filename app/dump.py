@@ -15,7 +15,9 @@ from gridrt.pipeline import FramePipeline
 from gridrt.warmup import compile_progress
 
 from . import cli
-from .frame_out import FrameWriteError, FrameWriter, StopSignals, encode_frame, run_settings
+from .frame_out import (
+    FrameWriteError, FrameWriter, StopSignals, encode_frame, nothing_to_do, replace_mode, resumed, run_settings,
+)
 
 
 def add_parser(sub):
@@ -189,21 +191,3 @@ def _dump(a, spec):
         f"median build {med('build_ms'):.2f} ms, render {med('render_ms'):.2f} ms, frame {med('frame_ms'):.2f} ms"
     )
     return 0
-
-
-def replace_mode(a):
-    """What to do with another dump in --out: None (refuse it), "overwrite" or "resume"."""
-    return "overwrite" if a.overwrite else "resume" if a.resume else None
-
-
-def resumed(start, frames):
-    """How a summary says that a run went on after ``start`` complete frames ("" for a fresh run)."""
-    return f" (frames {start}-{frames - 1}, after the {start} already there)" if start else ""
-
-
-def nothing_to_do(writer, done):
-    print(f"gridrt: nothing to do: {writer.out}/ already holds {done} complete frames (--frames {writer.frames})",
-          file=sys.stderr, flush=True)
-    return 0
-
-

@@ -14,7 +14,7 @@ from tqdm import tqdm
 from gridrt.errors import GridrtError, InputError
 
 from .cluster import Cluster, CtrlC, Stop, default_chunk, run_chunks
-from .frame_out import FrameWriteError, FrameWriter, StopSignals, run_settings
+from .frame_out import FrameWriteError, FrameWriter, StopSignals, nothing_to_do, replace_mode, resumed, run_settings
 
 
 def worker_spec(spec):
@@ -30,8 +30,6 @@ def worker_spec(spec):
 def dump_on_cluster(a, spec):
     """The dump of ``spec`` (FrameSpec, checked on the client: the workers load the scene) with
     the options ``a`` (frames, output, cluster) on a Dask cluster."""
-    from .dump import nothing_to_do, replace_mode, resumed
-
     if a.chunk is not None and a.chunk < 1:
         raise InputError(f"--chunk must be at least 1, got {a.chunk}")
     out = Path(a.out)

@@ -511,3 +511,19 @@ class StopSignals:
         for s, old in self.old.items():
             signal.signal(s, old)
         self.old.clear()
+
+
+def replace_mode(a):
+    """What to do with another dump in --out: None (refuse it), "overwrite" or "resume"."""
+    return "overwrite" if a.overwrite else "resume" if a.resume else None
+
+
+def resumed(start, frames):
+    """How a summary says that a run went on after ``start`` complete frames ("" for a fresh run)."""
+    return f" (frames {start}-{frames - 1}, after the {start} already there)" if start else ""
+
+
+def nothing_to_do(writer, done):
+    print(f"gridrt: nothing to do: {writer.out}/ already holds {done} complete frames (--frames {writer.frames})",
+          file=sys.stderr, flush=True)
+    return 0
