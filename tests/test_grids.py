@@ -28,8 +28,8 @@ from gridrt.trace.traverse import MAILBOX, trace_grids
 def _dda(grids, origins, dirs, tmax, any_hit, out_w, out_f, out_t):
     mb = np.empty(MAILBOX, np.int32)
     for i in range(origins.shape[0]):
-        w, f, t, u, v, nc, nt = trace_grids(grids, origins[i, 0], origins[i, 1], origins[i, 2],
-                                            dirs[i, 0], dirs[i, 1], dirs[i, 2], 0.0, tmax[i], True, any_hit, mb)
+        w, f, t, u, v, nc, nt = trace_grids(grids, (origins[i, 0], origins[i, 1], origins[i, 2]),
+                                            (dirs[i, 0], dirs[i, 1], dirs[i, 2]), 0.0, tmax[i], True, any_hit, mb)
         out_w[i] = w
         out_f[i] = f
         out_t[i] = t

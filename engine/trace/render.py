@@ -67,7 +67,7 @@ def _render_tile(grids, basis, W, H, tile, ti, mode, shadows, light, off, watert
     for y in range(ty0, min(ty0 + tile, H)):
         for x in range(tx0, min(tx0 + tile, W)):
             dx, dy, dz = pixel_dir(basis, W, H, x, y)
-            which, f, t, u, v, nc, nt = trace_grids(grids, ex, ey, ez, dx, dy, dz, 0.0, np.inf, watertight, False, mb)
+            which, f, t, u, v, nc, nt = trace_grids(grids, (ex, ey, ez), (dx, dy, dz), 0.0, np.inf, watertight, False, mb)
             tbuf[y, x] = np.float32(t)
             idbuf[y, x] = scene_id(grids, which, f)
             costbuf[y, x] = nt
@@ -84,10 +84,10 @@ def _render_tile(grids, basis, W, H, tile, ti, mode, shadows, light, off, watert
                         s = -dn
                     else:
                         need, sox, soy, soz, lx, ly, lz, ld, s = shadow_ray(
-                            ex, ey, ez, t, dx, dy, dz, nx, ny, nz, light, off)
+                            (ex, ey, ez), t, (dx, dy, dz), (nx, ny, nz), light, off)
                         if need:
                             sw, sf, st, su, sv, snc, snt = trace_grids(
-                                grids, sox, soy, soz, lx, ly, lz, 0.0, ld, watertight, True, mb)
+                                grids, (sox, soy, soz), (lx, ly, lz), 0.0, ld, watertight, True, mb)
                             if sf >= 0:
                                 s = 0.0
                     r, g, b = lambert_rgb(s)

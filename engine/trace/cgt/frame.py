@@ -163,7 +163,7 @@ def _render_tiles(
                                 s = -dn
                             else:
                                 need, sox, soy, soz, lx, ly, lz, ld, s = shadow_ray(
-                                    ex, ey, ez, t, dx, dy, dz, nx, ny, nz, light, off)
+                                    (ex, ey, ez), t, (dx, dy, dz), (nx, ny, nz), light, off)
                                 if need:
                                     sio[IO_OX * PN + m] = sox
                                     sio[IO_OY * PN + m] = soy

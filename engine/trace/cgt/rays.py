@@ -159,8 +159,9 @@ def _test_wt(S, na, p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z, ff, tmin):
     nh = 0
     for i in range(na):
         Sz = S[O_SZ + i]
-        Ax, Ay, Bx, By, Cx, Cy, az, bz, cz = woop_shear(p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z, S[O_OU + i],
-                                                        S[O_OV + i], S[O_OK + i], S[O_SX + i], S[O_SY + i])
+        Ax, Ay, Bx, By, Cx, Cy, az, bz, cz = woop_shear((p0x, p0y, p0z), (p1x, p1y, p1z), (p2x, p2y, p2z),
+                                                        (S[O_OU + i], S[O_OV + i], S[O_OK + i]), S[O_SX + i],
+                                                        S[O_SY + i])
         U, V, W = woop_edges(Ax, Ay, Bx, By, Cx, Cy)
         det = U + V + W
         T = U * (Sz * az) + V * (Sz * bz) + W * (Sz * cz)
@@ -273,7 +274,7 @@ def _up32(x):
 @njit(cache=True, _nrt=False, inline="always")
 def _sheared32(S32, i, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z):
     """woop_shear in float32 of float32 ray i (rows of S32) and the vertices q (see _test_wt32)."""
-    return woop_shear(q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z, S32[F_OU + i], S32[F_OV + i], S32[F_OK + i],
+    return woop_shear((q0x, q0y, q0z), (q1x, q1y, q1z), (q2x, q2y, q2z), (S32[F_OU + i], S32[F_OV + i], S32[F_OK + i]),
                       S32[F_SX + i], S32[F_SY + i])
 
 

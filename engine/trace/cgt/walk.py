@@ -40,7 +40,7 @@ def _trace_singly(g, S, na, io, tmin, watertight, any_hit, mb1):
     for a in range(na):
         j = int(S[O_J + a])
         f, t, u, v, nc, nt = trace_ray(
-            g, S[O_OX + a], S[O_OY + a], S[O_OZ + a], S[O_DX + a], S[O_DY + a], S[O_DZ + a],
+            g, (S[O_OX + a], S[O_OY + a], S[O_OZ + a]), (S[O_DX + a], S[O_DY + a], S[O_DZ + a]),
             tmin, S[O_BT + a], watertight, any_hit, mb1,
         )
         io[IO_T * PN + j] = t
@@ -233,8 +233,8 @@ def _restore_far(n, io, results):
 def _trace_rows_singly(g, n, io, tmin, watertight, any_hit, mb1):
     """Rays 0..n-1 of io, each through trace_ray."""
     for j in range(n):
-        f, t, u, v, nc, nt = trace_ray(g, io[IO_OX * PN + j], io[IO_OY * PN + j], io[IO_OZ * PN + j],
-                                       io[IO_DX * PN + j], io[IO_DY * PN + j], io[IO_DZ * PN + j], tmin,
+        f, t, u, v, nc, nt = trace_ray(g, (io[IO_OX * PN + j], io[IO_OY * PN + j], io[IO_OZ * PN + j]),
+                                       (io[IO_DX * PN + j], io[IO_DY * PN + j], io[IO_DZ * PN + j]), tmin,
                                        io[IO_TMAX * PN + j], watertight, any_hit, mb1)
         io[IO_T * PN + j] = t
         io[IO_F * PN + j] = f
