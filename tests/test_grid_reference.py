@@ -365,7 +365,7 @@ def test_cell_ranges_equal_scalar_definition(F, threads):
     (0, 0, 0, -1, -1, -1) for a triangle of exactly zero area.  Random triangles, degenerate ones
     (repeated and collinear vertices), ones outside the grid on both sides (clamped), and vertices
     exactly on cell faces, where the EPS growth decides."""
-    from gridrt.grid.layout import INSERT_EPS
+    from gridrt.grid.layout import INSERT_EPS, GridBox
     from gridrt.grid.strategies.shared import cell_ranges
 
     def scalar_range(tri):
@@ -387,7 +387,7 @@ def test_cell_ranges_equal_scalar_definition(F, threads):
     t[::5, 1] = t[::5, 0]  # repeated vertex
     t[::7, 2] = 2 * t[::7, 1] - t[::7, 0]  # collinear (exact in float32 for these values or not: both paths agree)
     out = np.full((F, 6), 99, np.int32)
-    cell_ranges(t, lo, inv_cell, dims, threads, out)
+    cell_ranges(t, GridBox(lo, cell, inv_cell, dims, 1, dims), threads, out)
     want = np.array([scalar_range(t[f]) for f in range(F)], np.int32)
     assert np.array_equal(out, want)
     assert (want[::5, 3] == -1).all()  # the repeated-vertex triangles really are degenerate

@@ -6,17 +6,19 @@ import warnings
 
 import numpy as np
 
-from ..arrays import TRI_DTYPE
+from ..arrays import (TRI_DTYPE, as_origin, as_triangles, float_contiguous, frame_centre, refuse_bad_values,
+                      triangle_array)
 from ..config import GridParams
 from ..errors import InputError
-from ..threads import check_threads, use_threads
-from . import common
-from .buffers import GridBuffers, LeafBuffers
+from ..precision import ONE_SHOT_SAMPLE, warn_detail
 from ..stats import BuildStats
+from ..threads import check_threads, use_threads
+import gridrt.grid.common as common  # (the module: the error tests replace its kernels with tripwires)
+from .buffers import GridBuffers, LeafBuffers
 from .layout import BOUNDS_PAD, Grid, GridSpec
 from .registry import get_builder
 from .strategies.base import timed
-
+from .two_level import TwoLevelGrid, build_leaves
 
 
 class GridCapWarning(UserWarning):
@@ -78,8 +80,6 @@ def make_spec(lo_scene, hi_scene, n_tris, params):
 
 def _check_tris(tris):
     if not isinstance(tris, np.ndarray) or tris.dtype != TRI_DTYPE or tris.ndim != 3 or tris.shape[1:] != (3, 3):
-        from ..arrays import as_triangles
-
         return as_triangles(tris)
     if tris.shape[0] == 0:
         raise InputError("triangles: the scene is empty (0 triangles)")
@@ -263,8 +263,6 @@ class GridBuilder:
 
     def _leaves(self, top, tris, p, threads, times, t_start, crowd):
         """The two-level grid over the top-level grid ``top`` just built."""
-        from .two_level import TwoLevelGrid, build_leaves
-
         bufs = self.bufs
         if getattr(bufs, "leaves", None) is None:
             bufs.leaves = LeafBuffers()
@@ -320,9 +318,6 @@ def build_grid(tris, params: GridParams | None = None, *, origin=None, **kw) -> 
         params = GridParams(**kw)
     elif kw:
         params = params.replace(**kw)
-    from ..arrays import as_origin, float_contiguous, frame_centre, refuse_bad_values, triangle_array
-    from ..precision import ONE_SHOT_SAMPLE, warn_detail
-
     # one pass over the values for bounds and NaN/inf/1e30 (the messages come from the slow checks,
     # run only when the pass found something) that also stores float32, and a second one to move
     # them into a frame centred on the scene only when it lies far away

@@ -31,10 +31,11 @@ def part(n, t, T):
 
 
 @njit(cache=True, parallel=True)
-def cell_ranges(tris, lo, inv_cell, dims, n_threads, rng):
+def cell_ranges(tris, box, n_threads, rng):
     """rng[f] = (i0, j0, k0, i1, j1, k1), triangle f's inclusive cell range (common._ranges_block).
 
-    tris (F, 3, 3) float32 C-contiguous; rng (F, 6) int32 C-contiguous.  Thread t does its
+    tris (F, 3, 3) float32 C-contiguous; box the grid (layout.GridBox); rng (F, 6) int32
+    C-contiguous.  Thread t does its
     block of triangles with the vectorized common.cell_ranges_into.  The count and scatter
     passes read these 24 bytes instead of recomputing six float64 floors from the 36 bytes of
     vertices each time.
@@ -45,7 +46,7 @@ def cell_ranges(tris, lo, inv_cell, dims, n_threads, rng):
     for t in prange(n_threads):
         a = part(F, t, n_threads)
         b = part(F, t + 1, n_threads)
-        cell_ranges_into(flat[9 * a:9 * b], lo, inv_cell, dims, out[6 * a:6 * b])
+        cell_ranges_into(flat[9 * a:9 * b], box, out[6 * a:6 * b])
 
 
 def ranges(tris, spec, bufs, n_threads, times):
@@ -55,9 +56,9 @@ def ranges(tris, spec, bufs, n_threads, times):
     rng = scratch(bufs, "cell_ranges", 6 * F, np.int32).reshape(F, 6)
     with timed(times, "ranges_ms"):
         if n_threads == 1:  # the same pass without the parallel loop (a cold start compiles less)
-            cell_ranges_into(tris.reshape(tris.size), spec.lo, spec.inv_cell, spec.dims, rng.reshape(rng.size))
+            cell_ranges_into(tris.reshape(tris.size), spec.box, rng.reshape(rng.size))
         else:
-            cell_ranges(tris, spec.lo, spec.inv_cell, spec.dims, n_threads, rng)
+            cell_ranges(tris, spec.box, n_threads, rng)
     return rng
 
 
