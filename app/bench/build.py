@@ -40,6 +40,7 @@ from gridrt.threads import check_threads
 from ..cli import defaults
 from ..cluster import add_cluster_args, wants_cluster
 from .machine import finish_machine, machine_info
+from .on_cluster import _bench_scene
 from .options import add_grid_kind_args, check_runs, grid_kinds, thread_list
 from .output import md_table, out_dir, write_csv, write_json, write_summary
 from .scenes import resolve_scene, scene_list
@@ -462,7 +463,7 @@ def _run_build_cluster(a, specs, note, strategies, kinds, params, size, runs, wa
         threads = thread_list(a.threads) if a.threads else list(range(1, on_cluster.worker_cores(cl) + 1))
         info = machine_info(threads)
         info["cluster"] = cl.where
-        calls = on_cluster.build_calls(specs, strategies, kinds, threads, params, runs, warmup, size)
+        calls = build_calls(specs, strategies, kinds, threads, params, runs, warmup, size)
         rows, machines = on_cluster.run_configs(cl, calls, "build sweep (cluster)", a.no_progress, pressed=pressed)
         bw, where = on_cluster.stream_on_worker(cl, mib, threads, 3 if a.quick else 5, a.no_progress, pressed)
     info["workers"] = machines
@@ -621,3 +622,14 @@ def _traffic_scene(rows, sc, threads, bw):
             lines.append(f"{s} at {tmax} threads: {ser['build_ms'] / r['build_ms']:.2f}x serial, {rate(r, tmax)}.")
     body += [""] + [f"- {x}" for x in lines]
     return body
+
+
+def _build_config(text, params, runs, warmup, render):
+    sc = _bench_scene(text)
+    return _measure(sc.label, sc.scene, [params], runs, warmup, os.cpu_count() or 1, render)
+
+
+def build_calls(specs, strategies, kinds, threads, params, runs, warmup, size):
+    """The tasks of ``bench build``, in the order a local run lists its rows."""
+    return [(_build_config, (s, params.replace(strategy=st, threads=t, grid=k), runs, warmup, size))
+            for s in specs for st in strategies for k in kinds for t in threads]

@@ -14,6 +14,7 @@ from gridrt.errors import InputError
 from ..cli import add_packet_args, defaults
 from ..cluster import add_cluster_args, wants_cluster
 from .machine import finish_machine, machine_info
+from .on_cluster import _bench_scene, run_configs
 from .options import add_grid_kind_args, check_frame_args, grid_kinds, thread_list
 from .output import figure, grid_columns, md_table, out_dir, progress, write_csv, write_json, write_summary
 from .scenes import resolve_scene, scene_list
@@ -166,12 +167,12 @@ def _run_frame_cluster(a, specs, note, travs, kinds, size, runs, warmup, packet)
         threads = thread_list(a.threads) if a.threads else sorted({1, on_cluster.worker_cores(cl)})
         info = machine_info(threads)
         info["cluster"] = cl.where
-        facts = on_cluster.scene_facts(cl, specs, a.no_progress, pressed)
+        facts = scene_facts(cl, specs, a.no_progress, pressed)
         plan = [(s, (th, tr, sp, gk)) for s, f in zip(specs, facts) for th in threads for tr in travs
                 for sp in _split_choices(a, f["has_split"]) for gk in kinds]
         settings = dict(strategy=a.strategy, size=size, shading=a.shading, packet=packet,
                         packet_precision=a.packet_precision, top_density=a.top_density, leaf_density=a.leaf_density)
-        rows, machines = on_cluster.run_configs(cl, on_cluster.frame_calls(plan, settings, runs, warmup, a.dt),
+        rows, machines = on_cluster.run_configs(cl, frame_calls(plan, settings, runs, warmup, a.dt),
                                                 "bench frame (cluster)", a.no_progress, pressed=pressed)
     info["workers"] = machines
     return _finish_frame(a, out, info, rows, size, runs, warmup, note)
@@ -311,3 +312,31 @@ def _plot_frame(rows, path):
     fig.suptitle(f"bench frame: {sel[0]['size']}x{sel[0]['size']}, median of {sel[0]['frames']} frames")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
+
+
+def _scene_facts(text):
+    sc = _bench_scene(text)
+    return [{"label": sc.label, "has_split": _has_split(sc.scene)}]
+
+
+def scene_facts(cl, specs, no_progress=False, pressed=lambda: False):
+    rows, _ = run_configs(cl, [(_scene_facts, (s,)) for s in specs], "loading scenes", no_progress, unit="scene",
+                          pressed=pressed)
+    return rows
+
+
+def _frame_config(text, variant, settings, runs, warmup, dt):
+    sc = _bench_scene(text)
+    pipe = frame_pipeline(sc.scene, variant, **settings)
+    smp = []
+    for i in range(warmup + runs):
+        fr = pipe.step(i * dt)
+        if i >= warmup:
+            smp.append(fr.stats)
+    return [frame_row(sc, pipe, variant, smp, settings["strategy"], settings["packet"], settings["packet_precision"],
+                      settings["size"], runs)]
+
+
+def frame_calls(plan, settings, runs, warmup, dt):
+    """The tasks of ``bench frame``: plan = [(scene text, (threads, traversal, split, kind))]."""
+    return [(_frame_config, (s, v, settings, runs, warmup, dt)) for s, v in plan]

@@ -59,34 +59,6 @@ def _run(fn, *args):
         return {"rows": rows, "machine": machine}
 
 
-def _scene_facts(text):
-    from .frame import _has_split
-
-    sc = _bench_scene(text)
-    return [{"label": sc.label, "has_split": _has_split(sc.scene)}]
-
-
-def _build_config(text, params, runs, warmup, render):
-    from .build import _measure
-
-    sc = _bench_scene(text)
-    return _measure(sc.label, sc.scene, [params], runs, warmup, os.cpu_count() or 1, render)
-
-
-def _frame_config(text, variant, settings, runs, warmup, dt):
-    from .frame import frame_pipeline, frame_row
-
-    sc = _bench_scene(text)
-    pipe = frame_pipeline(sc.scene, variant, **settings)
-    smp = []
-    for i in range(warmup + runs):
-        fr = pipe.step(i * dt)
-        if i >= warmup:
-            smp.append(fr.stats)
-    return [frame_row(sc, pipe, variant, smp, settings["strategy"], settings["packet"], settings["packet_precision"],
-                      settings["size"], runs)]
-
-
 @contextlib.contextmanager
 def open_cluster(a):
     """The Cluster of the bench's --workers/--scheduler (one task slot per worker), announced,
@@ -137,23 +109,6 @@ def run_configs(cl, calls, desc, no_progress=False, unit="config", pressed=lambd
         rows += r["rows"]
         machines[r["machine"]["worker"]] = r["machine"]
     return rows, machines
-
-
-def scene_facts(cl, specs, no_progress=False, pressed=lambda: False):
-    rows, _ = run_configs(cl, [(_scene_facts, (s,)) for s in specs], "loading scenes", no_progress, unit="scene",
-                          pressed=pressed)
-    return rows
-
-
-def build_calls(specs, strategies, kinds, threads, params, runs, warmup, size):
-    """The tasks of ``bench build``, in the order a local run lists its rows."""
-    return [(_build_config, (s, params.replace(strategy=st, threads=t, grid=k), runs, warmup, size))
-            for s in specs for st in strategies for k in kinds for t in threads]
-
-
-def frame_calls(plan, settings, runs, warmup, dt):
-    """The tasks of ``bench frame``: plan = [(scene text, (threads, traversal, split, kind))]."""
-    return [(_frame_config, (s, v, settings, runs, warmup, dt)) for s, v in plan]
 
 
 def _stream(mib, threads, runs):
