@@ -48,7 +48,7 @@ def add_parser(sub):
                    help="also write frame_NNNNN_t.npy (float32 hit distance, inf: miss) and "
                         "frame_NNNNN_id.npy (int32 triangle id, -1: miss), shape (height, width)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    from .cluster import add_cluster_args
+    from .cluster.scheduler import add_cluster_args
 
     g = add_cluster_args(p)
     g.add_argument("--chunk", type=int, default=None,
@@ -64,10 +64,10 @@ def run(a):
         if not math.isfinite(getattr(a, name)):
             raise InputError(f"--{name} must be finite")
     spec = cli.frame_spec(a)  # every setting checked before the cluster, the folder or the scene
-    from .cluster import wants_cluster
+    from .cluster.scheduler import wants_cluster
 
     if wants_cluster(a):  # (imports Dask only then)
-        from .dump_cluster import dump_on_cluster
+        from .cluster.dump import dump_on_cluster
 
         return dump_on_cluster(a, spec)
     if a.chunk is not None:

@@ -411,7 +411,7 @@ def test_another_dump_is_refused_and_overwrite_removes_it_first(tmp_path, monkey
 
 
 def test_a_cluster_dump_refuses_another_dump_before_its_cluster_starts(tmp_path, monkeypatch, capsys, small_ref):
-    from gridrt.app import dump_cluster
+    from gridrt.app.cluster import dump as dump_cluster
 
     def no_cluster(*a, **kw):
         raise AssertionError("a cluster was started for a folder that is refused")

@@ -148,7 +148,7 @@ def test_dask_worker_renders_the_spec_it_was_shipped():
     """A spec shipped over a real (in-process) Dask cluster: the worker rebuilds it from the wire
     and renders the frame that a local pipeline renders from the same spec."""
     distributed = pytest.importorskip("distributed")
-    from gridrt.app.cluster import render_chunk
+    from gridrt.app.cluster.dump import render_chunk
     from gridrt.app.frame_out import encode_frame
     from gridrt.pipeline import FramePipeline
 

@@ -8,7 +8,7 @@ benchmark's module adds its own subcommand (``add_parser(bsub, common)``), runs 
 report: :mod:`~gridrt.app.bench.core`, :mod:`~gridrt.app.bench.build`,
 :mod:`~gridrt.app.bench.frame`, :mod:`~gridrt.app.bench.trade`, :mod:`~gridrt.app.bench.peers`,
 :mod:`~gridrt.app.bench.start`, :mod:`~gridrt.app.bench.packets`, :mod:`~gridrt.app.bench.looks`
-and :mod:`~gridrt.app.bench.cluster_bench`.  The helpers they share sit beside them: scenes
+and :mod:`~gridrt.app.cluster.scaling`.  The helpers they share sit beside them: scenes
 (:mod:`~gridrt.app.bench.scenes`), option checks (:mod:`~gridrt.app.bench.options`), statistics
 (:mod:`~gridrt.app.bench.stats`), the machine record (:mod:`~gridrt.app.bench.machine`), files and
 figures (:mod:`~gridrt.app.bench.output`).
@@ -16,11 +16,12 @@ figures (:mod:`~gridrt.app.bench.output`).
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 
-from . import build, cluster_bench, core, frame, looks, packets, peers, start, trade
+from ..cluster import scaling
+from . import build, core, frame, looks, packets, peers, start, trade
 from .scenes import scenes_help
 
 #: the benchmarks, in the order ``gridrt bench --help`` lists them
-BENCHMARKS = (core, build, frame, trade, peers, start, packets, looks, cluster_bench)
+BENCHMARKS = (core, build, frame, trade, peers, start, packets, looks, scaling)
 
 
 def common(q, out, runs=5, warmup=1, scenes=None):

@@ -17,19 +17,20 @@ import sys
 
 from gridrt.errors import GridrtError
 
-from ..cluster import _LOCK, Cluster, CtrlC, Stop, fetch_done, worker_address, worker_cached
+from .scheduler import Cluster, CtrlC
+from .tasks import _LOCK, Stop, fetch_done, worker_address, worker_cached
 
 _WORKER = {"machine": None}
 def _bench_scene(text):
     """The worker's BenchScene of a --scenes entry, loaded once per worker process."""
-    from .scenes import resolve_scene
+    from ..bench.scenes import resolve_scene
 
     return worker_cached(("bench", text), lambda: resolve_scene(text))
 
 
 def _machine():
     """This worker's machine record (measured once per worker process)."""
-    from .machine import machine_info
+    from ..bench.machine import machine_info
 
     if _WORKER["machine"] is None:
         info = machine_info([])
@@ -82,7 +83,7 @@ def run_configs(cl, calls, desc, no_progress=False, unit="config", pressed=lambd
     """Each ``(fn, args)`` of ``calls`` as one task; returns (rows in the order of ``calls``,
     {worker: machine record}).  The first error stops the run and is raised; Ctrl-C cancels
     the cluster's work and raises KeyboardInterrupt."""
-    from .output import progress
+    from ..bench.output import progress
 
     client = cl.client
     futs = [client.submit(_run, fn, *args, pure=False) for fn, args in calls]

@@ -25,10 +25,10 @@ import numpy as np
 
 from gridrt.errors import InputError
 
-from .machine import finish_machine, machine_info
-from .options import check_runs
-from .output import md_table, out_dir, progress, write_csv, write_json, write_summary
-from .scenes import scene_available, scene_spec
+from ..bench.machine import finish_machine, machine_info
+from ..bench.options import check_runs
+from ..bench.output import md_table, out_dir, progress, write_csv, write_json, write_summary
+from ..bench.scenes import scene_available, scene_spec
 
 CLUSTER_SCENE = "kitchen"
 CLUSTER_FALLBACK = "marbles"
@@ -117,7 +117,7 @@ def _costs(source, args, png, runs=5):
 
 
 def run_cluster_bench(a):
-    from ..cluster import check_workers, import_distributed
+    from .scheduler import check_workers, import_distributed
 
     check_runs(a.runs, a.warmup)
     import_distributed()
