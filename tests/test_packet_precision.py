@@ -38,23 +38,7 @@ from gridrt.grid import build_grid
 from gridrt.trace import cast_rays, cgt, render
 from gridrt.trace.grids import grid_arrays
 from gridrt.trace.traverse import MAILBOX
-from test_cgt import camera, grid_of
-
-#: float32 tolerances: t (relative), near-ties (relative), edges (barycentric)
-F32_T = 1e-5
-F32_TIE = 1e-5
-F32_GRAZE = 1e-5
-
-
-def check_f32(res, ref, label, max_grazing=0.01):
-    """A float32 render or cast against the brute force: nothing wrong beyond float32 rounding."""
-    t = res.t.reshape(-1).astype(np.float64)
-    tri = res.tri.reshape(-1)
-    diff = R.compare_hits(t, tri, ref, t_rtol=F32_T, tie_rtol=F32_TIE, graze_tol=F32_GRAZE)
-    assert len(diff.bad) == 0, (f"{label}: {len(diff.bad)} of {len(t)} rays differ from the brute force beyond "
-                                f"float32 rounding, first {diff.bad[:5]}")
-    assert len(diff.grazing) <= max_grazing * len(t) + 1, f"{label}: {len(diff.grazing)} grazing rays"
-    return diff
+from helpers.cgt import camera, check_f32, grid_of
 
 
 @pytest.mark.parametrize("watertight", [True, False])

@@ -46,12 +46,11 @@ from gridrt.errors import InputError
 from gridrt.grid import GridBuilder, build_grid, names
 from gridrt.trace import cast_rays, render
 from test_grid_reference import _check_pairs, check_spec
-from test_cgt import assert_same, render_both
-from test_cgt import camera as cgt_camera
-from test_cgt import scene as cgt_scene
-from test_packet_precision import check_f32
-from test_rays import GRAZE, _hard_rays, assert_hits_match, get_case
-from test_watertight import (REL, ProbeMesh, add_counts, edge_probes, face_normals, origins_in_front, packet_counts,
+from helpers.cgt import assert_same, check_f32, render_both
+from helpers.cgt import camera as cgt_camera
+from helpers.cgt import scene as cgt_scene
+from helpers.rays import GRAZE, _hard_rays, assert_hits_match, get_case
+from helpers.watertight import (REL, ProbeMesh, add_counts, edge_probes, face_normals, origins_in_front, packet_counts,
                              row_counts, shoot, targets_and_fans)
 
 STRATEGIES = names()
