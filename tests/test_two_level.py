@@ -45,7 +45,7 @@ from gridrt.config import GridParams, RenderParams
 from gridrt.errors import InputError
 from gridrt.grid import GridBuilder, build_grid, names
 from gridrt.trace import cast_rays, render
-from test_grid_reference import _check_pairs, check_spec
+from helpers.grids import _check_pairs, check_spec
 from helpers.cgt import assert_same, check_f32, render_both
 from helpers.cgt import camera as cgt_camera
 from helpers.cgt import scene as cgt_scene
