@@ -29,21 +29,23 @@ import time
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
-from gridrt.config import INSERT_MODES, GridParams
+from gridrt.config import INSERT_MODES, GridParams, RenderParams
 from gridrt.errors import InputError
 from gridrt.grid.build import GridBuilder
-from gridrt.grid.registry import get_builder
-from gridrt.grid.traffic import stage_bytes
+from gridrt.grid.registry import get_builder, names as strategy_names
+from gridrt.grid.traffic import MODELLED, stage_bytes, stream_bandwidth
 from gridrt.threads import check_threads
+from gridrt.trace.render import Renderer
 
 from ..cli import defaults
-from ..cluster import add_cluster_args, wants_cluster
+from ..cluster.scheduler import add_cluster_args, wants_cluster
 from .machine import finish_machine, machine_info
-from .on_cluster import _bench_scene
+from ..cluster.bench import _bench_scene, open_cluster, run_configs, stream_on_worker, worker_cores
 from .options import add_grid_kind_args, check_runs, grid_kinds, thread_list
-from .output import md_table, out_dir, write_csv, write_json, write_summary
-from .scenes import resolve_scene, scene_list
+from .output import figure, grid_columns, grid_label, md_table, out_dir, write_csv, write_json, write_summary
+from .scenes import resolve_scene, scene_camera, scene_list
 from .stats import fmt_ms
 
 #: the three build stages of Ize et al. 2006, in plot order
@@ -163,8 +165,6 @@ def run_build_sweep(
     total = len(items) * len(strategies) * len(kinds) * len(threads)
     bar = None
     if progress:
-        from tqdm import tqdm
-
         bar = tqdm(total=total, desc="build sweep", unit="config")
     cores = os.cpu_count() or 1
     rows = []
@@ -218,8 +218,6 @@ def _measure(scene_name, src, group, runs, warmup, cores, render=0):
                 smp.append(g.stats)
     figures = [{} for _ in group]
     if render:
-        from .scenes import scene_camera
-
         last = warmup + runs - 1
         cam = scene_camera(src, tris, 0.0 if getattr(src, "static", True) else last * FRAME_DT, origin)
         figures = [_render_figures(g, tris, cam, p, render, runs) for g, p in zip(grids, group)]
@@ -229,9 +227,6 @@ def _measure(scene_name, src, group, runs, warmup, cores, render=0):
 def _render_figures(grid, tris, cam, p, size, runs):
     """The columns of ``runs`` renders of ``grid`` at size x size on p.threads threads, after one
     untimed: render_size, render_ms (median, min, max), tests_per_ray, cells_per_ray, hit_fraction."""
-    from gridrt.config import RenderParams
-    from gridrt.trace.render import Renderer
-
     renderer, rp = Renderer(), RenderParams(size, size, threads=p.threads)
     res = renderer.render(grid, tris, cam, rp)  # (compiles, sizes the buffers)
     ms = []
@@ -245,8 +240,6 @@ def _render_figures(grid, tris, cam, p, size, runs):
 
 
 def _row(scene_name, p, samples, runs, cores, figures=None):
-    from .output import grid_columns
-
     last = samples[-1]
     row = dict(
         scene=scene_name,
@@ -287,8 +280,6 @@ def _row(scene_name, p, samples, runs, cores, figures=None):
 def line_label(r, rows):
     """A row's line in the plots and tables: its strategy, and its grid kind when ``rows`` hold
     more than one."""
-    from .output import grid_label
-
     return r["strategy"] + grid_label(r, rows)
 
 
@@ -305,7 +296,7 @@ def _series(rows, scene, key):
 
 
 def _draw(ax, series, title, ylabel):
-    import matplotlib
+    import matplotlib  # deferred: matplotlib, slow to load; plots only
 
     colors = matplotlib.colormaps["tab10"]
     styles = ("-", "--", "-.", ":")
@@ -323,16 +314,6 @@ def _draw(ax, series, title, ylabel):
     if len(vals) and vals.max() / vals.min() > 20:
         ax.set_yscale("log")
     ax.grid(True, alpha=0.3)
-
-
-def _figure(nrows, ncols, w=4.6, h=3.4):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(w * ncols, h * nrows))
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(nrows, ncols, squeeze=False)
-    return fig, axes
 
 
 def _legend(fig, axes):
@@ -354,7 +335,7 @@ def plot_methods(rows, path):
     scenes = _scenes(rows)
     ncols = min(len(scenes), 3)
     nrows = math.ceil(len(scenes) / ncols)
-    fig, axes = _figure(nrows, ncols)
+    fig, axes = figure(nrows, ncols, w=4.6, h=3.4)
     for n, sc in enumerate(scenes):
         ax = axes[n // ncols, n % ncols]
         tri = next(r["triangles"] for r in rows if r["scene"] == sc)
@@ -369,7 +350,7 @@ def plot_methods(rows, path):
 def plot_steps(rows, path):
     """Median ms of each stage (clear, insert, macro) against threads, per strategy and scene."""
     scenes = _scenes(rows)
-    fig, axes = _figure(len(scenes), len(STAGES))
+    fig, axes = figure(len(scenes), len(STAGES), w=4.6, h=3.4)
     for n, sc in enumerate(scenes):
         for m, st in enumerate(STAGES):
             _draw(axes[n, m], _series(rows, sc, st), f"{sc}: {st[:-3]}", "ms (median)")
@@ -408,8 +389,6 @@ def add_parser(bsub, common):
 
 
 def run_build(a):
-    from gridrt.grid.registry import get_builder, names
-
     check_runs(a.runs, a.warmup)
     runs, warmup = (1, 2) if a.quick else (a.runs, a.warmup)  # 2: a builder's first build clears nothing
     specs, note = scene_list(a.scenes, BUILD_SCENES, BUILD_FALLBACK, quick=["icosphere:1280"] if a.quick else None)
@@ -418,7 +397,7 @@ def run_build(a):
         for s in strategies:
             get_builder(s)
     else:
-        strategies = names()
+        strategies = strategy_names()
     kinds = grid_kinds(a)
     params = GridParams(density=a.density, macro=a.macro, insert=a.insert, top_density=a.top_density,
                         leaf_density=a.leaf_density)
@@ -443,8 +422,6 @@ def run_build(a):
     rows = run_build_sweep(scenes, strategies, threads, runs=runs, warmup=warmup, out_dir=out,
                            progress=not a.no_progress, params=params, interleave=not a.back_to_back, grids=kinds,
                            render=size)
-    from gridrt.grid.traffic import stream_bandwidth
-
     bw = stream_bandwidth(mib, threads, runs=3 if a.quick else 5)
     return _finish_build(a, out, info, rows, scenes, strategies, threads, runs, warmup, params, bw, mib, kinds, size,
                          note)
@@ -454,18 +431,16 @@ def _run_build_cluster(a, specs, note, strategies, kinds, params, size, runs, wa
     """``bench build`` on a Dask cluster: every configuration (scene, strategy, grid kind,
     threads) measured whole by one worker, its builds back to back (a worker holds one
     configuration at a time; nothing interleaves them)."""
-    from . import on_cluster
-
     out = out_dir(a.out)
     if note:
         print(f"note: {note}", file=sys.stderr)
-    with on_cluster.open_cluster(a) as (cl, pressed):
-        threads = thread_list(a.threads) if a.threads else list(range(1, on_cluster.worker_cores(cl) + 1))
+    with open_cluster(a) as (cl, pressed):
+        threads = thread_list(a.threads) if a.threads else list(range(1, worker_cores(cl) + 1))
         info = machine_info(threads)
         info["cluster"] = cl.where
         calls = build_calls(specs, strategies, kinds, threads, params, runs, warmup, size)
-        rows, machines = on_cluster.run_configs(cl, calls, "build sweep (cluster)", a.no_progress, pressed=pressed)
-        bw, where = on_cluster.stream_on_worker(cl, mib, threads, 3 if a.quick else 5, a.no_progress, pressed)
+        rows, machines = run_configs(cl, calls, "build sweep (cluster)", a.no_progress, pressed=pressed)
+        bw, where = stream_on_worker(cl, mib, threads, 3 if a.quick else 5, a.no_progress, pressed)
     info["workers"] = machines
     info["stream_measured_on"] = where
     write_csv(rows, out / "build_sweep.csv")
@@ -584,8 +559,6 @@ def _traffic_section(rows, threads, bw, mib):
 
 
 def _traffic_scene(rows, sc, threads, bw):
-    from gridrt.grid.traffic import MODELLED
-
     body = ["", f"#### {sc}", "", "Bytes each stage reads and writes (engine/grid/traffic.py counts every array "
             "element once per pass that touches it, so it is a floor), the time measured, and the rate that "
             "makes.  'floor ms' = bytes / the copy bandwidth at that thread count: the time the stage would take "

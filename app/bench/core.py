@@ -6,9 +6,10 @@ import time
 
 import numpy as np
 
+from gridrt.api import RayCaster
 from gridrt.config import TRAVERSALS, GridParams, RenderParams
 from gridrt.errors import InputError
-from gridrt.grid.build import GridBuilder
+from gridrt.grid.build import GridBuilder, build_grid
 from gridrt.trace.render import Renderer
 
 from .machine import finish_machine, machine_info
@@ -37,9 +38,6 @@ def _one_shot_rows(tris, label, runs, warmup):
     thread, default parameters), timed in turns so that load falls on all alike: build_grid of the
     float32 and of the float64 triangles, RayCaster over them as a triangle soup (3 vertices per
     triangle) and that caster's update (its reused builder)."""
-    from gridrt.api import RayCaster
-    from gridrt.grid.build import build_grid
-
     p = GridParams(strategy="serial", threads=1)
     t64 = tris.astype(np.float64)
     v, f = tris.reshape(-1, 3), np.arange(3 * len(tris), dtype=np.int32).reshape(-1, 3)

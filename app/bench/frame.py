@@ -10,11 +10,12 @@ import numpy as np
 
 from gridrt.config import SHADING_MODES, TRAVERSALS, GridParams, RenderParams
 from gridrt.errors import InputError
+from gridrt.pipeline import FramePipeline
 
 from ..cli import add_packet_args, defaults
-from ..cluster import add_cluster_args, wants_cluster
+from ..cluster.scheduler import add_cluster_args, wants_cluster
 from .machine import finish_machine, machine_info
-from .on_cluster import _bench_scene, run_configs
+from ..cluster.bench import _bench_scene, open_cluster, run_configs, worker_cores
 from .options import add_grid_kind_args, check_frame_args, grid_kinds, thread_list
 from .output import figure, grid_columns, md_table, out_dir, progress, write_csv, write_json, write_summary
 from .scenes import resolve_scene, scene_list
@@ -69,8 +70,6 @@ def frame_strategy(name, threads):
 def frame_pipeline(scene, variant, strategy, size, shading, packet, packet_precision, top_density, leaf_density):
     """The FramePipeline of one ``bench frame`` configuration: variant = (threads, traversal,
     split, grid kind)."""
-    from gridrt.pipeline import FramePipeline
-
     th, tr, sp, gk = variant
     return FramePipeline(scene, GridParams(strategy=frame_strategy(strategy, th), threads=th, grid=gk,
                                            top_density=top_density, leaf_density=leaf_density),
@@ -158,13 +157,11 @@ def _split_choices(a, has_split):
 def _run_frame_cluster(a, specs, note, travs, kinds, size, runs, warmup, packet):
     """``bench frame`` on a Dask cluster: every configuration (scene, threads, traversal, split,
     grid kind) runs its warm-up and timed frames whole on one worker."""
-    from . import on_cluster
-
     out = out_dir(a.out)
     if note:
         print(f"note: {note}", file=sys.stderr)
-    with on_cluster.open_cluster(a) as (cl, pressed):
-        threads = thread_list(a.threads) if a.threads else sorted({1, on_cluster.worker_cores(cl)})
+    with open_cluster(a) as (cl, pressed):
+        threads = thread_list(a.threads) if a.threads else sorted({1, worker_cores(cl)})
         info = machine_info(threads)
         info["cluster"] = cl.where
         facts = scene_facts(cl, specs, a.no_progress, pressed)
@@ -172,8 +169,8 @@ def _run_frame_cluster(a, specs, note, travs, kinds, size, runs, warmup, packet)
                 for sp in _split_choices(a, f["has_split"]) for gk in kinds]
         settings = dict(strategy=a.strategy, size=size, shading=a.shading, packet=packet,
                         packet_precision=a.packet_precision, top_density=a.top_density, leaf_density=a.leaf_density)
-        rows, machines = on_cluster.run_configs(cl, frame_calls(plan, settings, runs, warmup, a.dt),
-                                                "bench frame (cluster)", a.no_progress, pressed=pressed)
+        rows, machines = run_configs(cl, frame_calls(plan, settings, runs, warmup, a.dt), "bench frame (cluster)",
+                                     a.no_progress, pressed=pressed)
     info["workers"] = machines
     return _finish_frame(a, out, info, rows, size, runs, warmup, note)
 

@@ -7,8 +7,10 @@ import platform
 import shlex
 import subprocess
 import sys
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
+import numba
 import numpy as np
 
 
@@ -35,8 +37,6 @@ def _cpu_model():
 
 
 def _version(dist):
-    from importlib.metadata import PackageNotFoundError, version
-
     try:
         return version(dist)
     except PackageNotFoundError:
@@ -68,8 +68,6 @@ def effective_cores():
 def machine_info(threads):
     """Dict describing this run: date, CPU model, cores, CPUs allowed, threads used, load
     average, memory, versions (python, numpy, numba, embreex, ...), commit, command line."""
-    import numba
-
     try:
         allowed = len(os.sched_getaffinity(0))
     except AttributeError:

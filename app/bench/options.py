@@ -4,8 +4,12 @@ loads."""
 
 import math
 
+from gridrt.config import GRID_KINDS, GridParams
 from gridrt.errors import InputError
+from gridrt.grid.registry import get_builder
 from gridrt.threads import check_threads
+
+from ..cli import add_density_args, defaults
 
 
 def int_list(text, what, lo=1):
@@ -31,8 +35,6 @@ def float_list(text, what):
 def grid_list(text):
     """Grid kinds from --grid text 'uniform,two_level' (each of gridrt.config.GRID_KINDS), in order,
     without repeats."""
-    from gridrt.config import GRID_KINDS
-
     kinds = list(dict.fromkeys(k.strip() for k in str(text).split(",") if k.strip()))
     for k in kinds:
         if k not in GRID_KINDS:
@@ -45,10 +47,6 @@ def grid_list(text):
 def add_grid_kind_args(q):
     """--grid (grid kinds, comma-separated: measured side by side), --top-density and --leaf-density
     (a two-level grid's densities) of a benchmark; :func:`grid_kinds` reads them."""
-    from gridrt.config import GRID_KINDS, GridParams
-
-    from ..cli import add_density_args, defaults
-
     g = defaults(GridParams)
     q.add_argument("--grid", default=g["grid"],
                    help=f"grid kinds, comma-separated of {', '.join(GRID_KINDS)} (uniform,two_level measures both side "
@@ -59,8 +57,6 @@ def add_grid_kind_args(q):
 def grid_kinds(a):
     """The grid kinds of a benchmark's --grid, its --top-density and --leaf-density checked too
     (before any scene loads)."""
-    from gridrt.config import GridParams
-
     GridParams(top_density=a.top_density, leaf_density=a.leaf_density)
     return grid_list(a.grid)
 
@@ -82,8 +78,6 @@ def check_runs(runs, warmup):
 
 def check_frame_args(a):
     """The options the frame-by-frame benchmarks share: --runs/--warmup, --size, --dt, --strategy."""
-    from gridrt.grid.registry import get_builder
-
     check_runs(a.runs, a.warmup)
     if a.size < 1:
         raise InputError(f"--size must be positive, got {a.size}")

@@ -6,6 +6,8 @@ import json
 import sys
 from pathlib import Path
 
+from tqdm import tqdm
+
 from gridrt.errors import InputError
 
 from .machine import machine_md
@@ -57,8 +59,8 @@ def write_summary(path, title, info, sections):
 
 def figure(nrows=1, ncols=1, w=5.0, h=3.6):
     """A matplotlib Figure on the Agg canvas (no display, no pyplot state)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # deferred: matplotlib, slow to load; plots only
+    from matplotlib.figure import Figure  # deferred: matplotlib, slow to load; plots only
 
     fig = Figure(figsize=(w * ncols, h * nrows))
     FigureCanvasAgg(fig)
@@ -66,8 +68,6 @@ def figure(nrows=1, ncols=1, w=5.0, h=3.6):
 
 
 def progress(total, desc, disable=False):
-    from tqdm import tqdm
-
     return tqdm(total=total, desc=desc, file=sys.stderr, disable=disable, dynamic_ncols=True)
 
 

@@ -30,6 +30,7 @@ its install command when absent; app/bench/sides.py) Open3D's RaycastingScene (`
 Mitsuba 3's CPU variant ``llvm_ad_rgb`` (``mitsuba``, ``drjit``).
 """
 
+import dataclasses
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -45,6 +46,7 @@ from gridrt.trace.render import Renderer, cast_rays
 from ..cli import add_packet_args
 
 from .affinity import Affinity
+from .frame import frame_strategy
 from .machine import finish_machine, machine_info
 from .options import add_grid_kind_args, check_frame_args, grid_kinds, thread_list
 from .output import figure, grid_columns, grid_label, md_table, out_dir, progress, write_csv, write_json, write_summary
@@ -157,8 +159,6 @@ def run_peers(a):
         info[peer.name] = peer.version
     if note:
         print(f"note: {note}", file=sys.stderr)
-    from .frame import frame_strategy
-
     scenes = [resolve_scene(s) for s in specs]
     rows = []
     bar = progress(len(scenes) * len(views) * len(threads) * len(kinds) * (warmup + runs + 1), "bench peers",
@@ -214,8 +214,6 @@ def _fill_camera(tris, cam, probe=64):
     """``cam`` moved towards its target, 24 steps of 0.85x the distance at most, to the first eye from
     which at least FILL of a probe x probe image hits ``tris`` (the scene at time 0; or the closest
     step)."""
-    import dataclasses
-
     g = GridBuilder(GridParams()).build(tris)
     eye, target = np.asarray(cam.eye), np.asarray(cam.target)
     for k in range(25):

@@ -11,6 +11,8 @@ import numpy as np
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from gridrt.camera import Camera
 from gridrt.errors import InputError
+from gridrt.scene import SceneSpec
+from gridrt.scene.assets import ASSET_SCENES, asset_path
 #: the development data set: real meshes in shared/data beside the repository, when present (not
 #: part of the repository; a user's clone has the shipped assets/ instead)
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
@@ -60,8 +62,6 @@ _ASSET_NAMES = {"cesium": "cesium_man", "morphsphere": "morph_sphere"}
 def data_path(name):
     """The file behind a SHORTCUTS name: the development data set's file, else the same scene's
     shipped asset (assets/, see gridrt.scene.assets) where there is one; may not exist."""
-    from gridrt.scene.assets import ASSET_SCENES, asset_path
-
     p = DATA / SHORTCUTS[name]
     asset = _ASSET_NAMES.get(name, name)
     if not p.exists() and asset in ASSET_SCENES and asset_path(asset).exists():
@@ -120,8 +120,6 @@ def parse_scene_spec(spec):
 
 def scene_spec(text):
     """The :class:`gridrt.scene.SceneSpec` of a spec string (see SCENE_HELP)."""
-    from gridrt.scene import SceneSpec
-
     src, kw = parse_scene_spec(text)
     return SceneSpec(source=src, **kw)
 
