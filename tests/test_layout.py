@@ -313,6 +313,34 @@ def test_every_import_inside_a_function_says_why_it_is_deferred():
                      + "\n".join(bad))
 
 
+def imports_of_test_files(tests):
+    """Lines ``path:line imports test_x`` of every import of a test module (``test_*.py`` in the
+    folder ``tests``) by any module under ``tests``."""
+    tests = Path(tests)
+    names = {p.stem for p in tests.glob("test_*.py")}
+    bad = []
+    for p in sorted(tests.rglob("*.py")):
+        for node in ast.walk(_parse(p)):
+            if isinstance(node, ast.Import):
+                hits = [a.name for a in node.names if a.name.split(".")[0] in names]
+            elif isinstance(node, ast.ImportFrom) and not node.level:
+                hits = [node.module] if (node.module or "").split(".")[0] in names else []
+            else:
+                continue
+            bad += [f"{p.relative_to(tests)}:{node.lineno} imports {h}" for h in hits]
+    return bad
+
+
+def test_no_test_file_imports_another():
+    """Test files share helpers through tests/helpers/ and conftest.py, never by importing one
+    another (a test module imported by another couples the two files' names and collects its
+    module twice)."""
+    tests = Path(__file__).resolve().parent
+    assert len(list(tests.glob("test_*.py"))) > 40
+    bad = imports_of_test_files(tests)
+    assert not bad, "test files importing test files (move the helper to tests/helpers/):\n" + "\n".join(bad)
+
+
 # ----------------------------------------------------------------------------------------------
 # the checkers fail when they should: synthetic packages with a planted offence
 
@@ -437,3 +465,14 @@ def test_planted_inner_import_without_reason_is_reported(tmp_path):
                    f"src/core.py:{line_of(src, 'from os import path')} from os import path",
                    f"src/core.py:{line_of(src, 'import csv')} import csv",
                    f"src/core.py:{line_of(src, 'import sys as _s')} import sys as _s"], bad
+
+
+def test_planted_test_file_import_is_reported(tmp_path):
+    (tmp_path / "helpers").mkdir()
+    (tmp_path / "helpers" / "shared.py").write_text("import numpy\n")
+    (tmp_path / "test_a.py").write_text("from helpers.shared import numpy\nimport conftest\n")
+    (tmp_path / "conftest.py").write_text("")
+    assert imports_of_test_files(tmp_path) == []
+    (tmp_path / "test_b.py").write_text("import os\n\n\ndef test_x():\n    from test_a import numpy\n")
+    (tmp_path / "helpers" / "more.py").write_text("import test_b as b\n")
+    assert imports_of_test_files(tmp_path) == ["helpers/more.py:1 imports test_b", "test_b.py:5 imports test_a"]
