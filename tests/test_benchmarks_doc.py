@@ -3,7 +3,7 @@
 Every table of BENCHMARKS.md has a source line right above it (a blank line between them is
 allowed), which says where its figures come from::
 
-    *Measured:* 2026-11-22 · *machine:* AMD EPYC, 2 cores · *command:* `gridrt bench core` · *output:* docs/results/core/
+    *Measured:* 2026-11-22 · *machine:* AMD EPYC · *command:* `gridrt bench core` · *output:* docs/results/core/
 
 * ``output: docs/results/<name>/``: the folder that ``gridrt bench ... --out docs/results/<name>``
   wrote (``summary.md``, the CSV files, ``machine.json``), committed.  The table's header must be
@@ -19,6 +19,8 @@ BENCHMARKS.md and docs/.
 
 import json
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -60,7 +62,8 @@ def tables(text):
     while i < len(lines):
         if lines[i].startswith("```"):
             in_code = not in_code
-        if not in_code and lines[i].startswith("|") and i + 1 < len(lines) and re.match(r"^\|[\s:|-]+\|$", lines[i + 1]):
+        rule = i + 1 < len(lines) and re.match(r"^\|[\s:|-]+\|$", lines[i + 1])
+        if not in_code and lines[i].startswith("|") and rule:
             j = i + 2
             rows = []
             while j < len(lines) and lines[j].startswith("|"):
@@ -236,9 +239,6 @@ def test_a_quick_benchmark_run_backs_a_table(tmp_path):
     """A real run: ``gridrt bench core --quick`` writes an output folder; its summary's first row,
     with a source line made from its machine.json, passes the check, and passes no longer once a
     figure in it is changed."""
-    import subprocess
-    import sys
-
     out = tmp_path / "docs" / "results" / "core"
     cmd = [sys.executable, "-m", "gridrt", "bench", "core", "--quick", "--no-progress", "--out", str(out)]
     r = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=1200)

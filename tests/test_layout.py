@@ -400,7 +400,8 @@ def test_clean_synthetic_package_passes(tmp_path):
 
 def test_planted_cycle_through_an_inner_import_is_reported(tmp_path):
     files = dict(CLEAN)
-    files["util.py"] = CLEAN["util.py"] + "\n\ndef back():\n    from .app.cli import run  # deferred: x\n    return run\n"
+    files["util.py"] = CLEAN["util.py"] + (
+        "\n\ndef back():\n    from .app.cli import run  # deferred: x\n    return run\n")
     roots = write_package(tmp_path, files)
     report = import_cycles(roots)
     assert report, "a cycle through an import inside a function went unreported"

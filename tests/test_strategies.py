@@ -14,7 +14,9 @@ references an unsynchronized insert loses (one interleaving of threads' writes, 
 global_lock's count pass must wait while another thread holds its lock.
 """
 
+import csv
 import os
+import sys
 import threading
 import time
 
@@ -24,6 +26,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from numba import njit
+from PIL import Image
 
 from conftest import BUNNY, TEAPOT, load_tris, random_scene
 from gridrt.camera import Camera
@@ -33,6 +36,7 @@ from gridrt.grid import GridBuilder, get_builder, names
 from gridrt.grid.buffers import GridBuffers
 from gridrt.grid.build import make_spec
 from gridrt.grid.strategies import sort_last_locks
+from gridrt.scene import make_scene
 from gridrt.threads import max_threads, use_threads
 from gridrt.trace import render
 
@@ -159,8 +163,6 @@ def test_registry_names_and_unknown_name():
 
 
 def test_strategy_modules_cite_their_source():
-    import sys
-
     for n in STRATEGIES:
         doc = sys.modules[get_builder(n).__module__].__doc__ or ""
         assert "Ize" in doc or "Lagae" in doc, f"strategy {n}: module docstring cites no source"
@@ -309,8 +311,6 @@ def test_animated_scene_switching_every_frame():
     """One GridBuilder, one animated scene; every frame a different strategy, thread count and
     insertion test (so layer counts change between frames and the clear must cope).  Each grid
     equals a fresh serial build of the same frame, and renders the same image."""
-    from gridrt.scene import make_scene
-
     scene = make_scene("marbles", count=1400, seed=7)
     builder = GridBuilder(GridParams())
     rp = RenderParams(width=40, height=30, threads=2, traversal="dda")
@@ -531,12 +531,7 @@ def test_global_lock_excludes_and_reports_waits(crowded, monkeypatch):
 
 
 def test_build_sweep_writes_rows_csv_and_plots(tmp_path):
-    import csv
-
-    from PIL import Image
-
-    from gridrt.app.bench.build import run_build_sweep
-    from gridrt.scene import make_scene
+    from gridrt.app.bench.build import run_build_sweep  # deferred: the benchmark app (tqdm, the cluster code)
 
     scenes = {
         "marbles": make_scene("marbles", count=700, seed=1),
@@ -567,7 +562,7 @@ def test_build_sweep_writes_rows_csv_and_plots(tmp_path):
 
 
 def test_build_sweep_rejects_bad_arguments(tmp_path):
-    from gridrt.app.bench.build import run_build_sweep
+    from gridrt.app.bench.build import run_build_sweep  # deferred: the benchmark app (tqdm, the cluster code)
 
     tris = random_scene(np.random.default_rng(9), 20)
     with pytest.raises(InputError, match="unknown build strategy"):
