@@ -13,8 +13,8 @@ allowed), which says where its figures come from::
 * ``output: not kept``: figures measured before output folders were kept; the line still names
   the date, the machine and the command that measures them.
 
-The documents describe the present: no commit hashes and no issue numbers in README.md,
-BENCHMARKS.md and docs/.
+The documents describe the present: no commit hashes, no issue numbers and no history words
+("was", "now", "since", ...) in README.md, BENCHMARKS.md and docs/.
 """
 
 import json
@@ -160,6 +160,25 @@ def test_documents_name_no_commit_or_issue(doc):
         for m in list(HASH.finditer(line)) + list(ISSUE.finditer(line)):
             bad.append(f"{doc.name}:{i}: {m.group(0)!r} in {line.strip()[:100]}")
     assert not bad, "commit hashes or issue numbers in a document:\n" + "\n".join(bad)
+
+
+HISTORY = re.compile(r"\b(was|were|now|since|used to|previously|no longer)\b", re.I)
+
+
+@pytest.mark.parametrize("doc", DOCUMENTS, ids=lambda p: str(p.relative_to(REPO)))
+def test_documents_describe_the_present(doc):
+    """No diary: the documents say what is true and how to measure it, not what changed."""
+    bad = [f"{doc.name}:{i}: {m.group(0)!r} in {line.strip()[:100]}"
+           for i, line in enumerate(doc.read_text(encoding="utf-8").split("\n"), 1) for m in HISTORY.finditer(line)]
+    assert not bad, "history words in a document:\n" + "\n".join(bad)
+
+
+def test_history_and_hash_checks_catch_a_planted_line(tmp_path):
+    line = "The build was 2x slower before 1a2b3c4d (issue 12), and now it is not."
+    assert [m.group(0) for m in HISTORY.finditer(line)] == ["was", "now"]
+    assert [m.group(0) for m in HASH.finditer(line)] == ["1a2b3c4d"]
+    assert [m.group(0) for m in ISSUE.finditer(line)] == ["issue 12"]
+    assert not HASH.search("icosphere:1310720 at 1e-5, 2026-12-03, 0.5 s") and not HISTORY.search("nowhere washed")
 
 
 # ----------------------------------------------------------------------------------------------
