@@ -15,6 +15,8 @@ from gridrt.pipeline import FramePipeline
 from gridrt.warmup import compile_progress
 
 from . import cli
+from .cluster.dump import dump_on_cluster
+from .cluster.scheduler import add_cluster_args, wants_cluster
 from .frame_out import (
     FrameWriteError, FrameWriter, StopSignals, encode_frame, nothing_to_do, replace_mode, resumed, run_settings,
 )
@@ -48,8 +50,6 @@ def add_parser(sub):
                    help="also write frame_NNNNN_t.npy (float32 hit distance, inf: miss) and "
                         "frame_NNNNN_id.npy (int32 triangle id, -1: miss), shape (height, width)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    from .cluster.scheduler import add_cluster_args
-
     g = add_cluster_args(p)
     g.add_argument("--chunk", type=int, default=None,
                    help="frames per task on a cluster (default: about four tasks per worker, at most 16 frames)")
@@ -64,11 +64,7 @@ def run(a):
         if not math.isfinite(getattr(a, name)):
             raise InputError(f"--{name} must be finite")
     spec = cli.frame_spec(a)  # every setting checked before the cluster, the folder or the scene
-    from .cluster.scheduler import wants_cluster
-
     if wants_cluster(a):  # (imports Dask only then)
-        from .cluster.dump import dump_on_cluster
-
         return dump_on_cluster(a, spec)
     if a.chunk is not None:
         raise InputError("--chunk applies to a cluster run: give it with --workers or --scheduler")

@@ -4,9 +4,9 @@ Each dataclass validates itself in ``__post_init__`` and raises InputError namin
 """
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
-from .checks import MAX_IMAGE_SIDE, _positive_int, check_finite
+from .checks import MAX_IMAGE_SIDE, _positive_int
 from .errors import InputError
 from .threads import check_threads
 

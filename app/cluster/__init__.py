@@ -4,7 +4,7 @@ Frames are independent, so a sequence spreads over processes and machines perfec
 is Dask's ``distributed`` scheduler (an optional extra: ``pip install 'gridrt[cluster]'``): a local
 cluster of worker processes started here (``--workers N``), or an existing one (``dask scheduler``
 and ``dask worker`` processes anywhere, ``--scheduler tcp://HOST:PORT``).  Without either flag
-nothing here is imported.
+Dask is not imported.
 
 A dump is cut into chunks of consecutive frames.  Each worker process loads the scene once and
 keeps it, with its pipeline (kernels warmed, grids and buffers allocated), for its next chunks;

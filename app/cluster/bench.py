@@ -16,22 +16,23 @@ import os
 import sys
 
 from gridrt.errors import GridrtError
+from gridrt.grid.traffic import stream_bandwidth
+from gridrt.threads import max_threads
 
+from ..bench.machine import machine_info
+from ..bench.output import progress
+from ..bench.scenes import resolve_scene
 from .scheduler import Cluster, CtrlC
 from .tasks import _LOCK, Stop, fetch_done, worker_address, worker_cached
 
 _WORKER = {"machine": None}
 def _bench_scene(text):
     """The worker's BenchScene of a --scenes entry, loaded once per worker process."""
-    from ..bench.scenes import resolve_scene
-
     return worker_cached(("bench", text), lambda: resolve_scene(text))
 
 
 def _machine():
     """This worker's machine record (measured once per worker process)."""
-    from ..bench.machine import machine_info
-
     if _WORKER["machine"] is None:
         info = machine_info([])
         info.pop("threads_used", None)
@@ -63,7 +64,7 @@ def _run(fn, *args):
 @contextlib.contextmanager
 def open_cluster(a):
     """The Cluster of the bench's --workers/--scheduler (one task slot per worker), announced,
-    with Ctrl-C handled between configurations (:class:`gridrt.app.cluster.CtrlC`): yields (cluster, pressed)."""
+    with Ctrl-C handled between configurations (:class:`gridrt.app.cluster.scheduler.CtrlC`): yields (cluster, pressed)."""
     with CtrlC(local=a.workers is not None) as pressed, \
             Cluster(workers=a.workers, scheduler=a.scheduler, listen=a.listen) as cl:
         pressed.listen()
@@ -73,8 +74,6 @@ def open_cluster(a):
 
 def worker_cores(cl):
     """The fewest cores of a worker's machine (the default thread counts' ceiling)."""
-    from gridrt.threads import max_threads
-
     cores = cl.client.run(os.cpu_count)
     return max(1, min(min(cores.values() or [1]), max_threads()))
 
@@ -83,8 +82,6 @@ def run_configs(cl, calls, desc, no_progress=False, unit="config", pressed=lambd
     """Each ``(fn, args)`` of ``calls`` as one task; returns (rows in the order of ``calls``,
     {worker: machine record}).  The first error stops the run and is raised; Ctrl-C cancels
     the cluster's work and raises KeyboardInterrupt."""
-    from ..bench.output import progress
-
     client = cl.client
     futs = [client.submit(_run, fn, *args, pure=False) for fn, args in calls]
     results = [None] * len(futs)
@@ -113,8 +110,6 @@ def run_configs(cl, calls, desc, no_progress=False, unit="config", pressed=lambd
 
 
 def _stream(mib, threads, runs):
-    from gridrt.grid.traffic import stream_bandwidth
-
     return [{"stream": stream_bandwidth(mib, threads, runs=runs)}]
 
 

@@ -2,19 +2,24 @@
 ADDRESS``): the options, their checks, the scheduler's address and greeting, :class:`Cluster`,
 Ctrl-C while it runs (:class:`CtrlC`)."""
 
+import logging
 import os
+import signal
 import socket
 import struct
 import threading
 import time
 import warnings
+from urllib.parse import urlsplit
 
+from gridrt import memory
+from gridrt.commands import pip_command
 from gridrt.errors import InputError
+from gridrt.memory import human
+
 
 def install_hint():
     """How to get the cluster extra, with the pip of the running interpreter."""
-    from gridrt.commands import pip_command
-
     pip = pip_command()
     return (f"{pip} install 'gridrt[cluster]' (in a checkout: {pip} install -e '.[cluster]'; or {pip} install "
             "distributed bokeh)")
@@ -101,8 +106,6 @@ def memory_available():
     ``MemAvailable`` and the cgroups' limits less their usage (:func:`gridrt.memory.readings`;
     a process's own RLIMIT_AS and RLIMIT_DATA bound each worker apart, not their sum); (None,
     None) where none can be read."""
-    from gridrt import memory
-
     shared = [(b, source) for source, b in memory.readings() if not source.startswith("RLIMIT")]
     return min(shared) if shared else (None, None)
 
@@ -111,8 +114,6 @@ def check_workers(workers):
     """Refuse (InputError, with the figures) a local cluster of ``workers`` processes that this
     machine cannot hold: more workers than the cores this process may use, or ``workers`` times
     :data:`WORKER_MEMORY` more than the memory available (:func:`memory_available`)."""
-    from gridrt.memory import human
-
     cores, (room, source) = usable_cores(), memory_available()
     problems = []
     if workers > cores:
@@ -131,7 +132,7 @@ def check_workers(workers):
 def import_distributed():
     """The ``distributed`` module, or an InputError saying how to install it."""
     try:
-        import distributed
+        import distributed  # deferred: the optional cluster extra (distributed) loads in about a second
     except ImportError as e:
         raise InputError(f"--workers and --scheduler need Dask's distributed scheduler, which is not installed "
                          f"({e}); install the cluster extra: {install_hint()}") from None
@@ -141,8 +142,6 @@ def import_distributed():
 def scheduler_address(text):
     """(host, port) of a --scheduler address: ``tcp://HOST:PORT``, ``HOST:PORT`` or
     ``tcp://[IPv6]:PORT``; an InputError that says what is wrong with anything else."""
-    from urllib.parse import urlsplit
-
     shown = " ".join(str(text).split())
     scheme, sep, rest = shown.partition("://")
     if not sep:
@@ -226,7 +225,7 @@ def greeting_problem(data):
     start = word.size * (count + 1)
     if sum(lengths) != size - start:
         return f"its first message's frames do not add up to its size ({sum(lengths)} + {start} != {size} bytes)"
-    import msgpack
+    import msgpack  # deferred: msgpack comes with the optional cluster extra (distributed)
 
     try:
         greeting = msgpack.unpackb(body[start:start + lengths[0]], raw=False)
@@ -290,8 +289,6 @@ class Cluster:
 
     def __init__(self, workers=None, scheduler=None, threads=None, listen=None):
         dist = import_distributed()
-        import logging
-
         self.threads = threads
         self.cluster = None
         self.client = None
@@ -316,7 +313,7 @@ class Cluster:
                                  f"--listen takes an address of this machine (default {LOOPBACK})") from None
             try:
                 self.client = dist.Client(self.cluster)
-                from .plugin import IgnoreSigint
+                from .plugin import IgnoreSigint  # deferred: the plugin's module imports distributed
 
                 self.client.register_plugin(IgnoreSigint())  # (a worker restarted later ignores Ctrl-C too)
             except BaseException:
@@ -383,8 +380,6 @@ class CtrlC:
         self.local = local
 
     def __enter__(self):
-        import signal
-
         if threading.current_thread() is threading.main_thread():
             self.old = signal.signal(signal.SIGINT, signal.SIG_IGN)
             if not self.local:  # no worker processes start here: heard at once, acted on once connected
@@ -392,8 +387,6 @@ class CtrlC:
         return self
 
     def listen(self):
-        import signal
-
         if self.old is not None:
             signal.signal(signal.SIGINT, lambda *_: self.flag.set())
 
@@ -401,8 +394,6 @@ class CtrlC:
         return self.flag.is_set()
 
     def __exit__(self, *exc):
-        import signal
-
         if self.old is not None:
             signal.signal(signal.SIGINT, self.old)
 
@@ -411,22 +402,16 @@ class quiet_logs:
     """No log records while inside (``logging.disable``), then the previous setting again."""
 
     def __enter__(self):
-        import logging
-
         self.before = logging.root.manager.disable
         logging.disable(logging.CRITICAL)
         return self
 
     def __exit__(self, *exc):
-        import logging
-
         logging.disable(self.before)
 
 
 def _silence():
     """On a local cluster's worker about to stop: no more log records."""
-    import logging
-
     logging.disable(logging.CRITICAL)
 
 

@@ -5,6 +5,7 @@ import os
 import threading
 
 from gridrt.errors import GridrtError
+from gridrt.threads import max_threads
 
 from .scheduler import _host
 
@@ -21,7 +22,7 @@ _SCENES = {}
 
 def worker_address():
     try:
-        from distributed import get_worker
+        from distributed import get_worker  # deferred: the optional cluster extra (distributed), on a worker
 
         return get_worker().address
     except (ImportError, ValueError):
@@ -31,8 +32,6 @@ def worker_address():
 def worker_threads(threads, per_host):
     """The thread count of a task on this worker: ``threads``, or this machine's cores divided
     among the workers on it (``per_host``: {host: workers}, as the client saw them)."""
-    from gridrt.threads import max_threads
-
     if threads is not None:
         return min(int(threads), max_threads())
     n = max(1, (per_host or {}).get(_host(worker_address()), 1))
@@ -74,7 +73,7 @@ def fetch_done(futs, timeout=0.2):
     result} of those finished.  A task that failed, or returned gridrt's own error
     (``{"error": e}``), raises here.  (Cancelled ones were replaced by a resubmission; lost ones
     Dask runs again.)"""
-    from distributed import wait
+    from distributed import wait  # deferred: the optional cluster extra (distributed), with a cluster
 
     try:
         wait(list(futs.values()), timeout=timeout, return_when="FIRST_COMPLETED")
