@@ -91,7 +91,7 @@ class GridParams:
         object.__setattr__(self, "max_bytes", _positive_int("max_bytes", self.max_bytes, 1))
         if self.threads is not None:
             object.__setattr__(self, "threads", check_threads(self.threads))
-        from .grid.registry import get_builder
+        from .grid.registry import get_builder  # deferred: gridrt.grid imports this module first (its __init__)
 
         get_builder(self.strategy)
 
