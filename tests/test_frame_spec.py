@@ -88,7 +88,7 @@ def test_viewer_state_changes_the_spec_by_replace():
     st.camera = SPEC.camera()
     st.follow_camera = True
     assert st.spec == before == SPEC
-    # a refused value leaves the spec as it was
+    # a refused value leaves the spec unchanged
     assert not st.set_grid(density=-1.0)
     assert st.spec == SPEC
 
