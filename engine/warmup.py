@@ -23,6 +23,11 @@ import time
 import types as _pytypes
 from contextlib import contextmanager
 
+from numba.core import event
+from numba.core.dispatcher import Dispatcher
+
+from .trace.cgt.frame import _render_tiles, cgt_render_kernel
+from .trace.render import render_kernel, render_serial
 from .trace.twin import has_cache_entry
 
 
@@ -30,7 +35,6 @@ from .trace.twin import has_cache_entry
 def compile_notice(callback):
     """Within the block, call ``callback()`` once, when numba starts compiling the first kernel
     (from any thread); never when every kernel comes from the cache."""
-    from numba.core import event
 
     class _First(event.Listener):
         fired = False
@@ -48,8 +52,6 @@ def compile_notice(callback):
 
 
 def _is_dispatcher(obj):
-    from numba.core.dispatcher import Dispatcher
-
     return isinstance(obj, Dispatcher)
 
 
@@ -186,8 +188,6 @@ def compile_progress(report, package="gridrt"):
     loaded from the on-disk cache send nothing.  Compiles in other threads are followed too (numba
     compiles one kernel at a time, under its compiler lock); ``report`` runs in the compiling
     thread."""
-    from numba.core import event
-
     progress = CompileProgress(package)
     lock = threading.Lock()
 
@@ -209,9 +209,6 @@ def compile_progress(report, package="gridrt"):
 def _kernels(traversal="dda"):
     """The render kernels a first frame of this traversal may run: the parallel one and its serial
     twin (gridrt.trace.twin; the serial one runs while the parallel one is not compiled)."""
-    from .trace.cgt.frame import _render_tiles, cgt_render_kernel
-    from .trace.render import render_kernel, render_serial
-
     # (the serial CGT render is a Python function around the kernel _render_tiles)
     return [cgt_render_kernel, _render_tiles] if traversal == "cgt" else [render_kernel, render_serial]
 

@@ -118,8 +118,8 @@ def _packet(g, o, d, watertight=True, f32=True):
     for r, col in ((cgt.IO_OX, o[:, 0]), (cgt.IO_OY, o[:, 1]), (cgt.IO_OZ, o[:, 2]), (cgt.IO_DX, d[:, 0]),
                    (cgt.IO_DY, d[:, 1]), (cgt.IO_DZ, d[:, 2]), (cgt.IO_TMAX, np.full(n, np.inf))):
         io[r * cgt.PN : r * cgt.PN + n] = col
-    nf = cgt.trace_packet(g, n, io, 0.0, watertight, False, S, np.empty(cgt.MBOX, np.int32),
-                          np.empty(MAILBOX, np.int32), np.inf, None, f32)
+    nf = cgt.trace_packet(g, n, io, cgt.packet_query(0.0, watertight, False, f32), S, np.empty(cgt.MBOX, np.int32),
+                          np.empty(MAILBOX, np.int32), np.inf, None)
     return nf, io[cgt.IO_T * cgt.PN : cgt.IO_T * cgt.PN + n].copy(), io[cgt.IO_F * cgt.PN : cgt.IO_F * cgt.PN + n]
 
 
@@ -146,7 +146,7 @@ def test_f32_fallback_on_exact_edges():
     S32[cgt.F_BT : cgt.F_BT + n] = np.inf
     I32[cgt.F_BF : cgt.F_BF + n] = -1
     q = (tris[1] - o[0]).astype(np.float32)
-    hit, undecided = cgt._test_wt32(S32, I32, n, *q[0], *q[1], *q[2], np.int32(1), np.float32(0.0))
+    hit, undecided = cgt._test_wt32(S32, I32, n, tuple(q[0]), tuple(q[1]), tuple(q[2]), np.int32(1), np.float32(0.0))
     assert undecided == 1 and hit == 0
     # a packet from one eye at the shared corner and along the diagonal: every ray hits
     eye = np.array([0.3, 0.7, 1.5])

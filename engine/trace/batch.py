@@ -34,8 +34,8 @@ rounding of an edge.
 import numpy as np
 from numba import njit, parallel_chunksize, prange
 
-from .cgt import (IO_DX, IO_DY, IO_DZ, IO_F, IO_OX, IO_OY, IO_OZ, IO_TMAX, MBOX, NIO, NS, PN, direction_class,
-                  trace_packet)
+from .cgt import (IO_DX, IO_DY, IO_DZ, IO_F, IO_OX, IO_OY, IO_OZ, IO_TMAX, MBOX, NIO, NS, PN, PacketQuery,
+                  direction_class, trace_packet)
 from .intersect import ray_shear
 from .query import HitArrays, PacketScratch, cast_pass, query
 from .traverse import (MAILBOX, MOVED, NEAR, TINY_DIR, _floor_clamp, _test_triangle, far_interval, far_shift, far_t,
@@ -109,7 +109,8 @@ def _cast_run(g, origins, dirs, idx, s, n, q, how, scratch, out):
             io[IO_DY * PN + j] = dirs[i, 1]
             io[IO_DZ * PN + j] = dirs[i, 2]
             io[IO_TMAX * PN + j] = tmax
-        r = trace_packet(g, n, io, tmin, watertight, any_hit, scratch.S, scratch.mb, mb1, max_cells, None, f32)
+        r = trace_packet(g, n, io, PacketQuery(tmin, watertight, any_hit, f32), scratch.S, scratch.mb, mb1, max_cells,
+                         None)
     if r < 0:
         for j in range(n):
             i = idx[s + j] if use_idx else s + j

@@ -12,13 +12,13 @@ so that every caller of a kernel stays visible where it is called):
 
 * one thread: the serial kernel (the parallel one would run the same code on one thread);
 * the parallel kernel compiled for these argument types in this process, or in the on-disk cache
-  for this machine (it then loads in milliseconds): the parallel kernel;
+  for this machine (:func:`has_cache_entry`; it then loads in milliseconds): the parallel kernel;
 * otherwise (a cold cache): the serial kernel, and from the second call with these argument types
   on, the parallel kernel compiles in a background thread while the serial one goes on serving;
   once compiled it takes over.  A one-frame run never compiles it.
 
 Benchmarks run under :func:`parallel_first`: their untimed warm-up runs then compile the parallel
-kernel as before (on first use, in the caller's thread), so that timed runs never time the serial
+kernel on first use, in the caller's thread, so that timed runs never time the serial
 kernel standing in for it.
 
 The background compile is a daemon thread: a process that ends while it runs does not wait for it
@@ -69,7 +69,7 @@ def _fingerprint(a):
 @contextmanager
 def parallel_first():
     """Within the block, every :class:`Twins` calls the parallel kernel on more than one thread,
-    compiling it when first needed, as before twins existed: what a benchmark wants."""
+    compiling it when first needed, in the caller's thread: what a benchmark wants."""
     before = Twins.eager
     Twins.eager = True
     try:

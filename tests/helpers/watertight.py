@@ -145,7 +145,8 @@ def _trace_packets(g, eyes, dirs, offs, watertight, f32, t_out, f_out, fallback)
             io[cgt.IO_DY * cgt.PN + j] = dirs[a + j, 1]
             io[cgt.IO_DZ * cgt.PN + j] = dirs[a + j, 2]
             io[cgt.IO_TMAX * cgt.PN + j] = np.inf
-        fallback[p] = cgt.trace_packet(g, n, io, 0.0, watertight, False, S, mb, mb1, np.inf, None, f32)
+        q = cgt.PacketQuery(0.0, watertight, False, f32)
+        fallback[p] = cgt.trace_packet(g, n, io, q, S, mb, mb1, np.inf, None)
         for j in range(n):
             t_out[a + j] = io[cgt.IO_T * cgt.PN + j]
             f_out[a + j] = int(io[cgt.IO_F * cgt.PN + j])

@@ -51,5 +51,6 @@ from .frame import _camera_rays, _render_tiles, cgt_render_kernel, cgt_render_se
 from .profile import (C_CELLS, C_PACKETS, C_SLICES, C_TESTS, NPROF, P_RAYS, P_TESTS, PROFILE_PHASES, _lap,
                       _now)
 from .rays import (F_BF, F_BT, F_OU, F_OV, F_SZ, IO_DX, IO_DY, IO_DZ, IO_F, IO_NC, IO_NT, IO_OX, IO_OY, IO_OZ, IO_T,
-                   IO_TMAX, IO_W, MBOX, NIO, NS, O_F32, PK, PK_MAX, PN, _test_wt32, direction_class)
+                   IO_TMAX, IO_W, MBOX, NIO, NS, O_F32, PK, PK_MAX, PN, Packet, PacketQuery, _test_wt32,
+                   direction_class, packet_query)
 from .walk import trace_packet, trace_packet_grids

@@ -8,10 +8,12 @@ from numba import njit, prange
 
 from ..grids import pack_grids, unpack_grids
 from ..prefetch import _prefetch_write
+from ..records import Buffers, Scratch
 from ..shade import BACKGROUND, _u8, cost_rgb, facing_normal, lambert_rgb, normal_rgb, scene_id, shadow_ray
 from ..traverse import MAILBOX
 from .rays import (IO_DX, IO_DY, IO_DZ, IO_F, IO_NT, IO_OX, IO_OY, IO_OZ, IO_T, IO_TMAX, IO_W, MBOX, NIO, NS, PN,
-                   _U_2PN, _U_DX, _U_DY, _U_DZ, _U_F, _U_NC, _U_NT, _U_OX, _U_OY, _U_OZ, _U_PN, _U_T, _U_TMAX)
+                   _U_2PN, _U_DX, _U_DY, _U_DZ, _U_F, _U_NC, _U_NT, _U_OX, _U_OY, _U_OZ, _U_PN, _U_T, _U_TMAX,
+                   PacketQuery)
 from .walk import trace_packet_grids
 
 
@@ -53,12 +55,15 @@ def _camera_rays(basis, W, H, px0, py0, pw, ph, io):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def _write_out(io, col, W, px0, py0, pw, ph, grids, img, tbuf, idbuf, costbuf, cellbuf):
-    """Write a packet's results (io) and colours (col, 3 * PN) into the image buffers (the
-    triangles' scene ids through the grids' ids maps when there are several grids), given
-    flat: img (H * W * 4,) uint8, tbuf (H * W,) float32, idbuf, costbuf, cellbuf (H * W,) int32.
-    Returns (hits, sum of tests, sum of cells).  Flat buffers and unsigned indices (no
-    wraparound tests) let the row loop vectorize."""
+def _write_out(io, col, W, block, grids, out):
+    """Write a packet's results (io) and colours (col, 3 * PN) for its block = (px0, py0, pw, ph)
+    of pixels (pw x ph from (px0, py0), W pixels a row) into the image buffers out
+    (:class:`gridrt.trace.records.Buffers`; the triangles' scene ids through the grids' ids maps
+    when there are several grids), given flat: img (H * W * 4,) uint8, t (H * W,) float32, tri,
+    cost, cells (H * W,) int32.  Returns (hits, sum of tests, sum of cells).  Flat buffers and
+    unsigned indices (no wraparound tests) let the row loop vectorize."""
+    px0, py0, pw, ph = block
+    img, tbuf, idbuf, costbuf, cellbuf = out.img, out.t, out.tri, out.cost, out.cells
     hits = 0
     tests = 0
     cells = 0
@@ -92,8 +97,11 @@ def _write_out(io, col, W, px0, py0, pw, ph, grids, img, tbuf, idbuf, costbuf, c
 
 
 @njit(cache=True, _nrt=False)
-def _prefetch_tile(ti, ntx, tile, W, H, img, tbuf, idbuf, costbuf, cellbuf):
-    """Prefetch (for writing) the lines of the flat output buffers that tile ti covers."""
+def _prefetch_tile(ti, ntx, view, out):
+    """Prefetch (for writing) the lines of the flat output buffers out that tile ti (of ntx tiles
+    a row) of the view covers."""
+    tile, W, H = view.tile, view.W, view.H
+    img, tbuf, idbuf, costbuf, cellbuf = out.img, out.t, out.tri, out.cost, out.cells
     tx0 = (ti % ntx) * tile
     ty0 = (ti // ntx) * tile
     tx1 = min(tx0 + tile, W)
@@ -114,35 +122,43 @@ def _prefetch_tile(ti, ntx, tile, W, H, img, tbuf, idbuf, costbuf, cellbuf):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def _render_tiles(
-    grids, basis, W, H, tile, t0, t1, mode, shadows, light, off, watertight, f32, kw, kh,
-    img, tbuf, idbuf, costbuf, cellbuf, S, io, io2, sio, sj, col, mb, mb1, acc,
-):
-    """Render tiles t0..t1-1 (row-major), each as packets of up to kw x kh pixels: trace and shade
-    each packet (and its shadow rays as another packet) into the flat buffers (see _write_out).
+def _render_tiles(grids, view, looks, light, packets, tiles, out, scratch):
+    """Render the tiles tiles = (t0, t1), t0..t1-1 (row-major) of the view
+    (:class:`gridrt.trace.records.View`), each as packets of up to kw x kh pixels (packets:
+    :class:`gridrt.trace.records.Packets`): trace and shade each packet (looks:
+    :class:`gridrt.trace.records.Shading`; its shadow rays as another packet) into the flat
+    buffers out (see _write_out), with the worker's scratch (:class:`gridrt.trace.records.Scratch`).
     ``light`` is None without shadows: numba then compiles no shadow path at all (a first frame
     without shadows compiles about a third less), and the (3,) light position with them.
-    Adds (hits, triangle tests, cells, fallback rays) to acc (4,) int64.  (One function without
-    reference counting: numba would otherwise count references to every array argument of every
-    call.)"""
+    Adds (hits, triangle tests, cells, fallback rays) to scratch.acc (4,) int64.  (One function
+    without reference counting: numba would otherwise count references to every array argument
+    of every call.)"""
+    basis, W, H, tile = view.basis, view.W, view.H, view.tile
+    mode, off, watertight = looks.mode, looks.off, looks.watertight
+    f32, kw, kh = packets.f32, packets.kw, packets.kh
+    t0, t1 = tiles
+    S, io, io2, sio, sj, col, mb, mb1, acc = (scratch.S, scratch.io, scratch.io2, scratch.sio, scratch.sj, scratch.col,
+                                              scratch.mb, scratch.mb1, scratch.acc)
+    primary = PacketQuery(0.0, watertight, False, f32)  # the nearest hit
+    shadow = PacketQuery(0.0, watertight, True, f32)  # any hit
     ntx = (W + tile - 1) // tile
     ex, ey, ez = basis[0, 0], basis[0, 1], basis[0, 2]
     if t0 < t1:
-        _prefetch_tile(t0, ntx, tile, W, H, img, tbuf, idbuf, costbuf, cellbuf)
+        _prefetch_tile(t0, ntx, view, out)
     for ti in range(t0, t1):
         tx0 = (ti % ntx) * tile
         ty0 = (ti // ntx) * tile
         tx1 = min(tx0 + tile, W)
         ty1 = min(ty0 + tile, H)
         if ti + 1 < t1:  # the next tile's output lines load while this tile is traced
-            _prefetch_tile(ti + 1, ntx, tile, W, H, img, tbuf, idbuf, costbuf, cellbuf)
+            _prefetch_tile(ti + 1, ntx, view, out)
         for py0 in range(ty0, ty1, kh):
             for px0 in range(tx0, tx1, kw):
                 pw = min(kw, tx1 - px0)
                 ph = min(kh, ty1 - py0)
                 n = pw * ph
                 _camera_rays(basis, W, H, px0, py0, pw, ph, io)
-                nfb = trace_packet_grids(grids, n, io, io2, 0.0, watertight, False, S, mb, mb1, f32)
+                nfb = trace_packet_grids(grids, n, io, io2, primary, S, mb, mb1)
                 # colours into col (3 * PN), shadow rays of lit hits into sio
                 m = 0
                 for j in range(n):
@@ -181,14 +197,14 @@ def _render_tiles(
                     col[PN + j] = g
                     col[2 * PN + j] = b
                 if light is not None and m > 0:
-                    nfb += trace_packet_grids(grids, m, sio, io2, 0.0, watertight, True, S, mb, mb1, f32)
+                    nfb += trace_packet_grids(grids, m, sio, io2, shadow, S, mb, mb1)
                     for q in range(m):
                         j = sj[q]
                         r, g, b = lambert_rgb(col[j] if sio[IO_F * PN + q] < 0.0 else 0.0)
                         col[j] = r
                         col[PN + j] = g
                         col[2 * PN + j] = b
-                hits, tests, cells = _write_out(io, col, W, px0, py0, pw, ph, grids, img, tbuf, idbuf, costbuf, cellbuf)
+                hits, tests, cells = _write_out(io, col, W, (px0, py0, pw, ph), grids, out)
                 acc[0] += hits
                 acc[1] += tests
                 acc[2] += cells
@@ -215,44 +231,46 @@ def _chunking(W, H, tile):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def cgt_render_kernel(
-    grids, basis, W, H, tile, mode, shadows, light, off, watertight, f32, kw, kh, img, tbuf, idbuf, costbuf, cellbuf,
-):
-    """render_kernel (same arguments and f32, kw, kh; same buffers, same shading) with primary and
-    shadow rays traced as packets of up to kw x kh pixels (at most PN rays) within each tile, their
-    triangle tests in float32 with f32 (see trace_packet).  costbuf / cellbuf hold the CGT
-    counters (see the module docstring).  Returns (4,) int64: pixels hit, the sums of costbuf and
-    cellbuf, and the number of rays (primary and shadow) that took the single-ray fallback."""
+def cgt_render_kernel(grids, view, looks, light, packets, out):
+    """render_kernel (the same grids, view, looks, light and buffers out, the same shading) with
+    primary and shadow rays traced as packets of up to kw x kh pixels (at most PN rays) within
+    each tile, their triangle tests in float32 with f32 (packets:
+    :class:`gridrt.trace.records.Packets`; see trace_packet).  out.cost / out.cells hold the CGT
+    counters (see gridrt.trace.cgt).  Returns (4,) int64: pixels hit, the sums of out.cost and
+    out.cells, and the number of rays (primary and shadow) that took the single-ray fallback."""
     # scratch is allocated once per chunk (a run of consecutive tiles); call under
     # numba.parallel_chunksize(1) so threads take chunks dynamically.  The result does not
     # depend on the chunking or the scheduling.
-    ntiles, nch, per = _chunking(W, H, tile)
+    W, H = view.W, view.H
+    ntiles, nch, per = _chunking(W, H, view.tile)
     acc = np.zeros((nch, 4), np.int64)
     flat = pack_grids(grids)  # (a tuple of grids cannot enter the parallel loop as it is: see grids.py)
     for ch in prange(nch):
         _render_tiles(
-            unpack_grids(flat), basis, W, H, tile, ch * per, min((ch + 1) * per, ntiles), mode, shadows, light, off,
-            watertight, f32, kw, kh, img.reshape(H * W * 4), tbuf.reshape(H * W), idbuf.reshape(H * W), costbuf.reshape(H * W),
-            cellbuf.reshape(H * W), np.empty(NS * PN), np.empty(NIO * PN), np.empty(NIO * PN), np.empty(NIO * PN),
-            np.empty(PN, np.int64), np.empty(3 * PN), np.empty(MBOX, np.int32), np.empty(MAILBOX, np.int32), acc[ch],
+            unpack_grids(flat), view, looks, light, packets, (ch * per, min((ch + 1) * per, ntiles)),
+            Buffers(out.img.reshape(H * W * 4), out.t.reshape(H * W), out.tri.reshape(H * W), out.cost.reshape(H * W),
+                    out.cells.reshape(H * W)),
+            Scratch(np.empty(NS * PN), np.empty(NIO * PN), np.empty(NIO * PN), np.empty(NIO * PN),
+                    np.empty(PN, np.int64), np.empty(3 * PN), np.empty(MBOX, np.int32), np.empty(MAILBOX, np.int32),
+                    acc[ch]),
         )
     return _sums(acc)
 
 
-def cgt_render_serial(
-    grids, basis, W, H, tile, mode, shadows, light, off, watertight, f32, kw, kh, img, tbuf, idbuf, costbuf, cellbuf,
-):
+def cgt_render_serial(grids, view, looks, light, packets, out):
     """cgt_render_kernel on one thread: all tiles in order, one scratch; the same buffers and sums
     bit for bit (tiles are independent).  A Python function around the kernel _render_tiles, so
     that a cold first frame compiles one level of kernels less: numba optimises and generates
     machine code for a kernel's whole call tree again at every level that wraps it (about 1 s
     here; gridrt.trace.twin)."""
+    W, H, tile = view.W, view.H, view.tile
     ntiles = ((W + tile - 1) // tile) * ((H + tile - 1) // tile)
     acc = np.zeros(4, np.int64)
     _render_tiles(
-        grids, basis, W, H, tile, 0, ntiles, mode, shadows, light, off, watertight, f32, kw, kh,
-        img.reshape(H * W * 4), tbuf.reshape(H * W), idbuf.reshape(H * W), costbuf.reshape(H * W),
-        cellbuf.reshape(H * W), np.empty(NS * PN), np.empty(NIO * PN), np.empty(NIO * PN), np.empty(NIO * PN),
-        np.empty(PN, np.int64), np.empty(3 * PN), np.empty(MBOX, np.int32), np.empty(MAILBOX, np.int32), acc,
+        grids, view, looks, light, packets, (0, ntiles),
+        Buffers(out.img.reshape(H * W * 4), out.t.reshape(H * W), out.tri.reshape(H * W), out.cost.reshape(H * W),
+                out.cells.reshape(H * W)),
+        Scratch(np.empty(NS * PN), np.empty(NIO * PN), np.empty(NIO * PN), np.empty(NIO * PN), np.empty(PN, np.int64),
+                np.empty(3 * PN), np.empty(MBOX, np.int32), np.empty(MAILBOX, np.int32), acc),
     )
     return acc

@@ -3,6 +3,8 @@ structure of arrays, float64 and float32 rows), gathering and clipping the rays,
 constants and bounds, the triangle tests over all active rays (float64 and float32), and retiring
 the rays that are final."""
 
+from collections import namedtuple
+
 import numpy as np
 from numba import njit
 
@@ -20,6 +22,17 @@ PK_MAX = PACKET_MAX
 PN = PK_MAX * PK_MAX + 16
 #: per-packet mailbox slots (direct-mapped by triangle id; a power of two)
 MBOX = 256
+
+#: What a packet's trace asks of its rays (trace_packet): hits with t > tmin (float64), by the
+#: watertight test or the fast one, the nearest or (any_hit) any, the triangle tests in float32
+#: (f32) or float64.  Each ray's tmax is its own, in the ray table.
+PacketQuery = namedtuple("PacketQuery", "tmin watertight any_hit f32")
+
+#: A coherent packet while it is traced: its ray table io, the active rays' rows S (float64) and
+#: their float32 rows S32 / I32 (views of S, see O_F32), its mailbox mb, its :class:`PacketQuery`
+#: q, tmin rounded up to float32 (tmin32) and its reference origin ref (x, y, z, u, v, k: active
+#: ray 0's at setup, see _setup32).
+Packet = namedtuple("Packet", "io S S32 I32 mb q tmin32 ref")
 
 
 # rows of the flat per-packet scratch S (NS * PN float64) holding the active rays (structure of arrays)
@@ -152,10 +165,13 @@ def _spread(S, na, xr):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def _test_wt(S, na, p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z, ff, tmin):
-    """intersect_watertight of one triangle (vertices permuted by the packet's kx, ky, kz) with
-    the active rays, operation for operation; a hit below the ray's best t replaces it.
-    Returns the number of rays hit."""
+def _test_wt(S, na, p0, p1, p2, ff, tmin):
+    """intersect_watertight of one triangle (vertices p0, p1, p2, 3-tuples permuted by the
+    packet's kx, ky, kz) with the active rays, operation for operation; a hit below the ray's best
+    t replaces it.  Returns the number of rays hit."""
+    p0x, p0y, p0z = p0
+    p1x, p1y, p1z = p1
+    p2x, p2y, p2z = p2
     nh = 0
     for i in range(na):
         Sz = S[O_SZ + i]
@@ -177,9 +193,12 @@ def _test_wt(S, na, p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z, ff, tmin):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def _test_mt(S, na, v0x, v0y, v0z, v1x, v1y, v1z, v2x, v2y, v2z, ff, tmin):
-    """intersect_fast (Moller-Trumbore) of one triangle with the active rays, operation for
-    operation.  Returns the number of rays hit."""
+def _test_mt(S, na, v0, v1, v2, ff, tmin):
+    """intersect_fast (Moller-Trumbore) of one triangle (vertices v0, v1, v2, 3-tuples) with the
+    active rays, operation for operation.  Returns the number of rays hit."""
+    v0x, v0y, v0z = v0
+    v1x, v1y, v1z = v1
+    v2x, v2y, v2z = v2
     nh = 0
     e1x = v1x - v0x
     e1y = v1y - v0y
@@ -272,17 +291,17 @@ def _up32(x):
 
 
 @njit(cache=True, _nrt=False, inline="always")
-def _sheared32(S32, i, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z):
-    """woop_shear in float32 of float32 ray i (rows of S32) and the vertices q (see _test_wt32)."""
-    return woop_shear((q0x, q0y, q0z), (q1x, q1y, q1z), (q2x, q2y, q2z), (S32[F_OU + i], S32[F_OV + i], S32[F_OK + i]),
-                      S32[F_SX + i], S32[F_SY + i])
+def _sheared32(S32, i, q0, q1, q2):
+    """woop_shear in float32 of float32 ray i (rows of S32) and the vertices q0, q1, q2 (see
+    _test_wt32)."""
+    return woop_shear(q0, q1, q2, (S32[F_OU + i], S32[F_OV + i], S32[F_OK + i]), S32[F_SX + i], S32[F_SY + i])
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def _test_wt32(S32, I32, na, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z, ff, tmin32):
+def _test_wt32(S32, I32, na, q0, q1, q2, ff, tmin32):
     """_test_wt in float32 over the packet, L32 rays at a time (16 lanes of a zmm register where
-    512-bit vectors are enabled, see gridrt.threads): the vertices q (permuted, less the packet's
-    reference origin, rounded to float32) against the float32 rows.  Shared vertices give every
+    512-bit vectors are enabled, see gridrt.threads): the vertices q0, q1, q2 (float32 3-tuples:
+    permuted, less the packet's reference origin, rounded) against the float32 rows.  Shared vertices give every
     ray the same sheared coordinates in every triangle, so the edge functions of a shared edge
     are exact negations and the test stays watertight in float32 (Woop, Benthin, Wald 2013).  A
     ray for which an edge function is exactly 0 and the other signs do not already exclude the
@@ -295,7 +314,7 @@ def _test_wt32(S32, I32, na, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z, ff, tm
         for l in range(L32):
             i = b * L32 + l
             Sz = S32[F_SZ + i]
-            Ax, Ay, Bx, By, Cx, Cy, az, bz, cz = _sheared32(S32, i, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z)
+            Ax, Ay, Bx, By, Cx, Cy, az, bz, cz = _sheared32(S32, i, q0, q1, q2)
             U, V, W = woop_edges(Ax, Ay, Bx, By, Cx, Cy)
             det = U + V + W
             T = U * (Sz * az) + V * (Sz * bz) + W * (Sz * cz)
@@ -313,7 +332,7 @@ def _test_wt32(S32, I32, na, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z, ff, tm
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def _fix_wt64(S32, I32, na, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z, ff, tmin):
+def _fix_wt64(S32, I32, na, q0, q1, q2, ff, tmin):
     """The rays _test_wt32 left undecided (an edge function exactly 0 in float32), decided in
     float64 as Woop et al. do: the edge functions again from the same float32 sheared vertex
     coordinates, whose products are exact in float64, so the signs are exact and agree with those
@@ -324,7 +343,7 @@ def _fix_wt64(S32, I32, na, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z, ff, tmi
     nh = 0
     for i in range(na):
         Sz = S32[F_SZ + i]
-        Ax, Ay, Bx, By, Cx, Cy, az, bz, cz = _sheared32(S32, i, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z)
+        Ax, Ay, Bx, By, Cx, Cy, az, bz, cz = _sheared32(S32, i, q0, q1, q2)
         U, V, W = woop_edges(Ax, Ay, Bx, By, Cx, Cy)
         out = ((U < zero) | (V < zero) | (W < zero)) & ((U > zero) | (V > zero) | (W > zero))
         if out or not ((U == zero) | (V == zero) | (W == zero)):
@@ -349,9 +368,12 @@ def _fix_wt64(S32, I32, na, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z, ff, tmi
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def _test_mt32(S32, I32, na, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z, ff, tmin32):
-    """_test_mt in float32 over the packet, L32 rays at a time (vertices less the packet's
-    reference origin, rounded).  Returns 1 if some ray was hit, else 0."""
+def _test_mt32(S32, I32, na, q0, q1, q2, ff, tmin32):
+    """_test_mt in float32 over the packet, L32 rays at a time (vertices q0, q1, q2: float32
+    3-tuples, less the packet's reference origin, rounded).  Returns 1 if some ray was hit, else 0."""
+    q0x, q0y, q0z = q0
+    q1x, q1y, q1z = q1
+    q2x, q2y, q2z = q2
     zero = np.float32(0.0)
     one = np.float32(1.0)
     nh = False
@@ -392,9 +414,14 @@ def _test_mt32(S32, I32, na, q0x, q0y, q0z, q1x, q1y, q1z, q2x, q2y, q2z, ff, tm
 
 
 @njit(cache=True)
-def _outside(p0u, p0v, p0k, p1u, p1v, p1k, p2u, p2v, p2k, xr, u0, u1, v0, v1, su0, su1, sv0, sv1):
-    """True when the triangle lies wholly beyond one of the packet's four bounding planes
+def _outside(p0, p1, p2, planes):
+    """True when the triangle (vertices p0, p1, p2: (u, v, k) 3-tuples) lies wholly beyond one of
+    the packet's four bounding planes, planes = (xr, u0, u1, v0, v1, su0, su1, sv0, sv1):
     u = u0 + (k - xr) su0 (below), u = u1 + (k - xr) su1 (above), and likewise for v."""
+    p0u, p0v, p0k = p0
+    p1u, p1v, p1k = p1
+    p2u, p2v, p2k = p2
+    xr, u0, u1, v0, v1, su0, su1, sv0, sv1 = planes
     h0 = p0k - xr
     h1 = p1k - xr
     h2 = p2k - xr
@@ -408,10 +435,13 @@ def _outside(p0u, p0v, p0k, p1u, p1v, p1k, p2u, p2v, p2k, xr, u0, u1, v0, v1, su
 
 
 @njit(cache=True, _nrt=False)
-def _finish(S, a, io, tests, cells, f32, S32, I32):
-    """Active ray a's results into io (from the float32 tests' rows with f32)."""
+def _finish(pk, a, counts):
+    """Active ray a's results into the packet's io (from the float32 tests' rows with f32), with
+    its counters counts = (tests, cells)."""
+    S, io, S32, I32 = pk.S, pk.io, pk.S32, pk.I32
+    tests, cells = counts
     j = int(S[O_J + a])
-    if f32:
+    if pk.q.f32:
         bf = np.float64(I32[F_BF + a])
         bt = np.float64(S32[F_BT + a])
     else:
@@ -457,19 +487,22 @@ def _count_final32(S, S32, I32, na, xp, any_hit):
 
 
 @njit(cache=True, _nrt=False)
-def _retire(S, na, io, watertight, tests, cells, f32, S32, I32):
-    """Write out the rays flagged by _count_final and remove them from the active set; survivors
-    from the end fill the gaps, so the active rays stay a contiguous prefix and each ray is moved
-    at most once.  Returns the number of active rays left."""
+def _retire(pk, na, counts):
+    """Write out the rays flagged by _count_final (with the counters counts = (tests, cells)) and
+    remove them from the packet's active set; survivors from the end fill the gaps, so the active
+    rays stay a contiguous prefix and each ray is moved at most once.  Returns the number of
+    active rays left."""
+    S, S32, I32 = pk.S, pk.S32, pk.I32
+    watertight, f32 = pk.q.watertight, pk.q.f32
     a = 0
     while a < na:
         if S[O_CT0 + a] == 0.0:
             a += 1
             continue
-        _finish(S, a, io, tests, cells, f32, S32, I32)
+        _finish(pk, a, counts)
         na -= 1
         while na > a and S[O_CT0 + na] != 0.0:
-            _finish(S, na, io, tests, cells, f32, S32, I32)
+            _finish(pk, na, counts)
             na -= 1
         if na > a:  # move the last surviving ray here: the rows read after setup
             for r in range(_R_SX):
@@ -491,13 +524,14 @@ def _retire(S, na, io, watertight, tests, cells, f32, S32, I32):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def _step(S, na, io, xp, any_hit, watertight, tests, cells, f32, S32, I32):
-    """Retire the rays that are final at xp; returns (active rays, active rays with a hit).  With
-    f32 the float32 tests' rows are read."""
-    nf, pend = _count_final32(S, S32, I32, na, xp, any_hit) if f32 else _count_final(S, na, xp, any_hit)
+def _step(pk, na, xp, counts):
+    """Retire the packet's rays that are final at xp (counters counts = (tests, cells)); returns
+    (active rays, active rays with a hit).  With f32 the float32 tests' rows are read."""
+    S, any_hit = pk.S, pk.q.any_hit
+    nf, pend = _count_final32(S, pk.S32, pk.I32, na, xp, any_hit) if pk.q.f32 else _count_final(S, na, xp, any_hit)
     if nf == 0:
         return na, pend
-    return _retire(S, na, io, watertight, tests, cells, f32, S32, I32), pend
+    return _retire(pk, na, counts), pend
 
 
 @njit(cache=True, inline="always")
@@ -607,3 +641,9 @@ def _reference_plane(S, na, oD):
     if (e1 - e0) + (e3 - e2) < (cu1 - cu0) + (cv1 - cv0):
         return xhi, -1.0, xlo, xhi, e0, e1, e2, e3, e4, e5, e6, e7
     return xlo, 1.0, xlo, xhi, cu0, cu1, cv0, cv1, su0, su1, sv0, sv1
+
+
+def packet_query(tmin, watertight, any_hit, f32):
+    """The :class:`PacketQuery` with the types the kernels are compiled for (float64 tmin, bool
+    flags)."""
+    return PacketQuery(float(tmin), bool(watertight), bool(any_hit), bool(f32))

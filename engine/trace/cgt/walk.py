@@ -14,8 +14,8 @@ from .profile import (C_CELLS, C_PACKETS, C_SLICES, C_TESTS, P_CELLS, P_FALLBACK
                       P_TESTS, _lap, _now, _prof_count)
 from .rays import (IO_DX, IO_DY, IO_DZ, IO_F, IO_MV, IO_NC, IO_NT, IO_OX, IO_OY, IO_OZ, IO_SH, IO_SL, IO_T, IO_TMAX,
                    IO_TMO, IO_W, IO_XO, IO_YO, IO_ZO, O_BT, O_DX, O_DY, O_DZ, O_F32, O_IDK, O_J, O_OK, O_OU, O_OV, O_OX,
-                   O_OY, O_OZ, PN, _finish, _fix_wt64, _gather, _outside, _reference_plane, _setup, _setup32, _spread,
-                   _step, _test_mt, _test_mt32, _test_wt, _test_wt32, _up32)
+                   O_OY, O_OZ, PN, Packet, _finish, _fix_wt64, _gather, _outside, _reference_plane, _setup, _setup32,
+                   _spread, _step, _test_mt, _test_mt32, _test_wt, _test_wt32, _up32)
 
 
 #: the distance (in cells along the packet's major axis) at which a batch cast judges a packet's
@@ -57,9 +57,12 @@ def _strides(K, U, V, nx, ny):
 
 
 @njit(cache=True)
-def _extent(cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, ha, hb, eU, eV):
-    """The packet's (U, V) extent between the K planes at ha and hb from the reference plane,
-    grown by (eU, eV): (ulo, uhi, vlo, vhi)."""
+def _extent(bounds, ha, hb, grow):
+    """The packet's (U, V) extent between the K planes at ha and hb from the reference plane, from
+    its bounds (cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, see _spread), grown by grow = (eU, eV):
+    (ulo, uhi, vlo, vhi)."""
+    cu0, cu1, cv0, cv1, su0, su1, sv0, sv1 = bounds
+    eU, eV = grow
     ulo = cu0 + min(min(ha * su0, ha * su1), min(hb * su0, hb * su1)) - eU
     uhi = cu1 + max(max(ha * su0, ha * su1), max(hb * su0, hb * su1)) + eU
     vlo = cv0 + min(min(ha * sv0, ha * sv1), min(hb * sv0, hb * sv1)) - eV
@@ -86,9 +89,12 @@ def _any_macro_full(macro_full, mk, mu0, mu1, mv0, mv1, mstK, mstU, mstV):
 
 
 @njit(cache=True, _nrt=False)
-def _prefetch_slice(tris, cell_start, tri_ids, ck, stU, stV, cu_0, cu_1, cv_0, cv_1):
-    """Start the loads of the triangles of the cells [cu_0, cu_1] x [cv_0, cv_1] of one slice (ck:
-    its first cell's index), so that their cache misses overlap instead of queueing."""
+def _prefetch_slice(g, span):
+    """Start the loads of the triangles of grid g in the cells span = (ck, stU, stV, cu_0, cu_1,
+    cv_0, cv_1) of one slice ([cu_0, cu_1] x [cv_0, cv_1], ck: its first cell's index, stU, stV:
+    the index steps along U and V), so that their cache misses overlap instead of queueing."""
+    tris, cell_start, tri_ids = g.tris, g.cell_start, g.tri_ids
+    ck, stU, stV, cu_0, cu_1, cv_0, cv_1 = span
     for iu in range(cu_0, cu_1 + 1):
         for iv in range(cv_0, cv_1 + 1):
             c = ck + iu * stU + iv * stV
@@ -98,20 +104,24 @@ def _prefetch_slice(tris, cell_start, tri_ids, ck, stU, stV, cu_0, cu_1, cv_0, c
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def _test_slice(tris, cell_start, tri_ids, ck, stU, stV, cu_0, cu_1, cv_0, cv_1, U, V, K, box, planes, S, na, mb,
-                watertight, tmin, f32, S32, I32, ref, tmin32, prof=None):
-    """Test the triangles of the cells [cu_0, cu_1] x [cv_0, cv_1] of one slice (ck: its first
-    cell's index) against the active rays: each once (the packet's mailbox mb), unless it lies
-    outside the packet's extent in the slice (box = (ulo, uhi, vlo, vhi)) or beyond one of its
-    four bounding planes (planes = (xr, the planes' offsets u0, u1, v0, v1 and slopes, see
-    _outside)).  With f32 the tests run in float32 (_test_wt32 with its float64 fallback, or
-    _test_mt32) on the float32 rows S32 and I32, vertices less the reference origin ref (see
-    _setup32).
+def _test_slice(g, span, axes, box, planes, pk, na, prof=None):
+    """Test the triangles of grid g in the cells span = (ck, stU, stV, cu_0, cu_1, cv_0, cv_1) of
+    one slice (see _prefetch_slice) against the na active rays of the packet pk
+    (:class:`gridrt.trace.cgt.rays.Packet`; axes = (U, V, K), its permutation): each once (the
+    packet's mailbox mb), unless it lies outside the packet's extent in the slice (box = (ulo,
+    uhi, vlo, vhi)) or beyond one of its four bounding planes (planes = (xr, the planes' offsets
+    u0, u1, v0, v1 and slopes, see _outside)).  With f32 the tests run in float32 (_test_wt32
+    with its float64 fallback, or _test_mt32) on the float32 rows S32 and I32, vertices less the
+    reference origin ref (see _setup32).
     Returns (cells visited, triangle tests, rays hit).  With ``prof`` the tests' cycles go to its
     P_TESTS slot."""
-    rx, ry, rz, ru, rv, rk = ref
+    tris, cell_start, tri_ids = g.tris, g.cell_start, g.tri_ids
+    ck, stU, stV, cu_0, cu_1, cv_0, cv_1 = span
+    U, V, K = axes
+    S, S32, I32, mb, tmin32 = pk.S, pk.S32, pk.I32, pk.mb, pk.tmin32
+    watertight, tmin, f32 = pk.q.watertight, pk.q.tmin, pk.q.f32
+    rx, ry, rz, ru, rv, rk = pk.ref
     ulo, uhi, vlo, vhi = box
-    xr, pl_u0, pl_u1, pl_v0, pl_v1, sl_u0, sl_u1, sl_v0, sl_v1 = planes
     mmask = mb.shape[0] - 1
     cells = 0
     tests = 0
@@ -140,8 +150,7 @@ def _test_slice(tris, cell_start, tri_ids, ck, stU, stV, cu_0, cu_1, cv_0, cv_1,
                     p1k = np.float64(tris[f, 1, K])
                     p2k = np.float64(tris[f, 2, K])
                     mb[slot] = f
-                    if _outside(p0u, p0v, p0k, p1u, p1v, p1k, p2u, p2v, p2k, xr,
-                                pl_u0, pl_u1, pl_v0, pl_v1, sl_u0, sl_u1, sl_v0, sl_v1):
+                    if _outside((p0u, p0v, p0k), (p1u, p1v, p1k), (p2u, p2v, p2k), planes):
                         continue  # the packet's bounds only shrink: it stays outside
                     tests += 1
                     t0 = _now(prof)
@@ -149,30 +158,31 @@ def _test_slice(tris, cell_start, tri_ids, ck, stU, stV, cu_0, cu_1, cv_0, cv_1,
                         q0u, q0v, q0k = np.float32(p0u - ru), np.float32(p0v - rv), np.float32(p0k - rk)
                         q1u, q1v, q1k = np.float32(p1u - ru), np.float32(p1v - rv), np.float32(p1k - rk)
                         q2u, q2v, q2k = np.float32(p2u - ru), np.float32(p2v - rv), np.float32(p2k - rk)
-                        nh, nz = _test_wt32(S32, I32, na, q0u, q0v, q0k, q1u, q1v, q1k, q2u, q2v, q2k, np.int32(f),
-                                            tmin32)
+                        q0 = (np.float32(p0u - ru), np.float32(p0v - rv), np.float32(p0k - rk))
+                        q1 = (np.float32(p1u - ru), np.float32(p1v - rv), np.float32(p1k - rk))
+                        q2 = (np.float32(p2u - ru), np.float32(p2v - rv), np.float32(p2k - rk))
+                        nh, nz = _test_wt32(S32, I32, na, q0, q1, q2, np.int32(f), tmin32)
                         hits += nh
                         if nz > 0:
-                            hits += _fix_wt64(S32, I32, na, q0u, q0v, q0k, q1u, q1v, q1k, q2u, q2v, q2k, np.int32(f),
-                                              tmin32)
+                            hits += _fix_wt64(S32, I32, na, q0, q1, q2, np.int32(f), tmin32)
                     elif f32:
                         hits += _test_mt32(
-                            S32, I32, na, np.float32(np.float64(tris[f, 0, 0]) - rx),
-                            np.float32(np.float64(tris[f, 0, 1]) - ry), np.float32(np.float64(tris[f, 0, 2]) - rz),
-                            np.float32(np.float64(tris[f, 1, 0]) - rx), np.float32(np.float64(tris[f, 1, 1]) - ry),
-                            np.float32(np.float64(tris[f, 1, 2]) - rz), np.float32(np.float64(tris[f, 2, 0]) - rx),
-                            np.float32(np.float64(tris[f, 2, 1]) - ry), np.float32(np.float64(tris[f, 2, 2]) - rz),
+                            S32, I32, na,
+                            (np.float32(np.float64(tris[f, 0, 0]) - rx), np.float32(np.float64(tris[f, 0, 1]) - ry),
+                             np.float32(np.float64(tris[f, 0, 2]) - rz)),
+                            (np.float32(np.float64(tris[f, 1, 0]) - rx), np.float32(np.float64(tris[f, 1, 1]) - ry),
+                             np.float32(np.float64(tris[f, 1, 2]) - rz)),
+                            (np.float32(np.float64(tris[f, 2, 0]) - rx), np.float32(np.float64(tris[f, 2, 1]) - ry),
+                             np.float32(np.float64(tris[f, 2, 2]) - rz)),
                             np.int32(f), tmin32)
                     elif watertight:
-                        hits += _test_wt(
-                            S, na, p0u, p0v, p0k, p1u, p1v, p1k, p2u, p2v, p2k, np.float64(f), tmin)
+                        hits += _test_wt(S, na, (p0u, p0v, p0k), (p1u, p1v, p1k), (p2u, p2v, p2k), np.float64(f), tmin)
                     else:
                         hits += _test_mt(
-                            S, na, np.float64(tris[f, 0, 0]), np.float64(tris[f, 0, 1]),
-                            np.float64(tris[f, 0, 2]), np.float64(tris[f, 1, 0]),
-                            np.float64(tris[f, 1, 1]), np.float64(tris[f, 1, 2]),
-                            np.float64(tris[f, 2, 0]), np.float64(tris[f, 2, 1]),
-                            np.float64(tris[f, 2, 2]), np.float64(f), tmin)
+                            S, na, (np.float64(tris[f, 0, 0]), np.float64(tris[f, 0, 1]), np.float64(tris[f, 0, 2])),
+                            (np.float64(tris[f, 1, 0]), np.float64(tris[f, 1, 1]), np.float64(tris[f, 1, 2])),
+                            (np.float64(tris[f, 2, 0]), np.float64(tris[f, 2, 1]), np.float64(tris[f, 2, 2])),
+                            np.float64(f), tmin)
                     _lap(prof, P_TESTS, t0)
     return cells, tests, hits
 
@@ -243,28 +253,29 @@ def _trace_rows_singly(g, n, io, tmin, watertight, any_hit, mb1):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells=np.inf, prof=None, f32=False):
+def trace_packet(g, n, io, q, S, mb, mb1, max_cells=np.inf, prof=None):
     """:func:`_trace_packet`, with rays from far outside the grid traced from just before its box
-    as trace_ray traces them (:func:`gridrt.trace.traverse.far_shift`; with tmin > 0 such a
+    as trace_ray traces them (:func:`gridrt.trace.traverse.far_shift`; with q.tmin > 0 such a
     packet's rays go one by one through trace_ray, or with a finite max_cells it returns -1).
     io's input rows are as they were on return."""
     if _move_far(g, n, io) == 0:
-        return _trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells, prof, f32)
-    if tmin > 0.0:  # (the packet's rays share tmin; moved rays' would differ)
+        return _trace_packet(g, n, io, q, S, mb, mb1, max_cells, prof)
+    if q.tmin > 0.0:  # (the packet's rays share tmin; moved rays' would differ)
         _restore_far(n, io, False)
         if max_cells < np.inf:
             return -1
-        _trace_rows_singly(g, n, io, tmin, watertight, any_hit, mb1)
+        _trace_rows_singly(g, n, io, q.tmin, q.watertight, q.any_hit, mb1)
         return n
-    r = _trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells, prof, f32)
+    r = _trace_packet(g, n, io, q, S, mb, mb1, max_cells, prof)
     _restore_far(n, io, r >= 0)
     return r
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def _trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells, prof, f32):
+def _trace_packet(g, n, io, q, S, mb, mb1, max_cells, prof):
     """Trace rays 0..n-1 of the table io (NIO * PN,) float64 (origin, direction, tmax per ray)
-    through the grid g (:class:`gridrt.trace.grids.GridArrays`).
+    through the grid g (:class:`gridrt.trace.grids.GridArrays`) for the
+    :class:`gridrt.trace.cgt.rays.PacketQuery` q (tmin, watertight, any_hit, f32).
 
     Fills io's result rows (IO_T, IO_F, IO_NT, IO_NC) with the hits :func:`trace_ray` finds
     (nearest, or with any_hit some hit, in (tmin, tmax)).  S (NS * PN,) float64 and mb (MBOX,)
@@ -289,8 +300,9 @@ def _trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells, pr
     near-ties in t and within that distance of an edge, the triangle may differ.
     """
     t = _now(prof)
-    tris, lo, cell, inv_cell, dims = g.tris, g.lo, g.cell, g.inv_cell, g.dims
-    cell_start, tri_ids, M, mdims, macro_full = g.cell_start, g.tri_ids, g.macro, g.mdims, g.macro_full
+    tmin, watertight, any_hit, f32 = q.tmin, q.watertight, q.any_hit, q.f32
+    lo, cell, inv_cell, dims = g.lo, g.cell, g.inv_cell, g.dims
+    M, mdims, macro_full = g.macro, g.mdims, g.macro_full
     na, K, neg0, uniform = _gather(io, n, S, lo, g.hi, tmin)
     _prof_count(prof, C_PACKETS, 1)
     if na == 0:
@@ -317,6 +329,7 @@ def _trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells, pr
     tmin32 = _up32(tmin)
     if f32:
         _setup32(S, S32, I32, na, ref, watertight)
+    pk = Packet(io, S, S32, I32, mb, q, tmin32, ref)
     loK, loU, loV = lo[K], lo[U], lo[V]
     cK = cell[K]
     icK, icU, icV = inv_cell[K], inv_cell[U], inv_cell[V]
@@ -347,7 +360,7 @@ def _trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells, pr
                 iU *= g.leaf_res[tc, U]
                 iV *= g.leaf_res[tc, V]
         h = min(xhi - xlo, HORIZON * hK) * side
-        ulo, uhi, vlo, vhi = _extent(cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, h - hK * side, h, eU, eV)
+        ulo, uhi, vlo, vhi = _extent((cu0, cu1, cv0, cv1, su0, su1, sv0, sv1), h - hK * side, h, (eU, eV))
         if ((uhi - ulo) * iU + 1.0) * ((vhi - vlo) * iV + 1.0) > max_cells:
             _lap(prof, P_SETUP, t)
             return -1
@@ -360,8 +373,7 @@ def _trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells, pr
     xa = loK + (k if sK > 0 else k + 1) * cK
     if g.leaf_first.shape[0] > 0:
         _lap(prof, P_SETUP, t)
-        _walk_2l(g, io, S, na, mb, U, V, K, sK, k, xa, xr, side, (cu0, cu1, cv0, cv1, su0, su1, sv0, sv1), eU, eV,
-                 watertight, tmin, any_hit, f32, S32, I32, ref, tmin32)
+        _walk_2l(g, pk, na, (U, V, K), (sK, k, xa), (xr, side), (cu0, cu1, cv0, cv1, su0, su1, sv0, sv1), (eU, eV))
         return 0
     tests = 0
     cells = 0
@@ -376,14 +388,14 @@ def _trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells, pr
             kend = mk * M
             xm = loK + kend * cK
         # skip the rest of this macro-cell slab when the packet overlaps only empty macro cells there
-        ulo, uhi, vlo, vhi = _extent(cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, xa - xr, xm - xr, eU, eV)
+        ulo, uhi, vlo, vhi = _extent((cu0, cu1, cv0, cv1, su0, su1, sv0, sv1), xa - xr, xm - xr, (eU, eV))
         if _any_macro_full(macro_full, mk, _floor_clamp((ulo - loU) * icU, nU) // M,
                            _floor_clamp((uhi - loU) * icU, nU) // M, _floor_clamp((vlo - loV) * icV, nV) // M,
                            _floor_clamp((vhi - loV) * icV, nV) // M, mstK, mstU, mstV):
             t = _lap(prof, P_MACRO, t)
             while True:
                 xb = loK + (k + 1 if sK > 0 else k) * cK
-                ulo, uhi, vlo, vhi = _extent(cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, xa - xr, xb - xr, eU, eV)
+                ulo, uhi, vlo, vhi = _extent((cu0, cu1, cv0, cv1, su0, su1, sv0, sv1), xa - xr, xb - xr, (eU, eV))
                 pl_u0 = cu0 - eU
                 pl_u1 = cu1 + eU
                 pl_v0 = cv0 - eV
@@ -393,12 +405,12 @@ def _trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells, pr
                 sl_v0 = sv0 if side > 0 else sv1
                 sl_v1 = sv1 if side > 0 else sv0
                 cu_0, cu_1, cv_0, cv_1 = _cells_of((ulo, uhi, vlo, vhi), loU, icU, nU, loV, icV, nV)
-                _prefetch_slice(tris, cell_start, tri_ids, k * stK, stU, stV, cu_0, cu_1, cv_0, cv_1)
+                span = (k * stK, stU, stV, cu_0, cu_1, cv_0, cv_1)
+                _prefetch_slice(g, span)
                 t = _lap(prof, P_SLICE, t)
                 nc, nt, nh = _test_slice(
-                    tris, cell_start, tri_ids, k * stK, stU, stV, cu_0, cu_1, cv_0, cv_1, U, V, K,
-                    (ulo, uhi, vlo, vhi), (xr, pl_u0, pl_u1, pl_v0, pl_v1, sl_u0, sl_u1, sl_v0, sl_v1),
-                    S, na, mb, watertight, tmin, f32, S32, I32, ref, tmin32, prof)
+                    g, span, (U, V, K), (ulo, uhi, vlo, vhi),
+                    (xr, pl_u0, pl_u1, pl_v0, pl_v1, sl_u0, sl_u1, sl_v0, sl_v1), pk, na, prof)
                 t = _lap(prof, P_CELLS, t)
                 _prof_count(prof, C_SLICES, 1)
                 _prof_count(prof, C_CELLS, nc)
@@ -408,7 +420,7 @@ def _trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells, pr
                 pending += nh
                 xa = xb
                 if pending > 0:
-                    nb, pending = _step(S, na, io, xb, any_hit, watertight, tests, cells, f32, S32, I32)
+                    nb, pending = _step(pk, na, xb, (tests, cells))
                     if nb != na:
                         na = nb
                         if na == 0:
@@ -423,7 +435,7 @@ def _trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells, pr
             xa = xm
             t = _lap(prof, P_MACRO, t)
         # once per macro slab: also retire rays whose segment has ended
-        nb, pending = _step(S, na, io, xa, any_hit, watertight, tests, cells, f32, S32, I32)
+        nb, pending = _step(pk, na, xa, (tests, cells))
         if nb != na:
             na = nb
             if na == 0:
@@ -433,7 +445,7 @@ def _trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells, pr
         k = kend + sK
         t = _lap(prof, P_RETIRE, t)
     for a in range(na):
-        _finish(S, a, io, tests, cells, f32, S32, I32)
+        _finish(pk, a, (tests, cells))
     _lap(prof, P_RETIRE, t)
     return 0
 
@@ -449,31 +461,38 @@ def _planes(xr, side, bounds, eU, eV):
 
 
 @njit(cache=True, inline="always")
-def _advance(S, na, io, xp, any_hit, watertight, tests, cells, f32, S32, I32, xr, bounds):
-    """_step at the K plane xp: returns (active rays, active rays with a hit, the packet's bounds
-    about xr, taken again when rays left)."""
-    nb, pending = _step(S, na, io, xp, any_hit, watertight, tests, cells, f32, S32, I32)
+def _advance(pk, na, xp, counts, xr, bounds):
+    """_step at the K plane xp (counters counts = (tests, cells)): returns (active rays, active
+    rays with a hit, the packet's bounds about xr, taken again when rays left)."""
+    nb, pending = _step(pk, na, xp, counts)
     if nb != na and nb > 0:
-        bounds = _spread(S, nb, xr)
+        bounds = _spread(pk.S, nb, xr)
     return nb, pending, bounds
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def _walk_2l(g, io, S, na, mb, U, V, K, sK, k, xa, xr, side, bounds, eU, eV, watertight, tmin, any_hit, f32, S32, I32, ref,
-             tmin32):
-    """trace_packet's slice walk through a two-level grid g (gridrt.grid.two_level), from top
-    slice k on (the packet's rays start at the K plane xa; mb is cleared): each top slice (fixed
-    K index of the top level) that holds triangles within the packet's bounds is cut into R sub-slices, R the finest leaf resolution along K among its
-    non-empty top cells within the bounds.  In each sub-slice, every non-empty top cell the
+def _walk_2l(g, pk, na, axes, start, plane, bounds, grow):
+    """trace_packet's slice walk of the na active rays of the packet pk
+    (:class:`gridrt.trace.cgt.rays.Packet`, its mailbox cleared) through a two-level grid g
+    (gridrt.grid.two_level), with axes = (U, V, K) the packet's permutation, from start = (sK, k,
+    xa) on (the direction sK of the walk along K, the first top slice k, and the K plane xa where
+    the packet's rays start), plane = (xr, side) the reference plane (see _reference_plane),
+    bounds the packet's bounds about xr (see _spread) and grow = (eU, eV) their growth.  Each top
+    slice (fixed K index of the top level) that holds triangles within the packet's bounds is cut
+    into R sub-slices, R the finest leaf resolution along K among its non-empty top cells within
+    the bounds.  In each sub-slice, every non-empty top cell the
     packet's bounds overlap there has the leaf slices (fixed K index of its leaf grid) that the
     sub-slice reaches and the sub-slice before did not visited (_test_slice), each once and whole:
     the leaf cells the packet's bounds overlap over all of the leaf slice it crosses.  Then rays
     final at the sub-slice's far plane retire (trace_packet's termination rule: every leaf cell
     the rays crossed up to that plane has been visited).  Writes io's results for every active
     ray."""
-    tris, lo, cell, inv_cell, dims = g.tris, g.lo, g.cell, g.inv_cell, g.dims
-    cell_start, tri_ids, leaf_first, leaf_res, macro_full = g.cell_start, g.tri_ids, g.leaf_first, g.leaf_res, \
-        g.macro_full
+    lo, cell, inv_cell, dims = g.lo, g.cell, g.inv_cell, g.dims
+    leaf_first, leaf_res, macro_full = g.leaf_first, g.leaf_res, g.macro_full
+    U, V, K = axes
+    sK, k, xa = start
+    xr, side = plane
+    eU, eV = grow
     cu0, cu1, cv0, cv1, su0, su1, sv0, sv1 = bounds
     loK, loU, loV = lo[K], lo[U], lo[V]
     cK, cU, cV = cell[K], cell[U], cell[V]
@@ -485,7 +504,7 @@ def _walk_2l(g, io, S, na, mb, U, V, K, sK, k, xa, xr, side, bounds, eU, eV, wat
     pending = 0
     while na > 0 and 0 <= k < nK:
         xb = loK + (k + 1 if sK > 0 else k) * cK
-        ulo, uhi, vlo, vhi = _extent(cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, xa - xr, xb - xr, eU, eV)
+        ulo, uhi, vlo, vhi = _extent((cu0, cu1, cv0, cv1, su0, su1, sv0, sv1), xa - xr, xb - xr, grow)
         tu0, tu1, tv0, tv1 = _cells_of((ulo, uhi, vlo, vhi), loU, icU, nU, loV, icV, nV)
         # the sub-slices: as many as the finest leaf resolution along K of the non-empty top
         # cells in reach
@@ -505,7 +524,7 @@ def _walk_2l(g, io, S, na, mb, U, V, K, sK, k, xa, xr, side, bounds, eU, eV, wat
                 xs_b = xb
             else:
                 xs_b = loK + (k * cK + (sub + 1) * cK / R if sK > 0 else (k + 1) * cK - (sub + 1) * cK / R)
-            ulo, uhi, vlo, vhi = _extent(cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, xs_a - xr, xs_b - xr, eU, eV)
+            ulo, uhi, vlo, vhi = _extent((cu0, cu1, cv0, cv1, su0, su1, sv0, sv1), xs_a - xr, xs_b - xr, grow)
             planes = _planes(xr, side, (cu0, cu1, cv0, cv1, su0, su1, sv0, sv1), eU, eV)
             xk0 = min(xs_a, xs_b)
             xk1 = max(xs_a, xs_b)
@@ -537,12 +556,11 @@ def _walk_2l(g, io, S, na, mb, U, V, K, sK, k, xa, xr, side, bounds, eU, eV, wat
                         # this top slice
                         za = max(sloK + jk * scK, xt0)
                         zb = min(sloK + (jk + 1) * scK, xt1)
-                        box = _extent(cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, za - xr, zb - xr, eU, eV)
+                        box = _extent((cu0, cu1, cv0, cv1, su0, su1, sv0, sv1), za - xr, zb - xr, grow)
                         ju0, ju1, jv0, jv1 = _cells_of(box, sloU, iscU, rU, sloV, iscV, rV)
-                        _prefetch_slice(tris, cell_start, tri_ids, q0 + jk * lK, lU, lV, ju0, ju1, jv0, jv1)
-                        nc, nt, nh = _test_slice(
-                            tris, cell_start, tri_ids, q0 + jk * lK, lU, lV, ju0, ju1, jv0, jv1, U, V, K, box, planes,
-                            S, na, mb, watertight, tmin, f32, S32, I32, ref, tmin32)
+                        span = (q0 + jk * lK, lU, lV, ju0, ju1, jv0, jv1)
+                        _prefetch_slice(g, span)
+                        nc, nt, nh = _test_slice(g, span, axes, box, planes, pk, na)
                         cells += nc
                         tests += nt
                         pending += nh
@@ -550,34 +568,33 @@ def _walk_2l(g, io, S, na, mb, U, V, K, sK, k, xa, xr, side, bounds, eU, eV, wat
             xs_p = xs_a
             xs_a = xs_b
             if pending > 0:
-                na, pending, bounds = _advance(S, na, io, xs_b, any_hit, watertight, tests, cells, f32, S32, I32, xr,
-                                               bounds)
+                na, pending, bounds = _advance(pk, na, xs_b, (tests, cells), xr, bounds)
                 if na == 0:
                     return
                 cu0, cu1, cv0, cv1, su0, su1, sv0, sv1 = bounds
         xa = xb
         # once per top slice: also retire rays whose segment has ended
-        na, pending, bounds = _advance(S, na, io, xa, any_hit, watertight, tests, cells, f32, S32, I32, xr, bounds)
+        na, pending, bounds = _advance(pk, na, xa, (tests, cells), xr, bounds)
         if na == 0:
             return
         cu0, cu1, cv0, cv1, su0, su1, sv0, sv1 = bounds
         k += sK
     for a in range(na):
-        _finish(S, a, io, tests, cells, f32, S32, I32)
+        _finish(pk, a, (tests, cells))
 
 
 @njit(cache=True, _nrt=False, error_model="numpy", inline="always")
-def trace_packet_grids(grids, n, io, io2, tmin, watertight, any_hit, S, mb, mb1, f32):
+def trace_packet_grids(grids, n, io, io2, q, S, mb, mb1):
     """:func:`trace_packet` over the tuple of grids, in order (as trace_grids does for one ray):
     each later grid's rays end at the hit found before it (nearest), or are skipped where one was
-    found (any_hit).  io's IO_W row tells which grid the hit is in; io2 is scratch.  Returns the
+    found (q.any_hit).  io's IO_W row tells which grid the hit is in; io2 is scratch.  Returns the
     number of rays traced by the fallback."""
-    nf = trace_packet(grids[0], n, io, tmin, watertight, any_hit, S, mb, mb1, np.inf, None, f32)
+    nf = trace_packet(grids[0], n, io, q, S, mb, mb1, np.inf, None)
     for j in range(n):
         io[IO_W * PN + j] = 0.0
     for i in range(1, len(grids)):
-        _chain_rays(io, io2, n, any_hit)
-        nf += trace_packet(grids[i], n, io2, tmin, watertight, any_hit, S, mb, mb1, np.inf, None, f32)
+        _chain_rays(io, io2, n, q.any_hit)
+        nf += trace_packet(grids[i], n, io2, q, S, mb, mb1, np.inf, None)
         _merge_hits(io, io2, n, i)
     return nf
 
