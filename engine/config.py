@@ -8,6 +8,7 @@ from dataclasses import dataclass, replace
 
 from .checks import MAX_IMAGE_SIDE, _positive_int
 from .errors import InputError
+from .memory import check_render_fits
 from .threads import check_threads
 
 INSERT_MODES = ("bbox", "exact")
@@ -120,7 +121,7 @@ class RenderParams:
     """How to cast and shade the primary rays.
 
     width, height  image size in pixels (each 1..MAX_IMAGE_SIDE); a size whose buffers
-                   (gridrt.trace.render.render_bytes) exceed the memory this process has left
+                   (gridrt.memory.render_bytes) exceed the memory this process has left
                    (gridrt.memory) is refused, stating both
     shading        "auto" (the default: "material" for a scene with materials, textures or vertex
                    colours (Surface.has_materials), else "lambert"),
@@ -166,8 +167,6 @@ class RenderParams:
 
     def __post_init__(self):
         W, H = _positive_int("image width", self.width, 1), _positive_int("image height", self.height, 1)
-        from .trace.render import check_render_fits
-
         # (shading "auto" with shadows: FramePipeline.step checks the shadow rays once it is resolved)
         check_render_fits(W, H, self.shading == "material" and bool(self.shadows))
         object.__setattr__(self, "width", _positive_int("image width", W, 1, MAX_IMAGE_SIDE))

@@ -10,11 +10,11 @@ from .camera import DEFAULT_FOV, DEFAULT_UP, Camera
 from .config import GridParams, RenderParams
 from .errors import InputError
 from .grid.build import GridBuilder
-from .memory import allocating
+from .memory import allocating, check_render_fits
 from .precision import warn_detail
 from .stats import FrameStats
 from .threads import use_threads
-from .trace.render import Looks, Renderer, check_render_fits
+from .trace.render import Looks, Renderer
 
 #: columns every stats row has, in this order (the dump's stats.csv header starts with them)
 STATS_COLUMNS = (
@@ -281,7 +281,7 @@ class FramePipeline:
 
     def step(self, t, camera=None):
         """Render the scene at time t; returns a Frame. ``camera`` overrides the pipeline's.  A
-        render whose buffers and shadow rays (gridrt.trace.render.render_bytes) exceed the memory
+        render whose buffers and shadow rays (gridrt.memory.render_bytes) exceed the memory
         left (gridrt.memory) is refused before they are allocated, as are grids (GridBuilder); a
         MemoryError all the same becomes an InputError naming the frame."""
         rp = self.render_params

@@ -257,7 +257,8 @@ def test_render_estimate_matches_peak(shading, shadows):
     """render_bytes against tracemalloc's peak of a fresh Renderer's frame over a plane that
     fills the view (every pixel a hit facing the light: the material pass casts a shadow ray a
     pixel, its most)."""
-    from gridrt.trace.render import Renderer, render_bytes
+    from gridrt.memory import render_bytes
+    from gridrt.trace.render import Renderer
 
     grid = gridrt.build_grid(PLANE)
     cam = gridrt.Camera(eye=(0, 0, 5), target=(0, 0, 0), fov=40)
@@ -278,7 +279,7 @@ def test_frame_estimate_matches_peak():
     from gridrt.grid.buffers import build_bytes
     from gridrt.pipeline import FramePipeline
     from gridrt.scene import make_scene
-    from gridrt.trace.render import render_bytes
+    from gridrt.memory import render_bytes
 
     scene = make_scene("icosphere", count=20480)
     cam = gridrt.Camera(eye=(0, 0, 1.6), target=(0, 0, 0), fov=90)
@@ -381,10 +382,9 @@ def test_render_refused_with_estimate_and_limit(monkeypatch):
     """RenderParams of a size whose buffers exceed the limit (the pixel count it advises fits);
     Camera.rays likewise; a pipeline whose limit fell below its material pass with shadows is
     refused at its first step before the scene's grid is built."""
-    from gridrt.memory import human
+    from gridrt.memory import human, render_bytes
     from gridrt.pipeline import FramePipeline
     from gridrt.scene import make_scene
-    from gridrt.trace.render import render_bytes
 
     limit = 40_000_000
     limit_to(monkeypatch, limit)
