@@ -10,13 +10,14 @@ import numpy as np
 
 from gridrt.config import SHADING_MODES, TRAVERSALS, GridParams, RenderParams
 from gridrt.errors import InputError
+from gridrt.frame import FrameSpec, ViewSpec
 from gridrt.pipeline import FramePipeline
 
 from ..cli import add_packet_args, defaults
 from ..cluster.scheduler import add_cluster_args, wants_cluster
 from .machine import finish_machine, machine_info
 from ..cluster.bench import _bench_scene, open_cluster, run_configs, worker_cores
-from .options import add_grid_kind_args, check_frame_args, grid_kinds, thread_list
+from .options import add_dt_arg, add_grid_kind_args, check_frame_args, grid_kinds, thread_list
 from .output import figure, grid_columns, md_table, out_dir, progress, write_csv, write_json, write_summary
 from .scenes import resolve_scene, scene_list
 from .stats import fmt_ms, put_stat
@@ -46,7 +47,7 @@ def add_parser(bsub, common):
                    help="static/moving split for scenes with static parts (default both: measure on and off)")
     p.add_argument("--shading", choices=SHADING_MODES, default="lambert",
                    help="shading of the rendered frames (default %(default)s)")
-    p.add_argument("--dt", type=float, default=1.0 / 30.0, help="seconds between frames (default 1/30)")
+    add_dt_arg(p)
     add_grid_kind_args(p)
     add_packet_args(p)
     add_cluster_args(p, "configurations (each measured whole by one worker)")
@@ -67,27 +68,36 @@ def frame_strategy(name, threads):
     return name
 
 
-def frame_pipeline(scene, variant, strategy, size, shading, packet, packet_precision, top_density, leaf_density):
-    """The FramePipeline of one ``bench frame`` configuration: variant = (threads, traversal,
-    split, grid kind)."""
-    th, tr, sp, gk = variant
-    return FramePipeline(scene, GridParams(strategy=frame_strategy(strategy, th), threads=th, grid=gk,
-                                           top_density=top_density, leaf_density=leaf_density),
-                         RenderParams(size, size, shading=shading, threads=th, traversal=tr, packet=packet,
-                                      packet_precision=packet_precision),
-                         split_static=sp, follow_camera=True)
+def base_spec(a, size, packet):
+    """The FrameSpec every ``bench frame`` configuration starts from: the options' grid densities,
+    shading, packets and time step at size x size, the scene's own camera followed
+    (:func:`frame_spec` fills in the scene, threads, strategy, traversal, split and grid kind)."""
+    return FrameSpec(grid=GridParams(top_density=a.top_density, leaf_density=a.leaf_density),
+                     render=RenderParams(size, size, shading=a.shading, packet=packet,
+                                         packet_precision=a.packet_precision),
+                     view=ViewSpec(size=(size, size), follow_camera=True, dt=a.dt))
 
 
-def frame_row(sc, pipe, variant, smp, strategy, packet, packet_precision, size, runs):
-    """The ``bench frame`` row of one configuration (``sc`` a BenchScene, ``smp`` its timed
-    frames' stats)."""
+def frame_spec(base, scene, variant, strategy):
+    """The FrameSpec of one ``bench frame`` configuration: ``base`` (:func:`base_spec`) with the
+    SceneSpec ``scene`` and variant = (threads, traversal, split, grid kind); ``strategy`` a build
+    strategy or "auto" (:func:`frame_strategy`)."""
     th, tr, sp, gk = variant
+    return base.replace(scene=scene, grid=base.grid.replace(strategy=frame_strategy(strategy, th), threads=th, grid=gk),
+                        render=base.render.replace(threads=th, traversal=tr),
+                        view=base.view.replace(split_static=sp))
+
+
+def frame_row(sc, pipe, spec, smp, runs):
+    """The ``bench frame`` row of one configuration (``sc`` a BenchScene, ``spec`` its FrameSpec,
+    ``smp`` its timed frames' stats)."""
     s = smp[-1]
+    g, r = spec.grid, spec.render
     row = dict(scene=sc.label, name=sc.scene.name, triangles=s["triangles"],
-               moving_triangles=s.get("moving_triangles", s["triangles"]), threads=th,
-               strategy=frame_strategy(strategy, th), traversal=tr, split=int(sp and _has_split(sc.scene)),
-               packet=f"{packet[0]}x{packet[1]}", packet_precision=packet_precision,
-               static=int(bool(sc.scene.static)), size=size, frames=runs, **grid_columns(pipe.grid_params, s))
+               moving_triangles=s.get("moving_triangles", s["triangles"]), threads=g.threads,
+               strategy=g.strategy, traversal=r.traversal, split=int(spec.view.split_static and _has_split(sc.scene)),
+               packet=f"{r.packet[0]}x{r.packet[1]}", packet_precision=r.packet_precision,
+               static=int(bool(sc.scene.static)), size=spec.size[0], frames=runs, **grid_columns(pipe.grid_params, s))
     for k in ("frame_ms", "build_ms", "render_ms", "anim_ms"):
         put_stat(row, k, [x[k] for x in smp])
     put_stat(row, "build_render_ms", [x["build_ms"] + x["render_ms"] for x in smp])
@@ -113,8 +123,9 @@ def run_frame(a):
     kinds = grid_kinds(a)
     specs, note = scene_list(a.scenes, FRAME_SCENES, FRAME_FALLBACK, quick=["marbles:500"] if a.quick else None)
     threads = thread_list(a.threads)
+    base = base_spec(a, size, packet)
     if wants_cluster(a):
-        return _run_frame_cluster(a, specs, note, travs, kinds, size, runs, warmup, packet)
+        return _run_frame_cluster(a, specs, note, travs, kinds, size, runs, warmup, base)
     out = out_dir(a.out)
     info = machine_info(threads)
     if note:
@@ -132,19 +143,18 @@ def run_frame(a):
     for sc in scenes:
         # all variants of one scene advance frame by frame together (round-robin), so load from
         # other processes hits them alike
-        variants = [(th, tr, sp, gk) for s2, th, tr, sp, gk in plan if s2 is sc]
-        pipes = [frame_pipeline(sc.scene, v, a.strategy, size, a.shading, packet, a.packet_precision, a.top_density,
-                                a.leaf_density) for v in variants]
-        samples = [[] for _ in variants]
+        fspecs = [frame_spec(base, sc.spec, (th, tr, sp, gk), a.strategy) for s2, th, tr, sp, gk in plan if s2 is sc]
+        pipes = [FramePipeline.from_spec(s, sc.scene) for s in fspecs]
+        samples = [[] for _ in fspecs]
         bar.set_postfix_str(sc.label)
         for i in range(warmup + runs):
             for pipe, smp in zip(pipes, samples):
-                fr = pipe.step(i * a.dt)
+                fr = pipe.step(base.view.time(i))
                 if i >= warmup:
                     smp.append(fr.stats)
                 bar.update()
-        for pipe, v, smp in zip(pipes, variants, samples):
-            rows.append(frame_row(sc, pipe, v, smp, a.strategy, packet, a.packet_precision, size, runs))
+        for pipe, s, smp in zip(pipes, fspecs, samples):
+            rows.append(frame_row(sc, pipe, s, smp, runs))
         del pipes
     bar.close()
     return _finish_frame(a, out, info, rows, size, runs, warmup, note)
@@ -154,9 +164,10 @@ def _split_choices(a, has_split):
     return {"both": [True, False], "on": [True], "off": [False]}[a.split] if has_split else [True]
 
 
-def _run_frame_cluster(a, specs, note, travs, kinds, size, runs, warmup, packet):
+def _run_frame_cluster(a, specs, note, travs, kinds, size, runs, warmup, base):
     """``bench frame`` on a Dask cluster: every configuration (scene, threads, traversal, split,
-    grid kind) runs its warm-up and timed frames whole on one worker."""
+    grid kind) runs its warm-up and timed frames whole on one worker, which receives the base
+    FrameSpec in its wire format (:meth:`gridrt.frame.FrameSpec.to_wire`)."""
     out = out_dir(a.out)
     if note:
         print(f"note: {note}", file=sys.stderr)
@@ -167,9 +178,7 @@ def _run_frame_cluster(a, specs, note, travs, kinds, size, runs, warmup, packet)
         facts = scene_facts(cl, specs, a.no_progress, pressed)
         plan = [(s, (th, tr, sp, gk)) for s, f in zip(specs, facts) for th in threads for tr in travs
                 for sp in _split_choices(a, f["has_split"]) for gk in kinds]
-        settings = dict(strategy=a.strategy, size=size, shading=a.shading, packet=packet,
-                        packet_precision=a.packet_precision, top_density=a.top_density, leaf_density=a.leaf_density)
-        rows, machines = run_configs(cl, frame_calls(plan, settings, runs, warmup, a.dt), "bench frame (cluster)",
+        rows, machines = run_configs(cl, frame_calls(plan, base, a.strategy, runs, warmup), "bench frame (cluster)",
                                      a.no_progress, pressed=pressed)
     info["workers"] = machines
     return _finish_frame(a, out, info, rows, size, runs, warmup, note)
@@ -322,18 +331,22 @@ def scene_facts(cl, specs, no_progress=False, pressed=lambda: False):
     return rows
 
 
-def _frame_config(text, variant, settings, runs, warmup, dt):
+def _frame_config(text, variant, base_wire, strategy, runs, warmup):
+    """One configuration's rows, on a worker: the scene of ``text`` (loaded once per worker), the
+    base FrameSpec read back from its wire format (checked on arrival)."""
     sc = _bench_scene(text)
-    pipe = frame_pipeline(sc.scene, variant, **settings)
+    spec = frame_spec(FrameSpec.from_wire(base_wire), sc.spec, variant, strategy)
+    pipe = FramePipeline.from_spec(spec, sc.scene)
     smp = []
     for i in range(warmup + runs):
-        fr = pipe.step(i * dt)
+        fr = pipe.step(spec.view.time(i))
         if i >= warmup:
             smp.append(fr.stats)
-    return [frame_row(sc, pipe, variant, smp, settings["strategy"], settings["packet"], settings["packet_precision"],
-                      settings["size"], runs)]
+    return [frame_row(sc, pipe, spec, smp, runs)]
 
 
-def frame_calls(plan, settings, runs, warmup, dt):
-    """The tasks of ``bench frame``: plan = [(scene text, (threads, traversal, split, kind))]."""
-    return [(_frame_config, (s, v, settings, runs, warmup, dt)) for s, v in plan]
+def frame_calls(plan, base, strategy, runs, warmup):
+    """The tasks of ``bench frame``: plan = [(scene text, (threads, traversal, split, kind))], each
+    with the base FrameSpec ``base`` as its wire dict."""
+    wire = base.to_wire()
+    return [(_frame_config, (s, v, wire, strategy, runs, warmup)) for s, v in plan]

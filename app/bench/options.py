@@ -6,6 +6,7 @@ import math
 
 from gridrt.config import GRID_KINDS, GridParams
 from gridrt.errors import InputError
+from gridrt.frame import ViewSpec
 from gridrt.grid.registry import get_builder
 from gridrt.threads import check_threads
 
@@ -85,3 +86,9 @@ def check_frame_args(a):
         raise InputError(f"--dt must be a positive number of seconds, got {a.dt}")
     if a.strategy != "auto":
         get_builder(a.strategy)
+
+
+def add_dt_arg(q):
+    """--dt, the seconds between the frames of a frame-by-frame benchmark (default: ViewSpec's)."""
+    dt = defaults(ViewSpec)["dt"]
+    q.add_argument("--dt", type=float, default=dt, help=f"seconds between frames (default 1/{1 / dt:g})")

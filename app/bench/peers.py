@@ -48,7 +48,7 @@ from ..cli import add_packet_args
 from .affinity import Affinity
 from .frame import frame_strategy
 from .machine import finish_machine, machine_info
-from .options import add_grid_kind_args, check_frame_args, grid_kinds, thread_list
+from .options import add_dt_arg, add_grid_kind_args, check_frame_args, grid_kinds, thread_list
 from .output import figure, grid_columns, grid_label, md_table, out_dir, progress, write_csv, write_json, write_summary
 from .scenes import resolve_scene, scene_camera, scene_list, scenes_help
 from .stats import fmt_ms, put_stat
@@ -85,7 +85,7 @@ def add_parser(bsub, common):
                    help="gridrt build strategy (default auto: serial at 1 thread, sort_middle above)")
     p.add_argument("--embree-fast", action="store_true",
                    help="Embree without RTC_SCENE_FLAG_ROBUST (default robust, like gridrt's watertight test)")
-    p.add_argument("--dt", type=float, default=1.0 / 30.0, help="seconds between frames (default 1/30)")
+    add_dt_arg(p)
     p.add_argument("--views", default=",".join(VIEWS),
                    help="ray sets, comma-separated: frame (the scene's camera, or one framing its bounds), fill "
                         f"(that camera moved in until at least {100 * FILL:.0f}%% of the pixels hit: a sparse view flatters "

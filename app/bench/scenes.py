@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
-from gridrt.camera import Camera
+from gridrt.camera import DEFAULT_FOV, Camera
 from gridrt.errors import InputError
 from gridrt.scene import SceneSpec
 from gridrt.scene.assets import ASSET_SCENES, asset_path
@@ -148,8 +148,9 @@ def scene_list(text, defaults, fallback, quick=None):
     return have, note
 
 
-def facing_camera(lo, hi, fov=45.0):
-    """Look along the box's thinnest axis (slightly tilted) so the mesh fills the view."""
+def facing_camera(lo, hi, fov=DEFAULT_FOV):
+    """Look along the box's thinnest axis (slightly tilted) so the mesh fills the view (``fov``: the
+    camera's default field of view unless given)."""
     lo = np.asarray(lo, np.float64)
     hi = np.asarray(hi, np.float64)
     ext = hi - lo

@@ -27,21 +27,19 @@ import math
 import sys
 import time
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 
 import gridrt  # noqa: F401
 from gridrt.config import GRID_KINDS, PACKET_PRECISIONS, TRAVERSALS, GridParams, RenderParams, _packet_shape
 from gridrt.errors import InputError
+from gridrt.frame import FrameSpec, ViewSpec
 from gridrt.grid.build import GridBuilder
 from gridrt.grid.registry import get_builder
 from gridrt.scene import StaticMesh
 from gridrt.scene.mesh import quiet_trimesh
 from gridrt.threads import check_threads
 from gridrt.trace.render import Renderer, cast_rays
-
-from ..cli import defaults
 
 from .machine import finish_machine, machine_info
 from .options import check_runs, float_list, int_list
@@ -149,50 +147,38 @@ def _default_specs(a):
     return scene, probe
 
 
-class Config(NamedTuple):
-    """One setting of every knob: a row's configuration (hashable; the rows that vary one knob
-    to the same setting share their measurements)."""
-
-    insert: str
-    density: float
-    macro: int
-    watertight: bool
-    resolution: int
-    traversal: str
-    packet: tuple
-    packet_precision: str
-    grid: str
-    top_density: float
-    leaf_density: float
-
-    @property
-    def grid_key(self):
-        """What the grid depends on (configurations with the same key share one grid)."""
-        return (self.insert, self.density, self.macro, self.grid, self.top_density, self.leaf_density)
-
-    def grid_params(self, strategy, threads):
-        return GridParams(strategy=strategy, density=self.density, macro=self.macro, insert=self.insert,
-                          threads=threads, grid=self.grid, top_density=self.top_density,
-                          leaf_density=self.leaf_density)
+def baseline(scene, size, strategy, threads, cam, t=0.0):
+    """The FrameSpec every knob is varied from: the SceneSpec ``scene`` seen through ``cam`` at
+    time ``t``, size x size, built with ``strategy`` on ``threads`` threads, everything else the
+    engine's defaults (GridParams, RenderParams) except the traversal, DDA: the holes are counted
+    through ``cast_rays`` with probe rays from random origins, which it traces one by one, so each
+    row's holes are those of the traversal it renders with (the traversal knob's CGT row, the
+    engine's default, and the packet knobs' rows, which render with CGT, show what the packets
+    change).  A row's configuration is such a FrameSpec (hashable: the rows that vary one knob to
+    the same setting share their measurements; configurations with equal GridParams share one
+    grid)."""
+    return FrameSpec(scene=scene, grid=GridParams(strategy=strategy, threads=threads),
+                     render=RenderParams(size, size, threads=threads, traversal="dda"),
+                     view=ViewSpec(eye=cam.eye, target=cam.target, up=cam.up, fov=cam.fov, t0=t, size=(size, size)))
 
 
-def baseline(size):
-    """The :class:`Config` every knob is varied from: the engine's defaults (GridParams,
-    RenderParams) at ``size`` x ``size``, except the traversal, DDA: the holes are counted through
-    ``cast_rays`` with probe rays from random origins, which it traces one by one, so each row's
-    holes are those of the traversal it renders with (the traversal knob's CGT row, the engine's
-    default, and the packet knobs' rows, which render with CGT, show what the packets change)."""
-    g, r = defaults(GridParams), defaults(RenderParams)
-    return Config(g["insert"], g["density"], g["macro"], r["watertight"], size, "dda", tuple(r["packet"]),
-                  r["packet_precision"], g["grid"], g["top_density"], g["leaf_density"])
+def _grid(spec, **kw):
+    """``spec`` with the GridParams fields ``kw`` changed."""
+    return spec.replace(grid=spec.grid.replace(**kw))
+
+
+def _render(spec, **kw):
+    """``spec`` with the RenderParams fields ``kw`` changed."""
+    return spec.replace(render=spec.render.replace(**kw))
 
 
 def _describe(cfg):
-    cgt = f" ({cfg.packet[0]}x{cfg.packet[1]} packets, {cfg.packet_precision} tests)" if cfg.traversal == "cgt" else ""
-    grid = (f"{cfg.grid} grid (top density {cfg.top_density:g}, leaf density {cfg.leaf_density:g}), "
-            if cfg.grid != "uniform" else "uniform grid, ")
-    return (f"{grid}{cfg.insert}, lambda {cfg.density:g}, macro {cfg.macro}, {'watertight' if cfg.watertight else 'fast'}, "
-            f"{cfg.traversal.upper()}{cgt}, {cfg.resolution}x{cfg.resolution}")
+    g, r = cfg.grid, cfg.render
+    cgt = f" ({r.packet[0]}x{r.packet[1]} packets, {r.packet_precision} tests)" if r.traversal == "cgt" else ""
+    grid = (f"{g.grid} grid (top density {g.top_density:g}, leaf density {g.leaf_density:g}), "
+            if g.grid != "uniform" else "uniform grid, ")
+    return (f"{grid}{g.insert}, lambda {g.density:g}, macro {g.macro}, {'watertight' if r.watertight else 'fast'}, "
+            f"{r.traversal.upper()}{cgt}, {r.width}x{r.height}")
 
 
 def _packet_list(text):
@@ -202,9 +188,9 @@ def _packet_list(text):
         raise InputError(f"--packets: {e}") from None
 
 
-def _configs(a, knobs, size):
-    """[(knob, label, Config)] and the baseline Config."""
-    d = baseline(size)
+def _configs(a, knobs, d):
+    """[(knob, label, FrameSpec)] varied from the baseline FrameSpec ``d`` (:func:`baseline`)."""
+    size = d.size[0]
     rows = []
     lambdas = [0.5, 4.0] if a.quick and a.lambdas == DEFAULT_LAMBDAS else float_list(a.lambdas, "--lambdas")
     macros = [1, 4] if a.quick and a.macros == DEFAULT_MACROS else int_list(a.macros, "--macros")
@@ -213,41 +199,42 @@ def _configs(a, knobs, size):
             else float_list(a.top_densities, "--top-densities"))
     leaves = ([1.0, 4.0] if a.quick and a.leaf_densities == DEFAULT_LEAF_DENSITIES
               else float_list(a.leaf_densities, "--leaf-densities"))
-    two_level = d._replace(grid="two_level")
+    g, r = d.grid, d.render
+    two_level = _grid(d, grid="two_level")
     for k in knobs:
         if k == "insert":
-            rows += [(k, ins, d._replace(insert=ins)) for ins in ("bbox", "exact")]
+            rows += [(k, ins, _grid(d, insert=ins)) for ins in ("bbox", "exact")]
         elif k == "lambda":
-            rows += [(k, f"{lam:g}", d._replace(density=lam)) for lam in sorted(set(lambdas) | {d.density})]
+            rows += [(k, f"{lam:g}", _grid(d, density=lam)) for lam in sorted(set(lambdas) | {g.density})]
         elif k == "macro":
-            for m in sorted(set(macros) | {d.macro}):
+            for m in sorted(set(macros) | {g.macro}):
                 if m > 64:
                     raise InputError(f"--macros: macro-cell size must be at most 64, got {m}")
-                rows.append((k, str(m), d._replace(macro=m)))
+                rows.append((k, str(m), _grid(d, macro=m)))
         elif k == "intersect":
-            rows += [(k, "watertight" if wt else "fast", d._replace(watertight=wt)) for wt in (True, False)]
+            rows += [(k, "watertight" if wt else "fast", _render(d, watertight=wt)) for wt in (True, False)]
         elif k == "traversal":
-            rows += [(k, tr, d._replace(traversal=tr)) for tr in TRAVERSALS]
+            rows += [(k, tr, _render(d, traversal=tr)) for tr in TRAVERSALS]
         elif k == "packet":
             shapes = [(8, 8), (16, 16)] if a.quick and a.packets == DEFAULT_PACKETS else _packet_list(a.packets)
-            rows += [(k, f"{w}x{h}", d._replace(traversal="cgt", packet=(w, h)))
-                     for w, h in dict.fromkeys(shapes + [d.packet])]
+            rows += [(k, f"{w}x{h}", _render(d, traversal="cgt", packet=(w, h)))
+                     for w, h in dict.fromkeys(shapes + [r.packet])]
         elif k == "packet_precision":
-            rows += [(k, prec, d._replace(traversal="cgt", packet_precision=prec)) for prec in PACKET_PRECISIONS]
+            rows += [(k, prec, _render(d, traversal="cgt", packet_precision=prec)) for prec in PACKET_PRECISIONS]
         elif k == "resolution":
             sizes = sorted({max(1, int(round(f * size))) for f in fracs} | {size})
             if max(sizes) > size:
                 raise InputError("--resolutions: fractions must be at most 1 (the reference is at --size)")
-            rows += [(k, f"{r}x{r}", d._replace(resolution=r)) for r in sizes]
+            rows += [(k, f"{n}x{n}", d.resized(n, n)) for n in sizes]
         elif k == "precision":
             rows.append((k, "float32 storage", d))
         elif k == "grid":
-            rows += [(k, g, d._replace(grid=g)) for g in GRID_KINDS]
+            rows += [(k, kind, _grid(d, grid=kind)) for kind in GRID_KINDS]
         elif k == "top_density":
-            rows += [(k, f"{t:g}", two_level._replace(top_density=t)) for t in sorted(set(tops) | {d.top_density})]
+            rows += [(k, f"{t:g}", _grid(two_level, top_density=t)) for t in sorted(set(tops) | {g.top_density})]
         elif k == "leaf_density":
-            rows += [(k, f"{v:g}", two_level._replace(leaf_density=v)) for v in sorted(set(leaves) | {d.leaf_density})]
-    return rows, d
+            rows += [(k, f"{v:g}", _grid(two_level, leaf_density=v)) for v in sorted(set(leaves) | {g.leaf_density})]
+    return rows
 
 
 @dataclass
@@ -292,7 +279,8 @@ def run_trade(a):
     out = out_dir(a.out)
     info = machine_info([o.threads])
     su = _setup(a, o, *_default_specs(a))
-    configs, dcfg = _configs(a, o.knobs, o.size)
+    dcfg = baseline(su.sc.spec, o.size, a.strategy, o.threads, su.cam, a.time)
+    configs = _configs(a, o.knobs, dcfg)
     unique = list(dict.fromkeys(c for _, _, c in configs))
     meas, holes_cache = _measure(a, o, su, unique, dcfg)
     rows = _rows(configs, unique, meas, holes_cache, dcfg, su, o.n_samples)
@@ -384,38 +372,33 @@ def _measure(a, o, su, unique, dcfg):
     tris, cam, xs, ys, ref32, ref64 = su.tris, su.cam, su.xs, su.ys, su.ref32, su.ref64
     po, pd, pdist = su.probes
     po64, pd64, pdist64 = su.probes64 if su.probes64 is not None else (None, None, None)
-    gkeys = {}  # grid key -> the GridParams of its grid
-    for c in unique:
-        gkeys.setdefault(c.grid_key, c.grid_params(a.strategy, threads))
-    builders = {gk: GridBuilder(p) for gk, p in gkeys.items()}
+    gkeys = list(dict.fromkeys(c.grid for c in unique))  # one grid per GridParams
+    builders = {gk: GridBuilder(gk) for gk in gkeys}
     renderers = {cfg: Renderer() for cfg in unique}
-    rparams = {cfg: RenderParams(cfg.resolution, cfg.resolution, threads=threads, watertight=cfg.watertight,
-                                 traversal=cfg.traversal, packet=cfg.packet, packet_precision=cfg.packet_precision)
-               for cfg in unique}
     bar = progress(len(unique) + runs, "bench trade", a.no_progress)
     # pass 1: warm-up, the error figures and the holes, configuration by configuration
     grids, meas, holes_cache = {}, {}, {}
     for cfg in unique:
-        wt, res, trav = cfg.watertight, cfg.resolution, cfg.traversal
-        gk = cfg.grid_key
-        bar.set_postfix_str(f"{cfg.insert} l={cfg.density:g} m={cfg.macro} {'wt' if wt else 'fast'} {res} {trav} "
-                            f"{cfg.packet[0]}x{cfg.packet[1]} {cfg.packet_precision} {cfg.grid} "
-                            f"t={cfg.top_density:g} f={cfg.leaf_density:g}")
+        gk, rp = cfg.grid, cfg.render
+        wt, res, trav = rp.watertight, rp.width, rp.traversal
+        bar.set_postfix_str(f"{gk.insert} l={gk.density:g} m={gk.macro} {'wt' if wt else 'fast'} {res} {trav} "
+                            f"{rp.packet[0]}x{rp.packet[1]} {rp.packet_precision} {gk.grid} "
+                            f"t={gk.top_density:g} f={gk.leaf_density:g}")
         if gk not in grids:
             for _ in range(max(warmup, 1)):
                 grids[gk] = builders[gk].build(tris)
         g = grids[gk]
         for _ in range(max(warmup, 1)):
-            img = renderers[cfg].render(g, tris, cam, rparams[cfg])
+            img = renderers[cfg].render(g, tris, cam, rp)
         rx = xs * res // size
         ry = ys * res // size
-        m = dict(grid_columns(gkeys[gk], g.stats), refs_per_tri=g.references / len(tris),
+        m = dict(grid_columns(gk, g.stats), refs_per_tri=g.references / len(tris),
                  dims="x".join(str(int(x)) for x in g.spec.dims), hit_fraction=img.stats["hit_fraction"],
                  tests_per_ray=img.stats["tests_per_ray"], cells_per_ray=img.stats["cells_per_ray"])
         m["cmp32"] = compare_to_reference(img.tri[ry, rx], img.t[ry, rx], ref32[1], ref32[0], ref32[2])
         if ref64 is not None and cfg == dcfg:
             m["cmp64"] = compare_to_reference(img.tri[ry, rx], img.t[ry, rx], ref64[1], ref64[0], ref64[2])
-        hk = gk + (wt,)
+        hk = (gk, wt)
         if trav != "dda":
             m["holes"] = None  # the probe rays (random origins) go through cast_rays one by one, not as packets
         else:
@@ -439,12 +422,12 @@ def _measure(a, o, su, unique, dcfg):
             bt[gk].append(grids[gk].stats["build_ms"])
         for cfg in unique:
             t0 = time.perf_counter()
-            renderers[cfg].render(grids[cfg.grid_key], tris, cam, rparams[cfg])
+            renderers[cfg].render(grids[cfg.grid], tris, cam, cfg.render)
             rt[cfg].append((time.perf_counter() - t0) * 1e3)
         bar.update()
     bar.close()
     for cfg in unique:
-        put_stat(meas[cfg], "build_ms", bt[cfg.grid_key])
+        put_stat(meas[cfg], "build_ms", bt[cfg.grid])
         put_stat(meas[cfg], "render_ms", rt[cfg])
     return meas, holes_cache
 
@@ -465,6 +448,7 @@ def _rows(configs, unique, meas, holes_cache, dcfg, su, n_samples):
     rows = []
     for knob, label, cfg in configs:
         m = meas[cfg]
+        g, r = cfg.grid, cfg.render
         prec = knob == "precision"
         c = m.get("cmp64") if prec else m["cmp32"]
         if prec and c is None:
@@ -472,10 +456,10 @@ def _rows(configs, unique, meas, holes_cache, dcfg, su, n_samples):
         holes = holes_cache.get("precision") if prec else m["holes"]
         n_pr = len(po64) if prec and po64 is not None else len(po)
         rows.append(dict(
-            knob=knob, value=label, default=int(cfg == dcfg), insert=cfg.insert, **{"lambda": cfg.density},
-            macro=cfg.macro, intersection="watertight" if cfg.watertight else "fast", resolution=cfg.resolution,
-            traversal=cfg.traversal, packet=f"{cfg.packet[0]}x{cfg.packet[1]}", packet_precision=cfg.packet_precision,
-            grid=cfg.grid, grid_built=m["grid_built"], top_density=cfg.top_density, leaf_density=cfg.leaf_density,
+            knob=knob, value=label, default=int(cfg == dcfg), insert=g.insert, **{"lambda": g.density},
+            macro=g.macro, intersection="watertight" if r.watertight else "fast", resolution=r.width,
+            traversal=r.traversal, packet=f"{r.packet[0]}x{r.packet[1]}", packet_precision=r.packet_precision,
+            grid=g.grid, grid_built=m["grid_built"], top_density=g.top_density, leaf_density=g.leaf_density,
             build_ms=m["build_ms"], build_ms_min=m["build_ms_min"], build_ms_max=m["build_ms_max"],
             references=m["references"], refs_per_tri=m["refs_per_tri"], cells=m["cells"], dims=m["dims"],
             grid_bytes=m["grid_bytes"], bytes_per_tri=m["bytes_per_tri"],
