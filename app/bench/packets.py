@@ -16,6 +16,7 @@ from numba import njit
 
 import gridrt  # noqa: F401
 from gridrt.config import PACKET_PRECISIONS, GridParams, RenderParams
+from gridrt.errors import InputError
 from gridrt.grid.build import GridBuilder
 from gridrt.trace import cgt
 from gridrt.trace.grids import grid_arrays
@@ -117,8 +118,6 @@ def measure(sc, size, view, runs, warmup, precision="float64"):
 
 def run_packets(a):
     check_runs(a.runs, a.warmup)
-    from gridrt.errors import InputError
-
     views = [v.strip() for v in a.views.split(",") if v.strip()]
     for v in views:
         if v not in ("frame", "fill"):
