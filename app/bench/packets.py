@@ -23,11 +23,10 @@ from gridrt.trace.grids import grid_arrays
 from gridrt.trace.render import Renderer
 from gridrt.trace.traverse import MAILBOX
 
-from .peers import _camera_rays
 from .machine import finish_machine, machine_info
 from .options import check_runs
 from .output import md_table, out_dir, progress, write_csv, write_json, write_summary
-from .scenes import resolve_scene, scene_list
+from .scenes import _camera_rays, resolve_scene, scene_list
 from .stats import timings
 
 PACKET_SCENES = ["lucy:twist", "icosphere:1310720:twist"]

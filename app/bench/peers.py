@@ -30,7 +30,6 @@ its install command when absent; app/bench/sides.py) Open3D's RaycastingScene (`
 Mitsuba 3's CPU variant ``llvm_ad_rgb`` (``mitsuba``, ``drjit``).
 """
 
-import dataclasses
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -50,7 +49,7 @@ from .frame import frame_strategy
 from .machine import finish_machine, machine_info
 from .options import add_dt_arg, add_grid_kind_args, check_frame_args, grid_kinds, thread_list
 from .output import figure, grid_columns, grid_label, md_table, out_dir, progress, write_csv, write_json, write_summary
-from .scenes import resolve_scene, scene_camera, scene_list, scenes_help
+from .scenes import FILL, _camera_rays, resolve_scene, scene_list, scenes_help
 from .stats import fmt_ms, put_stat
 from .reference import brute_cast
 from .sides import (  # noqa: F401  (INSTALL_HINT)
@@ -66,8 +65,6 @@ PEER_FALLBACK = ["marbles", "icosphere:20480:twist", "icosphere:81920:twist", "i
 HAVE_CGT = "cgt" in TRAVERSALS
 #: the ray sets (--views)
 VIEWS = ("frame", "fill", "random")
-#: the hit fraction a "fill" view reaches at least
-FILL = 0.9
 #: relative t tolerance of hit agreement
 T_REL = 1e-4
 #: disagreeing rays checked against brute force, at most
@@ -208,35 +205,6 @@ def _rays(sc, size, view):
         d32 = (d / np.linalg.norm(d, axis=1)[:, None]).astype(np.float32)
         o, d = o32.astype(np.float64), d32.astype(np.float64)
     return origin, cam, o32, d32, o, d
-
-
-def _fill_camera(tris, cam, probe=64):
-    """``cam`` moved towards its target, 24 steps of 0.85x the distance at most, to the first eye from
-    which at least FILL of a probe x probe image hits ``tris`` (the scene at time 0; or the closest
-    step)."""
-    g = GridBuilder(GridParams()).build(tris)
-    eye, target = np.asarray(cam.eye), np.asarray(cam.target)
-    for k in range(25):
-        c = dataclasses.replace(cam, eye=tuple(target + (eye - target) * 0.85 ** k))
-        po, pd = c.rays(probe, probe)
-        if (cast_rays(g, tris, po, pd).tri >= 0).mean() >= FILL:
-            break
-    return c
-
-
-def _camera_rays(sc, size, fill=False):
-    """(frame origin, camera, float32 origins and directions, the same as float64) of a scene: both
-    tracers get the scene in the frame the pipeline uses and the same float32-rounded camera rays;
-    ``fill``: from the camera moved in until the scene fills the view (_fill_camera)."""
-    origin = sc.scene.frame_origin(0.0)
-    tris0 = np.array(sc.scene.triangles_at(0.0, origin=origin))
-    cam = scene_camera(sc.scene, tris0, origin=origin)
-    if fill:
-        cam = _fill_camera(tris0, cam)
-    o, d = cam.rays(size, size)
-    o32 = np.ascontiguousarray(o, np.float32)
-    d32 = np.ascontiguousarray(d, np.float32)
-    return origin, cam, o32, d32, o32.astype(np.float64), d32.astype(np.float64)
 
 
 def _time_frames(sc, origin, builder, renderer, rp, cam, emb, pool, o32, d32, o, d, T, warmup, runs, dt, bar,

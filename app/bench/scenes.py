@@ -2,6 +2,7 @@
 files, short names for the development data set's meshes), its parsing, which scenes are present,
 and the camera a benchmark looks at a scene with."""
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -10,9 +11,12 @@ import numpy as np
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from gridrt.camera import DEFAULT_FOV, Camera
+from gridrt.config import GridParams
 from gridrt.errors import InputError
+from gridrt.grid.build import GridBuilder
 from gridrt.scene import SceneSpec
 from gridrt.scene.assets import ASSET_SCENES, asset_path
+from gridrt.trace.render import cast_rays
 #: the development data set: real meshes in shared/data beside the repository, when present (not
 #: part of the repository; a user's clone has the shipped assets/ instead)
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
@@ -181,3 +185,36 @@ def scene_camera(scene, tris, t=0.0, origin=None):
         v = np.asarray(tris).reshape(-1, 3)
         cam = facing_camera(v.min(axis=0), v.max(axis=0))
     return cam
+
+
+#: the hit fraction a "fill" view reaches at least
+FILL = 0.9
+
+
+def _fill_camera(tris, cam, probe=64):
+    """``cam`` moved towards its target, 24 steps of 0.85x the distance at most, to the first eye from
+    which at least FILL of a probe x probe image hits ``tris`` (the scene at time 0; or the closest
+    step)."""
+    g = GridBuilder(GridParams()).build(tris)
+    eye, target = np.asarray(cam.eye), np.asarray(cam.target)
+    for k in range(25):
+        c = dataclasses.replace(cam, eye=tuple(target + (eye - target) * 0.85 ** k))
+        po, pd = c.rays(probe, probe)
+        if (cast_rays(g, tris, po, pd).tri >= 0).mean() >= FILL:
+            break
+    return c
+
+
+def _camera_rays(sc, size, fill=False):
+    """(frame origin, camera, float32 origins and directions, the same as float64) of a scene: both
+    tracers get the scene in the frame the pipeline uses and the same float32-rounded camera rays;
+    ``fill``: from the camera moved in until the scene fills the view (_fill_camera)."""
+    origin = sc.scene.frame_origin(0.0)
+    tris0 = np.array(sc.scene.triangles_at(0.0, origin=origin))
+    cam = scene_camera(sc.scene, tris0, origin=origin)
+    if fill:
+        cam = _fill_camera(tris0, cam)
+    o, d = cam.rays(size, size)
+    o32 = np.ascontiguousarray(o, np.float32)
+    d32 = np.ascontiguousarray(d, np.float32)
+    return origin, cam, o32, d32, o32.astype(np.float64), d32.astype(np.float64)
