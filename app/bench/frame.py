@@ -17,7 +17,7 @@ from ..cli import add_packet_args, defaults
 from ..cluster.scheduler import add_cluster_args, wants_cluster
 from .machine import finish_machine, machine_info
 from ..cluster.bench import _bench_scene, open_cluster, run_configs, worker_cores
-from .options import add_dt_arg, add_grid_kind_args, check_frame_args, grid_kinds, thread_list
+from .options import add_dt_arg, add_grid_kind_args, check_frame_args, frame_strategy, grid_kinds, thread_list
 from .output import figure, grid_columns, md_table, out_dir, progress, write_csv, write_json, write_summary
 from .scenes import resolve_scene, scene_list
 from .stats import fmt_ms, put_stat
@@ -60,12 +60,6 @@ def _has_split(scene):
         return False
     m = np.asarray(m, bool)
     return bool(m.any() and not m.all())
-
-
-def frame_strategy(name, threads):
-    if name == "auto":
-        return "serial" if threads == 1 else "sort_middle"
-    return name
 
 
 def base_spec(a, size, packet):

@@ -92,3 +92,9 @@ def add_dt_arg(q):
     """--dt, the seconds between the frames of a frame-by-frame benchmark (default: ViewSpec's)."""
     dt = defaults(ViewSpec)["dt"]
     q.add_argument("--dt", type=float, default=dt, help=f"seconds between frames (default 1/{1 / dt:g})")
+
+
+def frame_strategy(name, threads):
+    if name == "auto":
+        return "serial" if threads == 1 else "sort_middle"
+    return name

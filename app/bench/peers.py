@@ -45,9 +45,8 @@ from gridrt.trace.render import Renderer, cast_rays
 from ..cli import add_packet_args
 
 from .affinity import Affinity
-from .frame import frame_strategy
 from .machine import finish_machine, machine_info
-from .options import add_dt_arg, add_grid_kind_args, check_frame_args, grid_kinds, thread_list
+from .options import add_dt_arg, add_grid_kind_args, check_frame_args, frame_strategy, grid_kinds, thread_list
 from .output import figure, grid_columns, grid_label, md_table, out_dir, progress, write_csv, write_json, write_summary
 from .scenes import FILL, _camera_rays, resolve_scene, scene_list, scenes_help
 from .stats import fmt_ms, put_stat
