@@ -95,6 +95,8 @@ def add_dt_arg(q):
 
 
 def frame_strategy(name, threads):
+    """The build strategy a --strategy of ``name`` means at ``threads`` threads: "auto" is serial at
+    1 thread and sort_middle above; any other name is itself."""
     if name == "auto":
         return "serial" if threads == 1 else "sort_middle"
     return name

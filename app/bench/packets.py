@@ -26,7 +26,7 @@ from gridrt.trace.traverse import MAILBOX
 from .machine import finish_machine, machine_info
 from .options import check_runs
 from .output import md_table, out_dir, progress, write_csv, write_json, write_summary
-from .scenes import _camera_rays, resolve_scene, scene_list
+from .scenes import camera_rays, resolve_scene, scene_list
 from .stats import timings
 
 PACKET_SCENES = ["lucy:twist", "icosphere:1310720:twist"]
@@ -83,7 +83,7 @@ def profile_frame(g, basis, W, H, prof, f32):
 
 def measure(sc, size, view, runs, warmup, precision="float64"):
     """One scene and view: a row of times (ms medians) and the per-phase split."""
-    origin, cam, *_ = _camera_rays(sc, size, fill=view == "fill")
+    origin, cam, *_ = camera_rays(sc, size, fill=view == "fill")
     tris = np.ascontiguousarray(sc.scene.triangles_at(0.0, origin=origin), np.float32)
     grid = GridBuilder(GridParams(threads=1)).build(tris)
     g = grid_arrays(grid, tris)

@@ -48,7 +48,7 @@ from .affinity import Affinity
 from .machine import finish_machine, machine_info
 from .options import add_dt_arg, add_grid_kind_args, check_frame_args, frame_strategy, grid_kinds, thread_list
 from .output import figure, grid_columns, grid_label, md_table, out_dir, progress, write_csv, write_json, write_summary
-from .scenes import FILL, _camera_rays, resolve_scene, scene_list, scenes_help
+from .scenes import FILL, camera_rays, resolve_scene, scene_list, scenes_help
 from .stats import fmt_ms, put_stat
 from .reference import brute_cast
 from .sides import (  # noqa: F401  (INSTALL_HINT)
@@ -193,7 +193,7 @@ def _rays(sc, size, view):
     """(frame origin, camera, float32 origins and directions, the same as float64) of a scene for one
     of VIEWS: size x size camera rays, or as many random rays."""
     if view != "random":
-        origin, cam, o32, d32, o, d = _camera_rays(sc, size, fill=view == "fill")
+        origin, cam, o32, d32, o, d = camera_rays(sc, size, fill=view == "fill")
     else:
         origin = sc.scene.frame_origin(0.0)
         cam = None

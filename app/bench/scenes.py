@@ -1,6 +1,7 @@
 """The benchmarks' scenes: the spec text NAME[:N][:twist|wave] (built-ins, mesh and animation
 files, short names for the development data set's meshes), its parsing, which scenes are present,
-and the camera a benchmark looks at a scene with."""
+the camera a benchmark looks at a scene with and that camera's rays (also moved in until the scene
+fills the view)."""
 
 import dataclasses
 import math
@@ -191,7 +192,7 @@ def scene_camera(scene, tris, t=0.0, origin=None):
 FILL = 0.9
 
 
-def _fill_camera(tris, cam, probe=64):
+def fill_camera(tris, cam, probe=64):
     """``cam`` moved towards its target, 24 steps of 0.85x the distance at most, to the first eye from
     which at least FILL of a probe x probe image hits ``tris`` (the scene at time 0; or the closest
     step)."""
@@ -205,15 +206,15 @@ def _fill_camera(tris, cam, probe=64):
     return c
 
 
-def _camera_rays(sc, size, fill=False):
+def camera_rays(sc, size, fill=False):
     """(frame origin, camera, float32 origins and directions, the same as float64) of a scene: both
     tracers get the scene in the frame the pipeline uses and the same float32-rounded camera rays;
-    ``fill``: from the camera moved in until the scene fills the view (_fill_camera)."""
+    ``fill``: from the camera moved in until the scene fills the view (fill_camera)."""
     origin = sc.scene.frame_origin(0.0)
     tris0 = np.array(sc.scene.triangles_at(0.0, origin=origin))
     cam = scene_camera(sc.scene, tris0, origin=origin)
     if fill:
-        cam = _fill_camera(tris0, cam)
+        cam = fill_camera(tris0, cam)
     o, d = cam.rays(size, size)
     o32 = np.ascontiguousarray(o, np.float32)
     d32 = np.ascontiguousarray(d, np.float32)
