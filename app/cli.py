@@ -104,7 +104,7 @@ def add_render_args(p, default_size=(1024, 768)):
     g = p.add_argument_group("render")
     g.add_argument("--size", type=size, default=default_size, help="image size WIDTHxHEIGHT")
     g.add_argument("--shading", choices=SHADING_MODES, default=d["shading"],
-                   help="auto (the default: material for a scene with materials, textures or vertex colours, "
+                   help="auto (material for a scene with materials, textures or vertex colours, "
                         "else lambert), material (the scene's materials, textures, smooth normals and lights), "
                         "lambert (one colour; a headlight, or the point light with --shadows), normal (geometric "
                         "normals as colours) or cost (a heat map of triangle tests per ray)")
