@@ -3,7 +3,7 @@ stage (the "Comparison build methods" and "Individual steps" measurements of Ize
 Robertson, Parker, RT 2006), a render of each configuration's grid (render ms, tests and cells
 per ray), and the bytes each stage moves against measured streaming bandwidth.  With
 ``--workers N`` / ``--scheduler ADDRESS`` the configurations spread over a Dask cluster
-(:mod:`gridrt.app.bench.on_cluster`).
+(:mod:`gridrt.app.cluster.bench`).
 
 For every scene, strategy and thread count one :class:`~gridrt.grid.GridBuilder` rebuilds the
 grid ``warmup + runs`` times, by default round-robin over the strategies (see ``interleave``).

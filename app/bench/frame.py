@@ -2,7 +2,7 @@
 thread and all cores (Ize et al. 2006's "Total performance", CGT's fps table); CGT traversal by
 default (DDA on request), static/moving split on and off, grid kinds side by side (``--grid``).
 With ``--workers N`` / ``--scheduler ADDRESS`` the configurations spread over a Dask cluster
-(:mod:`gridrt.app.bench.on_cluster`)."""
+(:mod:`gridrt.app.cluster.bench`)."""
 
 import sys
 
