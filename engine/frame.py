@@ -161,8 +161,8 @@ class FrameSpec:
         a dict of its fields (tuples as lists)."""
         out = {"format": WIRE_FORMAT, "version": WIRE_VERSION}
         for f in fields(self):
-            part = getattr(self, f.name)
-            out[f.name] = {g.name: _plain(getattr(part, g.name)) for g in fields(part)}
+            value = getattr(self, f.name)
+            out[f.name] = {g.name: _plain(getattr(value, g.name)) for g in fields(value)}
         return out
 
     @classmethod
