@@ -12,6 +12,11 @@ from .memory import check_render_fits
 from .threads import check_threads
 
 INSERT_MODES = ("bbox", "exact")
+#: Build strategies (GridParams.strategy), in the order of the table of Ize et al. 2006 (plus
+#: Lagae & Dutre 2008's counting): the names gridrt.grid.registry maps to their classes (it
+#: refuses to load when its classes and these names differ)
+STRATEGIES = ("serial", "sort_first", "global_lock", "cell_locks", "lock_pool", "thread_grids_merge", "thread_grids",
+              "sort_middle", "counting")
 #: Grid kinds (GridParams.grid): one uniform grid, a two-level grid (gridrt.grid.two_level), or
 #: the one of the two that the scene's spread of triangles asks for (gridrt.grid.build.crowding,
 #: AUTO_CROWDING)
@@ -33,6 +38,14 @@ DEFAULT_MAX_BYTES = 1 << 31
 #: reference): BENCHMARKS.md section 14
 DEFAULT_TOP_DENSITY = 0.0625
 DEFAULT_LEAF_DENSITY = 2.0
+
+
+def check_strategy(name):
+    """``name`` if it is a registered build strategy (:data:`STRATEGIES`); InputError listing the
+    valid names otherwise."""
+    if not isinstance(name, str) or name not in STRATEGIES:
+        raise InputError(f"unknown build strategy {name!r}; choose one of {', '.join(STRATEGIES)}")
+    return name
 
 
 @dataclass(frozen=True)
@@ -92,9 +105,7 @@ class GridParams:
         object.__setattr__(self, "max_bytes", _positive_int("max_bytes", self.max_bytes, 1))
         if self.threads is not None:
             object.__setattr__(self, "threads", check_threads(self.threads))
-        from .grid.registry import get_builder  # deferred: gridrt.grid imports this module first (its __init__)
-
-        get_builder(self.strategy)
+        check_strategy(self.strategy)
 
     def replace(self, **kw):
         return replace(self, **kw)

@@ -10,7 +10,7 @@ order of the table of Ize et al. 2006 (plus Lagae & Dutré 2008's counting).  Th
 class's docstring is what ``gridrt strategies`` prints.
 """
 
-from ..errors import InputError
+from ..config import STRATEGIES, check_strategy
 from .strategies.counting import Counting
 from .strategies.serial import Serial
 from .strategies.sort_first import SortFirst
@@ -21,14 +21,14 @@ from .strategies.thread_grids import ThreadGrids, ThreadGridsMerge
 #: strategy name -> class, in registry order
 BUILDERS = {cls.name: cls for cls in (Serial, SortFirst, GlobalLock, CellLocks, LockPool, ThreadGridsMerge,
                                       ThreadGrids, SortMiddle, Counting)}
+if tuple(BUILDERS) != STRATEGIES:
+    raise ImportError(f"gridrt.grid.registry: strategy classes {tuple(BUILDERS)} differ from gridrt.config.STRATEGIES "
+                      f"{STRATEGIES}")
 
 
 def get_builder(name):
     """The strategy class registered as ``name``; InputError listing the valid names otherwise."""
-    try:
-        return BUILDERS[name]
-    except (KeyError, TypeError):
-        raise InputError(f"unknown build strategy {name!r}; choose one of {', '.join(BUILDERS)}") from None
+    return BUILDERS[check_strategy(name)]
 
 
 def names():
