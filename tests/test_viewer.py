@@ -26,6 +26,7 @@ import pytest
 from PIL import Image
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
+from gridrt.camera import DEFAULT_FOV, DEFAULT_UP
 from helpers.viewer import REPO, H, W, _App, _app_env, _X
 
 
@@ -840,6 +841,18 @@ def test_viewer_scene_camera_under_xvfb(tmp_path):
         assert s9["scene_camera"] and s9["follow_camera"]
         quads = make_scene(str(path))
         assert _same_camera(s9["camera"], quads.camera_at(s9["stats"]["t"]))
+        assert s9["camera"]["fov"] != pytest.approx(DEFAULT_FOV)   # the file's camera has its own fov
+        # a mesh without a camera, opened next, is framed with the command line's fov and up (their
+        # defaults here), not with those of the camera looked through before
+        app.click(s9, "mesh file")
+        app.xdo("sleep", 0.2, "keydown", "ctrl", "sleep", 0.1, "key", "a", "sleep", 0.1, "keyup", "ctrl", "sleep", 0.1,
+                "key", "BackSpace")
+        app.xdo("type", "--delay", 5, str(REPO / "assets" / "teapot.obj"))
+        app.xdo("key", "Return")
+        s10 = app.wait(lambda q: q["triangles"] not in (0, 4) and q["stats"].get("triangles") == q["triangles"]
+                       and q["camera"], "the teapot loaded", timeout=120)
+        assert not s10["scene_camera"]
+        assert s10["camera"]["fov"] == DEFAULT_FOV and tuple(s10["camera"]["up"]) == DEFAULT_UP
         app.xdo("mousemove", 500, 300, "key", "Escape")
         assert app.proc.wait(30) == 0, app.output()
         out = app.output()

@@ -248,7 +248,9 @@ class Viewer:
         self.worker.submit(LoadJob(spec, st.grid_params(), st.render_params(rw, rh),
                                    camera=st.camera if keep_camera else None, keep_camera=keep_camera,
                                    scene_camera=st.prefer_scene_camera if scene_camera is None else scene_camera,
-                                   fov=st.fov, up=st.up, label=f"loading {spec.label()}"))
+                                   fov=st.fov if keep_camera else getattr(self.args, "fov", st.fov),
+                                   up=st.up if keep_camera else getattr(self.args, "up", st.up),
+                                   label=f"loading {spec.label()}"))
         self.last_key = None
         self._progress_printed = (0.0, 0)
 
