@@ -99,10 +99,10 @@ def add_density_args(g):
                    help=f"two-level grid: leaf cells per reference (triangle) of a top cell (default {d['leaf_density']:g})")
 
 
-def add_render_args(p, default_size=(1024, 768)):
+def add_render_args(p):
     d = defaults(RenderParams)  # shadows off and the watertight test: the two switches below change them
     g = p.add_argument_group("render")
-    g.add_argument("--size", type=size, default=default_size, help="image size WIDTHxHEIGHT")
+    g.add_argument("--size", type=size, default=(d["width"], d["height"]), help="image size WIDTHxHEIGHT")
     g.add_argument("--shading", choices=SHADING_MODES, default=d["shading"],
                    help="auto (material for a scene with materials, textures or vertex colours, "
                         "else lambert), material (the scene's materials, textures, smooth normals and lights), "

@@ -164,8 +164,8 @@ class RenderParams:
                    then also depend on the packet size).  CGT only.
     """
 
-    width: int = 640
-    height: int = 480
+    width: int = 1024
+    height: int = 768
     shading: str = "auto"
     shadows: bool = False
     light: tuple | None = None

@@ -58,7 +58,7 @@ def add_parser(sub):
                        epilog="keys: " + KEY_HELP)
     cli.add_scene_args(p)
     cli.add_grid_args(p)
-    cli.add_render_args(p, default_size=(1024, 768))
+    cli.add_render_args(p)
     g = p.add_argument_group("viewer")
     g.add_argument("--scale", type=float, default=1.0,
                    help="render resolution as a fraction of the window (0.1..2; default 1)")
