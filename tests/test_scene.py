@@ -930,7 +930,7 @@ def test_make_scene_builtins():
 
 
 def test_icosphere_count_beyond_the_largest_warns_with_the_count_made(monkeypatch):
-    """The icosphere caps at 20 x 4^9 triangles; a larger count once gave that silently."""
+    """The icosphere caps at 20 x 4^9 triangles; a larger count is capped with a warning that names the count made."""
     import warnings
 
     from gridrt.scene import make as scene_module
