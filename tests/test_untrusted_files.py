@@ -151,12 +151,13 @@ def test_gltf_image_outside_dropped_unless_trusted(tmp_path, route):
 def test_load_mesh_gltf_through_trimesh(tmp_path, monkeypatch):
     """load_mesh reads a glTF with trimesh: its buffers are refused as make_scene's, and trimesh
     reads no image outside the folder (nor one that is not a regular file)."""
-    from gridrt.scene import files, load_mesh
+    from gridrt.scene import files, load_mesh, loader
 
     scene, out = layout(tmp_path)
     read = []
     real = files.read_regular
-    monkeypatch.setattr(files, "read_regular", lambda p, limit=None: read.append(Path(p).name) or real(p, limit))
+    # the loader's resolver (the one trimesh asks for every file) reads through its own name
+    monkeypatch.setattr(loader, "read_regular", lambda p, limit=None: read.append(Path(p).name) or real(p, limit))
     assert load_mesh(write_gltf(scene / "a.gltf", image_uri="../out/tex.png")).n_triangles == 1
     assert read == ["tri.bin"]
     with pytest.raises(SceneFileError, match=f"buffer 0 '../out/tri.bin' leads {OUTSIDE}"):
