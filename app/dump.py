@@ -10,16 +10,10 @@ import numpy as np
 from tqdm import tqdm
 
 from gridrt.errors import GridrtError, InputError
-from gridrt.frame import ViewSpec
-from gridrt.pipeline import FramePipeline
 from gridrt.warmup import compile_progress
 
 from . import cli
-from .cluster.dump import dump_on_cluster
-from .cluster.scheduler import add_cluster_args, wants_cluster
-from .frame_out import (
-    FrameWriteError, FrameWriter, StopSignals, encode_frame, nothing_to_do, replace_mode, resumed, run_settings,
-)
+from .frame_out import FrameWriteError, FrameWriter, StopSignals, encode_frame, run_settings
 
 
 def add_parser(sub):
@@ -32,11 +26,8 @@ def add_parser(sub):
     cli.add_grid_args(p)
     cli.add_render_args(p)
     p.add_argument("--frames", type=int, default=60, help="number of frames (default 60)")
-    view = cli.defaults(ViewSpec)
-    p.add_argument("--t0", type=float, default=view["t0"],
-                   help="time of the first frame, seconds (default %(default)g)")
-    p.add_argument("--dt", type=float, default=view["dt"],
-                   help="time step between frames, seconds (default %(default).6g)")
+    p.add_argument("--t0", type=float, default=0.0, help="time of the first frame, seconds")
+    p.add_argument("--dt", type=float, default=1.0 / 30.0, help="time step between frames, seconds")
     p.add_argument("--out", type=Path, default=Path("out/dump"),
                    help="output folder (created); one that holds another dump is refused unless --overwrite or "
                         "--resume")
@@ -50,6 +41,8 @@ def add_parser(sub):
                    help="also write frame_NNNNN_t.npy (float32 hit distance, inf: miss) and "
                         "frame_NNNNN_id.npy (int32 triangle id, -1: miss), shape (height, width)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    from .cluster import add_cluster_args
+
     g = add_cluster_args(p)
     g.add_argument("--chunk", type=int, default=None,
                    help="frames per task on a cluster (default: about four tasks per worker, at most 16 frames)")
@@ -63,9 +56,12 @@ def run(a):
     for name in ("t0", "dt"):
         if not math.isfinite(getattr(a, name)):
             raise InputError(f"--{name} must be finite")
-    spec = cli.frame_spec(a)  # every setting checked before the cluster, the folder or the scene
+    from .cluster import wants_cluster
+
     if wants_cluster(a):  # (imports Dask only then)
-        return dump_on_cluster(a, spec)
+        from .dump_cluster import dump_on_cluster
+
+        return dump_on_cluster(a)
     if a.chunk is not None:
         raise InputError("--chunk applies to a cluster run: give it with --workers or --scheduler")
     # the notice appears when numba really starts compiling (a cold cache, or settings whose kernels
@@ -74,7 +70,7 @@ def run(a):
     display = CompileDisplay(progress=not a.no_progress)
     try:
         with compile_progress(display):
-            return _dump(a, spec)
+            return _dump(a)
     finally:
         display.close()
 
@@ -132,8 +128,7 @@ class CompileDisplay:
             self.file.flush()
 
 
-def _dump(a, spec):
-    """The dump of ``spec`` (FrameSpec) with the options ``a`` (frames, output, progress)."""
+def _dump(a):
     out = Path(a.out)
     writer = FrameWriter(out, run_settings(a), a.frames, mode=replace_mode(a))
     rows = []
@@ -148,9 +143,9 @@ def _dump(a, spec):
                 start = writer.check()
             if start >= a.frames:
                 return nothing_to_do(writer, start)
-            pipe = FramePipeline.from_spec(spec)
+            pipe = cli.pipeline_from_args(a)
             if start:
-                pipe.resume(start, spec.view.t0, writer.origin)
+                pipe.resume(start, a.t0, writer.origin)
             with stop.deferred():
                 writer.begin()
             bar = tqdm(range(start, a.frames), desc=f"dump {pipe.scene.name}", unit="frame", disable=a.no_progress,
@@ -160,7 +155,7 @@ def _dump(a, spec):
                     break
                 # a signal while the frame renders ends the run at once (nothing of the frame is
                 # written yet); while it is written, after the frame
-                fr = pipe.step(spec.view.time(i))
+                fr = pipe.step(a.t0 + i * a.dt)
                 item = encode_frame(fr, a.save_buffers)
                 with stop.deferred():
                     writer.write(i, item)
@@ -187,3 +182,21 @@ def _dump(a, spec):
         f"median build {med('build_ms'):.2f} ms, render {med('render_ms'):.2f} ms, frame {med('frame_ms'):.2f} ms"
     )
     return 0
+
+
+def replace_mode(a):
+    """What to do with another dump in --out: None (refuse it), "overwrite" or "resume"."""
+    return "overwrite" if a.overwrite else "resume" if a.resume else None
+
+
+def resumed(start, frames):
+    """How a summary says that a run went on after ``start`` complete frames ("" for a fresh run)."""
+    return f" (frames {start}-{frames - 1}, after the {start} already there)" if start else ""
+
+
+def nothing_to_do(writer, done):
+    print(f"gridrt: nothing to do: {writer.out}/ already holds {done} complete frames (--frames {writer.frames})",
+          file=sys.stderr, flush=True)
+    return 0
+
+

@@ -21,7 +21,6 @@ import math
 
 import numpy as np
 
-from .checks import check_finite
 from .errors import InputError
 
 #: smallest angle (radians) between the viewing axis and the world up axis that orbit allows
@@ -31,7 +30,13 @@ MIN_DISTANCE = 1e-9
 
 
 def _finite(x, name):
-    return check_finite(name, x)
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a number, got {x!r}") from None
+    if not math.isfinite(v):
+        raise InputError(f"{name} must be finite, got {x!r}")
+    return v
 
 
 def _unit(v):
