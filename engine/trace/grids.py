@@ -7,7 +7,7 @@ grids of one tuple must have the same numba type (the same array dtypes and layo
 :func:`grid_arrays` makes them so), so that kernels can loop over the tuple and index it with a
 run-time grid number.
 
-numba's parallel loops cannot take a tuple of tuples from outside the loop (numba issue #9098:
+numba's parallel loops cannot take a tuple of tuples from outside the loop (a limit of numba's parfors:
 prange expands tuple inputs one level, and a nested tuple is refused as a non-scalar gufunc
 argument), so a parallel kernel passes its grids into the loop with :func:`pack_grids` (one flat
 tuple of all their fields, outside the loop) and :func:`unpack_grids` (the tuple of grids again,
