@@ -37,8 +37,8 @@ from numba import njit, parallel_chunksize, prange
 from .cgt import (IO_DX, IO_DY, IO_DZ, IO_F, IO_OX, IO_OY, IO_OZ, IO_TMAX, MBOX, NIO, NS, PN, direction_class,
                   trace_packet)
 from .intersect import permute, shear_setup
-from .traverse import (MAILBOX, MOVED, TINY_DIR, _floor_clamp, _test_triangle, far_interval, far_t, shift_if_far,
-                       trace_ray)
+from .traverse import (MAILBOX, MOVED, NEAR, TINY_DIR, _floor_clamp, _test_triangle, far_interval, far_shift, far_t,
+                       is_far, trace_ray)
 
 #: rays in a run (a packet's worth; at most cgt.PN)
 RUN = 64
@@ -125,7 +125,10 @@ def _cast_run(g, origins, dirs, idx, s, n, tmin, tmax, watertight, any_hit, max_
         # where the packet traced the ray: a far one from just before the grid box)
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
-        verdict, mx, my, mz, th, tl = shift_if_far(g.lo, g.hi, ox, oy, oz, dx, dy, dz)
+        verdict = NEAR
+        mx = my = mz = th = tl = 0.0
+        if is_far(g.lo, g.hi, ox, oy, oz):
+            verdict, mx, my, mz, th, tl = far_shift(g.lo, g.hi, ox, oy, oz, dx, dy, dz)
         t_lo = tmin
         if verdict == MOVED:
             ox, oy, oz = mx, my, mz

@@ -50,7 +50,7 @@ from .grids import pack_grids, unpack_grids
 from .intersect import woop_edges, woop_shear
 from .prefetch import _cycles, _prefetch_tri, _prefetch_write
 from .shade import BACKGROUND, _u8, cost_rgb, facing_normal, lambert_rgb, normal_rgb, scene_id, shadow_ray
-from .traverse import MAILBOX, MOVED, NEAR, TINY_DIR, _floor_clamp, far_interval, far_t, shift_if_far, trace_ray
+from .traverse import MAILBOX, MOVED, NEAR, TINY_DIR, _floor_clamp, far_interval, far_shift, far_t, is_far, trace_ray
 
 #: the render's default packet edge in pixels (RenderParams.packet: PK x PK pixels)
 PK = 8
@@ -848,8 +848,11 @@ def _move_far(g, n, io):
     lo, hi = g.lo, g.hi
     for j in range(n):
         ox, oy, oz = io[IO_OX * PN + j], io[IO_OY * PN + j], io[IO_OZ * PN + j]
-        v, mx, my, mz, th, tl = shift_if_far(lo, hi, ox, oy, oz, io[IO_DX * PN + j], io[IO_DY * PN + j],
-                                             io[IO_DZ * PN + j])
+        if not is_far(lo, hi, ox, oy, oz):  # inline: a near ray calls nothing
+            io[IO_MV * PN + j] = NEAR
+            continue
+        v, mx, my, mz, th, tl = far_shift(lo, hi, ox, oy, oz, io[IO_DX * PN + j], io[IO_DY * PN + j],
+                                          io[IO_DZ * PN + j])
         io[IO_MV * PN + j] = v
         if v == NEAR:
             continue

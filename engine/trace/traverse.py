@@ -142,8 +142,8 @@ def _add_prod(h, l, w, d):
 def is_far(lo, hi, ox, oy, oz):
     """True when far_shift moves the origin (ox, oy, oz): it lies more than FAR_RADII half
     diagonals r of the box lo..hi from the box's centre along some axis (squares compared: no
-    square root on the path of every ray), within FAR_MAX, and the box is not a point.  Traversals
-    move a ray through :func:`shift_if_far`, which tests it inline."""
+    square root on the path of every ray), within FAR_MAX, and the box is not a point.  Callers
+    test it inline and call far_shift only for a far origin."""
     ex = hi[0] - lo[0]
     ey = hi[1] - lo[1]
     ez = hi[2] - lo[2]
@@ -199,15 +199,6 @@ def far_shift(lo, hi, ox, oy, oz, dx, dy, dz):
         tl += e
         th, tl = th + tl, tl - ((th + tl) - th)
     return MOVED, xh + xl, yh + yl, zh + zl, th, tl
-
-
-@njit(cache=True, inline="always")
-def shift_if_far(lo, hi, ox, oy, oz, dx, dy, dz):
-    """:func:`far_shift`, called only for a far origin (:func:`is_far`, inline): a near ray pays
-    one inline test and calls nothing.  The one way traversals move a ray."""
-    if is_far(lo, hi, ox, oy, oz):
-        return far_shift(lo, hi, ox, oy, oz, dx, dy, dz)
-    return NEAR, ox, oy, oz, 0.0, 0.0
 
 
 @njit(cache=True)
@@ -361,13 +352,16 @@ def trace_ray(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbo
     mailbox (MAILBOX,) int32 scratch.  A ray from far outside the grid is traced from just
     before its box (:func:`far_shift`).
     """
-    verdict, mx, my, mz, th, tl = shift_if_far(g.lo, g.hi, ox, oy, oz, dx, dy, dz)
-    if verdict == FAR_MISS:
-        return -1, np.inf, 0.0, 0.0, 0, 0
-    moved = verdict == MOVED
-    if moved:
-        ox, oy, oz = mx, my, mz
-        tmin, tmax = far_interval(tmin, tmax, th, tl)
+    moved = False
+    th = tl = 0.0
+    if is_far(g.lo, g.hi, ox, oy, oz):
+        verdict, mx, my, mz, th, tl = far_shift(g.lo, g.hi, ox, oy, oz, dx, dy, dz)
+        if verdict == FAR_MISS:
+            return -1, np.inf, 0.0, 0.0, 0, 0
+        if verdict == MOVED:
+            moved = True
+            ox, oy, oz = mx, my, mz
+            tmin, tmax = far_interval(tmin, tmax, th, tl)
     # one call site, inlined: a near ray pays one inline test for the far case
     f, t, u, v, nc, nt = _trace_near(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox)
     if moved:
