@@ -8,7 +8,9 @@ import warnings
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from gridrt.errors import GridrtError
+from gridrt.grid.registry import BUILDERS, names
 from gridrt.memory import allocating
+from gridrt.trace.twin import parallel_first
 
 from . import dump
 
@@ -57,8 +59,8 @@ def build_parser(command=None):
     dump.add_parser(sub)
     if command == "dump":
         return p
-    from .bench import main as bench
-    from .viewer import view
+    from .bench import main as bench  # deferred: the benchmarks (matplotlib, embreex...) are not a dump's
+    from .viewer import view  # deferred: the viewer (glfw, moderngl, imgui_bundle) is not a dump's
 
     view.add_parser(sub)
     bench.add_parser(sub)
@@ -68,8 +70,6 @@ def build_parser(command=None):
 
 
 def _list_strategies(a):
-    from gridrt.grid.registry import BUILDERS, names
-
     for n in names():
         doc = (BUILDERS[n].__doc__ or "").strip().splitlines()
         print(f"{n:20s} {doc[0] if doc else ''}")
@@ -119,8 +119,6 @@ def main(argv=None):
 def _main(argv):
     args = build_parser("dump" if argv[:1] == ["dump"] else None).parse_args(argv)
     if args.command == "bench":  # warm-up runs compile the parallel render kernels the timed runs use
-        from gridrt.trace.twin import parallel_first
-
         kernels = parallel_first()
     else:
         kernels = contextlib.nullcontext()

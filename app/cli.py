@@ -4,9 +4,12 @@ import argparse
 from dataclasses import fields
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
-from gridrt.camera import Camera, check_fov
 from gridrt.config import GRID_KINDS, INSERT_MODES, PACKET_PRECISIONS, SHADING_MODES, TRAVERSALS, GridParams, RenderParams
-from gridrt.errors import InputError
+from gridrt.frame import FrameSpec, ViewSpec
+from gridrt.pipeline import FramePipeline
+from gridrt.scene import DEFORM_KINDS, scene_choices
+from gridrt.scene.deform import DEFAULT_AMPLITUDE_FRACTION
+from gridrt.scene.spec import SceneSpec
 from gridrt.threads import MAX_THREADS
 
 
@@ -36,18 +39,9 @@ def defaults(cls):
     return {f.name: f.default for f in fields(cls)}
 
 
-def scene_defaults():
-    from gridrt.scene.spec import SceneSpec
-
-    return defaults(SceneSpec)
-
-
 def add_scene_args(p):
-    from gridrt.scene import DEFORM_KINDS, scene_choices
-    from gridrt.scene.deform import DEFAULT_AMPLITUDE_FRACTION
-
     g = p.add_argument_group("scene")
-    d = scene_defaults()
+    d = defaults(SceneSpec)
     g.add_argument("--scene", default=d["source"], help=scene_choices())
     g.add_argument("--count", type=int, default=d["count"],
                    help="triangles of the marbles and icosphere scenes (default: 8800 for marbles, 5120 for the "
@@ -105,15 +99,20 @@ def add_density_args(g):
                    help=f"two-level grid: leaf cells per reference (triangle) of a top cell (default {d['leaf_density']:g})")
 
 
-def add_render_args(p, default_size=(1024, 768)):
+def add_render_args(p):
     d = defaults(RenderParams)  # shadows off and the watertight test: the two switches below change them
     g = p.add_argument_group("render")
-    g.add_argument("--size", type=size, default=default_size, help="image size WIDTHxHEIGHT")
+    g.add_argument("--size", type=size, default=(d["width"], d["height"]), help="image size WIDTHxHEIGHT")
     g.add_argument("--shading", choices=SHADING_MODES, default=d["shading"],
-                   help="lambert (a headlight, or the point light with --shadows), normal (normals as colours) or "
-                        "cost (a heat map of triangle tests per ray)")
-    g.add_argument("--shadows", action="store_true", help="hard shadows from one point light")
-    g.add_argument("--light", type=vec3, default=d["light"], help="point light X,Y,Z (default: above the camera)")
+                   help="auto (material for a scene with materials, textures or vertex colours, "
+                        "else lambert), material (the scene's materials, textures, smooth normals and lights), "
+                        "lambert (one colour; a headlight, or the point light with --shadows), normal (geometric "
+                        "normals as colours) or cost (a heat map of triangle tests per ray)")
+    g.add_argument("--shadows", action="store_true",
+                   help="hard shadows: towards the point light (lambert) or each of the scene's lights (material)")
+    g.add_argument("--light", type=vec3, default=d["light"],
+                   help="point light X,Y,Z (default: above and behind the camera; in the material mode it replaces "
+                        "the scene's lights)")
     g.add_argument("--fast-intersect", action="store_true",
                    help="Moller-Trumbore instead of the watertight test (faster, may leak at edges)")
     g.add_argument("--traversal", choices=TRAVERSALS, default=d["traversal"],
@@ -124,10 +123,11 @@ def add_render_args(p, default_size=(1024, 768)):
                    help="camera position X,Y,Z, with --target (default: a camera that frames the scene)")
     g.add_argument("--target", type=vec3, default=None,
                    help="camera look-at point X,Y,Z, with --eye (default: the centre of the scene)")
-    c = defaults(Camera)
+    c = defaults(ViewSpec)
     g.add_argument("--up", type=vec3, default=c["up"],
                    help=f"camera up vector X,Y,Z (default {','.join(f'{x:g}' for x in c['up'])})")
-    g.add_argument("--fov", type=float, default=c["fov"], help="vertical field of view in degrees")
+    g.add_argument("--fov", type=float, default=c["fov"],
+                   help=f"vertical field of view in degrees (default {c['fov']:g})")
     g.add_argument("--follow-camera", action="store_true",
                    help="look through the scene's own animated camera (BART, glTF) where it has one")
 
@@ -145,8 +145,6 @@ def add_packet_args(g):
 
 def scene_spec(a):
     """The SceneSpec of the parsed scene arguments."""
-    from gridrt.scene.spec import SceneSpec
-
     return SceneSpec(source=a.scene, count=a.count, animate=a.animate, amplitude=a.amplitude, speed=a.speed,
                      seed=a.seed, clip=a.clip, subdivide=a.subdivide, fps=a.fps, allow_outside=a.allow_outside)
 
@@ -167,22 +165,28 @@ def render_params(a):
                         packet_precision=a.packet_precision)
 
 
+def view_spec(a):
+    """The ViewSpec of the parsed arguments: camera (--eye/--target, --fov, --up, --follow-camera),
+    --no-split, --size, and a dump's --t0 and --dt (a command without them has the defaults)."""
+    d = defaults(ViewSpec)
+    return ViewSpec(eye=a.eye, target=a.target, fov=a.fov, up=a.up, follow_camera=a.follow_camera,
+                    split_static=a.split_static, t0=getattr(a, "t0", d["t0"]), dt=getattr(a, "dt", d["dt"]),
+                    size=tuple(a.size))
+
+
+def frame_spec(a):
+    """The FrameSpec of the parsed arguments: what the command renders (the one conversion of the
+    scene, grid, render and view arguments into engine values; each part validated)."""
+    return FrameSpec(scene=scene_spec(a), grid=grid_params(a), render=render_params(a), view=view_spec(a))
+
+
 def camera_from_args(a):
     """An explicit camera when --eye/--target are given, else None (the pipeline frames the
     scene with --fov and --up)."""
-    check_fov(a.fov)  # also when the pipeline frames the scene: refused before the scene is loaded
-    if a.eye is None and a.target is None:
-        return None
-    if a.eye is None or a.target is None:
-        raise InputError("an explicit camera needs both --eye and --target")
-    return Camera(eye=a.eye, target=a.target, up=a.up, fov=a.fov)
+    return view_spec(a).camera()
 
 
 def pipeline_from_args(a, scene=None):
-    from gridrt.pipeline import FramePipeline
-
-    camera = camera_from_args(a)
-    scene = scene if scene is not None else scene_from_args(a)
-    return FramePipeline(scene, grid_params(a), render_params(a), camera=camera,
-                         fov=a.fov, up=a.up, split_static=a.split_static,
-                         follow_camera=a.follow_camera)
+    """The FramePipeline of the parsed arguments (:func:`frame_spec`); ``scene``: the scene,
+    when already loaded."""
+    return FramePipeline.from_spec(frame_spec(a), scene=scene)

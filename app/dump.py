@@ -10,10 +10,16 @@ import numpy as np
 from tqdm import tqdm
 
 from gridrt.errors import GridrtError, InputError
+from gridrt.frame import ViewSpec
+from gridrt.pipeline import FramePipeline
 from gridrt.warmup import compile_progress
 
 from . import cli
-from .frame_out import FrameWriteError, FrameWriter, StopSignals, encode_frame, run_settings
+from .cluster.dump import dump_on_cluster
+from .cluster.scheduler import add_cluster_args, wants_cluster
+from .frame_out import (
+    FrameWriteError, FrameWriter, StopSignals, encode_frame, nothing_to_do, replace_mode, resumed, run_settings,
+)
 
 
 def add_parser(sub):
@@ -26,8 +32,11 @@ def add_parser(sub):
     cli.add_grid_args(p)
     cli.add_render_args(p)
     p.add_argument("--frames", type=int, default=60, help="number of frames (default 60)")
-    p.add_argument("--t0", type=float, default=0.0, help="time of the first frame, seconds")
-    p.add_argument("--dt", type=float, default=1.0 / 30.0, help="time step between frames, seconds")
+    view = cli.defaults(ViewSpec)
+    p.add_argument("--t0", type=float, default=view["t0"],
+                   help="time of the first frame, seconds (default %(default)g)")
+    p.add_argument("--dt", type=float, default=view["dt"],
+                   help="time step between frames, seconds (default %(default).6g)")
     p.add_argument("--out", type=Path, default=Path("out/dump"),
                    help="output folder (created); one that holds another dump is refused unless --overwrite or "
                         "--resume")
@@ -41,8 +50,6 @@ def add_parser(sub):
                    help="also write frame_NNNNN_t.npy (float32 hit distance, inf: miss) and "
                         "frame_NNNNN_id.npy (int32 triangle id, -1: miss), shape (height, width)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    from .cluster import add_cluster_args
-
     g = add_cluster_args(p)
     g.add_argument("--chunk", type=int, default=None,
                    help="frames per task on a cluster (default: about four tasks per worker, at most 16 frames)")
@@ -56,12 +63,9 @@ def run(a):
     for name in ("t0", "dt"):
         if not math.isfinite(getattr(a, name)):
             raise InputError(f"--{name} must be finite")
-    from .cluster import wants_cluster
-
+    spec = cli.frame_spec(a)  # every setting checked before the cluster, the folder or the scene
     if wants_cluster(a):  # (imports Dask only then)
-        from .dump_cluster import dump_on_cluster
-
-        return dump_on_cluster(a)
+        return dump_on_cluster(a, spec)
     if a.chunk is not None:
         raise InputError("--chunk applies to a cluster run: give it with --workers or --scheduler")
     # the notice appears when numba really starts compiling (a cold cache, or settings whose kernels
@@ -70,7 +74,7 @@ def run(a):
     display = CompileDisplay(progress=not a.no_progress)
     try:
         with compile_progress(display):
-            return _dump(a)
+            return _dump(a, spec)
     finally:
         display.close()
 
@@ -128,7 +132,8 @@ class CompileDisplay:
             self.file.flush()
 
 
-def _dump(a):
+def _dump(a, spec):
+    """The dump of ``spec`` (FrameSpec) with the options ``a`` (frames, output, progress)."""
     out = Path(a.out)
     writer = FrameWriter(out, run_settings(a), a.frames, mode=replace_mode(a))
     rows = []
@@ -143,9 +148,9 @@ def _dump(a):
                 start = writer.check()
             if start >= a.frames:
                 return nothing_to_do(writer, start)
-            pipe = cli.pipeline_from_args(a)
+            pipe = FramePipeline.from_spec(spec)
             if start:
-                pipe.resume(start, a.t0, writer.origin)
+                pipe.resume(start, spec.view.t0, writer.origin)
             with stop.deferred():
                 writer.begin()
             bar = tqdm(range(start, a.frames), desc=f"dump {pipe.scene.name}", unit="frame", disable=a.no_progress,
@@ -155,7 +160,7 @@ def _dump(a):
                     break
                 # a signal while the frame renders ends the run at once (nothing of the frame is
                 # written yet); while it is written, after the frame
-                fr = pipe.step(a.t0 + i * a.dt)
+                fr = pipe.step(spec.view.time(i))
                 item = encode_frame(fr, a.save_buffers)
                 with stop.deferred():
                     writer.write(i, item)
@@ -182,21 +187,3 @@ def _dump(a):
         f"median build {med('build_ms'):.2f} ms, render {med('render_ms'):.2f} ms, frame {med('frame_ms'):.2f} ms"
     )
     return 0
-
-
-def replace_mode(a):
-    """What to do with another dump in --out: None (refuse it), "overwrite" or "resume"."""
-    return "overwrite" if a.overwrite else "resume" if a.resume else None
-
-
-def resumed(start, frames):
-    """How a summary says that a run went on after ``start`` complete frames ("" for a fresh run)."""
-    return f" (frames {start}-{frames - 1}, after the {start} already there)" if start else ""
-
-
-def nothing_to_do(writer, done):
-    print(f"gridrt: nothing to do: {writer.out}/ already holds {done} complete frames (--frames {writer.frames})",
-          file=sys.stderr, flush=True)
-    return 0
-
-

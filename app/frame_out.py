@@ -74,7 +74,7 @@ def fmt(v):
 def encode_frame(fr, save_buffers):
     """A rendered Frame as the dump writes it: ``{"png": bytes, "stats": dict, "origin": (3,)
     float64}``, plus ``"t"`` and ``"id"`` (``.npy`` bytes) with ``save_buffers``."""
-    from PIL import Image
+    from PIL import Image  # deferred: Pillow loads when a dump encodes a frame, not for every gridrt command
 
     buf = io.BytesIO()
     Image.fromarray(fr.image[:, :, :3]).save(buf, format="PNG")
@@ -511,3 +511,19 @@ class StopSignals:
         for s, old in self.old.items():
             signal.signal(s, old)
         self.old.clear()
+
+
+def replace_mode(a):
+    """What to do with another dump in --out: None (refuse it), "overwrite" or "resume"."""
+    return "overwrite" if a.overwrite else "resume" if a.resume else None
+
+
+def resumed(start, frames):
+    """How a summary says that a run went on after ``start`` complete frames ("" for a fresh run)."""
+    return f" (frames {start}-{frames - 1}, after the {start} already there)" if start else ""
+
+
+def nothing_to_do(writer, done):
+    print(f"gridrt: nothing to do: {writer.out}/ already holds {done} complete frames (--frames {writer.frames})",
+          file=sys.stderr, flush=True)
+    return 0

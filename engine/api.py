@@ -28,9 +28,11 @@ import numpy as np
 from .arrays import as_mesh, as_triangles, float_contiguous
 from .config import GridParams
 from .errors import InputError
+from .grid import common
 from .grid.build import GridBuilder
 from .memory import allocating, check_fits
 from .precision import ONE_SHOT_SAMPLE, PrecisionWarning, detail_warning, warn_detail
+from .scene.animation import gather_unchecked
 from .threads import launch_guard
 from .trace.render import Hits, cast_batch
 
@@ -64,9 +66,6 @@ def _in_centred_frame(v, lo, hi, faces, what):
     bounds lo, hi of the checked vertices ``v``, the largest |coordinate| there) over checked
     ``faces`` (F,3) int32: one conversion and one gather; InputError when every triangle has zero
     area."""
-    from .grid import common
-    from .scene.animation import gather_unchecked
-
     origin = 0.5 * (lo + hi)
     verts = np.empty(v.shape, np.float32)
     common.to_frame(v, float(origin[0]), float(origin[1]), float(origin[2]), verts)
@@ -83,8 +82,6 @@ def _centred_mesh(vertices, faces):
     range), then the conversion and the gather: about the cost of the grid build it comes with.
     Anything unusual (no vertices, bad values, float faces, indices out of range) goes through the
     slow checks, which say what is wrong (or accept integral float faces)."""
-    from .grid import common
-
     v = _vertex_array(vertices, "vertices")
     f = np.asarray(faces)
     lo, hi, bad = common.point_bounds(v) if len(v) else (None, None, True)
@@ -108,8 +105,6 @@ def _centred_vertices(vertices, faces, shape):
     """update's (origin, vertices, triangles, largest |coordinate|) for new ``vertices`` of
     ``shape`` over the caster's validated ``faces``: one pass over the values for bounds and
     NaN/inf/1e30 (the messages from the slow checks when it finds one), then as _centred_mesh."""
-    from .grid import common
-
     v = _vertex_array(vertices, "update: vertices")
     if v.shape != shape:
         raise InputError(f"update needs vertices of shape {shape}, got {v.shape}")

@@ -7,15 +7,21 @@ where ``fwd = normalize(target - eye)``, ``right = normalize(fwd x up)``, ``up' 
 """
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numba import njit, prange
 
+from .checks import MAX_IMAGE_SIDE, _positive_int
 from .errors import InputError
+from .memory import check_fits
 
 #: default viewing direction (from target towards eye) for automatic framing
 FRAME_DIR = (0.55, 0.45, 1.0)
+#: default vertical field of view in degrees (Camera, automatic framing, gridrt.frame.ViewSpec)
+DEFAULT_FOV = 45.0
+#: default up vector (Camera, automatic framing, gridrt.frame.ViewSpec)
+DEFAULT_UP = (0.0, 1.0, 0.0)
 
 
 #: largest eye/target coordinate magnitude (the scenes' own limit, gridrt.grid.common.BAD_MAGNITUDE)
@@ -51,6 +57,14 @@ def check_fov(fov):
     if not (0.0 < f < 180.0):
         raise InputError(f"camera fov must be between 0 and 180 degrees (exclusive), got {f:g}")
     return f
+
+
+def check_up(up):
+    """``up`` as a tuple of 3 finite floats, not all zero; InputError naming the up vector otherwise."""
+    u = _vec3(up, "up")
+    if _unit(u) is None:
+        raise InputError("camera up vector is zero")
+    return tuple(u.tolist())
 
 
 def _unit(v):
@@ -101,8 +115,8 @@ class Camera:
 
     eye: tuple = (0.0, 0.0, 5.0)
     target: tuple = (0.0, 0.0, 0.0)
-    up: tuple = (0.0, 1.0, 0.0)
-    fov: float = 45.0
+    up: tuple = DEFAULT_UP
+    fov: float = DEFAULT_FOV
 
     def __post_init__(self):
         eye = _vec3(self.eye, "eye")
@@ -127,7 +141,7 @@ class Camera:
         object.__setattr__(self, "fov", fov)
 
     @classmethod
-    def frame(cls, lo, hi, fov=45.0, direction=FRAME_DIR, up=(0.0, 1.0, 0.0)):
+    def frame(cls, lo, hi, fov=DEFAULT_FOV, direction=FRAME_DIR, up=DEFAULT_UP):
         """A camera looking at the centre of the box [lo, hi] from ``direction``, far enough
         that the box's bounding sphere fits the vertical field of view (with a 5% margin)."""
         fov = check_fov(fov)
@@ -166,9 +180,6 @@ class Camera:
         """Primary rays, row-major from the top-left pixel: (origins, dirs), each (H*W, 3) float64;
         InputError before allocating when their 48 bytes a pixel exceed the memory left
         (gridrt.memory)."""
-        from .config import MAX_IMAGE_SIDE, _positive_int
-        from .memory import check_fits
-
         W = _positive_int("image width", width, 1, MAX_IMAGE_SIDE)
         H = _positive_int("image height", height, 1, MAX_IMAGE_SIDE)
         check_fits(48 * W * H, f"making the primary rays of {W:,}x{H:,} pixels", "float64 origins and directions",
@@ -189,6 +200,4 @@ class Camera:
                       up=self.up, fov=self.fov)
 
     def replace(self, **kw):
-        from dataclasses import replace
-
         return replace(self, **kw)

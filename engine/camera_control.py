@@ -21,6 +21,7 @@ import math
 
 import numpy as np
 
+from .checks import check_finite
 from .errors import InputError
 
 #: smallest angle (radians) between the viewing axis and the world up axis that orbit allows
@@ -30,13 +31,7 @@ MIN_DISTANCE = 1e-9
 
 
 def _finite(x, name):
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        raise InputError(f"{name} must be a number, got {x!r}") from None
-    if not math.isfinite(v):
-        raise InputError(f"{name} must be finite, got {x!r}")
-    return v
+    return check_finite(name, x)
 
 
 def _unit(v):

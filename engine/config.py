@@ -4,11 +4,19 @@ Each dataclass validates itself in ``__post_init__`` and raises InputError namin
 """
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
+from .checks import MAX_IMAGE_SIDE, _positive_int
 from .errors import InputError
+from .memory import check_render_fits
+from .threads import check_threads
 
 INSERT_MODES = ("bbox", "exact")
+#: Build strategies (GridParams.strategy), in the order of the table of Ize et al. 2006 (plus
+#: Lagae & Dutre 2008's counting): the names gridrt.grid.registry maps to their classes (it
+#: refuses to load when its classes and these names differ)
+STRATEGIES = ("serial", "sort_first", "global_lock", "cell_locks", "lock_pool", "thread_grids_merge", "thread_grids",
+              "sort_middle", "counting")
 #: Grid kinds (GridParams.grid): one uniform grid, a two-level grid (gridrt.grid.two_level), or
 #: the one of the two that the scene's spread of triangles asks for (gridrt.grid.build.crowding,
 #: AUTO_CROWDING)
@@ -22,8 +30,6 @@ TRAVERSALS = ("dda", "cgt")
 PACKET_PRECISIONS = ("float64", "float32")
 #: the largest CGT packet edge in pixels (RenderParams.packet)
 PACKET_MAX = 16
-#: the largest image width or height (RenderParams)
-MAX_IMAGE_SIDE = 16384
 #: Default ceiling on grid cells (two int32 arrays of this size plus cell lists): 256 MiB.
 DEFAULT_MAX_CELLS = 1 << 25
 #: Default memory budget of one grid (cell arrays + references): 2 GiB.
@@ -34,18 +40,12 @@ DEFAULT_TOP_DENSITY = 0.0625
 DEFAULT_LEAF_DENSITY = 2.0
 
 
-def _positive_int(name, v, lo=1, hi=None):
-    if isinstance(v, bool) or not isinstance(v, int):
-        try:
-            if int(v) != v:
-                raise ValueError
-            v = int(v)
-        except (TypeError, ValueError):
-            raise InputError(f"{name} must be an integer, got {v!r}") from None
-    if v < lo or (hi is not None and v > hi):
-        rng = f">= {lo}" if hi is None else f"between {lo} and {hi}"
-        raise InputError(f"{name} must be {rng}, got {v}")
-    return v
+def check_strategy(name):
+    """``name`` if it is a registered build strategy (:data:`STRATEGIES`); InputError listing the
+    valid names otherwise."""
+    if not isinstance(name, str) or name not in STRATEGIES:
+        raise InputError(f"unknown build strategy {name!r}; choose one of {', '.join(STRATEGIES)}")
+    return name
 
 
 @dataclass(frozen=True)
@@ -104,12 +104,8 @@ class GridParams:
         object.__setattr__(self, "max_cells", _positive_int("max_cells", self.max_cells, 1, (1 << 31) - 2))
         object.__setattr__(self, "max_bytes", _positive_int("max_bytes", self.max_bytes, 1))
         if self.threads is not None:
-            from .threads import check_threads
-
             object.__setattr__(self, "threads", check_threads(self.threads))
-        from .grid.registry import get_builder
-
-        get_builder(self.strategy)
+        check_strategy(self.strategy)
 
     def replace(self, **kw):
         return replace(self, **kw)
@@ -136,7 +132,7 @@ class RenderParams:
     """How to cast and shade the primary rays.
 
     width, height  image size in pixels (each 1..MAX_IMAGE_SIDE); a size whose buffers
-                   (gridrt.trace.render.render_bytes) exceed the memory this process has left
+                   (gridrt.memory.render_bytes) exceed the memory this process has left
                    (gridrt.memory) is refused, stating both
     shading        "auto" (the default: "material" for a scene with materials, textures or vertex
                    colours (Surface.has_materials), else "lambert"),
@@ -168,8 +164,8 @@ class RenderParams:
                    then also depend on the packet size).  CGT only.
     """
 
-    width: int = 640
-    height: int = 480
+    width: int = 1024
+    height: int = 768
     shading: str = "auto"
     shadows: bool = False
     light: tuple | None = None
@@ -182,8 +178,6 @@ class RenderParams:
 
     def __post_init__(self):
         W, H = _positive_int("image width", self.width, 1), _positive_int("image height", self.height, 1)
-        from .trace.render import check_render_fits
-
         # (shading "auto" with shadows: FramePipeline.step checks the shadow rays once it is resolved)
         check_render_fits(W, H, self.shading == "material" and bool(self.shadows))
         object.__setattr__(self, "width", _positive_int("image width", W, 1, MAX_IMAGE_SIDE))
@@ -206,8 +200,6 @@ class RenderParams:
                 raise InputError(f"light must be 3 finite numbers, got {self.light!r}")
             object.__setattr__(self, "light", light)
         if self.threads is not None:
-            from .threads import check_threads
-
             object.__setattr__(self, "threads", check_threads(self.threads))
 
     def replace(self, **kw):

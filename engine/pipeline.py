@@ -6,15 +6,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .camera import Camera
+from .camera import DEFAULT_FOV, DEFAULT_UP, Camera
 from .config import GridParams, RenderParams
 from .errors import InputError
 from .grid.build import GridBuilder
-from .memory import allocating
+from .memory import allocating, check_render_fits
 from .precision import warn_detail
 from .stats import FrameStats
 from .threads import use_threads
-from .trace.render import Looks, Renderer, check_render_fits
+from .trace.render import Looks, Renderer
 
 #: columns every stats row has, in this order (the dump's stats.csv header starts with them)
 STATS_COLUMNS = (
@@ -103,7 +103,7 @@ class FramePipeline:
     caster traverses both; triangle ids in the output stay the scene's.
     """
 
-    def __init__(self, scene, grid_params=None, render_params=None, camera=None, fov=45.0, up=(0.0, 1.0, 0.0),
+    def __init__(self, scene, grid_params=None, render_params=None, camera=None, fov=DEFAULT_FOV, up=DEFAULT_UP,
                  split_static=True, follow_camera=False):
         self.scene = scene
         self.fov = fov
@@ -130,6 +130,16 @@ class FramePipeline:
         self._first_t = None  # the time of the first frame (resume)
         self._origin0 = None  # the origin the first frame left (resume)
         self._rendered_size = None  # (width, height) of the renderer's buffers
+
+    @classmethod
+    def from_spec(cls, spec, scene=None):
+        """The pipeline of the FrameSpec ``spec``: its grid and render parameters and its view
+        (camera, fov, up, static split, follow-camera); ``scene``: the Animation of ``spec.scene``
+        when already loaded (else it is loaded here).  Frame ``i`` of the spec is
+        ``step(spec.view.time(i))``."""
+        v = spec.view
+        return cls(spec.scene.make() if scene is None else scene, spec.grid, spec.render, camera=v.camera(),
+                   fov=v.fov, up=v.up, split_static=v.split_static, follow_camera=v.follow_camera)
 
     def _set_origin(self, origin):
         """Work in the frame of ``origin`` from now on: every grid is rebuilt in it."""
@@ -271,7 +281,7 @@ class FramePipeline:
 
     def step(self, t, camera=None):
         """Render the scene at time t; returns a Frame. ``camera`` overrides the pipeline's.  A
-        render whose buffers and shadow rays (gridrt.trace.render.render_bytes) exceed the memory
+        render whose buffers and shadow rays (gridrt.memory.render_bytes) exceed the memory
         left (gridrt.memory) is refused before they are allocated, as are grids (GridBuilder); a
         MemoryError all the same becomes an InputError naming the frame."""
         rp = self.render_params

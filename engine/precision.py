@@ -11,6 +11,8 @@ placed at one end of a scene (BENCHMARKS.md, "float32 floor"), hit distances are
 steps.  :func:`detail_warning` flags scenes under :data:`FLOOR_STEPS` steps.
 """
 
+import warnings
+
 import numpy as np
 
 #: Warn when the median triangle edge is under this many float32 steps (ulps) of the largest
@@ -63,7 +65,5 @@ def warn_detail(tris, what="the scene", stacklevel=3, sample=SAMPLE, big=None):
     """Issue a :class:`PrecisionWarning` when :func:`detail_warning` has something to say; returns it."""
     msg = detail_warning(tris, what, sample, big)
     if msg is not None:
-        import warnings
-
         warnings.warn(msg, PrecisionWarning, stacklevel=stacklevel)
     return msg

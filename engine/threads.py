@@ -7,8 +7,16 @@ thread count up to MAX_THREADS (also above the core count, for scaling experimen
 """
 
 import contextlib
+import ctypes.util
+import hashlib
 import os
+import shutil
 import threading
+import time
+import warnings
+from pathlib import Path
+
+from .errors import InputError
 
 #: Largest thread count a user may ask for (the viewer slider, ``--threads``).
 MAX_THREADS = max(16, os.cpu_count() or 1)
@@ -57,13 +65,11 @@ def wide_vector_features(width):
     treated as "auto".  The setting is process-wide and must be made before numba is imported:
     gridrt's ``configure_env`` applies GRIDRT_VECTOR_WIDTH, unless NUMBA_CPU_FEATURES is set."""
     if width not in VECTOR_WIDTHS:
-        import warnings
-
         warnings.warn(f"GRIDRT_VECTOR_WIDTH={width!r} is not one of {', '.join(VECTOR_WIDTHS)}; using auto",
                       stacklevel=3)
         width = "auto"
     try:
-        import llvmlite.binding as ll
+        import llvmlite.binding as ll  # deferred: llvmlite's LLVM library, loaded only when this is asked
 
         ll.initialize_native_target()
         features = ll.get_host_cpu_features().flatten()
@@ -77,8 +83,6 @@ def wide_vector_features(width):
 def _have_gomp():
     """True when GNU OpenMP (libgomp, Debian package libgomp1) can be loaded; without it numba
     falls back to its workqueue layer, which must not be entered from two threads at once."""
-    import ctypes.util
-
     return ctypes.util.find_library("gomp") is not None
 
 
@@ -87,10 +91,6 @@ CACHE_KEEP = 3
 
 
 def _cache_dir():
-    import hashlib
-    import shutil
-    from pathlib import Path
-
     root = Path(__file__).resolve().parent
     h = hashlib.sha1()
     for p in sorted(root.rglob("*.py")):
@@ -101,8 +101,6 @@ def _cache_dir():
     try:
         # caches of older sources go, but not one another process may still be compiling into (an
         # edit while a run is under way): the newest few stay, and none touched in the last hour goes
-        import time
-
         def touched(p):  # numba writes into one sub-folder per source folder
             return max([p.stat().st_mtime] + [q.stat().st_mtime for q in p.iterdir()])
 
@@ -117,15 +115,13 @@ def _cache_dir():
 
 def max_threads():
     """The largest thread count numba accepts in this process."""
-    import numba
+    import numba  # deferred: numba reads the settings configure_env makes when it is first imported
 
     return numba.config.NUMBA_NUM_THREADS
 
 
 def check_threads(n):
     """Validate a thread count and return it as int; ``None`` means all cores."""
-    from .errors import InputError
-
     if n is None:
         return min(os.cpu_count() or 1, max_threads())
     if isinstance(n, bool) or not isinstance(n, (int,)) and not hasattr(n, "__index__"):
@@ -142,7 +138,7 @@ def check_threads(n):
 
 def use_threads(n):
     """Set numba's thread count for kernels launched from the calling Python thread."""
-    import numba
+    import numba  # deferred: numba reads the settings configure_env makes when it is first imported
 
     numba.set_num_threads(check_threads(n))
 
@@ -159,7 +155,7 @@ _NO_LOCK = contextlib.nullcontext()
 def concurrent_launches_ok():
     """True when the threading layer in use (or, before the first parallel kernel has run, the
     one configured) lets several Python threads run parallel kernels at the same time."""
-    import numba
+    import numba  # deferred: numba reads the settings configure_env makes when it is first imported
 
     try:
         return numba.threading_layer() in _CONCURRENT_LAYERS

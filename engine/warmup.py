@@ -18,18 +18,23 @@ them from the on-disk cache.
   (:func:`kernels_reached`), less the ones whose cache entry numba will load instead.
 """
 
-import os
 import threading
 import time
 import types as _pytypes
 from contextlib import contextmanager
+
+from numba.core import event
+from numba.core.dispatcher import Dispatcher
+
+from .trace.cgt.frame import _render_tiles, cgt_render_kernel
+from .trace.render import render_kernel, render_serial
+from .trace.twin import has_cache_entry
 
 
 @contextmanager
 def compile_notice(callback):
     """Within the block, call ``callback()`` once, when numba starts compiling the first kernel
     (from any thread); never when every kernel comes from the cache."""
-    from numba.core import event
 
     class _First(event.Listener):
         fired = False
@@ -47,8 +52,6 @@ def compile_notice(callback):
 
 
 def _is_dispatcher(obj):
-    from numba.core.dispatcher import Dispatcher
-
     return isinstance(obj, Dispatcher)
 
 
@@ -185,8 +188,6 @@ def compile_progress(report, package="gridrt"):
     loaded from the on-disk cache send nothing.  Compiles in other threads are followed too (numba
     compiles one kernel at a time, under its compiler lock); ``report`` runs in the compiling
     thread."""
-    from numba.core import event
-
     progress = CompileProgress(package)
     lock = threading.Lock()
 
@@ -208,27 +209,8 @@ def compile_progress(report, package="gridrt"):
 def _kernels(traversal="dda"):
     """The render kernels a first frame of this traversal may run: the parallel one and its serial
     twin (gridrt.trace.twin; the serial one runs while the parallel one is not compiled)."""
-    from .trace.cgt import _render_tiles, cgt_render_kernel
-    from .trace.render import render_kernel, render_serial
-
     # (the serial CGT render is a Python function around the kernel _render_tiles)
     return [cgt_render_kernel, _render_tiles] if traversal == "cgt" else [render_kernel, render_serial]
-
-
-def has_cache_entry(kernel, sig=None):
-    """True when the kernel's on-disk cache index holds a compiled version for this machine (CPU
-    and numba version) and the kernel's current source, as numba's own loader requires; for the
-    argument types ``sig`` (a tuple of numba types) when given, else for any."""
-    cache = getattr(kernel, "_cache", None)
-    try:
-        index = cache._cache_file._load_index()  # {} when absent, from another numba, or stale
-        codegen = kernel.targetctx.codegen()
-        if sig is not None:
-            return cache._index_key(tuple(sig), codegen) in index
-        return any(cache._index_key(key[0], codegen) == key for key in index)
-    except Exception:  # numba's internals moved: fall back to the existence of the index file
-        path = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
-        return path is not None and os.path.exists(path)
 
 
 def cache_is_cold(traversal="dda"):

@@ -23,8 +23,7 @@ from conftest import ASSETS, CONVERTED, NO_SHARED_DATA, SHARED_DATA, SHIPPED
 from gridrt.errors import InputError, SceneFileError
 from gridrt.scene import ASSET_DIR, ASSET_SCENES, BUILTIN_SCENES, make_scene
 from reference import compare_hits, ref_camera_rays, ref_cast
-from test_cli_errors import one_error
-from test_dump import gridrt
+from helpers.cli import gridrt, one_error
 
 README = ASSETS / "README.md"
 ANIMATED = ("cesium_man", "morph_sphere", "sydney", "museum")

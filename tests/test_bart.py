@@ -6,7 +6,6 @@ at a constant rate), key values read from the .aff text by the simple scanners b
 counts as listed with the development data set, and small AFF files written here with hand-computed poses.
 """
 
-import math
 import re
 
 import numpy as np
@@ -24,20 +23,13 @@ from gridrt.scene.bart import (
 )
 
 from conftest import available, data_path
+from helpers.geometry import rodrigues
 
 
 def need(rel):
     """A BART scene file by its name in the development data set's animated/bart folder (assets/
     ships the museum); skips when absent."""
     return data_path(f"animated/bart/{rel}")
-
-
-def rodrigues(axis, degrees):
-    a = np.asarray(axis, dtype=np.float64)
-    a = a / np.linalg.norm(a)
-    th = math.radians(degrees)
-    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    return np.eye(3) + math.sin(th) * k + (1 - math.cos(th)) * (k @ k)
 
 
 def quat_to_matrix(q):

@@ -23,7 +23,7 @@ from gridrt.scene.bart import AMBIENT_DEFAULT, DEFAULT_DIFFUSE
 from gridrt.scene.surface import FALLOFF_NONE, LIGHT_POINT, TextureWarning
 
 from conftest import NO_SHARED_DATA, SHARED_DATA, data_path
-from test_bart import rodrigues
+from helpers.geometry import rodrigues
 
 no_texture_warnings = pytest.mark.filterwarnings("ignore::gridrt.scene.surface.TextureWarning")
 

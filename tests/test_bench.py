@@ -19,7 +19,8 @@ from conftest import icosphere, icosphere_tris, random_triangles
 from reference import compare_hits, ref_camera_rays, ref_cast
 
 from gridrt.app.__main__ import main
-from gridrt.app.bench.util import facing_camera, pareto_front, parse_scene_spec
+from gridrt.app.bench.scenes import facing_camera, parse_scene_spec
+from gridrt.app.bench.stats import pareto_front
 from gridrt.app.bench.reference import brute_cast, compare_to_reference, count_holes, pixel_rays, probe_rays, sample_pixels
 
 
@@ -433,13 +434,13 @@ def test_bench_bad_arguments(tmp_path, capsys, args, message):
 def test_bench_shortcuts_fall_back_to_the_shipped_assets(tmp_path, monkeypatch):
     """Without the development data set, a bench shortcut whose scene ships in assets/ uses the
     asset (the Armadillo as binary PLY, Cesium Man); one that does not ship says it is absent."""
-    from gridrt.app.bench import util
+    from gridrt.app.bench import scenes
     from gridrt.errors import InputError
     from gridrt.scene.assets import asset_path
 
-    monkeypatch.setattr(util, "DATA", tmp_path)
-    assert util.data_path("armadillo") == asset_path("armadillo")
-    assert util.parse_scene_spec("cesium")[0] == str(asset_path("cesium_man"))
-    assert util.scene_available("morphsphere") and not util.scene_available("lucy")
+    monkeypatch.setattr(scenes, "DATA", tmp_path)
+    assert scenes.data_path("armadillo") == asset_path("armadillo")
+    assert scenes.parse_scene_spec("cesium")[0] == str(asset_path("cesium_man"))
+    assert scenes.scene_available("morphsphere") and not scenes.scene_available("lucy")
     with pytest.raises(InputError, match="absent"):
-        util.parse_scene_spec("lucy")
+        scenes.parse_scene_spec("lucy")

@@ -1,8 +1,8 @@
 """One RayCaster shared by Python threads: casts and updates from any number
 of threads, no crash, and every cast sees one whole mesh (before or after a concurrent update).
 
-The stress runs in a subprocess (a crash, which is what two updating threads used to cause, is
-then a failed test with its exit code, not a dead test run): 4 threads cast and 2 update, for a
+The stress runs in a subprocess (a crash, which is what two threads updating one caster without its
+snapshot swap would cause, is then a failed test with its exit code, not a dead test run): 4 threads cast and 2 update, for a
 few seconds, alternating the caster between meshes A and B (same faces, different vertices, far
 from the world origin so their frames differ too).  Each cast is compared as a whole with the
 float64 brute-force reference of A and of B; it must agree with one of them on every ray.  The

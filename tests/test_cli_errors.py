@@ -13,30 +13,12 @@ import warnings
 import numpy as np
 import pytest
 
-from test_dump import gridrt
-from test_fuzz_files import AFF_OK, md2_bytes, write_aff
-from test_gltf import Builder, write_arm
-
-COMPILING = "Compiling numba kernels"
-
-
-def stderr_lines(r):
-    return [ln for ln in r.stderr.splitlines() if ln.strip() and not ln.startswith(COMPILING)]
+from helpers.cli import gridrt, one_error, stderr_lines
+from helpers.scene_files import AFF_OK, Builder, md2_bytes, write_aff, write_arm
 
 
 def dump(tmp_path, *args):
     return gridrt("dump", "--frames", "1", "--size", "8x8", "--no-progress", "--out", str(tmp_path / "out"), *args)
-
-
-def one_error(r, *words):
-    """The single error line of a refused command (asserting exit status 2 and nothing else on stderr)."""
-    lines = stderr_lines(r)
-    assert r.returncode == 2, (r.returncode, r.stderr[-2000:])
-    assert "Traceback" not in r.stderr and "Warning" not in r.stderr, r.stderr[-2000:]
-    assert len(lines) == 1 and lines[0].startswith("gridrt: error: "), r.stderr[-2000:]
-    for w in words:
-        assert w in lines[0], lines[0]
-    return lines[0]
 
 
 # ----------------------------------------------------------------------------- camera

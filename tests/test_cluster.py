@@ -409,7 +409,7 @@ def test_bad_cluster_options(tmp_path, args, message):
 
 def test_dashboard_is_live():
     """The dashboard address a local cluster prints answers (bokeh serves it)."""
-    from gridrt.app.cluster import Cluster
+    from gridrt.app.cluster.scheduler import Cluster
 
     with Cluster(workers=1) as cl:
         assert cl.dashboard.startswith("http://")

@@ -25,7 +25,7 @@ import pytest
 
 pytest.importorskip("distributed", reason="the cluster extra (pip install 'gridrt[cluster]') is not installed")
 
-from gridrt.app import cluster  # noqa: E402
+from gridrt.app.cluster import scheduler as cluster  # noqa: E402
 from gridrt.errors import InputError  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]

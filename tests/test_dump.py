@@ -16,17 +16,10 @@ import pytest
 from PIL import Image
 
 from reference import compare_hits, ref_camera_rays, ref_cast
+from helpers.cli import REPO, gridrt
 
-REPO = Path(__file__).resolve().parents[1]
 REQUIRED = ["frame", "t", "triangles", "cells", "references", "threads", "strategy", "clear_ms", "insert_ms",
             "macro_ms", "build_ms", "render_ms", "frame_ms"]
-
-
-def gridrt(*args, env=None, timeout=600):
-    e = dict(os.environ)
-    e.update(env or {})
-    return subprocess.run([sys.executable, "-m", "gridrt", *args], cwd=REPO, capture_output=True, text=True,
-                          env=e, timeout=timeout)
 
 
 def test_dump_all_options_and_buffers_match_brute_force(tmp_path):

@@ -283,7 +283,7 @@ def test_an_error_mid_run_says_which_frames_are_complete(tmp_path, monkeypatch, 
 def test_read_only_folder_fails_before_rendering(tmp_path, monkeypatch, capsys):
     """A folder that refuses new files (EROFS from every os.open that creates one): one line,
     exit 2, nothing rendered (the pipeline is never built) and nothing written."""
-    from gridrt.app import cli
+    from gridrt.pipeline import FramePipeline
 
     class ReadOnly(Faults):
         def open(self, path, flags, *args, **kw):
@@ -296,7 +296,7 @@ def test_read_only_folder_fails_before_rendering(tmp_path, monkeypatch, capsys):
 
     out = tmp_path / "ro"
     monkeypatch.setattr(frame_out, "os", ReadOnly())
-    monkeypatch.setattr(cli, "pipeline_from_args", no_render)
+    monkeypatch.setattr(FramePipeline, "from_spec", no_render)
     rc, err = dump(capsys, *SMALL, "--out", out)
     assert rc == 2
     assert one_line(err) == (f"gridrt: error: cannot write to the output folder {out}/: read-only file system; "
@@ -411,7 +411,7 @@ def test_another_dump_is_refused_and_overwrite_removes_it_first(tmp_path, monkey
 
 
 def test_a_cluster_dump_refuses_another_dump_before_its_cluster_starts(tmp_path, monkeypatch, capsys, small_ref):
-    from gridrt.app import dump_cluster
+    from gridrt.app.cluster import dump as dump_cluster
 
     def no_cluster(*a, **kw):
         raise AssertionError("a cluster was started for a folder that is refused")

@@ -173,7 +173,7 @@ def test_viewer_esc_with_a_cold_cache(tmp_path, monkeypatch):
     """The viewer on 2 threads with an empty numba cache (tests/test_viewer.py's Xvfb harness):
     after its first frames (the parallel kernel compiles in the background from the second on)
     Esc ends it with status 0 and the notice that it did not wait for that compile."""
-    from test_viewer import _App, _X
+    from helpers.viewer import _App, _X
 
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
     x = _X()

@@ -21,10 +21,9 @@ import gridrt  # noqa: F401  (sets numba's thread count before numba loads)
 from gridrt.errors import SceneFileError
 from gridrt.scene import make_scene
 
-from test_gltf import Builder, write_arm, TRI_V, TRI_F  # noqa: E402
-from test_md2_frames import write_md2, write_obj, grid_frame, GRID_F  # noqa: E402
-from test_scene import OCTA_F, OCTA_T, OCTA_V, write_off, write_ply_ascii, write_ply_binary, write_stl_ascii  # noqa: E402
-from test_scene import write_stl_binary  # noqa: E402
+from helpers.scene_files import (AFF_OK, GRID_F, OCTA_F, OCTA_T, OCTA_V, PART, TRI_F, TRI_V, Builder,  # noqa: E402
+                                 grid_frame, md2_bytes, write_aff, write_arm, write_obj, write_off, write_ply_ascii,
+                                 write_ply_binary, write_stl_ascii, write_stl_binary)
 
 FUZZ = settings(max_examples=40, deadline=3000, derandomize=True,
                 suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
@@ -119,36 +118,6 @@ def test_gltf_bad_values(tmp_path):
 
 # ----------------------------------------------------------------------------- BART
 
-AFF_OK = """v
-from 0 0 5
-at 0 0 0
-up 0 1 0
-angle 45
-hither 0.1
-resolution 64 64
-a 0 2 21
-x spin
-{
-  i 0 part.aff
-}
-k spin
-{
-  rot 4
-  -1 0 1 0 0  0 0 0
-   0 0 1 0 0  0 0 0
-   2 0 1 0 180  0 0 0
-   3 0 1 0 270  0 0 0
-}
-"""
-PART = "m vertices 4  0 0 0  1 0 0  1 1 0  0 1 0\n triangles 2  0 1 2  0 2 3\np 3 0 0 1  1 0 1  0 1 1\n"
-
-
-def write_aff(tmp_path, root=AFF_OK, part=PART):
-    (tmp_path / "part.aff").write_text(part)
-    p = tmp_path / "scene.aff"
-    p.write_text(root)
-    return p
-
 
 @pytest.mark.parametrize("root,part,words,in_part", [
     (AFF_OK.replace("part.aff", "gone.aff"), PART, ["'gone.aff' not found", "line 11"], False),
@@ -185,13 +154,6 @@ def test_aff_empty_and_missing(tmp_path):
 
 
 # ----------------------------------------------------------------------------- MD2
-
-
-def md2_bytes(tmp_path):
-    rng = np.random.default_rng(1)
-    p = write_md2(tmp_path / "m.md2", rng.integers(0, 256, (3, 6, 3), dtype=np.uint8),
-                  np.full((3, 3), 0.1), np.zeros((3, 3)), ["a1", "a2", "a3"], [(0, 1, 2), (3, 4, 5), (0, 2, 4)])
-    return p, bytearray(p.read_bytes())
 
 
 @pytest.mark.parametrize("edit,words", [

@@ -26,6 +26,7 @@ from gridrt.scene import GltfAnimation, StaticMesh, make_scene
 from gridrt.scene import gltf as gltf_module
 
 from conftest import ASSETS, available, data_path
+from helpers.scene_files import ARM_F, ARM_V, Builder, TRI_F, TRI_V, WEIGHT_KINDS, write_arm
 HAVE_DRACO = importlib.util.find_spec("DracoPy") is not None
 
 
@@ -37,121 +38,12 @@ def need_data(rel):
 # ----------------------------------------------------------------------------- a glTF writer
 
 
-class Builder:
-    """Collects arrays into one binary buffer and writes a glTF 2.0 file with pygltflib."""
-
-    def __init__(self):
-        self.blob = bytearray()
-        self.g = gl.GLTF2(asset=gl.Asset(version="2.0"), scene=0, scenes=[gl.Scene(nodes=[])])
-
-    def view(self, arr):
-        while len(self.blob) % 4:
-            self.blob.append(0)
-        self.g.bufferViews.append(gl.BufferView(buffer=0, byteOffset=len(self.blob), byteLength=arr.nbytes))
-        self.blob.extend(arr.tobytes())
-        return len(self.g.bufferViews) - 1
-
-    def acc(self, data, ctype, typ, normalized=False):
-        dt = {gl.FLOAT: "<f4", gl.UNSIGNED_BYTE: "u1", gl.UNSIGNED_SHORT: "<u2", gl.UNSIGNED_INT: "<u4"}[ctype]
-        arr = np.ascontiguousarray(np.asarray(data), dtype=dt)
-        n = {"SCALAR": 1, "VEC3": 3, "VEC4": 4, "MAT4": 16}[typ]
-        count = arr.size // n
-        kw = {}
-        if typ == "VEC3" and ctype == gl.FLOAT:
-            a = arr.reshape(count, 3)
-            kw = {"min": a.min(0).tolist(), "max": a.max(0).tolist()}
-        self.g.accessors.append(gl.Accessor(bufferView=self.view(arr), componentType=ctype, count=count, type=typ,
-                                            normalized=normalized, **kw))
-        return len(self.g.accessors) - 1
-
-    def mesh(self, vertices, faces, targets=(), weights=None, joints=None, jweights=None, mode=gl.TRIANGLES):
-        attrs = gl.Attributes(POSITION=self.acc(vertices, gl.FLOAT, "VEC3"))
-        if joints is not None:
-            attrs.JOINTS_0 = self.acc(joints, gl.UNSIGNED_BYTE, "VEC4")
-            ct, norm = jweights
-            attrs.WEIGHTS_0 = self.acc(norm, ct, "VEC4", normalized=ct != gl.FLOAT)
-        prim = gl.Primitive(attributes=attrs, indices=self.acc(np.ravel(faces), gl.UNSIGNED_INT, "SCALAR"), mode=mode)
-        prim.targets = [gl.Attributes(POSITION=self.acc(d, gl.FLOAT, "VEC3")) for d in targets]
-        self.g.meshes.append(gl.Mesh(primitives=[prim], weights=weights))
-        return len(self.g.meshes) - 1
-
-    def node(self, root=False, **kw):
-        self.g.nodes.append(gl.Node(**kw))
-        i = len(self.g.nodes) - 1
-        if root:
-            self.g.scenes[0].nodes.append(i)
-        return i
-
-    def animation(self, name, channels):
-        """channels: list of (node, path, times, values (flat), interpolation)."""
-        an = gl.Animation(name=name, channels=[], samplers=[])
-        for node, path, times, values, interp in channels:
-            vals = np.asarray(values, dtype=np.float64)
-            typ = {"translation": "VEC3", "scale": "VEC3", "rotation": "VEC4", "weights": "SCALAR"}[path]
-            an.samplers.append(gl.AnimationSampler(input=self.acc(times, gl.FLOAT, "SCALAR"),
-                                                   output=self.acc(vals, gl.FLOAT, typ), interpolation=interp))
-            an.channels.append(gl.AnimationChannel(sampler=len(an.samplers) - 1,
-                                                   target=gl.AnimationChannelTarget(node=node, path=path)))
-        self.g.animations.append(an)
-
-    def save(self, path):
-        while len(self.blob) % 4:
-            self.blob.append(0)
-        self.g.buffers = [gl.Buffer(byteLength=len(self.blob))]
-        self.g.set_binary_blob(bytes(self.blob))
-        if path.suffix == ".glb":
-            self.g.save_binary(str(path))
-        else:
-            self.g.save_json(str(path))
-        return path
-
-
 def rot_z(theta):
     c, s = math.cos(theta), math.sin(theta)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 # ----------------------------------------------------------------------------- skinning + node animation
-
-ARM_V = np.array([[0, 0, 0], [0.2, 0, 0], [0, 1, 0], [0.2, 1, 0], [0, 2, 0], [0.2, 2, 0]], dtype=np.float32)
-ARM_F = np.array([[0, 1, 3], [0, 3, 2], [2, 3, 5], [2, 5, 4]])
-TRI_V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=np.float32)
-TRI_F = np.array([[0, 1, 2]])
-H = math.sqrt(0.5)
-
-# joint weights of the arm's rows y = 0, 1, 2: all on joint 0, a blend, all on joint 1
-WEIGHT_KINDS = {
-    "u8": (gl.UNSIGNED_BYTE, [[255, 0], [128, 127], [0, 255]], 255.0),
-    "u16": (gl.UNSIGNED_SHORT, [[65535, 0], [30000, 35535], [0, 65535]], 65535.0),
-    "f32": (gl.FLOAT, [[1.0, 0.0], [0.25, 0.75], [0.0, 1.0]], 1.0),
-}
-
-
-def write_arm(path, kind):
-    """Root joint 0 slides along x (0 -> 2 over 2 s), elbow joint 1 at y=1 bends 90 deg about z
-    over the first second then holds; a skinned arm, a rigid triangle under the root, a static one."""
-    ct, rows, _ = WEIGHT_KINDS[kind]
-    b = Builder()
-    w = np.zeros((6, 4))
-    for v in range(6):
-        w[v, :2] = rows[v // 2]
-    j = np.tile([0, 1, 0, 0], (6, 1))
-    arm = b.mesh(ARM_V, ARM_F, joints=j, jweights=(ct, w))
-    tri = b.mesh(TRI_V, TRI_F)
-    b.node(root=True, name="root", children=[1, 4])  # 0
-    b.node(name="elbow", translation=[0.0, 1.0, 0.0])  # 1
-    b.node(root=True, name="arm", mesh=arm, skin=0, translation=[10.0, 0.0, 0.0])  # 2: ignored (skinned)
-    b.node(root=True, name="static", mesh=tri, translation=[5.0, 0.0, 0.0])  # 3
-    b.node(name="carried", mesh=tri, translation=[0.0, 0.0, 3.0])  # 4
-    ibm = np.stack([np.eye(4), np.eye(4)])
-    ibm[1, 1, 3] = -1.0  # inverse of the elbow's bind world matrix T(0, 1, 0)
-    b.g.skins.append(gl.Skin(joints=[0, 1], inverseBindMatrices=b.acc(ibm.transpose(0, 2, 1).ravel(), gl.FLOAT,
-                                                                       "MAT4")))
-    b.animation("walk", [
-        (0, "translation", [0.0, 2.0], [0, 0, 0, 2, 0, 0], "LINEAR"),
-        (1, "rotation", [0.0, 1.0], [0, 0, 0, 1, 0, 0, H, H], "LINEAR"),
-    ])
-    return b.save(path)
 
 
 def arm_expected(t, kind):

@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 import reference as R
 from conftest import ARMADILLO, TEAPOT, load_tris, random_scene
 from gridrt.grid import GridBuilder, GridCapWarning, GridParams, build_grid
+from helpers.grids import _check_pairs, check_layout, check_macro, check_spec
 
 # ----------------------------------------------------------------------------------------------
 # the reference itself, on hand-computed cases
@@ -88,57 +89,6 @@ def test_reference_candidates_equal_all_cells(rng, mode):
 
 # ----------------------------------------------------------------------------------------------
 # engine vs reference
-
-
-def check_spec(grid, tris, params):
-    """Grid geometry: bounds enclose every vertex strictly, cells tile the bounds, resolution."""
-    s = grid.spec
-    v = tris.reshape(-1, 3).astype(np.float64)
-    assert s.dims.dtype.kind == "i" and (s.dims >= 1).all()
-    assert (v > s.lo).all() and (v < s.hi).all(), "a vertex is not strictly inside the grid bounds"
-    np.testing.assert_allclose(s.lo + s.cell * s.dims, s.hi, rtol=1e-12, atol=1e-12 * np.abs(s.hi).max())
-    n_cells = int(np.prod(s.dims))
-    assert n_cells <= params.max_cells
-    target = params.density * len(tris)
-    if not s.capped:
-        # cells ~ density * triangles: each axis is rounded, so allow a factor 2 when every axis
-        # has a few cells, and only an upper bound for grids with 1-3 cells along some axis
-        assert n_cells <= max(8.0, 2.0 * target) * (1 + 1e-9), (n_cells, target)
-        ext = v.max(axis=0) - v.min(axis=0)
-        flat = ext <= 1e-9 * ext.max()
-        if ((s.dims >= 4) | flat).all():
-            assert n_cells >= target / 2.0, (n_cells, target)
-            # shaped: cells are about cubes along the axes that carry the resolution
-            c = s.cell[~flat]
-            assert c.max() <= 1.5 * c.min(), f"cells far from cubical: {s.cell} for dims {s.dims}"
-        assert (s.dims[flat] == 1).all(), "an axis of zero extent got more than one cell"
-    macro = params.macro
-    assert s.macro == macro
-    assert np.array_equal(s.mdims, -(-s.dims // macro))
-
-
-def check_layout(grid):
-    """CSR offsets are monotone, span tri_ids, and hold no duplicate (cell, tri) pair."""
-    cs = grid.cell_start.astype(np.int64)
-    C = grid.spec.n_cells
-    assert cs.shape == (grid.layers, C + 1)
-    assert (np.diff(cs, axis=1) >= 0).all()
-    total = int((cs[:, -1] - cs[:, 0]).sum())
-    assert total == grid.references
-    assert grid.stats["references"] == grid.references
-    assert grid.stats["cells"] == C
-    pairs = grid.pairs()
-    assert len(pairs) == grid.references, "a triangle is stored twice in one cell"
-    if len(pairs):
-        assert pairs[:, 1].min() >= 0 and pairs[:, 1].max() < grid.n_triangles
-    return pairs
-
-
-def check_macro(grid, pairs):
-    flags = R.ref_macro_flags(pairs, grid.spec.dims, grid.spec.macro)
-    got = np.asarray(grid.macro_full[: grid.spec.n_macro]).astype(bool)
-    bad = np.flatnonzero(got != flags)
-    assert len(bad) == 0, f"macro flags differ from the occupancy of their cells at macro cells {bad[:10]}"
 
 
 def check_against_reference(tris, params):
@@ -267,18 +217,6 @@ def _strategy_names():
     return names()
 
 
-def _check_pairs(grid, tris, mode, label):
-    s = grid.spec
-    fn = R.ref_pairs_bbox if mode == "bbox" else R.ref_pairs_exact
-    pairs = check_layout(grid)
-    missing, extra = R.compare_pairs(pairs, fn(tris, s.lo, s.cell, s.dims))
-    assert not missing and not extra, (
-        f"{label}: {len(missing)} pairs missing, {len(extra)} extra; first missing {missing[:5]}, "
-        f"first extra {extra[:5]}"
-    )
-    check_macro(grid, pairs)
-
-
 @pytest.mark.parametrize("threads", [1, 3])
 @pytest.mark.parametrize("strategy", _strategy_names())
 def test_every_strategy_equals_reference(strategy, threads):
@@ -365,7 +303,7 @@ def test_cell_ranges_equal_scalar_definition(F, threads):
     (0, 0, 0, -1, -1, -1) for a triangle of exactly zero area.  Random triangles, degenerate ones
     (repeated and collinear vertices), ones outside the grid on both sides (clamped), and vertices
     exactly on cell faces, where the EPS growth decides."""
-    from gridrt.grid.layout import INSERT_EPS
+    from gridrt.grid.layout import INSERT_EPS, GridBox
     from gridrt.grid.strategies.shared import cell_ranges
 
     def scalar_range(tri):
@@ -387,7 +325,7 @@ def test_cell_ranges_equal_scalar_definition(F, threads):
     t[::5, 1] = t[::5, 0]  # repeated vertex
     t[::7, 2] = 2 * t[::7, 1] - t[::7, 0]  # collinear (exact in float32 for these values or not: both paths agree)
     out = np.full((F, 6), 99, np.int32)
-    cell_ranges(t, lo, inv_cell, dims, threads, out)
+    cell_ranges(t, GridBox(lo, cell, inv_cell, dims, 1, dims), threads, out)
     want = np.array([scalar_range(t[f]) for f in range(F)], np.int32)
     assert np.array_equal(out, want)
     assert (want[::5, 3] == -1).all()  # the repeated-vertex triangles really are degenerate

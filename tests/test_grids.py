@@ -28,8 +28,8 @@ from gridrt.trace.traverse import MAILBOX, trace_grids
 def _dda(grids, origins, dirs, tmax, any_hit, out_w, out_f, out_t):
     mb = np.empty(MAILBOX, np.int32)
     for i in range(origins.shape[0]):
-        w, f, t, u, v, nc, nt = trace_grids(grids, origins[i, 0], origins[i, 1], origins[i, 2],
-                                            dirs[i, 0], dirs[i, 1], dirs[i, 2], 0.0, tmax[i], True, any_hit, mb)
+        w, f, t, u, v, nc, nt = trace_grids(grids, (origins[i, 0], origins[i, 1], origins[i, 2]),
+                                            (dirs[i, 0], dirs[i, 1], dirs[i, 2]), 0.0, tmax[i], True, any_hit, mb)
         out_w[i] = w
         out_f[i] = f
         out_t[i] = t
@@ -53,7 +53,7 @@ def _packets(grids, origins, dirs, tmax, any_hit, out_w, out_f, out_t):
             io[cgt.IO_DY * cgt.PN + j] = dirs[a + j, 1]
             io[cgt.IO_DZ * cgt.PN + j] = dirs[a + j, 2]
             io[cgt.IO_TMAX * cgt.PN + j] = tmax[a + j]
-        cgt.trace_packet_grids(grids, n, io, io2, 0.0, True, any_hit, S, mb, mb1, False)
+        cgt.trace_packet_grids(grids, n, io, io2, cgt.PacketQuery(0.0, True, any_hit, False), S, mb, mb1)
         for j in range(n):
             out_w[a + j] = int(io[cgt.IO_W * cgt.PN + j])
             out_f[a + j] = int(io[cgt.IO_F * cgt.PN + j])

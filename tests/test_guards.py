@@ -185,7 +185,7 @@ BOUNDARIES = {
         "internal: as image_width; tile_order writes each of the N rays' indices once into the (N,) buffer it "
         "allocates (a width and first column from image_width, checked there)",
         ["test_guard_cast_rays", "test_guard_cast_batch"]),
-    "gridrt.trace.cgt:cgt_render_serial": (
+    "gridrt.trace.cgt.frame:cgt_render_serial": (
         "internal: Renderer.render's one-thread CGT path (gridrt.trace.twin), called after its checks, with its "
         "buffers", ["test_guard_render", "test_stale_grid_is_refused"]),
     "gridrt.trace.render:Renderer.render": (

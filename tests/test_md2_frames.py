@@ -17,6 +17,7 @@ from gridrt.scene import KeyframeMesh, Md2Model, make_scene
 from gridrt.scene.frames import load_frame_folder
 
 from conftest import available, data_path
+from helpers.scene_files import GRID_F, grid_frame, write_md2, write_obj
 
 
 def need_data(rel):
@@ -31,28 +32,6 @@ def to_gridrt(v):
 
 
 # ----------------------------------------------------------------------------- MD2
-
-
-def write_md2(path, packed, scales, shifts, names, tris):
-    """packed (K, V, 3) uint8, scales/shifts (K, 3), names K strings, tris (F, 3) vertex indices."""
-    k, nv, _ = packed.shape
-    framesize = 40 + 4 * nv
-    ofs_skins = 68
-    ofs_st = ofs_skins
-    ofs_tris = ofs_st
-    ofs_frames = ofs_tris + 12 * len(tris)
-    ofs_glcmds = ofs_frames + k * framesize
-    ofs_end = ofs_glcmds
-    head = struct.pack("<4s16i", b"IDP2", 8, 64, 64, framesize, 0, nv, 0, len(tris), 0, k,
-                       ofs_skins, ofs_st, ofs_tris, ofs_frames, ofs_glcmds, ofs_end)
-    body = b"".join(struct.pack("<6H", *t, 0, 0, 0) for t in tris)
-    for f in range(k):
-        body += struct.pack("<3f3f16s", *scales[f], *shifts[f], names[f].encode())
-        rec = np.zeros((nv, 4), dtype=np.uint8)
-        rec[:, :3] = packed[f]
-        body += rec.tobytes()
-    path.write_bytes(head + body)
-    return path
 
 
 def decode_md2(path):
@@ -153,22 +132,6 @@ def check_real_md2(p, n_tris, n_frames):
 
 
 # ----------------------------------------------------------------------------- frame folders
-
-
-def write_obj(path, v, f):
-    lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in np.asarray(v, dtype=np.float64).tolist()]
-    lines += ["f " + " ".join(str(i + 1) for i in face) for face in f]
-    path.write_text("\n".join(lines) + "\n")
-
-
-GRID_F = np.array([[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4]])
-
-
-def grid_frame(k):
-    """A 2x3 vertex sheet; the right column (vertices 2 and 5) rises with k, the rest stays."""
-    v = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0], [1, 1, 0], [2, 1, 0]], dtype=np.float64)
-    v[[2, 5], 2] = 0.5 * k * k
-    return v
 
 
 def test_frame_folder(tmp_path):

@@ -169,7 +169,7 @@ def test_caster_estimate_matches_peak(dtypes):
     against tracemalloc's peak of its construction, from float32 vertices with int64 faces and
     float64 vertices with int32 faces."""
     from gridrt.api import MESH_FACE_BYTES, MESH_VERTEX_BYTES
-    from gridrt.grid.build import build_bytes
+    from gridrt.grid.buffers import build_bytes
 
     v, f = icosphere(5)
     v, f = v.astype(dtypes[0]), f.astype(dtypes[1])
@@ -237,7 +237,8 @@ def test_subdivide_estimate_matches_peak(kind):
 def test_grid_estimate_matches_peak(strategy):
     """build_bytes (cells, references, triangles, layers: read off the grid built) against
     tracemalloc's peak of a fresh GridBuilder's build, at three densities."""
-    from gridrt.grid.build import GridBuilder, build_bytes
+    from gridrt.grid.buffers import build_bytes
+    from gridrt.grid.build import GridBuilder
 
     tris = icosphere_tris(4)
     for density in (1.0, 4.0, 16.0):
@@ -256,7 +257,8 @@ def test_render_estimate_matches_peak(shading, shadows):
     """render_bytes against tracemalloc's peak of a fresh Renderer's frame over a plane that
     fills the view (every pixel a hit facing the light: the material pass casts a shadow ray a
     pixel, its most)."""
-    from gridrt.trace.render import Renderer, render_bytes
+    from gridrt.memory import render_bytes
+    from gridrt.trace.render import Renderer
 
     grid = gridrt.build_grid(PLANE)
     cam = gridrt.Camera(eye=(0, 0, 5), target=(0, 0, 0), fov=40)
@@ -274,10 +276,10 @@ def test_frame_estimate_matches_peak():
     """A FramePipeline's first frame of a static plane at 800x600: the render's estimate plus the
     grid's (build_bytes of the grid it built) and the scene's float32 triangles, against
     tracemalloc's peak of the step."""
-    from gridrt.grid.build import build_bytes
+    from gridrt.grid.buffers import build_bytes
     from gridrt.pipeline import FramePipeline
     from gridrt.scene import make_scene
-    from gridrt.trace.render import render_bytes
+    from gridrt.memory import render_bytes
 
     scene = make_scene("icosphere", count=20480)
     cam = gridrt.Camera(eye=(0, 0, 1.6), target=(0, 0, 0), fov=90)
@@ -337,7 +339,7 @@ def test_subdivide_refused_with_estimate_and_limit(monkeypatch):
     limit), and the next pass would not."""
     from gridrt.memory import human
     from gridrt.scene import make_scene
-    from gridrt.scene.mesh import load_mesh
+    from gridrt.scene.loader import load_mesh
     from gridrt.scene.subdivide import subdivide_bytes
 
     mesh = load_mesh(TEAPOT)
@@ -359,7 +361,7 @@ def test_subdivide_refused_with_estimate_and_limit(monkeypatch):
 def test_grid_refused_with_estimate_and_limit(monkeypatch):
     """A grid whose cell arrays, then one whose references, exceed the limit: refused before they
     are allocated, naming the cells or references, the bytes and the limit."""
-    from gridrt.grid.build import CELL_GROWTH, grown
+    from gridrt.grid.buffers import CELL_GROWTH, grown
 
     tris = icosphere_tris(3)
     limit_to(monkeypatch, 2_000_000)
@@ -380,10 +382,9 @@ def test_render_refused_with_estimate_and_limit(monkeypatch):
     """RenderParams of a size whose buffers exceed the limit (the pixel count it advises fits);
     Camera.rays likewise; a pipeline whose limit fell below its material pass with shadows is
     refused at its first step before the scene's grid is built."""
-    from gridrt.memory import human
+    from gridrt.memory import human, render_bytes
     from gridrt.pipeline import FramePipeline
     from gridrt.scene import make_scene
-    from gridrt.trace.render import render_bytes
 
     limit = 40_000_000
     limit_to(monkeypatch, limit)
@@ -503,7 +504,7 @@ def run_cli(argv, capsys):
 def test_cli_subdivide_refused(tmp_path, capsys, monkeypatch):
     """``gridrt dump --subdivide 100000000`` (the largest target): one line stating the estimate
     and the limit, exit 2, and under 64 MB allocated on the way (the refusal comes first)."""
-    from gridrt.scene.mesh import load_mesh
+    from gridrt.scene.loader import load_mesh
     from gridrt.scene.subdivide import subdivide_bytes
 
     monkeypatch.setattr(memory, "available", lambda: (8 * 10**9, "MemAvailable"))

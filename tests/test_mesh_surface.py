@@ -693,7 +693,7 @@ MUTANT_BYTES = [" ", "/", "//", "-", "0", "1", "9", "\n", "#", "\t", "x", "v", "
 
 
 def _same_parse(a, b):
-    from gridrt.scene.mesh import _ObjError
+    from gridrt.scene.obj import _ObjError
 
     np.testing.assert_array_equal(a.pos, b.pos)  # NaN-aware
     for name in ("vcount", "lens", "fv", "ft", "fn", "bases"):
@@ -719,7 +719,7 @@ def test_obj_readers_agree_on_mutants():
     from hypothesis import HealthCheck, given, settings
     from hypothesis import strategies as st
 
-    from gridrt.scene.mesh import _obj_parse_fast, _obj_parse_lines, _ObjError
+    from gridrt.scene.obj import _obj_parse_fast, _obj_parse_lines, _ObjError
 
     taken = []
 

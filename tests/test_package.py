@@ -38,7 +38,7 @@ def test_wheel_installs_only_gridrt(wheel):
     top = {n.split("/")[0] for n in names}
     assert {t for t in top if not t.endswith(".dist-info")} == {"gridrt"}, sorted(top)
     for want in ("gridrt/__init__.py", "gridrt/__main__.py", "gridrt/app/__main__.py", "gridrt/grid/build.py",
-                 "gridrt/trace/cgt.py", "gridrt/scene/gltf.py", "gridrt/shaders/blit.vert",
+                 "gridrt/trace/cgt/walk.py", "gridrt/scene/gltf.py", "gridrt/shaders/blit.vert",
                  "gridrt/shaders/blit.frag"):
         assert want in names, want
     entry = [n for n in names if n.endswith("entry_points.txt")]

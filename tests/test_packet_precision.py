@@ -38,23 +38,7 @@ from gridrt.grid import build_grid
 from gridrt.trace import cast_rays, cgt, render
 from gridrt.trace.grids import grid_arrays
 from gridrt.trace.traverse import MAILBOX
-from test_cgt import camera, grid_of
-
-#: float32 tolerances: t (relative), near-ties (relative), edges (barycentric)
-F32_T = 1e-5
-F32_TIE = 1e-5
-F32_GRAZE = 1e-5
-
-
-def check_f32(res, ref, label, max_grazing=0.01):
-    """A float32 render or cast against the brute force: nothing wrong beyond float32 rounding."""
-    t = res.t.reshape(-1).astype(np.float64)
-    tri = res.tri.reshape(-1)
-    diff = R.compare_hits(t, tri, ref, t_rtol=F32_T, tie_rtol=F32_TIE, graze_tol=F32_GRAZE)
-    assert len(diff.bad) == 0, (f"{label}: {len(diff.bad)} of {len(t)} rays differ from the brute force beyond "
-                                f"float32 rounding, first {diff.bad[:5]}")
-    assert len(diff.grazing) <= max_grazing * len(t) + 1, f"{label}: {len(diff.grazing)} grazing rays"
-    return diff
+from helpers.cgt import camera, check_f32, grid_of
 
 
 @pytest.mark.parametrize("watertight", [True, False])
@@ -134,8 +118,8 @@ def _packet(g, o, d, watertight=True, f32=True):
     for r, col in ((cgt.IO_OX, o[:, 0]), (cgt.IO_OY, o[:, 1]), (cgt.IO_OZ, o[:, 2]), (cgt.IO_DX, d[:, 0]),
                    (cgt.IO_DY, d[:, 1]), (cgt.IO_DZ, d[:, 2]), (cgt.IO_TMAX, np.full(n, np.inf))):
         io[r * cgt.PN : r * cgt.PN + n] = col
-    nf = cgt.trace_packet(g, n, io, 0.0, watertight, False, S, np.empty(cgt.MBOX, np.int32),
-                          np.empty(MAILBOX, np.int32), np.inf, None, f32)
+    nf = cgt.trace_packet(g, n, io, cgt.packet_query(0.0, watertight, False, f32), S, np.empty(cgt.MBOX, np.int32),
+                          np.empty(MAILBOX, np.int32), np.inf, None)
     return nf, io[cgt.IO_T * cgt.PN : cgt.IO_T * cgt.PN + n].copy(), io[cgt.IO_F * cgt.PN : cgt.IO_F * cgt.PN + n]
 
 
@@ -162,7 +146,7 @@ def test_f32_fallback_on_exact_edges():
     S32[cgt.F_BT : cgt.F_BT + n] = np.inf
     I32[cgt.F_BF : cgt.F_BF + n] = -1
     q = (tris[1] - o[0]).astype(np.float32)
-    hit, undecided = cgt._test_wt32(S32, I32, n, *q[0], *q[1], *q[2], np.int32(1), np.float32(0.0))
+    hit, undecided = cgt._test_wt32(S32, I32, n, tuple(q[0]), tuple(q[1]), tuple(q[2]), np.int32(1), np.float32(0.0))
     assert undecided == 1 and hit == 0
     # a packet from one eye at the shared corner and along the diagonal: every ray hits
     eye = np.array([0.3, 0.7, 1.5])

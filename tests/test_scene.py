@@ -31,10 +31,12 @@ from gridrt.scene import (
     subdivide_mesh,
 )
 from gridrt.scene import files as files_module
-from gridrt.scene import mesh as mesh_module
+from gridrt.scene import loader as loader_module
 from gridrt.scene.animation import as_static_mask
 
 from conftest import ASSETS, available, data_path
+from helpers.scene_files import (OCTA_F, OCTA_T, OCTA_V, ply_header, write_off, write_ply_ascii, write_ply_binary,
+                                 write_stl_ascii, write_stl_binary)
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -72,64 +74,10 @@ def need_data(rel):
     return data_path(rel, converted=True)
 
 
-# An anisotropic octahedron, off-centre; coordinates are exact in float32.
-OCTA_V = np.array(
-    [[1.5, 0.25, 0.5], [-0.5, 0.25, 0.5], [0.5, 1.75, 0.5], [0.5, -1.25, 0.5], [0.5, 0.25, 2.0], [0.5, 0.25, -1.0]],
-    dtype=np.float32,
-)
-OCTA_F = np.array(
-    [[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]], dtype=np.int32
-)
-OCTA_T = OCTA_V[OCTA_F]
-
-
 def write_obj(path, v, f):
     lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in v.tolist()]
     lines += ["f " + " ".join(str(i + 1) for i in face) for face in f]
     path.write_text("\n".join(lines) + "\n")
-
-
-def write_off(path, v, polys):
-    lines = ["OFF", f"{len(v)} {len(polys)} 0"]
-    lines += [f"{x!r} {y!r} {z!r}" for x, y, z in v.tolist()]
-    lines += [f"{len(p)} " + " ".join(map(str, p)) for p in polys]
-    path.write_text("\n".join(lines) + "\n")
-
-
-def ply_header(fmt, nv, nf):
-    return (
-        f"ply\nformat {fmt} 1.0\nelement vertex {nv}\nproperty float x\nproperty float y\nproperty float z\n"
-        f"element face {nf}\nproperty list uchar int vertex_indices\nend_header\n"
-    )
-
-
-def write_ply_ascii(path, v, f):
-    body = [f"{x!r} {y!r} {z!r}" for x, y, z in v.tolist()] + ["3 " + " ".join(map(str, face)) for face in f]
-    path.write_text(ply_header("ascii", len(v), len(f)) + "\n".join(body) + "\n")
-
-
-def write_ply_binary(path, v, f):
-    faces = np.zeros(len(f), dtype=[("n", "u1"), ("i", "<i4", (3,))])
-    faces["n"] = 3
-    faces["i"] = f
-    path.write_bytes(
-        ply_header("binary_little_endian", len(v), len(f)).encode() + v.astype("<f4").tobytes() + faces.tobytes()
-    )
-
-
-def write_stl_binary(path, tris):
-    rec = np.zeros(len(tris), dtype=[("n", "<f4", (3,)), ("v", "<f4", (3, 3)), ("a", "<u2")])
-    rec["v"] = tris
-    path.write_bytes(b"\0" * 80 + struct.pack("<I", len(tris)) + rec.tobytes())
-
-
-def write_stl_ascii(path, tris):
-    lines = ["solid test"]
-    for tri in tris.tolist():
-        lines += ["facet normal 0 0 0", "outer loop"]
-        lines += [f"vertex {x!r} {y!r} {z!r}" for x, y, z in tri]
-        lines += ["endloop", "endfacet"]
-    path.write_text("\n".join(lines + ["endsolid test"]) + "\n")
 
 
 def write_gltf(path, meshes, nodes, roots, extra=None):
@@ -337,7 +285,7 @@ def hide_dracopy(monkeypatch):
     import importlib.util
 
     real = importlib.util.find_spec
-    monkeypatch.setattr(mesh_module.importlib.util, "find_spec",
+    monkeypatch.setattr(loader_module.importlib.util, "find_spec",
                         lambda name, *a: None if name == "DracoPy" else real(name, *a))
 
 
@@ -982,10 +930,10 @@ def test_make_scene_builtins():
 
 
 def test_icosphere_count_beyond_the_largest_warns_with_the_count_made(monkeypatch):
-    """The icosphere caps at 20 x 4^9 triangles; a larger count once gave that silently."""
+    """The icosphere caps at 20 x 4^9 triangles; a larger count is capped with a warning that names the count made."""
     import warnings
 
-    import gridrt.scene as scene_module
+    from gridrt.scene import make as scene_module
 
     monkeypatch.setattr(scene_module, "_ICOSPHERE_MAX_SUBDIVISIONS", 2)  # a small cap keeps the test fast
     with pytest.warns(scene_module.SceneCountWarning) as caught:

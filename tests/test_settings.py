@@ -20,7 +20,7 @@ def _parser():
     p = argparse.ArgumentParser()
     cli.add_scene_args(p)
     cli.add_grid_args(p)
-    cli.add_render_args(p, default_size=(64, 48))
+    cli.add_render_args(p)
     return cli, p
 
 
@@ -28,7 +28,7 @@ def test_cli_defaults_are_the_dataclasses():
     cli, p = _parser()
     a = p.parse_args([])
     assert cli.grid_params(a) == GridParams()
-    assert cli.render_params(a) == RenderParams(width=64, height=48)
+    assert cli.render_params(a) == RenderParams()   # the image size included: one default size
     assert cli.scene_spec(a) == SceneSpec()
     assert RenderParams().traversal == "cgt"  # the Pareto choice (BENCHMARKS.md section 6)
     from gridrt.camera import Camera
@@ -40,13 +40,13 @@ def test_cli_defaults_are_the_dataclasses():
                       "--scene", "icosphere", "--count", "320", "--clip", "2", "--seed", "7"])
     assert cli.grid_params(a) == GridParams(strategy="sort_middle", density=2.5, macro=3, insert="exact",
                                             max_cells=5000)
-    assert cli.render_params(a) == RenderParams(width=64, height=48, traversal="dda", shading="normal",
+    assert cli.render_params(a) == RenderParams(traversal="dda", shading="normal",
                                                 watertight=False)
     assert cli.scene_spec(a) == SceneSpec(source="icosphere", count=320, clip=2, seed=7)
 
 
 def test_one_scene_spec_everywhere():
-    from gridrt.app.bench.util import resolve_scene, scene_spec
+    from gridrt.app.bench.scenes import resolve_scene, scene_spec
     from gridrt.app.viewer import state
 
     assert state.SceneSpec is SceneSpec

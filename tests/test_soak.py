@@ -43,7 +43,7 @@ from gridrt.grid import GridBuilder, build_grid, names
 from gridrt.pipeline import FramePipeline
 from gridrt.scene import make_scene
 from gridrt.trace import cast_rays
-from test_watertight import (ROW_WIDTH, ProbeMesh, add_counts, cgt_report, edge_probes, face_normals, packet_counts,
+from helpers.watertight import (ROW_WIDTH, ProbeMesh, add_counts, cgt_report, edge_probes, face_normals, packet_counts,
                              row_counts)
 
 DRAGON = "static/stanford_dragon/dragon.obj"
@@ -141,7 +141,7 @@ def test_watertight_probes_soak(relpath):
 
 def cgt_probe(relpath, n_rays, n_row_rays):
     """Packet probes until n_rays were traced as packets, camera rows until n_row_rays, in
-    batches of about BATCH rays; one FIGURE line (test_watertight.cgt_report checks it)."""
+    batches of about BATCH rays; one FIGURE line (helpers.watertight.cgt_report checks it)."""
     m = ProbeMesh(*load_mesh_arrays(relpath))
     grid = GridBuilder(GridParams(threads=2, density=4.0)).build(m.tris)
     rng = np.random.default_rng(2024)

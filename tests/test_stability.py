@@ -356,8 +356,8 @@ def test_flat_scene_two_and_three_axes():
 
 def test_zero_area_triangle_never_hit():
     """Rays aimed exactly at points of zero-area triangles (three distinct collinear vertices)
-    must miss them: such a triangle has no surface (the brute force: determinant 0).  Regression
-    test (1280 of these 4000 rays used to hit)."""
+    must miss them: such a triangle has no surface (the brute force: determinant 0); a test that
+    accepts a zero determinant hits 1280 of these 4000 rays."""
     rng = np.random.default_rng(215)
     n = 40
     line = np.zeros((n, 3, 3), np.float32)
@@ -813,8 +813,8 @@ def test_direction_magnitudes(unit_case, mag):
 @pytest.mark.parametrize("mag", [5e-301, 1e-305, 1e-307])
 def test_direction_magnitudes_below_tiny_dir(unit_case, mag):
     """|d| below 1e-300 in every component: a valid (non-zero) direction; hits at t ~ 1 / mag
-    are representable, so they must equal the brute force (regression test:
-    these rays used to miss)."""
+    are representable, so they must equal the brute force (a DDA that treats such a direction
+    as zero misses them)."""
     tris, grid, o, d, h1 = unit_case
     du = (d / np.linalg.norm(d, axis=1, keepdims=True))[:3000]
     cast_and_compare(f"|d| = {mag:g}", grid, tris, o[:3000], du * mag, ref=scaled_ref(tris, o[:3000], du, mag))

@@ -9,27 +9,34 @@ offsets and counts consistent, the macro-cell flags equal.  Serial itself is che
 every strategy equals the reference.
 
 Lost updates: many triangles crowded into eight cells, built with 8 and 16 threads again and
-again, must give the exact counts for every registered strategy; the same check run on an
-intentionally unsynchronized insert (below) must catch it losing updates.
+again, must give the exact counts for every registered strategy; the same check must catch the
+references an unsynchronized insert loses (one interleaving of threads' writes, replayed), and
+global_lock's count pass must wait while another thread holds its lock.
 """
 
+import csv
 import os
+import sys
+import threading
 import time
 
+import numba
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from numba import njit, prange
+from numba import njit
+from PIL import Image
 
 from conftest import BUNNY, TEAPOT, load_tris, random_scene
 from gridrt.camera import Camera
 from gridrt.config import GridParams, RenderParams
 from gridrt.errors import InputError
 from gridrt.grid import GridBuilder, get_builder, names
-from gridrt.grid.build import GridBuffers, make_spec
-from gridrt.grid.strategies.base import Strategy
-from gridrt.grid.strategies.shared import parallel_scan, part, ranges
+from gridrt.grid.buffers import GridBuffers
+from gridrt.grid.build import make_spec
+from gridrt.grid.strategies import sort_last_locks
+from gridrt.scene import make_scene
 from gridrt.threads import max_threads, use_threads
 from gridrt.trace import render
 
@@ -156,8 +163,6 @@ def test_registry_names_and_unknown_name():
 
 
 def test_strategy_modules_cite_their_source():
-    import sys
-
     for n in STRATEGIES:
         doc = sys.modules[get_builder(n).__module__].__doc__ or ""
         assert "Ize" in doc or "Lagae" in doc, f"strategy {n}: module docstring cites no source"
@@ -306,8 +311,6 @@ def test_animated_scene_switching_every_frame():
     """One GridBuilder, one animated scene; every frame a different strategy, thread count and
     insertion test (so layer counts change between frames and the clear must cope).  Each grid
     equals a fresh serial build of the same frame, and renders the same image."""
-    from gridrt.scene import make_scene
-
     scene = make_scene("marbles", count=1400, seed=7)
     builder = GridBuilder(GridParams())
     rp = RenderParams(width=40, height=30, threads=2, traversal="dda")
@@ -366,15 +369,15 @@ def expected_counts(tris, spec):
     return out
 
 
-def insert_direct(strategy, tris, spec, threads):
-    """Run only ``strategy.insert`` on fresh buffers; returns (counts (C,), sorted pairs (P,2),
-    references).  Works for unregistered strategies (the racy one below)."""
+def insert_direct(strategy, tris, spec, threads, times=None):
+    """Run only ``strategy.insert`` on fresh buffers (its stage times and counters go to
+    ``times``); returns (counts (C,), sorted pairs (P,2), references)."""
     L = strategy.layers(threads)
     bufs = GridBuffers()
     bufs.prepare(spec, L)
     bufs.set_views(spec, L)
     use_threads(threads)
-    refs = strategy.insert(tris, spec, bufs, threads, False, {})
+    refs = strategy.insert(tris, spec, bufs, threads, False, {} if times is None else times)
     C = spec.n_cells
     start = bufs.start.astype(np.int64)
     counts = bufs.count.sum(axis=0).astype(np.int64)
@@ -382,7 +385,7 @@ def insert_direct(strategy, tris, spec, threads):
     cells, ids = [], []
     for l in range(L):
         for c in range(C):
-            # clipped: an unsynchronized insert may leave offsets out of order or out of range
+            # clipped: a wrong insert may leave offsets out of order or out of range
             a = min(max(int(start[l, c]), 0), R_)
             b = min(max(int(start[l, c + 1]), a), R_)
             ids.append(bufs.ref_buffer[a:b])
@@ -404,52 +407,40 @@ def lost_updates(result, want_counts, want_pairs):
     return bad
 
 
-@njit(parallel=True)
-def _racy_count(rng, dims, n_threads, count):
-    F = rng.shape[0]
-    nx = dims[0]
-    nxy = dims[0] * dims[1]
-    for t in prange(n_threads):
-        for f in range(part(F, t, n_threads), part(F, t + 1, n_threads)):
-            i0, j0, k0, i1, j1, k1 = rng[f, 0], rng[f, 1], rng[f, 2], rng[f, 3], rng[f, 4], rng[f, 5]
-            for k in range(k0, k1 + 1):
-                for j in range(j0, j1 + 1):
-                    for i in range(i0, i1 + 1):
-                        count[k * nxy + j * nx + i] += 1  # unsynchronized read-modify-write
+def interleaved(want_pairs, n_tris, n_cells, threads, stale):
+    """What an unsynchronized insert leaves when ``threads`` threads (thread t inserting the t-th
+    block of triangles, as every strategy splits them) update the same cells at the same moment,
+    made from the correct pairs ``want_pairs`` (P, 2) by replaying one interleaving:
 
+    * ``"count"``: every thread reads a cell's count before the other threads' writes land, so
+      the last thread's write wins and the cell keeps only that thread's references;
+    * ``"slot"``: two threads claim the same slot of one cell, and the later one's triangle id
+      overwrites the earlier one's: the counts stay right, one reference is lost and another is
+      stored twice.
 
-@njit(parallel=True)
-def _racy_scatter(rng, dims, n_threads, start, tri_ids):
-    F = rng.shape[0]
-    R_ = tri_ids.shape[0]
-    nx = dims[0]
-    nxy = dims[0] * dims[1]
-    for t in prange(n_threads):
-        for f in range(part(F, t, n_threads), part(F, t + 1, n_threads)):
-            i0, j0, k0, i1, j1, k1 = rng[f, 0], rng[f, 1], rng[f, 2], rng[f, 3], rng[f, 4], rng[f, 5]
-            for k in range(k0, k1 + 1):
-                for j in range(j0, j1 + 1):
-                    for i in range(i0, i1 + 1):
-                        c = k * nxy + j * nx + i
-                        p = start[c] - 1
-                        start[c] = p
-                        if 0 <= p < R_:  # lost updates may push slots out of range: drop them
-                            tri_ids[p] = f
-
-
-class RacyInsert(Strategy):
-    """Sort-last into one shared grid with NO synchronization: the negative control."""
-
-    name = "racy (test only)"
-
-    def insert(self, tris, spec, bufs, threads, exact, times):
-        count = bufs.count[0]
-        start = bufs.start[0]
-        rng = ranges(tris, spec, bufs, threads, times)  # the engine's (tested) cell-range pass
-        _racy_count(rng, spec.dims, threads, count)
-        refs = parallel_scan(count, start, threads)
-        _racy_scatter(rng, spec.dims, threads, start, bufs.refs(refs))
-        return refs
+    Returns (counts, sorted pairs, references) as :func:`insert_direct` gives them, and how many
+    references the interleaving lost."""
+    cells, ids = want_pairs[:, 0], want_pairs[:, 1]
+    bounds = np.array([t * n_tris // threads for t in range(threads)])
+    owner = np.searchsorted(bounds, ids, side="right") - 1
+    last = np.full(n_cells, -1)
+    np.maximum.at(last, cells, owner)
+    first = np.full(n_cells, threads)
+    np.minimum.at(first, cells, owner)
+    if stale == "count":
+        keep = owner == last[cells]
+        pairs = want_pairs[keep]
+        lost = int((~keep).sum())
+    else:
+        shared = np.flatnonzero(first < last)[0]  # a cell two threads write
+        pairs = want_pairs.copy()
+        early = np.flatnonzero((cells == shared) & (owner == first[shared]))[0]
+        late = np.flatnonzero((cells == shared) & (owner == last[shared]))[0]
+        pairs[early, 1] = pairs[late, 1]
+        lost = 1
+    counts = np.bincount(pairs[:, 0], minlength=n_cells).astype(np.int64)
+    order = np.lexsort((pairs[:, 1], pairs[:, 0]))
+    return (counts, pairs[order], int(counts.sum())), lost
 
 
 @pytest.fixture(scope="module")
@@ -464,23 +455,11 @@ def crowded():
     return tris, spec, want, serial[1]
 
 
-@pytest.mark.parametrize("strategy", STRATEGIES + [pytest.param("racy", id="racy-negative-control")])
+@pytest.mark.parametrize("strategy", STRATEGIES)
 def test_lost_updates_crowded(strategy, crowded):
     """Every registered strategy builds the crowded scene exactly, at 8 and 16 threads, every
-    time.  The negative control (an unsynchronized insert) must be caught losing updates by the
-    same check: the race needs two threads on the cores at the same moment, which on a loaded
-    2-core machine can take some tries, so it tries for up to 30 s and skips (with the reason)
-    only if no loss was ever seen."""
+    time."""
     tris, spec, want, want_pairs = crowded
-    if strategy == "racy":
-        deadline = time.perf_counter() + 30.0
-        tries = 0
-        while time.perf_counter() < deadline:
-            for T in (8, 2, 16):
-                tries += 1
-                if lost_updates(insert_direct(RacyInsert(), tris, spec, T), want, want_pairs) > 0:
-                    return
-        pytest.skip(f"no lost update seen in {tries} unsynchronized builds on {CORES} cores (machine too quiet/busy)")
     reps = 3 if strategy == "global_lock" else 6
     for T in (8, 16):
         for r in range(reps):
@@ -488,33 +467,71 @@ def test_lost_updates_crowded(strategy, crowded):
             assert lost_updates(res, want, want_pairs) == 0, f"{strategy} T={T} rep {r}: lost or duplicated references"
 
 
-def test_global_lock_really_contends(crowded):
-    """The spin locks are real: with 8 threads on one lock some thread finds it held."""
+@pytest.mark.parametrize("stale", ["count", "slot"])
+@pytest.mark.parametrize("threads", [2, 8])
+def test_lost_update_check_catches_interleaved_writes(stale, threads, crowded):
+    """The negative control: the check that every strategy passes above catches what an
+    unsynchronized insert leaves (one interleaving of its threads' writes replayed on the
+    correct pairs, so the loss is there every run): stale counts, and a slot claimed twice."""
     tris, spec, want, want_pairs = crowded
-    deadline = time.perf_counter() + 20.0
-    while time.perf_counter() < deadline:
-        times = {}
-        bufs = GridBuffers()
-        bufs.prepare(spec, 1)
-        bufs.set_views(spec, 1)
-        use_threads(8)
-        get_builder("global_lock")().insert(tris, spec, bufs, 8, False, times)
-        if times["lock_waits"] > 0:
-            return
-    pytest.skip("no lock contention observed in 20 s (threads never overlapped)")
+    result, lost = interleaved(want_pairs, len(tris), spec.n_cells, threads, stale)
+    assert lost > 0 and len(result[1]) == len(want_pairs) - (lost if stale == "count" else 0)
+    assert lost_updates(result, want, want_pairs) >= lost, f"{stale} x{threads}: {lost} lost references not seen"
+
+
+#: CPU time (of this process: the kernel's threads spinning) the count pass gets while the lock is held
+HELD_CPU_S = 0.5
+
+_real_count_locked = sort_last_locks.count_locked
+
+
+@njit(nogil=True)
+def _count_locked_nogil(args):
+    _real_count_locked(*args)
+
+
+def test_global_lock_excludes_and_reports_waits(crowded, monkeypatch):
+    """global_lock's count pass takes the one lock around every update.  While another thread
+    holds the lock, the pass (run without the GIL in a second thread) changes no count and does
+    not finish, whatever CPU time its threads spend spinning (the wait ends on
+    :data:`HELD_CPU_S` of CPU time, not on a clock); released, it finishes with the exact counts,
+    and the build reports the failed looks at the held lock as ``lock_waits``."""
+    tris, spec, want, want_pairs = crowded
+    seen = {}
+
+    def count_while_held(*args):
+        locks, count = args[-3], args[-2]  # the kernel takes (..., locks, count, waits)
+        _count_locked_nogil.compile((numba.typeof(args),))
+        locks[:] = 1  # another thread holds the lock
+        done = threading.Event()
+        worker = threading.Thread(target=lambda: (_count_locked_nogil(args), done.set()), daemon=True)
+        cpu0 = time.process_time()
+        stuck = time.monotonic() + 600.0  # only against a hang: the wait below ends on CPU time
+        worker.start()
+        while not done.is_set() and time.process_time() - cpu0 < HELD_CPU_S and time.monotonic() < stuck:
+            done.wait(0.01)
+        seen["spun_s"] = time.process_time() - cpu0
+        seen["finished_while_held"] = done.is_set()
+        seen["counted_while_held"] = int(count.sum())
+        locks[:] = 0
+        worker.join()
+
+    monkeypatch.setattr(sort_last_locks, "count_locked", count_while_held)
+    times = {}
+    result = insert_direct(get_builder("global_lock")(), tris, spec, 8, times)
+    assert not seen["finished_while_held"], "the count pass finished while another thread held the lock"
+    assert seen["counted_while_held"] == 0, "the count pass counted while another thread held the lock"
+    assert seen["spun_s"] >= HELD_CPU_S, "the count pass's threads never ran while the lock was held"
+    assert lost_updates(result, want, want_pairs) == 0, "lost or duplicated references"
+    assert times["lock_waits"] > 0, "the build reports no wait although the lock was held"
 
 
 # ----------------------------------------------------------------------------------------------
-# the benchmark sweep (gridrt.app.bench.sweep, behind `gridrt bench build`)
+# the benchmark sweep (gridrt.app.bench.build, behind `gridrt bench build`)
 
 
 def test_build_sweep_writes_rows_csv_and_plots(tmp_path):
-    import csv
-
-    from PIL import Image
-
-    from gridrt.app.bench.sweep import run_build_sweep
-    from gridrt.scene import make_scene
+    from gridrt.app.bench.build import run_build_sweep  # deferred: the benchmark app (tqdm, the cluster code)
 
     scenes = {
         "marbles": make_scene("marbles", count=700, seed=1),
@@ -545,7 +562,7 @@ def test_build_sweep_writes_rows_csv_and_plots(tmp_path):
 
 
 def test_build_sweep_rejects_bad_arguments(tmp_path):
-    from gridrt.app.bench.sweep import run_build_sweep
+    from gridrt.app.bench.build import run_build_sweep  # deferred: the benchmark app (tqdm, the cluster code)
 
     tris = random_scene(np.random.default_rng(9), 20)
     with pytest.raises(InputError, match="unknown build strategy"):

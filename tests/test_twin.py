@@ -27,19 +27,21 @@ from gridrt.camera import Camera
 from gridrt.config import RenderParams
 from gridrt.grid import build_grid
 from gridrt.trace.grids import grid_arrays
+from gridrt.trace.records import Buffers, make_packets, make_shading, make_view
 from gridrt.trace.cgt import cgt_render_kernel, cgt_render_serial
 from gridrt.trace.render import render_kernel, render_serial
 from gridrt.trace.twin import TWINS, Twins, parallel_first
 
 
 
-def _args(grids, camera, W, H, shading=0, light=None, off=1e-6, f32=None):
-    """Render kernel arguments; f32 (True / False: the CGT kernels' packet precision, after
-    watertight) or None (the DDA kernels)."""
-    bufs = (np.zeros((H, W, 4), np.uint8), np.zeros((H, W), np.float32), np.zeros((H, W), np.int32),
-            np.zeros((H, W), np.int32), np.zeros((H, W), np.int32))
-    prec = () if f32 is None else (f32, 8, 8)  # (and the packet shape)
-    return (grids, camera.basis(), W, H, 16, shading, light is not None, light, off, True) + prec + bufs
+def _args(grids, camera, W, H, shadows, shading=0, light=None, off=1e-6, f32=None):
+    """Render kernel arguments (gridrt.trace.records), the buffers last; f32 (True / False: the
+    CGT kernels' packet precision, with the packet shape) or None (the DDA kernels)."""
+    bufs = Buffers(np.zeros((H, W, 4), np.uint8), np.zeros((H, W), np.float32), np.zeros((H, W), np.int32),
+                   np.zeros((H, W), np.int32), np.zeros((H, W), np.int32))
+    prec = () if f32 is None else (make_packets(f32, 8, 8),)
+    looks = make_shading(shading, shadows, off, True)
+    return (grids, make_view(camera.basis(), W, H, 16), looks, light) + prec + (bufs,)
 
 
 def _scene():
@@ -65,21 +67,17 @@ def test_serial_twin_equals_parallel_kernel(traversal, shadows):
     if traversal == "dda" and light is None:
         light = np.zeros(3)  # the DDA kernel takes the light as an array and `shadows` as the switch
     f32 = False if traversal == "cgt" else None
-    nb = 10 if f32 is None else 13  # where the buffers start
     for grids in (one, two):
-        a = _args(grids, cam, W, H, light=light, f32=f32)
-        if traversal == "dda":
-            a = a[:6] + (shadows,) + a[7:]
+        a = _args(grids, cam, W, H, shadows, light=light, f32=f32)
         ref = serial(*a)
-        ref_bufs = [b.copy() for b in a[nb:]]
+        ref_bufs = [b.copy() for b in a[-1]]
         for threads in (2, 3):
             from gridrt.threads import use_threads
 
             use_threads(threads)
-            b = _args(grids, cam, W, H, light=light, f32=f32)
-            b = b[:6] + a[6:7] + b[7:]
+            b = _args(grids, cam, W, H, shadows, light=light, f32=f32)
             out = parallel(*b)
-            for x, y in zip(ref_bufs, b[nb:]):
+            for x, y in zip(ref_bufs, b[-1]):
                 np.testing.assert_array_equal(x, y)
             if traversal == "cgt":
                 np.testing.assert_array_equal(ref, out)

@@ -22,8 +22,8 @@ kinds from frame to frame, and GridParams(grid="auto") (its choice against the d
 crowding, computed from the reference's top level).
 
 Build threads: the contents are checked for 1-4 build threads (a multi-threaded case builds
-several frames, since a race shows on some builds only: the first version of the leaf scatter
-pass had one, fixed in fa71c6f); the other tests build on the default thread count.
+several frames, since a race shows on some builds only, such as a leaf scatter that lets two
+threads write the first leaf cell of a chunk); the other tests build on the default thread count.
 """
 
 import os
@@ -45,13 +45,12 @@ from gridrt.config import GridParams, RenderParams
 from gridrt.errors import InputError
 from gridrt.grid import GridBuilder, build_grid, names
 from gridrt.trace import cast_rays, render
-from test_grid_reference import _check_pairs, check_spec
-from test_cgt import assert_same, render_both
-from test_cgt import camera as cgt_camera
-from test_cgt import scene as cgt_scene
-from test_packet_precision import check_f32
-from test_rays import GRAZE, _hard_rays, assert_hits_match, get_case
-from test_watertight import (REL, ProbeMesh, add_counts, edge_probes, face_normals, origins_in_front, packet_counts,
+from helpers.grids import _check_pairs, check_spec
+from helpers.cgt import assert_same, check_f32, render_both
+from helpers.cgt import camera as cgt_camera
+from helpers.cgt import scene as cgt_scene
+from helpers.rays import GRAZE, _hard_rays, assert_hits_match, get_case
+from helpers.watertight import (REL, ProbeMesh, add_counts, edge_probes, face_normals, origins_in_front, packet_counts,
                              row_counts, shoot, targets_and_fans)
 
 STRATEGIES = names()
@@ -99,7 +98,7 @@ def uneven_scene():
     """:func:`uneven_base` plus one tiny triangle in the lowest corner of every top cell of its
     default two-level grid, so every top cell, and the first leaf cell of each, holds something
     (wherever a parallel pass splits the top cells into chunks, the first leaf cell of a chunk is
-    written: where 301cb5a's leaf scatter race showed).  The corner triangles are placed after a
+    written: where a racy leaf scatter shows).  The corner triangles are placed after a
     build with as many placeholders, so the scene's bounds and triangle count, hence its top-level
     geometry, do not change."""
     if "uneven" not in _SCENES:

@@ -151,12 +151,13 @@ def test_gltf_image_outside_dropped_unless_trusted(tmp_path, route):
 def test_load_mesh_gltf_through_trimesh(tmp_path, monkeypatch):
     """load_mesh reads a glTF with trimesh: its buffers are refused as make_scene's, and trimesh
     reads no image outside the folder (nor one that is not a regular file)."""
-    from gridrt.scene import files, load_mesh
+    from gridrt.scene import files, load_mesh, loader
 
     scene, out = layout(tmp_path)
     read = []
     real = files.read_regular
-    monkeypatch.setattr(files, "read_regular", lambda p, limit=None: read.append(Path(p).name) or real(p, limit))
+    # the loader's resolver (the one trimesh asks for every file) reads through its own name
+    monkeypatch.setattr(loader, "read_regular", lambda p, limit=None: read.append(Path(p).name) or real(p, limit))
     assert load_mesh(write_gltf(scene / "a.gltf", image_uri="../out/tex.png")).n_triangles == 1
     assert read == ["tri.bin"]
     with pytest.raises(SceneFileError, match=f"buffer 0 '../out/tri.bin' leads {OUTSIDE}"):
@@ -529,6 +530,7 @@ def test_cli_flag_and_viewer_state_carry_the_trust():
 
     from gridrt.app import cli
     from gridrt.app.viewer.state import ViewerState
+    from gridrt.frame import FrameSpec
 
     p = argparse.ArgumentParser()
     cli.add_scene_args(p)
@@ -536,8 +538,8 @@ def test_cli_flag_and_viewer_state_carry_the_trust():
     spec = cli.scene_spec(p.parse_args(["--scene", "x.gltf", FLAG]))
     assert spec.allow_outside is True
     # the viewer's file box starts trusted when the command line's scene is (view --allow-outside-refs)
-    assert ViewerState(scene=spec).file_allow_outside is True
-    assert ViewerState(scene=spec.replace(allow_outside=False)).file_allow_outside is False
+    assert ViewerState(spec=FrameSpec(scene=spec)).file_allow_outside is True
+    assert ViewerState(spec=FrameSpec(scene=spec.replace(allow_outside=False))).file_allow_outside is False
 
 
 class _FakeGlfw:

@@ -53,7 +53,7 @@ S = np.zeros(cgt.NS * cgt.PN)
 S32 = S[cgt.O_F32:].view(np.float32)
 I32 = S[cgt.O_F32:].view(np.int32)
 q = [np.float32(x) for x in range(9)]
-cgt._test_wt32(S32, I32, 40, *q, np.int32(1), np.float32(0.0))
+cgt._test_wt32(S32, I32, 40, tuple(q[0:3]), tuple(q[3:6]), tuple(q[6:9]), np.int32(1), np.float32(0.0))
 asm = cgt._test_wt32.inspect_asm(cgt._test_wt32.signatures[0])
 ops = re.findall(r"^\s+(v(?:sub|mul|add)ps)\s+([^\n]*)", asm, re.M)
 print(json.dumps({"features": config.CPU_FEATURES or "", "zmm_ps": sum("zmm" in a for _, a in ops),

@@ -15,12 +15,14 @@ import numpy as np
 
 import gridrt  # noqa: F401
 from gridrt.config import GridParams, RenderParams
+from gridrt.frame import FrameSpec, ViewSpec
 from gridrt.pipeline import FramePipeline
 
-from .util import (
-    check_runs, finish_machine, fmt_ms, machine_info, md_table, out_dir, progress, put_stat, resolve_scene,
-    scene_list, thread_list, write_csv, write_json, write_summary,
-)
+from .machine import finish_machine, machine_info
+from .options import check_runs, thread_list
+from .output import md_table, out_dir, progress, write_csv, write_json, write_summary
+from .scenes import resolve_scene, scene_list
+from .stats import fmt_ms, put_stat
 
 LOOKS_SCENES = ["kitchen", "cesium", "tokyo"]
 LOOKS_FALLBACK = ["cesium_man", "museum"]
@@ -54,11 +56,14 @@ def memory(scene):
 
 
 def measure(sc, size, threads, runs, warmup, traversal):
-    """Rows (one per mode) of one scene at one thread count."""
+    """Rows (one per mode) of one scene at one thread count: each mode's FrameSpec (the scene's own
+    camera followed, frame 0) rendered by its pipeline."""
     pipes = {}
     for mode, shadows in MODES:
         rp = RenderParams(size, size, shading=mode, shadows=shadows, threads=threads, traversal=traversal)
-        pipes[(mode, shadows)] = FramePipeline(sc.scene, GridParams(threads=threads), rp, follow_camera=True)
+        spec = FrameSpec(scene=sc.spec, grid=GridParams(threads=threads), render=rp,
+                         view=ViewSpec(size=(size, size), follow_camera=True))
+        pipes[(mode, shadows)] = FramePipeline.from_spec(spec, sc.scene)
     for _ in range(warmup):
         for p in pipes.values():
             p.step(0.0)

@@ -16,18 +16,18 @@ from numba import njit
 
 import gridrt  # noqa: F401
 from gridrt.config import PACKET_PRECISIONS, GridParams, RenderParams
+from gridrt.errors import InputError
 from gridrt.grid.build import GridBuilder
 from gridrt.trace import cgt
 from gridrt.trace.grids import grid_arrays
 from gridrt.trace.render import Renderer
 from gridrt.trace.traverse import MAILBOX
 
-from .main import timings
-from .peers import _camera_rays
-from .util import (
-    check_runs, finish_machine, machine_info, md_table, out_dir, progress, resolve_scene, scene_list, write_csv,
-    write_json, write_summary,
-)
+from .machine import finish_machine, machine_info
+from .options import check_runs
+from .output import md_table, out_dir, progress, write_csv, write_json, write_summary
+from .scenes import camera_rays, resolve_scene, scene_list
+from .stats import timings
 
 PACKET_SCENES = ["lucy:twist", "icosphere:1310720:twist"]
 PACKET_FALLBACK = ["icosphere:81920:twist", "icosphere:1310720:twist"]
@@ -75,7 +75,7 @@ def profile_frame(g, basis, W, H, prof, f32):
                     t = cgt._now(prof)
                     cgt._camera_rays(basis, W, H, px0, py0, pw, ph, io)
                     cgt._lap(prof, cgt.P_RAYS, t)
-                    cgt.trace_packet(g, n, io, 0.0, True, False, S, mb, mb1, np.inf, prof, f32)
+                    cgt.trace_packet(g, n, io, cgt.PacketQuery(0.0, True, False, f32), S, mb, mb1, np.inf, prof)
                     for j in range(n):
                         hits += io[cgt.IO_F * PN + j] >= 0.0
     return hits
@@ -83,7 +83,7 @@ def profile_frame(g, basis, W, H, prof, f32):
 
 def measure(sc, size, view, runs, warmup, precision="float64"):
     """One scene and view: a row of times (ms medians) and the per-phase split."""
-    origin, cam, *_ = _camera_rays(sc, size, fill=view == "fill")
+    origin, cam, *_ = camera_rays(sc, size, fill=view == "fill")
     tris = np.ascontiguousarray(sc.scene.triangles_at(0.0, origin=origin), np.float32)
     grid = GridBuilder(GridParams(threads=1)).build(tris)
     g = grid_arrays(grid, tris)
@@ -117,8 +117,6 @@ def measure(sc, size, view, runs, warmup, precision="float64"):
 
 def run_packets(a):
     check_runs(a.runs, a.warmup)
-    from gridrt.errors import InputError
-
     views = [v.strip() for v in a.views.split(",") if v.strip()]
     for v in views:
         if v not in ("frame", "fill"):

@@ -44,11 +44,12 @@ from gridrt.trace.render import Renderer, cast_rays
 
 from ..cli import add_packet_args
 
-from .util import (
-    Affinity, add_grid_kind_args, check_frame_args, figure, finish_machine, fmt_ms, grid_columns, grid_kinds, grid_label,
-    machine_info, md_table, out_dir, progress, put_stat, resolve_scene, scene_camera, scene_list, scenes_help,
-    thread_list, write_csv, write_json, write_summary,
-)
+from .affinity import Affinity
+from .machine import finish_machine, machine_info
+from .options import add_dt_arg, add_grid_kind_args, check_frame_args, frame_strategy, grid_kinds, thread_list
+from .output import figure, grid_columns, grid_label, md_table, out_dir, progress, write_csv, write_json, write_summary
+from .scenes import FILL, camera_rays, resolve_scene, scene_list, scenes_help
+from .stats import fmt_ms, put_stat
 from .reference import brute_cast
 from .sides import (  # noqa: F401  (INSTALL_HINT)
     INSTALL_HINT, EmbreeFastSide, EmbreeRobustSide, EmbreeSide, MissingPeer, MitsubaSide, Open3DSide,
@@ -63,8 +64,6 @@ PEER_FALLBACK = ["marbles", "icosphere:20480:twist", "icosphere:81920:twist", "i
 HAVE_CGT = "cgt" in TRAVERSALS
 #: the ray sets (--views)
 VIEWS = ("frame", "fill", "random")
-#: the hit fraction a "fill" view reaches at least
-FILL = 0.9
 #: relative t tolerance of hit agreement
 T_REL = 1e-4
 #: disagreeing rays checked against brute force, at most
@@ -82,7 +81,7 @@ def add_parser(bsub, common):
                    help="gridrt build strategy (default auto: serial at 1 thread, sort_middle above)")
     p.add_argument("--embree-fast", action="store_true",
                    help="Embree without RTC_SCENE_FLAG_ROBUST (default robust, like gridrt's watertight test)")
-    p.add_argument("--dt", type=float, default=1.0 / 30.0, help="seconds between frames (default 1/30)")
+    add_dt_arg(p)
     p.add_argument("--views", default=",".join(VIEWS),
                    help="ray sets, comma-separated: frame (the scene's camera, or one framing its bounds), fill "
                         f"(that camera moved in until at least {100 * FILL:.0f}%% of the pixels hit: a sparse view flatters "
@@ -156,8 +155,6 @@ def run_peers(a):
         info[peer.name] = peer.version
     if note:
         print(f"note: {note}", file=sys.stderr)
-    from .main import frame_strategy
-
     scenes = [resolve_scene(s) for s in specs]
     rows = []
     bar = progress(len(scenes) * len(views) * len(threads) * len(kinds) * (warmup + runs + 1), "bench peers",
@@ -196,7 +193,7 @@ def _rays(sc, size, view):
     """(frame origin, camera, float32 origins and directions, the same as float64) of a scene for one
     of VIEWS: size x size camera rays, or as many random rays."""
     if view != "random":
-        origin, cam, o32, d32, o, d = _camera_rays(sc, size, fill=view == "fill")
+        origin, cam, o32, d32, o, d = camera_rays(sc, size, fill=view == "fill")
     else:
         origin = sc.scene.frame_origin(0.0)
         cam = None
@@ -207,37 +204,6 @@ def _rays(sc, size, view):
         d32 = (d / np.linalg.norm(d, axis=1)[:, None]).astype(np.float32)
         o, d = o32.astype(np.float64), d32.astype(np.float64)
     return origin, cam, o32, d32, o, d
-
-
-def _fill_camera(tris, cam, probe=64):
-    """``cam`` moved towards its target, 24 steps of 0.85x the distance at most, to the first eye from
-    which at least FILL of a probe x probe image hits ``tris`` (the scene at time 0; or the closest
-    step)."""
-    import dataclasses
-
-    g = GridBuilder(GridParams()).build(tris)
-    eye, target = np.asarray(cam.eye), np.asarray(cam.target)
-    for k in range(25):
-        c = dataclasses.replace(cam, eye=tuple(target + (eye - target) * 0.85 ** k))
-        po, pd = c.rays(probe, probe)
-        if (cast_rays(g, tris, po, pd).tri >= 0).mean() >= FILL:
-            break
-    return c
-
-
-def _camera_rays(sc, size, fill=False):
-    """(frame origin, camera, float32 origins and directions, the same as float64) of a scene: both
-    tracers get the scene in the frame the pipeline uses and the same float32-rounded camera rays;
-    ``fill``: from the camera moved in until the scene fills the view (_fill_camera)."""
-    origin = sc.scene.frame_origin(0.0)
-    tris0 = np.array(sc.scene.triangles_at(0.0, origin=origin))
-    cam = scene_camera(sc.scene, tris0, origin=origin)
-    if fill:
-        cam = _fill_camera(tris0, cam)
-    o, d = cam.rays(size, size)
-    o32 = np.ascontiguousarray(o, np.float32)
-    d32 = np.ascontiguousarray(d, np.float32)
-    return origin, cam, o32, d32, o32.astype(np.float64), d32.astype(np.float64)
 
 
 def _time_frames(sc, origin, builder, renderer, rp, cam, emb, pool, o32, d32, o, d, T, warmup, runs, dt, bar,

@@ -18,8 +18,8 @@ class MissingPeer(GridrtError):
 def import_embreex():
     """(rtcore, rtcore_scene, mesh_construction, version) or MissingPeer with the install hint."""
     try:
-        import embreex
-        from embreex import mesh_construction, rtcore, rtcore_scene
+        import embreex  # deferred: the optional peers extra (embreex), absent unless installed
+        from embreex import mesh_construction, rtcore, rtcore_scene  # deferred: the optional peers extra (embreex)
     except ImportError:
         raise MissingPeer(INSTALL_HINT) from None
     return rtcore, rtcore_scene, mesh_construction, getattr(embreex, "__version__", "?")
@@ -97,7 +97,7 @@ class Open3DSide:
 
     def __init__(self):
         try:
-            import open3d as o3d
+            import open3d as o3d  # deferred: the optional peer open3d, absent unless installed
         except ImportError:
             raise MissingPeer(f"open3d is not installed: {pip_command()} install open3d-cpu") from None
         self.o3d = o3d
@@ -144,8 +144,8 @@ class MitsubaSide:
 
     def __init__(self):
         try:
-            import drjit as dr
-            import mitsuba as mi
+            import drjit as dr  # deferred: the optional peer Mitsuba 3 (drjit), absent unless installed
+            import mitsuba as mi  # deferred: the optional peer Mitsuba 3, absent unless installed
         except ImportError:
             raise MissingPeer(f"mitsuba is not installed: {pip_command()} install mitsuba drjit") from None
         if "llvm_ad_rgb" not in mi.variants():

@@ -23,7 +23,8 @@ from pathlib import Path
 
 from gridrt.errors import InputError
 
-from .util import finish_machine, machine_info, md_table, out_dir, progress, write_csv, write_json, write_summary
+from .machine import finish_machine, machine_info
+from .output import md_table, out_dir, progress, write_csv, write_json, write_summary
 
 #: the cold start's aim (seconds of wall time to the first frame) and the warm start's
 COLD_AIM_S = 15.0

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+import gridrt
+
 
 def _shader_dir():
     """The repository's shaders/ (source checkout, editable install), else the copy a wheel
@@ -13,8 +15,6 @@ def _shader_dir():
     here = Path(__file__).resolve().parents[2] / "shaders"
     if here.is_dir():
         return here
-    import gridrt
-
     return Path(gridrt.__file__).resolve().parent / "shaders"
 
 
@@ -43,7 +43,7 @@ class Blitter:
     """
 
     def __init__(self, ctx, shader_dir=SHADER_DIR):
-        import moderngl
+        import moderngl  # deferred: the OpenGL binding (moderngl) loads only where a window or context is made
 
         self._mgl = moderngl
         self.ctx = ctx

@@ -2,19 +2,22 @@
 handler (app/viewer/input.py) change it; the frame loop (app/viewer/view.py) hands its GridParams /
 RenderParams to the pipeline and reports them in the state dump.
 
-The grid and render settings live in one GridParams and one RenderParams (frozen; a widget
-replaces a field with :meth:`ViewerState.set_grid` / :meth:`ViewerState.set_render`) and the
-scene in one :class:`gridrt.scene.SceneSpec`: the state keeps no loose copy of any of them."""
+What the viewer renders is one :class:`gridrt.frame.FrameSpec` (``ViewerState.spec``: the scene,
+the grid and render settings, and the view: camera, fov, up, the scene's own camera), changed only
+by ``dataclasses.replace``: :attr:`ViewerState.scene`, ``grid``, ``render``, ``camera``, ``fov``,
+``up`` and ``follow_camera`` read it and, set, replace the part in it (a widget replaces a field
+with :meth:`ViewerState.set_grid` / :meth:`ViewerState.set_render`); the state keeps no loose copy
+of any of them."""
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from gridrt.camera import Camera
-from gridrt.config import GridParams, RenderParams
 from gridrt.errors import InputError
+from gridrt.frame import FrameSpec
 from gridrt.stats import FrameStats
 from gridrt.scene import SceneSpec  # noqa: F401  (the viewer's scene spec; input, ui and tests import it here too)
 from gridrt.threads import check_threads
@@ -52,12 +55,27 @@ class StatsHistory:
         self.frame_ms.clear()
 
 
+def _part(name, doc):
+    """A property for the part ``name`` of ``ViewerState.spec``: set, it replaces that part."""
+    return property(lambda self: getattr(self.spec, name),
+                    lambda self, value: setattr(self, "spec", replace(self.spec, **{name: value})), doc=doc)
+
+
+def _view_field(name, doc):
+    """A property for the field ``name`` of ``ViewerState.spec.view``: set, it replaces that field."""
+    return property(lambda self: getattr(self.spec.view, name),
+                    lambda self, value: setattr(self, "spec", replace(self.spec, view=replace(self.spec.view,
+                                                                                               **{name: value}))),
+                    doc=doc)
+
+
 @dataclass
 class ViewerState:
     """Everything the viewer's widgets and keys can change, plus what they display."""
 
+    # what to render: scene, grid, render and view (read and replaced through the properties below)
+    spec: FrameSpec = field(default_factory=FrameSpec)
     # scene
-    scene: SceneSpec = field(default_factory=SceneSpec)
     scene_name: str = ""
     triangles: int = 0
     duration: float | None = None
@@ -73,26 +91,21 @@ class ViewerState:
     playing: bool = True
     time: float = 0.0
     speed: float = 1.0
-    # grid and render settings (threads: the same count for both; width and height follow the window)
-    grid: GridParams = field(default_factory=GridParams)
-    render: RenderParams = field(default_factory=RenderParams)
+    # grid and render settings: spec.grid and spec.render (threads: the same count for both; width
+    # and height follow the window)
     max_threads: int = 1
     scale: float = 1.0
-    # the scene's own camera (BART, glTF): ``follow_camera`` is the panel's "scene camera" box,
+    # the scene's own camera (BART, glTF): ``follow_camera`` (spec.view) is the panel's "scene camera" box,
     # on only while the loaded scene has a camera (``scene_camera``).  A scene with a camera
     # starts on it when ``prefer_scene_camera`` (the default; --no-scene-camera clears it; an
     # explicit --eye/--target without --follow-camera keeps the command line's scene off it).
     # While it is on, ``camera`` is the camera of the frame on screen (the scene's at the frame's
     # time), so leaving it (the box, or any camera move: :meth:`leave_scene_camera`) keeps that view.
-    follow_camera: bool = False
     scene_camera: bool = False
     prefer_scene_camera: bool = True
     scene_camera_home: bool = False         # Reset view returns to the scene camera (else to ``home``)
-    # camera
-    camera: Camera | None = None
+    # camera: spec.view (``camera``, ``fov``, ``up``); ``home``: where Reset view returns
     home: Camera | None = None
-    fov: float = Camera.fov
-    up: tuple = Camera.up
     scene_radius: float = 1.0
     # window / ui
     show_panel: bool = True
@@ -125,6 +138,36 @@ class ViewerState:
         self.render = self.render.replace(threads=threads)
         self.max_threads = max(self.max_threads, threads)
         self.file_allow_outside = bool(self.file_allow_outside or self.scene.allow_outside)
+
+    # ---- the parts of the FrameSpec ---------------------------------------------------------
+    scene = _part("scene", "The scene (SceneSpec) on screen: ``spec.scene``.")
+    grid = _part("grid", "The GridParams: ``spec.grid``.")
+    fov = _view_field("fov", "The vertical field of view: ``spec.view.fov``.")
+    up = _view_field("up", "The up vector: ``spec.view.up``.")
+    follow_camera = _view_field("follow_camera", "Look through the scene's own camera: ``spec.view.follow_camera``.")
+
+    @property
+    def render(self):
+        """The RenderParams: ``spec.render`` (set, its size becomes the view's)."""
+        return self.spec.render
+
+    @render.setter
+    def render(self, value):
+        self.spec = replace(self.spec, render=value, view=replace(self.spec.view, size=(value.width, value.height)))
+
+    @property
+    def camera(self):
+        """The camera of the view (``spec.view``'s eye, target, up and fov), or None before the
+        scene is framed."""
+        return self.spec.view.camera()
+
+    @camera.setter
+    def camera(self, cam):
+        if cam is None:
+            self.spec = replace(self.spec, view=replace(self.spec.view, eye=None, target=None))
+        else:
+            self.spec = replace(self.spec, view=replace(self.spec.view, eye=cam.eye, target=cam.target, up=cam.up,
+                                                        fov=cam.fov))
 
     # ---- settings: widgets replace fields of the frozen params -----------------------------
     @property

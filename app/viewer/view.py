@@ -16,7 +16,21 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
+from gridrt.commands import gridrt_command
+from gridrt.errors import InputError
+from gridrt.grid.registry import names
+from gridrt.pipeline import FramePipeline
+from gridrt.scene import BUILTIN_SCENES, scene_choices
+from gridrt.threads import check_threads, max_threads
+from gridrt.warmup import cache_is_cold
+
 from .. import cli
+from .blit import Blitter
+from .input import KEY_HELP, InputHandler
+from .state import SCALE_MAX, SCALE_MIN, ViewerState
+from .worker import FrameJob, LoadJob, LoadResult, RenderWorker
 
 TITLE = "gridrt"
 #: UI frame cap (frames per second) when the display has no vsync (Xvfb)
@@ -37,8 +51,6 @@ STOP_WAIT_S = 1.5
 
 
 def add_parser(sub):
-    from .input import KEY_HELP
-
     p = sub.add_parser("view", help="open the interactive viewer (needs a display)",
                        description="Interactive viewer: a window with the ray-traced animation and a control "
                                    "panel.  --size is the initial window size; the render resolution follows "
@@ -46,7 +58,7 @@ def add_parser(sub):
                        epilog="keys: " + KEY_HELP)
     cli.add_scene_args(p)
     cli.add_grid_args(p)
-    cli.add_render_args(p, default_size=(1024, 768))
+    cli.add_render_args(p)
     g = p.add_argument_group("viewer")
     g.add_argument("--scale", type=float, default=1.0,
                    help="render resolution as a fraction of the window (0.1..2; default 1)")
@@ -69,8 +81,6 @@ def add_parser(sub):
 def headless_command():
     """The headless dump to run instead, as a command that works as printed (named the way this
     process was started: ``.venv/bin/gridrt`` after the README's set-up; see gridrt.commands)."""
-    from gridrt.commands import gridrt_command
-
     return f"{gridrt_command()} dump --scene marbles --frames 60 --out out/marbles"
 
 
@@ -87,12 +97,6 @@ def run(a):
     if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         print(no_display_message(), file=sys.stderr)
         return 3
-    from gridrt.errors import InputError
-
-    from gridrt.scene import BUILTIN_SCENES, scene_choices
-
-    from .state import SCALE_MAX, SCALE_MIN
-
     if not (SCALE_MIN <= a.scale <= SCALE_MAX):
         raise InputError(f"--scale must be between {SCALE_MIN} and {SCALE_MAX}, got {a.scale}")
     if str(a.scene).strip().lower() not in BUILTIN_SCENES and not Path(a.scene).exists():
@@ -113,33 +117,20 @@ def start_on_scene_camera(a):
 
 def initial_state(a):
     """A ViewerState from the parsed arguments (validating them the same way dump does)."""
-    from gridrt.threads import check_threads, max_threads
-    from gridrt.warmup import cache_is_cold
-
-    from .state import ViewerState
-
-    gp = cli.grid_params(a)   # validates strategy, lambda, macro, insert, threads, grid kind and densities
-    w, h = a.size
-    rp = cli.render_params(a)
-    from gridrt.scene import BUILTIN_SCENES
-
-    spec = cli.scene_spec(a)
-    source = spec.source
+    spec = cli.frame_spec(a)   # validates every setting, as the dump does
+    w, h = spec.size
+    source = spec.scene.source
     if source.strip().lower() in BUILTIN_SCENES:
         source = source.strip().lower()
-    threads = check_threads(gp.threads)
+    threads = check_threads(spec.grid.threads)
     st = ViewerState(
-        scene=spec.replace(source=source),
-        grid=gp.replace(threads=threads),
-        render=rp.replace(threads=threads),
+        spec=spec.replace(scene=spec.scene.replace(source=source), grid=spec.grid.replace(threads=threads),
+                          render=spec.render.replace(threads=threads)),
         max_threads=max_threads(),
         playing=not a.paused,
         prefer_scene_camera=bool(getattr(a, "scene_camera", True)) or a.follow_camera,
     )
     st.scale = float(a.scale)
-    st.fov = a.fov
-    st.up = a.up
-    st.camera = cli.camera_from_args(a)
     st.home = st.camera
     st.show_panel = not a.hide_panel
     st.window_size = (w, h)
@@ -177,16 +168,12 @@ class Viewer:
 
     # ---- lifecycle ------------------------------------------------------------------------
     def run(self):
-        from imgui_bundle import imgui  # noqa: F401  (import first: it points pyglfw at its libglfw)
-        import glfw
-        import moderngl
+        # (imgui first: it points pyglfw at its libglfw)
+        from imgui_bundle import imgui  # noqa: F401  # deferred: imgui_bundle loads only when a window opens
+        import glfw  # deferred: glfw loads only when a window opens
+        import moderngl  # deferred: moderngl loads only when a window opens
 
-        from gridrt.grid.registry import names
-
-        from .blit import Blitter
-        from .input import InputHandler
-        from .ui import ImguiRuntime
-        from .worker import RenderWorker
+        from .ui import ImguiRuntime  # deferred: the panel's imgui_bundle, with the window
 
         st = self.state
         glfw.set_error_callback(self._on_glfw_error)
@@ -250,22 +237,20 @@ class Viewer:
         self.glfw_error = description.decode() if isinstance(description, bytes) else str(description)
 
     def _make_pipeline(self, scene, job):
-        from gridrt.pipeline import FramePipeline
-
         return FramePipeline(scene, job.grid_params, job.render_params, camera=job.camera, fov=job.fov, up=job.up)
 
     def _start_load(self, spec, keep_camera=False, scene_camera=None):
         """Load ``spec`` on the worker; ``scene_camera``: look through the scene's own camera once
         loaded, when it has one (None: the state's prefer_scene_camera)."""
-        from .worker import LoadJob
-
         st = self.state
         self.generation += 1
         rw, rh = st.render_size_for(*self._fb_size())
         self.worker.submit(LoadJob(spec, st.grid_params(), st.render_params(rw, rh),
                                    camera=st.camera if keep_camera else None, keep_camera=keep_camera,
                                    scene_camera=st.prefer_scene_camera if scene_camera is None else scene_camera,
-                                   fov=st.fov, up=st.up, label=f"loading {spec.label()}"))
+                                   fov=st.fov if keep_camera else getattr(self.args, "fov", st.fov),
+                                   up=st.up if keep_camera else getattr(self.args, "up", st.up),
+                                   label=f"loading {spec.label()}"))
         self.last_key = None
         self._progress_printed = (0.0, 0)
 
@@ -277,9 +262,9 @@ class Viewer:
     def _loop(self):
         glfw = self.glfw
         st = self.state
-        from imgui_bundle import imgui
+        from imgui_bundle import imgui  # deferred: imgui_bundle loads only when a window opens
 
-        from .ui import draw_overlay, draw_panel
+        from .ui import draw_overlay, draw_panel  # deferred: the panel's imgui_bundle, with the window
 
         last = time.perf_counter()
         io = imgui.get_io()
@@ -334,8 +319,6 @@ class Viewer:
                 time.sleep(spare)
 
     def _collect_results(self, now):
-        from .worker import LoadResult
-
         st = self.state
         for res in self.worker.take():
             if isinstance(res, LoadResult):
@@ -391,8 +374,6 @@ class Viewer:
                 self._last_result_time = now
 
     def _update_busy(self, now):
-        from .worker import LoadJob
-
         st = self.state
         job, elapsed = self.worker.current()
         if job is None:
@@ -418,10 +399,6 @@ class Viewer:
             print(f"gridrt view: {line}", file=sys.stderr, flush=True)
 
     def _submit_frame(self):
-        from gridrt.errors import InputError
-
-        from .worker import FrameJob
-
         st = self.state
         if self.worker.busy or self.worker.pipeline is None:
             return
@@ -452,7 +429,7 @@ class Viewer:
     def _save_png(self, rgb, stem, what):
         """Save (H, W, 3) uint8 ``rgb`` as the next free ``stem_NNNN.png`` in the shot folder and say
         so (panel message and stdout); on an OSError say that instead.  Returns the path or None."""
-        from PIL import Image
+        from PIL import Image  # deferred: Pillow loads only when a screenshot is saved
 
         st = self.state
         try:
@@ -476,8 +453,6 @@ class Viewer:
             st.last_screenshot = str(p)
 
     def _save_window_shot(self, fw, fh):
-        import numpy as np
-
         raw = self.ctx.screen.read(viewport=(0, 0, fw, fh), components=3)
         _ = self.ctx.error   # reading the default framebuffer leaves a pending GL error on some drivers
         img = np.frombuffer(raw, np.uint8).reshape(fh, fw, 3)[::-1]

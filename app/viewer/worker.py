@@ -20,6 +20,7 @@ import numpy as np
 
 from gridrt.camera import Camera
 from gridrt.errors import GridrtError
+from gridrt.scene.surface import texture_progress
 
 
 @dataclass
@@ -188,8 +189,6 @@ class RenderWorker:
                 notify()
 
     def _load(self, job):
-        from gridrt.scene.surface import texture_progress
-
         t0 = time.perf_counter()
         s = job.spec
         with self._cond:

@@ -6,18 +6,19 @@ import warnings
 
 import numpy as np
 
-from ..arrays import TRI_DTYPE
+from ..arrays import (TRI_DTYPE, as_origin, as_triangles, float_contiguous, frame_centre, refuse_bad_values,
+                      triangle_array)
 from ..config import GridParams
 from ..errors import InputError
-from ..memory import check_fits
-from ..threads import check_threads, use_threads
-from . import common
+from ..precision import ONE_SHOT_SAMPLE, warn_detail
 from ..stats import BuildStats
+from ..threads import check_threads, use_threads
+import gridrt.grid.common as common  # (the module: the error tests replace its kernels with tripwires)
+from .buffers import GridBuffers, LeafBuffers
 from .layout import BOUNDS_PAD, Grid, GridSpec
 from .registry import get_builder
 from .strategies.base import timed
-
-INT32_MAX = np.iinfo(np.int32).max
+from .two_level import TwoLevelGrid, build_leaves
 
 
 class GridCapWarning(UserWarning):
@@ -77,116 +78,8 @@ def make_spec(lo_scene, hi_scene, n_tris, params):
                     scene_lo=lo_scene, scene_hi=hi_scene)
 
 
-def grown(n, factor):
-    """The size an array of buffers kept from build to build is given when ``n`` elements do not
-    fit: ``factor`` times more (room for the next frames) and 16."""
-    return int(n * factor) + 16
-
-
-#: growth of the cell arrays (and the strategies' scratch arrays) and of the references
-CELL_GROWTH, REF_GROWTH = 1.25, 1.5
-
-
-def build_bytes(cells, references, triangles, layers=1):
-    """Bytes a fresh GridBuilder allocates to build a uniform grid of ``cells`` cells (in
-    ``layers`` layers) holding ``references`` over ``triangles`` triangles: the int32 counts and
-    offsets (:meth:`GridBuffers.prepare`), the int32 references (:meth:`GridBuffers.refs`) and
-    the int32 cell ranges, six a triangle (gridrt.grid.strategies.shared.ranges), each grown
-    (:func:`grown`).  Each is checked against the memory left (gridrt.memory) before it is
-    allocated."""
-    return 4 * (grown(layers * cells, CELL_GROWTH) + grown(layers * (cells + 1), CELL_GROWTH)
-                + grown(references, REF_GROWTH) + grown(6 * triangles, CELL_GROWTH))
-
-
-class GridBuffers:
-    """Arrays kept from one build to the next; they grow only when they must.
-
-    count  (L, C) int32 view into a flat buffer; all zero between clear and insert
-    start  (L, C+1) int32 view
-    refs(n) -> (n,) int32 view of the reference buffer (grown by 1.5x when too small)
-    """
-
-    def __init__(self):
-        self._count = np.zeros(0, np.int32)
-        self._start = np.zeros(0, np.int32)
-        self._refs = np.zeros(0, np.int32)
-        self.macro_full = np.zeros(0, np.uint8)
-        self.count = self._count.reshape(0, 0)
-        self.start = self._start.reshape(0, 1)
-        self.prev_spec = None  # spec and layers of the last build, for the next clear
-        self.prev_layers = 0
-        self.generation = 0  # bumped by every build: grids of older builds are stale
-        self.max_bytes = None  # memory budget of the build in progress (GridParams.max_bytes)
-
-    def prepare(self, spec, layers):
-        """Size the views for this build. Returns True when count is known to be all zero."""
-        C = spec.n_cells
-        fresh = False
-        new = [grown(n, CELL_GROWTH) if have < n else 0
-               for have, n in ((self._count.size, layers * C), (self._start.size, layers * (C + 1)))]
-        check_fits(4 * sum(new), f"a grid of {layers * C:,} cells", "int32 counts and offsets",
-                   "lower the density (lambda) or max_cells")
-        if new[0]:
-            self._count = np.zeros(new[0], np.int32)
-            fresh = True
-        if new[1]:
-            self._start = np.zeros(new[1], np.int32)
-        return fresh
-
-    def set_views(self, spec, layers):
-        C = spec.n_cells
-        self.count = self._count[: layers * C].reshape(layers, C)
-        self.start = self._start[: layers * (C + 1)].reshape(layers, C + 1)
-        M = spec.n_macro
-        if self.macro_full.size != M:
-            self.macro_full = np.zeros(M, np.uint8)
-
-    def prev_count_view(self):
-        s = self.prev_spec
-        C = s.n_cells
-        return self._count[: self.prev_layers * C].reshape(self.prev_layers, C)
-
-    def check_budget(self, extra, what):
-        """InputError when the cell arrays plus ``extra`` bytes exceed the build's max_bytes."""
-        if self.max_bytes is None:
-            return
-        need = extra + self.count.nbytes + self.start.nbytes
-        if need > self.max_bytes:
-            raise InputError(
-                f"the grid would need {need / 2**20:.0f} MiB ({what}), above the memory budget "
-                f"max_bytes={self.max_bytes / 2**20:.0f} MiB; lower the density (lambda), use exact insertion, "
-                f"fewer threads or raise max_bytes"
-            )
-
-    def refs(self, n):
-        if n > INT32_MAX:
-            raise InputError(
-                f"the grid would hold {n} references, more than int32 offsets allow; lower the density "
-                f"(lambda) or use exact insertion"
-            )
-        if self.max_bytes is not None:
-            need = 4 * n + self.count.nbytes + self.start.nbytes
-            if need > self.max_bytes:
-                raise InputError(
-                    f"the grid would need {need / 2**20:.0f} MiB ({n} references over {self.count.size} cells), "
-                    f"above the memory budget max_bytes={self.max_bytes / 2**20:.0f} MiB; lower the density "
-                    f"(lambda), use exact insertion or raise max_bytes"
-                )
-        if self._refs.size < n:
-            check_fits(4 * grown(n, REF_GROWTH), f"a grid of {n:,} references", "int32 triangle ids of its cells",
-                       "lower the density (lambda) or use exact insertion")
-            self._refs = np.empty(grown(n, REF_GROWTH), np.int32)
-        return self._refs[:n]
-
-    @property
-    def ref_buffer(self):
-        return self._refs
-
-
 def _check_tris(tris):
     if not isinstance(tris, np.ndarray) or tris.dtype != TRI_DTYPE or tris.ndim != 3 or tris.shape[1:] != (3, 3):
-        from ..arrays import as_triangles
-
         return as_triangles(tris)
     if tris.shape[0] == 0:
         raise InputError("triangles: the scene is empty (0 triangles)")
@@ -370,8 +263,6 @@ class GridBuilder:
 
     def _leaves(self, top, tris, p, threads, times, t_start, crowd):
         """The two-level grid over the top-level grid ``top`` just built."""
-        from .two_level import LeafBuffers, TwoLevelGrid, build_leaves
-
         bufs = self.bufs
         if getattr(bufs, "leaves", None) is None:
             bufs.leaves = LeafBuffers()
@@ -427,9 +318,6 @@ def build_grid(tris, params: GridParams | None = None, *, origin=None, **kw) -> 
         params = GridParams(**kw)
     elif kw:
         params = params.replace(**kw)
-    from ..arrays import as_origin, float_contiguous, frame_centre, refuse_bad_values, triangle_array
-    from ..precision import ONE_SHOT_SAMPLE, warn_detail
-
     # one pass over the values for bounds and NaN/inf/1e30 (the messages come from the slow checks,
     # run only when the pass found something) that also stores float32, and a second one to move
     # them into a frame centred on the scene only when it lies far away

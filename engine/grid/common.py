@@ -1,8 +1,9 @@
 """Kernels shared by every build strategy: bounds, triangle-to-cell ranges, the exact
 triangle/box test, clearing, prefix sums and the macro-cell build.
 
-All kernels take arrays and scalars only and write into buffers they are given.  Cell
-coordinates are computed in float64 from the float32 triangles.
+All kernels take arrays, scalars and the grid's :data:`gridrt.grid.layout.GridBox` record, and
+write into buffers they are given.  Cell coordinates are computed in float64 from the float32
+triangles.
 """
 
 import numpy as np
@@ -179,10 +180,11 @@ RANGE_LANES = 16  # triangles per block of the vectorized cell-range pass
 
 
 @njit(cache=True, _nrt=False)
-def _ranges_block(flat, n, lx, ly, lz, ix, iy, iz, mx, my, mz, out):
+def _ranges_block(flat, n, lo, inv, top, out):
     """Cell ranges of n <= RANGE_LANES triangles: flat (9n,) float32 slice, out (6n,) int32, six
     values per triangle, (i0, j0, k0, i1, j1, k1), the inclusive range of cells its bounding box
     overlaps, grown by EPS cells and clamped to the grid: floor((x - lo) * inv_cell -/+ EPS).
+    lo, inv (the grid's lo and inv_cell) and top (dims - 1) are tuples of three float64.
 
     A triangle of exactly zero area (collinear or coincident vertices) gets the empty range
     (0, 0, 0, -1, -1, -1): it has no surface to hit and goes into no cell.  The test is exact:
@@ -194,6 +196,9 @@ def _ranges_block(flat, n, lx, ly, lz, ix, iy, iz, mx, my, mz, out):
     truncating gives the same integer as flooring and clamping the integer: the float is finite,
     and on [0, dims-1] truncation is floor.
     """
+    lx, ly, lz = lo
+    ix, iy, iz = inv
+    mx, my, mz = top
     for l in range(n):
         ax = np.float64(flat[9 * l + 0])
         ay = np.float64(flat[9 * l + 1])
@@ -222,21 +227,18 @@ def _ranges_block(flat, n, lx, ly, lz, ix, iy, iz, mx, my, mz, out):
 
 
 @njit(cache=True, _nrt=False)
-def cell_ranges_into(flat, lo, inv_cell, dims, out):
+def cell_ranges_into(flat, box, out):
     """Cell ranges of the triangles in flat (9n,) float32 into out (6n,) int32, six values each
-    (see _ranges_block).  Pass slices: loops start at 0."""
+    (see _ranges_block), in the grid ``box`` (layout.GridBox).  Pass slices: loops start at 0."""
     F = flat.shape[0] // 9
-    lx, ly, lz = lo[0], lo[1], lo[2]
-    ix, iy, iz = inv_cell[0], inv_cell[1], inv_cell[2]
-    mx = np.float64(dims[0] - 1)
-    my = np.float64(dims[1] - 1)
-    mz = np.float64(dims[2] - 1)
+    lo = (box.lo[0], box.lo[1], box.lo[2])
+    inv = (box.inv_cell[0], box.inv_cell[1], box.inv_cell[2])
+    top = (np.float64(box.dims[0] - 1), np.float64(box.dims[1] - 1), np.float64(box.dims[2] - 1))
     B = RANGE_LANES
     nb = F // B
     for b in range(nb):
-        _ranges_block(flat[9 * B * b:9 * B * (b + 1)], B, lx, ly, lz, ix, iy, iz, mx, my, mz,
-                      out[6 * B * b:6 * B * (b + 1)])
-    _ranges_block(flat[9 * B * nb:], F - nb * B, lx, ly, lz, ix, iy, iz, mx, my, mz, out[6 * B * nb:])
+        _ranges_block(flat[9 * B * b:9 * B * (b + 1)], B, lo, inv, top, out[6 * B * b:6 * B * (b + 1)])
+    _ranges_block(flat[9 * B * nb:], F - nb * B, lo, inv, top, out[6 * B * nb:])
 
 
 @njit(cache=True)

@@ -19,14 +19,22 @@ The growth makes insertion conservative, so a ray that hits a triangle exactly o
 still finds it in the cell whose t-range contains the hit.
 """
 
+from collections import namedtuple
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
+
+from ..errors import InputError
 
 #: Growth of each triangle's bounding box, in cell sizes, before it is binned (see module doc).
 INSERT_EPS = 1e-5
 #: Relative padding of the scene bounds, so every vertex lies strictly inside the grid.
 BOUNDS_PAD = 1e-4
+
+#: A grid's box and resolution as every build kernel takes it (:attr:`GridSpec.box`): lo, cell,
+#: inv_cell (3,) float64 C-contiguous; dims, mdims (3,) int64 C-contiguous; macro int.
+GridBox = namedtuple("GridBox", "lo cell inv_cell dims macro mdims")
 
 
 @dataclass(frozen=True)
@@ -61,6 +69,14 @@ class GridSpec:
     @property
     def n_macro(self) -> int:
         return int(np.prod(self.mdims))
+
+    @cached_property
+    def box(self) -> GridBox:
+        """The geometry as the build kernels take it, in their fixed dtypes."""
+        f64 = lambda a: np.ascontiguousarray(a, np.float64)  # noqa: E731
+        i64 = lambda a: np.ascontiguousarray(a, np.int64)  # noqa: E731
+        return GridBox(f64(self.lo), f64(self.cell), f64(self.inv_cell), i64(self.dims), int(self.macro),
+                       i64(self.mdims))
 
 
 @dataclass
@@ -105,8 +121,6 @@ class Grid:
 
     def check_current(self):
         """Raise InputError when the builder that made this grid has built another since."""
-        from ..errors import InputError
-
         if self.buffers is not None and self.buffers.generation != self.generation:
             raise InputError(
                 "this grid is stale: its GridBuilder has built another grid since, reusing its buffers "

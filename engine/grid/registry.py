@@ -3,38 +3,34 @@
 A strategy is a subclass of :class:`gridrt.grid.strategies.base.Strategy` (the contract is in
 that module's docstring) with a ``name``, the flags ``parallel_stages`` and ``layered``, and an
 ``insert(tris, spec, bufs, threads, exact, times)`` method that fills the cell lists of a
-:class:`gridrt.grid.build.GridBuffers` and returns the number of references; the builder
+:class:`gridrt.grid.buffers.GridBuffers` and returns the number of references; the builder
 (:class:`gridrt.grid.build.GridBuilder`) runs the shared clear and macro-cell stages around it.
-Each strategy module registers its classes with the :func:`register` decorator when
-:mod:`gridrt.grid.strategies` imports it, which :func:`get_builder` and :func:`names` do on
-first use.  The first line of a class's docstring is what ``gridrt strategies`` prints.
+:data:`BUILDERS` lists every strategy class of :mod:`gridrt.grid.strategies` by name, in the
+order of the table of Ize et al. 2006 (plus Lagae & Dutré 2008's counting).  The first line of a
+class's docstring is what ``gridrt strategies`` prints.
 """
 
-from ..errors import InputError
+from ..config import STRATEGIES, check_strategy
+from .strategies.counting import Counting
+from .strategies.serial import Serial
+from .strategies.sort_first import SortFirst
+from .strategies.sort_last_locks import CellLocks, GlobalLock, LockPool
+from .strategies.sort_middle import SortMiddle
+from .strategies.thread_grids import ThreadGrids, ThreadGridsMerge
 
-BUILDERS = {}
-
-
-def register(cls):
-    """Class decorator: add a strategy class to BUILDERS under ``cls.name``."""
-    if cls.name in BUILDERS:
-        raise RuntimeError(f"strategy {cls.name!r} registered twice")
-    BUILDERS[cls.name] = cls
-    return cls
+#: strategy name -> class, in registry order
+BUILDERS = {cls.name: cls for cls in (Serial, SortFirst, GlobalLock, CellLocks, LockPool, ThreadGridsMerge,
+                                      ThreadGrids, SortMiddle, Counting)}
+if tuple(BUILDERS) != STRATEGIES:
+    raise ImportError(f"gridrt.grid.registry: strategy classes {tuple(BUILDERS)} differ from gridrt.config.STRATEGIES "
+                      f"{STRATEGIES}")
 
 
 def get_builder(name):
     """The strategy class registered as ``name``; InputError listing the valid names otherwise."""
-    from . import strategies  # noqa: F401  (registers every strategy)
-
-    try:
-        return BUILDERS[name]
-    except (KeyError, TypeError):
-        raise InputError(f"unknown build strategy {name!r}; choose one of {', '.join(BUILDERS)}") from None
+    return BUILDERS[check_strategy(name)]
 
 
 def names():
-    """The registered strategy names, in registry order (:mod:`gridrt.grid.strategies`)."""
-    from . import strategies  # noqa: F401
-
+    """The registered strategy names, in registry order."""
     return list(BUILDERS)

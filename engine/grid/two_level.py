@@ -33,19 +33,27 @@ totals, a scatter pass.  Any strategy builds the top level; the leaf passes are 
 """
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit, prange
 
 from ..errors import InputError
-from ..memory import check_fits
-from .build import CELL_GROWTH, REF_GROWTH, grown
 from .common import EPS, cell_overlaps
 from .layout import Grid
+from .strategies.base import timed
 
 INT32_MAX = np.iinfo(np.int32).max
 #: chunks of top cells per thread in the leaf passes (load balance over uneven top cells)
 CHUNKS_PER_THREAD = 8
+
+#: The top level as the leaf passes read it: its cell lists, start (L, T + 1) int32 CSR offsets
+#: per layer and ids (R_top,) int32 triangle ids.
+TopCells = namedtuple("TopCells", "start ids")
+#: The leaf level as the leaf passes fill it: res (T, 3) int32 leaf cells per axis of each top
+#: cell, first (T + 1,) int32 first leaf cell of each top cell, count (N,) int32, start (N + 1,)
+#: int32 and tri_ids (R,) int32 the leaf cells' counts, CSR offsets and triangle ids.
+LeafLevel = namedtuple("LeafLevel", "res first count start tri_ids")
 
 
 @njit(cache=True, inline="always")
@@ -137,13 +145,18 @@ def _leaf_range(b0, b1, slo, isc, r):
 
 
 @njit(cache=True, _nrt=False)
-def _top_cell_leaves(tris, top_start, top_ids, t, lo, cell, dims, res, a0, exact, count, start, tri_ids, scatter, base0):
-    """Count (scatter=False) or place (True) the leaf references of top cell t, whose leaf cells
-    are a0 .. a0 + rx*ry*rz - 1 with resolution res (3,).  count holds the leaf counts (the
-    count pass leaves them, the scatter pass uses them as cursors from zero), start the CSR
-    offsets (the count pass writes running sums relative to the cell's first leaf; the scatter
-    pass reads finished ones, but for the cell's first leaf, whose offset start[a0] the thread of
-    the top cell before may still be writing, takes base0).  Returns the top cell's leaf references."""
+def _top_cell_leaves(tris, top, box, leaves, t, a0, exact, scatter, base0):
+    """Count (scatter=False) or place (True) the leaf references of top cell t of the grid ``box``
+    (layout.GridBox), whose leaf cells are a0 .. a0 + rx*ry*rz - 1 with resolution leaves.res[t].
+    leaves.count holds the leaf counts (the count pass leaves them, the scatter pass uses them as
+    cursors from zero), leaves.start the CSR offsets (the count pass writes running sums relative
+    to the cell's first leaf; the scatter pass reads finished ones, but for the cell's first leaf,
+    whose offset start[a0] the thread of the top cell before may still be writing, takes base0).
+    Returns the top cell's leaf references."""
+    lo, cell, dims = box.lo, box.cell, box.dims
+    top_start, top_ids = top.start, top.ids
+    count, start, tri_ids = leaves.count, leaves.start, leaves.tri_ids
+    res = leaves.res[t]
     nx = dims[0]
     nxy = dims[0] * dims[1]
     tk = t // nxy
@@ -190,25 +203,26 @@ def _top_cell_leaves(tris, top_start, top_ids, t, lo, cell, dims, res, a0, exact
 
 
 @njit(cache=True, parallel=True)
-def leaf_count(tris, top_start, top_ids, lo, cell, dims, leaf_res, leaf_first, exact, bounds, count, start, totals):
+def leaf_count(tris, top, box, leaves, exact, bounds, totals):
     """Count pass over the chunks of top cells bounds[ch] .. bounds[ch+1]-1: each non-empty top
-    cell's leaf counts into count (N,) int32, their running sums (relative to the top cell's first
-    leaf) into start[q + 1] (start (N+1,) int32) and its total into totals (T,) int64."""
+    cell's leaf counts into leaves.count, their running sums (relative to the top cell's first
+    leaf) into leaves.start[q + 1] and its total into totals (T,) int64 (leaves.tri_ids unused)."""
+    leaf_first = leaves.first
     for ch in prange(bounds.shape[0] - 1):
         for t in range(bounds[ch], bounds[ch + 1]):
             a0 = leaf_first[t]
             if leaf_first[t + 1] == a0:
                 totals[t] = 0
                 continue
-            totals[t] = _top_cell_leaves(tris, top_start, top_ids, t, lo, cell, dims, leaf_res[t], a0, exact, count,
-                                         start, start[:0], False, 0)
+            totals[t] = _top_cell_leaves(tris, top, box, leaves, t, a0, exact, False, 0)
 
 
 @njit(cache=True, parallel=True)
-def leaf_scatter(tris, top_start, top_ids, lo, cell, dims, leaf_res, leaf_first, exact, bounds, base, count, start,
-                 tri_ids):
+def leaf_scatter(tris, top, box, leaves, exact, bounds, base):
     """Scatter pass: each top cell's leaf offsets moved by its base (base (T,) int64, the
     exclusive prefix sum of the count pass's totals), then its references placed."""
+    leaf_first = leaves.first
+    start = leaves.start
     for ch in prange(bounds.shape[0] - 1):
         for t in range(bounds[ch], bounds[ch + 1]):
             a0 = leaf_first[t]
@@ -219,8 +233,7 @@ def leaf_scatter(tris, top_start, top_ids, lo, cell, dims, leaf_res, leaf_first,
             # (start[a0] is the end of the top cell before: that cell's thread moves it)
             for q in range(a0 + 1, a1 + 1):
                 start[q] += b
-            _top_cell_leaves(tris, top_start, top_ids, t, lo, cell, dims, leaf_res[t], a0, exact, count, start,
-                             tri_ids, True, b)
+            _top_cell_leaves(tris, top, box, leaves, t, a0, exact, True, b)
 
 
 def chunk_bounds(n_refs, n_chunks):
@@ -236,45 +249,12 @@ def chunk_bounds(n_refs, n_chunks):
     return np.unique(np.concatenate(([0], cuts, [T]))).astype(np.int64)
 
 
-class LeafBuffers:
-    """The leaf level's arrays, kept from one build to the next; they grow only when they must."""
-
-    def __init__(self):
-        self.res = np.zeros((0, 3), np.int32)
-        self.first = np.zeros(1, np.int32)
-        self._count = np.zeros(0, np.int32)
-        self._start = np.zeros(1, np.int32)
-        self._refs = np.zeros(0, np.int32)
-
-    def leaf_arrays(self, n_leaf):
-        new = [grown(n, CELL_GROWTH) if have < n else 0 for have, n in ((self._count.size, n_leaf),
-                                                                         (self._start.size, n_leaf + 1))]
-        check_fits(4 * sum(new), f"a two-level grid of {n_leaf:,} leaf cells", "int32 counts and offsets",
-                   "lower the leaf or top density")
-        if new[0]:
-            self._count = np.zeros(new[0], np.int32)
-        if new[1]:
-            self._start = np.zeros(new[1], np.int32)
-        start = self._start[: n_leaf + 1]
-        start[0] = 0
-        return self._count[:n_leaf], start
-
-    def refs(self, n):
-        if self._refs.size < n:
-            check_fits(4 * grown(n, REF_GROWTH), f"a two-level grid of {n:,} leaf references",
-                       "int32 triangle ids of its leaf cells", "lower the leaf or top density or use exact insertion")
-            self._refs = np.empty(grown(n, REF_GROWTH), np.int32)
-        return self._refs[:n]
-
-
 def build_leaves(top, tris, exact, leaf_density, threads, bufs, max_bytes, times):
     """The leaf level over the built top-level grid ``top`` (a :class:`Grid` over ``tris``).
     Returns (leaf_res, leaf_first, count, start, tri_ids, references); adds leaf_res_ms,
     leaf_count_ms, leaf_scatter_ms to ``times``.  InputError (before allocating) when the leaf
     cells or references would not fit int32 offsets or ``max_bytes`` (with the top level's
     arrays)."""
-    from .strategies.base import timed
-
     s = top.spec
     T = s.n_cells
     top_bytes = top.memory_bytes()
@@ -306,8 +286,9 @@ def build_leaves(top, tris, exact, leaf_density, threads, bufs, max_bytes, times
         count, start = bufs.leaf_arrays(total_leaf)
     with timed(times, "leaf_count_ms"):
         totals = np.empty(T, np.int64)
-        leaf_count(tris, top.cell_start, top.tri_ids, s.lo, s.cell, s.dims, leaf_res, leaf_first, exact, bounds, count,
-                   start, totals)
+        top_cells = TopCells(top.cell_start, top.tri_ids)
+        leaves = LeafLevel(leaf_res, leaf_first, count, start, start[:0])
+        leaf_count(tris, top_cells, s.box, leaves, exact, bounds, totals)
     with timed(times, "leaf_scatter_ms"):
         base = np.zeros(T, np.int64)
         if T > 1:
@@ -323,8 +304,7 @@ def build_leaves(top, tris, exact, leaf_density, threads, bufs, max_bytes, times
                 f"budget max_bytes={max_bytes / 2**20:.0f} MiB; lower the leaf or top density, use exact insertion "
                 f"or raise max_bytes")
         tri_ids = bufs.refs(refs)
-        leaf_scatter(tris, top.cell_start, top.tri_ids, s.lo, s.cell, s.dims, leaf_res, leaf_first, exact, bounds, base,
-                     count, start, tri_ids)
+        leaf_scatter(tris, top_cells, s.box, leaves._replace(tri_ids=tri_ids), exact, bounds, base)
         start[total_leaf] = refs
     return leaf_res, leaf_first, count, start, tri_ids, refs
 

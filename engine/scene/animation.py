@@ -33,6 +33,7 @@ from numba import njit, prange
 from ..arrays import TRI_DTYPE, as_origin, frame_centre
 from ..errors import InputError
 from .mesh import Mesh
+from .surface import no_lights
 
 __all__ = ["Animation", "StaticMesh", "as_static_mask", "check_time", "gather_triangles", "pose_moving_vertices"]
 
@@ -174,8 +175,6 @@ class Animation(ABC):
         """The scene's own lights at time ``t``: an (L, 8) float64 array in world coordinates (see
         gridrt.scene.surface; L = 0 when the scene has none, and renderers then use a default light)."""
         check_time(t)
-        from .surface import no_lights
-
         return no_lights()
 
     def normals_at(self, t, out=None):

@@ -70,16 +70,18 @@ and quote none of its text.
 import math
 import os
 import warnings
+from collections import namedtuple
 from pathlib import Path
 
 import numpy as np
 from numba import njit
 
 from ..arrays import TRI_DTYPE, storage_centre
+from ..camera import Camera
 from ..errors import InputError, SceneFileError
-from . import kernels as K
 from .animation import Animation, as_static_mask, check_time, gather_unchecked, pose_moving_vertices
 from .files import ALLOW_HINT, SceneFolder, read_scene_file
+from .kernels import Pose, as_rig, compose_world, deform_vertices, lerp_rows, trs_matrix
 from .surface import FALLOFF_NONE, LIGHT_POINT, SurfaceBuilder, TextureWarning, as_lights, load_texture
 
 __all__ = ["AMBIENT_DEFAULT", "BartAnimation", "DEFAULT_DIFFUSE", "kb_position_coefficients",
@@ -267,14 +269,25 @@ def kb_rotation(tmin, tmax, pabq, start, count, t, out):
         out[c] /= n
 
 
-@njit(cache=True)
-def _animate_nodes(t, p_tmin, p_tmax, p_coef, p_start, p_count, r_tmin, r_tmax, r_pabq, r_start, r_count,
-                   anim_node, anim_t, anim_r, anim_s, node_matrix):
-    """node_matrix[anim_node[a]] = T * R * S of animated transform a at time t.
+#: The Kochanek-Bartels splines laid end to end (:meth:`_Splines.arrays`): position splines
+#: p_tmin, p_tmax (S,) float64, p_coef (S, 4, 3) float64, p_start, p_count (P,) int64; rotation
+#: splines r_tmin, r_tmax (Q,) float64, r_pabq (Q, 4, 4) float64, r_start, r_count (R,) int64.
+SplineArrays = namedtuple("SplineArrays", "p_tmin p_tmax p_coef p_start p_count r_tmin r_tmax r_pabq r_start r_count")
+#: The animated transforms (A,) int64 each: the node each one moves, its translation, rotation and
+#: scale spline (-1: that part is the identity).
+TransformAnims = namedtuple("TransformAnims", "node t r s")
 
-    anim_t / anim_s index position splines (translation / scale), anim_r rotation splines; -1 means
-    identity for that part.
+
+@njit(cache=True)
+def _animate_nodes(t, sp, anims, node_matrix):
+    """node_matrix[anims.node[a]] = T * R * S of animated transform a at time t.
+
+    anims.t / anims.s index position splines (translation / scale) of ``sp`` (:data:`SplineArrays`),
+    anims.r rotation splines; -1 means identity for that part.
     """
+    p_tmin, p_tmax, p_coef, p_start, p_count = sp.p_tmin, sp.p_tmax, sp.p_coef, sp.p_start, sp.p_count
+    r_tmin, r_tmax, r_pabq, r_start, r_count = sp.r_tmin, sp.r_tmax, sp.r_pabq, sp.r_start, sp.r_count
+    anim_node, anim_t, anim_r, anim_s = anims.node, anims.t, anims.r, anims.s
     tr = np.zeros(3)
     sc = np.ones(3)
     q = np.zeros(4)
@@ -295,7 +308,7 @@ def _animate_nodes(t, p_tmin, p_tmax, p_coef, p_start, p_count, r_tmin, r_tmax, 
             q[1] = 0.0
             q[2] = 0.0
             q[3] = 1.0
-        K.trs_matrix(tr, q, sc, m)
+        trs_matrix(tr, q, sc, m)
         n = anim_node[a]
         for i in range(4):
             for j in range(4):
@@ -419,7 +432,7 @@ def _static_matrix(values):
     s, axis, deg, t = values[0:3], values[3:6], values[6], values[7:10]
     q = axis_angle_quaternions(axis[None], [math.radians(deg)])[0]
     m = np.empty((4, 4))
-    K.trs_matrix(t, q, s, m)
+    trs_matrix(t, q, s, m)
     return m
 
 
@@ -829,12 +842,12 @@ class _Splines:
         return len(self.r_start) - 1
 
     def arrays(self):
-        """(p_tmin, p_tmax, p_coef, p_start, p_count, r_tmin, r_tmax, r_pabq, r_start, r_count), with
-        one placeholder segment where there is no spline of a kind."""
+        """The splines as :data:`SplineArrays`, with one placeholder segment where there is no spline
+        of a kind."""
         def cat(lst, shape):
             return np.ascontiguousarray(np.concatenate(lst)) if lst else np.zeros(shape)
 
-        return (
+        return SplineArrays(
             cat(self.p_tmin, (1,)), cat(self.p_tmax, (1,)), cat(self.p_coef, (1, 4, 3)),
             np.array(self.p_start or [0], np.int64), np.array(self.p_count or [1], np.int64),
             cat(self.r_tmin, (1,)), cat(self.r_tmax, (1,)), cat(self.r_pabq, (1, 4, 4)),
@@ -1021,7 +1034,7 @@ class BartAnimation(Animation):
             anim_t.append(ids[0])
             anim_r.append(ids[1])
             anim_s.append(ids[2])
-        anim = tuple(np.array(a, dtype=np.int64) for a in (anim_node, anim_t, anim_r, anim_s))
+        anim = TransformAnims(*(np.array(a, dtype=np.int64) for a in (anim_node, anim_t, anim_r, anim_s)))
         return anim, moved, key_lo, key_hi
 
     def _lay_out_geometry(self, ps, moving, groups):
@@ -1175,13 +1188,12 @@ class BartAnimation(Animation):
         start = len(rows) - sum(k.shape[1] for k in self._tpa_normal_keys)
         for (times, _, _, _), keys in zip(self._tpa, self._tpa_normal_keys):
             k, k1, s = _key_blend(times, tb)
-            K.lerp_rows(keys[k], keys[k1], s, rows[start:start + keys.shape[1]])
+            lerp_rows(keys[k], keys[k1], s, rows[start:start + keys.shape[1]])
             start += keys.shape[1]
         self._update_world(tb)
-        inst_first, node, skinned, mbase, mcount, woff = self._inst
-        j, jw, d, w, pal = self._dummy
-        K.deform_vertices(vids, rows, nodes, inst_first, node, skinned, j, jw, mbase, mcount, woff, d, w,
-                          _inverse_transposes(self._world), pal, _ZERO3, _ZERO3, posed)
+        w, pal = self._no_skin
+        deform_vertices(vids, rows, nodes, self._rig, Pose(w, _inverse_transposes(self._world), pal), _ZERO3,
+                          _ZERO3, posed)
         # each component is at most 3 in size: the rows' components and the matrices' entries are at most 1
         n2 = np.einsum("ij,ij->i", posed, posed)
         inv = np.zeros_like(n2)
@@ -1191,16 +1203,16 @@ class BartAnimation(Animation):
     def _set_node_arrays(self, parent, node_matrix):
         """The node hierarchy, and one rigid "instance" per node for the shared deform kernel."""
         n_nodes = len(parent)
-        self._inst = (
+        self._rig = as_rig(
             np.zeros(n_nodes + 1, dtype=np.int64),  # unused: no morph targets
             np.arange(n_nodes, dtype=np.int32),
             np.zeros(n_nodes, dtype=np.bool_),
             np.zeros(n_nodes, dtype=np.int64),
             np.zeros(n_nodes, dtype=np.int32),
             np.zeros(n_nodes, dtype=np.int64),
+            np.zeros((1, 1), np.int32), np.zeros((1, 1), TRI_DTYPE), np.zeros((1, 3), TRI_DTYPE),
         )
-        self._dummy = (np.zeros((1, 1), np.int32), np.zeros((1, 1), TRI_DTYPE), np.zeros((1, 3), TRI_DTYPE),
-                       np.zeros(1), np.zeros((1, 4, 4)))
+        self._no_skin = (np.zeros(1), np.zeros((1, 4, 4)))  # morph weights and skin palette: none
         self._parent = parent
         self._order = np.arange(n_nodes, dtype=np.int32)
         self._use_matrix = np.ones(n_nodes, dtype=np.bool_)
@@ -1246,23 +1258,22 @@ class BartAnimation(Animation):
         return self.time_range[0] + (t % self.duration)
 
     def _update_world(self, tb):
-        _animate_nodes(tb, *self._splines, *self._anim, self._node_matrix)
+        _animate_nodes(tb, self._splines, self._anim, self._node_matrix)
         for node, keys in self._visibility:
             k = np.searchsorted(keys[:, 0], tb, side="right") - 1
             visible = True if k < 0 else bool(keys[k, 1])
             if not visible:
                 self._node_matrix[node, :3, :3] = 0.0
-        K.compose_world(self._order, self._parent, self._use_matrix, self._node_matrix, *self._trs, self._world)
+        compose_world(self._order, self._parent, self._use_matrix, self._node_matrix, *self._trs, self._world)
 
     def _pose(self, tb, vids):
         for times, frames, a, b in self._tpa:
             k, k1, s = _key_blend(times, tb)
-            K.lerp_rows(frames[k], frames[k1], s, self._local[a:b])
+            lerp_rows(frames[k], frames[k1], s, self._local[a:b])
         self._update_world(tb)
-        first, node, skinned, mbase, mcount, woff = self._inst
-        j, jw, d, w, pal = self._dummy
-        K.deform_vertices(vids, self._local, self._vinst, first, node, skinned, j, jw, mbase, mcount, woff,
-                          d, w, self._world, pal, self._centre, self._posed_origin, self._verts)
+        w, pal = self._no_skin
+        deform_vertices(vids, self._local, self._vinst, self._rig, Pose(w, self._world, pal), self._centre,
+                          self._posed_origin, self._verts)
 
     def _fill(self, t, out, origin):
         pose_moving_vertices(self, self.bart_time(t), origin)
@@ -1293,10 +1304,10 @@ class BartAnimation(Animation):
         sp = self._splines
         if kind == "position":
             out = np.zeros(3)
-            kb_position(sp[0], sp[1], sp[2], sp[3][index], sp[4][index], float(tb), out)
+            kb_position(sp.p_tmin, sp.p_tmax, sp.p_coef, sp.p_start[index], sp.p_count[index], float(tb), out)
         else:
             out = np.zeros(4)
-            kb_rotation(sp[5], sp[6], sp[7], sp[8][index], sp[9][index], float(tb), out)
+            kb_rotation(sp.r_tmin, sp.r_tmax, sp.r_pabq, sp.r_start[index], sp.r_count[index], float(tb), out)
         return out
 
     @property
@@ -1317,7 +1328,7 @@ class BartAnimation(Animation):
         q = self.spline_value("rotation", ri, tb) if ri >= 0 else np.array([0.0, 0.0, 0.0, 1.0])
         sc = self.spline_value("position", si, tb) if si >= 0 else np.ones(3)
         m = np.empty((4, 4))
-        K.trs_matrix(tr, q, sc, m)
+        trs_matrix(tr, q, sc, m)
         return m
 
     def camera_at(self, t):
@@ -1327,8 +1338,6 @@ class BartAnimation(Animation):
         vector are the rotation's -z and +y axes (BART's GetCamera); parts the block lacks come from
         the ``v`` block.  The field of view is the ``v`` block's angle (45 degrees without one).
         """
-        from ..camera import Camera
-
         tb = self.bart_time(t)
         fov = float(self.view["angle"][0]) if self.view else 45.0
         if self.view is not None:
@@ -1344,6 +1353,6 @@ class BartAnimation(Animation):
         if self._cam_r >= 0:
             q = self.spline_value("rotation", self._cam_r, tb)
             m = np.empty((4, 4))
-            K.trs_matrix(np.zeros(3), q, np.ones(3), m)
+            trs_matrix(np.zeros(3), q, np.ones(3), m)
             fwd, up = -m[:3, 2], m[:3, 1]
         return Camera(eye=tuple(eye), target=tuple(np.asarray(eye) + fwd), up=tuple(up), fov=fov)

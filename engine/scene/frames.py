@@ -17,8 +17,11 @@ import numpy as np
 
 from ..arrays import TRI_DTYPE, as_mesh, as_origin, storage_centre
 from ..errors import InputError, SceneFileError
-from . import kernels as K
 from .animation import Animation, as_static_mask, gather_unchecked
+from .files import SceneFolder
+from .kernels import lerp_rows
+from .loader import load_mesh
+from .surface import Surface
 
 __all__ = ["KeyframeMesh", "FRAME_EXTENSIONS", "load_frame_folder", "frame_files"]
 
@@ -133,7 +136,7 @@ class KeyframeMesh(Animation):
     def _fill(self, t, out, origin):
         k0, k1, s = self.frame_position(t)
         shift = (1.0 - s) * self._centres[k0] + s * self._centres[k1] - origin
-        K.lerp_rows(self._frames[k0], self._frames[k1], s, self._verts, shift)
+        lerp_rows(self._frames[k0], self._frames[k1], s, self._verts, shift)
         gather_unchecked(self._verts, self._faces, out)
 
 
@@ -172,9 +175,6 @@ def load_frame_folder(folder, fps=30.0, *, allow_outside=False):
     leading out is a SceneFileError, a material or texture outside is left out with a warning,
     unless ``allow_outside`` trusts them.
     """
-    from .files import SceneFolder
-    from .mesh import load_mesh
-
     folder = Path(folder)
     if not folder.is_dir():
         raise SceneFileError(folder, "not a folder of frames")
@@ -199,8 +199,6 @@ def load_frame_folder(folder, fps=30.0, *, allow_outside=False):
     s = first.surface
     if s is not None and (s.normals is None or s.uv is not None or s.colors is not None or s.n_materials > 1
                           or s.textured):
-        from .surface import Surface
-
         scene.surface = Surface(s.material, s.diffuse, s.ambient, s.texture, s.textures, s.uv, s.colors, None)
     return scene
 

@@ -74,11 +74,14 @@ import numpy as np
 from numba import njit, prange
 
 from ..arrays import TRI_DTYPE, as_mesh, as_origin
+from ..camera import Camera
 from ..commands import pip_command
 from ..errors import InputError, SceneFileError
-from . import kernels as K
 from .animation import Animation, as_static_mask, check_time, gather_unchecked, pose_moving_vertices
 from .files import NotRegularFile, OutsideReference, SceneFolder, open_regular, os_problem, read_scene_file
+from .kernels import (INTERP_CUBIC, INTERP_LINEAR, INTERP_STEP, KIND_R, KIND_S, KIND_T, KIND_W, SERIAL_BELOW, Pose,
+                      as_channels, as_rig, compose_world, deform_vertices, sample_channels, skin_palette)
+from .mesh import Mesh
 from .surface import (FALLOFF_INVERSE_SQUARE, FALLOFF_NONE, LIGHT_COLUMNS, LIGHT_DIRECTIONAL, LIGHT_POINT,
                       SurfaceBuilder, Texture, TextureWarning, as_lights, load_texture, no_lights)
 
@@ -102,8 +105,8 @@ _COMPONENTS = {
     5126: ("<f4", None),
 }
 _NCOMP = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
-_PATHS = {"translation": (K.KIND_T, 3), "rotation": (K.KIND_R, 4), "scale": (K.KIND_S, 3), "weights": (K.KIND_W, 1)}
-_INTERP = {"LINEAR": K.INTERP_LINEAR, "STEP": K.INTERP_STEP, "CUBICSPLINE": K.INTERP_CUBIC}
+_PATHS = {"translation": (KIND_T, 3), "rotation": (KIND_R, 4), "scale": (KIND_S, 3), "weights": (KIND_W, 1)}
+_INTERP = {"LINEAR": INTERP_LINEAR, "STEP": INTERP_STEP, "CUBICSPLINE": INTERP_CUBIC}
 _GEOMETRY_EXTENSIONS_UNSUPPORTED = ("EXT_meshopt_compression", "KHR_meshopt_compression", "EXT_mesh_gpu_instancing")
 _MAX_JOINT_SETS = 4
 # sampler wrapS / wrapT -> gridrt.scene.surface.WRAP_MODES key
@@ -591,7 +594,7 @@ class _Primitive:
 
 def _decode_draco(r, prim, ext, what):
     try:
-        import DracoPy
+        import DracoPy  # deferred: the optional DracoPy, needed only for Draco-compressed glTF
     except ImportError:
         r.fail(f"{what} is Draco-compressed (KHR_draco_mesh_compression); {DRACO_HINT}")
     if not isinstance(ext, dict):
@@ -967,7 +970,7 @@ def _read_instances(r, nodes, visible, skins, looks=None):
 
 
 class _Channels(NamedTuple):
-    """The chosen clips' channels that move geometry, as the flat arrays K.sample_channels takes."""
+    """The chosen clips' channels that move geometry, the flat arrays of kernels.Channels."""
 
     times: np.ndarray  # every channel's key times, end to end ([0] without channels)
     values: np.ndarray  # every channel's output values, end to end ([0] without channels)
@@ -1013,7 +1016,7 @@ def _read_channels(r, anims, chosen, n_nodes, morphs, use_matrix):
             if interp not in _INTERP:
                 r.fail(f"{w}: unknown interpolation {interp!r}")
             kind, m = _PATHS[path_name]
-            if kind == K.KIND_W:
+            if kind == KIND_W:
                 if node not in morphs.offset:
                     continue  # weights of a node without morph targets move nothing
                 m = morphs.count[node]
@@ -1027,14 +1030,14 @@ def _read_channels(r, anims, chosen, n_nodes, morphs, use_matrix):
             ch["ncomp"].append(m)
             ch["interp"].append(_INTERP[interp])
             ch["kind"].append(kind)
-            ch["target"].append(morphs.offset[node] if kind == K.KIND_W else node)
+            ch["target"].append(morphs.offset[node] if kind == KIND_W else node)
             times.append(tk)
             values.append(vals)
             nt += len(tk)
             nv += len(vals)
             t_lo, t_hi = min(t_lo, float(tk[0])), max(t_hi, float(tk[-1]))
             if not _holds_its_value(vals, len(tk), per, m):
-                (moved_weights if kind == K.KIND_W else moved_nodes).add(node)
+                (moved_weights if kind == KIND_W else moved_nodes).add(node)
     return _Channels(
         np.concatenate(times) if times else np.zeros(1),
         np.concatenate(values) if values else np.zeros(1),
@@ -1077,7 +1080,7 @@ def _moving_nodes(order, parent, moved_nodes):
 
 
 class _Flat(NamedTuple):
-    """The instances laid end to end in the arrays K.deform_vertices takes."""
+    """The instances laid end to end in the arrays of kernels.Rig and deform_vertices."""
 
     local: np.ndarray  # (V, 3) float32: POSITION data
     vinst: np.ndarray  # (V,) int32: the instance of each vertex
@@ -1202,10 +1205,14 @@ def _normal_matrices(m, out):
         out[k, 2, 0], out[k, 2, 1], out[k, 2, 2] = c20 * s, c21 * s, c22 * s
 
 
-def _normal_body(v, nlocal, vinst, inst_first, inst_node, inst_skinned, inst_nmorph, joints, jweights,
-                inst_mbase, inst_mcount, inst_woff, ndeltas, mweights, node_nm, joint_nm, out):
-    """Pose vertex v's normal as K.deform_vertices poses its position: morph NORMAL deltas, then the
-    blend of its joints' normal matrices (or its node's), then normalize (a zero result stays zero)."""
+def _normal_body(v, nlocal, vinst, rig, inst_nmorph, pose, out):
+    """Pose vertex v's normal as deform_vertices poses its position: morph NORMAL deltas (rig.deltas
+    of instances with inst_nmorph), then the blend of its joints' normal matrices (pose.palette) or
+    its node's (pose.world), then normalize (a zero result stays zero)."""
+    inst_first, inst_node, inst_skinned = rig.first, rig.node, rig.skinned
+    inst_mbase, inst_mcount, inst_woff = rig.mbase, rig.mcount, rig.woff
+    joints, jweights, ndeltas = rig.joints, rig.jweights, rig.deltas
+    mweights, node_nm, joint_nm = pose.weights, pose.world, pose.palette
     i = vinst[v]
     x = np.float64(nlocal[v, 0])
     y = np.float64(nlocal[v, 1])
@@ -1261,19 +1268,15 @@ _normal_one_inlined = njit(inline="always")(_normal_body)
 
 
 @njit(cache=True, parallel=True)
-def _normals_parallel(vids, nlocal, vinst, inst_first, inst_node, inst_skinned, inst_nmorph, joints, jweights,
-                      inst_mbase, inst_mcount, inst_woff, ndeltas, mweights, node_nm, joint_nm, out):
+def _normals_parallel(vids, nlocal, vinst, rig, inst_nmorph, pose, out):
     for ii in prange(vids.shape[0]):
-        _normal_one_inlined(vids[ii], nlocal, vinst, inst_first, inst_node, inst_skinned, inst_nmorph, joints,
-                            jweights, inst_mbase, inst_mcount, inst_woff, ndeltas, mweights, node_nm, joint_nm, out)
+        _normal_one_inlined(vids[ii], nlocal, vinst, rig, inst_nmorph, pose, out)
 
 
 @njit(cache=True)
-def _normals_serial(vids, nlocal, vinst, inst_first, inst_node, inst_skinned, inst_nmorph, joints, jweights,
-                    inst_mbase, inst_mcount, inst_woff, ndeltas, mweights, node_nm, joint_nm, out):
+def _normals_serial(vids, nlocal, vinst, rig, inst_nmorph, pose, out):
     for ii in range(vids.shape[0]):
-        _normal_one(vids[ii], nlocal, vinst, inst_first, inst_node, inst_skinned, inst_nmorph, joints, jweights,
-                    inst_mbase, inst_mcount, inst_woff, ndeltas, mweights, node_nm, joint_nm, out)
+        _normal_one(vids[ii], nlocal, vinst, rig, inst_nmorph, pose, out)
 
 
 def _build_surface(instances, normals):
@@ -1430,9 +1433,8 @@ class GltfAnimation(Animation):
         anims = r.items("animations")
         chosen = self._select_clips(r, anims, clip)
         channels = _read_channels(r, anims, chosen, n_nodes, morphs, rest.use_matrix)
-        self._times = channels.times
-        self._values = channels.values
-        self._ch = channels.table
+        self._channels = as_channels(channels.times, channels.values, *(channels.table[k] for k in (
+            "tstart", "tcount", "vstart", "ncomp", "interp", "kind", "target")))
         self.n_channels = len(channels.table["kind"])
 
         moving = _moving_nodes(order, parent, channels.moved_nodes)
@@ -1444,10 +1446,7 @@ class GltfAnimation(Animation):
         self._local = local32
         self._faces = faces32
         self._vinst = flat.vinst
-        self._inst = flat.inst
-        self._joints = flat.joints
-        self._jweights = flat.jweights
-        self._deltas = flat.deltas
+        self._rig = as_rig(*flat.inst, flat.joints, flat.jweights, flat.deltas)
         self._order = np.array(order, dtype=np.int32)
         self._parent = parent
         self._use_matrix = rest.use_matrix
@@ -1518,7 +1517,8 @@ class GltfAnimation(Animation):
         self._has_normals = bool(fn.inst_has.any())
         normals = None
         if self._has_normals:
-            self._nlocal, self._ndeltas, self._inst_nmorph = fn.local, fn.deltas, fn.inst_morph
+            self._nlocal, self._inst_nmorph = fn.local, fn.inst_morph
+            self._nrig = self._rig._replace(deltas=np.ascontiguousarray(fn.deltas, np.float32))  # NORMAL deltas
             self._nposed = np.zeros((self.n_vertices, 3), dtype=TRI_DTYPE)
             self._node_nm = np.zeros((len(self._world), 3, 3))
             self._joint_nm = np.zeros((len(self._palette), 3, 3))
@@ -1584,30 +1584,25 @@ class GltfAnimation(Animation):
         return t0 + (t % self.duration)
 
     def _update_world(self, tc):
-        c = self._ch
-        K.sample_channels(self._times, self._values, c["tstart"], c["tcount"], c["vstart"], c["ncomp"],
-                          c["interp"], c["kind"], c["target"], tc, self._node_t, self._node_r, self._node_s,
-                          self._weights)
-        K.compose_world(self._order, self._parent, self._use_matrix, self._node_matrix, self._node_t,
+        sample_channels(self._channels, tc, self._node_t, self._node_r, self._node_s, self._weights)
+        compose_world(self._order, self._parent, self._use_matrix, self._node_matrix, self._node_t,
                         self._node_r, self._node_s, self._world)
 
     def _pose(self, tc, vids, normals=False):
         """Bring the vertices ``vids`` of ``self._verts`` (with ``normals``: their normals in
         ``self._nposed``) to clip time ``tc``."""
         self._update_world(tc)
-        K.skin_palette(self._world, self._joint_node, self._ibm, self._palette)
-        first, node, skinned, mbase, mcount, woff = self._inst
+        skin_palette(self._world, self._joint_node, self._ibm, self._palette)
         if not normals:
-            K.deform_vertices(vids, self._local, self._vinst, first, node, skinned, self._joints, self._jweights,
-                              mbase, mcount, woff, self._deltas, self._weights, self._world, self._palette,
-                              self._centre, self._posed_origin, self._verts)
+            pose = Pose(self._weights, self._world, self._palette)
+            deform_vertices(vids, self._local, self._vinst, self._rig, pose, self._centre, self._posed_origin,
+                              self._verts)
             return
         _normal_matrices(self._world, self._node_nm)
         _normal_matrices(self._palette, self._joint_nm)
-        kernel = _normals_serial if len(vids) < K.SERIAL_BELOW else _normals_parallel
-        kernel(vids, self._nlocal, self._vinst, first, node, skinned, self._inst_nmorph, self._joints,
-               self._jweights, mbase, mcount, woff, self._ndeltas, self._weights, self._node_nm, self._joint_nm,
-               self._nposed)
+        kernel = _normals_serial if len(vids) < SERIAL_BELOW else _normals_parallel
+        kernel(vids, self._nlocal, self._vinst, self._nrig, self._inst_nmorph,
+               Pose(self._weights, self._node_nm, self._joint_nm), self._nposed)
 
     def _fill(self, t, out, origin):
         pose_moving_vertices(self, self._clip_time(t), origin)
@@ -1663,9 +1658,8 @@ class GltfAnimation(Animation):
         such as trimesh show).
         """
         world = np.zeros_like(self._world)
-        K.compose_world(self._order, self._parent, self._use_matrix, self._node_matrix, *self._rest, world)
-        first, node, *_ = self._inst
-        m = world[node[self._vinst]]
+        compose_world(self._order, self._parent, self._use_matrix, self._node_matrix, *self._rest, world)
+        m = world[self._rig.node[self._vinst]]
         p = self._local.astype(np.float64)
         v = np.einsum("vij,vj->vi", m[:, :3, :3], p) + m[:, :3, 3]
         return np.ascontiguousarray(v.astype(TRI_DTYPE)[self._faces])
@@ -1673,8 +1667,6 @@ class GltfAnimation(Animation):
     def to_mesh(self, t=0.0):
         """The scene at time ``t`` as an indexed :class:`gridrt.scene.mesh.Mesh` (shared vertices kept),
         with :attr:`surface` (its normals those at ``t``)."""
-        from .mesh import Mesh
-
         # posed in a frame centred on the scene, then moved back in float64: far from the origin the
         # mesh keeps the detail that float32 world coordinates would round away
         origin = self.frame_origin(t)
@@ -1690,8 +1682,6 @@ class GltfAnimation(Animation):
         t = check_time(t)
         if self._camera_node is None:
             return None
-        from ..camera import Camera
-
         node, fov = self._camera_node
         self._update_world(self._clip_time(t))
         m = self._world[node]

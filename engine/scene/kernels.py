@@ -1,7 +1,8 @@
 """numba kernels shared by the animated scene formats (glTF, BART, MD2, frame sequences).
 
-Every kernel takes arrays and scalars only, writes into buffers it is given and does no bounds
-checks: the loaders validate every index before the first call.
+Every kernel takes arrays, scalars and the records below (:data:`Channels`, :data:`Rig`,
+:data:`Pose`: module-level namedtuples of arrays with fixed dtypes), writes into buffers it is
+given and does no bounds checks: the loaders validate every index before the first call.
 
 Conventions
 -----------
@@ -16,6 +17,7 @@ section 3.7.3); morph targets add ``sum_k w_k * delta_k`` to the rest position b
 """
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit, prange
@@ -23,9 +25,41 @@ from numba import njit, prange
 __all__ = [
     "KIND_T", "KIND_R", "KIND_S", "KIND_W",
     "INTERP_LINEAR", "INTERP_STEP", "INTERP_CUBIC",
+    "Channels", "Rig", "Pose", "as_channels", "as_rig",
     "sample_channels", "compose_world", "skin_palette", "deform_vertices", "lerp_rows",
     "trs_matrix", "quat_matrix",
 ]
+
+#: Animation channels as :func:`sample_channels` takes them (see there): times (K,) and values (L,)
+#: float64; per channel c: tstart, tcount, vstart (C,) int64, ncomp, interp, kind, target (C,)
+#: int32.
+Channels = namedtuple("Channels", "times values tstart tcount vstart ncomp interp kind target")
+
+#: Instances and skins as the deform kernels take them (see :func:`deform_vertices`): per instance
+#: first (I+1,) int64, node (I,) int32, skinned (I,) bool, mbase (I,) int64, mcount (I,) int32,
+#: woff (I,) int64; per vertex joints (V, J) int32 and jweights (V, J) float32; morph deltas (D, 3)
+#: float32.
+Rig = namedtuple("Rig", "first node skinned mbase mcount woff joints jweights deltas")
+
+#: What poses a :data:`Rig` at one time: morph weights (W,) float64, world (N, 4, 4) float64 the
+#: nodes' matrices (rigid vertices), palette (G, 4, 4) float64 the joints' (skinned vertices).
+#: The normal kernels take the nodes' and joints' normal matrices in world and palette.
+Pose = namedtuple("Pose", "weights world palette")
+
+
+def as_channels(times, values, tstart, tcount, vstart, ncomp, interp, kind, target):
+    """A :data:`Channels` record in its fixed dtypes (C-contiguous copies only where needed)."""
+    f64, i64, i32 = np.float64, np.int64, np.int32
+    c = np.ascontiguousarray
+    return Channels(c(times, f64), c(values, f64), c(tstart, i64), c(tcount, i64), c(vstart, i64), c(ncomp, i32),
+                    c(interp, i32), c(kind, i32), c(target, i32))
+
+
+def as_rig(first, node, skinned, mbase, mcount, woff, joints, jweights, deltas):
+    """A :data:`Rig` record in its fixed dtypes (C-contiguous copies only where needed)."""
+    c = np.ascontiguousarray
+    return Rig(c(first, np.int64), c(node, np.int32), c(skinned, np.bool_), c(mbase, np.int64), c(mcount, np.int32),
+               c(woff, np.int64), c(joints, np.int32), c(jweights, np.float32), c(deltas, np.float32))
 
 KIND_T, KIND_R, KIND_S, KIND_W = 0, 1, 2, 3
 INTERP_LINEAR, INTERP_STEP, INTERP_CUBIC = 0, 1, 2
@@ -58,18 +92,21 @@ def _store(kind, target, j, value, node_t, node_r, node_s, weights):
 
 
 @njit(cache=True)
-def sample_channels(times, values, ch_tstart, ch_tcount, ch_vstart, ch_ncomp, ch_interp, ch_kind,
-                    ch_target, t, node_t, node_r, node_s, weights):
-    """Sample every animation channel at clip time ``t`` and write the results.
+def sample_channels(ch, t, node_t, node_r, node_s, weights):
+    """Sample every animation channel of ``ch`` (:data:`Channels`) at clip time ``t`` and write the
+    results.
 
-    times (K,) f64 concatenated key times; values (L,) f64 concatenated outputs; per channel c:
-    key times ``times[ch_tstart[c] : ch_tstart[c] + ch_tcount[c]]``, outputs from ``ch_vstart[c]``
-    (``ch_ncomp[c]`` components per key, three records per key in-tangent/value/out-tangent for
-    CUBICSPLINE), interpolation ``ch_interp[c]``, kind ``ch_kind[c]`` (T, R, S or W) and target
-    ``ch_target[c]`` (node index, or offset into ``weights`` for W).  Writes node_t (N,3),
+    ch.times (K,) f64 concatenated key times; ch.values (L,) f64 concatenated outputs; per channel c:
+    key times ``times[tstart[c] : tstart[c] + tcount[c]]``, outputs from ``vstart[c]``
+    (``ncomp[c]`` components per key, three records per key in-tangent/value/out-tangent for
+    CUBICSPLINE), interpolation ``interp[c]``, kind ``kind[c]`` (T, R, S or W) and target
+    ``target[c]`` (node index, or offset into ``weights`` for W).  Writes node_t (N,3),
     node_r (N,4), node_s (N,3) or weights (W,), all f64.  Before the first key the first value
     holds, after the last key the last value.
     """
+    times, values = ch.times, ch.values
+    ch_tstart, ch_tcount, ch_vstart, ch_ncomp = ch.tstart, ch.tcount, ch.vstart, ch.ncomp
+    ch_interp, ch_kind, ch_target = ch.interp, ch.kind, ch.target
     q = np.empty(4)
     for c in range(ch_tstart.shape[0]):
         ts = ch_tstart[c]
@@ -235,10 +272,13 @@ SERIAL_BELOW = 16384
 
 
 @njit(cache=True, _nrt=False)
-def _deform_one(v, local, vinst, inst_first, inst_node, inst_skinned, joints, jweights,
-                inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, centre, origin, out):
+def _deform_one(v, local, vinst, rig, pose, centre, origin, out):
     """Pose vertex v: morph targets, then linear-blend skinning or its node's world matrix; the
     rest position is local[v] + centre, the result is written as world - origin."""
+    inst_first, inst_node, inst_skinned = rig.first, rig.node, rig.skinned
+    inst_mbase, inst_mcount, inst_woff = rig.mbase, rig.mcount, rig.woff
+    joints, jweights, deltas = rig.joints, rig.jweights, rig.deltas
+    mweights, world, palette = pose.weights, pose.world, pose.palette
     i = vinst[v]
     x = np.float64(local[v, 0]) + centre[0]
     y = np.float64(local[v, 1]) + centre[1]
@@ -281,41 +321,34 @@ def _deform_one(v, local, vinst, inst_first, inst_node, inst_skinned, joints, jw
 
 
 @njit(cache=True, parallel=True)
-def _deform_parallel(vids, local, vinst, inst_first, inst_node, inst_skinned, joints, jweights,
-                     inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, centre, origin, out):
+def _deform_parallel(vids, local, vinst, rig, pose, centre, origin, out):
     """:func:`_deform_one` over vids, in parallel."""
     for ii in prange(vids.shape[0]):
-        _deform_one(vids[ii], local, vinst, inst_first, inst_node, inst_skinned, joints, jweights,
-                    inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, centre, origin, out)
+        _deform_one(vids[ii], local, vinst, rig, pose, centre, origin, out)
 
 
 @njit(cache=True)
-def _deform_serial(vids, local, vinst, inst_first, inst_node, inst_skinned, joints, jweights,
-                   inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, centre, origin, out):
+def _deform_serial(vids, local, vinst, rig, pose, centre, origin, out):
     """:func:`_deform_one` over vids on the calling thread (small scenes)."""
     for ii in range(vids.shape[0]):
-        _deform_one(vids[ii], local, vinst, inst_first, inst_node, inst_skinned, joints, jweights,
-                    inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, centre, origin, out)
+        _deform_one(vids[ii], local, vinst, rig, pose, centre, origin, out)
 
 
-def deform_vertices(vids, local, vinst, inst_first, inst_node, inst_skinned, joints, jweights,
-                    inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, centre, origin, out):
+def deform_vertices(vids, local, vinst, rig, pose, centre, origin, out):
     """Pose the vertices listed in ``vids``: morph, then skin or transform rigidly.
 
     vids (n,) int64 vertex ids; local (V,3) f32 rest positions; vinst (V,) int32 instance of each
-    vertex; per instance i: vertices ``inst_first[i] : inst_first[i+1]`` (inst_first (I+1,) int64),
-    node inst_node[i] (int32), inst_skinned[i] (bool), morph deltas rows
-    ``inst_mbase[i] + k * n_i + local_index`` for k < inst_mcount[i] (n_i = vertex count of the
-    instance) weighted by ``mweights[inst_woff[i] + k]``.  Skinned vertices blend
-    ``palette[joints[v, j]]`` (G,4,4) with jweights[v, j] (V,J) f32; a skinned vertex whose weights
-    are all zero, and every rigid vertex, uses world[inst_node[i]].  The rest position of v is
-    ``local[v] + centre`` (centre (3,) f64: float32 storage relative to it); writes
-    ``world - origin`` (origin (3,) f64) into out (V,3) f32.
+    vertex; ``rig`` (:data:`Rig`) per instance i: vertices ``first[i] : first[i+1]``, node
+    node[i], skinned[i], morph deltas rows ``mbase[i] + k * n_i + local_index`` for k < mcount[i]
+    (n_i = vertex count of the instance) weighted by ``pose.weights[woff[i] + k]``.  Skinned
+    vertices blend ``pose.palette[joints[v, j]]`` with jweights[v, j]; a skinned vertex whose weights
+    are all zero, and every rigid vertex, uses pose.world[node[i]] (``pose``: :data:`Pose`).  The
+    rest position of v is ``local[v] + centre`` (centre (3,) f64: float32 storage relative to it);
+    writes ``world - origin`` (origin (3,) f64) into out (V,3) f32.
     The callers validate every index; this wrapper only picks the serial or parallel kernel.
     """
     kernel = _deform_serial if vids.shape[0] < SERIAL_BELOW else _deform_parallel
-    kernel(vids, local, vinst, inst_first, inst_node, inst_skinned, joints, jweights,
-           inst_mbase, inst_mcount, inst_woff, deltas, mweights, world, palette, centre, origin, out)
+    kernel(vids, local, vinst, rig, pose, centre, origin, out)
 
 
 @njit(cache=True, parallel=True)

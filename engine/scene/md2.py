@@ -32,9 +32,11 @@ import numpy as np
 
 from ..errors import InputError, SceneFileError
 from .animation import gather_unchecked
+from .files import SceneFolder, open_regular, os_problem
 from .frames import KeyframeMesh, check_fps
 from .kernels import lerp_rows
-from .mesh import AMBIENT_FRACTION
+from .mesh import AMBIENT_FRACTION, DEFAULT_DIFFUSE, IMAGE_EXTENSIONS
+from .surface import Surface, TextureWarning, load_texture
 
 __all__ = ["ANORMS", "Md2Model", "find_skin", "read_md2", "MD2_TO_GRIDRT"]
 
@@ -130,8 +132,6 @@ class _Md2Data:
 
 
 def _decode(p):
-    from .files import open_regular, os_problem
-
     try:
         with open_regular(p) as (fh, size):
             head = fh.read(_HEADER.size)
@@ -221,8 +221,6 @@ def find_skin(path, skins=()):
     2. an image with the model's stem (``sydney.bmp`` for ``sydney.md2``);
     3. the folder's only image file, when it holds exactly one (``faerie2.bmp`` beside ``faerie.md2``).
     """
-    from .mesh import IMAGE_EXTENSIONS
-
     p = Path(path)
     try:
         images = sorted(q for q in p.parent.iterdir() if q.suffix.lower() in IMAGE_EXTENSIONS and q.is_file())
@@ -337,10 +335,6 @@ class Md2Model(KeyframeMesh):
         the default grey; uv from the st block; the first frame's normals at rest.  A skin that
         resolves outside the model's folder (a symlink leading out) is left out with a warning
         unless ``allow_outside``."""
-        from .files import SceneFolder
-        from .mesh import DEFAULT_DIFFUSE
-        from .surface import Surface, TextureWarning, load_texture
-
         if self.skin is None and data.skins and data.uv is not None:
             warnings.warn(f"{self.path}: skin {data.skins[0]!r} not found beside the model (nor an image named "
                           f"{self.path.stem}.*); drawn untextured", TextureWarning, stacklevel=3)

@@ -3,6 +3,26 @@ render worker's load job, a benchmark's scene spec) with :meth:`SceneSpec.make` 
 
 from dataclasses import dataclass, fields, replace
 
+from ..checks import check_finite
+from ..errors import InputError
+from .make import make_scene
+
+
+def _number(name, v, optional=True):
+    """``v`` as a finite float (None kept when ``optional``); InputError naming the field otherwise."""
+    if v is None and optional:
+        return None
+    return check_finite(f"scene {name}", v)
+
+
+def _integer(name, v, optional=True):
+    """``v`` as an int (None kept when ``optional``); InputError naming the field otherwise."""
+    if v is None and optional:
+        return None
+    if isinstance(v, bool) or not hasattr(v, "__index__"):
+        raise InputError(f"scene {name} must be an integer, got {v!r}")
+    return int(v)
+
 
 @dataclass(frozen=True)
 class SceneSpec:
@@ -36,6 +56,18 @@ class SceneSpec:
         object.__setattr__(self, "source", str(self.source))
         if isinstance(self.clip, str) and self.clip.isdigit():
             object.__setattr__(self, "clip", int(self.clip))  # "2" on a command line is clip index 2
+        elif self.clip is not None and not isinstance(self.clip, str):
+            object.__setattr__(self, "clip", _integer("clip", self.clip))
+        if self.animate is not None and not isinstance(self.animate, str):
+            raise InputError(f"scene animate must be a name, got {self.animate!r}")
+        for name in ("count", "subdivide"):
+            object.__setattr__(self, name, _integer(name, getattr(self, name)))
+        object.__setattr__(self, "seed", _integer("seed", self.seed, optional=False))
+        for name in ("amplitude", "fps"):
+            object.__setattr__(self, name, _number(name, getattr(self, name)))
+        object.__setattr__(self, "speed", _number("speed", self.speed, optional=False))
+        if not isinstance(self.allow_outside, bool):
+            raise InputError(f"scene allow_outside must be true or false, got {self.allow_outside!r}")
 
     def options(self):
         """The make_scene keyword arguments this spec sets (fields other than source that
@@ -46,8 +78,6 @@ class SceneSpec:
 
     def make(self):
         """Load the scene: :func:`gridrt.scene.make_scene` with these options."""
-        from . import make_scene
-
         return make_scene(self.source, count=self.count, animate=self.animate, amplitude=self.amplitude,
                           speed=self.speed, seed=self.seed, clip=self.clip, subdivide=self.subdivide, fps=self.fps,
                           allow_outside=self.allow_outside)

@@ -23,6 +23,7 @@ from ..arrays import TRI_DTYPE, storage_centre
 from ..errors import InputError
 from ..memory import allocating, check_fits, human
 from .mesh import Mesh
+from .surface import Surface
 
 __all__ = ["subdivide_mesh", "split_once", "split_surface", "subdivide_bytes", "MAX_SUBDIVIDED_TRIANGLES"]
 
@@ -81,8 +82,6 @@ def split_surface(surface):
     """The surface of ``split_once``'s children: one 1 -> 4 split of a Surface (or None)."""
     if surface is None:
         return None
-    from .surface import Surface
-
     s = surface
     split = (lambda a, unit=False: None if a is None else _split_corners(a, unit))
     return Surface(np.repeat(s.material, 4), s.diffuse, s.ambient, s.texture, s.textures,

@@ -35,10 +35,12 @@ import contextvars
 import re
 import warnings
 from dataclasses import dataclass, field
+from io import BytesIO
 
 import numpy as np
 
 from ..errors import InputError
+from .files import open_regular, os_problem
 
 __all__ = [
     "AMBIENT_FRACTION", "DEFAULT_DIFFUSE", "FALLOFF_INVERSE_SQUARE", "FALLOFF_NONE", "LIGHT_COLUMNS", "LIGHT_DIRECTIONAL", "LIGHT_POINT", "WRAP_MODES",
@@ -95,11 +97,7 @@ def load_texture(path, wrap=("repeat", "repeat"), data=None, name=None):
     naming the file and the problem, when it cannot be read: missing, not a regular file (a FIFO
     or a device is never opened for reading), not an image, or larger than
     :data:`MAX_TEXTURE_PIXELS` (checked from the image's header, before decoding)."""
-    from io import BytesIO
-
-    from PIL import Image, UnidentifiedImageError
-
-    from .files import open_regular, os_problem
+    from PIL import Image, UnidentifiedImageError  # deferred: Pillow, for textures only
 
     label = name or (str(path) if path is not None else "embedded image")
 

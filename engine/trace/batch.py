@@ -34,9 +34,10 @@ rounding of an edge.
 import numpy as np
 from numba import njit, parallel_chunksize, prange
 
-from .cgt import (IO_DX, IO_DY, IO_DZ, IO_F, IO_OX, IO_OY, IO_OZ, IO_TMAX, MBOX, NIO, NS, PN, direction_class,
-                  trace_packet)
-from .intersect import permute, shear_setup
+from .cgt import (IO_DX, IO_DY, IO_DZ, IO_F, IO_OX, IO_OY, IO_OZ, IO_TMAX, MBOX, NIO, NS, PN, PacketQuery,
+                  direction_class, trace_packet)
+from .intersect import ray_shear
+from .query import HitArrays, PacketScratch, cast_pass, query
 from .traverse import (MAILBOX, MOVED, NEAR, TINY_DIR, _floor_clamp, _test_triangle, far_interval, far_shift, far_t,
                        is_far, trace_ray)
 
@@ -58,13 +59,15 @@ NO_LEFT = np.zeros(0, np.uint8)
 
 
 @njit(cache=True, _nrt=False)
-def _single(g, origins, dirs, i, tmin, tmax, watertight, any_hit, mb1, out_t, out_f, out_u, out_v):
-    f, t, u, v, nc, nt = trace_ray(g, origins[i, 0], origins[i, 1], origins[i, 2], dirs[i, 0], dirs[i, 1],
-                                   dirs[i, 2], tmin, tmax, watertight, any_hit, mb1)
-    out_t[i] = t
-    out_f[i] = f
-    out_u[i] = u
-    out_v[i] = v
+def _single(g, origins, dirs, i, q, mb1, out):
+    """Ray i traced on its own (trace_ray, the :class:`Query` q, mailbox mb1) into row i of the
+    :class:`HitArrays` out."""
+    f, t, u, v, nc, nt = trace_ray(g, (origins[i, 0], origins[i, 1], origins[i, 2]),
+                                   (dirs[i, 0], dirs[i, 1], dirs[i, 2]), q.tmin, q.tmax, q.watertight, q.any_hit, mb1)
+    out.t[i] = t
+    out.tri[i] = f
+    out.u[i] = u
+    out.v[i] = v
 
 
 @njit(cache=True, _nrt=False)
@@ -84,12 +87,16 @@ def _one_class(dirs, idx, s, n, use_idx):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def _cast_run(g, origins, dirs, idx, s, n, tmin, tmax, watertight, any_hit, max_cells, singly, f32, io, S, mb,
-              mb1, out_t, out_f, out_u, out_v, left):
-    """Rays idx[s:s+n] (rays s..s+n-1 when idx is empty) as one packet when they make one (see
-    the module docstring; never when max_cells <= 0), its triangle tests in float32 with f32;
-    otherwise one at a time (singly) or flagged in ``left``.  Returns the number of rays traced
-    as a packet (n or 0)."""
+def _cast_run(g, origins, dirs, idx, s, n, q, how, scratch, out):
+    """Rays idx[s:s+n] (rays s..s+n-1 when idx is empty) for the :class:`Query` q, as the
+    :class:`CastPass` ``how`` says: as one packet when they make one (see the module docstring;
+    never when how.max_cells <= 0), its triangle tests in float32 with how.f32; otherwise one at
+    a time (how.singly) or flagged in out.left.  Results go to the :class:`HitArrays` out, the
+    :class:`PacketScratch` ``scratch`` is the worker's.  Returns the number of rays traced as a
+    packet (n or 0)."""
+    tmin, tmax, watertight, any_hit = q.tmin, q.tmax, q.watertight, q.any_hit
+    max_cells, f32 = how.max_cells, how.f32
+    io, mb1 = scratch.io, scratch.mb1
     use_idx = idx.shape[0] > 0
     r = -1
     if max_cells > 0.0 and _one_class(dirs, idx, s, n, use_idx):
@@ -102,24 +109,25 @@ def _cast_run(g, origins, dirs, idx, s, n, tmin, tmax, watertight, any_hit, max_
             io[IO_DY * PN + j] = dirs[i, 1]
             io[IO_DZ * PN + j] = dirs[i, 2]
             io[IO_TMAX * PN + j] = tmax
-        r = trace_packet(g, n, io, tmin, watertight, any_hit, S, mb, mb1, max_cells, None, f32)
+        r = trace_packet(g, n, io, PacketQuery(tmin, watertight, any_hit, f32), scratch.S, scratch.mb, mb1, max_cells,
+                         None)
     if r < 0:
         for j in range(n):
             i = idx[s + j] if use_idx else s + j
-            if singly:
-                _single(g, origins, dirs, i, tmin, tmax, watertight, any_hit, mb1, out_t, out_f, out_u, out_v)
+            if how.singly:
+                _single(g, origins, dirs, i, q, mb1, out)
             else:
-                left[i] = 1
+                out.left[i] = 1
         return 0
     tris = g.tris
     for j in range(n):
         i = idx[s + j] if use_idx else s + j
         f = int(io[IO_F * PN + j])
-        out_f[i] = f
+        out.tri[i] = f
         if f < 0:
-            out_t[i] = np.inf
-            out_u[i] = 0.0
-            out_v[i] = 0.0
+            out.t[i] = np.inf
+            out.u[i] = 0.0
+            out.v[i] = 0.0
             continue
         # the single-ray test of the triangle hit: the packet's t bit for bit, and u, v (from
         # where the packet traced the ray: a far one from just before the grid box)
@@ -133,43 +141,39 @@ def _cast_run(g, origins, dirs, idx, s, n, tmin, tmax, watertight, any_hit, max_
         if verdict == MOVED:
             ox, oy, oz = mx, my, mz
             t_lo = far_interval(tmin, np.inf, th, tl)[0]
-        kx, ky, kz, Sx, Sy, Sz = shear_setup(dx, dy, dz)
-        okx, oky, okz = permute(ox, oy, oz, kx, ky, kz)
-        hit, t, u, v = _test_triangle(tris, f, watertight, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz,
-                                      ox, oy, oz, dx, dy, dz, t_lo, np.inf)
+        o = (ox, oy, oz)
+        d = (dx, dy, dz)
+        hit, t, u, v = _test_triangle(tris, f, watertight, ray_shear(o, d), o, d, t_lo, np.inf)
         if verdict == MOVED:
             t = far_t(t, th, tl)
         if f32 and not (hit and t < tmax):
             # the float32 tests chose a triangle the float64 test misses (within float32 rounding
             # of an edge or of tmax): the ray goes again in float64, on its own
-            _single(g, origins, dirs, i, tmin, tmax, watertight, any_hit, mb1, out_t, out_f, out_u, out_v)
+            _single(g, origins, dirs, i, q, mb1, out)
             continue
-        out_t[i] = t
-        out_u[i] = u
-        out_v[i] = v
+        out.t[i] = t
+        out.u[i] = u
+        out.v[i] = v
     return n
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def cast_runs_kernel(g, origins, dirs, idx, tmin, tmax, watertight, any_hit, max_cells, singly, f32,
-                     out_t, out_f, out_u, out_v, left):
-    """Pass 1 (idx empty: the rays in order, singly False) or pass 2 (idx: the rays left, sorted;
-    singly True) of a batch cast over the grid g (GridArrays), in runs of RUN rays, into the out_*
-    arrays (N,).  ``left`` (N,) uint8: pass 1 sets it to 1 for the rays it leaves.  Returns the
-    number of rays traced in packets.  (Call under numba.parallel_chunksize(1).)"""
+def cast_runs_kernel(g, origins, dirs, idx, q, how, out):
+    """Pass 1 (idx empty: the rays in order, how.singly False) or pass 2 (idx: the rays left,
+    sorted; how.singly True) of a batch cast (the :class:`Query` q, the :class:`CastPass` how)
+    over the grid g (GridArrays), in runs of RUN rays, into the :class:`HitArrays` out of (N,)
+    arrays (pass 1 sets out.left to 1 for the rays it leaves).  Returns the number of rays traced
+    in packets.  (Call under numba.parallel_chunksize(1).)"""
     M = idx.shape[0] if idx.shape[0] > 0 else origins.shape[0]
     nruns = (M + RUN - 1) // RUN
     nitems = (nruns + GROUPS_PER_ITEM - 1) // GROUPS_PER_ITEM
     packets = np.zeros(nitems, np.int64)
     for it in prange(nitems):
-        io = np.empty(NIO * PN)
-        S = np.empty(NS * PN)
-        mb = np.empty(MBOX, np.int32)
-        mb1 = np.empty(MAILBOX, np.int32)
+        scratch = PacketScratch(np.empty(NIO * PN), np.empty(NS * PN), np.empty(MBOX, np.int32),
+                                np.empty(MAILBOX, np.int32))
         for run in range(it * GROUPS_PER_ITEM, min((it + 1) * GROUPS_PER_ITEM, nruns)):
             s = run * RUN
-            packets[it] += _cast_run(g, origins, dirs, idx, s, min(RUN, M - s), tmin, tmax, watertight, any_hit,
-                                     max_cells, singly, f32, io, S, mb, mb1, out_t, out_f, out_u, out_v, left)
+            packets[it] += _cast_run(g, origins, dirs, idx, s, min(RUN, M - s), q, how, scratch, out)
     total = 0
     for it in range(nitems):
         total += packets[it]
@@ -349,17 +353,17 @@ def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cel
     if N == 0:
         return 0, 0
     max_cells = float(max_cells)
+    q = query(tmin, tmax, watertight, any_hit)
     # (the run kernels under parallel_chunksize(1): runs differ in cost, so threads take work
     # items one at a time; not sort_keys, whose rows cost alike)
     if max_cells <= 0.0:
         with parallel_chunksize(1):
-            cast_runs_kernel(g, origins, dirs, NO_ROWS, tmin, tmax, watertight, any_hit, -1.0, True, f32, *out,
-                             NO_LEFT)
+            cast_runs_kernel(g, origins, dirs, NO_ROWS, q, cast_pass(-1.0, True, f32), HitArrays(*out, NO_LEFT))
         return 0, 0
     left = np.zeros(N, np.uint8)
     with parallel_chunksize(1):
-        p1 = cast_runs_kernel(g, origins, dirs, pass1_order(origins, dirs), tmin, tmax, watertight, any_hit,
-                              max_cells, False, f32, *out, left)
+        p1 = cast_runs_kernel(g, origins, dirs, pass1_order(origins, dirs), q, cast_pass(max_cells, False, f32),
+                              HitArrays(*out, left))
     rows = np.flatnonzero(left)
     if len(rows) == 0:
         return int(p1), 0
@@ -374,6 +378,6 @@ def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cel
     if sort:
         rows = rows[np.argsort(keys)]
     with parallel_chunksize(1):
-        p2 = cast_runs_kernel(g, origins, dirs, rows, tmin, tmax, watertight, any_hit, max_cells if sort else -1.0,
-                              True, f32, *out, NO_LEFT)
+        p2 = cast_runs_kernel(g, origins, dirs, rows, q, cast_pass(max_cells if sort else -1.0, True, f32),
+                              HitArrays(*out, NO_LEFT))
     return int(p1), int(p2)

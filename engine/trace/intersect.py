@@ -10,8 +10,9 @@
 Both are double-sided and return (hit, t, u, v) with p = (1-u-v)*v0 + u*v1 + v*v2.
 """
 
-import numpy as np
 from numba import njit
+
+from .query import Shear
 
 
 @njit(cache=True)
@@ -49,11 +50,24 @@ def permute(x, y, z, kx, ky, kz):
 
 
 @njit(cache=True, inline="always")
-def woop_shear(p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z, okx, oky, okz, Sx, Sy):
-    """The vertices of Woop et al.'s test relative to the ray origin and sheared onto the plane
-    across the ray: (Ax, Ay, Bx, By, Cx, Cy, az, bz, cz), in the precision of the arguments
-    (everything permuted as for :func:`intersect_watertight`).  Inlined where it is called, so
-    the packet loops that call it still vectorize."""
+def ray_shear(o, d):
+    """The :class:`gridrt.trace.query.Shear` of the ray from o along d (3-tuples): the watertight
+    test's permutation, origin and shear (:func:`shear_setup`, :func:`permute`)."""
+    kx, ky, kz, Sx, Sy, Sz = shear_setup(d[0], d[1], d[2])
+    okx, oky, okz = permute(o[0], o[1], o[2], kx, ky, kz)
+    return Shear(kx, ky, kz, okx, oky, okz, Sx, Sy, Sz)
+
+
+@njit(cache=True, inline="always")
+def woop_shear(p0, p1, p2, ok, Sx, Sy):
+    """The vertices p0, p1, p2 (3-tuples) of Woop et al.'s test relative to the ray origin ok and
+    sheared onto the plane across the ray: (Ax, Ay, Bx, By, Cx, Cy, az, bz, cz), in the precision
+    of the arguments (everything permuted as for :func:`intersect_watertight`).  Inlined where it
+    is called, so the packet loops that call it still vectorize."""
+    p0x, p0y, p0z = p0
+    p1x, p1y, p1z = p1
+    p2x, p2y, p2z = p2
+    okx, oky, okz = ok
     ax = p0x - okx
     ay = p0y - oky
     az = p0z - okz
@@ -75,13 +89,14 @@ def woop_edges(Ax, Ay, Bx, By, Cx, Cy):
 
 
 @njit(cache=True)
-def intersect_watertight(p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z, okx, oky, okz, Sx, Sy, Sz, tmin, tmax):
+def intersect_watertight(p0, p1, p2, sh, tmin, tmax):
     """Woop et al. 2013 watertight test; a hit needs tmin < t < tmax.
 
-    The vertices p0, p1, p2 and the origin (okx, oky, okz) are given already permuted by the
-    ray's (kx, ky, kz) (see :func:`shear_setup` and :func:`permute`).
+    The vertices p0, p1, p2 (3-tuples) are given already permuted by the ray's (kx, ky, kz), as
+    its origin is in its :class:`gridrt.trace.query.Shear` ``sh`` (see :func:`ray_shear`).
     """
-    Ax, Ay, Bx, By, Cx, Cy, az, bz, cz = woop_shear(p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z, okx, oky, okz, Sx, Sy)
+    Sz = sh.Sz
+    Ax, Ay, Bx, By, Cx, Cy, az, bz, cz = woop_shear(p0, p1, p2, (sh.okx, sh.oky, sh.okz), sh.Sx, sh.Sy)
     U, V, W = woop_edges(Ax, Ay, Bx, By, Cx, Cy)
     if (U < 0.0 or V < 0.0 or W < 0.0) and (U > 0.0 or V > 0.0 or W > 0.0):
         return False, 0.0, 0.0, 0.0
@@ -96,8 +111,14 @@ def intersect_watertight(p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z, okx, oky, 
 
 
 @njit(cache=True)
-def intersect_fast(v0x, v0y, v0z, v1x, v1y, v1z, v2x, v2y, v2z, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    """Möller-Trumbore test (double-sided, not watertight)."""
+def intersect_fast(v0, v1, v2, o, d, tmin, tmax):
+    """Möller-Trumbore test (double-sided, not watertight) of the triangle v0, v1, v2 with the ray
+    from o along d (3-tuples)."""
+    v0x, v0y, v0z = v0
+    v1x, v1y, v1z = v1
+    v2x, v2y, v2z = v2
+    ox, oy, oz = o
+    dx, dy, dz = d
     e1x = v1x - v0x
     e1y = v1y - v0y
     e1z = v1z - v0z

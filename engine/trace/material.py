@@ -31,7 +31,9 @@ import numpy as np
 from numba import njit, prange
 
 from ..camera import pixel_dir
-from ..scene.surface import FALLOFF_INVERSE_SQUARE, LIGHT_DIRECTIONAL, LIGHT_POINT
+from ..scene.surface import (AMBIENT_FRACTION, DEFAULT_DIFFUSE, FALLOFF_INVERSE_SQUARE, LIGHT_DIRECTIONAL, LIGHT_POINT,
+                             Surface)
+from .records import SurfaceArrays
 from .shade import put_pixel, unit_normal
 
 
@@ -121,10 +123,13 @@ def sample_bilinear(tex_data, tex_info, k, u, v):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def light_weight(lights, li, px, py, pz, ngx, ngy, ngz, nsx, nsy, nsz):
-    """(weight, lx, ly, lz, dist) of light li at the hit p with facing normals n_g, n_s: the unit
-    vector l to the light, its distance (inf for a directional light) and weight n_s . l (over d^2
-    with inverse-square falloff), 0 when the light is behind the surface."""
+def light_weight(lights, li, p, ng, ns):
+    """(weight, lx, ly, lz, dist) of light li at the hit p with facing normals n_g, n_s (3-tuples):
+    the unit vector l to the light, its distance (inf for a directional light) and weight n_s . l
+    (over d^2 with inverse-square falloff), 0 when the light is behind the surface."""
+    px, py, pz = p
+    ngx, ngy, ngz = ng
+    nsx, nsy, nsz = ns
     r = 1.0
     if lights[li, 0] == LIGHT_DIRECTIONAL:
         lx, ly, lz = lights[li, 1], lights[li, 2], lights[li, 3]
@@ -151,11 +156,15 @@ def light_weight(lights, li, px, py, pz, ngx, ngy, ngz, nsx, nsy, nsz):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def surface_at(stris, normals, material, diffuse, ambient, texture, tex_data, tex_info, uv, colors,
-               f, ex, ey, ez, dx, dy, dz):
-    """What the camera ray eye + t d sees on scene triangle f: (p, n_g, n_s, tv, tvd, tva) with p
-    the hit point (float64), n_g and n_s the facing geometric and shading normals, tvd = T V D and
-    tva = T V A the colours the lights and the ambient term multiply."""
+def surface_at(surf, f, e, d):
+    """What the camera ray eye + t d (e, d: 3-tuples) sees on scene triangle f of the surface surf
+    (:class:`gridrt.trace.records.SurfaceArrays`): (p, n_g, n_s, tvd, tva) with p the hit point
+    (float64), n_g and n_s the facing geometric and shading normals, tvd = T V D and tva = T V A
+    the colours the lights and the ambient term multiply."""
+    stris, normals, material, diffuse, ambient = surf.tris, surf.normals, surf.material, surf.diffuse, surf.ambient
+    texture, tex_data, tex_info, uv, colors = surf.texture, surf.tex_data, surf.tex_info, surf.uv, surf.colors
+    ex, ey, ez = e
+    dx, dy, dz = d
     w0, w1, w2 = barycentrics(stris, f, ex, ey, ez, dx, dy, dz)
     px = w0 * stris[f, 0, 0] + w1 * stris[f, 1, 0] + w2 * stris[f, 2, 0]
     py = w0 * stris[f, 0, 1] + w1 * stris[f, 1, 1] + w2 * stris[f, 2, 1]
@@ -194,8 +203,10 @@ def surface_at(stris, normals, material, diffuse, ambient, texture, tex_data, te
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def _shade_row(y, basis, W, H, ibuf, stris, normals, material, diffuse, ambient, texture, tex_data, tex_info, uv,
-               colors, lights, deferred, img, pos, ngb, nsb, tvd, acc):
+def _shade_row(y, view, ibuf, surf, lights, deferred, img, hp):
+    """Row y of shade_kernel."""
+    basis, W, H = view.basis, view.W, view.H
+    pos, ngb, nsb, tvd, acc = hp.pos, hp.ng, hp.ns, hp.tvd, hp.acc
     ex, ey, ez = basis[0, 0], basis[0, 1], basis[0, 2]
     for x in range(W):
         f = ibuf[y, x]
@@ -205,9 +216,7 @@ def _shade_row(y, basis, W, H, ibuf, stris, normals, material, diffuse, ambient,
                 acc[i, 0] = -1.0
             continue
         dx, dy, dz = pixel_dir(basis, W, H, x, y)
-        px, py, pz, gx, gy, gz, sx, sy, sz, dr, dg, db, ar, ag, ab = surface_at(
-            stris, normals, material, diffuse, ambient, texture, tex_data, tex_info, uv, colors,
-            f, ex, ey, ez, dx, dy, dz)
+        px, py, pz, gx, gy, gz, sx, sy, sz, dr, dg, db, ar, ag, ab = surface_at(surf, f, (ex, ey, ez), (dx, dy, dz))
         if deferred:  # the lights are added once their shadow rays are cast
             pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
             ngb[i, 0], ngb[i, 1], ngb[i, 2] = gx, gy, gz
@@ -217,7 +226,7 @@ def _shade_row(y, basis, W, H, ibuf, stris, normals, material, diffuse, ambient,
             continue
         r, g, b = ar, ag, ab
         for li in range(lights.shape[0]):
-            s, lx, ly, lz, dist = light_weight(lights, li, px, py, pz, gx, gy, gz, sx, sy, sz)
+            s, lx, ly, lz, dist = light_weight(lights, li, (px, py, pz), (gx, gy, gz), (sx, sy, sz))
             if s > 0.0:
                 r += dr * lights[li, 4] * s
                 g += dg * lights[li, 5] * s
@@ -227,40 +236,41 @@ def _shade_row(y, basis, W, H, ibuf, stris, normals, material, diffuse, ambient,
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def shade_kernel(basis, W, H, ibuf, stris, normals, material, diffuse, ambient, texture, tex_data, tex_info, uv,
-                 colors, lights, deferred, img, pos, ngb, nsb, tvd, acc):
+def shade_kernel(view, ibuf, surf, lights, deferred, img, hp):
     """Colour the hit pixels of img (H,W,4) (ibuf: scene ids, -1 a miss, whose background the render
-    kernel wrote) with the
-    surface and the lights (L, 8) (frame coordinates), or with ``deferred`` (shadows) write each
-    hit's point, normals, T V D and T V A (acc; -1 in acc[:, 0] for a miss) into the flat (W*H, 3)
-    buffers for :func:`light_rays`, :func:`add_light` and :func:`compose`."""
-    for y in prange(H):
-        _shade_row(y, basis, W, H, ibuf, stris, normals, material, diffuse, ambient, texture, tex_data, tex_info,
-                   uv, colors, lights, deferred, img, pos, ngb, nsb, tvd, acc)
+    kernel wrote; view: :class:`gridrt.trace.records.View`) with the surface surf
+    (:class:`gridrt.trace.records.SurfaceArrays`) and the lights (L, 8) (frame coordinates), or
+    with ``deferred`` (shadows) write each hit's point, normals, T V D and T V A (acc; -1 in
+    acc[:, 0] for a miss) into the flat (W*H, 3) buffers of hp
+    (:class:`gridrt.trace.records.HitPoints`) for :func:`light_rays`, :func:`add_light` and
+    :func:`compose`."""
+    for y in prange(view.H):
+        _shade_row(y, view, ibuf, surf, lights, deferred, img, hp)
 
 
 @njit(cache=True, error_model="numpy")
-def shade_serial(basis, W, H, ibuf, stris, normals, material, diffuse, ambient, texture, tex_data, tex_info, uv,
-                 colors, lights, deferred, img, pos, ngb, nsb, tvd, acc):
+def shade_serial(view, ibuf, surf, lights, deferred, img, hp):
     """shade_kernel on one thread (gridrt.trace.twin)."""
-    for y in range(H):
-        _shade_row(y, basis, W, H, ibuf, stris, normals, material, diffuse, ambient, texture, tex_data, tex_info,
-                   uv, colors, lights, deferred, img, pos, ngb, nsb, tvd, acc)
+    for y in range(view.H):
+        _shade_row(y, view, ibuf, surf, lights, deferred, img, hp)
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def light_rays(lights, li, pos, ngb, nsb, acc, off, far, need, origins, dirs, weight):
-    """The shadow rays of light li from every hit (acc[i, 0] >= 0) it lights: need[i] = 1, the
-    origin p + n_g * off, the direction to the light (a point light's vector to it, or far times a
+def light_rays(lights, li, hp, off, far, rays):
+    """The shadow rays (:class:`gridrt.trace.records.ShadowRays`) of light li from every hit of hp
+    (:class:`gridrt.trace.records.HitPoints`; acc[i, 0] >= 0) it lights: need[i] = 1, the origin
+    p + n_g * off, the direction to the light (a point light's vector to it, or far times a
     directional light's unit vector; tmax 1) and the light's weight in weight[i]."""
+    pos, ngb, nsb, acc = hp.pos, hp.ng, hp.ns, hp.acc
+    need, origins, dirs, weight = rays.need, rays.origins, rays.dirs, rays.weight
     for i in prange(pos.shape[0]):
         need[i] = 0
         if acc[i, 0] < 0.0:
             continue
         px, py, pz = pos[i, 0], pos[i, 1], pos[i, 2]
         gx, gy, gz = ngb[i, 0], ngb[i, 1], ngb[i, 2]
-        s, lx, ly, lz, dist = light_weight(lights, li, px, py, pz, gx, gy, gz,
-                                           np.float64(nsb[i, 0]), np.float64(nsb[i, 1]), np.float64(nsb[i, 2]))
+        s, lx, ly, lz, dist = light_weight(lights, li, (px, py, pz), (gx, gy, gz),
+                                           (np.float64(nsb[i, 0]), np.float64(nsb[i, 1]), np.float64(nsb[i, 2])))
         if s <= 0.0:
             continue
         need[i] = 1
@@ -301,6 +311,14 @@ def compose(W, H, acc, img):
 def default_surface(n_triangles):
     """One material of gridrt's default colours (DEFAULT_DIFFUSE, the lambert mode's ALBEDO, and
     AMBIENT_FRACTION of it as ambient) for every triangle."""
-    from ..scene.surface import AMBIENT_FRACTION, DEFAULT_DIFFUSE, Surface
-
     return Surface.plain(n_triangles, DEFAULT_DIFFUSE, tuple(AMBIENT_FRACTION * c for c in DEFAULT_DIFFUSE))
+
+
+def surface_arrays(tris, surface, normals):
+    """The :class:`gridrt.trace.records.SurfaceArrays` of the scene's triangles ``tris`` (F, 3, 3)
+    float32, its Surface (None: :func:`default_surface`) and its per-corner normals ((F, 3, 3)
+    float32, or None: the geometric ones)."""
+    ps = (surface if surface is not None else default_surface(len(tris))).packed
+    nrm = normals if normals is not None else np.zeros((0, 3, 3), np.float32)
+    return SurfaceArrays(tris, nrm, ps.material, ps.diffuse, ps.ambient, ps.texture, ps.tex_data, ps.tex_info, ps.uv,
+                         ps.colors)

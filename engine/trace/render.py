@@ -36,16 +36,19 @@ from numba import njit, parallel_chunksize, prange
 from ..arrays import as_origin, check_ray_values, check_rays
 from ..config import DEFAULT_MAX_BYTES, PACKET_PRECISIONS, RenderParams, _positive_int
 from ..errors import InputError
+from ..grid.layout import Grid
 from ..memory import check_fits
 from ..stats import RenderStats
 from ..threads import check_threads, launch_guard, use_threads
-from ..scene.surface import as_lights
+from ..scene.surface import Surface, as_lights
 from .batch import MAX_CELLS, cast_grouped, odd_directions
 from .traverse import MAILBOX, trace_grids
 from .twin import TWINS
 from ..camera import Camera, pixel_dir
-from .cgt import cgt_render_kernel, cgt_render_serial
+from .cgt.frame import cgt_render_kernel, cgt_render_serial
 from .grids import grid_arrays, pack_grids, unpack_grids
+from .material import add_light, compose, light_rays, shade_kernel, shade_serial, surface_arrays
+from .records import Buffers, HitPoints, ShadowRays, make_packets, make_shading, make_view
 from .shade import (  # noqa: F401  (the shading constants stay importable from here)
     AMBIENT, ALBEDO, BACKGROUND, COST_SCALE, cost_rgb, facing_normal, lambert_rgb, normal_rgb, put_pixel, scene_id,
     shadow_ray,
@@ -57,9 +60,11 @@ SHADING_CODES = {"lambert": 0, "normal": 1, "cost": 2, "material": 0}
 
 
 @njit(cache=True)
-def _render_tile(grids, basis, W, H, tile, ti, mode, shadows, light, off, watertight,
-                 img, tbuf, idbuf, costbuf, cellbuf, mb):
+def _render_tile(grids, view, looks, light, ti, out, mb):
     """Tile ti (row-major) of render_kernel, with the mailbox mb."""
+    basis, W, H, tile = view.basis, view.W, view.H, view.tile
+    mode, shadows, off, watertight = looks.mode, looks.shadows, looks.off, looks.watertight
+    img, tbuf, idbuf, costbuf, cellbuf = out.img, out.t, out.tri, out.cost, out.cells
     ntx = (W + tile - 1) // tile
     ex, ey, ez = basis[0, 0], basis[0, 1], basis[0, 2]
     tx0 = (ti % ntx) * tile
@@ -67,7 +72,7 @@ def _render_tile(grids, basis, W, H, tile, ti, mode, shadows, light, off, watert
     for y in range(ty0, min(ty0 + tile, H)):
         for x in range(tx0, min(tx0 + tile, W)):
             dx, dy, dz = pixel_dir(basis, W, H, x, y)
-            which, f, t, u, v, nc, nt = trace_grids(grids, ex, ey, ez, dx, dy, dz, 0.0, np.inf, watertight, False, mb)
+            which, f, t, u, v, nc, nt = trace_grids(grids, (ex, ey, ez), (dx, dy, dz), 0.0, np.inf, watertight, False, mb)
             tbuf[y, x] = np.float32(t)
             idbuf[y, x] = scene_id(grids, which, f)
             costbuf[y, x] = nt
@@ -84,10 +89,10 @@ def _render_tile(grids, basis, W, H, tile, ti, mode, shadows, light, off, watert
                         s = -dn
                     else:
                         need, sox, soy, soz, lx, ly, lz, ld, s = shadow_ray(
-                            ex, ey, ez, t, dx, dy, dz, nx, ny, nz, light, off)
+                            (ex, ey, ez), t, (dx, dy, dz), (nx, ny, nz), light, off)
                         if need:
                             sw, sf, st, su, sv, snc, snt = trace_grids(
-                                grids, sox, soy, soz, lx, ly, lz, 0.0, ld, watertight, True, mb)
+                                grids, (sox, soy, soz), (lx, ly, lz), 0.0, ld, watertight, True, mb)
                             if sf >= 0:
                                 s = 0.0
                     r, g, b = lambert_rgb(s)
@@ -95,39 +100,35 @@ def _render_tile(grids, basis, W, H, tile, ti, mode, shadows, light, off, watert
 
 
 @njit(cache=True, parallel=True)
-def render_kernel(
-    grids, basis, W, H, tile, mode, shadows, light, off, watertight, img, tbuf, idbuf, costbuf, cellbuf,
-):
-    """Render W x H pixels into img (H,W,4) uint8, tbuf (H,W) float32, idbuf (H,W) int32,
-    costbuf (H,W) int32 (triangle tests) and cellbuf (H,W) int32 (cells visited).
+def render_kernel(grids, view, looks, light, out):
+    """Render the view's W x H pixels (:class:`gridrt.trace.records.View`) into the buffers out
+    (:class:`gridrt.trace.records.Buffers`): img (H,W,4) uint8, t (H,W) float32, tri (H,W) int32,
+    cost (H,W) int32 (triangle tests) and cells (H,W) int32 (cells visited).
 
     grids: a tuple of GridArrays (gridrt.trace.grids), traversed together (one grid, or a scene
-    split into static and moving parts); idbuf holds the scene ids of the hit triangles (through
-    each grid's ids map where it has one).  off: shadow-ray origin offset along the normal.
+    split into static and moving parts); tri holds the scene ids of the hit triangles (through
+    each grid's ids map where it has one).  looks: :class:`gridrt.trace.records.Shading`; light:
+    the (3,) light position of the shadow rays (read with looks.shadows only).
     """
+    W, H, tile = view.W, view.H, view.tile
     ntiles = ((W + tile - 1) // tile) * ((H + tile - 1) // tile)
     flat = pack_grids(grids)  # (a tuple of grids cannot enter the parallel loop as it is: see grids.py)
     for ti in prange(ntiles):
-        _render_tile(unpack_grids(flat), basis, W, H, tile, ti, mode, shadows, light, off, watertight,
-                     img, tbuf, idbuf, costbuf, cellbuf, np.empty(MAILBOX, np.int32))
+        _render_tile(unpack_grids(flat), view, looks, light, ti, out, np.empty(MAILBOX, np.int32))
 
 
 @njit(cache=True)
-def render_serial(
-    grids, basis, W, H, tile, mode, shadows, light, off, watertight, img, tbuf, idbuf, costbuf, cellbuf,
-):
+def render_serial(grids, view, looks, light, out):
     """render_kernel on one thread: the same tiles in order, the same buffers bit for bit; compiles
     faster (gridrt.trace.twin)."""
+    W, H, tile = view.W, view.H, view.tile
     ntiles = ((W + tile - 1) // tile) * ((H + tile - 1) // tile)
     mb = np.empty(MAILBOX, np.int32)
     for ti in range(ntiles):
-        _render_tile(grids, basis, W, H, tile, ti, mode, shadows, light, off, watertight,
-                     img, tbuf, idbuf, costbuf, cellbuf, mb)
+        _render_tile(grids, view, looks, light, ti, out, mb)
 
 
 def _check_grid_tris(grid, tris):
-    from ..grid.layout import Grid
-
     if not isinstance(grid, Grid):
         raise InputError(f"expected a Grid (from build_grid or GridBuilder.build), got {type(grid).__name__}")
     grid.check_current()
@@ -207,8 +208,6 @@ def cast_batch(grid, tris, origins, dirs, origin=None, tmin=0.0, tmax=np.inf, wa
     widest slice, in cells, a run's bounds may cover to be traced as a packet.  The hits are the
     same either way.  ``packet_precision`` "float32" runs the packets' triangle tests in float32
     (see gridrt.trace.batch; RenderParams.packet_precision)."""
-    from ..grid.layout import Grid
-
     if not isinstance(grid, Grid):
         raise InputError(f"expected a Grid (from build_grid or GridBuilder.build), got {type(grid).__name__}")
     grid.check_current()
@@ -322,8 +321,6 @@ class Looks:
 
 
 def _check_looks(looks, n_scene):
-    from ..scene.surface import Surface, as_lights
-
     if not isinstance(looks, Looks):
         raise InputError(f"looks must be a gridrt.trace.render.Looks, got {type(looks).__name__}")
     tris = looks.tris
@@ -359,33 +356,6 @@ class RenderResult:
     cost: np.ndarray
     cells: np.ndarray
     stats: RenderStats
-
-
-#: bytes per pixel a render allocates: its image, t, triangle, cost and cell buffers (4 each, kept
-#: from frame to frame by a Renderer) and the hit mask of its statistics (1)
-RENDER_PIXEL_BYTES = 21
-#: bytes per pixel of the material pass's shadows (Renderer._shade_material): the deferred surface
-#: points, normals, light terms and sums (84), a light's need flags, shadow rays and weights (57),
-#: and the cast of a light's rays, at most one a pixel: their rows (8), origins and directions
-#: (48) and their contiguous copies (48), blocked and live flags and rows (17), results (28) and
-#: their grouping into packets (33)
-SHADOW_PIXEL_BYTES = 323
-
-
-def render_bytes(width, height, shadows=False, buffers=True):
-    """Bytes a render of ``width`` x ``height`` pixels allocates at its peak: the output buffers
-    (``buffers=False``: a Renderer that already holds them at that size) and, for the material
-    mode with shadows (``shadows``), the scratch of its shadow rays."""
-    n = int(width) * int(height)
-    return n * ((RENDER_PIXEL_BYTES if buffers else 1) + (SHADOW_PIXEL_BYTES if shadows else 0))
-
-
-def check_render_fits(width, height, shadows=False, buffers=True, what="rendering"):
-    """InputError (gridrt.memory.check_fits) when :func:`render_bytes` exceed the memory this
-    process has left, stating both and the most pixels that fit."""
-    check_fits(render_bytes(width, height, shadows, buffers), f"{what} {width:,}x{height:,} pixels",
-               "image, depth, triangle, cost and cell buffers" + (" and shadow rays" if shadows else ""),
-               lambda avail: f"ask for at most {avail // render_bytes(1, 1, shadows):,} pixels")
 
 
 class Renderer:
@@ -457,21 +427,21 @@ class Renderer:
             light = default_light(diag, camera)
         use_threads(threads)
         material = shading == "material"
-        args = (
-            grids, basis, W, H, params.tile, SHADING_CODES[shading], bool(params.shadows) and not material, light,
-            SHADOW_OFFSET * diag, bool(params.watertight), img, tb, ib, cb, nb,
-        )
+        shadows = bool(params.shadows) and not material
+        v = make_view(basis, W, H, params.tile)
+        look = make_shading(SHADING_CODES[shading], shadows, SHADOW_OFFSET * diag, params.watertight)
+        out = Buffers(img, tb, ib, cb, nb)
         t0 = time.perf_counter()
         if params.traversal == "cgt":
-            args = args[:10] + (params.packet_precision == "float32", *params.packet) + args[10:]
-            if not params.shadows or material:  # light None: the CGT kernel without its shadow path (compiles faster)
-                args = args[:7] + (None,) + args[8:]
+            pk = make_packets(params.packet_precision == "float32", *params.packet)
+            # light None: the CGT kernel without its shadow path (compiles faster)
             with parallel_chunksize(1):  # dynamic scheduling of the kernel's chunks of tiles
                 # the parallel kernel, or its serial twin on one thread and while the parallel one
                 # compiles (gridrt.trace.twin)
-                sums = TWINS(threads, cgt_render_kernel, cgt_render_serial, *args)
+                sums = TWINS(threads, cgt_render_kernel, cgt_render_serial, grids, v, look,
+                             light if shadows else None, pk, out)
         else:
-            TWINS(threads, render_kernel, render_serial, *args)
+            TWINS(threads, render_kernel, render_serial, grids, v, look, light, out)
         shade_ms, n_lights, n_shadow = 0.0, (1 if params.shadows else 0), None
         if material:
             t1 = time.perf_counter()
@@ -508,9 +478,6 @@ class Renderer:
     def _shade_material(self, grids, looks, params, camera, origin, default, diag, threads):
         """The material pass over the hits in the tri buffer (gridrt.trace.material); returns (lights
         used, shadow rays cast)."""
-        from . import material as M
-        from .batch import cast_grouped
-
         stris, surface, normals, lights = looks
         W, H = params.width, params.height
         img, tb, ib, cb, nb = self.buffers(W, H)
@@ -521,10 +488,7 @@ class Renderer:
             lights = lights.copy()
             point = lights[:, 0] == 0.0
             lights[point, 1:4] -= origin  # world -> the grid's frame
-        if surface is None:
-            surface = M.default_surface(len(stris))
-        ps = surface.packed
-        nrm = normals if normals is not None else np.zeros((0, 3, 3), np.float32)
+        surf = surface_arrays(stris, surface, normals)
         n = W * H
         deferred = bool(params.shadows)
         if deferred:
@@ -533,19 +497,19 @@ class Renderer:
         else:
             pos = ngb = np.empty((0, 3))
             nsb = tvd = acc = np.empty((0, 3), np.float32)
-        TWINS(threads, M.shade_kernel, M.shade_serial, camera.basis(), W, H, ib, stris, nrm, ps.material, ps.diffuse,
-              ps.ambient, ps.texture, ps.tex_data, ps.tex_info, ps.uv, ps.colors, lights, deferred, img, pos, ngb,
-              nsb, tvd, acc)
+        hp = HitPoints(pos, ngb, nsb, tvd, acc)
+        v = make_view(camera.basis(), W, H, params.tile)
+        TWINS(threads, shade_kernel, shade_serial, v, ib, surf, lights, deferred, img, hp)
         if not deferred:
             return len(lights), 0
-        need = np.empty(n, np.uint8)
-        origins, dirs, weight = np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.float64)
+        rays = ShadowRays(np.empty(n, np.uint8), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.float64))
+        need, origins, dirs, weight = rays
         off, far = SHADOW_OFFSET * diag, 2.0 * max(diag, 1e-300)
         max_cells = MAX_CELLS if params.traversal == "cgt" else 0.0
         f32 = params.packet_precision == "float32"
         cast = 0
         for li in range(len(lights)):
-            M.light_rays(lights, li, pos, ngb, nsb, acc, off, far, need, origins, dirs, weight)
+            light_rays(lights, li, hp, off, far, rays)
             rows = np.flatnonzero(need)
             cast += len(rows)
             o, d = origins[rows], dirs[rows]
@@ -558,8 +522,8 @@ class Renderer:
                 cast_grouped(g, np.ascontiguousarray(o[live]), np.ascontiguousarray(d[live]), 0.0, 1.0,
                              bool(params.watertight), True, out, max_cells, f32)
                 blocked[live[out[1] >= 0]] = True
-            M.add_light(rows, blocked, weight, tvd, float(lights[li, 4]), float(lights[li, 5]), float(lights[li, 6]), acc)
-        M.compose(W, H, acc, img)
+            add_light(rows, blocked, weight, tvd, float(lights[li, 4]), float(lights[li, 5]), float(lights[li, 6]), acc)
+        compose(W, H, acc, img)
         return len(lights), cast
 
 

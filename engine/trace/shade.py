@@ -69,12 +69,16 @@ def scene_id(grids, which, f):
 
 
 @njit(cache=True, _nrt=False)
-def shadow_ray(ex, ey, ez, t, dx, dy, dz, nx, ny, nz, light, off):
-    """Shadow ray of the hit at eye + t d with facing normal n: (need, ox, oy, oz, lx, ly, lz, ld, s).
+def shadow_ray(e, t, d, n, light, off):
+    """Shadow ray of the hit at eye + t d with facing normal n (e, d, n: 3-tuples):
+    (need, ox, oy, oz, lx, ly, lz, ld, s).
 
     s = n . l (l the unit vector to the light, ld the distance); need is True when s > 0, and then
     the ray from p + n * off along l with tmax = ld decides visibility; otherwise s = 0.
     """
+    ex, ey, ez = e
+    dx, dy, dz = d
+    nx, ny, nz = n
     px = ex + t * dx
     py = ey + t * dy
     pz = ez + t * dz

@@ -33,8 +33,9 @@ import numpy as np
 from numba import njit
 
 from ..grid.two_level import leaf_axis
-from .intersect import intersect_fast, intersect_watertight, permute, shear_setup
+from .intersect import intersect_fast, intersect_watertight, ray_shear
 from .prefetch import _prefetch_tri
+from .query import Ray, Shear
 
 #: mailbox slots per ray (direct-mapped by triangle id)
 MAILBOX = 32
@@ -214,36 +215,40 @@ def far_t(t, th, tl):
 
 
 @njit(cache=True, inline="always")
-def _test_triangle(tris, f, watertight, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    """Triangle f of tris against one ray: (hit, t, u, v) of intersect_watertight (vertices and
-    origin permuted by (kx, ky, kz), shear Sx, Sy, Sz) or of intersect_fast."""
+def _test_triangle(tris, f, watertight, sh, o, d, tmin, tmax):
+    """Triangle f of tris against the ray from o along d: (hit, t, u, v) of intersect_watertight
+    (vertices permuted and sheared by the ray's :class:`Shear` ``sh``) or of intersect_fast."""
     if watertight:
+        kx, ky, kz = sh.kx, sh.ky, sh.kz
         return intersect_watertight(
-            np.float64(tris[f, 0, kx]), np.float64(tris[f, 0, ky]), np.float64(tris[f, 0, kz]),
-            np.float64(tris[f, 1, kx]), np.float64(tris[f, 1, ky]), np.float64(tris[f, 1, kz]),
-            np.float64(tris[f, 2, kx]), np.float64(tris[f, 2, ky]), np.float64(tris[f, 2, kz]),
-            okx, oky, okz, Sx, Sy, Sz, tmin, tmax)
+            (np.float64(tris[f, 0, kx]), np.float64(tris[f, 0, ky]), np.float64(tris[f, 0, kz])),
+            (np.float64(tris[f, 1, kx]), np.float64(tris[f, 1, ky]), np.float64(tris[f, 1, kz])),
+            (np.float64(tris[f, 2, kx]), np.float64(tris[f, 2, ky]), np.float64(tris[f, 2, kz])),
+            sh, tmin, tmax)
     return intersect_fast(
-        np.float64(tris[f, 0, 0]), np.float64(tris[f, 0, 1]), np.float64(tris[f, 0, 2]),
-        np.float64(tris[f, 1, 0]), np.float64(tris[f, 1, 1]), np.float64(tris[f, 1, 2]),
-        np.float64(tris[f, 2, 0]), np.float64(tris[f, 2, 1]), np.float64(tris[f, 2, 2]),
-        ox, oy, oz, dx, dy, dz, tmin, tmax)
+        (np.float64(tris[f, 0, 0]), np.float64(tris[f, 0, 1]), np.float64(tris[f, 0, 2])),
+        (np.float64(tris[f, 1, 0]), np.float64(tris[f, 1, 1]), np.float64(tris[f, 1, 2])),
+        (np.float64(tris[f, 2, 0]), np.float64(tris[f, 2, 1]), np.float64(tris[f, 2, 2])),
+        o, d, tmin, tmax)
 
 
 @njit(cache=True, inline="always")
-def _clip_box(lo, hi, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    """[tmin, tmax] clipped to the grid box lo..hi (an empty range, t0 > t1, on a miss; a zero
-    direction component never steps: axis-parallel rays)."""
-    t0, t1 = _slab(ox, dx, lo[0], hi[0], tmin, tmax)
-    t0, t1 = _slab(oy, dy, lo[1], hi[1], t0, t1)
-    return _slab(oz, dz, lo[2], hi[2], t0, t1)
+def _clip_box(lo, hi, o, d, tmin, tmax):
+    """[tmin, tmax] clipped to the grid box lo..hi for the ray from o along d (an empty range,
+    t0 > t1, on a miss; a zero direction component never steps: axis-parallel rays)."""
+    t0, t1 = _slab(o[0], d[0], lo[0], hi[0], tmin, tmax)
+    t0, t1 = _slab(o[1], d[1], lo[1], hi[1], t0, t1)
+    return _slab(o[2], d[2], lo[2], hi[2], t0, t1)
 
 
 @njit(cache=True, inline="always")
-def _ray_setup(lo, inv_cell, dims, ox, oy, oz, dx, dy, dz, t0, watertight, mailbox):
-    """A DDA's start: the cell where the ray (clipped to the grid box from t0 on) starts, its
-    steps (-1, 0, 1) and 1 / direction along each axis, the watertight test's permutation, origin
-    and shear (zeros for the fast test), and the mailbox cleared (returns its index mask)."""
+def _ray_setup(lo, inv_cell, dims, o, d, t0, tmin, watertight, any_hit, mailbox):
+    """A DDA's start: the cell (ix, iy, iz) where the ray from o along d (clipped to the grid box
+    from t0 on) starts, the ray's :class:`Ray` (its steps (-1, 0, 1) and 1 / direction along each
+    axis, the watertight test's permutation, origin and shear: zeros for the fast test; the
+    query tmin, watertight, any_hit), and the mailbox cleared (returns its index mask)."""
+    ox, oy, oz = o
+    dx, dy, dz = d
     ix = _floor_clamp((ox + t0 * dx - lo[0]) * inv_cell[0], dims[0])
     iy = _floor_clamp((oy + t0 * dy - lo[1]) * inv_cell[1], dims[1])
     iz = _floor_clamp((oz + t0 * dz - lo[2]) * inv_cell[2], dims[2])
@@ -253,23 +258,22 @@ def _ray_setup(lo, inv_cell, dims, ox, oy, oz, dx, dy, dz, t0, watertight, mailb
     idx = 1.0 / dx if sx != 0 else np.inf
     idy = 1.0 / dy if sy != 0 else np.inf
     idz = 1.0 / dz if sz != 0 else np.inf
-    kx = ky = kz = 0
-    okx = oky = okz = 0.0
-    Sx = Sy = Sz = 0.0
     if watertight:
-        kx, ky, kz, Sx, Sy, Sz = shear_setup(dx, dy, dz)
-        okx, oky, okz = permute(ox, oy, oz, kx, ky, kz)
+        sh = ray_shear(o, d)
+    else:
+        sh = Shear(0, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     for s in range(mailbox.shape[0]):
         mailbox[s] = -1
-    return ix, iy, iz, sx, sy, sz, idx, idy, idz, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz, mailbox.shape[0] - 1
+    ray = Ray(o, d, (sx, sy, sz), (idx, idy, idz), sh, tmin, watertight, any_hit)
+    return ix, iy, iz, ray, mailbox.shape[0] - 1
 
 
 @njit(cache=True, inline="always")
-def _test_refs(tris, tri_ids, r0, r1, mailbox, mmask, watertight, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz, ox, oy, oz,
-               dx, dy, dz, tmin, any_hit, best_f, best_t, best_u, best_v, tests):
-    """The triangles tri_ids[r0:r1] of one cell against the ray, each once (the mailbox): returns
-    the nearest hit so far (best_f, best_t, best_u, best_v), the tests counted on, and whether
-    the search is over (any_hit and a hit)."""
+def _test_refs(tris, tri_ids, r0, r1, mailbox, mmask, ray, best, tests):
+    """The triangles tri_ids[r0:r1] of one cell against the :class:`Ray` ``ray``, each once (the
+    mailbox): returns the nearest hit so far (best_f, best_t, best_u, best_v; ``best`` on entry),
+    the tests counted on, and whether the search is over (any_hit and a hit)."""
+    best_f, best_t, best_u, best_v = best
     for r in range(r0, r1):
         f = tri_ids[r]
         slot = f & mmask
@@ -277,8 +281,7 @@ def _test_refs(tris, tri_ids, r0, r1, mailbox, mmask, watertight, kx, ky, kz, ok
             continue
         mailbox[slot] = f
         tests += 1
-        hit, t, u, v = _test_triangle(tris, f, watertight, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz,
-                                      ox, oy, oz, dx, dy, dz, tmin, np.inf)
+        hit, t, u, v = _test_triangle(tris, f, ray.watertight, ray.sh, ray.o, ray.d, ray.tmin, np.inf)
         # ties (the same t) go to the lowest triangle index, as in the packet loops, so a ray's
         # hit does not depend on the order in which a traversal meets the triangles
         if hit and (t < best_t or (t == best_t and f < best_f)):
@@ -286,36 +289,42 @@ def _test_refs(tris, tri_ids, r0, r1, mailbox, mmask, watertight, kx, ky, kz, ok
             best_f = f
             best_u = u
             best_v = v
-            if any_hit:
+            if ray.any_hit:
                 return best_f, best_t, best_u, best_v, tests, True
     return best_f, best_t, best_u, best_v, tests, False
 
 
 @njit(cache=True, inline="always")
-def _next_cell(lx, ly, lz, cx, cy, cz, ix, iy, iz, sx, sy, sz, ox, oy, oz, idx, idy, idz, x0, x1, y0, y1, z0, z1):
-    """One step of the inner DDA over cells of size (cx, cy, cz) from (lx, ly, lz): returns (t
-    where the ray leaves cell (ix, iy, iz), the next cell's indices, True when that one lies
-    outside the block [x0, x1) x [y0, y1) x [z0, z1) the inner DDA walks)."""
-    tx = _cell_exit_t(lx, cx, ix, sx, ox, idx)
-    ty = _cell_exit_t(ly, cy, iy, sy, oy, idy)
-    tz = _cell_exit_t(lz, cz, iz, sz, oz, idz)
+def _next_cell(ray, lo, c, i, b0, b1):
+    """One step of the inner DDA of the :class:`Ray` ``ray`` over cells of size c from lo: returns
+    (t where the ray leaves cell i, the next cell's indices, True when that one lies outside the
+    block [b0[0], b1[0]) x [b0[1], b1[1]) x [b0[2], b1[2]) the inner DDA walks)."""
+    ix, iy, iz = i
+    sx, sy, sz = ray.s
+    tx = _cell_exit_t(lo[0], c[0], ix, sx, ray.o[0], ray.inv[0])
+    ty = _cell_exit_t(lo[1], c[1], iy, sy, ray.o[1], ray.inv[1])
+    tz = _cell_exit_t(lo[2], c[2], iz, sz, ray.o[2], ray.inv[2])
     if tx <= ty and tx <= tz:
         ix += sx
-        return tx, ix, iy, iz, ix < x0 or ix >= x1
+        return tx, ix, iy, iz, ix < b0[0] or ix >= b1[0]
     if ty <= tz:
         iy += sy
-        return ty, ix, iy, iz, iy < y0 or iy >= y1
+        return ty, ix, iy, iz, iy < b0[1] or iy >= b1[1]
     iz += sz
-    return tz, ix, iy, iz, iz < z0 or iz >= z1
+    return tz, ix, iy, iz, iz < b0[2] or iz >= b1[2]
 
 
 @njit(cache=True, inline="always")
-def _next_block(tmx, tmy, tmz, mi, mj, mk, m, sx, sy, sz, mx, my, mz, k, lx, ly, lz, cx, cy, cz, nx, ny, nz, ox, oy,
-                oz, idx, idy, idz):
-    """One step of the outer DDA over blocks of k^3 cells (macro cells, or a two-level grid's top
-    cells with k = 1) of an (mx, my, mz) array of them, m the current one's linear index and
-    tmx.. its exits: returns (t where the ray leaves it, the axis it crosses, the next block's
-    indices, its linear index and exits, True when the ray leaves the grid)."""
+def _next_block(ray, tm, bi, m, mdims, k, lo, c, n):
+    """One step of the outer DDA of the :class:`Ray` ``ray`` over blocks of k^3 cells (macro
+    cells, or a two-level grid's top cells with k = 1) of an mdims array of them, in a grid of n
+    cells of size c from lo; bi the current block's indices, m its linear index and tm its exits:
+    returns (t where the ray leaves it, the axis it crosses, the next block's indices, its linear
+    index and exits, True when the ray leaves the grid)."""
+    tmx, tmy, tmz = tm
+    mi, mj, mk = bi
+    sx, sy, sz = ray.s
+    mx, my, mz = mdims
     if tmx <= tmy and tmx <= tmz:
         te = tmx
         entered = 0
@@ -323,7 +332,7 @@ def _next_block(tmx, tmy, tmz, mi, mj, mk, m, sx, sy, sz, mx, my, mz, k, lx, ly,
         if mi < 0 or mi >= mx:
             return te, entered, mi, mj, mk, m, tmx, tmy, tmz, True
         m += sx
-        tmx = _macro_exit_t(lx, cx, mi, k, nx, sx, ox, idx)
+        tmx = _macro_exit_t(lo[0], c[0], mi, k, n[0], sx, ray.o[0], ray.inv[0])
     elif tmy <= tmz:
         te = tmy
         entered = 1
@@ -331,7 +340,7 @@ def _next_block(tmx, tmy, tmz, mi, mj, mk, m, sx, sy, sz, mx, my, mz, k, lx, ly,
         if mj < 0 or mj >= my:
             return te, entered, mi, mj, mk, m, tmx, tmy, tmz, True
         m += sy * mx
-        tmy = _macro_exit_t(ly, cy, mj, k, ny, sy, oy, idy)
+        tmy = _macro_exit_t(lo[1], c[1], mj, k, n[1], sy, ray.o[1], ray.inv[1])
     else:
         te = tmz
         entered = 2
@@ -339,14 +348,14 @@ def _next_block(tmx, tmy, tmz, mi, mj, mk, m, sx, sy, sz, mx, my, mz, k, lx, ly,
         if mk < 0 or mk >= mz:
             return te, entered, mi, mj, mk, m, tmx, tmy, tmz, True
         m += sz * mx * my
-        tmz = _macro_exit_t(lz, cz, mk, k, nz, sz, oz, idz)
+        tmz = _macro_exit_t(lo[2], c[2], mk, k, n[2], sz, ray.o[2], ray.inv[2])
     return te, entered, mi, mj, mk, m, tmx, tmy, tmz, False
 
 
 @njit(cache=True, _nrt=False)
-def trace_ray(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox):
-    """Nearest (or, with any_hit, any) hit of one ray with tmin < t < tmax in the grid g
-    (:class:`gridrt.trace.grids.GridArrays`).
+def trace_ray(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
+    """Nearest (or, with any_hit, any) hit with tmin < t < tmax of the ray from o along d (float64
+    3-tuples) in the grid g (:class:`gridrt.trace.grids.GridArrays`).
 
     Returns (tri, t, u, v, cells_visited, tests); tri = -1 and t = inf on a miss.
     mailbox (MAILBOX,) int32 scratch.  A ray from far outside the grid is traced from just
@@ -354,8 +363,9 @@ def trace_ray(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbo
     """
     moved = False
     th = tl = 0.0
+    ox, oy, oz = o
     if is_far(g.lo, g.hi, ox, oy, oz):
-        verdict, mx, my, mz, th, tl = far_shift(g.lo, g.hi, ox, oy, oz, dx, dy, dz)
+        verdict, mx, my, mz, th, tl = far_shift(g.lo, g.hi, ox, oy, oz, d[0], d[1], d[2])
         if verdict == FAR_MISS:
             return -1, np.inf, 0.0, 0.0, 0, 0
         if verdict == MOVED:
@@ -363,26 +373,28 @@ def trace_ray(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbo
             ox, oy, oz = mx, my, mz
             tmin, tmax = far_interval(tmin, tmax, th, tl)
     # one call site, inlined: a near ray pays one inline test for the far case
-    f, t, u, v, nc, nt = _trace_near(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox)
+    f, t, u, v, nc, nt = _trace_near(g, (ox, oy, oz), d, tmin, tmax, watertight, any_hit, mailbox)
     if moved:
         t = far_t(t, th, tl)
     return f, t, u, v, nc, nt
 
 
 @njit(cache=True, _nrt=False, inline="always")
-def _trace_near(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox):
+def _trace_near(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
     """:func:`trace_ray` from the origin as it is."""
     if g.leaf_first.shape[0] > 0:
-        return trace_ray_2l(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox)
+        return trace_ray_2l(g, o, d, tmin, tmax, watertight, any_hit, mailbox)
     tris, lo, hi, cell, inv_cell, dims = g.tris, g.lo, g.hi, g.cell, g.inv_cell, g.dims
     cell_start, tri_ids, macro, mdims, macro_full = g.cell_start, g.tri_ids, g.macro, g.mdims, g.macro_full
-    t0, t1 = _clip_box(lo, hi, ox, oy, oz, dx, dy, dz, tmin, tmax)
+    t0, t1 = _clip_box(lo, hi, o, d, tmin, tmax)
     if not (t0 <= t1):
         return -1, np.inf, 0.0, 0.0, 0, 0
 
+    ox, oy, oz = o
+    dx, dy, dz = d
     nx, ny, nz = dims[0], dims[1], dims[2]
-    (ix, iy, iz, sx, sy, sz, idx, idy, idz, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz,
-     mmask) = _ray_setup(lo, inv_cell, dims, ox, oy, oz, dx, dy, dz, t0, watertight, mailbox)
+    ix, iy, iz, ray, mmask = _ray_setup(lo, inv_cell, dims, o, d, t0, tmin, watertight, any_hit, mailbox)
+    sx, sy, sz = ray.s
 
     best_t = tmax
     best_f = -1
@@ -393,6 +405,9 @@ def _trace_near(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mail
     L = cell_start.shape[0]
     lx, ly, lz = lo[0], lo[1], lo[2]
     cx, cy, cz = cell[0], cell[1], cell[2]
+    l3 = (lx, ly, lz)
+    c3 = (cx, cy, cz)
+    n3 = (nx, ny, nz)
     # two nested DDAs: over macro cells (k^3 cells), and over the cells of each macro cell that
     # holds triangles.  The macro cell's indices and its exits along each axis are kept from
     # step to step (no integer division in the loop); a cell's indices are found only when its
@@ -403,9 +418,9 @@ def _trace_near(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mail
     mj = iy // k
     mk = iz // k
     m = mi + mx * (mj + my * mk)
-    tmx = _macro_exit_t(lx, cx, mi, k, nx, sx, ox, idx)
-    tmy = _macro_exit_t(ly, cy, mj, k, ny, sy, oy, idy)
-    tmz = _macro_exit_t(lz, cz, mk, k, nz, sz, oz, idz)
+    tmx = _macro_exit_t(lx, cx, mi, k, nx, sx, ox, ray.inv[0])
+    tmy = _macro_exit_t(ly, cy, mj, k, ny, sy, oy, ray.inv[1])
+    tmz = _macro_exit_t(lz, cz, mk, k, nz, sz, oz, ray.inv[2])
     entered = -1  # the axis the ray entered the current macro cell through (-1: it starts in it)
     t_in = t0
     while True:
@@ -428,14 +443,12 @@ def _trace_near(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mail
                         _prefetch_tri(tris, tri_ids[r])
                 for l in range(L):
                     best_f, best_t, best_u, best_v, tests, done = _test_refs(
-                        tris, tri_ids, cell_start[l, c], cell_start[l, c + 1], mailbox, mmask, watertight, kx, ky,
-                        kz, okx, oky, okz, Sx, Sy, Sz, ox, oy, oz, dx, dy, dz, tmin, any_hit, best_f, best_t, best_u,
-                        best_v, tests)
+                        tris, tri_ids, cell_start[l, c], cell_start[l, c + 1], mailbox, mmask, ray,
+                        (best_f, best_t, best_u, best_v), tests)
                     if done:
                         return best_f, best_t, best_u, best_v, cells, tests
                 # step to the next cell, or out of the macro cell
-                te, ix, iy, iz, leaves = _next_cell(lx, ly, lz, cx, cy, cz, ix, iy, iz, sx, sy, sz, ox, oy, oz, idx,
-                                                    idy, idz, x0, x1, y0, y1, z0, z1)
+                te, ix, iy, iz, leaves = _next_cell(ray, l3, c3, (ix, iy, iz), (x0, y0, z0), (x1, y1, z1))
                 if best_t <= te or te > t1:
                     return _result(best_f, best_t, best_u, best_v, cells, tests)
                 if leaves:
@@ -443,8 +456,7 @@ def _trace_near(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mail
         # step to the next macro cell (the macro DDA decides where the ray goes next, also when
         # the cell DDA left the macro cell through another face within rounding of a corner)
         te, entered, mi, mj, mk, m, tmx, tmy, tmz, out = _next_block(
-            tmx, tmy, tmz, mi, mj, mk, m, sx, sy, sz, mx, my, mz, k, lx, ly, lz, cx, cy, cz, nx, ny, nz, ox, oy, oz,
-            idx, idy, idz)
+            ray, (tmx, tmy, tmz), (mi, mj, mk), m, (mx, my, mz), k, l3, c3, n3)
         if out:
             break
         if te > t1 or best_t <= te:
@@ -454,22 +466,27 @@ def _trace_near(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mail
 
 
 @njit(cache=True, _nrt=False)
-def trace_ray_2l(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox):
+def trace_ray_2l(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
     """:func:`trace_ray` through a two-level grid (gridrt.grid.two_level): a DDA over the top
     cells, and in each one that holds triangles a DDA over its own leaf cells from where the ray
     enters it, with the same termination rule (a hit at or before the t where the ray leaves the
     current leaf cell, or top cell, is final)."""
     tris, lo, hi, cell, inv_cell, dims = g.tris, g.lo, g.hi, g.cell, g.inv_cell, g.dims
     cell_start, tri_ids, leaf_first, leaf_res = g.cell_start, g.tri_ids, g.leaf_first, g.leaf_res
-    t0, t1 = _clip_box(lo, hi, ox, oy, oz, dx, dy, dz, tmin, tmax)
+    t0, t1 = _clip_box(lo, hi, o, d, tmin, tmax)
     if not (t0 <= t1):
         return -1, np.inf, 0.0, 0.0, 0, 0
 
+    ox, oy, oz = o
+    dx, dy, dz = d
     nx, ny, nz = dims[0], dims[1], dims[2]
-    (ix, iy, iz, sx, sy, sz, idx, idy, idz, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz,
-     mmask) = _ray_setup(lo, inv_cell, dims, ox, oy, oz, dx, dy, dz, t0, watertight, mailbox)
+    ix, iy, iz, ray, mmask = _ray_setup(lo, inv_cell, dims, o, d, t0, tmin, watertight, any_hit, mailbox)
+    sx, sy, sz = ray.s
     lx, ly, lz = lo[0], lo[1], lo[2]
     cx, cy, cz = cell[0], cell[1], cell[2]
+    l3 = (lx, ly, lz)
+    c3 = (cx, cy, cz)
+    n3 = (nx, ny, nz)
 
     best_t = tmax
     best_f = -1
@@ -478,9 +495,9 @@ def trace_ray_2l(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mai
     cells = 0
     tests = 0
     m = ix + nx * (iy + ny * iz)
-    tmx = _macro_exit_t(lx, cx, ix, 1, nx, sx, ox, idx)
-    tmy = _macro_exit_t(ly, cy, iy, 1, ny, sy, oy, idy)
-    tmz = _macro_exit_t(lz, cz, iz, 1, nz, sz, oz, idz)
+    tmx = _macro_exit_t(lx, cx, ix, 1, nx, sx, ox, ray.inv[0])
+    tmy = _macro_exit_t(ly, cy, iy, 1, ny, sy, oy, ray.inv[1])
+    tmz = _macro_exit_t(lz, cz, iz, 1, nz, sz, oz, ray.inv[2])
     entered = -1  # the axis the ray entered the current top cell through (-1: it starts in it)
     t_in = t0
     while True:
@@ -512,20 +529,17 @@ def trace_ray_2l(g, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mai
                 for r in range(r0, r1):
                     _prefetch_tri(tris, tri_ids[r])
                 best_f, best_t, best_u, best_v, tests, done = _test_refs(
-                    tris, tri_ids, r0, r1, mailbox, mmask, watertight, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz, ox, oy,
-                    oz, dx, dy, dz, tmin, any_hit, best_f, best_t, best_u, best_v, tests)
+                    tris, tri_ids, r0, r1, mailbox, mmask, ray, (best_f, best_t, best_u, best_v), tests)
                 if done:
                     return best_f, best_t, best_u, best_v, cells, tests
-                te, a, b, c, leaves = _next_cell(ax, ay, az, bx, by, bz, a, b, c, sx, sy, sz, ox, oy, oz, idx, idy,
-                                                 idz, 0, rx, 0, ry, 0, rz)
+                te, a, b, c, leaves = _next_cell(ray, (ax, ay, az), (bx, by, bz), (a, b, c), (0, 0, 0), (rx, ry, rz))
                 if best_t <= te or te > t1:
                     return _result(best_f, best_t, best_u, best_v, cells, tests)
                 if leaves:
                     break
         # the next top cell
         te, entered, ix, iy, iz, m, tmx, tmy, tmz, out = _next_block(
-            tmx, tmy, tmz, ix, iy, iz, m, sx, sy, sz, nx, ny, nz, 1, lx, ly, lz, cx, cy, cz, nx, ny, nz, ox, oy, oz,
-            idx, idy, idz)
+            ray, (tmx, tmy, tmz), (ix, iy, iz), m, n3, 1, l3, c3, n3)
         if out:
             break
         if te > t1 or best_t <= te:
@@ -542,10 +556,10 @@ def _result(best_f, best_t, best_u, best_v, cells, tests):
 
 
 @njit(cache=True, _nrt=False)
-def trace_grids(grids, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, mailbox):
-    """Nearest (or, with any_hit, any) hit of one ray over the tuple of grids, in order: each grid
-    is searched up to the nearest hit found in the grids before it (with any_hit, the first hit
-    ends the search).  Returns (which, tri, t, u, v, cells_visited, tests): the hit's grid number
+def trace_grids(grids, o, d, tmin, tmax, watertight, any_hit, mailbox):
+    """Nearest (or, with any_hit, any) hit of the ray from o along d over the tuple of grids, in
+    order: each grid is searched up to the nearest hit found in the grids before it (with
+    any_hit, the first hit ends the search).  Returns (which, tri, t, u, v, cells_visited, tests): the hit's grid number
     (0 on a miss) and the triangle's index in that grid, the counters summed over the grids
     searched."""
     which = 0
@@ -557,8 +571,7 @@ def trace_grids(grids, ox, oy, oz, dx, dy, dz, tmin, tmax, watertight, any_hit, 
     tests = 0
     i = 0
     for g in grids:
-        f, t, u, v, nc, nt = trace_ray(g, ox, oy, oz, dx, dy, dz, tmin, best_t if best_f >= 0 else tmax,
-                                       watertight, any_hit, mailbox)
+        f, t, u, v, nc, nt = trace_ray(g, o, d, tmin, best_t if best_f >= 0 else tmax, watertight, any_hit, mailbox)
         cells += nc
         tests += nt
         if f >= 0:

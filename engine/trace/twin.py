@@ -12,13 +12,13 @@ so that every caller of a kernel stays visible where it is called):
 
 * one thread: the serial kernel (the parallel one would run the same code on one thread);
 * the parallel kernel compiled for these argument types in this process, or in the on-disk cache
-  for this machine (it then loads in milliseconds): the parallel kernel;
+  for this machine (:func:`has_cache_entry`; it then loads in milliseconds): the parallel kernel;
 * otherwise (a cold cache): the serial kernel, and from the second call with these argument types
   on, the parallel kernel compiles in a background thread while the serial one goes on serving;
   once compiled it takes over.  A one-frame run never compiles it.
 
 Benchmarks run under :func:`parallel_first`: their untimed warm-up runs then compile the parallel
-kernel as before (on first use, in the caller's thread), so that timed runs never time the serial
+kernel on first use, in the caller's thread, so that timed runs never time the serial
 kernel standing in for it.
 
 The background compile is a daemon thread: a process that ends while it runs does not wait for it
@@ -32,10 +32,27 @@ not written yet, which numba's loader (IndexDataCacheFile.load) takes for a miss
 again.
 """
 
+import os
 import threading
 from contextlib import contextmanager
 
 import numpy as np
+
+
+def has_cache_entry(kernel, sig=None):
+    """True when the kernel's on-disk cache index holds a compiled version for this machine (CPU
+    and numba version) and the kernel's current source, as numba's own loader requires; for the
+    argument types ``sig`` (a tuple of numba types) when given, else for any."""
+    cache = getattr(kernel, "_cache", None)
+    try:
+        index = cache._cache_file._load_index()  # {} when absent, from another numba, or stale
+        codegen = kernel.targetctx.codegen()
+        if sig is not None:
+            return cache._index_key(tuple(sig), codegen) in index
+        return any(cache._index_key(key[0], codegen) == key for key in index)
+    except Exception:  # numba's internals moved: fall back to the existence of the index file
+        path = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
+        return path is not None and os.path.exists(path)
 
 
 def _fingerprint(a):
@@ -52,7 +69,7 @@ def _fingerprint(a):
 @contextmanager
 def parallel_first():
     """Within the block, every :class:`Twins` calls the parallel kernel on more than one thread,
-    compiling it when first needed, as before twins existed: what a benchmark wants."""
+    compiling it when first needed, in the caller's thread: what a benchmark wants."""
     before = Twins.eager
     Twins.eager = True
     try:
@@ -101,8 +118,6 @@ class Twins:
                 return parallel
             if key in self._compiling:
                 return serial  # still compiling
-            from ..warmup import has_cache_entry
-
             if has_cache_entry(parallel, sig):  # it loads from the on-disk cache in milliseconds
                 return parallel
             if key in self._seen:

@@ -21,15 +21,16 @@ from numba import njit, prange
 
 from ..atomics import atomic_add
 from ..common import cell_overlaps
-from ..registry import register
 from .base import Strategy, timed
-from .shared import check_total, exclusive, parallel_scan_exclusive, part, range_volumes, ranges, scratch
+from ..buffers import scratch
+from .shared import check_total, exclusive, parallel_scan_exclusive, part, range_volumes, ranges
 
 
 @njit(cache=True, _nrt=False)
-def _count_block(tris, rng, f0, lo, cell, dims, exact, count, ranks):
+def _count_block(tris, rng, f0, box, exact, count, ranks):
     """Atomic count[c] += 1 for the references of triangles f0.. (rng: their rows), storing each
     add's old value in ranks (a slice starting at this block's offset); returns ranks used."""
+    lo, cell, dims = box.lo, box.cell, box.dims
     nx = dims[0]
     nxy = dims[0] * dims[1]
     p = 0
@@ -47,20 +48,21 @@ def _count_block(tris, rng, f0, lo, cell, dims, exact, count, ranks):
 
 
 @njit(cache=True, parallel=True)
-def count_atomic(tris, rng, lo, cell, dims, exact, n_threads, rank_base, count, ranks):
+def count_atomic(tris, rng, box, exact, n_threads, rank_base, count, ranks):
     """Thread t counts its block of triangles into count (C,) int32 (all zero on entry) with
     atomic adds; its ranks go to ranks[rank_base[t]:] (ranks (Rb,) int32, rank_base (T,) int64)."""
     F = tris.shape[0]
     for t in prange(n_threads):
         a = part(F, t, n_threads)
         b = part(F, t + 1, n_threads)
-        _count_block(tris, rng[a:b], a, lo, cell, dims, exact, count, ranks[rank_base[t]:])
+        _count_block(tris, rng[a:b], a, box, exact, count, ranks[rank_base[t]:])
 
 
 @njit(cache=True, _nrt=False)
-def _scatter_block(tris, rng, f0, lo, cell, dims, exact, start, ranks, tri_ids):
+def _scatter_block(tris, rng, f0, box, exact, start, ranks, tri_ids):
     """tri_ids[start[c] + rank] = f for the references of triangles f0.., walked in the count
     pass's order."""
+    lo, cell, dims = box.lo, box.cell, box.dims
     nx = dims[0]
     nxy = dims[0] * dims[1]
     p = 0
@@ -78,17 +80,16 @@ def _scatter_block(tris, rng, f0, lo, cell, dims, exact, start, ranks, tri_ids):
 
 
 @njit(cache=True, parallel=True)
-def scatter_ranked(tris, rng, lo, cell, dims, exact, n_threads, rank_base, start, ranks, tri_ids):
+def scatter_ranked(tris, rng, box, exact, n_threads, rank_base, start, ranks, tri_ids):
     """Every reference to its slot start[c] + rank, no atomics; start (C+1,) int32 CSR offsets
     (read only), tri_ids (R,) int32."""
     F = tris.shape[0]
     for t in prange(n_threads):
         a = part(F, t, n_threads)
         b = part(F, t + 1, n_threads)
-        _scatter_block(tris, rng[a:b], a, lo, cell, dims, exact, start, ranks[rank_base[t]:], tri_ids)
+        _scatter_block(tris, rng[a:b], a, box, exact, start, ranks[rank_base[t]:], tri_ids)
 
 
-@register
 class Counting(Strategy):
     """Atomic count (keeping ranks) -> parallel prefix sum -> atomic-free scatter."""
 
@@ -105,10 +106,10 @@ class Counting(Strategy):
             check_total(bound)
             bufs.check_budget(4 * bound, f"ranks of up to {bound} references")
             ranks = scratch(bufs, "ranks", max(bound, 1), np.int32)
-            count_atomic(tris, rng, spec.lo, spec.cell, spec.dims, exact, threads, rank_base, count, ranks)
+            count_atomic(tris, rng, spec.box, exact, threads, rank_base, count, ranks)
         with timed(times, "scan_ms"):
             refs = parallel_scan_exclusive(count, start, threads)
         tri_ids = bufs.refs(refs)
         with timed(times, "scatter_ms"):
-            scatter_ranked(tris, rng, spec.lo, spec.cell, spec.dims, exact, threads, rank_base, start, ranks, tri_ids)
+            scatter_ranked(tris, rng, spec.box, exact, threads, rank_base, start, ranks, tri_ids)
         return refs

@@ -12,17 +12,18 @@ every cell's list in ascending triangle order.
 from numba import njit
 
 from ..common import cell_overlaps, scan_inclusive
-from ..registry import register
 from .base import Strategy, timed
 from .shared import ranges
 
 
 @njit(cache=True)
-def count_serial(rng, tris, lo, cell, dims, exact, count):
+def count_serial(rng, tris, box, exact, count):
     """count[c] += 1 for every (cell, triangle) reference; count (C,) int32 starts at zero.
 
     rng (F, 6) int32: each triangle's inclusive cell range (shared.cell_ranges); exact: True for
-    exact insertion (the triangle-box test per cell), None for bounding-box insertion."""
+    exact insertion (the triangle-box test per cell), None for bounding-box insertion; box the grid
+    (layout.GridBox)."""
+    lo, cell, dims = box.lo, box.cell, box.dims
     nx = dims[0]
     nxy = dims[0] * dims[1]
     for f in range(rng.shape[0]):
@@ -38,8 +39,9 @@ def count_serial(rng, tris, lo, cell, dims, exact, count):
 
 
 @njit(cache=True)
-def scatter_serial(rng, tris, lo, cell, dims, exact, start, tri_ids):
+def scatter_serial(rng, tris, box, exact, start, tri_ids):
     """Write every reference; start holds inclusive ends on entry and CSR starts on exit."""
+    lo, cell, dims = box.lo, box.cell, box.dims
     nx = dims[0]
     nxy = dims[0] * dims[1]
     for f in range(rng.shape[0] - 1, -1, -1):
@@ -57,7 +59,6 @@ def scatter_serial(rng, tris, lo, cell, dims, exact, start, tri_ids):
                     tri_ids[p] = f
 
 
-@register
 class Serial(Strategy):
     """One thread: clear, insert (ranges, count, scan, scatter), macro build."""
 
@@ -69,10 +70,10 @@ class Serial(Strategy):
         start = bufs.start[0]
         rng = ranges(tris, spec, bufs, 1, times)
         with timed(times, "count_ms"):
-            count_serial(rng, tris, spec.lo, spec.cell, spec.dims, True if exact else None, count)
+            count_serial(rng, tris, spec.box, True if exact else None, count)
         with timed(times, "scan_ms"):
             refs = scan_inclusive(count, start)
         tri_ids = bufs.refs(refs)
         with timed(times, "scatter_ms"):
-            scatter_serial(rng, tris, spec.lo, spec.cell, spec.dims, True if exact else None, start, tri_ids)
+            scatter_serial(rng, tris, spec.box, True if exact else None, start, tri_ids)
         return refs

@@ -8,13 +8,11 @@ first write), so each page is first touched by the thread that fills it, which i
 machine needs to place it on that thread's node (Ize et al. 2006, "Targeting NUMA").
 """
 
-import weakref
-
 import numpy as np
 from numba import njit, prange
 
 from ...errors import InputError
-from ...memory import check_fits
+from ..buffers import scratch
 from ..common import cell_ranges_into, scan_into, sum_of
 from .base import timed
 
@@ -33,10 +31,11 @@ def part(n, t, T):
 
 
 @njit(cache=True, parallel=True)
-def cell_ranges(tris, lo, inv_cell, dims, n_threads, rng):
+def cell_ranges(tris, box, n_threads, rng):
     """rng[f] = (i0, j0, k0, i1, j1, k1), triangle f's inclusive cell range (common._ranges_block).
 
-    tris (F, 3, 3) float32 C-contiguous; rng (F, 6) int32 C-contiguous.  Thread t does its
+    tris (F, 3, 3) float32 C-contiguous; box the grid (layout.GridBox); rng (F, 6) int32
+    C-contiguous.  Thread t does its
     block of triangles with the vectorized common.cell_ranges_into.  The count and scatter
     passes read these 24 bytes instead of recomputing six float64 floors from the 36 bytes of
     vertices each time.
@@ -47,7 +46,7 @@ def cell_ranges(tris, lo, inv_cell, dims, n_threads, rng):
     for t in prange(n_threads):
         a = part(F, t, n_threads)
         b = part(F, t + 1, n_threads)
-        cell_ranges_into(flat[9 * a:9 * b], lo, inv_cell, dims, out[6 * a:6 * b])
+        cell_ranges_into(flat[9 * a:9 * b], box, out[6 * a:6 * b])
 
 
 def ranges(tris, spec, bufs, n_threads, times):
@@ -57,9 +56,9 @@ def ranges(tris, spec, bufs, n_threads, times):
     rng = scratch(bufs, "cell_ranges", 6 * F, np.int32).reshape(F, 6)
     with timed(times, "ranges_ms"):
         if n_threads == 1:  # the same pass without the parallel loop (a cold start compiles less)
-            cell_ranges_into(tris.reshape(tris.size), spec.lo, spec.inv_cell, spec.dims, rng.reshape(rng.size))
+            cell_ranges_into(tris.reshape(tris.size), spec.box, rng.reshape(rng.size))
         else:
-            cell_ranges(tris, spec.lo, spec.inv_cell, spec.dims, n_threads, rng)
+            cell_ranges(tris, spec.box, n_threads, rng)
     return rng
 
 
@@ -155,39 +154,3 @@ def range_volumes(rng, n_threads, sums):
         sums[t] = _volume_sum(rng[part(F, t, n_threads):part(F, t + 1, n_threads)])
 
 
-# ---------------------------------------------------------------------------------------------
-# scratch arrays kept per GridBuffers (so a GridBuilder reuses them frame to frame)
-
-_SCRATCH = weakref.WeakKeyDictionary()
-
-
-def scratch(bufs, name, n, dtype):
-    """A reusable (n,) array of ``dtype`` held alongside ``bufs``; contents are whatever the
-    previous user left, except that a newly allocated array is zero.  Grows by 1.25x."""
-    store = _SCRATCH.setdefault(bufs, {})
-    a = store.get(name)
-    if a is None or a.size < n or a.dtype != np.dtype(dtype):
-        from ..build import CELL_GROWTH, grown
-
-        check_fits(np.dtype(dtype).itemsize * grown(n, CELL_GROWTH), f"a grid build's {n:,} scratch values ({name})",
-                   "kept for later frames", "lower the density (lambda), max_cells or the thread count")
-        a = np.zeros(grown(n, CELL_GROWTH), dtype)
-        store[name] = a
-    return a[:n]
-
-
-def zero_scratch(bufs, name, n, dtype):
-    """Like :func:`scratch` for an array that users keep all zero between builds (they zero
-    what they wrote when they consume it).  Call :func:`scratch_done` once it is zero again;
-    a build that stopped half-way leaves it marked dirty and the next call zeroes it."""
-    store = _SCRATCH.setdefault(bufs, {})
-    a = scratch(bufs, name, n, dtype)
-    if store.get(name + "/dirty", False):
-        store[name].fill(0)
-    store[name + "/dirty"] = True
-    return a
-
-
-def scratch_done(bufs, name):
-    """Mark a :func:`zero_scratch` array as all zero again."""
-    _SCRATCH.setdefault(bufs, {})[name + "/dirty"] = False

@@ -15,15 +15,16 @@ import numpy as np
 from numba import njit, prange
 
 from ..common import cell_overlaps, scan_into
-from ..registry import register
 from .base import Strategy, timed
 from .shared import check_total, exclusive, part, ranges
 
 
 @njit(cache=True, parallel=True)
-def count_slabs(tris, rng, lo, cell, dims, exact, n_threads, count, tot):
+def count_slabs(tris, rng, box, exact, n_threads, count, tot):
     """Thread t counts the references of its z-slab over all triangles.  rng (F, 6) int32
-    cell ranges; count (C,) int32 zero on entry; tot (T,) int64 receives the references per slab."""
+    cell ranges; box the grid (layout.GridBox); count (C,) int32 zero on entry; tot (T,) int64
+    receives the references per slab."""
+    lo, cell, dims = box.lo, box.cell, box.dims
     F = tris.shape[0]
     nx = dims[0]
     nxy = dims[0] * dims[1]
@@ -49,10 +50,11 @@ def count_slabs(tris, rng, lo, cell, dims, exact, n_threads, count, tot):
 
 
 @njit(cache=True, parallel=True)
-def scan_scatter_slabs(tris, rng, lo, cell, dims, exact, n_threads, base_t, count, start, tri_ids):
+def scan_scatter_slabs(tris, rng, box, exact, n_threads, base_t, count, start, tri_ids):
     """Thread t scans its slab's counts from offset base_t[t] (inclusive ends), then scatters
     every triangle backwards into its slab, leaving CSR starts and ascending cell lists.
     start (C+1,) int32 (start[C] is set by the caller); tri_ids (R,) int32."""
+    lo, cell, dims = box.lo, box.cell, box.dims
     F = tris.shape[0]
     nx = dims[0]
     nxy = dims[0] * dims[1]
@@ -81,7 +83,6 @@ def scan_scatter_slabs(tris, rng, lo, cell, dims, exact, n_threads, base_t, coun
                         tri_ids[p] = f
 
 
-@register
 class SortFirst(Strategy):
     """z-slab per thread, every thread reads all triangles; no synchronization."""
 
@@ -93,11 +94,11 @@ class SortFirst(Strategy):
         tot = np.zeros(threads, np.int64)
         rng = ranges(tris, spec, bufs, threads, times)
         with timed(times, "count_ms"):
-            count_slabs(tris, rng, spec.lo, spec.cell, spec.dims, exact, threads, count, tot)
+            count_slabs(tris, rng, spec.box, exact, threads, count, tot)
         base_t, refs = exclusive(tot)
         check_total(refs)
         tri_ids = bufs.refs(refs)
         with timed(times, "scatter_ms"):
-            scan_scatter_slabs(tris, rng, spec.lo, spec.cell, spec.dims, exact, threads, base_t, count, start, tri_ids)
+            scan_scatter_slabs(tris, rng, spec.box, exact, threads, base_t, count, start, tri_ids)
             start[spec.n_cells] = refs
         return refs

@@ -26,9 +26,9 @@ from numba import njit, prange
 
 from ..atomics import spin_lock, spin_unlock
 from ..common import cell_overlaps
-from ..registry import register
 from .base import Strategy, timed
-from .shared import parallel_scan, part, ranges, scratch
+from ..buffers import scratch
+from .shared import parallel_scan, part, ranges
 
 #: lock granularity codes passed to the kernels
 GLOBAL, PER_CELL, PER_MACRO = 0, 1, 2
@@ -44,12 +44,13 @@ def _lock_id(kind, c, i, j, k, macro, mdims):
 
 
 @njit(cache=True, parallel=True)
-def count_locked(tris, rng, lo, cell, dims, exact, n_threads, kind, macro, mdims, locks, count, waits):
+def count_locked(tris, rng, box, exact, n_threads, kind, locks, count, waits):
     """count[c] += 1 under lock ``_lock_id(kind, c, ...)``; thread t takes its triangle block.
 
     rng (F, 6) int32 cell ranges; count (C,) int32 zero on entry; locks int32 all zero (free);
-    waits (T,) int64 receives each thread's failed lock looks.
+    waits (T,) int64 receives each thread's failed lock looks; box the grid (layout.GridBox).
     """
+    lo, cell, dims, macro, mdims = box.lo, box.cell, box.dims, box.macro, box.mdims
     F = tris.shape[0]
     nx = dims[0]
     nxy = dims[0] * dims[1]
@@ -72,12 +73,13 @@ def count_locked(tris, rng, lo, cell, dims, exact, n_threads, kind, macro, mdims
 
 
 @njit(cache=True, parallel=True)
-def scatter_locked(tris, rng, lo, cell, dims, exact, n_threads, kind, macro, mdims, locks, start, tri_ids, waits):
+def scatter_locked(tris, rng, box, exact, n_threads, kind, locks, start, tri_ids, waits):
     """Claim slot ``start[c] - 1`` under the lock and write the triangle id there.
 
     start (C+1,) int32 inclusive ends on entry, CSR starts on exit; tri_ids (R,) int32;
     waits (T,) int64 gets each thread's failed lock looks added.
     """
+    lo, cell, dims, macro, mdims = box.lo, box.cell, box.dims, box.macro, box.mdims
     F = tris.shape[0]
     nx = dims[0]
     nxy = dims[0] * dims[1]
@@ -117,7 +119,7 @@ class _SortLastLocked(Strategy):
         locks = scratch(bufs, "locks", self.n_locks(spec), np.int32)
         waits = np.zeros(threads, np.int64)
         rng = ranges(tris, spec, bufs, threads, times)
-        args = (tris, rng, spec.lo, spec.cell, spec.dims, exact, threads, self.kind, spec.macro, spec.mdims, locks)
+        args = (tris, rng, spec.box, exact, threads, self.kind, locks)
         with timed(times, "count_ms"):
             count_locked(*args, count, waits)
         with timed(times, "scan_ms"):
@@ -129,7 +131,6 @@ class _SortLastLocked(Strategy):
         return refs
 
 
-@register
 class GlobalLock(_SortLastLocked):
     """Sort-last, one shared grid, a single mutex for the whole grid."""
 
@@ -137,7 +138,6 @@ class GlobalLock(_SortLastLocked):
     kind = GLOBAL
 
 
-@register
 class CellLocks(_SortLastLocked):
     """Sort-last, one shared grid, one mutex per cell."""
 
@@ -145,7 +145,6 @@ class CellLocks(_SortLastLocked):
     kind = PER_CELL
 
 
-@register
 class LockPool(_SortLastLocked):
     """Sort-last, one shared grid, one mutex per macro cell."""
 

@@ -20,9 +20,9 @@ import numpy as np
 from numba import njit, prange
 
 from ..common import RANGE_LANES, cell_overlaps, cell_ranges_into
-from ..registry import register
 from .base import Strategy, timed
-from .shared import parallel_scan, part, scratch
+from ..buffers import scratch
+from .shared import parallel_scan, part
 
 
 @njit(cache=True, _nrt=False)
@@ -49,7 +49,7 @@ def _bucket_rows(rng, f0, T, zmod, flat_lists, pos):
 
 
 @njit(cache=True)
-def _ranges_buckets_block(flat, f0, f1, lo, inv_cell, dims, T, zmod, rng, lists, lcount, t):
+def _ranges_buckets_block(flat, f0, f1, box, T, zmod, rng, lists, lcount, t):
     """Cell ranges of triangles f0..f1-1 (flat: all coordinates) into rng, and their buckets,
     16 triangles at a time so the bucket pass reads ranges still in L1; lcount[:, t] = sizes."""
     F = lists.shape[1]
@@ -61,14 +61,14 @@ def _ranges_buckets_block(flat, f0, f1, lo, inv_cell, dims, T, zmod, rng, lists,
     B = RANGE_LANES
     for g0 in range(f0, f1, B):
         g1 = min(g0 + B, f1)
-        cell_ranges_into(flat[9 * g0:9 * g1], lo, inv_cell, dims, out[6 * g0:6 * g1])
+        cell_ranges_into(flat[9 * g0:9 * g1], box, out[6 * g0:6 * g1])
         _bucket_rows(rng[g0:g1], g0, T, zmod, flat_lists, pos)
     for j in range(T):
         lcount[j, t] = pos[j] - (j * F + f0)
 
 
 @njit(cache=True, parallel=True)
-def ranges_and_buckets(tris, lo, inv_cell, dims, n_threads, zmod, rng, lists, lcount):
+def ranges_and_buckets(tris, box, n_threads, zmod, rng, lists, lcount):
     """Thread t computes the cell ranges of its block of triangles (into rng (F, 6) int32) and
     sorts the block into T private buckets in the same pass: bucket j gets every triangle that
     overlaps some cell layer z with z % T == j.
@@ -81,14 +81,14 @@ def ranges_and_buckets(tris, lo, inv_cell, dims, n_threads, zmod, rng, lists, lc
     T = n_threads
     flat = tris.reshape(tris.size)
     for t in prange(T):
-        _ranges_buckets_block(flat, part(F, t, T), part(F, t + 1, T), lo, inv_cell, dims, T, zmod, rng, lists,
-                              lcount, t)
+        _ranges_buckets_block(flat, part(F, t, T), part(F, t + 1, T), box, T, zmod, rng, lists, lcount, t)
 
 
 @njit(cache=True, _nrt=False)
-def _count_bucket(tris, rng, lo, cell, dims, exact, T, zmod, jt, bucket, count):
+def _count_bucket(tris, rng, box, exact, T, zmod, jt, bucket, count):
     """count[c] += 1 for the references of the triangles in bucket (a slice of lists) that lie
     in the layers z % T == jt."""
+    lo, cell, dims = box.lo, box.cell, box.dims
     nx = dims[0]
     nxy = dims[0] * dims[1]
     for r in range(bucket.shape[0]):
@@ -107,7 +107,7 @@ def _count_bucket(tris, rng, lo, cell, dims, exact, T, zmod, jt, bucket, count):
 
 
 @njit(cache=True, parallel=True)
-def count_owned(tris, rng, lo, cell, dims, exact, n_threads, zmod, lists, lcount, count):
+def count_owned(tris, rng, box, exact, n_threads, zmod, lists, lcount, count):
     """Thread j counts the references of bucket j (of every thread, in thread order) into the
     layers z % T == j.  count (C,) int32 zero on entry."""
     T = n_threads
@@ -115,12 +115,13 @@ def count_owned(tris, rng, lo, cell, dims, exact, n_threads, zmod, lists, lcount
     for jt in prange(T):
         for t in range(T):
             a = part(F, t, T)
-            _count_bucket(tris, rng, lo, cell, dims, exact, T, zmod, jt, lists[jt, a:a + lcount[jt, t]], count)
+            _count_bucket(tris, rng, box, exact, T, zmod, jt, lists[jt, a:a + lcount[jt, t]], count)
 
 
 @njit(cache=True, _nrt=False)
-def _scatter_bucket(tris, rng, lo, cell, dims, exact, T, zmod, jt, bucket, start, tri_ids):
+def _scatter_bucket(tris, rng, box, exact, T, zmod, jt, bucket, start, tri_ids):
     """Scatter bucket (a slice of lists) backwards into the layers z % T == jt by pre-decrement."""
+    lo, cell, dims = box.lo, box.cell, box.dims
     nx = dims[0]
     nxy = dims[0] * dims[1]
     for r in range(bucket.shape[0] - 1, -1, -1):
@@ -142,7 +143,7 @@ def _scatter_bucket(tris, rng, lo, cell, dims, exact, T, zmod, jt, bucket, start
 
 
 @njit(cache=True, parallel=True)
-def scatter_owned(tris, rng, lo, cell, dims, exact, n_threads, zmod, lists, lcount, start, tri_ids):
+def scatter_owned(tris, rng, box, exact, n_threads, zmod, lists, lcount, start, tri_ids):
     """Thread j scatters bucket j backwards (last thread's part first) into its layers; start
     (C+1,) int32 inclusive ends on entry, CSR starts on exit; tri_ids (R,) int32."""
     T = n_threads
@@ -150,10 +151,9 @@ def scatter_owned(tris, rng, lo, cell, dims, exact, n_threads, zmod, lists, lcou
     for jt in prange(T):
         for t in range(T - 1, -1, -1):
             a = part(F, t, T)
-            _scatter_bucket(tris, rng, lo, cell, dims, exact, T, zmod, jt, lists[jt, a:a + lcount[jt, t]], start, tri_ids)
+            _scatter_bucket(tris, rng, box, exact, T, zmod, jt, lists[jt, a:a + lcount[jt, t]], start, tri_ids)
 
 
-@register
 class SortMiddle(Strategy):
     """Bucket-sort triangle blocks by z % T, then thread j fills the layers z % T == j."""
 
@@ -171,13 +171,13 @@ class SortMiddle(Strategy):
             lists = scratch(bufs, "sm_buckets", T * F, np.int32).reshape(T, F)
             lcount = np.empty((T, T), np.int64)
             zmod = np.arange(spec.dims[2], dtype=np.int64) % T
-            ranges_and_buckets(tris, spec.lo, spec.inv_cell, spec.dims, T, zmod, rng, lists, lcount)
+            ranges_and_buckets(tris, spec.box, T, zmod, rng, lists, lcount)
         times["bucket_entries"] = int(lcount.sum())  # a count riding along with the stage times
         with timed(times, "count_ms"):
-            count_owned(tris, rng, spec.lo, spec.cell, spec.dims, exact, T, zmod, lists, lcount, count)
+            count_owned(tris, rng, spec.box, exact, T, zmod, lists, lcount, count)
         with timed(times, "scan_ms"):
             refs = parallel_scan(count, start, T)
         tri_ids = bufs.refs(refs)
         with timed(times, "scatter_ms"):
-            scatter_owned(tris, rng, spec.lo, spec.cell, spec.dims, exact, T, zmod, lists, lcount, start, tri_ids)
+            scatter_owned(tris, rng, spec.box, exact, T, zmod, lists, lcount, start, tri_ids)
         return refs

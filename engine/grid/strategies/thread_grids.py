@@ -26,15 +26,16 @@ import numpy as np
 from numba import njit, prange
 
 from ..common import cell_overlaps
-from ..registry import register
 from .base import Strategy, timed
-from .shared import check_total, exclusive, part, ranges, scratch, scratch_done, zero_scratch
+from ..buffers import scratch, scratch_done, zero_scratch
+from .shared import check_total, exclusive, part, ranges
 
 
 @njit(cache=True, parallel=True)
-def count_layers(tris, rng, lo, cell, dims, exact, n_threads, count, tot):
+def count_layers(tris, rng, box, exact, n_threads, count, tot):
     """Thread t counts its triangle block into its own row: count (T, C) int32 zero on entry;
-    tot (T,) int64 receives each thread's reference total."""
+    tot (T,) int64 receives each thread's reference total; box the grid (layout.GridBox)."""
+    lo, cell, dims = box.lo, box.cell, box.dims
     F = tris.shape[0]
     nx = dims[0]
     nxy = dims[0] * dims[1]
@@ -55,12 +56,13 @@ def count_layers(tris, rng, lo, cell, dims, exact, n_threads, count, tot):
 
 
 @njit(cache=True, parallel=True)
-def scan_scatter_layers(tris, rng, lo, cell, dims, exact, n_threads, base_t, count, start, tri_ids):
+def scan_scatter_layers(tris, rng, box, exact, n_threads, base_t, count, start, tri_ids):
     """Thread t scans row t of count from base_t[t] and scatters its triangle block backwards.
 
     count (T, C) int32, start (T, C+1) int32 (CSR starts on exit, start[t, C] = end of layer t,
     offsets global into tri_ids (R,) int32), base_t (T,) int64 exclusive layer offsets.
     """
+    lo, cell, dims = box.lo, box.cell, box.dims
     F = tris.shape[0]
     nx = dims[0]
     nxy = dims[0] * dims[1]
@@ -129,16 +131,15 @@ def _insert_layers(tris, spec, bufs, count, start, threads, exact, times, refs_f
     tot = np.zeros(threads, np.int64)
     rng = ranges(tris, spec, bufs, threads, times)
     with timed(times, "count_ms"):
-        count_layers(tris, rng, spec.lo, spec.cell, spec.dims, exact, threads, count, tot)
+        count_layers(tris, rng, spec.box, exact, threads, count, tot)
     base_t, refs = exclusive(tot)
     check_total(refs)
     tri_ids = refs_for(refs)
     with timed(times, "scatter_ms"):
-        scan_scatter_layers(tris, rng, spec.lo, spec.cell, spec.dims, exact, threads, base_t, count, start, tri_ids)
+        scan_scatter_layers(tris, rng, spec.box, exact, threads, base_t, count, start, tri_ids)
     return refs, tri_ids
 
 
-@register
 class ThreadGridsMerge(Strategy):
     """One private grid per thread, merged into one grid in parallel after insertion."""
 
@@ -169,7 +170,6 @@ class ThreadGridsMerge(Strategy):
         return refs
 
 
-@register
 class ThreadGrids(Strategy):
     """One private grid per thread, kept as the grid's layers and all traversed."""
 

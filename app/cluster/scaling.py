@@ -13,6 +13,7 @@ The cluster's own start (the dump prints it) and the bytes the client received a
 Configurations are run in turns, ``runs`` times; medians [min-max].
 """
 
+import io
 import os
 import re
 import subprocess
@@ -24,11 +25,14 @@ from pathlib import Path
 import numpy as np
 
 from gridrt.errors import InputError
+from gridrt.scene import make_scene
 
-from .util import (
-    check_runs, finish_machine, machine_info, md_table, out_dir, progress, scene_available, scene_spec, write_csv,
-    write_json, write_summary,
-)
+from ..bench.machine import finish_machine, machine_info
+from ..bench.options import check_runs
+from ..bench.output import md_table, out_dir, progress, write_csv, write_json, write_summary
+from ..bench.scenes import scene_available, scene_spec
+from ..frame_out import write_file
+from .scheduler import check_workers, import_distributed
 
 CLUSTER_SCENE = "kitchen"
 CLUSTER_FALLBACK = "marbles"
@@ -88,13 +92,7 @@ def _one(args, out, cfg):
 def _costs(source, args, png, runs=5):
     """What the model of a large cluster needs, measured here: the scene's load (s), a PNG's
     encoding and its write by the client (ms), medians of ``runs``."""
-    import io
-
-    from PIL import Image
-
-    from gridrt.scene import make_scene
-
-    from ..frame_out import write_file
+    from PIL import Image  # deferred: Pillow loads only when this benchmark decodes and encodes a PNG
 
     load = []
     for _ in range(runs):
@@ -117,8 +115,6 @@ def _costs(source, args, png, runs=5):
 
 
 def run_cluster_bench(a):
-    from ..cluster import check_workers, import_distributed
-
     check_runs(a.runs, a.warmup)
     import_distributed()
     cores = os.cpu_count() or 1

@@ -16,21 +16,23 @@ import os
 import sys
 
 from gridrt.errors import GridrtError
+from gridrt.grid.traffic import stream_bandwidth
+from gridrt.threads import max_threads
 
-from ..cluster import _LOCK, Cluster, CtrlC, Stop, fetch_done, worker_address, worker_cached
+from ..bench.machine import machine_info
+from ..bench.output import progress
+from ..bench.scenes import resolve_scene
+from .scheduler import Cluster, CtrlC
+from .tasks import _LOCK, Stop, fetch_done, worker_address, worker_cached
 
 _WORKER = {"machine": None}
 def _bench_scene(text):
     """The worker's BenchScene of a --scenes entry, loaded once per worker process."""
-    from .util import resolve_scene
-
     return worker_cached(("bench", text), lambda: resolve_scene(text))
 
 
 def _machine():
     """This worker's machine record (measured once per worker process)."""
-    from .util import machine_info
-
     if _WORKER["machine"] is None:
         info = machine_info([])
         info.pop("threads_used", None)
@@ -59,38 +61,10 @@ def _run(fn, *args):
         return {"rows": rows, "machine": machine}
 
 
-def _scene_facts(text):
-    from .main import _has_split
-
-    sc = _bench_scene(text)
-    return [{"label": sc.label, "has_split": _has_split(sc.scene)}]
-
-
-def _build_config(text, params, runs, warmup, render):
-    from .sweep import _measure
-
-    sc = _bench_scene(text)
-    return _measure(sc.label, sc.scene, [params], runs, warmup, os.cpu_count() or 1, render)
-
-
-def _frame_config(text, variant, settings, runs, warmup, dt):
-    from .main import frame_pipeline, frame_row
-
-    sc = _bench_scene(text)
-    pipe = frame_pipeline(sc.scene, variant, **settings)
-    smp = []
-    for i in range(warmup + runs):
-        fr = pipe.step(i * dt)
-        if i >= warmup:
-            smp.append(fr.stats)
-    return [frame_row(sc, pipe, variant, smp, settings["strategy"], settings["packet"], settings["packet_precision"],
-                      settings["size"], runs)]
-
-
 @contextlib.contextmanager
 def open_cluster(a):
     """The Cluster of the bench's --workers/--scheduler (one task slot per worker), announced,
-    with Ctrl-C handled between configurations (:class:`gridrt.app.cluster.CtrlC`): yields (cluster, pressed)."""
+    with Ctrl-C handled between configurations (:class:`gridrt.app.cluster.scheduler.CtrlC`): yields (cluster, pressed)."""
     with CtrlC(local=a.workers is not None) as pressed, \
             Cluster(workers=a.workers, scheduler=a.scheduler, listen=a.listen) as cl:
         pressed.listen()
@@ -100,8 +74,6 @@ def open_cluster(a):
 
 def worker_cores(cl):
     """The fewest cores of a worker's machine (the default thread counts' ceiling)."""
-    from gridrt.threads import max_threads
-
     cores = cl.client.run(os.cpu_count)
     return max(1, min(min(cores.values() or [1]), max_threads()))
 
@@ -110,8 +82,6 @@ def run_configs(cl, calls, desc, no_progress=False, unit="config", pressed=lambd
     """Each ``(fn, args)`` of ``calls`` as one task; returns (rows in the order of ``calls``,
     {worker: machine record}).  The first error stops the run and is raised; Ctrl-C cancels
     the cluster's work and raises KeyboardInterrupt."""
-    from .util import progress
-
     client = cl.client
     futs = [client.submit(_run, fn, *args, pure=False) for fn, args in calls]
     results = [None] * len(futs)
@@ -139,26 +109,7 @@ def run_configs(cl, calls, desc, no_progress=False, unit="config", pressed=lambd
     return rows, machines
 
 
-def scene_facts(cl, specs, no_progress=False, pressed=lambda: False):
-    rows, _ = run_configs(cl, [(_scene_facts, (s,)) for s in specs], "loading scenes", no_progress, unit="scene",
-                          pressed=pressed)
-    return rows
-
-
-def build_calls(specs, strategies, kinds, threads, params, runs, warmup, size):
-    """The tasks of ``bench build``, in the order a local run lists its rows."""
-    return [(_build_config, (s, params.replace(strategy=st, threads=t, grid=k), runs, warmup, size))
-            for s in specs for st in strategies for k in kinds for t in threads]
-
-
-def frame_calls(plan, settings, runs, warmup, dt):
-    """The tasks of ``bench frame``: plan = [(scene text, (threads, traversal, split, kind))]."""
-    return [(_frame_config, (s, v, settings, runs, warmup, dt)) for s, v in plan]
-
-
 def _stream(mib, threads, runs):
-    from gridrt.grid.traffic import stream_bandwidth
-
     return [{"stream": stream_bandwidth(mib, threads, runs=runs)}]
 
 

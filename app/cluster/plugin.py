@@ -10,7 +10,7 @@ class IgnoreSigint(WorkerPlugin):
     """A local cluster's worker processes share the terminal's process group, so Ctrl-C reaches
     them as well as the client.  They ignore it (no KeyboardInterrupt tracebacks from workers
     stopping half-way) and the client, which handles it, stops them.  Workers started with the
-    cluster inherit "ignore" from the client (:class:`gridrt.app.cluster.CtrlC`); this plugin
+    cluster inherit "ignore" from the client (:class:`gridrt.app.cluster.scheduler.CtrlC`); this plugin
     covers a worker the cluster restarts later, from its set-up on."""
 
     name = "gridrt-ignore-sigint"

@@ -1,48 +1,25 @@
-"""Frames and benchmark configurations on a Dask cluster (``--workers N``, ``--scheduler ADDRESS``).
+"""Starting a local Dask cluster or connecting to an existing one (``--workers N``, ``--scheduler
+ADDRESS``): the options, their checks, the scheduler's address and greeting, :class:`Cluster`,
+Ctrl-C while it runs (:class:`CtrlC`)."""
 
-Frames are independent, so a sequence spreads over processes and machines perfectly; the cluster
-is Dask's ``distributed`` scheduler (an optional extra: ``pip install 'gridrt[cluster]'``): a local
-cluster of worker processes started here (``--workers N``), or an existing one (``dask scheduler``
-and ``dask worker`` processes anywhere, ``--scheduler tcp://HOST:PORT``).  Without either flag
-nothing here is imported.
-
-A dump is cut into chunks of consecutive frames.  Each worker process loads the scene once and
-keeps it, with its pipeline (kernels warmed, grids and buffers allocated), for its next chunks;
-it renders a chunk, encodes the PNGs (and the ``.npy`` buffers) and sends the bytes back.  The
-client writes every file itself: the workers need no folder in common with it (a cluster of
-machines seldom has one), the output folder is written by one process only, and a frame is
-written only once, whatever the retries.  The files are written in frame order, each PNG and
-buffer whole (written under a temporary name, then renamed), and then its row of ``stats.csv``.
-
-A pipeline carries state from frame to frame: the frame of reference the scene is gridded in
-(chosen at the first frame, moved when the scene drifts far), the camera that frames the scene at
-the first frame, and a static scene's grid.  A worker that starts a chunk in the middle takes that
-state with :meth:`gridrt.pipeline.FramePipeline.resume`: the first frame's camera and origin (it
-places the first frame itself, without rendering it), and the origin the previous chunk ended
-with when the client knows it.  A chunk whose start differs from where its predecessor ended (the
-scene moved its frame in between: rare) is rendered again from there; so the output is that of a
-one-process dump, bit for bit.
-
-Faults: a worker that dies loses its chunks to Dask, which runs them again on the other workers
-(chunks are pure: same input, same bytes).  A task's error (a scene that does not load, say) is
-raised once, on the client, and stops the run.
-"""
-
+import logging
 import os
+import signal
 import socket
 import struct
 import threading
 import time
 import warnings
+from urllib.parse import urlsplit
 
-import numpy as np
+from gridrt import memory
+from gridrt.commands import pip_command
+from gridrt.errors import InputError
+from gridrt.memory import human
 
-from gridrt.errors import GridrtError, InputError
 
 def install_hint():
     """How to get the cluster extra, with the pip of the running interpreter."""
-    from gridrt.commands import pip_command
-
     pip = pip_command()
     return (f"{pip} install 'gridrt[cluster]' (in a checkout: {pip} install -e '.[cluster]'; or {pip} install "
             "distributed bokeh)")
@@ -129,8 +106,6 @@ def memory_available():
     ``MemAvailable`` and the cgroups' limits less their usage (:func:`gridrt.memory.readings`;
     a process's own RLIMIT_AS and RLIMIT_DATA bound each worker apart, not their sum); (None,
     None) where none can be read."""
-    from gridrt import memory
-
     shared = [(b, source) for source, b in memory.readings() if not source.startswith("RLIMIT")]
     return min(shared) if shared else (None, None)
 
@@ -139,8 +114,6 @@ def check_workers(workers):
     """Refuse (InputError, with the figures) a local cluster of ``workers`` processes that this
     machine cannot hold: more workers than the cores this process may use, or ``workers`` times
     :data:`WORKER_MEMORY` more than the memory available (:func:`memory_available`)."""
-    from gridrt.memory import human
-
     cores, (room, source) = usable_cores(), memory_available()
     problems = []
     if workers > cores:
@@ -159,7 +132,7 @@ def check_workers(workers):
 def import_distributed():
     """The ``distributed`` module, or an InputError saying how to install it."""
     try:
-        import distributed
+        import distributed  # deferred: the optional cluster extra (distributed) loads in about a second
     except ImportError as e:
         raise InputError(f"--workers and --scheduler need Dask's distributed scheduler, which is not installed "
                          f"({e}); install the cluster extra: {install_hint()}") from None
@@ -169,8 +142,6 @@ def import_distributed():
 def scheduler_address(text):
     """(host, port) of a --scheduler address: ``tcp://HOST:PORT``, ``HOST:PORT`` or
     ``tcp://[IPv6]:PORT``; an InputError that says what is wrong with anything else."""
-    from urllib.parse import urlsplit
-
     shown = " ".join(str(text).split())
     scheme, sep, rest = shown.partition("://")
     if not sep:
@@ -254,7 +225,7 @@ def greeting_problem(data):
     start = word.size * (count + 1)
     if sum(lengths) != size - start:
         return f"its first message's frames do not add up to its size ({sum(lengths)} + {start} != {size} bytes)"
-    import msgpack
+    import msgpack  # deferred: msgpack comes with the optional cluster extra (distributed)
 
     try:
         greeting = msgpack.unpackb(body[start:start + lengths[0]], raw=False)
@@ -318,8 +289,6 @@ class Cluster:
 
     def __init__(self, workers=None, scheduler=None, threads=None, listen=None):
         dist = import_distributed()
-        import logging
-
         self.threads = threads
         self.cluster = None
         self.client = None
@@ -344,7 +313,7 @@ class Cluster:
                                  f"--listen takes an address of this machine (default {LOOPBACK})") from None
             try:
                 self.client = dist.Client(self.cluster)
-                from .cluster_plugin import IgnoreSigint
+                from .plugin import IgnoreSigint  # deferred: the plugin's module imports distributed
 
                 self.client.register_plugin(IgnoreSigint())  # (a worker restarted later ignores Ctrl-C too)
             except BaseException:
@@ -411,8 +380,6 @@ class CtrlC:
         self.local = local
 
     def __enter__(self):
-        import signal
-
         if threading.current_thread() is threading.main_thread():
             self.old = signal.signal(signal.SIGINT, signal.SIG_IGN)
             if not self.local:  # no worker processes start here: heard at once, acted on once connected
@@ -420,8 +387,6 @@ class CtrlC:
         return self
 
     def listen(self):
-        import signal
-
         if self.old is not None:
             signal.signal(signal.SIGINT, lambda *_: self.flag.set())
 
@@ -429,8 +394,6 @@ class CtrlC:
         return self.flag.is_set()
 
     def __exit__(self, *exc):
-        import signal
-
         if self.old is not None:
             signal.signal(signal.SIGINT, self.old)
 
@@ -439,22 +402,16 @@ class quiet_logs:
     """No log records while inside (``logging.disable``), then the previous setting again."""
 
     def __enter__(self):
-        import logging
-
         self.before = logging.root.manager.disable
         logging.disable(logging.CRITICAL)
         return self
 
     def __exit__(self, *exc):
-        import logging
-
         logging.disable(self.before)
 
 
 def _silence():
     """On a local cluster's worker about to stop: no more log records."""
-    import logging
-
     logging.disable(logging.CRITICAL)
 
 
@@ -462,215 +419,3 @@ def _host(address):
     """The host part of a Dask address (``tcp://10.0.0.5:40123`` -> ``10.0.0.5``)."""
     s = str(address).split("://", 1)[-1]
     return s.rsplit(":", 1)[0] if ":" in s else s
-
-
-# ---------------------------------------------------------------------------------------------
-# on the workers
-# ---------------------------------------------------------------------------------------------
-
-#: one task at a time per worker process: a chunk and its pipeline, or a configuration, use the
-#: worker's threads, and pipelines are not shared between threads
-_LOCK = threading.Lock()
-#: the worker's scenes (worker_cached), kept for its next tasks; and its pipeline
-_SCENES = {}
-_PIPE = {}
-
-
-def worker_address():
-    try:
-        from distributed import get_worker
-
-        return get_worker().address
-    except (ImportError, ValueError):
-        return "local"
-
-
-def worker_threads(threads, per_host):
-    """The thread count of a task on this worker: ``threads``, or this machine's cores divided
-    among the workers on it (``per_host``: {host: workers}, as the client saw them)."""
-    from gridrt.threads import max_threads
-
-    if threads is not None:
-        return min(int(threads), max_threads())
-    n = max(1, (per_host or {}).get(_host(worker_address()), 1))
-    return max(1, min((os.cpu_count() or 1) // n, max_threads()))
-
-
-def worker_cached(key, make):
-    """``make()``, made once per worker process for ``key`` and kept for its next tasks (a
-    scene; at most four kept)."""
-    value = _SCENES.get(key)
-    if value is None:
-        if len(_SCENES) >= 4:
-            _SCENES.clear()
-        value = _SCENES[key] = make()
-    return value
-
-
-def render_chunk(args, start, stop, origin, per_host=None):
-    """Frames ``start`` .. ``stop``-1 of the dump ``args`` (the dump's parsed options, a dict),
-    as its one-process run would render them; ``origin``: where the pipeline stood after frame
-    ``start``-1 (None: where the first frame left it).  Returns a dict: ``origin_in`` (the
-    origin the chunk started from; None for frame 0), ``origins`` (after each frame), ``worker``,
-    ``threads``, ``warnings`` ((category, message) pairs) and ``frames``: per frame its PNG
-    bytes, ``.npy`` bytes of the buffers when asked, its stats row and origin
-    (:func:`gridrt.app.frame_out.encode_frame`)."""
-    import argparse
-
-    with _LOCK:
-        try:
-            with warnings.catch_warnings(record=True) as caught:  # (warned again on the client, once)
-                warnings.simplefilter("always")
-                r = _render_chunk(argparse.Namespace(**args), start, stop, origin, per_host)
-            r["warnings"] = list(dict.fromkeys((w.category, str(w.message)) for w in caught))
-            return r
-        except GridrtError as e:  # the run's own error (a scene that does not load...): a result, not a failure
-            return {"error": e}
-
-
-def _render_chunk(a, start, stop, origin, per_host):
-    from . import cli
-    from .frame_out import encode_frame
-
-    a.threads = worker_threads(a.threads, per_host)
-    key = repr(sorted(vars(a).items()))
-    pipe = _PIPE.get(key)
-    if pipe is None:
-        _PIPE.clear()
-        pipe = _PIPE[key] = cli.pipeline_from_args(a, scene=worker_cached(cli.scene_spec(a), cli.scene_spec(a).make))
-    pipe.resume(start, a.t0, origin)
-    origin_in = None if start == 0 else pipe.origin.copy()
-    frames, origins = [], []
-    for i in range(start, stop):
-        fr = pipe.step(a.t0 + i * a.dt)
-        frames.append(encode_frame(fr, a.save_buffers))  # (the files of a one-process dump, by construction)
-        origins.append(pipe.origin.copy())
-    return {"start": start, "stop": stop, "origin_in": origin_in, "origins": origins,
-            "worker": worker_address(), "threads": a.threads, "frames": frames}
-
-
-
-
-# ---------------------------------------------------------------------------------------------
-# on the client
-# ---------------------------------------------------------------------------------------------
-
-class Stop(Exception):
-    """Ctrl-C during a cluster run (raised after the cluster's work is cancelled)."""
-
-
-def task_error(fut):
-    """The exception of a failed future as one to raise on the client: gridrt's own errors as
-    they are (the same message as a local run), a worker lost too often as a GridrtError."""
-    exc = fut.exception()
-    if isinstance(exc, GridrtError):
-        return exc
-    if type(exc).__name__ == "KilledWorker":
-        return GridrtError(f"the workers running {fut.key} died too often; giving up ({exc})")
-    return exc
-
-
-def fetch_done(futs, timeout=0.2):
-    """Wait up to ``timeout`` s for one of ``futs`` ({key: future}) to finish; returns {key:
-    result} of those finished.  A task that failed, or returned gridrt's own error
-    (``{"error": e}``), raises here.  (Cancelled ones were replaced by a resubmission; lost ones
-    Dask runs again.)"""
-    from distributed import wait
-
-    try:
-        wait(list(futs.values()), timeout=timeout, return_when="FIRST_COMPLETED")
-    except TimeoutError:
-        pass
-    out = {}
-    for k, f in futs.items():
-        if f.status == "error":
-            raise task_error(f)
-        if f.status == "finished":
-            r = f.result()
-            if "error" in r:
-                raise r["error"]
-            out[k] = r
-    return out
-
-
-def chunks(n, size, begin=0):
-    """[(start, stop)] cutting frames ``begin`` .. n-1 into chunks of ``size`` consecutive frames."""
-    return [(s, min(s + size, n)) for s in range(begin, n, size)]
-
-
-def default_chunk(frames, workers):
-    """Frames per chunk: about four chunks per worker (so a worker lost or slow costs little),
-    at most 16 frames (a chunk's images travel in one message), at least 1."""
-    return max(1, min(16, -(-frames // (4 * max(1, workers)))))
-
-
-def run_chunks(cl, args, frames, size, write, pressed=lambda: False, begin=0, origin=None):
-    """Render ``frames`` frames of the dump ``args`` (dict) on the Cluster ``cl`` in chunks of
-    ``size`` and hand each frame, in order, to ``write(i, item, worker)`` (exactly once each).
-    ``begin``: the first frame to render (a resumed dump), ``origin``: where the pipeline stood
-    after the frame before it.
-    Ctrl-C (``pressed()``: a :class:`CtrlC`) stops the run between frames: raises
-    :class:`Stop` with the frames written.
-    Returns the workers' thread counts seen."""
-    client = cl.client
-    per_host = cl.hosts()
-    parts = chunks(frames, size, begin)
-    futs, sent = {}, {}
-
-    def submit(c, origin):
-        if c in futs:
-            futs[c].cancel()
-        s, e = parts[c]
-        sent[c] = origin
-        futs[c] = client.submit(render_chunk, args, s, e, origin, per_host, pure=False,
-                                key=f"gridrt-frames-{s:05d}-{e - 1:05d}-{os.urandom(4).hex()}")
-
-    for c in range(len(parts)):
-        submit(c, origin)
-    results, threads, warned = {}, set(), set()
-    ahead = 2 * max(1, sum(per_host.values())) + 2
-    nxt, last = 0, origin  # next chunk to write; the origin the last chunk written ended with
-    written = 0
-    try:
-        while nxt < len(parts):
-            if pressed():
-                raise Stop(written)
-            # results are fetched up to ``ahead`` chunks past the next to write; later ones wait on
-            # their workers (the client holds a few chunks, not the sequence, when it falls behind)
-            window = {c: f for c, f in futs.items() if nxt <= c < nxt + ahead and c not in results}
-            for c, r in fetch_done(window).items():
-                results[c] = r
-                for category, message in r["warnings"]:
-                    if (category, message) not in warned:  # once, as a one-process dump warns
-                        warned.add((category, message))
-                        warnings.warn(message, category, stacklevel=2)
-            while nxt in results and not pressed():
-                r = results[nxt]
-                if last is not None and not np.array_equal(r["origin_in"], last):
-                    del results[nxt]  # started from a stale frame of reference: again, from the right one
-                    submit(nxt, last)
-                    break
-                first = r["origins"][0] if r["origin_in"] is None else r["origin_in"]
-                for k, item in enumerate(r["frames"]):
-                    if pressed():
-                        raise Stop(written)
-                    write(r["start"] + k, item, r["worker"])
-                    written += 1
-                threads.add(r["threads"])
-                last = r["origins"][-1]
-                if not np.array_equal(last, first):
-                    # the scene moved its frame in this chunk: the later chunks start from here
-                    for d in range(nxt + 1, len(parts)):
-                        if d not in results or not np.array_equal(results[d]["origin_in"], last):
-                            results.pop(d, None)
-                            if sent.get(d) is None or not np.array_equal(sent[d], last):
-                                submit(d, last)
-                del results[nxt]
-                futs.pop(nxt).release()
-                nxt += 1
-        if pressed():
-            raise Stop(written)
-    finally:
-        for f in futs.values():
-            f.cancel()
-    return threads

@@ -1,0 +1,87 @@
+"""Frame-level records: the values the render kernels take (gridrt.trace.render's DDA kernels,
+gridrt.trace.cgt.frame's packet kernels, gridrt.trace.material's shading pass).
+
+Each record is a module-level :func:`collections.namedtuple` of arrays and scalars; numba types it
+as a NamedTuple, field by field, so a kernel compiles once per combination of field types.  The
+functions below make each record with the types the kernels are compiled for (float64 basis,
+int64 sizes, bool flags, float64 offsets), so that equal settings never compile again.  A
+parallel kernel may take these records into its ``prange`` loop as they are: each is one level
+of arrays and scalars (a tuple of tuples cannot enter it, see gridrt.trace.grids).
+
+* :class:`View`: the camera and the image's size and tiling;
+* :class:`Shading`: how hits are shaded and rays tested;
+* :class:`Packets`: the packet shape and precision of the CGT kernels;
+* :class:`Buffers`: a render's output buffers;
+* :class:`Scratch`: one worker's scratch in the CGT render (gridrt.trace.cgt.frame);
+* :class:`SurfaceArrays`: the scene's surface as the material pass reads it;
+* :class:`HitPoints`: the material pass's per-pixel buffers while shadows are cast;
+* :class:`ShadowRays`: one light's shadow rays from those hits.
+"""
+
+from collections import namedtuple
+
+import numpy as np
+
+#: The camera and the image: basis (5, 3) float64 (gridrt.camera.Camera.basis: eye, forward,
+#: right, up, then tan(fov / 2)), the image's width W and height H in pixels, and the edge of
+#: the square tiles the kernels render it in (tile, pixels).
+View = namedtuple("View", "basis W H tile")
+
+#: How hits are shaded and rays tested: mode (gridrt.trace.render.SHADING_CODES: 0 lambert or
+#: material, 1 normal, 2 cost), shadows (bool: the lambert mode casts shadow rays), off (float64:
+#: the shadow rays' origins move this far off the surface) and watertight (bool: the watertight
+#: triangle test, else the fast one).  The light's position is a kernel argument of its own: the
+#: CGT kernels take None without shadows, and numba then compiles no shadow path.
+Shading = namedtuple("Shading", "mode shadows off watertight")
+
+#: The packets of the CGT render: their triangle tests in float32 (f32, bool) and their shape,
+#: kw x kh pixels (at most gridrt.trace.cgt.rays.PK_MAX each).
+Packets = namedtuple("Packets", "f32 kw kh")
+
+#: A render's output, pixel by pixel: img (H, W, 4) uint8, t (H, W) float32 hit distance (inf: a
+#: miss), tri (H, W) int32 scene id of the triangle hit (-1: a miss), cost (H, W) int32 triangle
+#: tests, cells (H, W) int32 cells visited.  The CGT kernels pass the same buffers on flat
+#: ((H * W * 4,) and (H * W,)) to their tile kernel.
+Buffers = namedtuple("Buffers", "img t tri cost cells")
+
+#: One worker's scratch in the CGT render (sizes in gridrt.trace.cgt.rays): S (NS * PN,) float64,
+#: the active rays of a packet; io, io2, sio (NIO * PN,) float64, the ray tables of a packet, of
+#: its rays in a later grid and of its shadow rays; sj (PN,) int64, the pixel of each shadow ray;
+#: col (3 * PN,) float64, the packet's colours; mb (MBOX,) int32 the packet's mailbox and mb1
+#: (MAILBOX,) int32 the single-ray fallback's; acc (4,) int64, the sums the kernel returns.
+Scratch = namedtuple("Scratch", "S io io2 sio sj col mb mb1 acc")
+
+#: The scene's surface as the material pass reads it (gridrt.scene.surface.Surface.packed, by
+#: scene id): tris (F, 3, 3) float32 in the render's frame, normals (F, 3, 3) float32 per corner
+#: (or (0, 3, 3): geometric normals), material (F,) int32, diffuse and ambient (M, 3) per
+#: material, texture (M,) int32 (-1: none), tex_data (all textures' texels, uint8) and tex_info
+#: (T, 5) int64 (each texture's offset, width, height and wrap modes), uv (F, 3, 2) and colors
+#: (F, 3, 3) per corner (or empty: none).
+SurfaceArrays = namedtuple("SurfaceArrays",
+                           "tris normals material diffuse ambient texture tex_data tex_info uv colors")
+
+#: The material pass's per-pixel buffers while shadow rays are cast (row y * W + x): pos (W * H,
+#: 3) float64 hit point, ng (W * H, 3) float64 facing geometric normal, ns (W * H, 3) float32
+#: shading normal, tvd (W * H, 3) float32 the colour the lights multiply, acc (W * H, 3) float32
+#: the colour so far (the ambient term first; acc[i, 0] = -1 for a miss).
+HitPoints = namedtuple("HitPoints", "pos ng ns tvd acc")
+
+#: One light's shadow rays from the hits, row by pixel: need (W * H,) uint8 (1: the light lights
+#: the hit, a ray is cast), origins and dirs (W * H, 3) float64 (the ray ends at t = 1), weight
+#: (W * H,) float64 the light's weight at the hit.
+ShadowRays = namedtuple("ShadowRays", "need origins dirs weight")
+
+
+def make_view(basis, W, H, tile):
+    """The :class:`View` with the types the kernels are compiled for."""
+    return View(np.ascontiguousarray(basis, np.float64), int(W), int(H), int(tile))
+
+
+def make_shading(mode, shadows, off, watertight):
+    """The :class:`Shading` with the types the kernels are compiled for."""
+    return Shading(int(mode), bool(shadows), float(off), bool(watertight))
+
+
+def make_packets(f32, kw, kh):
+    """The :class:`Packets` with the types the kernels are compiled for."""
+    return Packets(bool(f32), int(kw), int(kh))

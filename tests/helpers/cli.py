@@ -1,0 +1,34 @@
+"""Running the gridrt command in a subprocess and reading its one-line errors."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def gridrt(*args, env=None, timeout=600):
+    e = dict(os.environ)
+    e.update(env or {})
+    return subprocess.run([sys.executable, "-m", "gridrt", *args], cwd=REPO, capture_output=True, text=True,
+                          env=e, timeout=timeout)
+
+
+COMPILING = "Compiling numba kernels"
+
+
+def stderr_lines(r):
+    return [ln for ln in r.stderr.splitlines() if ln.strip() and not ln.startswith(COMPILING)]
+
+
+def one_error(r, *words):
+    """The single error line of a refused command (asserting exit status 2 and nothing else on stderr)."""
+    lines = stderr_lines(r)
+    assert r.returncode == 2, (r.returncode, r.stderr[-2000:])
+    assert "Traceback" not in r.stderr and "Warning" not in r.stderr, r.stderr[-2000:]
+    assert len(lines) == 1 and lines[0].startswith("gridrt: error: "), r.stderr[-2000:]
+    for w in words:
+        assert w in lines[0], lines[0]
+    return lines[0]
