@@ -7,15 +7,16 @@ import time
 import numpy as np
 
 from gridrt.api import RayCaster
-from gridrt.config import TRAVERSALS, GridParams, RenderParams
+from gridrt.config import TRAVERSALS, GridParams
 from gridrt.errors import InputError
+from gridrt.frame import FrameSpec
 from gridrt.grid.build import GridBuilder, build_grid
 from gridrt.trace.render import Renderer
 
 from .machine import finish_machine, machine_info
 from .options import check_runs, thread_list
 from .output import figure, md_table, out_dir, progress, write_csv, write_json, write_summary
-from .scenes import facing_camera, resolve_scene, scene_list
+from .scenes import facing_camera, resolve_scene, scene_list, seen_through
 from .stats import stat, timings
 
 CORE_ALIASES = {"bunny16": "bunny:1000000", "ico82k": "icosphere:81920", "ico1m": "icosphere:1310720"}
@@ -33,12 +34,35 @@ def add_parser(bsub, common):
     p.set_defaults(func=run_core)
 
 
-def _one_shot_rows(tris, label, runs, warmup):
-    """One-shot builds against a reused builder's rebuild of the same triangles (serial strategy, one
-    thread, default parameters), timed in turns so that load falls on all alike: build_grid of the
-    float32 and of the float64 triangles, RayCaster over them as a triangle soup (3 vertices per
-    triangle) and that caster's update (its reused builder)."""
-    p = GridParams(strategy="serial", threads=1)
+#: the insertion tests of the serial build rows
+CORE_INSERTS = ("bbox", "exact")
+
+
+def core_spec(scene, size):
+    """The FrameSpec a scene's ``bench core`` rows start from: the SceneSpec ``scene``, built with
+    the serial strategy on one thread, every other grid and render setting the engine's default,
+    at size x size."""
+    return FrameSpec(scene=scene, grid=GridParams(strategy="serial", threads=1)).resized(size, size)
+
+
+def build_specs(base):
+    """The serial build rows' FrameSpecs: ``base`` (:func:`core_spec`) with each of CORE_INSERTS."""
+    return [base.replace(grid=base.grid.replace(insert=ins)) for ins in CORE_INSERTS]
+
+
+def ray_specs(base, cam, threads, traversals):
+    """The primary-ray rows' FrameSpecs: ``base`` (:func:`core_spec`) seen through the Camera ``cam``,
+    rendered on each of ``threads`` with each of ``traversals`` (the grid stays ``base``'s)."""
+    seen = seen_through(base, cam)
+    return [seen.replace(render=seen.render.replace(threads=th, traversal=tv)) for th in threads for tv in traversals]
+
+
+def _one_shot_rows(tris, label, runs, warmup, p):
+    """One-shot builds against a reused builder's rebuild of the same triangles with the GridParams
+    ``p`` (:func:`core_spec`'s: serial strategy, one thread, default parameters), timed in turns so
+    that load falls on all alike: build_grid of the float32 and of the float64 triangles, RayCaster
+    over them as a triangle soup (3 vertices per triangle) and that caster's update (its reused
+    builder)."""
     t64 = tris.astype(np.float64)
     v, f = tris.reshape(-1, 3), np.arange(3 * len(tris), dtype=np.int32).reshape(-1, 3)
     builder = GridBuilder(p)
@@ -58,7 +82,7 @@ def _one_shot_rows(tris, label, runs, warmup):
             fn()
             t.append((time.perf_counter() - t0) * 1e3)
     meds = [stat(t) for t in ts]
-    return [dict(scene=label, triangles=len(tris), what=what, threads=1, median_ms=med, min_ms=lo, max_ms=hi,
+    return [dict(scene=label, triangles=len(tris), what=what, threads=p.threads, median_ms=med, min_ms=lo, max_ms=hi,
                  references="", refs_per_tri="", cells="", mtris_per_s=len(tris) / med / 1e3, mrays="",
                  vs_rebuild=med / meds[0][0])
             for (what, _), (med, lo, hi) in zip(cases, meds)]
@@ -90,24 +114,25 @@ def run_core(a):
         sc = resolve_scene(spec)
         tris = np.array(sc.scene.triangles_at(0.0, origin=sc.scene.frame_origin(0.0)))  # as the pipeline grids it
         label = f"{sc.label} ({sc.scene.name})" if sc.label != sc.scene.name else sc.label
-        for ins in ("bbox", "exact"):
-            b = GridBuilder(GridParams(strategy="serial", insert=ins, threads=1))
+        base = core_spec(sc.spec, size)
+        for bspec in build_specs(base):
+            b = GridBuilder(bspec.grid)
             med, lo_, hi_ = timings(lambda: b.build(tris), runs, a.warmup)
             g = b.build(tris)
-            rows.append(dict(scene=label, triangles=len(tris), what=f"serial build {ins}", threads=1,
-                             median_ms=med, min_ms=lo_, max_ms=hi_, references=g.references,
-                             refs_per_tri=g.references / len(tris), cells=g.spec.n_cells,
+            rows.append(dict(scene=label, triangles=len(tris), what=f"serial build {bspec.grid.insert}",
+                             threads=bspec.grid.threads, median_ms=med, min_ms=lo_, max_ms=hi_,
+                             references=g.references, refs_per_tri=g.references / len(tris), cells=g.spec.n_cells,
                              mtris_per_s=len(tris) / med / 1e3, mrays=""))
             bar.update()
-        rows += _one_shot_rows(tris, label, runs, a.warmup)
+        rows += _one_shot_rows(tris, label, runs, a.warmup, base.grid)
         bar.update()
-        g = GridBuilder(GridParams(strategy="serial", threads=1)).build(tris)
-        cam = facing_camera(g.spec.scene_lo, g.spec.scene_hi)
-        for th, tv in ((th, tv) for th in threads for tv in travs):
+        g = GridBuilder(base.grid).build(tris)
+        for rspec in ray_specs(base, facing_camera(g.spec.scene_lo, g.spec.scene_hi, base.view.fov), threads, travs):
             r = Renderer()
-            rp = RenderParams(size, size, threads=th, traversal=tv)
+            cam, rp = rspec.camera(), rspec.render
             med, lo_, hi_ = timings(lambda: r.render(g, tris, cam, rp), runs, a.warmup)
             res = r.render(g, tris, cam, rp)
+            th, tv = rp.threads, rp.traversal
             rows.append(dict(scene=label, triangles=len(tris), what=f"primary rays {size}x{size} {tv}", threads=th,
                              traversal=tv,
                              median_ms=med, min_ms=lo_, max_ms=hi_, references=g.references,

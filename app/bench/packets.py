@@ -17,6 +17,7 @@ from numba import njit
 import gridrt  # noqa: F401
 from gridrt.config import PACKET_PRECISIONS, GridParams, RenderParams
 from gridrt.errors import InputError
+from gridrt.frame import FrameSpec
 from gridrt.grid.build import GridBuilder
 from gridrt.trace import cgt
 from gridrt.trace.grids import grid_arrays
@@ -26,7 +27,7 @@ from gridrt.trace.traverse import MAILBOX
 from .machine import finish_machine, machine_info
 from .options import check_runs
 from .output import md_table, out_dir, progress, write_csv, write_json, write_summary
-from .scenes import camera_rays, resolve_scene, scene_list
+from .scenes import camera_rays, resolve_scene, scene_list, seen_through
 from .stats import timings
 
 PACKET_SCENES = ["lucy:twist", "icosphere:1310720:twist"]
@@ -81,15 +82,25 @@ def profile_frame(g, basis, W, H, prof, f32):
     return hits
 
 
+def packet_spec(scene, size, precision):
+    """The FrameSpec of a ``bench packets`` configuration before its camera: the SceneSpec ``scene``,
+    gridded on one thread and rendered on one with the CGT traversal in TILE-pixel tiles, the
+    packets' triangle tests in ``precision``, at size x size (every other setting the engine's
+    default)."""
+    render = RenderParams(threads=1, traversal="cgt", tile=TILE, packet_precision=precision)
+    return FrameSpec(scene=scene, grid=GridParams(threads=1), render=render).resized(size, size)
+
+
 def measure(sc, size, view, runs, warmup, precision="float64"):
     """One scene and view: a row of times (ms medians) and the per-phase split."""
     origin, cam, *_ = camera_rays(sc, size, fill=view == "fill")
+    spec = seen_through(packet_spec(sc.spec, size, precision), cam)
     tris = np.ascontiguousarray(sc.scene.triangles_at(0.0, origin=origin), np.float32)
-    grid = GridBuilder(GridParams(threads=1)).build(tris)
+    grid = GridBuilder(spec.grid).build(tris)
     g = grid_arrays(grid, tris)
+    cam, rp = spec.camera(), spec.render
     basis = cam.basis()
-    rp = RenderParams(size, size, threads=1, traversal="cgt", tile=TILE, packet_precision=precision)
-    f32 = precision == "float32"
+    f32 = rp.packet_precision == "float32"
     renderer = Renderer()
     render_ms = timings(lambda: renderer.render(grid, tris, cam, rp), runs, warmup)[0]
     trace = timings(lambda: profile_frame(g, basis, size, size, None, f32), runs, warmup)[0]

@@ -39,6 +39,7 @@ import numpy as np
 import gridrt  # noqa: F401
 from gridrt.config import TRAVERSALS, GridParams, RenderParams
 from gridrt.errors import InputError
+from gridrt.frame import FrameSpec, ViewSpec
 from gridrt.grid.build import GridBuilder
 from gridrt.trace.render import Renderer, cast_rays
 
@@ -48,7 +49,7 @@ from .affinity import Affinity
 from .machine import finish_machine, machine_info
 from .options import add_dt_arg, add_grid_kind_args, check_frame_args, frame_strategy, grid_kinds, thread_list
 from .output import figure, grid_columns, grid_label, md_table, out_dir, progress, write_csv, write_json, write_summary
-from .scenes import FILL, camera_rays, resolve_scene, scene_list, scenes_help
+from .scenes import FILL, camera_rays, resolve_scene, scene_list, scenes_help, seen_through
 from .stats import fmt_ms, put_stat
 from .reference import brute_cast
 from .sides import (  # noqa: F401  (INSTALL_HINT)
@@ -143,8 +144,8 @@ def run_peers(a):
             print(f"note: {side.label} not measured: {e}", file=sys.stderr)
     size = 64 if a.quick else a.size
     runs, warmup = (1, 1) if a.quick else (a.runs, a.warmup)
-    packet = RenderParams(packet=a.packet).packet
     kinds = grid_kinds(a)
+    base = peers_spec(a, size)  # (the packet checked here, before any scene loads)
     specs, note = scene_list(a.scenes, PEER_SCENES, PEER_FALLBACK, quick=["icosphere:1280:twist"] if a.quick else None)
     threads = thread_list(a.threads)
     out = out_dir(a.out)
@@ -162,24 +163,21 @@ def run_peers(a):
     affinity_ok = True
     for sc, view in ((sc, view) for sc in scenes for view in views):
         origin, cam, o32, d32, o, d = _rays(sc, size, view)
-        for T, kind in ((T, kind) for T in threads for kind in kinds):
-            bar.set_postfix_str(f"{sc.label} {view} T={T} {kind}")
-            strat = frame_strategy(a.strategy, T)
-            gp = GridParams(strategy=strat, threads=T, grid=kind, top_density=a.top_density,
-                            leaf_density=a.leaf_density)
+        for spec in peer_specs(base, sc.spec, cam, threads, kinds, a.strategy):
+            gp, T, prec = spec.grid, spec.render.threads, spec.render.packet_precision
+            bar.set_postfix_str(f"{sc.label} {view} T={T} {gp.grid}")
             builder = GridBuilder(gp)
             renderer = Renderer()
-            rp = RenderParams(size, size, threads=T, traversal="cgt", packet=packet,
-                              packet_precision=a.packet_precision) if HAVE_CGT and view != "random" else None
+            rp, scam = (spec.render, spec.camera()) if HAVE_CGT and view != "random" else (None, None)
             with Affinity(T) as aff, ThreadPoolExecutor(T) as pool:
                 affinity_ok &= aff.applied
-                frames = _time_frames(sc, origin, builder, renderer, rp, cam, emb, pool, o32, d32, o, d, T,
-                                      warmup, runs, a.dt, bar, others, a.packet_precision)
-                static = _time_static(frames, renderer, rp, cam, emb, pool, o32, d32, o, d, T, runs, others,
-                                      a.packet_precision)
+                frames = _time_frames(sc, origin, builder, renderer, rp, scam, emb, pool, o32, d32, o, d, T,
+                                      warmup, runs, spec.view.dt, bar, others, prec)
+                static = _time_static(frames, renderer, rp, scam, emb, pool, o32, d32, o, d, T, runs, others, prec)
                 bar.update()
-            rows.append(_row(sc, T, strat, aff.applied, size, runs, emb, o, d, frames, static, rp, others, view))
-            rows[-1].update(packet=f"{packet[0]}x{packet[1]}", packet_precision=a.packet_precision,
+            rows.append(_row(sc, T, gp.strategy, aff.applied, size, runs, emb, o, d, frames, static, rp, others, view))
+            packet = spec.render.packet
+            rows[-1].update(packet=f"{packet[0]}x{packet[1]}", packet_precision=prec,
                             **grid_columns(gp, frames["grid"].stats))
             if rp is not None:  # (the random view has no image: its rays go through cast_rays only)
                 img = frames["img"].stats
@@ -187,6 +185,28 @@ def run_peers(a):
     bar.close()
     _write(rows, out, info, emb, runs, warmup, affinity_ok, note, others, absent)
     return 0
+
+
+def peers_spec(a, size):
+    """The FrameSpec every ``bench peers`` configuration starts from: the options' two-level grid
+    densities, gridrt's CGT render with the options' packets and their precision, the options'
+    time step, at size x size (:func:`peer_specs` fills in the scene, camera, threads, strategy
+    and grid kind)."""
+    return FrameSpec(grid=GridParams(top_density=a.top_density, leaf_density=a.leaf_density),
+                     render=RenderParams(traversal="cgt", packet=a.packet, packet_precision=a.packet_precision),
+                     view=ViewSpec(dt=a.dt)).resized(size, size)
+
+
+def peer_specs(base, scene, cam, threads, kinds, strategy):
+    """The FrameSpecs of one scene and view, one per thread count (built and rendered on that many
+    threads) and grid kind, in that order: ``base`` (:func:`peers_spec`) with the SceneSpec
+    ``scene``, seen through the Camera ``cam`` (None for the random rays: no camera), built with
+    ``strategy`` (a build strategy or "auto": :func:`frame_strategy`)."""
+    if cam is not None:
+        base = seen_through(base, cam)
+    base = base.replace(scene=scene)
+    return [base.replace(grid=base.grid.replace(strategy=frame_strategy(strategy, T), threads=T, grid=kind),
+                         render=base.render.replace(threads=T)) for T in threads for kind in kinds]
 
 
 def _rays(sc, size, view):

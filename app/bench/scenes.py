@@ -170,6 +170,12 @@ def facing_camera(lo, hi, fov=DEFAULT_FOV):
     return Camera(eye=tuple(c + d * dist), target=tuple(c), up=up, fov=fov)
 
 
+def seen_through(spec, cam):
+    """The FrameSpec ``spec`` with its view's explicit camera set to the Camera ``cam`` (its eye,
+    target, up and fov)."""
+    return spec.replace(view=spec.view.replace(eye=cam.eye, target=cam.target, up=cam.up, fov=cam.fov))
+
+
 def scene_camera(scene, tris, t=0.0, origin=None):
     """The scene's own camera at time t (BART, glTF) where it has one, else facing_camera over
     the bounds of tris (F,3,3); ``origin``: the frame tris are in (the scene's camera is moved
