@@ -143,6 +143,7 @@ def test_viewer_leaves_without_a_busy_render_thread(capsys):
     from gridrt.app.viewer.view import STOP_WAIT_S, Viewer
     from gridrt.app.viewer.worker import LoadJob, RenderWorker
     from gridrt.config import GridParams, RenderParams
+    from gridrt.frame import FrameSpec
 
     assert STOP_WAIT_S <= 2.0
     started, release = threading.Event(), threading.Event()
@@ -152,7 +153,8 @@ def test_viewer_leaves_without_a_busy_render_thread(capsys):
         release.wait(600)
 
     worker = RenderWorker(slow_pipeline)
-    worker.submit(LoadJob(SceneSpec(source="icosphere"), GridParams(threads=1), RenderParams(8, 6, threads=1)))
+    worker.submit(LoadJob(FrameSpec(scene=SceneSpec(source="icosphere"), grid=GridParams(threads=1),
+                                    render=RenderParams(threads=1)).resized(8, 6)))
     assert started.wait(300)
     try:
         assert Viewer._stop_worker(None, worker) is False

@@ -276,6 +276,7 @@ def test_viewer_worker_far_from_origin(teapot, tmp_path):
     from gridrt.app.viewer.worker import FrameJob, LoadJob, RenderWorker
     from gridrt.camera import Camera
     from gridrt.config import GridParams, RenderParams
+    from gridrt.frame import FrameSpec, ViewSpec
     from gridrt.pipeline import FramePipeline
 
     v, f = teapot
@@ -284,20 +285,22 @@ def test_viewer_worker_far_from_origin(teapot, tmp_path):
     write_obj(tmp_path / "far.obj", v + off, f)
     eye, target = view_of(v.min(axis=0), v.max(axis=0))
     w, h = 64, 48
-    gp, rp = GridParams(threads=1), RenderParams(w, h, threads=1, shading="normal", traversal="dda")
+    spec = FrameSpec(scene=SceneSpec(source=str(tmp_path / "far.obj")), grid=GridParams(threads=1),
+                     render=RenderParams(w, h, threads=1, shading="normal", traversal="dda"),
+                     view=ViewSpec(size=(w, h)))
     pipes = []
 
     def factory(scene, job):
-        pipes.append(FramePipeline(scene, job.grid_params, job.render_params, camera=job.camera))
+        pipes.append(FramePipeline.from_spec(job.spec, scene=scene))
         return pipes[-1]
 
     worker = RenderWorker(factory)
     try:
-        worker.submit(LoadJob(SceneSpec(source=str(tmp_path / "far.obj")), gp, rp))
+        worker.submit(LoadJob(spec))
         results = _wait(worker, 1)
         assert results[0].error is None, results[0].error
         cam = Camera(tuple(eye + off), tuple(target + off))
-        worker.submit(FrameJob(0.0, cam, gp, rp))
+        worker.submit(FrameJob(spec.replace(view=spec.view.replace(eye=cam.eye, target=cam.target)), 0.0))
         res = _wait(worker, 1)[0]
         assert res.error is None, res.error
     finally:

@@ -240,6 +240,7 @@ def test_worker_texture_progress(tmp_path):
     where the pipeline is made), the LoadResult the totals, and whether the scene has a camera."""
     from gridrt.app.viewer.worker import LoadJob, RenderWorker, TextureProgress
     from gridrt.config import GridParams, RenderParams
+    from gridrt.frame import FrameSpec
     from gridrt.scene import SceneSpec
 
     path, sizes = _textured_gltf(tmp_path)
@@ -252,7 +253,8 @@ def test_worker_texture_progress(tmp_path):
     worker = RenderWorker(factory)
     try:
         assert worker.progress() is None
-        worker.submit(LoadJob(SceneSpec(source=str(path)), GridParams(threads=1), RenderParams(threads=1)))
+        worker.submit(LoadJob(FrameSpec(scene=SceneSpec(source=str(path)), grid=GridParams(threads=1),
+                                        render=RenderParams(threads=1))))
         res, t0 = [], time.time()
         while not res and time.time() - t0 < 300:
             res = worker.take()

@@ -69,6 +69,14 @@ def _view_field(name, doc):
                     doc=doc)
 
 
+def view_with_camera(view, cam):
+    """The ViewSpec ``view`` looking through the Camera ``cam`` (its eye, target, up and fov), or
+    with no camera of its own when ``cam`` is None (fov and up kept)."""
+    if cam is None:
+        return replace(view, eye=None, target=None)
+    return replace(view, eye=cam.eye, target=cam.target, up=cam.up, fov=cam.fov)
+
+
 @dataclass
 class ViewerState:
     """Everything the viewer's widgets and keys can change, plus what they display."""
@@ -163,11 +171,7 @@ class ViewerState:
 
     @camera.setter
     def camera(self, cam):
-        if cam is None:
-            self.spec = replace(self.spec, view=replace(self.spec.view, eye=None, target=None))
-        else:
-            self.spec = replace(self.spec, view=replace(self.spec.view, eye=cam.eye, target=cam.target, up=cam.up,
-                                                        fov=cam.fov))
+        self.spec = replace(self.spec, view=view_with_camera(self.spec.view, cam))
 
     # ---- settings: widgets replace fields of the frozen params -----------------------------
     @property

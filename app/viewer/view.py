@@ -20,6 +20,7 @@ import numpy as np
 
 from gridrt.commands import gridrt_command
 from gridrt.errors import InputError
+from gridrt.frame import ViewSpec
 from gridrt.grid.registry import names
 from gridrt.pipeline import FramePipeline
 from gridrt.scene import BUILTIN_SCENES, scene_choices
@@ -29,7 +30,7 @@ from gridrt.warmup import cache_is_cold
 from .. import cli
 from .blit import Blitter
 from .input import KEY_HELP, InputHandler
-from .state import SCALE_MAX, SCALE_MIN, ViewerState
+from .state import SCALE_MAX, SCALE_MIN, ViewerState, view_with_camera
 from .worker import FrameJob, LoadJob, LoadResult, RenderWorker
 
 TITLE = "gridrt"
@@ -140,6 +141,16 @@ def initial_state(a):
     return st
 
 
+def frame_key(t, spec):
+    """What decides the frame at time ``t`` of the FrameSpec ``spec``: both, but while the scene's
+    own camera is followed, the view's camera (eye, target, up, fov) does not choose the frame (it
+    is the last frame's, from the scene): a paused frame is not rendered again when it arrives."""
+    view = spec.view
+    if view.follow_camera:
+        view = view_with_camera(view, None).replace(fov=ViewSpec.fov, up=ViewSpec.up)
+    return t, spec.scene, spec.grid, spec.render, view
+
+
 def _next_free(folder, stem):
     i = 0
     while True:
@@ -159,7 +170,8 @@ class Viewer:
         self.shot_dir = Path(args.screenshot_dir) if args.screenshot_dir is not None else None
         self.state_file = Path(args.state_file) if args.state_file is not None else None
         self.image = None              # the frame on screen, (H, W, 4) uint8
-        self.last_key = None           # parameters of the last submitted frame
+        self.start_view = state.spec.view  # the command line's view (a new scene is framed with its fov and up)
+        self.last_key = None           # frame_key of the last submitted frame
         self.generation = 0            # bumped by every scene load; older frame results are dropped
         self.glfw_error = ""
         self._last_state_write = 0.0
@@ -236,21 +248,24 @@ class Viewer:
     def _on_glfw_error(self, code, description):
         self.glfw_error = description.decode() if isinstance(description, bytes) else str(description)
 
-    def _make_pipeline(self, scene, job):
-        return FramePipeline(scene, job.grid_params, job.render_params, camera=job.camera, fov=job.fov, up=job.up)
+    @staticmethod
+    def _make_pipeline(scene, job):
+        return FramePipeline.from_spec(job.spec, scene=scene)
 
-    def _start_load(self, spec, keep_camera=False, scene_camera=None):
-        """Load ``spec`` on the worker; ``scene_camera``: look through the scene's own camera once
-        loaded, when it has one (None: the state's prefer_scene_camera)."""
+    def _start_load(self, scene, keep_camera=False, scene_camera=None):
+        """Load the SceneSpec ``scene`` on the worker, with the state's spec at the render size;
+        ``scene_camera``: look through the scene's own camera once loaded, when it has one (None:
+        the state's prefer_scene_camera).  Without ``keep_camera`` the scene is framed with the
+        command line's fov and up (not with those of a camera looked through before)."""
         st = self.state
         self.generation += 1
-        rw, rh = st.render_size_for(*self._fb_size())
-        self.worker.submit(LoadJob(spec, st.grid_params(), st.render_params(rw, rh),
-                                   camera=st.camera if keep_camera else None, keep_camera=keep_camera,
+        spec = st.spec.resized(*st.render_size_for(*self._fb_size())).replace(scene=scene)
+        if not keep_camera:
+            start = self.start_view
+            spec = spec.replace(view=spec.view.replace(eye=None, target=None, fov=start.fov, up=start.up))
+        self.worker.submit(LoadJob(spec, keep_camera=keep_camera,
                                    scene_camera=st.prefer_scene_camera if scene_camera is None else scene_camera,
-                                   fov=st.fov if keep_camera else getattr(self.args, "fov", st.fov),
-                                   up=st.up if keep_camera else getattr(self.args, "up", st.up),
-                                   label=f"loading {spec.label()}"))
+                                   label=f"loading {scene.label()}"))
         self.last_key = None
         self._progress_printed = (0.0, 0)
 
@@ -323,14 +338,16 @@ class Viewer:
         for res in self.worker.take():
             if isinstance(res, LoadResult):
                 if res.error:
-                    st.scene_error = f"cannot load {res.spec.source}: {res.error}"
+                    st.scene_error = f"cannot load {res.scene.source}: {res.error}"
                     print(f"gridrt view: {st.scene_error}", file=sys.stderr, flush=True)
                     if self.worker.pipeline is None:
                         st.message = "no scene loaded: pick a built-in scene or open a file"
                     continue
-                st.scene = res.spec
-                if not res.keep_camera:
-                    st.camera = st.home = None   # frame the new scene
+                st.scene = res.scene
+                if not res.keep_camera:   # frame the new scene, with the fov and up it is framed with
+                    st.spec = st.spec.replace(view=view_with_camera(st.spec.view, None).replace(
+                        fov=res.job.spec.view.fov, up=res.job.spec.view.up))
+                    st.home = None
                 st.scene_loaded(res.has_camera, res.job is None or res.job.scene_camera)
                 st.scene_name, st.triangles = res.scene_name, res.triangles
                 st.duration, st.static = res.duration, res.static
@@ -355,7 +372,7 @@ class Viewer:
                 self.image = res.image
                 self.blitter.upload(res.image)
                 st.stats = res.stats
-                if res.job.follow_camera and st.follow_camera and res.camera is not None:
+                if res.job.spec.view.follow_camera and st.follow_camera and res.camera is not None:
                     st.camera = res.camera   # the scene's camera at the frame's time: the view on screen
                 st.history.add(res.stats)
                 st.rendered_frames += 1
@@ -363,8 +380,10 @@ class Viewer:
                 st.scene_radius = res.radius
                 if st.camera is None:
                     st.camera = res.camera
-                    if self.last_key is not None and self.last_key[1] is None:
-                        self.last_key = (self.last_key[0], res.camera) + self.last_key[2:]
+                    job = res.job
+                    if self.last_key == frame_key(job.t, job.spec):   # the frame that framed the scene is on screen
+                        self.last_key = frame_key(job.t, job.spec.replace(view=view_with_camera(job.spec.view,
+                                                                                                res.camera)))
                 if st.home is None:
                     st.home = res.camera
                 if self._last_result_time is not None:
@@ -405,20 +424,17 @@ class Viewer:
         fw, fh = st.framebuffer_size
         rw, rh = st.render_size_for(fw, fh)
         st.render_size = (rw, rh)
-        try:
-            gp = st.grid_params()
-            rp = st.render_params(rw, rh)
-        except InputError as e:
-            st.scene_error = str(e)
-            return
-        # while the scene's camera is on, the viewer's camera does not choose the frame (it is the
-        # last frame's, from the scene): a paused frame is not rendered again when it arrives
-        key = (st.time, None if st.follow_camera else st.camera, gp, rp, st.follow_camera)
+        if st.spec.size != (rw, rh):
+            try:
+                st.spec = st.spec.resized(rw, rh)   # the spec is what is on screen: at the render size
+            except InputError as e:
+                st.scene_error = str(e)
+                return
+        key = frame_key(st.time, st.spec)
         if key == self.last_key:
             return
         self.last_key = key
-        self.worker.submit(FrameJob(st.time, st.camera, gp, rp, generation=self.generation,
-                                    follow_camera=st.follow_camera))
+        self.worker.submit(FrameJob(st.spec, st.time, generation=self.generation))
 
     # ---- outputs --------------------------------------------------------------------------
     def _shot_folder(self):

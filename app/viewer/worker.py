@@ -1,10 +1,12 @@
 """Background thread that owns the FramePipeline, so a slow step (a big scene loading, the first
 numba compile, a heavy frame) never blocks the window's event loop.
 
-The window thread submits jobs and polls for results; the worker runs one job at a time.  A newly
-submitted job replaces one that has not started yet (only the latest request matters).  Results
-are plain objects handed over under a lock; the worker copies the image out of the renderer's
-reused buffer before publishing it.
+The window thread submits jobs and polls for results; the worker runs one job at a time.  Each
+job carries the :class:`gridrt.frame.FrameSpec` it renders: a load makes the pipeline of its spec,
+a frame sets the kept pipeline's settings from its spec (the pipeline is not made again per
+frame).  A newly submitted job replaces one that has not started yet (only the latest request
+matters).  Results are plain objects handed over under a lock; the worker copies the image out of
+the renderer's reused buffer before publishing it.
 
 While a scene loads, the textures its loader reads are counted (gridrt.scene.surface's
 texture_progress): :meth:`RenderWorker.progress` has the running count for the window's loading
@@ -18,36 +20,30 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gridrt.camera import Camera
 from gridrt.errors import GridrtError
+from gridrt.frame import FrameSpec
 from gridrt.scene.surface import texture_progress
 
 
 @dataclass
 class LoadJob:
-    """Load a scene and make a new pipeline for it."""
+    """Load the scene of ``spec`` and make a new pipeline for it (the worker's factory: the
+    viewer's is :meth:`gridrt.pipeline.FramePipeline.from_spec`)."""
 
-    spec: object            # gridrt.scene.SceneSpec
-    grid_params: object
-    render_params: object
-    camera: object = None   # explicit camera, or None to frame the scene
+    spec: FrameSpec         # the scene to load, and the settings and view its pipeline starts with
     keep_camera: bool = False  # keep the viewer's camera (else reframe once loaded)
     scene_camera: bool = True  # look through the scene's own camera once loaded, when it has one
-    fov: float = Camera.fov
-    up: tuple = Camera.up
     label: str = "loading scene"
 
 
 @dataclass
 class FrameJob:
-    """Render one frame at time t with these parameters."""
+    """Render the frame of ``spec`` at time ``t``: the loaded pipeline takes the spec's grid and
+    render settings and its view's camera, fov, up and follow-camera."""
 
+    spec: FrameSpec
     t: float
-    camera: object
-    grid_params: object
-    render_params: object
     generation: int = 0     # scene generation the frame belongs to (stale results are dropped)
-    follow_camera: bool = False  # the scene's own animated camera overrides ``camera``
     label: str = "rendering"
 
 
@@ -76,7 +72,7 @@ class TextureProgress:
 
 @dataclass
 class LoadResult:
-    spec: object
+    scene: object              # the SceneSpec loaded (or that failed to load)
     scene_name: str = ""
     triangles: int = 0
     duration: float | None = None
@@ -104,7 +100,7 @@ class RenderWorker:
     :attr:`busy`, and :meth:`stop`."""
 
     def __init__(self, pipeline_factory, on_result=None):
-        self._factory = pipeline_factory  # (scene, LoadJob) -> FramePipeline
+        self._factory = pipeline_factory  # (scene, LoadJob) -> FramePipeline of the job's spec
         self._on_result = on_result       # called on the worker thread after each result (wake the UI)
         self._cond = threading.Condition()
         self._pending = None
@@ -178,8 +174,8 @@ class RenderWorker:
                 msg = str(e) if isinstance(e, GridrtError) else f"{type(e).__name__}: {e}"
                 if not isinstance(e, GridrtError):
                     traceback.print_exc()
-                res = (LoadResult(job.spec, error=msg, job=job) if isinstance(job, LoadJob)
-                       else FrameResult(None, None, job.camera, 1.0, job, error=msg))
+                res = (LoadResult(job.spec.scene, error=msg, job=job) if isinstance(job, LoadJob)
+                       else FrameResult(None, None, job.spec.camera(), 1.0, job, error=msg))
             with self._cond:
                 self._results.append(res)
                 self._current = None
@@ -190,7 +186,7 @@ class RenderWorker:
 
     def _load(self, job):
         t0 = time.perf_counter()
-        s = job.spec
+        s = job.spec.scene
         with self._cond:
             self._progress = TextureProgress()
 
@@ -215,11 +211,11 @@ class RenderWorker:
         pipe = self.pipeline
         if pipe is None:
             raise GridrtError("no scene loaded")
-        pipe.grid_params = job.grid_params
-        pipe.render_params = job.render_params
-        pipe.follow_camera = job.follow_camera
-        fr = pipe.step(job.t, camera=job.camera)
+        spec, view = job.spec, job.spec.view
+        pipe.grid_params, pipe.render_params = spec.grid, spec.render
+        pipe.follow_camera, pipe.fov, pipe.up = view.follow_camera, view.fov, view.up
+        fr = pipe.step(job.t, camera=view.camera())
         cam = pipe.last_camera
-        spec = getattr(fr.grid if fr.grid is not None else pipe.grid, "spec", None)
-        radius = 1.0 if spec is None else 0.5 * float(np.linalg.norm(np.asarray(spec.hi) - np.asarray(spec.lo)))
+        box = getattr(fr.grid if fr.grid is not None else pipe.grid, "spec", None)   # the grid's bounds
+        radius = 1.0 if box is None else 0.5 * float(np.linalg.norm(np.asarray(box.hi) - np.asarray(box.lo)))
         return FrameResult(fr.image.copy(), fr.stats, cam, radius, job)
