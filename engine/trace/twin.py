@@ -91,6 +91,7 @@ class Twins:
         self._compiling = {}  # (parallel kernel, argument types) -> background thread
         self._failed = {}  # parallel kernel -> the exception of its background compile that failed
         self._ready = set()  # (parallel kernel, argument fingerprints) the parallel kernel is compiled for
+        self.started = 0  # background compiles started in this process
 
     @staticmethod
     def signature(parallel, args):
@@ -125,6 +126,7 @@ class Twins:
                                        daemon=True)
                 job.kernel = parallel.py_func.__qualname__
                 self._compiling[key] = job
+                self.started += 1
                 job.start()
             else:
                 self._seen.add(key)
