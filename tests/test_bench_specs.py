@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from gridrt.app.__main__ import build_parser, main
-from gridrt.app.bench import core, packets, peers
+from gridrt.app.bench import build, core, packets, peers
 from gridrt.camera import Camera
 from gridrt.config import GridParams, RenderParams
 from gridrt.frame import FrameSpec, ViewSpec
@@ -100,24 +100,31 @@ def test_bench_peers_configurations_are_the_options(strategy):
                 check_camera(s, cam)
 
 
-def test_bench_core_renders_and_builds_what_its_specs_say(tmp_path, monkeypatch):
-    """What a run of ``bench core`` hands its builders and renderers: the grid settings of the
-    serial rows and the render settings and camera of the ray rows, against the options and an
-    independent framing of the scene (facing_camera over its triangles' bounds)."""
+def spy(monkeypatch, module):
+    """Lists that record the GridParams of every GridBuilder and the (camera, RenderParams) of
+    every Renderer.render of the benchmark ``module``."""
     built, rendered = [], []
 
-    class Builder(core.GridBuilder):
+    class Builder(module.GridBuilder):
         def __init__(self, params=None):
             built.append(params)
             super().__init__(params)
 
-    class Spy(core.Renderer):
+    class Spy(module.Renderer):
         def render(self, grid, tris, camera, params=None, *rest, **kw):
             rendered.append((camera, params))
             return super().render(grid, tris, camera, params, *rest, **kw)
 
-    monkeypatch.setattr(core, "GridBuilder", Builder)
-    monkeypatch.setattr(core, "Renderer", Spy)
+    monkeypatch.setattr(module, "GridBuilder", Builder)
+    monkeypatch.setattr(module, "Renderer", Spy)
+    return built, rendered
+
+
+def test_bench_core_renders_and_builds_what_its_specs_say(tmp_path, monkeypatch):
+    """What a run of ``bench core`` hands its builders and renderers: the grid settings of the
+    serial rows and the render settings and camera of the ray rows, against the options and an
+    independent framing of the scene (facing_camera over its triangles' bounds)."""
+    built, rendered = spy(monkeypatch, core)
     argv = ["core", "--scenes", "icosphere:1280", "--size", "24", "--threads", "1", "--traversal", "dda",
             "--runs", "1", "--warmup", "0", "--no-progress", "--out", str(tmp_path)]
     assert main(["bench", *argv]) == 0
@@ -131,3 +138,40 @@ def test_bench_core_renders_and_builds_what_its_specs_say(tmp_path, monkeypatch)
         np.testing.assert_allclose(camera.eye, want.eye, rtol=1e-6)
         np.testing.assert_allclose(camera.target, want.target, rtol=1e-6, atol=1e-7)
         assert camera.fov == want.fov
+
+
+def test_bench_build_configurations_are_the_options():
+    a = parse("build", "--lambda", "2.5", "--macro", "2", "--insert", "exact", "--grid", "uniform,two_level",
+              "--top-density", "0.125", "--leaf-density", "3", "--size", "32", "--threads", "1,2")
+    options = dict(density=2.5, macro=2, insert="exact", top_density=0.125, leaf_density=3.0)
+    base = build.build_base(a)
+    assert {k: getattr(base.grid, k) for k in options} == options
+    check_defaults(base.grid, GridParams, *options)
+    assert base.render == RenderParams() and base.view == ViewSpec()
+    threads, kinds, strategies = [int(t) for t in a.threads.split(",")], a.grid.split(","), ["serial", "counting"]
+    calls = build.build_calls(["icosphere:1280"], strategies, kinds, threads, base, 1, 0, a.size)
+    specs = [FrameSpec.from_wire(args[1]) for _, args in calls]
+    assert [(s.grid.strategy, s.grid.grid, s.grid.threads) for s in specs] == [
+        (st, k, t) for st in strategies for k in kinds for t in threads]
+    for s in specs:
+        assert {k: getattr(s.grid, k) for k in options} == options
+        check_defaults(s.grid, GridParams, "strategy", "grid", "threads", *options)
+        assert (s.render.width, s.render.height, s.render.threads) == (32, 32, s.grid.threads) and s.size == (32, 32)
+        check_defaults(s.render, RenderParams, "width", "height", "threads")
+    local = build.build_spec(build.build_base(a).resized(32, 32), "counting", 2, "two_level", SCENE)
+    assert local.scene == SCENE and local.replace(scene=SceneSpec()) == specs[-1]
+
+
+def test_bench_build_sweep_builds_and_renders_its_specs(monkeypatch):
+    """run_build_sweep hands each configuration's builder its spec's grid and its renderer the
+    spec's render settings (the given FrameSpec's, at the render size and the thread count)."""
+    built, rendered = spy(monkeypatch, build)
+    base = FrameSpec(grid=GridParams(density=2.0, macro=2), render=RenderParams(shading="normal", traversal="dda"))
+    rows = build.run_build_sweep({"ico": make_scene("icosphere", count=320)}, ["serial", "counting"], [1, 2], runs=1,
+                                 warmup=0, progress=False, params=base, render=16)
+    assert {(p.strategy, p.threads, p.density, p.macro) for p in built} == {
+        (s, t, 2.0, 2) for s in ("serial", "counting") for t in (1, 2)}
+    assert {(p.width, p.height, p.threads, p.shading, p.traversal) for _, p in rendered} == {
+        (16, 16, t, "normal", "dda") for t in (1, 2)}
+    assert {(r["strategy"], r["threads"], r["density"], r["macro"]) for r in rows} == {
+        (s, t, 2.0, 2) for s in ("serial", "counting") for t in (1, 2)}

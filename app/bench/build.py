@@ -31,8 +31,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from gridrt.config import INSERT_MODES, GridParams, RenderParams
+from gridrt.config import INSERT_MODES, GridParams
 from gridrt.errors import InputError
+from gridrt.frame import FrameSpec
 from gridrt.grid.build import GridBuilder
 from gridrt.grid.registry import get_builder, names as strategy_names
 from gridrt.grid.traffic import MODELLED, stage_bytes, stream_bandwidth
@@ -45,7 +46,7 @@ from .machine import finish_machine, machine_info
 from ..cluster.bench import _bench_scene, open_cluster, run_configs, stream_on_worker, worker_cores
 from .options import add_grid_kind_args, check_runs, grid_kinds, thread_list
 from .output import figure, grid_columns, grid_label, md_table, out_dir, write_csv, write_json, write_summary
-from .scenes import resolve_scene, scene_camera, scene_list
+from .scenes import BenchScene, resolve_scene, scene_camera, scene_list
 from .stats import fmt_ms
 
 #: the three build stages of Ize et al. 2006, in plot order
@@ -55,7 +56,9 @@ FRAME_DT = 1.0 / 30.0
 
 
 def _scene_items(scenes):
-    """[(name, source)] from a mapping, a single scene, or an iterable of scenes / (name, scene)."""
+    """[(name, source, SceneSpec or None)] from a mapping, a single scene, or an iterable of scenes /
+    (name, scene); a BenchScene (:mod:`~gridrt.app.bench.scenes`) gives its Animation and its
+    SceneSpec."""
     if isinstance(scenes, dict):
         items = list(scenes.items())
     elif hasattr(scenes, "triangles_at") or isinstance(scenes, np.ndarray):
@@ -74,15 +77,18 @@ def _scene_items(scenes):
         else:
             src = it
             name = getattr(src, "name", None) or f"scene{i}"
+        spec = None
+        if isinstance(src, BenchScene):
+            src, spec = src.scene, src.spec
         if not (hasattr(src, "triangles_at") or isinstance(src, np.ndarray)):
             raise InputError(
                 f"scene {name!r}: expected an Animation (gridrt.scene.make_scene) or an (F,3,3) array, "
                 f"got {type(src).__name__}"
             )
-        out.append((str(name), src))
+        out.append((str(name), src, spec))
     if not out:
         raise InputError("scenes: need at least one scene")
-    names = [n for n, _ in out]
+    names = [n for n, _, _ in out]
     if len(set(names)) != len(names):
         raise InputError(f"scene names must be unique, got {names}")
     return out
@@ -115,15 +121,18 @@ def run_build_sweep(
     runs        timed builds per configuration (>= 1; the medians are meant over >= 5)
     warmup      untimed builds first (>= 0)
     out_dir     folder for build_sweep.csv, build_methods.png, build_steps.png (None: no files)
-    params      GridParams for density, macro, insert, top_density, leaf_density (strategy,
-                threads and grid are overridden)
+    params      a FrameSpec, or a GridParams (a FrameSpec with that grid part and the other parts'
+                defaults): its grid part gives density, macro, insert, top_density and
+                leaf_density, its render part the render's settings (strategy, threads, grid
+                kind, the render's threads and size are each configuration's:
+                :func:`build_spec`)
     interleave  True: for each scene and thread count, keep one builder per strategy and grid
                 kind and take the builds round-robin (build i of every strategy, then build
                 i + 1 ...), so load from other processes on a shared machine hits all strategies
                 alike (memory: all strategies' buffers at once).  False: each configuration's
                 builds back to back.
     grids       grid kinds (gridrt.config.GRID_KINDS), each swept like a strategy (None: the
-                kind of ``params``)
+                kind of ``params``'s grid)
     render      image edge of a render of each configuration's last grid (the scene's own camera,
                 or one along its thinnest axis; ``runs`` timed renders after one untimed; 0: no
                 render)
@@ -152,15 +161,18 @@ def run_build_sweep(
         raise InputError("threads: need at least one thread count")
     runs = _count("runs", runs, 1)
     warmup = _count("warmup", warmup, 0)
-    base = params if params is not None else GridParams()
-    if not isinstance(base, GridParams):
-        raise InputError(f"params must be a GridParams, got {type(base).__name__}")
-    kinds = list(dict.fromkeys([base.grid] if grids is None else ([grids] if isinstance(grids, str) else grids)))
+    base = FrameSpec(grid=params) if isinstance(params, GridParams) else params
+    if base is None:
+        base = FrameSpec()
+    if not isinstance(base, FrameSpec):
+        raise InputError(f"params must be a FrameSpec or a GridParams, got {type(base).__name__}")
+    kinds = list(dict.fromkeys([base.grid.grid] if grids is None else ([grids] if isinstance(grids, str) else grids)))
     if not kinds:
         raise InputError("grids: need at least one grid kind")
     for k in kinds:
-        base.replace(grid=k)  # (an unknown kind is refused here)
+        base.grid.replace(grid=k)  # (an unknown kind is refused here)
     render = _count("render", render, 0)
+    base = _at_size(base, render)
 
     total = len(items) * len(strategies) * len(kinds) * len(threads)
     bar = None
@@ -169,15 +181,15 @@ def run_build_sweep(
     cores = os.cpu_count() or 1
     rows = []
     try:
-        for scene_name, src in items:
+        for scene_name, src, scene in items:
             if interleave:
                 by_key = {}
                 for T in threads:
                     if bar is not None:
                         bar.set_postfix_str(f"{scene_name} T={T}")
-                    group = [base.replace(strategy=s, threads=T, grid=k) for s in strategies for k in kinds]
-                    for p, row in zip(group, _measure(scene_name, src, group, runs, warmup, cores, render)):
-                        by_key[(p.strategy, p.grid, T)] = row
+                    group = [build_spec(base, s, T, k, scene) for s in strategies for k in kinds]
+                    for spec, row in zip(group, _measure(scene_name, src, group, runs, warmup, cores, render)):
+                        by_key[(spec.grid.strategy, spec.grid.grid, T)] = row
                         if bar is not None:
                             bar.update(1)
                 rows += [by_key[(s, k, T)] for s in strategies for k in kinds for T in threads]
@@ -187,8 +199,8 @@ def run_build_sweep(
                         for T in threads:
                             if bar is not None:
                                 bar.set_postfix_str(f"{scene_name} {strat} {k} T={T}")
-                            p = base.replace(strategy=strat, threads=T, grid=k)
-                            rows += _measure(scene_name, src, [p], runs, warmup, cores, render)
+                            spec = build_spec(base, strat, T, k, scene)
+                            rows += _measure(scene_name, src, [spec], runs, warmup, cores, render)
                             if bar is not None:
                                 bar.update(1)
     finally:
@@ -203,10 +215,27 @@ def run_build_sweep(
     return rows
 
 
+def _at_size(base, render):
+    """``base`` at render x render (unchanged for 0: no render)."""
+    return base.resized(render, render) if render else base
+
+
+def build_spec(base, strategy, threads, kind, scene=None):
+    """The FrameSpec of one ``bench build`` configuration: ``base`` (its grid's density, macro,
+    insertion test and two-level densities, its render's settings and size) built with
+    ``strategy`` on ``threads`` threads as grid ``kind`` and rendered on as many threads; ``scene``:
+    its SceneSpec where the caller knows it (else ``base``'s)."""
+    spec = base.replace(grid=base.grid.replace(strategy=strategy, threads=threads, grid=kind),
+                        render=base.render.replace(threads=threads))
+    return spec if scene is None else spec.replace(scene=scene)
+
+
 def _measure(scene_name, src, group, runs, warmup, cores, render=0):
-    """Rows for a group of configurations built round-robin on the same frames (with ``render``:
-    then each one's last grid rendered, configuration by configuration)."""
-    builders = [GridBuilder(p) for p in group]
+    """Rows for a group of configurations (FrameSpecs: :func:`build_spec`) built round-robin on the
+    same frames (with ``render``: then each one's last grid rendered with its render settings,
+    configuration by configuration, through the scene's own camera or one along its thinnest
+    axis)."""
+    builders = [GridBuilder(spec.grid) for spec in group]
     samples = [[] for _ in group]
     grids = [None] * len(group)
     origin = None if isinstance(src, np.ndarray) else src.frame_origin(0.0)
@@ -220,14 +249,14 @@ def _measure(scene_name, src, group, runs, warmup, cores, render=0):
     if render:
         last = warmup + runs - 1
         cam = scene_camera(src, tris, 0.0 if getattr(src, "static", True) else last * FRAME_DT, origin)
-        figures = [_render_figures(g, tris, cam, p, render, runs) for g, p in zip(grids, group)]
-    return [_row(scene_name, p, smp, runs, cores, fig) for p, smp, fig in zip(group, samples, figures)]
+        figures = [_render_figures(g, tris, cam, spec.render, runs) for g, spec in zip(grids, group)]
+    return [_row(scene_name, spec.grid, smp, runs, cores, fig) for spec, smp, fig in zip(group, samples, figures)]
 
 
-def _render_figures(grid, tris, cam, p, size, runs):
-    """The columns of ``runs`` renders of ``grid`` at size x size on p.threads threads, after one
-    untimed: render_size, render_ms (median, min, max), tests_per_ray, cells_per_ray, hit_fraction."""
-    renderer, rp = Renderer(), RenderParams(size, size, threads=p.threads)
+def _render_figures(grid, tris, cam, rp, runs):
+    """The columns of ``runs`` renders of ``grid`` with the RenderParams ``rp``, after one untimed:
+    render_size, render_ms (median, min, max), tests_per_ray, cells_per_ray, hit_fraction."""
+    renderer, size = Renderer(), rp.width
     res = renderer.render(grid, tris, cam, rp)  # (compiles, sizes the buffers)
     ms = []
     for _ in range(runs):
@@ -399,8 +428,7 @@ def run_build(a):
     else:
         strategies = strategy_names()
     kinds = grid_kinds(a)
-    params = GridParams(density=a.density, macro=a.macro, insert=a.insert, top_density=a.top_density,
-                        leaf_density=a.leaf_density)
+    base = build_base(a)
     if a.size < 0:
         raise InputError(f"--size must be 0 (no render) or positive, got {a.size}")
     if a.threads:
@@ -408,7 +436,7 @@ def run_build(a):
     size = min(a.size, 64) if a.quick else a.size
     mib = 16 if a.quick else 256
     if wants_cluster(a):
-        return _run_build_cluster(a, specs, note, strategies, kinds, params, size, runs, warmup, mib)
+        return _run_build_cluster(a, specs, note, strategies, kinds, base, size, runs, warmup, mib)
     cores = check_threads(None)
     threads = thread_list(a.threads) if a.threads else list(range(1, cores + 1))
     out = out_dir(a.out)
@@ -418,16 +446,25 @@ def run_build(a):
     scenes = {}
     for spec in specs:
         sc = resolve_scene(spec)
-        scenes[sc.label] = sc.scene
+        scenes[sc.label] = sc
     rows = run_build_sweep(scenes, strategies, threads, runs=runs, warmup=warmup, out_dir=out,
-                           progress=not a.no_progress, params=params, interleave=not a.back_to_back, grids=kinds,
+                           progress=not a.no_progress, params=base, interleave=not a.back_to_back, grids=kinds,
                            render=size)
     bw = stream_bandwidth(mib, threads, runs=3 if a.quick else 5)
-    return _finish_build(a, out, info, rows, scenes, strategies, threads, runs, warmup, params, bw, mib, kinds, size,
-                         note)
+    return _finish_build(a, out, info, rows, scenes, strategies, threads, runs, warmup, base.grid, bw, mib, kinds,
+                         size, note)
 
 
-def _run_build_cluster(a, specs, note, strategies, kinds, params, size, runs, warmup, mib):
+def build_base(a):
+    """The FrameSpec every ``bench build`` configuration starts from: the options' grid density
+    (--lambda), macro-cell size, insertion test and two-level densities, every other setting the
+    engine's default (:func:`build_spec` fills in the scene, strategy, threads, grid kind and the
+    render's size)."""
+    return FrameSpec(grid=GridParams(density=a.density, macro=a.macro, insert=a.insert, top_density=a.top_density,
+                                     leaf_density=a.leaf_density))
+
+
+def _run_build_cluster(a, specs, note, strategies, kinds, base, size, runs, warmup, mib):
     """``bench build`` on a Dask cluster: every configuration (scene, strategy, grid kind,
     threads) measured whole by one worker, its builds back to back (a worker holds one
     configuration at a time; nothing interleaves them)."""
@@ -438,7 +475,7 @@ def _run_build_cluster(a, specs, note, strategies, kinds, params, size, runs, wa
         threads = thread_list(a.threads) if a.threads else list(range(1, worker_cores(cl) + 1))
         info = machine_info(threads)
         info["cluster"] = cl.where
-        calls = build_calls(specs, strategies, kinds, threads, params, runs, warmup, size)
+        calls = build_calls(specs, strategies, kinds, threads, base, runs, warmup, size)
         rows, machines = run_configs(cl, calls, "build sweep (cluster)", a.no_progress, pressed=pressed)
         bw, where = stream_on_worker(cl, mib, threads, 3 if a.quick else 5, a.no_progress, pressed)
     info["workers"] = machines
@@ -448,8 +485,8 @@ def _run_build_cluster(a, specs, note, strategies, kinds, params, size, runs, wa
     plot_steps(rows, out / "build_steps.png")
     scenes = {r["scene"]: None for r in rows}
     a.back_to_back = True
-    return _finish_build(a, out, info, rows, scenes, strategies, threads, runs, warmup, params, bw, mib, kinds, size,
-                         note)
+    return _finish_build(a, out, info, rows, scenes, strategies, threads, runs, warmup, base.grid, bw, mib, kinds,
+                         size, note)
 
 
 def _finish_build(a, out, info, rows, scenes, strategies, threads, runs, warmup, params, bw, mib, kinds, size, note):
@@ -597,12 +634,18 @@ def _traffic_scene(rows, sc, threads, bw):
     return body
 
 
-def _build_config(text, params, runs, warmup, render):
+def _build_config(text, wire, runs, warmup, render):
+    """One configuration on a worker: the scene of the --scenes entry ``text`` and the FrameSpec
+    read back from its wire format ``wire`` (its scene part set to that scene's)."""
     sc = _bench_scene(text)
-    return _measure(sc.label, sc.scene, [params], runs, warmup, os.cpu_count() or 1, render)
+    spec = FrameSpec.from_wire(wire).replace(scene=sc.spec)
+    return _measure(sc.label, sc.scene, [spec], runs, warmup, os.cpu_count() or 1, render)
 
 
-def build_calls(specs, strategies, kinds, threads, params, runs, warmup, size):
-    """The tasks of ``bench build``, in the order a local run lists its rows."""
-    return [(_build_config, (s, params.replace(strategy=st, threads=t, grid=k), runs, warmup, size))
+def build_calls(specs, strategies, kinds, threads, base, runs, warmup, size):
+    """The tasks of ``bench build``, in the order a local run lists its rows: each configuration's
+    FrameSpec (``base`` at size x size: :func:`build_spec`) in its wire format
+    (:meth:`gridrt.frame.FrameSpec.to_wire`), with its --scenes entry."""
+    base = _at_size(base, size)
+    return [(_build_config, (s, build_spec(base, st, t, k).to_wire(), runs, warmup, size))
             for s in specs for st in strategies for k in kinds for t in threads]
