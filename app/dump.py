@@ -26,7 +26,8 @@ def add_parser(sub):
     p = sub.add_parser("dump", help="render frames headless to PNG + stats.csv",
                        description="Render an animated scene headless: DIR/frame_00000.png ... and DIR/stats.csv "
                                    "(a row per frame: timings, the grid's kind, densities, cells, references and "
-                                   "bytes, the rays' figures), and DIR/run.json (the run's settings, for --resume). "
+                                   "bytes, the rays' figures), and DIR/run.json (the run's settings, for --resume: its "
+                                   "FrameSpec in the wire format, and --save-buffers). "
                                    "Whatever stops a dump, DIR holds whole frames only, each with its row.")
     cli.add_scene_args(p)
     cli.add_grid_args(p)
@@ -135,7 +136,7 @@ class CompileDisplay:
 def _dump(a, spec):
     """The dump of ``spec`` (FrameSpec) with the options ``a`` (frames, output, progress)."""
     out = Path(a.out)
-    writer = FrameWriter(out, run_settings(a), a.frames, mode=replace_mode(a))
+    writer = FrameWriter(out, spec, run_settings(a), a.frames, mode=replace_mode(a))
     rows = []
     bar = error = None
 

@@ -9,11 +9,15 @@ complete in order, so a folder holds frames 0 .. n-1.  When a write fails part w
 the folder gone), the frame's files are removed and ``stats.csv`` is cut back to its last whole
 row; temporary files are removed on every stop.
 
-``run.json`` records the settings of the run (the options that decide what the frames hold) and
-the pipeline's frame of reference after each frame where it changed (the origin a resumed run
-starts from, see :meth:`gridrt.pipeline.FramePipeline.resume`).  A folder that holds another
-dump's files is refused unless the run says ``overwrite`` (they are removed first) or ``resume``
-(the complete frames are kept and the run goes on after them, with the same settings only).
+``run.json`` records the settings of the run: its :class:`gridrt.frame.FrameSpec` in the wire
+format (``spec``: :meth:`~gridrt.frame.FrameSpec.to_wire`, a scene file by its absolute path) and
+the other options that decide what the frames hold (``settings``: ``save_buffers``), with the
+frame count and the pipeline's frame of reference after each frame where it changed (the origin a
+resumed run starts from, see :meth:`gridrt.pipeline.FramePipeline.resume`).  A folder that holds
+another dump's files is refused unless the run says ``overwrite`` (they are removed first) or
+``resume`` (the complete frames are kept and the run goes on after them, with the same settings
+only: the spec read back with :meth:`~gridrt.frame.FrameSpec.from_wire`, which refuses one of
+another version, must equal the run's but for the thread counts).
 
 A run that stops early (:meth:`FrameWriter.stopped`) says so in one line on stderr, with the
 frames complete and why, and exits with 130 (SIGINT), 143 (SIGTERM) or 2 (a write that failed).
@@ -21,6 +25,7 @@ SIGINT and SIGTERM (:class:`StopSignals`) never cut a frame's writing short: whi
 written they stop the run after them; otherwise (a frame rendering) they end it at once.
 """
 
+import argparse
 import contextlib
 import csv
 import errno
@@ -31,12 +36,16 @@ import re
 import signal
 import sys
 import threading
+from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
 
 from gridrt.errors import GridrtError, InputError
+from gridrt.frame import FrameSpec
 from gridrt.pipeline import STATS_COLUMNS
+
+from . import cli
 
 STATS = "stats.csv"
 RUN = "run.json"
@@ -47,6 +56,25 @@ TEMP_FILE = re.compile(r"\.(frame_\d{5,}(\.png|_t\.npy|_id\.npy)|stats\.csv|run\
 #: options that do not change what the frames hold: they may differ when a dump is resumed
 FREE_OPTIONS = {"func", "command", "out", "no_progress", "overwrite", "resume", "frames", "threads", "workers",
                 "scheduler", "chunk", "listen"}
+#: fields of the run's FrameSpec that may differ when a dump is resumed (--threads is free), and
+#: those not compared on their own (the render's width and height: the view's size says them)
+FREE_FIELDS = {"grid.threads", "render.threads"}
+SIZE_FIELDS = {"render.width", "render.height"}
+#: the parts of a FrameSpec, in order
+SPEC_PARTS = tuple(f.name for f in fields(FrameSpec))
+
+
+def _options(*adders):
+    """The names (dests) of the options that the functions ``adders`` add to a parser."""
+    p = argparse.ArgumentParser(add_help=False)
+    for add in adders:
+        add(p)
+    return set(vars(p.parse_args([])))
+
+
+#: the options that the dump's FrameSpec holds (:func:`gridrt.app.cli.frame_spec` reads them, with
+#: the dump's --t0 and --dt): run.json records them as its ``spec``, not among its ``settings``
+SPEC_OPTIONS = _options(cli.add_scene_args, cli.add_grid_args, cli.add_render_args) | {"t0", "dt"}
 #: whether the folder can be held open and its files named relative to it (POSIX systems; os.replace
 #: takes the folder as os.rename does, though supports_dir_fd does not list it)
 HOLD_FOLDER = ({os.open, os.unlink, os.rename} <= os.supports_dir_fd and os.listdir in os.supports_fd
@@ -91,12 +119,33 @@ def npy_bytes(arr):
 
 
 def run_settings(a):
-    """The options of the dump ``a`` (parsed arguments) that decide what its frames hold, as
-    JSON values (a scene file that exists here by its absolute path)."""
-    s = {k: v for k, v in vars(a).items() if k not in FREE_OPTIONS}
-    if "scene" in s and os.path.exists(str(s["scene"])):
-        s["scene"] = os.path.abspath(str(s["scene"]))
+    """The options of the dump ``a`` (parsed arguments) that decide what its frames hold and that
+    its FrameSpec does not (``save_buffers``), as JSON values."""
+    s = {k: v for k, v in vars(a).items() if k not in FREE_OPTIONS and k not in SPEC_OPTIONS}
     return json.loads(json.dumps(s, sort_keys=True, default=str))
+
+
+def run_spec(spec):
+    """The FrameSpec a dump records and a cluster's workers render: ``spec`` with a scene file
+    given by a path that exists here made absolute (the same file from any working directory)."""
+    source = spec.scene.source
+    if os.path.exists(source):
+        spec = spec.replace(scene=spec.scene.replace(source=os.path.abspath(source)))
+    return spec
+
+
+def spec_differences(there, now):
+    """``[(name, there's value, now's value)]`` for each field in which the FrameSpecs ``there``
+    and ``now`` differ, named ``part.field``, as wire values, in the parts' and fields' order;
+    the FREE_FIELDS and SIZE_FIELDS are left out."""
+    a, b = there.to_wire(), now.to_wire()
+    out = []
+    for part in SPEC_PARTS:
+        for key, value in a[part].items():
+            name = f"{part}.{key}"
+            if name not in FREE_FIELDS | SIZE_FIELDS and b[part][key] != value:
+                out.append((name, value, b[part][key]))
+    return out
 
 
 def _write_all(fd, data):
@@ -149,10 +198,10 @@ def remove(path, dir_fd=None):
 
 
 class FrameWriter:
-    """The files of a dump of ``frames`` frames in the folder ``out``, for a run with
-    ``settings`` (:func:`run_settings`); ``mode``: None (the folder must hold no other dump),
-    ``"overwrite"`` (another dump's files are removed first) or ``"resume"`` (its complete frames
-    are kept; the run goes on after them).
+    """The files of a dump of ``frames`` frames in the folder ``out``, for a run of the FrameSpec
+    ``spec`` (recorded as :func:`run_spec`'s) with ``settings`` (:func:`run_settings`); ``mode``:
+    None (the folder must hold no other dump), ``"overwrite"`` (another dump's files are removed
+    first) or ``"resume"`` (its complete frames are kept; the run goes on after them).
 
     :meth:`check` (before the scene loads: the folder is made and must be writable; another dump
     there is refused or read), :meth:`begin` (before the first frame: old files removed,
@@ -164,10 +213,11 @@ class FrameWriter:
     relative to it (where the system can): a folder renamed during the run keeps the whole run,
     and one removed stops it at the next write."""
 
-    def __init__(self, out, settings, frames, mode=None):
+    def __init__(self, out, spec, settings, frames, mode=None):
         if mode not in (None, "overwrite", "resume"):
             raise InputError(f"mode must be None, 'overwrite' or 'resume', got {mode!r}")
         self.out = Path(out)
+        self.spec = run_spec(spec)
         self.settings = settings
         self.frames = frames
         self.mode = mode
@@ -236,21 +286,27 @@ class FrameWriter:
             os.close(fd)
 
     def _read(self):
-        """The complete frames of the dump to resume: its settings must be this run's; the rows
-        of stats.csv from frame 0 on whose files are all there."""
+        """The complete frames of the dump to resume: its settings must be this run's (its spec
+        read back with FrameSpec.from_wire, its other options); the rows of stats.csv from frame
+        0 on whose files are all there."""
         out = self.out
         try:
             run = json.loads(self._read_file(RUN))
-            settings, origins = run["settings"], run["origins"]
+            wire, settings, origins = run["spec"], run["settings"], run["origins"]
         except (OSError, ValueError, KeyError, TypeError):
             raise InputError(f"--resume: {out}/ holds frames but no readable {RUN} (the settings they were made "
                              "with are unknown); give --overwrite to replace them, or another --out") from None
-        if settings != self.settings:
-            none = object()
-            diff = sorted(k for k in set(settings) | set(self.settings)
-                          if settings.get(k, none) != self.settings.get(k, none))
-            shown = ", ".join(f"{k}: {settings.get(k, 'unset')!r} there, {self.settings.get(k, 'unset')!r} now"
-                              for k in diff[:3])
+        try:
+            spec = FrameSpec.from_wire(wire)
+        except InputError as e:
+            raise InputError(f"--resume: the settings in {out}/{RUN} cannot be read ({e}); give --overwrite to "
+                             "replace the dump, or another --out") from None
+        none = object()
+        diff = spec_differences(spec, self.spec) + [
+            (k, settings.get(k, "unset"), self.settings.get(k, "unset"))
+            for k in sorted(set(settings) | set(self.settings)) if settings.get(k, none) != self.settings.get(k, none)]
+        if diff:
+            shown = ", ".join(f"{k}: {there!r} there, {now!r} now" for k, there, now in diff[:3])
             raise InputError(f"--resume: the dump in {out}/ was made with other settings ({shown}); give the "
                              "same options, --overwrite to replace it, or another --out")
         try:
@@ -306,7 +362,8 @@ class FrameWriter:
             raise FrameWriteError(STATS, e) from None
 
     def _write_run(self):
-        data = json.dumps({"settings": self.settings, "frames": self.frames, "origins": self.origins}, indent=1)
+        data = json.dumps({"spec": self.spec.to_wire(), "settings": self.settings, "frames": self.frames,
+                           "origins": self.origins}, indent=1)
         try:
             write_file(self._at(RUN), data.encode(), self.dir)
         except OSError as e:

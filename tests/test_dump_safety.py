@@ -440,9 +440,28 @@ def test_resume_with_other_settings_is_refused(tmp_path, capsys, small_ref):
     rc, err = dump(capsys, *[a if a != "32x24" else "32x25" for a in SMALL], "--out", out, "--resume")
     assert rc == 2
     line = one_line(err)
-    assert line.startswith(f"gridrt: error: --resume: the dump in {out}/ was made with other settings (size: "
+    assert line.startswith(f"gridrt: error: --resume: the dump in {out}/ was made with other settings (view.size: "
                            "[32, 24] there, [32, 25] now)"), line
     assert snapshot(out) == before
+
+
+def test_one_process_and_cluster_dumps_resume_each_others_folders(tmp_path, capsys):
+    """A one-process dump of 2 frames resumed on a cluster (--workers 1) to 4 frames, and that
+    folder resumed in one process to 6: the folder is the straight one-process dump of 6 frames,
+    byte for byte (both kinds of dump record and compare the same run.json)."""
+    pytest.importorskip("distributed", reason="the cluster extra is not installed")
+    args = [x for x in SMALL if x not in ("--frames", "3")]
+    out, ref = tmp_path / "d", tmp_path / "ref"
+    assert dump(capsys, *args, "--frames", 2, "--out", out)[0] == 0
+    r = subprocess.run([sys.executable, "-m", "gridrt", "dump", *args, "--frames", "4", "--workers", "1",
+                        "--resume", "--out", str(out)], cwd=REPO, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert "frames 2-3, after the 2 already there" in r.stdout, r.stdout
+    rc, err = dump(capsys, *args, "--frames", 6, "--out", out, "--resume")
+    assert rc == 0, err
+    assert dump(capsys, *args, "--frames", 6, "--out", ref)[0] == 0
+    same_frames(out, ref)
+    assert whole_frames(out, buffers=True) == 6
 
 
 def test_resume_of_a_complete_dump_does_nothing(tmp_path, capsys, small_ref):

@@ -1,17 +1,24 @@
-"""FrameSpec: one description of a frame through the command line, the viewer's state and the Dask
-wire format (each gives back an equal spec), a wire dict of another version or with a bad field
-refused, and a spec shipped to a Dask worker rendering the frame a local pipeline renders."""
+"""FrameSpec: one description of a frame through the command line, the viewer's state, its render
+worker's jobs and pipeline, a dump's run.json and the Dask wire format (each gives back an equal
+spec), a wire dict of another version or with a bad field refused (on a worker, and on a dump's
+--resume), and a spec shipped to a Dask worker rendering the frame a local pipeline renders."""
 
 import argparse
 import dataclasses
 import io
 import json
+import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from gridrt import FrameSpec, GridParams, InputError, RenderParams, ViewSpec
 from gridrt.app import cli
+from gridrt.app.__main__ import main
+from gridrt.app.frame_out import spec_differences
+from gridrt.app.viewer.view import Viewer, add_parser, initial_state
+from gridrt.app.viewer.worker import RenderWorker
 from gridrt.camera import Camera
 from gridrt.frame import WIRE_VERSION
 from gridrt.scene import SceneSpec
@@ -171,3 +178,115 @@ def test_dask_worker_renders_the_spec_it_was_shipped():
         assert (fr.tri >= 0).any()
     # a spec of another version is refused on arrival, as gridrt's own error (not a crash)
     assert isinstance(bad["error"], InputError) and "newer" in str(bad["error"])
+
+
+def _results(worker, n=1, timeout=300):
+    got, t_end = [], time.time() + timeout
+    while len(got) < n and time.time() < t_end:
+        got += worker.take()
+        time.sleep(0.02)
+    assert len(got) == n, f"{len(got)} of {n} results in {timeout} s"
+    return got
+
+
+def _pipeline_spec(pipe, scene, times):
+    """The FrameSpec that the FramePipeline ``pipe`` renders (its settings and the camera of its
+    last frame), with the SceneSpec ``scene`` and the view's ``times`` (t0, dt; a pipeline is
+    stepped to times, it holds none)."""
+    cam, rp = pipe.last_camera, pipe.render_params
+    return FrameSpec(scene=scene, grid=pipe.grid_params, render=rp,
+                     view=ViewSpec(eye=cam.eye, target=cam.target, fov=pipe.fov, up=pipe.up,
+                                   follow_camera=pipe.follow_camera, split_static=pipe.split_static, t0=times[0],
+                                   dt=times[1], size=(rp.width, rp.height)))
+
+
+def test_viewer_jobs_carry_the_command_lines_spec_to_the_pipeline():
+    """The command line's spec through the viewer (its state, the load and frame jobs it submits,
+    the pipeline its render worker makes): the pipeline renders SPEC (written option by option
+    by spec_argv) in a window of SPEC's size; a setting and the camera changed in the state reach
+    the same pipeline (kept across frames, not made again)."""
+    p = argparse.ArgumentParser()
+    add_parser(p.add_subparsers())
+    a = p.parse_args(["view", *spec_argv(SPEC, times=False)])
+    want = dataclasses.replace(SPEC, view=SPEC.view.replace(t0=0.0, dt=ViewSpec.dt))  # (the viewer has no times)
+    times = (want.view.t0, want.view.dt)
+    st = initial_state(a)
+    viewer = Viewer(a, st)
+    viewer.glfw, viewer.win = SimpleNamespace(get_framebuffer_size=lambda win: SPEC.size), None
+    st.framebuffer_size = SPEC.size
+    worker = viewer.worker = RenderWorker(viewer._make_pipeline)
+    try:
+        viewer._start_load(st.scene, keep_camera=True)
+        [load] = _results(worker)
+        assert load.error is None and load.job.spec == want
+        viewer._submit_frame()
+        [frame] = _results(worker)
+        assert frame.error is None and frame.job.spec == want
+        pipe = worker.pipeline
+        assert _pipeline_spec(pipe, load.scene, times) == want
+        assert frame.camera == SPEC.camera()
+        # a widget's and a camera move's changes: the kept pipeline renders the state's new spec
+        assert st.set_grid(density=7.0) and st.set_render(shading="cost")
+        st.camera = Camera(eye=(3.0, 2.0, 1.0), target=(0.0, 0.5, 0.0), up=SPEC.view.up, fov=50.0)
+        viewer._submit_frame()
+        [frame] = _results(worker)
+        assert frame.error is None and worker.pipeline is pipe
+        assert _pipeline_spec(pipe, load.scene, times) == st.spec != want
+        assert (pipe.grid_params.density, pipe.render_params.shading, pipe.fov) == (7.0, "cost", 50.0)
+        viewer._submit_frame()  # nothing changed: no frame rendered again
+        assert not worker.busy
+    finally:
+        worker.stop()
+
+
+def dump_argv(out, *more):
+    return ["dump", *spec_argv(SPEC), "--frames", "1", "--no-progress", "--out", str(out), *map(str, more)]
+
+
+def test_dump_records_its_spec_and_resumes_only_the_same(tmp_path, capsys):
+    """A dump's run.json holds the dump's FrameSpec in the wire format, read back equal to SPEC
+    (the command line's), beside the options the spec does not hold; --resume refuses other
+    settings naming the fields that differ, and a spec of another version with its own message:
+    one line each, no traceback, the folder as it was."""
+    out = tmp_path / "d"
+    assert main(dump_argv(out)) == 0
+    run = json.loads((out / "run.json").read_text())
+    assert FrameSpec.from_wire(run["spec"]) == SPEC
+    assert run["settings"] == {"save_buffers": False} and run["frames"] == 1
+    before = {q.name: q.read_bytes() for q in out.iterdir()}
+
+    def refused(*argv):
+        capsys.readouterr()
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+        assert {q.name: q.read_bytes() for q in out.iterdir()} == before
+        return err.strip()
+
+    other = [x if x != SPEC.grid.strategy else "serial" for x in spec_argv(SPEC)]
+    other[other.index("--fov") + 1] = "50"
+    err = refused("dump", *other, "--frames", "2", "--no-progress", "--out", str(out), "--resume")
+    assert f"was made with other settings (grid.strategy: {SPEC.grid.strategy!r} there, 'serial' now, " \
+           f"view.fov: {SPEC.view.fov!r} there, 50.0 now)" in err, err
+    err = refused(*dump_argv(out, "--frames", "2", "--resume", "--save-buffers"))
+    assert "(save_buffers: False there, True now)" in err, err
+    for version, word in ((WIRE_VERSION + 1, "newer"), (WIRE_VERSION - 1, "older")):
+        (out / "run.json").write_text(json.dumps(dict(run, spec=dict(run["spec"], version=version))))
+        before["run.json"] = (out / "run.json").read_bytes()
+        err = refused(*dump_argv(out, "--frames", "2", "--resume"))
+        assert err.startswith(f"gridrt: error: --resume: the settings in {out}/run.json cannot be read "
+                              f"(FrameSpec wire version {version} is {word} than this gridrt's version "
+                              f"{WIRE_VERSION}"), err
+    # the same settings resume (the run.json of this version back)
+    (out / "run.json").write_text(json.dumps(run))
+    assert main(dump_argv(out, "--frames", "2", "--resume")) == 0
+    assert (out / "frame_00001.png").exists()
+
+
+def test_spec_differences_name_the_fields_a_resume_compares():
+    """The fields a resumed dump's spec must share: any but the thread counts; a size is the view's."""
+    threads = SPEC.replace(grid=SPEC.grid.replace(threads=4), render=SPEC.render.replace(threads=4))
+    assert spec_differences(SPEC, threads) == []
+    assert spec_differences(SPEC, SPEC.resized(41, 30)) == [("view.size", [40, 30], [41, 30])]
+    changed = SPEC.replace(scene=SPEC.scene.replace(seed=4), view=SPEC.view.replace(t0=1.5))
+    assert spec_differences(SPEC, changed) == [("scene.seed", 3, 4), ("view.t0", 0.5, 1.5)]

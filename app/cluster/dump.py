@@ -18,6 +18,7 @@ from gridrt.pipeline import FramePipeline
 
 from ..frame_out import (
     FrameWriteError, FrameWriter, StopSignals, encode_frame, nothing_to_do, replace_mode, resumed, run_settings,
+    run_spec,
 )
 from .scheduler import Cluster, CtrlC
 from .tasks import _LOCK, Stop, fetch_done, worker_address, worker_cached, worker_threads
@@ -148,15 +149,6 @@ def run_chunks(cl, spec, save_buffers, frames, size, write, pressed=lambda: Fals
             f.cancel()
     return threads
 
-def worker_spec(spec):
-    """The FrameSpec the workers render: ``spec`` with a scene file given by a path that exists
-    here made absolute (a local cluster's workers, or workers that see the same folders, find it
-    from any working directory)."""
-    source = spec.scene.source
-    if os.path.exists(source):
-        spec = spec.replace(scene=spec.scene.replace(source=os.path.abspath(source)))
-    return spec
-
 
 def dump_on_cluster(a, spec):
     """The dump of ``spec`` (FrameSpec, checked on the client: the workers load the scene) with
@@ -164,7 +156,7 @@ def dump_on_cluster(a, spec):
     if a.chunk is not None and a.chunk < 1:
         raise InputError(f"--chunk must be at least 1, got {a.chunk}")
     out = Path(a.out)
-    writer = FrameWriter(out, run_settings(a), a.frames, mode=replace_mode(a))
+    writer = FrameWriter(out, spec, run_settings(a), a.frames, mode=replace_mode(a))
     rows = []
     error = signum = None
     t_start = time.perf_counter()
@@ -196,7 +188,7 @@ def dump_on_cluster(a, spec):
                     bar.set_postfix(build=f"{stats['build_ms']:.1f}ms", render=f"{stats['render_ms']:.1f}ms")
 
                 try:
-                    threads = run_chunks(cl, worker_spec(spec), a.save_buffers, a.frames, size, write,
+                    threads = run_chunks(cl, run_spec(spec), a.save_buffers, a.frames, size, write,
                                          lambda: pressed() or term(),
                                          begin=start, origin=writer.origin)
                 except Stop:
