@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from gridrt.app.__main__ import build_parser, main
-from gridrt.app.bench import build, core, packets, peers
+from gridrt.app.bench import build, core, looks, packets, peers
 from gridrt.camera import Camera
 from gridrt.config import GridParams, RenderParams
 from gridrt.frame import FrameSpec, ViewSpec
@@ -175,3 +175,18 @@ def test_bench_build_sweep_builds_and_renders_its_specs(monkeypatch):
         (16, 16, t, "normal", "dda") for t in (1, 2)}
     assert {(r["strategy"], r["threads"], r["density"], r["macro"]) for r in rows} == {
         (s, t, 2.0, 2) for s in ("serial", "counting") for t in (1, 2)}
+
+
+def test_bench_looks_configurations_are_the_options():
+    a = parse("looks", "--size", "40", "--threads", "1,2", "--traversal", "dda")
+    for t in (int(x) for x in a.threads.split(",")):
+        for mode, shadows in looks.MODES:
+            s = looks.looks_spec(SCENE, a.size, t, a.traversal, mode, shadows)
+            assert s.scene == SCENE and s.size == (40, 40) and s.grid.threads == t
+            check_defaults(s.grid, GridParams, "threads")
+            r = s.render
+            assert (r.width, r.height, r.threads, r.traversal, r.shading, r.shadows) == (40, 40, t, "dda", mode, shadows)
+            check_defaults(r, RenderParams, "width", "height", "threads", "traversal", "shading", "shadows")
+            assert s.view.follow_camera and s.camera() is None
+            check_defaults(s.view, ViewSpec, "follow_camera", "size")
+    assert parse("looks").traversal == RenderParams().traversal

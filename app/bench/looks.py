@@ -14,10 +14,11 @@ of an animated scene.
 import numpy as np
 
 import gridrt  # noqa: F401
-from gridrt.config import GridParams, RenderParams
+from gridrt.config import TRAVERSALS, GridParams, RenderParams
 from gridrt.frame import FrameSpec, ViewSpec
 from gridrt.pipeline import FramePipeline
 
+from ..cli import defaults
 from .machine import finish_machine, machine_info
 from .options import check_runs, thread_list
 from .output import md_table, out_dir, progress, write_csv, write_json, write_summary
@@ -35,7 +36,9 @@ def add_parser(bsub, common):
     common(p, "looks", runs=5, warmup=2, scenes=(LOOKS_SCENES, LOOKS_FALLBACK))
     p.add_argument("--size", type=int, default=1024, help="square image edge (default 1024)")
     p.add_argument("--threads", default="1,2", help="thread counts, comma-separated (default 1,2)")
-    p.add_argument("--traversal", choices=("cgt", "dda"), default="cgt", help="primary-ray traversal (default cgt)")
+    traversal = defaults(RenderParams)["traversal"]
+    p.add_argument("--traversal", choices=sorted(TRAVERSALS), default=traversal,
+                   help=f"primary-ray traversal (default {traversal})")
     p.set_defaults(func=run_looks)
 
 
@@ -55,14 +58,22 @@ def memory(scene):
                 surface_bytes_per_tri=s.bytes_per_triangle, normal_buffer_bytes_per_tri=36 if animated_normals else 0)
 
 
+def looks_spec(scene, size, threads, traversal, mode, shadows):
+    """The FrameSpec of one ``bench looks`` configuration: the SceneSpec ``scene`` through its own
+    camera (followed), gridded and rendered on ``threads`` threads with ``traversal``, shading
+    ``mode`` with or without ``shadows``, at size x size (every other setting the engine's
+    default)."""
+    return FrameSpec(scene=scene, grid=GridParams(threads=threads),
+                     render=RenderParams(shading=mode, shadows=shadows, threads=threads, traversal=traversal),
+                     view=ViewSpec(follow_camera=True)).resized(size, size)
+
+
 def measure(sc, size, threads, runs, warmup, traversal):
-    """Rows (one per mode) of one scene at one thread count: each mode's FrameSpec (the scene's own
-    camera followed, frame 0) rendered by its pipeline."""
+    """Rows (one per mode) of one scene at one thread count: each mode's FrameSpec (:func:`looks_spec`,
+    frame 0) rendered by its pipeline."""
     pipes = {}
     for mode, shadows in MODES:
-        rp = RenderParams(size, size, shading=mode, shadows=shadows, threads=threads, traversal=traversal)
-        spec = FrameSpec(scene=sc.spec, grid=GridParams(threads=threads), render=rp,
-                         view=ViewSpec(size=(size, size), follow_camera=True))
+        spec = looks_spec(sc.spec, size, threads, traversal, mode, shadows)
         pipes[(mode, shadows)] = FramePipeline.from_spec(spec, sc.scene)
     for _ in range(warmup):
         for p in pipes.values():
