@@ -115,7 +115,8 @@ def run_build_sweep(
     """Time grid builds for every scene x strategy x grid kind x thread count.
 
     scenes      dict name -> Animation/(F,3,3) array, one scene, or a list of scenes or
-                (name, scene) pairs
+                (name, scene) pairs; a BenchScene in place of a scene also gives the
+                configurations' FrameSpecs its SceneSpec
     strategies  registered strategy names (gridrt.grid.names())
     threads     thread counts (each 1 .. gridrt.threads.max_threads())
     runs        timed builds per configuration (>= 1; the medians are meant over >= 5)
