@@ -10,6 +10,7 @@ import pytest
 
 from gridrt.app.__main__ import build_parser, main
 from gridrt.app.bench import build, core, looks, packets, peers
+from gridrt.app.bench.scenes import resolve_scene
 from gridrt.camera import Camera
 from gridrt.config import GridParams, RenderParams
 from gridrt.frame import FrameSpec, ViewSpec
@@ -166,9 +167,16 @@ def test_bench_build_sweep_builds_and_renders_its_specs(monkeypatch):
     """run_build_sweep hands each configuration's builder its spec's grid and its renderer the
     spec's render settings (the given FrameSpec's, at the render size and the thread count)."""
     built, rendered = spy(monkeypatch, build)
+    measured = []
+    measure = build._measure
+    monkeypatch.setattr(build, "_measure", lambda name, src, group, *rest: measured.extend(group) or measure(
+        name, src, group, *rest))
     base = FrameSpec(grid=GridParams(density=2.0, macro=2), render=RenderParams(shading="normal", traversal="dda"))
-    rows = build.run_build_sweep({"ico": make_scene("icosphere", count=320)}, ["serial", "counting"], [1, 2], runs=1,
-                                 warmup=0, progress=False, params=base, render=16)
+    scenes = {"ico": make_scene("icosphere", count=320), "bench": resolve_scene("icosphere:80")}
+    rows = build.run_build_sweep(scenes, ["serial", "counting"], [1, 2], runs=1, warmup=0, progress=False, params=base,
+                                 render=16)
+    # a BenchScene's SceneSpec is its configurations' scene; a bare Animation leaves the base's
+    assert [s.scene for s in measured] == [base.scene] * 4 + [SceneSpec(source="icosphere", count=80)] * 4
     assert {(p.strategy, p.threads, p.density, p.macro) for p in built} == {
         (s, t, 2.0, 2) for s in ("serial", "counting") for t in (1, 2)}
     assert {(p.width, p.height, p.threads, p.shading, p.traversal) for _, p in rendered} == {
