@@ -3,9 +3,9 @@
 Every table of BENCHMARKS.md has a source line right above it (a blank line between them is
 allowed), which says where its figures come from::
 
-    *Measured:* 2026-11-22 · *machine:* AMD EPYC · *command:* `gridrt bench core` · *output:* docs/results/core/
+    *Measured:* 2026-11-22 · *machine:* AMD EPYC · *command:* `gridrt bench core` · *output:* results/core/
 
-* ``output: docs/results/<name>/``: the folder that ``gridrt bench ... --out docs/results/<name>``
+* ``output: results/<name>/``: the folder that ``gridrt bench ... --out results/<name>``
   wrote (``summary.md``, the CSV files, ``machine.json``), committed.  The table's header must be
   the header of a table in that folder's ``summary.md`` and each of its rows one of that table's
   rows, cell for cell (a table may leave rows out, never change one); the date, the machine's CPU
@@ -195,9 +195,9 @@ SUMMARY = """# gridrt bench core
 | icosphere | 1,280 | serial build exact | 1 | 1.1 [1.1-1.1] |
 """
 MACHINE = {"date": "2026-12-03T09:35:00+00:00", "cpu": "AMD EPYC", "cores": 2,
-           "command": "gridrt bench core --quick --out docs/results/core"}
+           "command": "gridrt bench core --quick --out results/core"}
 SOURCE_LINE = ("*Measured:* 2026-12-03 · *machine:* AMD EPYC, 2 cores · "
-               "*command:* `gridrt bench core --quick --out docs/results/core` · *output:* docs/results/core/")
+               "*command:* `gridrt bench core --quick --out results/core` · *output:* results/core/")
 TABLE = """| scene | triangles | what | threads | ms median [min-max] |
 |---|---|---|---|---|
 | icosphere | 1,280 | serial build exact | 1 | 1.1 [1.1-1.1] |
@@ -205,7 +205,7 @@ TABLE = """| scene | triangles | what | threads | ms median [min-max] |
 
 
 def synthetic(tmp_path, doc, summary=SUMMARY, machine=MACHINE):
-    out = tmp_path / "docs" / "results" / "core"
+    out = tmp_path / "results" / "core"
     out.mkdir(parents=True)
     (out / "summary.md").write_text(summary)
     (out / "machine.json").write_text(json.dumps(machine))
@@ -247,7 +247,7 @@ def test_checker_catches_a_missing_output_or_field(tmp_path):
     problems = synthetic(tmp_path, doc)
     a, b, c = (t[0] for t in tables(doc))
     assert problems == [
-        f"B.md:{a}: output docs/results/frame/ has no summary.md and machine.json",
+        f"B.md:{a}: output results/frame/ has no summary.md and machine.json",
         f"B.md:{b}: measured 'last week' is not a date (YYYY-MM-DD)",
         f"B.md:{c}: the source line lacks output",
     ], problems
@@ -258,14 +258,14 @@ def test_a_quick_benchmark_run_backs_a_table(tmp_path):
     """A real run: ``gridrt bench core --quick`` writes an output folder; its summary's first row,
     with a source line made from its machine.json, passes the check, and passes no longer once a
     figure in it is changed."""
-    out = tmp_path / "docs" / "results" / "core"
+    out = tmp_path / "results" / "core"
     cmd = [sys.executable, "-m", "gridrt", "bench", "core", "--quick", "--no-progress", "--out", str(out)]
     r = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=1200)
     assert r.returncode == 0, r.stderr[-2000:]
     machine = json.loads((out / "machine.json").read_text())
     line, header, rows, _ = tables((out / "summary.md").read_text())[0]
     source = (f"*Measured:* {machine['date'][:10]} · *machine:* {machine['cpu']}, {machine['cores']} cores · "
-              f"*command:* `{machine['command']}` · *output:* docs/results/core/")
+              f"*command:* `{machine['command']}` · *output:* results/core/")
     table = "| " + " | ".join(header) + " |\n|" + "---|" * len(header) + "\n| " + " | ".join(rows[0]) + " |\n"
     (tmp_path / "B.md").write_text(f"{source}\n\n{table}")
     assert check_document(tmp_path / "B.md", repo=tmp_path) == []
