@@ -1,0 +1,110 @@
+"""BENCHMARKS.md section 13, "The single-ray DDA": ``trace_ray`` in a loop over the ``bench peers``
+rays of each scene and view, one thread, ns a ray (the best of the timed runs after an untimed
+compiling run) with the cells visited, triangle tests and hit fraction a ray.
+
+    .venv/bin/python scripts/single_ray_dda.py
+
+makes the table (512x512 rays, the best of 5); ``--size 16 --runs 1`` is a quick check.  Each ray
+goes through :func:`gridrt.trace.traverse.trace_ray` (nearest hit, watertight test, t in (0, inf))
+on a uniform grid (``GridParams()``) over the scene at t = 0, the frame the rays are made in; the
+rays are those of ``bench peers`` (:mod:`gridrt.app.bench.peers`): the scene's camera ("frame"),
+that camera moved in until the scene fills the view ("fill"), or random rays in the scene's
+bounds ("random").
+"""
+
+import argparse
+import time
+
+import numpy as np
+from numba import njit
+
+import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba compiles anything)
+from gridrt.app.bench.output import md_table
+from gridrt.app.bench.peers import _rays
+from gridrt.app.bench.scenes import resolve_scene
+from gridrt.config import GridParams
+from gridrt.grid.build import GridBuilder
+from gridrt.trace.grids import grid_arrays
+from gridrt.trace.traverse import MAILBOX, trace_ray
+
+#: the table's scenes and ray sets (section 13: the ``bench peers`` scenes and views)
+SCENES = "cesium,icosphere:20480:twist,lucy:twist,icosphere:1310720:twist"
+VIEWS = "random,fill,frame"
+#: names the table gives the scenes of the development data set
+NAMES = {"cesium": "Cesium Man", "lucy": "Lucy"}
+SIZE, RUNS = 512, 5
+#: what the script does not let an option change
+FIXED = ("a uniform grid, GridParams(), over the scene at t = 0; "
+         "trace_ray in a loop on one thread; the best of the timed runs after one untimed run")
+HEADER = ["scene, rays", "cells, tests a ray", "ns a ray"]
+
+
+def scene_label(text, n):
+    """The table's name of a scene spec of n triangles: "Lucy 100k twisted", "Cesium Man 4.7k"."""
+    base, *mods = text.split(":")
+    count = f"{n / 1e6:.1f}M" if n >= 1e6 else f"{n / 1e3:.0f}k" if n >= 1e4 else f"{n / 1e3:.1f}k"
+    return f"{NAMES.get(base, base)} {count}" + (" twisted" if "twist" in mods else "")
+
+
+def print_settings(p, a):
+    """Each option's value and where it comes from: the table (the option's default) or the command line."""
+    for k, v in vars(a).items():
+        print(f"{k}: {v} ({'the table' if v == p.get_default(k) else 'command line'})")
+
+
+@njit(cache=True)
+def trace_all(g, o, d, mailbox, tri, cells, tests):
+    """Each ray i of (origins o, directions d) through trace_ray; its triangle, cells visited and
+    triangle tests into tri[i], cells[i], tests[i]."""
+    for i in range(o.shape[0]):
+        f, t, u, v, nc, nt = trace_ray(g, (o[i, 0], o[i, 1], o[i, 2]), (d[i, 0], d[i, 1], d[i, 2]), 0.0, np.inf,
+                                       True, False, mailbox)
+        tri[i] = f
+        cells[i] = nc
+        tests[i] = nt
+
+
+def measure(sc, g, view, size, runs):
+    """(label, cells a ray, tests a ray, best ns a ray) of the BenchScene sc, its GridArrays g at
+    t = 0 and one view."""
+    _origin, _cam, _o32, _d32, o, d = _rays(sc, size, view)
+    n = len(o)
+    mailbox = np.empty(MAILBOX, np.int32)
+    tri, cells, tests = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
+    trace_all(g, o, d, mailbox, tri, cells, tests)  # (untimed: compiles on the first call)
+    ts = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        trace_all(g, o, d, mailbox, tri, cells, tests)
+        ts.append(time.perf_counter() - t0)
+    label = f"{scene_label(sc.label, len(g.tris))}, {view} (hit {(tri >= 0).mean():.2f})"
+    return label, cells.mean(), tests.mean(), min(ts) * 1e9 / n
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--scenes", default=SCENES,
+                   help="comma-separated bench scene specs (default: the table's, %(default)s)")
+    p.add_argument("--views", default=VIEWS, help="comma-separated ray sets of bench peers (default: %(default)s)")
+    p.add_argument("--size", type=int, default=SIZE, help=f"size x size rays (default {SIZE}, the table's)")
+    p.add_argument("--runs", type=int, default=RUNS, help=f"timed runs, the best kept (default {RUNS}, the table's)")
+    a = p.parse_args(argv)
+    scenes = [s.strip() for s in a.scenes.split(",") if s.strip()]
+    views = [v.strip() for v in a.views.split(",") if v.strip()]
+    print_settings(p, a)
+    print(f"fixed: {FIXED}")
+    print()
+    rows = []
+    for text in scenes:
+        sc = resolve_scene(text)
+        tris = np.ascontiguousarray(sc.scene.triangles_at(0.0, origin=sc.scene.frame_origin(0.0)), np.float32)
+        g = grid_arrays(GridBuilder(GridParams()).build(tris), tris)
+        for view in views:
+            label, nc, nt, ns = measure(sc, g, view, a.size, a.runs)
+            rows.append([label, f"{nc:.1f}, {nt:.1f}", f"{ns:.0f}"])
+    print("\n".join(md_table(HEADER, rows)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

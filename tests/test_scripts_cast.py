@@ -1,0 +1,74 @@
+"""The scripts behind BENCHMARKS.md's single-ray, cast-order and density tables (scripts/) run and
+print the table they make: each runs at a small size as a subprocess, exits 0 and prints a
+markdown table whose header and row labels are those of its table in BENCHMARKS.md (found by the
+script's name on the table's source line).  The figures are timings: only their form is checked.
+"""
+
+import re
+
+import pytest
+
+from helpers.scripts import NUMBER, doc_table, needs, run_script
+
+
+def without_hit(label):
+    """A single-ray row label without its measured hit fraction: "Lucy 100k twisted, fill"."""
+    m = re.fullmatch(r"(.*) \(hit (\d\.\d\d)\)", label)
+    assert m, label
+    return m.group(1)
+
+
+def check_table(script, args, keep=lambda label: True, label=lambda cell: cell, n_labels=1):
+    """scripts/<script> run with ``args`` prints its BENCHMARKS.md table's header and the rows whose
+    first cell passes ``keep``, in its order: their first ``n_labels`` cells the same (the first
+    through ``label``), the others numbers (or "a, b" pairs of numbers)."""
+    header, rows = run_script(script, *args)
+    doc_header, doc_rows = doc_table(script)
+    assert header == doc_header
+
+    def labels(r):
+        return [label(r[0]), *r[1:n_labels]]
+
+    assert [labels(r) for r in rows] == [labels(r) for r in doc_rows if keep(r[0])]
+    assert rows and all(NUMBER.fullmatch(x) for r in rows for c in r[n_labels:] for x in c.split(", ")), rows
+
+
+def cesium(label):
+    return label.startswith("Cesium Man 4.7k,")
+
+
+@needs("cesium")
+def test_single_ray_dda_prints_its_table():
+    check_table("single_ray_dda.py", ["--size", "16", "--runs", "1", "--scenes", "cesium"], cesium, without_hit)
+
+
+@pytest.mark.slow
+@needs("cesium", "lucy")
+def test_single_ray_dda_prints_its_table_whole():
+    check_table("single_ray_dda.py", ["--size", "16", "--runs", "1"], label=without_hit)
+
+
+@needs("cesium")
+def test_cast_ray_order_prints_its_table():
+    check_table("cast_ray_order.py", ["--size", "64", "--runs", "1", "--scenes", "cesium"], cesium)
+
+
+@pytest.mark.slow
+@needs("cesium", "lucy")
+def test_cast_ray_order_prints_its_table_whole():
+    check_table("cast_ray_order.py", ["--size", "64", "--runs", "1"])
+
+
+@needs("kitchen", "robots")
+def test_two_level_densities_prints_its_table():
+    check_table("two_level_densities.py", ["--size", "16", "--runs", "1", "--warmup", "0"], n_labels=2)
+
+
+def test_doc_table_finds_each_script_once():
+    """The lookup the tests above rely on: each script's table by its name, and none for a name
+    no source line runs."""
+    for script in ("single_ray_dda.py", "cast_ray_order.py", "two_level_densities.py"):
+        header, rows = doc_table(script)
+        assert len(header) >= 3 and rows and all(len(r) == len(header) for r in rows)
+    with pytest.raises(AssertionError):
+        doc_table("no_such_script.py")
