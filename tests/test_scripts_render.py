@@ -1,0 +1,46 @@
+"""The scripts behind BENCHMARKS.md's float32-floor, MAX_CELLS and packet-size tables (scripts/)
+run and print the table they make: each runs at a small size as a subprocess, exits 0 and prints
+a markdown table whose header and row labels are those of its table in BENCHMARKS.md (found by the
+script's name on the table's source line).  Timed figures are checked for their form only.
+"""
+
+import re
+
+from helpers.scripts import doc_table, needs, run_script
+
+#: "a / b": a figure at each of two settings (threads, or precisions), either maybe in bold
+PAIR = re.compile(r"(\*\*)?-?\d+(\.\d+)?(\*\*)? / (\*\*)?-?\d+(\.\d+)?(\*\*)?")
+
+
+def check_labels(script, *args):
+    """The rows of scripts/<script>'s table with ``args``, after checking its header and row labels
+    against BENCHMARKS.md's."""
+    header, rows = run_script(script, *args)
+    doc_header, doc_rows = doc_table(script)
+    assert header == doc_header
+    assert [r[0] for r in rows] == [r[0] for r in doc_rows]
+    return rows
+
+
+def test_float32_floor_prints_its_table():
+    rows = check_labels("float32_floor.py", "--size", "80x60")
+    for r in rows:
+        assert re.fullmatch(r"[\d,.]+", r[1]) and re.fullmatch(r"\d+( \([\d.]+ %\))?", r[2]), r
+        assert re.fullmatch(r"\d\.\de[+-]\d\d", r[3]), r
+    # the teapot's detail in float32 steps falls as the frame grows, 10x per 10x D
+    steps = [float(r[1].replace(",", "")) for r in rows]
+    assert all(a > b for a, b in zip(steps, steps[1:])), steps
+
+
+def test_cast_max_cells_prints_its_table():
+    rows = check_labels("cast_max_cells.py", "--size", "64", "--runs", "1", "--threads", "1,2")
+    for r in rows:
+        assert all(PAIR.fullmatch(c) for c in r[1:6]), r
+        assert r[6] == "n/a" or PAIR.fullmatch(r[6]), r
+
+
+@needs("lucy")
+def test_packet_size_precision_prints_its_table():
+    rows = check_labels("packet_size_precision.py", "--size", "64", "--renders", "1")
+    for r in rows:
+        assert all(PAIR.fullmatch(c) for c in r[1:]), r
