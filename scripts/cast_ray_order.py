@@ -17,7 +17,7 @@ import argparse
 
 import numpy as np
 
-import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba compiles anything)
+import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from gridrt.api import RayCaster
 from gridrt.app.bench.output import md_table
 from gridrt.app.bench.peers import _rays

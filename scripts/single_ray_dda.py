@@ -16,9 +16,8 @@ import argparse
 import time
 
 import numpy as np
-from numba import njit
 
-import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba compiles anything)
+import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from gridrt.app.bench.output import md_table
 from gridrt.app.bench.peers import _rays
 from gridrt.app.bench.scenes import resolve_scene
@@ -26,6 +25,7 @@ from gridrt.config import GridParams
 from gridrt.grid.build import GridBuilder
 from gridrt.trace.grids import grid_arrays
 from gridrt.trace.traverse import MAILBOX, trace_ray
+from numba import njit
 
 #: the table's scenes and ray sets (section 13: the ``bench peers`` scenes and views)
 SCENES = "cesium,icosphere:20480:twist,lucy:twist,icosphere:1310720:twist"

@@ -18,7 +18,7 @@ from fractions import Fraction
 
 import numpy as np
 
-import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba compiles anything)
+import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from gridrt.app.bench.frame import frame_spec
 from gridrt.app.bench.output import md_table
 from gridrt.app.bench.scenes import resolve_scene

@@ -38,24 +38,24 @@ def cesium(label):
 
 
 @needs("cesium")
-def test_single_ray_dda_prints_its_table():
+def test_single_ray_dda_prints_its_table_shipped_scene():
+    """Its Cesium Man rows alone (the scene assets/ ships: runs in a clone without the data set)."""
     check_table("single_ray_dda.py", ["--size", "16", "--runs", "1", "--scenes", "cesium"], cesium, without_hit)
 
 
-@pytest.mark.slow
 @needs("cesium", "lucy")
-def test_single_ray_dda_prints_its_table_whole():
+def test_single_ray_dda_prints_its_table():
     check_table("single_ray_dda.py", ["--size", "16", "--runs", "1"], label=without_hit)
 
 
 @needs("cesium")
-def test_cast_ray_order_prints_its_table():
+def test_cast_ray_order_prints_its_table_shipped_scene():
+    """Its Cesium Man rows alone (the scene assets/ ships: runs in a clone without the data set)."""
     check_table("cast_ray_order.py", ["--size", "64", "--runs", "1", "--scenes", "cesium"], cesium)
 
 
-@pytest.mark.slow
 @needs("cesium", "lucy")
-def test_cast_ray_order_prints_its_table_whole():
+def test_cast_ray_order_prints_its_table():
     check_table("cast_ray_order.py", ["--size", "64", "--runs", "1"])
 
 
