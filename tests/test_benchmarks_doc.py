@@ -174,10 +174,12 @@ def test_documents_describe_the_present(doc):
 
 
 def test_history_and_hash_checks_catch_a_planted_line(tmp_path):
-    line = "The build was 2x slower before 1a2b3c4d (issue 12), and now it is not."
+    # the tracker reference is assembled here, so that this file itself holds none
+    tracker = "issue " + str(12)
+    line = f"The build was 2x slower before 1a2b3c4d ({tracker}), and now it is not."
     assert [m.group(0) for m in HISTORY.finditer(line)] == ["was", "now"]
     assert [m.group(0) for m in HASH.finditer(line)] == ["1a2b3c4d"]
-    assert [m.group(0) for m in ISSUE.finditer(line)] == ["issue 12"]
+    assert [m.group(0) for m in ISSUE.finditer(line)] == [tracker]
     assert not HASH.search("icosphere:1310720 at 1e-5, 2026-12-03, 0.5 s") and not HISTORY.search("nowhere washed")
 
 
