@@ -19,7 +19,7 @@ import numpy as np
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from gridrt.app.bench.affinity import Affinity
-from gridrt.app.bench.peers import _rays
+from gridrt.app.bench.peers import peer_rays
 from gridrt.app.bench.scenes import resolve_scene
 from gridrt.app.bench.sides import EmbreeRobustSide, MissingPeer
 from gridrt.app.bench.stats import timings
@@ -49,11 +49,11 @@ def row_labels(label, first):
 
 def ray_sets(sc, size):
     """{row: (float32 origins, float32 dirs, float64 origins, float64 dirs)} and the fill view's frame origin."""
-    origin, _, o32, d32, o, d = _rays(sc, size, "fill")
+    origin, _, o32, d32, o, d = peer_rays(sc, size, "fill")
     perm = np.random.default_rng(1).permutation(len(o))
     sets = {"fill": (o32, d32, o, d),
             "shuffled": tuple(np.ascontiguousarray(x[perm]) for x in (o32, d32, o, d))}
-    r_origin, _, *rnd = _rays(sc, size, "random")
+    r_origin, _, *rnd = peer_rays(sc, size, "random")
     assert np.array_equal(r_origin, origin)  # (one frame for every ray set: one grid)
     sets["random"] = tuple(rnd)
     return origin, sets

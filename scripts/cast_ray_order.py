@@ -20,11 +20,13 @@ import numpy as np
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from gridrt.api import RayCaster
 from gridrt.app.bench.output import md_table
-from gridrt.app.bench.peers import _rays
+from gridrt.app.bench.peers import peer_rays
 from gridrt.app.bench.scenes import resolve_scene
 from gridrt.app.bench.stats import timings
 from gridrt.config import GridParams
 from gridrt.trace.batch import tile_order
+
+from tables import add_ray_options, items, print_settings, scene_label
 
 #: the table's scenes and views (section 13: ``bench peers``' scenes and its camera views)
 SCENES = "cesium,lucy:twist,icosphere:1310720:twist"
@@ -36,21 +38,6 @@ FIXED = ("RayCaster.from_triangles(the scene at t = 0, GridParams()).cast(o, d, 
 HEADER = ["scene, view", "row order (tiles recognised)", "pre-sorted into 8x8 tiles by the caller", "shuffled"]
 #: seed of the shuffled order
 SEED = 20261202
-#: names the table gives the scenes of the development data set
-NAMES = {"cesium": "Cesium Man", "lucy": "Lucy"}
-
-
-def scene_label(text, n):
-    """The table's name of a scene spec of n triangles: "Lucy 100k twisted", "Cesium Man 4.7k"."""
-    base, *mods = text.split(":")
-    count = f"{n / 1e6:.1f}M" if n >= 1e6 else f"{n / 1e3:.0f}k" if n >= 1e4 else f"{n / 1e3:.1f}k"
-    return f"{NAMES.get(base, base)} {count}" + (" twisted" if "twist" in mods else "")
-
-
-def print_settings(p, a):
-    """Each option's value and where it comes from: the table (the option's default) or the command line."""
-    for k, v in vars(a).items():
-        print(f"{k}: {v} ({'the table' if v == p.get_default(k) else 'command line'})")
 
 
 def orders(n, width):
@@ -71,14 +58,9 @@ def measure(caster, o, d, idx, runs):
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--scenes", default=SCENES,
-                   help="comma-separated bench scene specs (default: the table's, %(default)s)")
-    p.add_argument("--views", default=VIEWS, help="comma-separated camera views of bench peers (default: %(default)s)")
-    p.add_argument("--size", type=int, default=SIZE, help=f"size x size rays (default {SIZE}, the table's)")
-    p.add_argument("--runs", type=int, default=RUNS, help=f"timed casts, the best kept (default {RUNS}, the table's)")
+    add_ray_options(p, SCENES, VIEWS, SIZE, RUNS, "camera views", "timed casts")
     a = p.parse_args(argv)
-    scenes = [s.strip() for s in a.scenes.split(",") if s.strip()]
-    views = [v.strip() for v in a.views.split(",") if v.strip()]
+    scenes, views = items(a.scenes), items(a.views)
     print_settings(p, a)
     print(f"fixed: {FIXED}")
     print()
@@ -86,7 +68,7 @@ def main(argv=None):
     for text in scenes:
         sc = resolve_scene(text)
         for view in views:
-            origin, _cam, _o32, _d32, o, d = _rays(sc, a.size, view)
+            origin, _cam, _o32, _d32, o, d = peer_rays(sc, a.size, view)
             caster = RayCaster.from_triangles(sc.scene.triangles_at(0.0, origin=origin), GridParams())
             mrays = [measure(caster, o, d, idx, a.runs) for idx in orders(len(o), a.size)]
             rows.append([f"{scene_label(text, len(caster.triangles))}, {view}", *(f"{m:.2f}" for m in mrays)])

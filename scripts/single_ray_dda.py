@@ -13,43 +13,30 @@ bounds ("random").
 """
 
 import argparse
-import time
 
 import numpy as np
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from gridrt.app.bench.output import md_table
-from gridrt.app.bench.peers import _rays
+from gridrt.app.bench.peers import peer_rays
 from gridrt.app.bench.scenes import resolve_scene
+from gridrt.app.bench.stats import timings
 from gridrt.config import GridParams
 from gridrt.grid.build import GridBuilder
 from gridrt.trace.grids import grid_arrays
 from gridrt.trace.traverse import MAILBOX, trace_ray
 from numba import njit
 
+from tables import add_ray_options, items, print_settings, scene_label
+
 #: the table's scenes and ray sets (section 13: the ``bench peers`` scenes and views)
 SCENES = "cesium,icosphere:20480:twist,lucy:twist,icosphere:1310720:twist"
 VIEWS = "random,fill,frame"
-#: names the table gives the scenes of the development data set
-NAMES = {"cesium": "Cesium Man", "lucy": "Lucy"}
 SIZE, RUNS = 512, 5
 #: what the script does not let an option change
 FIXED = ("a uniform grid, GridParams(), over the scene at t = 0; "
          "trace_ray in a loop on one thread; the best of the timed runs after one untimed run")
 HEADER = ["scene, rays", "cells, tests a ray", "ns a ray"]
-
-
-def scene_label(text, n):
-    """The table's name of a scene spec of n triangles: "Lucy 100k twisted", "Cesium Man 4.7k"."""
-    base, *mods = text.split(":")
-    count = f"{n / 1e6:.1f}M" if n >= 1e6 else f"{n / 1e3:.0f}k" if n >= 1e4 else f"{n / 1e3:.1f}k"
-    return f"{NAMES.get(base, base)} {count}" + (" twisted" if "twist" in mods else "")
-
-
-def print_settings(p, a):
-    """Each option's value and where it comes from: the table (the option's default) or the command line."""
-    for k, v in vars(a).items():
-        print(f"{k}: {v} ({'the table' if v == p.get_default(k) else 'command line'})")
 
 
 @njit(cache=True)
@@ -67,30 +54,21 @@ def trace_all(g, o, d, mailbox, tri, cells, tests):
 def measure(sc, g, view, size, runs):
     """(label, cells a ray, tests a ray, best ns a ray) of the BenchScene sc, its GridArrays g at
     t = 0 and one view."""
-    _origin, _cam, _o32, _d32, o, d = _rays(sc, size, view)
+    _origin, _cam, _o32, _d32, o, d = peer_rays(sc, size, view)
     n = len(o)
     mailbox = np.empty(MAILBOX, np.int32)
     tri, cells, tests = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
-    trace_all(g, o, d, mailbox, tri, cells, tests)  # (untimed: compiles on the first call)
-    ts = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        trace_all(g, o, d, mailbox, tri, cells, tests)
-        ts.append(time.perf_counter() - t0)
+    # one untimed call first (it compiles trace_all), then the best of the timed ones
+    _median, best_ms, _worst = timings(lambda: trace_all(g, o, d, mailbox, tri, cells, tests), runs)
     label = f"{scene_label(sc.label, len(g.tris))}, {view} (hit {(tri >= 0).mean():.2f})"
-    return label, cells.mean(), tests.mean(), min(ts) * 1e9 / n
+    return label, cells.mean(), tests.mean(), best_ms * 1e6 / n
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--scenes", default=SCENES,
-                   help="comma-separated bench scene specs (default: the table's, %(default)s)")
-    p.add_argument("--views", default=VIEWS, help="comma-separated ray sets of bench peers (default: %(default)s)")
-    p.add_argument("--size", type=int, default=SIZE, help=f"size x size rays (default {SIZE}, the table's)")
-    p.add_argument("--runs", type=int, default=RUNS, help=f"timed runs, the best kept (default {RUNS}, the table's)")
+    add_ray_options(p, SCENES, VIEWS, SIZE, RUNS, "ray sets", "timed runs")
     a = p.parse_args(argv)
-    scenes = [s.strip() for s in a.scenes.split(",") if s.strip()]
-    views = [v.strip() for v in a.views.split(",") if v.strip()]
+    scenes, views = items(a.scenes), items(a.views)
     print_settings(p, a)
     print(f"fixed: {FIXED}")
     print()

@@ -27,6 +27,8 @@ from gridrt.errors import InputError
 from gridrt.frame import FrameSpec, ViewSpec
 from gridrt.pipeline import FramePipeline
 
+from tables import print_settings
+
 #: the table's scenes, each with its static/moving split on or off (section 14)
 SCENES = "kitchen:on,robots:off"
 #: the table's grids: uniform, or a two-level grid's top density, leaf density
@@ -36,12 +38,6 @@ SIZE, THREADS, STRATEGY, RUNS, WARMUP = 512, 2, "counting", 3, 1
 FIXED = ("Lambert shading, the scene's own camera, the rest FrameSpec's defaults; "
          "medians of the timed frames")
 HEADER = ["scene", "top, leaf density", "build ms", "DDA ms", "CGT ms", "tests/ray DDA"]
-
-
-def print_settings(p, a):
-    """Each option's value and where it comes from: the table (the option's default) or the command line."""
-    for k, v in vars(a).items():
-        print(f"{k}: {v} ({'the table' if v == p.get_default(k) else 'command line'})")
 
 
 def grid_of(text):

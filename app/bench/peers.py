@@ -162,7 +162,7 @@ def run_peers(a):
                    a.no_progress)
     affinity_ok = True
     for sc, view in ((sc, view) for sc in scenes for view in views):
-        origin, cam, o32, d32, o, d = _rays(sc, size, view)
+        origin, cam, o32, d32, o, d = peer_rays(sc, size, view)
         for spec in peer_specs(base, sc.spec, cam, threads, kinds, a.strategy):
             gp, T, prec = spec.grid, spec.render.threads, spec.render.packet_precision
             bar.set_postfix_str(f"{sc.label} {view} T={T} {gp.grid}")
@@ -209,7 +209,7 @@ def peer_specs(base, scene, cam, threads, kinds, strategy):
                          render=base.render.replace(threads=T)) for T in threads for kind in kinds]
 
 
-def _rays(sc, size, view):
+def peer_rays(sc, size, view):
     """(frame origin, camera, float32 origins and directions, the same as float64) of a scene for one
     of VIEWS: size x size camera rays, or as many random rays."""
     if view != "random":
