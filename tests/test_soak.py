@@ -216,13 +216,13 @@ def soak(n_frames, warmup, report_at, width=64, height=48, count=8800):
             # background thread (gridrt.trace.twin) from their second call on: the warm-up ends when
             # they have, so that the figures after it measure frames, not a compiler's memory
             TWINS.wait()
-            late = TWINS.started
+            started_in_warmup = TWINS.started
         if i % 10 == 0 or i == n_frames - 1:
             samples.append((i + 1, rss_mb()))
         if i + 1 in report_at:
             at[i + 1] = rss_mb()
     secs = time.perf_counter() - t0
-    late = TWINS.started - late  # background compiles started after the warm-up
+    late = TWINS.started - started_in_warmup  # background compiles started after the warm-up
     after = np.array([(f, m) for f, m in samples if f >= warmup])
     slope_kb = float(np.polyfit(after[:, 0], after[:, 1], 1)[0] * 1024) if len(after) > 2 else 0.0
     growth = float(after[-1, 1] - after[0, 1])

@@ -348,7 +348,7 @@ class Viewer:
                     st.spec = st.spec.replace(view=view_with_camera(st.spec.view, None).replace(
                         fov=res.job.spec.view.fov, up=res.job.spec.view.up))
                     st.home = None
-                st.scene_loaded(res.has_camera, res.job is None or res.job.scene_camera)
+                st.scene_loaded(res.has_camera, res.job.scene_camera)
                 st.scene_name, st.triangles = res.scene_name, res.triangles
                 st.duration, st.static = res.duration, res.static
                 st.time = 0.0 if res.duration is None else math.fmod(st.time, res.duration)
