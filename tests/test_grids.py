@@ -13,14 +13,14 @@ parts, each part gridded on its own in one frame, traced through the tuple of th
 
 import numpy as np
 import pytest
-from numba import njit, prange
+from numba import njit, prange, typeof
 
 import reference as R
 from conftest import icosphere_tris, random_triangles
 from gridrt.config import GridParams
 from gridrt.grid import build_grid
 from gridrt.trace import cgt
-from gridrt.trace.grids import GridArrays, grid_arrays, pack_grids, unpack_grids
+from gridrt.trace.grids import GridArrays, carries_leaves, grid_tuple, pack_grids, unpack_grids
 from gridrt.trace.traverse import MAILBOX, trace_grids
 
 
@@ -77,20 +77,23 @@ def _through_prange(grids, out):
             k += 1
 
 
-def split_scene(tris, parts, seed=0):
+def split_scene(tris, parts, seed=0, kinds=None):
     """The scene's triangles dealt at random into ``parts`` parts: a tuple of GridArrays (all in the
-    world's frame), the scene ids of each part and the frame's origin."""
+    world's frame; part p's grid of kind kinds[p], uniform by default), the scene ids of each part
+    and the frame's origin."""
     rng = np.random.default_rng(seed)
     which = rng.integers(0, parts, len(tris))
     which[:parts] = np.arange(parts)  # no part empty
-    grids, ids, origin = [], [], np.zeros(3)  # one frame for every part and every split
+    kinds = kinds or ("uniform",) * parts
+    built, ids, origin = [], [], np.zeros(3)  # one frame for every part and every split
     for p in range(parts):
         idx = np.flatnonzero(which == p).astype(np.int32)
-        g = build_grid(tris[idx], GridParams(macro=2), origin=origin)
+        g = build_grid(tris[idx], GridParams(macro=2, grid=kinds[p]), origin=origin)
+        assert g.kind == kinds[p]
         t = np.ascontiguousarray(tris[idx].astype(np.float64) - g.origin, dtype=np.float32)
-        grids.append(grid_arrays(g, t, idx if parts > 1 else None))
+        built.append((g, t, idx if parts > 1 else None))
         ids.append(idx)
-    return tuple(grids), ids, origin
+    return grid_tuple(*built), ids, origin
 
 
 def rays(tris, n, seed=1):
@@ -146,6 +149,43 @@ def test_grid_sequences_match_brute_force(name):
                 t_first = t
             assert np.array_equal(t, t_first), f"{name}, {parts} grids, {kernel.__name__}: t differs"
         print(f"{name}, {parts} grids: {int(ref.hit.sum())} hits, {len(diff.tie)} ties")
+    # two-level grids, alone and beside a uniform one (whose GridArrays then carry empty leaf arrays)
+    for kinds in (("two_level",), ("two_level", "uniform"), ("uniform", "two_level", "uniform")):
+        grids, ids, origin = split_scene(tris, len(kinds), kinds=kinds)
+        assert all(g.leaf_first is not None for g in grids)
+        assert [len(g.leaf_first) > 0 for g in grids] == [k == "two_level" for k in kinds]
+        for kernel in (_dda, _packets):
+            tri, t = trace(kernel, grids, ids, origin, o, d, tmax, False)
+            diff = R.compare_hits(t, tri, ref)
+            assert len(diff.bad) == 0, f"{name}, grids {kinds}, {kernel.__name__}: rays {diff.bad[:10]} disagree"
+
+
+def _defined_functions(llvm_ir):
+    """The names of the functions an LLVM module defines."""
+    return [line.split("@", 1)[1].split("(", 1)[0] for line in llvm_ir.splitlines() if line.startswith("define ")]
+
+
+def test_uniform_grids_compile_no_two_level_code():
+    """A kernel given only uniform grids holds none of the two-level traversal: GridArrays without
+    leaf arrays are a numba type of their own, and the two-level calls are overloads that compile
+    to nothing for it.  Checked on the machine code's LLVM module of a fresh (uncached) compile of
+    trace_grids: the two-level DDA's function is defined in it only for grids that carry leaves."""
+    tris = random_triangles(np.random.default_rng(4), 200)
+    uni, _, _ = split_scene(tris, 2)
+    mixed, _, _ = split_scene(tris, 2, kinds=("two_level", "uniform"))
+    assert uni[0].leaf_first is None and mixed[1].leaf_first is not None
+    assert not carries_leaves(typeof(uni[0])) and carries_leaves(typeof(mixed[1]))
+    fresh = njit(_dda.py_func)  # no cache: compiled here, with its callees linked into its module
+    o, d = rays(tris, 8)
+    tmax = np.full(len(o), np.inf)
+    for grids, two in ((uni, False), (mixed, True)):
+        w, f, t = np.empty(8, np.int64), np.empty(8, np.int64), np.empty(8)
+        fresh(grids, o, d, tmax, False, w, f, t)
+        sig = fresh.signatures[-1]
+        names = _defined_functions(fresh.inspect_llvm(sig))
+        assert any("trace_ray" in n for n in names), "the traversal should be in the kernel's module"
+        assert any("trace_ray_2l" in n for n in names) == two, \
+            f"grids {'with' if two else 'without'} leaf arrays: trace_ray_2l {'missing' if two else 'compiled in'}"
 
 
 @pytest.mark.parametrize("kernel", [_dda, _packets], ids=["dda", "packets"])

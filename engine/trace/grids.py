@@ -17,6 +17,7 @@ inside it).  Both are resolved at compile time into plain tuple element moves.
 from collections import namedtuple
 
 import numpy as np
+from numba import types
 from numba.extending import overload
 
 #: One grid and its triangles, as the kernels take it (see gridrt.grid.layout for the arrays):
@@ -25,8 +26,11 @@ from numba.extending import overload
 #: uint8; ids (F,) int32, the scene's id of each triangle, or empty when the grid's triangle
 #: indices are the scene's.  A two-level grid (gridrt.grid.two_level) is the same value: lo..dims,
 #: macro (1), mdims and macro_full describe its top level, cell_start and tri_ids its leaf cells,
-#: and leaf_first (T+1,) int32, leaf_res (T,3) int32 where each top cell's leaf cells are; a
-#: uniform grid has both empty (leaf_first of size 0), which is how kernels tell the two apart.
+#: and leaf_first (T+1,) int32, leaf_res (T,3) int32 where each top cell's leaf cells are.
+#: A uniform grid has leaf_first = leaf_res = None, a numba type of its own, so that kernels given
+#: only uniform grids compile none of the two-level code (:func:`carries_leaves`); beside a two-level
+#: grid in one tuple it has both empty instead (leaf_first of size 0), which is how kernels tell the
+#: two apart at run time.
 GridArrays = namedtuple(
     "GridArrays", "tris lo hi cell inv_cell dims cell_start tri_ids macro mdims macro_full ids leaf_first leaf_res")
 NFIELDS = len(GridArrays._fields)
@@ -35,17 +39,70 @@ NO_LEAVES = np.zeros(0, np.int32)
 NO_RES = np.zeros((0, 3), np.int32)
 
 
-def grid_arrays(grid, tris, ids=None):
+def grid_arrays(grid, tris, ids=None, leaves=None):
     """The :class:`GridArrays` of a built ``grid`` over its own (F,3,3) float32 ``tris`` (checked by
-    the caller), with scene ids ``ids`` ((F,) int32, checked by the caller; None: none)."""
+    the caller), with scene ids ``ids`` ((F,) int32, checked by the caller; None: none).  ``leaves``:
+    whether it carries leaf arrays (empty ones for a uniform grid); None: when the grid is two-level.
+    The grids of one tuple share one setting (:func:`grid_tuple`)."""
     s = grid.spec
     c = np.ascontiguousarray
+    two = grid.kind == "two_level"
+    if leaves is None:
+        leaves = two
+    elif two and not leaves:
+        raise ValueError("a two-level grid's GridArrays carry its leaf arrays")
+    if two:
+        leaf = (c(grid.leaf_first, np.int32), c(grid.leaf_res, np.int32))
+    else:
+        leaf = (NO_LEAVES, NO_RES) if leaves else (None, None)
     return GridArrays(
         c(tris, np.float32), c(s.lo, np.float64), c(s.hi, np.float64), c(s.cell, np.float64),
         c(s.inv_cell, np.float64), c(s.dims, np.int64), c(grid.cell_start, np.int32), c(grid.tri_ids, np.int32),
         int(s.macro), c(s.mdims, np.int64), c(grid.macro_full, np.uint8), NO_IDS if ids is None else c(ids, np.int32),
-        *((c(grid.leaf_first, np.int32), c(grid.leaf_res, np.int32)) if grid.kind == "two_level"
-          else (NO_LEAVES, NO_RES)))
+        *leaf)
+
+
+def grid_tuple(*parts):
+    """The tuple of :class:`GridArrays` of ``parts``, each (grid, tris, ids) as grid_arrays takes
+    them: with leaf arrays in every one when any grid is two-level (one numba type for all)."""
+    leaves = any(grid.kind == "two_level" for grid, _, _ in parts)
+    return tuple(grid_arrays(grid, tris, ids, leaves) for grid, tris, ids in parts)
+
+
+def carries_leaves(gty):
+    """(for overloads) Whether the numba type ``gty`` of a :class:`GridArrays` carries leaf arrays:
+    False for uniform grids alone, whose kernels then hold no two-level code."""
+    return not isinstance(gty.types[gty.fields.index("leaf_first")], types.NoneType)
+
+
+def is_two_level(g):
+    """(kernels only) Whether the grid g is two-level: False at compile time for a uniform grid
+    without leaf arrays.  The two-level code a kernel reaches under it goes through overloads
+    that compile to nothing for such grids (:func:`carries_leaves`)."""
+    raise NotImplementedError("is_two_level is only callable from numba kernels")
+
+
+@overload(is_two_level, inline="always")
+def _is_two_level(g):
+    if not carries_leaves(g):
+        return lambda g: False
+    return lambda g: g.leaf_first.shape[0] > 0
+
+
+def with_leaves_only(name, params, call, without):
+    """A kernel-only function ``name(params)`` (``params`` its argument names, the grid ``g`` first)
+    that returns ``call(params)`` (an njit function) for grids whose numba type carries leaf arrays,
+    and the constant ``without`` for the others, a value that :func:`is_two_level` never lets a
+    kernel use: kernels given only uniform grids compile none of ``call``.  Inlined at numba's IR
+    level."""
+    ns = {"call": call, "without": without, "carries_leaves": carries_leaves}
+    exec(  # noqa: S102  (source generated here from the caller's fixed argument names)
+        f"def {name}({params}):\n    raise NotImplementedError('{name} is only callable from numba kernels')\n"
+        f"def with_leaves({params}):\n    return call({params})\n"
+        f"def without_leaves({params}):\n    return without\n"
+        f"def select({params}):\n    return with_leaves if carries_leaves(g) else without_leaves\n", ns)
+    overload(ns[name], inline="always")(ns["select"])
+    return ns[name]
 
 
 def pack_grids(grids):

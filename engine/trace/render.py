@@ -46,7 +46,7 @@ from .traverse import MAILBOX, trace_grids
 from .twin import TWINS
 from ..camera import Camera, pixel_dir
 from .cgt.frame import cgt_render_kernel, cgt_render_serial
-from .grids import grid_arrays, pack_grids, unpack_grids
+from .grids import grid_arrays, grid_tuple, pack_grids, unpack_grids
 from .material import add_light, compose, light_rays, shade_kernel, shade_serial, surface_arrays
 from .records import Buffers, HitPoints, ShadowRays, make_packets, make_shading, make_view
 from .shade import (  # noqa: F401  (the shading constants stay importable from here)
@@ -410,7 +410,7 @@ class Renderer:
             ids_b = np.ascontiguousarray(ids_b, np.int32)
             if ids_a.shape != (len(tris),) or ids_b.shape != (len(tris_b),):
                 raise InputError("triangle id maps must have one entry per triangle of each grid")
-            grids = (grid_arrays(grid, tris, ids_a), grid_arrays(grid_b, tris_b, ids_b))
+            grids = grid_tuple((grid, tris, ids_a), (grid_b, tris_b, ids_b))
             lo_s = np.minimum(grid.spec.scene_lo, grid_b.spec.scene_lo)
             hi_s = np.maximum(grid.spec.scene_hi, grid_b.spec.scene_hi)
         else:

@@ -33,6 +33,7 @@ import numpy as np
 from numba import njit
 
 from ..grid.two_level import leaf_axis
+from .grids import is_two_level, with_leaves_only
 from .intersect import intersect_fast, intersect_watertight, ray_shear
 from .prefetch import _prefetch_tri
 from .query import Ray, Shear
@@ -382,8 +383,8 @@ def trace_ray(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
 @njit(cache=True, _nrt=False, inline="always")
 def _trace_near(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
     """:func:`trace_ray` from the origin as it is."""
-    if g.leaf_first.shape[0] > 0:
-        return trace_ray_2l(g, o, d, tmin, tmax, watertight, any_hit, mailbox)
+    if is_two_level(g):
+        return _trace_2l(g, o, d, tmin, tmax, watertight, any_hit, mailbox)
     tris, lo, hi, cell, inv_cell, dims = g.tris, g.lo, g.hi, g.cell, g.inv_cell, g.dims
     cell_start, tri_ids, macro, mdims, macro_full = g.cell_start, g.tri_ids, g.macro, g.mdims, g.macro_full
     t0, t1 = _clip_box(lo, hi, o, d, tmin, tmax)
@@ -546,6 +547,12 @@ def trace_ray_2l(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
             break
         t_in = te
     return _result(best_f, best_t, best_u, best_v, cells, tests)
+
+
+#: (kernels only) :func:`trace_ray_2l`, compiled only for grids that carry leaf arrays (for the
+#: others, a miss that is_two_level never lets run)
+_trace_2l = with_leaves_only("_trace_2l", "g, o, d, tmin, tmax, watertight, any_hit, mailbox", trace_ray_2l,
+                             (-1, np.inf, 0.0, 0.0, 0, 0))
 
 
 @njit(cache=True)

@@ -8,6 +8,7 @@ import numpy as np
 from numba import njit
 
 from ...grid.two_level import _leaf_range, leaf_axis
+from ..grids import is_two_level, with_leaves_only
 from ..prefetch import _prefetch_tri
 from ..traverse import MOVED, NEAR, _floor_clamp, far_interval, far_shift, far_t, is_far, trace_ray
 from .profile import (C_CELLS, C_PACKETS, C_SLICES, C_TESTS, P_CELLS, P_FALLBACK, P_MACRO, P_RETIRE, P_SETUP, P_SLICE,
@@ -34,9 +35,10 @@ EPS_CELL = 1e-5
 EPS32 = 1e-6
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, inline="always")
 def _trace_singly(g, S, na, io, tmin, watertight, any_hit, mb1):
-    """The single-ray fallback of an incoherent packet: each active ray through trace_ray."""
+    """The single-ray fallback of an incoherent packet: each active ray through trace_ray (inlined
+    into its one caller at numba's IR level, so trace_ray's code is optimised once less)."""
     for a in range(na):
         j = int(S[O_J + a])
         f, t, u, v, nc, nt = trace_ray(
@@ -252,22 +254,24 @@ def _trace_rows_singly(g, n, io, tmin, watertight, any_hit, mb1):
         io[IO_NC * PN + j] = nc
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@njit(cache=True, _nrt=False, error_model="numpy", inline="always")
 def trace_packet(g, n, io, q, S, mb, mb1, max_cells=np.inf, prof=None):
     """:func:`_trace_packet`, with rays from far outside the grid traced from just before its box
     as trace_ray traces them (:func:`gridrt.trace.traverse.far_shift`; with q.tmin > 0 such a
     packet's rays go one by one through trace_ray, or with a finite max_cells it returns -1).
-    io's input rows are as they were on return."""
-    if _move_far(g, n, io) == 0:
-        return _trace_packet(g, n, io, q, S, mb, mb1, max_cells, prof)
-    if q.tmin > 0.0:  # (the packet's rays share tmin; moved rays' would differ)
+    io's input rows are as they were on return.  Inlined into its callers at numba's IR level
+    (it is small), so that the call tree below it is optimised and compiled to machine code once
+    less."""
+    moved = _move_far(g, n, io) != 0
+    if moved and q.tmin > 0.0:  # (the packet's rays share tmin; moved rays' would differ)
         _restore_far(n, io, False)
         if max_cells < np.inf:
             return -1
         _trace_rows_singly(g, n, io, q.tmin, q.watertight, q.any_hit, mb1)
         return n
     r = _trace_packet(g, n, io, q, S, mb, mb1, max_cells, prof)
-    _restore_far(n, io, r >= 0)
+    if moved:
+        _restore_far(n, io, r >= 0)
     return r
 
 
@@ -351,14 +355,16 @@ def _trace_packet(g, n, io, q, S, mb, mb1, max_cells, prof):
         # reference plane, or at the far end of its K range when nearer; in a two-level grid, in
         # leaf cells of the top cell the packet starts in (top cells when that one is empty)
         hK, iU, iV = cK, icU, icV
-        if g.leaf_first.shape[0] > 0:
+        if is_two_level(g):
             tc = (_floor_clamp((ref[0] - lo[0]) * inv_cell[0], dims[0]) + dims[0] * (
                 _floor_clamp((ref[1] - lo[1]) * inv_cell[1], dims[1])
                 + dims[1] * _floor_clamp((ref[2] - lo[2]) * inv_cell[2], dims[2])))
             if g.macro_full[tc] != 0:
-                hK /= g.leaf_res[tc, K]
-                iU *= g.leaf_res[tc, U]
-                iV *= g.leaf_res[tc, V]
+                rx, ry, rz = _leaf_res_at(g, tc)
+                r = (rx, ry, rz)
+                hK /= r[K]
+                iU *= r[U]
+                iV *= r[V]
         h = min(xhi - xlo, HORIZON * hK) * side
         ulo, uhi, vlo, vhi = _extent((cu0, cu1, cv0, cv1, su0, su1, sv0, sv1), h - hK * side, h, (eU, eV))
         if ((uhi - ulo) * iU + 1.0) * ((vhi - vlo) * iV + 1.0) > max_cells:
@@ -371,9 +377,9 @@ def _trace_packet(g, n, io, q, S, mb, mb1, max_cells, prof):
     for s in range(mb.shape[0]):
         mb[s] = -1
     xa = loK + (k if sK > 0 else k + 1) * cK
-    if g.leaf_first.shape[0] > 0:
+    if is_two_level(g):
         _lap(prof, P_SETUP, t)
-        _walk_2l(g, pk, na, (U, V, K), (sK, k, xa), (xr, side), (cu0, cu1, cv0, cv1, su0, su1, sv0, sv1), (eU, eV))
+        _walk_two_level(g, pk, na, (U, V, K), (sK, k, xa), (xr, side), (cu0, cu1, cv0, cv1, su0, su1, sv0, sv1), (eU, eV))
         return 0
     tests = 0
     cells = 0
@@ -560,7 +566,7 @@ def _walk_2l(g, pk, na, axes, start, plane, bounds, grow):
                         ju0, ju1, jv0, jv1 = _cells_of(box, sloU, iscU, rU, sloV, iscV, rV)
                         span = (q0 + jk * lK, lU, lV, ju0, ju1, jv0, jv1)
                         _prefetch_slice(g, span)
-                        nc, nt, nh = _test_slice(g, span, axes, box, planes, pk, na)
+                        nc, nt, nh = _test_slice(g, span, axes, box, planes, pk, na, None)
                         cells += nc
                         tests += nt
                         pending += nh
@@ -581,6 +587,18 @@ def _walk_2l(g, pk, na, axes, start, plane, bounds, grow):
         k += sK
     for a in range(na):
         _finish(pk, a, (tests, cells))
+
+
+@njit(cache=True, inline="always")
+def _leaf_res(g, tc):
+    """The leaf resolution of top cell tc of the two-level grid g."""
+    return g.leaf_res[tc, 0], g.leaf_res[tc, 1], g.leaf_res[tc, 2]
+
+
+#: (kernels only) :func:`_leaf_res` and :func:`_walk_2l`, compiled only for grids that carry leaf
+#: arrays (for the others, a constant that is_two_level never lets a kernel use)
+_leaf_res_at = with_leaves_only("_leaf_res_at", "g, tc", _leaf_res, (np.int32(1), np.int32(1), np.int32(1)))
+_walk_two_level = with_leaves_only("_walk_two_level", "g, pk, na, axes, start, plane, bounds, grow", _walk_2l, None)
 
 
 @njit(cache=True, _nrt=False, error_model="numpy", inline="always")
