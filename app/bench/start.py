@@ -27,7 +27,7 @@ from .machine import finish_machine, machine_info
 from .output import md_table, out_dir, progress, write_csv, write_json, write_summary
 
 #: the cold start's aim (seconds of wall time to the first frame) and the warm start's
-COLD_AIM_S = 15.0
+COLD_AIM_S = 10.0
 WARM_AIM_S = 0.8
 _COMPILED = re.compile(r"gridrt: compiled (\d+)/(\d+) kernels in ([\d.]+) s")
 
