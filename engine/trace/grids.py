@@ -95,7 +95,7 @@ def with_leaves_only(name, params, call, without):
     and the constant ``without`` for the others, a value that :func:`is_two_level` never lets a
     kernel use: kernels given only uniform grids compile none of ``call``.  Inlined at numba's IR
     level."""
-    ns = {"call": call, "without": without, "carries_leaves": carries_leaves}
+    ns = {"__name__": __name__, "call": call, "without": without, "carries_leaves": carries_leaves}
     exec(  # noqa: S102  (source generated here from the caller's fixed argument names)
         f"def {name}({params}):\n    raise NotImplementedError('{name} is only callable from numba kernels')\n"
         f"def with_leaves({params}):\n    return call({params})\n"
