@@ -26,6 +26,7 @@ from gridrt.app.bench.stats import timings
 from gridrt.config import GridParams
 from gridrt.grid.build import GridBuilder
 from gridrt.trace.render import cast_batch
+from tables import add_out_option, keep_output
 
 #: the table's scenes, and their labels in it
 SCENES = {"icosphere:81920:twist": "icosphere 82k twisted", "icosphere:1310720:twist": "icosphere 1.3M twisted"}
@@ -38,6 +39,7 @@ def parse_args():
     p.add_argument("--size", type=int, default=DEFAULTS["size"], help="size x size rays (default: the table's, 512)")
     p.add_argument("--runs", type=int, default=DEFAULTS["runs"], help="timed casts a cell, after one untimed (default: the table's, 3)")
     p.add_argument("--threads", default=DEFAULTS["threads"], help="thread counts, comma-separated (default: the table's, 1,2)")
+    add_out_option(p)
     return p.parse_args()
 
 
@@ -65,6 +67,7 @@ def mrays(n, ms):
 
 def main():
     a = parse_args()
+    keep_output(a.out)
     threads = [int(x) for x in a.threads.split(",") if x.strip()]
     for name in ("size", "runs", "threads"):
         given = getattr(a, name) != DEFAULTS[name]

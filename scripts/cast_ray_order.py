@@ -26,7 +26,7 @@ from gridrt.app.bench.stats import timings
 from gridrt.config import GridParams
 from gridrt.trace.batch import tile_order
 
-from tables import add_ray_options, items, print_settings, scene_label
+from tables import add_out_option, add_ray_options, items, keep_output, print_settings, scene_label
 
 #: the table's scenes and views (section 13: ``bench peers``' scenes and its camera views)
 SCENES = "cesium,lucy:twist,icosphere:1310720:twist"
@@ -59,7 +59,9 @@ def measure(caster, o, d, idx, runs):
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     add_ray_options(p, SCENES, VIEWS, SIZE, RUNS, "camera views", "timed casts")
+    add_out_option(p)
     a = p.parse_args(argv)
+    keep_output(a.out)
     scenes, views = items(a.scenes), items(a.views)
     print_settings(p, a)
     print(f"fixed: {FIXED}")

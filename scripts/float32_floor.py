@@ -25,6 +25,7 @@ from gridrt.frame import FrameSpec, ViewSpec
 from gridrt.pipeline import FramePipeline
 from gridrt.precision import PrecisionWarning, detail_steps
 from gridrt.scene import Mesh, StaticMesh, load_mesh
+from tables import add_out_option, keep_output
 
 #: the table's ratios D / teapot size
 RATIOS = "10,100,1000,10000,100000,300000,1000000,10000000"
@@ -36,6 +37,7 @@ def parse_args():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--ratios", default=RATIOS, help=f"comma-separated D / teapot size (default: the table's, {RATIOS})")
     p.add_argument("--size", default="160x120", help="image WxH (default: the table's, 160x120)")
+    add_out_option(p)
     return p.parse_args()
 
 
@@ -89,6 +91,7 @@ def view_of(lo, hi, dist=1.3):
 
 def main():
     a = parse_args()
+    keep_output(a.out)
     W, H = (int(x) for x in a.size.lower().split("x"))
     ratios = [float(x) for x in a.ratios.split(",") if x.strip()]
     path = data_path("teapot")

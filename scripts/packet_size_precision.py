@@ -26,6 +26,7 @@ from gridrt.app.bench.stats import stat
 from gridrt.config import PACKET_PRECISIONS, RenderParams
 from gridrt.grid.build import GridBuilder
 from gridrt.trace.render import Renderer
+from tables import add_out_option, keep_output
 
 #: the table's scenes, and their labels in it
 SCENES = {"lucy:twist": "Lucy 100k", "icosphere:1310720:twist": "icosphere 1.3M"}
@@ -41,6 +42,7 @@ def parse_args():
     p.add_argument("--size", type=int, default=DEFAULTS["size"], help="size x size images (default: the table's, 1024)")
     p.add_argument("--renders", type=int, default=DEFAULTS["renders"],
                    help=f"timed renders of each setting a round, {ROUNDS} rounds (default: the table's, 5)")
+    add_out_option(p)
     return p.parse_args()
 
 
@@ -75,6 +77,7 @@ def bold_where_least(cells, values):
 
 def main():
     a = parse_args()
+    keep_output(a.out)
     for name in ("size", "renders"):
         given = getattr(a, name) != DEFAULTS[name]
         print(f"# {name}: {getattr(a, name)} ({'--' + name if given else 'default, the table'}'s); rounds: {ROUNDS}")

@@ -27,7 +27,7 @@ from gridrt.trace.grids import grid_arrays
 from gridrt.trace.traverse import MAILBOX, trace_ray
 from numba import njit
 
-from tables import add_ray_options, items, print_settings, scene_label
+from tables import add_out_option, add_ray_options, items, keep_output, print_settings, scene_label
 
 #: the table's scenes and ray sets (section 13: the ``bench peers`` scenes and views)
 SCENES = "cesium,icosphere:20480:twist,lucy:twist,icosphere:1310720:twist"
@@ -67,7 +67,9 @@ def measure(sc, g, view, size, runs):
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     add_ray_options(p, SCENES, VIEWS, SIZE, RUNS, "ray sets", "timed runs")
+    add_out_option(p)
     a = p.parse_args(argv)
+    keep_output(a.out)
     scenes, views = items(a.scenes), items(a.views)
     print_settings(p, a)
     print(f"fixed: {FIXED}")

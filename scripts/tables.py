@@ -1,8 +1,18 @@
 """What the table scripts of this folder share: the names BENCHMARKS.md's tables give scenes, the
-print-out of a script's settings, and the common scene, view, size and runs options.
+print-out of a script's settings, the common scene, view, size and runs options, and --out (what a
+script prints, kept in a folder with the machine record, as the bench commands keep theirs).
 
 The scripts import it as ``tables`` (their own folder is first on ``sys.path`` when run as
 ``python scripts/NAME.py``)."""
+
+import atexit
+import io
+import shlex
+import sys
+from pathlib import Path
+
+from gridrt.app.bench.machine import finish_machine, machine_info
+from gridrt.app.bench.output import out_dir, write_json, write_summary
 
 #: names the tables give the scenes of the development data set
 NAMES = {"cesium": "Cesium Man", "lucy": "Lucy"}
@@ -33,3 +43,56 @@ def add_ray_options(p, scenes, views, size, runs, what_views, what_runs):
     p.add_argument("--views", default=views, help=f"comma-separated {what_views} of bench peers (default: %(default)s)")
     p.add_argument("--size", type=int, default=size, help=f"size x size rays (default {size}, the table's)")
     p.add_argument("--runs", type=int, default=runs, help=f"{what_runs}, the best kept (default {runs}, the table's)")
+
+
+def add_out_option(p):
+    """--out: the folder where the script keeps what it prints (:func:`keep_output`)."""
+    p.add_argument("--out", default=None, help="also write what the script prints into OUT/summary.md, under the "
+                   "machine record, and the machine record into OUT/machine.json (as the bench commands' --out)")
+
+
+class _Tee(io.TextIOBase):
+    """Writes to both streams."""
+
+    def __init__(self, first, second):
+        self.first, self.second = first, second
+
+    def write(self, text):
+        self.second.write(text)
+        return self.first.write(text)
+
+    def flush(self):
+        self.first.flush()
+
+
+def keep_output(out):
+    """From here on, what the script prints also goes into ``out``/summary.md (under the machine
+    record: date, CPU, load, versions, commit and this command line), written with
+    ``out``/machine.json when the script ends without an uncaught exception.  None: nothing kept."""
+    if not out:
+        return
+    folder = out_dir(out)
+    info = machine_info([])
+    info["command"] = "python " + " ".join(shlex.quote(x) for x in sys.argv)
+    printed = io.StringIO()
+    stdout = sys.stdout
+    sys.stdout = _Tee(stdout, printed)
+    failed = []
+    hook = sys.excepthook
+
+    def on_error(*exc):
+        failed.append(exc)
+        hook(*exc)
+
+    def write():
+        sys.stdout = stdout
+        if failed:
+            return
+        done = finish_machine(info)
+        write_json(done, folder / "machine.json")
+        write_summary(folder / "summary.md", f"scripts/{Path(sys.argv[0]).name}", done,
+                      [("Output", printed.getvalue().rstrip("\n").split("\n"))])
+        print(f"wrote {folder}/summary.md, machine.json")
+
+    sys.excepthook = on_error
+    atexit.register(write)

@@ -27,7 +27,7 @@ from gridrt.errors import InputError
 from gridrt.frame import FrameSpec, ViewSpec
 from gridrt.pipeline import FramePipeline
 
-from tables import print_settings
+from tables import add_out_option, keep_output, print_settings
 
 #: the table's scenes, each with its static/moving split on or off (section 14)
 SCENES = "kitchen:on,robots:off"
@@ -87,7 +87,9 @@ def main(argv=None):
     p.add_argument("--strategy", default=STRATEGY, help=f"build strategy (default {STRATEGY}, the table's)")
     p.add_argument("--runs", type=int, default=RUNS, help=f"timed frames, medians (default {RUNS}, the table's)")
     p.add_argument("--warmup", type=int, default=WARMUP, help=f"untimed frames first (default {WARMUP}, the table's)")
+    add_out_option(p)
     a = p.parse_args(argv)
+    keep_output(a.out)
     scenes = [s.strip().rsplit(":", 1) for s in a.scenes.split(",") if s.strip()]
     if any(len(s) != 2 or s[1] not in ("on", "off") for s in scenes):
         p.error(f"--scenes: each item is SPEC:on or SPEC:off, got {a.scenes!r}")

@@ -4,11 +4,12 @@ markdown table whose header and row labels are those of its table in BENCHMARKS.
 script's name on the table's source line).  The figures are timings: only their form is checked.
 """
 
+import json
 import re
 
 import pytest
 
-from helpers.scripts import NUMBER, doc_table, needs, run_script
+from helpers.scripts import NUMBER, REPO, doc_table, first_table, needs, run_script
 
 
 def without_hit(label):
@@ -41,6 +42,23 @@ def cesium(label):
 def test_single_ray_dda_prints_its_table_shipped_scene():
     """Its Cesium Man rows alone (the scene assets/ ships: runs in a clone without the data set)."""
     check_table("single_ray_dda.py", ["--size", "16", "--runs", "1", "--scenes", "cesium"], cesium, without_hit)
+
+
+@needs("cesium")
+def test_a_script_keeps_what_it_prints_with_out(tmp_path):
+    """--out keeps the printed table in OUT/summary.md (what BENCHMARKS.md's tables are checked
+    against) under the machine record, and OUT/machine.json names the command line."""
+    out = tmp_path / "kept"
+    printed = []
+    args = ["--size", "16", "--runs", "1", "--scenes", "cesium", "--out", str(out)]
+    header, rows = run_script("single_ray_dda.py", *args, printed=printed)
+    assert f"wrote {out}/summary.md, machine.json" in printed[0]
+    summary = (out / "summary.md").read_text(encoding="utf-8").split("\n")
+    assert summary[0] == "# scripts/single_ray_dda.py" and "## Machine" in summary
+    assert first_table(summary[summary.index("## Output"):])[:2] == (header, rows)
+    machine = json.loads((out / "machine.json").read_text(encoding="utf-8"))
+    assert machine["command"].split() == ["python", str(REPO / "scripts" / "single_ray_dda.py"), *args]
+    assert machine["cpu"] and machine["date"][:4].isdigit()
 
 
 @needs("cesium", "lucy")

@@ -32,16 +32,20 @@ def first_table(lines):
 def doc_table(script):
     """(header, rows) of the BENCHMARKS.md table whose source line's command runs scripts/<script>."""
     lines = BENCHMARKS.read_text(encoding="utf-8").split("\n")
-    at = [i for i, ln in enumerate(lines) if ln.startswith("*Measured:*") and f"python scripts/{script}`" in ln]
+    at = [i for i, ln in enumerate(lines) if ln.startswith("*Measured:*")
+          and re.search(rf"python scripts/{re.escape(script)}[` ]", ln)]
     assert len(at) == 1, f"BENCHMARKS.md has {len(at)} source lines running scripts/{script}"
     return first_table(lines[at[0] + 1:])[:2]
 
 
-def run_script(script, *args, timeout=600):
-    """(header, rows) of the one markdown table scripts/<script> prints with ``args``; exit code 0."""
+def run_script(script, *args, timeout=600, printed=None):
+    """(header, rows) of the one markdown table scripts/<script> prints with ``args``; exit code 0.
+    ``printed``: a list that gets the script's standard output."""
     p = subprocess.run([sys.executable, str(REPO / "scripts" / script), *args], cwd=REPO, capture_output=True,
                        text=True, timeout=timeout)
     assert p.returncode == 0, p.stderr[-3000:]
+    if printed is not None:
+        printed.append(p.stdout)
     header, rows, rest = first_table(p.stdout.split("\n"))
     assert not any(ln.startswith("|") for ln in rest), p.stdout
     return header, rows
