@@ -316,6 +316,34 @@ def test_bench_peers_quick(tmp_path, monkeypatch):
 
 
 
+def test_peers_side_by_side_table_derives_its_ratios():
+    """The all-engines table of bench peers' summary (the one BENCHMARKS.md's peers tables are made
+    of), on made-up rows: static ratios against Embree robust and the best peer, and the dynamic
+    frame of the best peer, Embree's without its upload, against gridrt's (no peer needs to be
+    installed)."""
+    from types import SimpleNamespace
+
+    from gridrt.app.bench.peers import _side_by_side
+
+    fast = SimpleNamespace(name="embree_fast", label="Embree (fast)")
+    o3d = SimpleNamespace(name="open3d", label="Open3D")
+    row = dict(scene="s [fill]", threads=2, hit_fraction=0.5, o_mrays=10.0, o_mrays_cgt=30.0, e_mrays=8.0,
+               embree_fast_mrays=12.0, open3d_mrays=6.0, o_build_ms=5.0, o_render_cgt_ms=35.0, o_frame_cgt_ms=40.0,
+               e_frame_ms=200.0, e_frame_noupload_ms=100.0, embree_fast_frame_ms=150.0, embree_fast_upload_ms=90.0,
+               open3d_frame_ms=120.0)
+    random_rays = dict(row, scene="s [random]", o_mrays=1.0, e_mrays=4.0)
+    del random_rays["o_mrays_cgt"], random_rays["o_frame_cgt_ms"]
+    body = _side_by_side([row, random_rays], SimpleNamespace(robust=True), [fast, o3d])
+    tables = [ln for ln in body if ln.startswith("| s [")]
+    cells = [[c.strip() for c in ln.strip("|").split("|")] for ln in tables]
+    # static: 10 / 8 against Embree robust; CGT 30 against the best peer, Embree fast's 12
+    assert cells[0] == ["s [fill]", "2", "0.50", "10.00", "30.00", "8.00", "12.00", "6.00", "1.25", "2.50"]
+    assert cells[1] == ["s [random]", "2", "0.50", "1.00", "-", "4.00", "12.00", "6.00", "0.25", "-"]
+    # dynamic: the best peer is Embree fast without its upload, 150 - 90 = 60 ms, against gridrt's 40
+    assert cells[2] == ["s [fill]", "2", "5.0 + 35.0 = 40.0", "200.0 (100.0)", "150.0 (60.0)", "120.0", "1.5x", "25"]
+    assert len(cells) == 3  # no frame row without a CGT render
+
+
 def test_bench_peers_without_embreex(tmp_path, monkeypatch, capsys):
     """Embree is an optional extra like the others: without embreex the run goes on (gridrt and
     whichever other peers are installed) and says how to install it."""

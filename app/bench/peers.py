@@ -360,6 +360,8 @@ def _write(rows, out, info, emb, runs, warmup, affinity_ok, note, others=(), abs
     body = (_summary(rows, emb, runs, warmup, affinity_ok) if emb is not None else _gridrt_summary(rows, runs, warmup))
     body += _grid_summary(rows)
     body += _others_summary(rows, others, absent)
+    if emb is not None and others:
+        body += _side_by_side(rows, emb, others)
     if note:
         body += ["", f"Note: {note}."]
     write_summary(out / "summary.md", "gridrt bench peers: gridrt against " + ("Embree and " if emb is not None else "")
@@ -494,6 +496,49 @@ def _others_summary(rows, others, absent):
                           "gridrt cast Mrays/s", "gridrt CGT Mrays/s", "peer frame / gridrt frame", "agree"], table)
     for line in absent:
         body += ["", f"Not measured: {line}."]
+    return body
+
+
+def _side_by_side(rows, emb, others):
+    """Every engine in one row per scene and thread count: static Mrays/s (gridrt's against Embree
+    robust and against the best peer) and the dynamic frame (gridrt's build + CGT render against the
+    best peer's frame, Embree's without embreex's Python-level upload)."""
+    labels = [p.label for p in others]
+    main = "Embree (robust)" if emb.robust else "Embree (fast)"
+    static, frames = [], []
+    for r in rows:
+        peers = {main: r["e_mrays"], **{p.label: r[f"{p.name}_mrays"] for p in others}}
+        best = max(peers.values())
+        cgt = r.get("o_mrays_cgt")
+        static.append([_name(r, rows), r["threads"], f"{r['hit_fraction']:.2f}", f"{r['o_mrays']:.2f}",
+                       f"{cgt:.2f}" if cgt else "-", *(f"{v:.2f}" for v in peers.values()),
+                       f"{r['o_mrays'] / r['e_mrays']:.2f}", f"{cgt / best:.2f}" if cgt else "-"])
+        if "o_frame_cgt_ms" not in r:
+            continue
+        bare = {main: r["e_frame_noupload_ms"]}
+        cells = [f"{r['e_frame_ms']:.1f} ({r['e_frame_noupload_ms']:.1f})"]
+        for p in others:
+            full = r[f"{p.name}_frame_ms"]
+            if p.name.startswith("embree"):
+                bare[p.label] = full - r[f"{p.name}_upload_ms"]
+                cells.append(f"{full:.1f} ({bare[p.label]:.1f})")
+            else:
+                bare[p.label] = full
+                cells.append(f"{full:.1f}")
+        ours = r["o_frame_cgt_ms"]
+        frames.append([_name(r, rows), r["threads"], f"{r['o_build_ms']:.1f} + {r['o_render_cgt_ms']:.1f} = {ours:.1f}",
+                       *cells, f"{min(bare.values()) / ours:.1f}x", f"{1e3 / ours:.0f}"])
+    body = ["", "All engines side by side.  Static cast, Mrays/s (best peer: the fastest of the peers, both of "
+            "Embree's scene flags included):", ""]
+    body += md_table(["scene", "threads", "hit", "gridrt cast_rays", "gridrt CGT render", main, *labels,
+                      f"cast_rays / {main}", "CGT / best peer"], static)
+    if frames:
+        body += ["", "Dynamic frames, ms (gridrt: build + CGT render; the peers: upload + build + cast of the same "
+                 "rays, and in brackets Embree's without embreex's Python-level upload); best peer / gridrt: the best "
+                 "peer's frame, Embree's without upload, over gridrt's:", ""]
+        body += md_table(["scene", "threads", "gridrt build + CGT render", f"{main} frame (without upload)",
+                          *(f"{x} frame" + (" (without upload)" if p.name.startswith("embree") else "")
+                            for x, p in zip(labels, others)), "best peer / gridrt", "gridrt fps"], frames)
     return body
 
 
