@@ -105,7 +105,9 @@ class CompileProgress:
     kernel compiled for a new signature), and drops the kernels of a call tree that did not compile
     once that tree is done (branches numba pruned for the argument types, e.g. the shadow path of a
     render without shadows); ``seconds``: since the first compile started.  Only the
-    package's own kernels count (``package``): numba's overload helpers compile as part of them.
+    package's own kernels count (``package``): numba's overload helpers, and the package's own
+    overload implementations (functions defined inside another, or generated into no module),
+    compile as part of them.
     """
 
     def __init__(self, package="gridrt"):
@@ -132,7 +134,8 @@ class CompileProgress:
 
     def _ours(self, kernel):
         module = getattr(kernel.py_func, "__module__", None) or ""  # None for some numba-made functions
-        return module.split(".")[0] == self.package
+        # a function defined inside another (an overload's implementation) compiles as part of its caller
+        return module.split(".")[0] == self.package and "<locals>" not in kernel.py_func.__qualname__
 
     def _start(self, kernel):
         """Returns True when this start is one a display should show (one of our kernels)."""

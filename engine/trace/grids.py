@@ -95,7 +95,9 @@ def with_leaves_only(name, params, call, without):
     and the constant ``without`` for the others, a value that :func:`is_two_level` never lets a
     kernel use: kernels given only uniform grids compile none of ``call``.  Inlined at numba's IR
     level."""
-    ns = {"__name__": __name__, "call": call, "without": without, "carries_leaves": carries_leaves}
+    # (no __name__ in the namespace: the generated functions belong to no module of the package, so
+    # compile progress counts them with their callers, as numba's own overload helpers)
+    ns = {"call": call, "without": without, "carries_leaves": carries_leaves}
     exec(  # noqa: S102  (source generated here from the caller's fixed argument names)
         f"def {name}({params}):\n    raise NotImplementedError('{name} is only callable from numba kernels')\n"
         f"def with_leaves({params}):\n    return call({params})\n"
