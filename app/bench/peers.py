@@ -30,7 +30,6 @@ its install command when absent; app/bench/sides.py) Open3D's RaycastingScene (`
 Mitsuba 3's CPU variant ``llvm_ad_rgb`` (``mitsuba``, ``drjit``).
 """
 
-import math
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -51,7 +50,7 @@ from .machine import finish_machine, machine_info
 from .options import add_dt_arg, add_grid_kind_args, check_frame_args, frame_strategy, grid_kinds, thread_list
 from .output import figure, grid_columns, grid_label, md_table, out_dir, progress, write_csv, write_json, write_summary
 from .scenes import FILL, camera_rays, resolve_scene, scene_list, scenes_help, seen_through
-from .stats import fmt_ms, put_stat
+from .stats import fmt_ms, measured, put_stat
 from .reference import brute_cast
 from .sides import (  # noqa: F401  (INSTALL_HINT)
     INSTALL_HINT, EmbreeFastSide, EmbreeRobustSide, EmbreeSide, MissingPeer, MitsubaSide, Open3DSide,
@@ -500,12 +499,6 @@ def _others_summary(rows, others, absent):
     return body
 
 
-def _measured(r, key):
-    """r[key], or None where the run did not measure it (absent, or NaN: a view without a CGT render)."""
-    v = r.get(key)
-    return None if v is None or math.isnan(v) else v
-
-
 def _side_by_side(rows, emb, others):
     """Every engine in one row per scene and thread count: static Mrays/s (gridrt's against Embree
     robust and against the best peer) and the dynamic frame (gridrt's build + CGT render against the
@@ -516,11 +509,11 @@ def _side_by_side(rows, emb, others):
     for r in rows:
         peers = {main: r["e_mrays"], **{p.label: r[f"{p.name}_mrays"] for p in others}}
         best = max(peers.values())
-        cgt = _measured(r, "o_mrays_cgt")
+        cgt = measured(r, "o_mrays_cgt")
         static.append([_name(r, rows), r["threads"], f"{r['hit_fraction']:.2f}", f"{r['o_mrays']:.2f}",
                        f"{cgt:.2f}" if cgt else "-", *(f"{v:.2f}" for v in peers.values()),
                        f"{r['o_mrays'] / r['e_mrays']:.2f}", f"{cgt / best:.2f}" if cgt else "-"])
-        if _measured(r, "o_frame_cgt_ms") is None:  # no CGT render of these rays (random rays)
+        if measured(r, "o_frame_cgt_ms") is None:  # no CGT render of these rays (random rays)
             continue
         bare = {main: r["e_frame_noupload_ms"]}
         cells = [f"{r['e_frame_ms']:.1f} ({r['e_frame_noupload_ms']:.1f})"]

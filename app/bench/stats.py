@@ -33,10 +33,16 @@ def put_stat(row, key, values):
     return row
 
 
+def measured(row, key):
+    """row[key], or None where the run did not measure it (absent, or NaN)."""
+    m = row.get(key)
+    return None if m is None or (isinstance(m, float) and math.isnan(m)) else m
+
+
 def fmt_ms(row, key, digits=1):
     """'median [min-max]' for a put_stat key."""
-    m = row.get(key)
-    if m is None or (isinstance(m, float) and math.isnan(m)):
+    m = measured(row, key)
+    if m is None:
         return "n/a"
     return f"{m:.{digits}f} [{row[key + '_min']:.{digits}f}-{row[key + '_max']:.{digits}f}]"
 

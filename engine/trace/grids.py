@@ -95,16 +95,16 @@ def with_leaves_only(name, params, call, without):
     and the constant ``without`` for the others, a value that :func:`is_two_level` never lets a
     kernel use: kernels given only uniform grids compile none of ``call``.  Inlined at numba's IR
     level."""
-    # (no __name__ in the namespace: the generated functions belong to no module of the package, so
-    # compile progress counts them with their callers, as numba's own overload helpers)
-    ns = {"call": call, "without": without, "carries_leaves": carries_leaves}
-    exec(  # noqa: S102  (source generated here from the caller's fixed argument names)
-        f"def {name}({params}):\n    raise NotImplementedError('{name} is only callable from numba kernels')\n"
-        f"def with_leaves({params}):\n    return call({params})\n"
-        f"def without_leaves({params}):\n    return without\n"
-        f"def select({params}):\n    return with_leaves if carries_leaves(g) else without_leaves\n", ns)
-    overload(ns[name], inline="always")(ns["select"])
-    return ns[name]
+    # (_compile's namespace has no __name__: the generated functions belong to no module of the
+    # package, so compile progress counts them with their callers, as numba's own overload helpers)
+    stub = _compile(f"def {name}({params}):\n    raise NotImplementedError('{name} is only callable from numba "
+                    "kernels')\n", name)
+    select = _compile(f"def with_leaves({params}):\n    return call({params})\n"
+                      f"def without_leaves({params}):\n    return without\n"
+                      f"def select({params}):\n    return with_leaves if carries_leaves(g) else without_leaves\n",
+                      "select", call=call, without=without, carries_leaves=carries_leaves)
+    overload(stub, inline="always")(select)
+    return stub
 
 
 def pack_grids(grids):
@@ -119,7 +119,7 @@ def unpack_grids(flat):
 
 def _compile(src, name, **env):
     ns = dict(env)
-    exec(src, ns)  # noqa: S102  (source generated here from the tuple's length only)
+    exec(src, ns)  # noqa: S102  (source generated in this module: a tuple's length, fixed argument names)
     return ns[name]
 
 
