@@ -1,16 +1,17 @@
 """A first run a newcomer can follow: what the README and the program tell a user to run works.
 
-* the README's Python example runs as written (extracted from README.md, run in a subprocess in an
-  empty folder), and what it computes is right: its hits against the brute-force float64 caster,
-  its image against the analytic silhouette of its sphere;
-* the ``.venv/bin/gridrt ...`` commands of README.md and BENCHMARKS.md are commands the parser
-  takes;
+* every Python example of the documents runs as written (the ```python blocks of README.md and of
+  each docs/*.md page, one program per document, run in a subprocess in an empty folder), and what
+  it computes is right: its hits against the brute-force float64 caster, its image against the
+  analytic silhouette of its sphere;
+* the ``.venv/bin/gridrt ...`` commands of README.md, BENCHMARKS.md and docs/*.md are commands the
+  parser takes, and every relative link of README.md and docs/*.md names a file that exists;
 * the headless message of ``gridrt view`` prints a command that works as printed: named the way
   the viewer was started (``.venv/bin/gridrt`` from the repository root after the README's set-up,
   a full path elsewhere, ``gridrt`` when PATH finds it, the interpreter with ``-m gridrt``), and
   the printed dump, run by the shell as it is, writes its frames; the install hints name a pip
   that runs;
-* the README's lists of built-in scenes, scene-file extensions and frame-folder extensions are
+* the documented lists of built-in scenes, scene-file extensions and frame-folder extensions are
   :data:`gridrt.scene.BUILTIN_SCENES`, ``SCENE_EXTENSIONS`` and ``FRAME_EXTENSIONS``, and ``--help``
   and the error messages name the same;
 * ``--help`` of every subcommand shows every option's default, and the defaults that help texts
@@ -31,6 +32,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 README = REPO / "README.md"
+DOCS = REPO / "docs"
 TESTS = Path(__file__).resolve().parent
 SCRIPT = Path(sys.executable).parent / "gridrt"  # the console script beside the interpreter (.venv/bin)
 
@@ -51,10 +53,23 @@ def fenced_blocks(text):
     return blocks
 
 
-def readme_python():
-    blocks = [body for lang, body in fenced_blocks(README.read_text(encoding="utf-8")) if lang == "python"]
-    assert blocks, "README.md has no ```python block"
-    return "\n".join(blocks)
+def documents():
+    """README.md and the documentation pages it links to."""
+    return [README] + sorted(DOCS.glob("*.md"))
+
+
+def python_examples():
+    """{document's path from the repository: its ```python blocks as one program} of every document
+    that has any."""
+    out = {}
+    for doc in documents():
+        blocks = [body for lang, body in fenced_blocks(doc.read_text(encoding="utf-8")) if lang == "python"]
+        if blocks:
+            out[doc.relative_to(REPO).as_posix()] = "\n".join(blocks)
+    return out
+
+
+EXAMPLES = python_examples()
 
 
 def _env(path_dirs=None):
@@ -67,7 +82,7 @@ def _env(path_dirs=None):
     return env
 
 
-# ----------------------------------------------------------------------------- the README's Python
+# ----------------------------------------------------------------------------- the documents' Python
 
 
 CHECKS = textwrap.dedent('''
@@ -76,58 +91,79 @@ CHECKS = textwrap.dedent('''
     sys.path.insert(0, {tests!r})
     from reference import BACKGROUND, compare_hits, ref_camera_rays, ref_cast, to_u8
 
-    ns = runpy.run_path("readme_example.py")
-    # its casts, against the float64 brute force over the same triangles (the mesh before the update)
-    tris = np.asarray(ns["vertices"], np.float64)[np.asarray(ns["faces"])]
-    ref = ref_cast(tris, np.asarray(ns["origins"], np.float64), np.asarray(ns["directions"], np.float64))
-    hits = ns["hits"]
-    diff = compare_hits(hits.t, hits.tri, ref)
-    assert len(diff.bad) == 0, diff
-    assert (hits.tri >= 0).any() and (hits.tri < 0).any(), "the example should show a hit and a miss"
-    # its image: the silhouette of the sphere it renders, from the camera it made (pixel centres)
-    img, cam = ns["image"], ns["camera"]
-    H, W = img.shape[:2]
-    o, d = ref_camera_rays(cam.eye, cam.target, cam.up, cam.fov, W, H)
-    v = np.asarray(ns["vertices"], np.float64)
-    centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
-    radius = np.linalg.norm(v - centre, axis=1).max()
-    oc = centre - o
-    miss_dist = (np.linalg.norm(oc - (oc * d).sum(axis=1)[:, None] * d, axis=1) / radius).reshape(H, W)
-    covered = (img[..., :3] != to_u8(BACKGROUND)).any(axis=2)
-    inner, outer = miss_dist < 0.99, miss_dist > 1.001  # (the 5120 facets stay within 0.2% of the sphere)
-    assert inner.sum() > 1000 and covered[inner].all(), "pixels whose rays hit the sphere show background"
-    assert not covered[outer].any(), "pixels whose rays miss the sphere are not background"
-    from PIL import Image
-    assert (np.asarray(Image.open("sphere.png")) == img[..., :3]).all()
-    print("checked")
+
+    def check_casts(ns):
+        """its casts, against the float64 brute force over the same triangles (the mesh before any update)"""
+        tris = np.asarray(ns["vertices"], np.float64)[np.asarray(ns["faces"])]
+        ref = ref_cast(tris, np.asarray(ns["origins"], np.float64), np.asarray(ns["directions"], np.float64))
+        hits = ns["hits"]
+        diff = compare_hits(hits.t, hits.tri, ref)
+        assert len(diff.bad) == 0, diff
+        assert (hits.tri >= 0).any() and (hits.tri < 0).any(), "the example should show a hit and a miss"
+        print("checked casts")
+
+
+    def check_image(ns):
+        """its image: the silhouette of the sphere it renders, from the camera it made (pixel centres)"""
+        img, cam = ns["image"], ns["camera"]
+        H, W = img.shape[:2]
+        o, d = ref_camera_rays(cam.eye, cam.target, cam.up, cam.fov, W, H)
+        v = np.asarray(ns["vertices"], np.float64)
+        centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
+        radius = np.linalg.norm(v - centre, axis=1).max()
+        oc = centre - o
+        miss_dist = (np.linalg.norm(oc - (oc * d).sum(axis=1)[:, None] * d, axis=1) / radius).reshape(H, W)
+        covered = (img[..., :3] != to_u8(BACKGROUND)).any(axis=2)
+        inner, outer = miss_dist < 0.99, miss_dist > 1.001  # (the 5120 facets stay within 0.2% of the sphere)
+        assert inner.sum() > 1000 and covered[inner].all(), "pixels whose rays hit the sphere show background"
+        assert not covered[outer].any(), "pixels whose rays miss the sphere are not background"
+        from PIL import Image
+        assert (np.asarray(Image.open("sphere.png")) == img[..., :3]).all()
+        print("checked image")
+
+
+    ns = runpy.run_path("example.py")
+    if "hits" in ns:
+        check_casts(ns)
+    if "image" in ns:
+        check_image(ns)
 ''')
 
 
-def test_readme_python_example_runs_as_written_and_is_right(tmp_path):
-    code = readme_python()
-    (tmp_path / "readme_example.py").write_text(code, encoding="utf-8")
-    r = subprocess.run([sys.executable, "readme_example.py"], cwd=tmp_path, capture_output=True, text=True,
-                       timeout=900)
+def test_the_documents_have_python_examples():
+    """The README's short example and docs/api.md's whole one; between them a cast and an image."""
+    assert "README.md" in EXAMPLES and "docs/api.md" in EXAMPLES, sorted(EXAMPLES)
+    assert "image = " in EXAMPLES["docs/api.md"] and "hits = " in EXAMPLES["README.md"]
+
+
+@pytest.mark.parametrize("doc", sorted(EXAMPLES))
+def test_python_example_runs_as_written_and_is_right(doc, tmp_path):
+    (tmp_path / "example.py").write_text(EXAMPLES[doc], encoding="utf-8")
+    r = subprocess.run([sys.executable, "example.py"], cwd=tmp_path, capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-3000:]
-    assert (tmp_path / "sphere.png").is_file()
     (tmp_path / "checks.py").write_text(CHECKS.format(tests=str(TESTS)), encoding="utf-8")
     r = subprocess.run([sys.executable, "checks.py"], cwd=tmp_path, capture_output=True, text=True, timeout=900)
-    assert r.returncode == 0 and "checked" in r.stdout, r.stderr[-3000:]
+    assert r.returncode == 0, r.stderr[-3000:]
+    checked = r.stdout.split()
+    assert "checked" in checked, f"{doc}'s example neither casts (hits) nor renders (image): nothing to check"
+    if "image = " in EXAMPLES[doc]:
+        assert (tmp_path / "sphere.png").is_file() and "image" in checked
 
 
-def test_readme_example_needs_nothing_it_does_not_define():
-    """Every name the example uses is defined in it or imported by it (it ran on undefined
-    ``vertices``, ``faces``, ``origins`` before)."""
+@pytest.mark.parametrize("doc", sorted(EXAMPLES))
+def test_python_example_needs_nothing_it_does_not_define(doc):
+    """Every name an example uses is defined in it or imported by it (an example that runs on
+    undefined ``vertices``, ``faces``, ``origins`` would fail a reader)."""
     import builtins
     import symtable
 
-    table = symtable.symtable(readme_python(), "README.md", "exec")
+    table = symtable.symtable(EXAMPLES[doc], doc, "exec")
     free = [s.get_name() for s in table.get_symbols() if s.is_referenced() and not s.is_assigned()
             and not s.is_imported() and not hasattr(builtins, s.get_name())]
     assert free == []
 
 
-# ----------------------------------------------------------------------------- the README's commands
+# ----------------------------------------------------------------------------- the documents' commands
 
 
 def build_parser():
@@ -137,10 +173,10 @@ def build_parser():
 
 
 def documented_commands():
-    """Every ``.venv/bin/gridrt ...`` command line of README.md and BENCHMARKS.md (code blocks and
-    inline code), as argument lists after the program."""
+    """Every ``.venv/bin/gridrt ...`` command line of README.md, BENCHMARKS.md and docs/*.md (code
+    blocks and inline code), as argument lists after the program."""
     cmds = []
-    for doc in (README, REPO / "BENCHMARKS.md"):
+    for doc in documents() + [REPO / "BENCHMARKS.md"]:
         text = doc.read_text(encoding="utf-8")
         lines = re.findall(r"^\.venv/bin/gridrt (.*)$", text, re.M)
         lines += re.findall(r"`\.venv/bin/gridrt ([^`]*)`", text)
@@ -151,7 +187,7 @@ def documented_commands():
 
 def test_documented_commands_parse():
     cmds = documented_commands()
-    assert len(cmds) >= 12  # README: the headless dump and the examples; BENCHMARKS.md: its block
+    assert len(cmds) >= 12  # README: the headless dump and the tour; docs/cli.md: the examples; BENCHMARKS.md
     for args in cmds:
         if args[-1] == "--help":  # (argparse exits after printing help: run it for real)
             r = subprocess.run([sys.executable, "-m", "gridrt", *args], cwd=REPO, capture_output=True, text=True,
@@ -165,14 +201,53 @@ def test_documented_commands_parse():
 
 
 def test_readme_setup_names_the_programs_it_installs():
-    """The README's set-up installs into .venv without activating it, and every command it then
-    gives names .venv/bin/...: no bare gridrt or pip command in a code block."""
-    text = README.read_text(encoding="utf-8")
-    assert "python3 -m venv .venv && .venv/bin/pip install -q -e . && .venv/bin/gridrt view" in text
-    for lang, block in fenced_blocks(text):
-        for ln in block.splitlines():
-            first = ln.split()[0] if ln.split() else ""
-            assert first not in ("gridrt", "pip", "python"), ln
+    """The README's set-up installs into .venv without activating it, and every command the README
+    and the docs pages then give names .venv/bin/...: no bare gridrt or pip command in a code
+    block."""
+    assert "python3 -m venv .venv && .venv/bin/pip install -q -e . && .venv/bin/gridrt view" in README.read_text(
+        encoding="utf-8")
+    for doc in documents():
+        for lang, block in fenced_blocks(doc.read_text(encoding="utf-8")):
+            for ln in block.splitlines():
+                first = ln.split()[0] if ln.split() else ""
+                assert first not in ("gridrt", "pip", "python"), f"{doc.name}: {ln}"
+
+
+def relative_links(text):
+    """The targets of a Markdown text's inline links and images that are neither web addresses nor
+    anchors within the page, without their ``#anchor``."""
+    text = "\n".join(outside_code(text))
+    targets = re.findall(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)", text)
+    return [t.split("#", 1)[0] for t in targets
+            if not re.match(r"[a-z][a-z0-9+.-]*:", t, re.I) and not t.startswith("#")]
+
+
+def outside_code(text):
+    """The lines of a Markdown text outside its fenced code blocks."""
+    inside = False
+    for ln in text.splitlines():
+        if ln.startswith("```"):
+            inside = not inside
+        elif not inside:
+            yield ln
+
+
+def test_relative_links_name_files_that_exist():
+    """Every relative link and picture of README.md and docs/*.md names a file or folder of the
+    repository (relative to the document's folder)."""
+    bad, n = [], 0
+    for doc in documents():
+        for target in relative_links(doc.read_text(encoding="utf-8")):
+            n += 1
+            if not (doc.parent / target).exists():
+                bad.append(f"{doc.relative_to(REPO)}: {target}")
+    assert not bad, "links to files that do not exist:\n" + "\n".join(bad)
+    assert n >= 10  # (the README links the picture and every docs page)
+
+
+def test_link_check_catches_a_broken_link():
+    text = "See [a](docs/a.md#part), ![p](docs/images/p.png \"t\"), [w](https://x.org/y), [s](#top).\n```\n[c](no.md)\n```"
+    assert relative_links(text) == ["docs/a.md", "docs/images/p.png"]
 
 
 # ----------------------------------------------------------------------------- printed commands
@@ -233,8 +308,15 @@ def test_install_hints_name_a_pip_that_runs(tmp_path):
 # ----------------------------------------------------------------------------- one list of formats
 
 
-def readme_scene_lists():
-    text = README.read_text(encoding="utf-8")
+def scene_lists_document():
+    """The one document (README.md or a docs page) that holds the scene lists."""
+    holding = [doc for doc in documents() if "<!-- scene-lists:" in doc.read_text(encoding="utf-8")]
+    assert len(holding) == 1, f"the scene lists should stand in one document, not {holding}"
+    return holding[0]
+
+
+def documented_scene_lists():
+    text = scene_lists_document().read_text(encoding="utf-8")
     part = text.split("<!-- scene-lists:", 1)[1]
     items = re.findall(r"^- (.*?)(?=^- |^\n)", part, re.S | re.M)[:3]
     assert len(items) == 3, items
@@ -245,10 +327,10 @@ def readme_scene_lists():
     return names, exts, frame_exts
 
 
-def test_readme_lists_the_scenes_and_formats_gridrt_has():
+def test_docs_list_the_scenes_and_formats_gridrt_has():
     from gridrt.scene import BUILTIN_SCENES, FRAME_EXTENSIONS, SCENE_EXTENSIONS
 
-    names, exts, frame_exts = readme_scene_lists()
+    names, exts, frame_exts = documented_scene_lists()
     assert sorted(names) == sorted(BUILTIN_SCENES)
     assert sorted(exts) == sorted(SCENE_EXTENSIONS)
     assert sorted(frame_exts) == sorted(FRAME_EXTENSIONS)
@@ -362,14 +444,14 @@ def test_help_of_a_subcommand_prints_defaults_through_the_cli(tmp_path):
     assert "(default: out/dump)" in text and "(default: 1024x768)" in text
 
 
-# ----------------------------------------------------------------------------- the README's Layout
+# ----------------------------------------------------------------------------- the Layout (docs/layout.md)
 
 
-def readme_layout():
-    """(path, indent) of every path the README's Layout block names at a line's start (a folder
-    ``x/`` or a file ``x.py``/``x.toml``; indented lines name paths inside the folder above them),
-    and the ``*.py`` files named anywhere on the engine's indented lines."""
-    text = README.read_text(encoding="utf-8").split("## Layout", 1)[1]
+def layout_paths():
+    """(path, indent) of every path the Layout block of docs/layout.md names at a line's start (a
+    folder ``x/`` or a file ``x.py``/``x.toml``; indented lines name paths inside the folder above
+    them), and the ``*.py`` files named anywhere on the engine's indented lines."""
+    text = (DOCS / "layout.md").read_text(encoding="utf-8")
     block = next(body for lang, body in fenced_blocks(text))
     named, top = [], None
     for ln in block.splitlines():
@@ -387,10 +469,10 @@ def readme_layout():
     return named
 
 
-def test_readme_layout_is_the_tree():
-    named = readme_layout()
+def test_layout_is_the_tree():
+    named = layout_paths()
     for rel in named:
-        assert (REPO / rel).exists(), f"README's Layout names {rel}, which is not in the repository"
+        assert (REPO / rel).exists(), f"docs/layout.md names {rel}, which is not in the repository"
     tracked = subprocess.run(["git", "ls-files"], cwd=REPO, capture_output=True, text=True).stdout.split()
     if not tracked:
         pytest.skip("not a git checkout")
