@@ -25,6 +25,15 @@ def scene_label(text, n):
     return f"{NAMES.get(base, base)} {count}" + (" twisted" if "twist" in mods else "")
 
 
+def start(p, argv=None):
+    """Parse ``argv`` with the parser p (which has :func:`add_out_option`), keep what the script
+    prints from here on in --out (:func:`keep_output`) and print the settings; the parsed options."""
+    a = p.parse_args(argv)
+    keep_output(a.out)
+    print_settings(p, a)
+    return a
+
+
 def print_settings(p, a):
     """Each option's value and where it comes from: the table (the option's default) or the command line."""
     for k, v in vars(a).items():

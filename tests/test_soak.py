@@ -47,8 +47,7 @@ from gridrt.pipeline import FramePipeline
 from gridrt.scene import make_scene
 from gridrt.trace import cast_rays
 from gridrt.trace.twin import TWINS
-from helpers.watertight import (ROW_WIDTH, ProbeMesh, add_counts, cgt_report, edge_probes, face_normals, packet_counts,
-                             row_counts)
+from helpers.watertight import ROW_WIDTH, ProbeMesh, cgt_counts, cgt_report, edge_probes, face_normals
 
 DRAGON = "static/stanford_dragon/dragon.obj"
 LUCY = "static/lucy/Lucy100k.ply"
@@ -150,13 +149,7 @@ def cgt_probe(relpath, n_rays, n_row_rays):
     grid = GridBuilder(GridParams(threads=2, density=4.0)).build(m.tris)
     rng = np.random.default_rng(2024)
     t0 = time.perf_counter()
-    pk = rows = {}
-    while not pk or pk["probes"] - pk["wt_fallback"] < n_rays:
-        left = n_rays - (pk["probes"] - pk["wt_fallback"] if pk else 0)
-        pk = add_counts(pk, packet_counts(m, grid, rng, min(BATCH, left) // 60 + 1))  # ~63 rays a packet
-    while not rows or rows["rays"] < n_row_rays:
-        left = n_row_rays - (rows["rays"] if rows else 0)
-        rows = add_counts(rows, row_counts(m, grid, rng, -(-min(BATCH, left) // ROW_WIDTH)))
+    pk, rows = cgt_counts(m, grid, rng, n_rays, n_row_rays, BATCH)
     cgt_report(relpath.split("/")[-1], pk, rows, time.perf_counter() - t0)
 
 

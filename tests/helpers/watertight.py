@@ -374,6 +374,20 @@ def row_counts(m, grid, rng, n_cameras, width=ROW_WIDTH):
     return c
 
 
+def cgt_counts(m, grid, rng, n_rays, n_row_rays, batch=200_000):
+    """(packet counts, camera-row counts) of star packets until n_rays were traced as packets
+    (single-ray fallbacks not counted) and camera rows until n_row_rays, in batches of about
+    ``batch`` rays, on the ProbeMesh m and its grid."""
+    pk = rows = {}
+    while not pk or pk["probes"] - pk["wt_fallback"] < n_rays:
+        left = n_rays - (pk["probes"] - pk["wt_fallback"] if pk else 0)
+        pk = add_counts(pk, packet_counts(m, grid, rng, min(batch, left) // 60 + 1))  # ~63 rays a packet
+    while not rows or rows["rays"] < n_row_rays:
+        left = n_row_rays - (rows["rays"] if rows else 0)
+        rows = add_counts(rows, row_counts(m, grid, rng, -(-min(batch, left) // ROW_WIDTH)))
+    return pk, rows
+
+
 def add_counts(a, b):
     return {k: a[k] + b[k] for k in b} if a else b
 
