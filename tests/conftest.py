@@ -53,15 +53,39 @@ CONVERTED = {ARMADILLO: "armadillo.ply"}
 
 
 def soak_requested(config):
-    """True when the run asks for the ``soak`` marker's slow exhaustive cases (``-m soak``, or
-    GRIDRT_SOAK=1)."""
-    return "soak" in (config.getoption("markexpr") or "") or os.environ.get("GRIDRT_SOAK", "") not in ("", "0")
+    """True when the run asks for the ``soak`` marker's slow exhaustive cases (``-m soak``,
+    GRIDRT_SOAK=1 or ``--rest``)."""
+    return ("soak" in (config.getoption("markexpr") or "") or os.environ.get("GRIDRT_SOAK", "") not in ("", "0")
+            or config.getoption("rest"))
+
+
+#: the pytest cache key of the tests a run with GRIDRT_NO_SHARED_DATA skipped (the README's quick
+#: command): ``--rest`` runs them
+QUICK_SKIPPED = "gridrt/quick_skipped"
+_SKIPPED = set()
 
 
 def pytest_collection_modifyitems(config, items):
     """Without ``-m soak`` (or GRIDRT_SOAK=1) the soak cases are deselected, not skipped: they are
     opt-in (the default run has shorter versions of each), and a skip would say something is
-    missing."""
+    missing.  With ``--rest``: only what the README's quick command (GRIDRT_NO_SHARED_DATA=1,
+    ``-m "not slow"``) left out: the tests its last run in this checkout skipped, the slow ones and
+    the soak (every test when no quick run is remembered)."""
+    if config.getoption("rest"):
+        skipped = config.cache.get(QUICK_SKIPPED, None)
+        if skipped is None:
+            return
+        skipped = set(skipped)
+
+        def left_out(it):
+            return (it.get_closest_marker("slow") is not None or it.get_closest_marker("soak") is not None
+                    or it.nodeid in skipped or it.nodeid.split("::")[0] in skipped)
+
+        drop = [it for it in items if not left_out(it)]
+        if drop:
+            config.hook.pytest_deselected(items=drop)
+            items[:] = [it for it in items if left_out(it)]
+        return
     if soak_requested(config):
         return
     soak = [it for it in items if it.get_closest_marker("soak") is not None]
@@ -70,7 +94,31 @@ def pytest_collection_modifyitems(config, items):
         items[:] = [it for it in items if it.get_closest_marker("soak") is None]
 
 
+def pytest_runtest_logreport(report):
+    if report.skipped:
+        _SKIPPED.add(report.nodeid)
+
+
+def pytest_collectreport(report):
+    if report.skipped:  # a module that skips as a whole
+        _SKIPPED.add(report.nodeid)
+
+
+def pytest_sessionfinish(session):
+    """A quick run (GRIDRT_NO_SHARED_DATA, not --rest) remembers the tests it skipped for --rest."""
+    config = session.config
+    if NO_SHARED_DATA and not config.getoption("rest") and getattr(config, "cache", None) is not None:
+        config.cache.set(QUICK_SKIPPED, sorted(_SKIPPED))
+
+
 def pytest_addoption(parser):
+    parser.addoption(
+        "--rest",
+        action="store_true",
+        default=False,
+        help="run what the README's quick test command left out in this checkout: the tests it skipped "
+             "(the development data set ignored), the slow ones and the soak",
+    )
     parser.addoption(
         "--update-golden",
         action="store_true",
