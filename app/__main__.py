@@ -7,12 +7,13 @@ import sys
 import warnings
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
+from gridrt.config import AUTO_STRATEGY, PARALLEL_DEFAULT_STRATEGY
 from gridrt.errors import GridrtError
 from gridrt.grid.registry import BUILDERS, names
 from gridrt.memory import allocating
 from gridrt.trace.twin import parallel_first
 
-from . import dump
+from . import cli, dump
 
 
 class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
@@ -70,6 +71,8 @@ def build_parser(command=None):
 
 
 def _list_strategies(a):
+    print(f"{AUTO_STRATEGY:20s} the default: serial at 1 thread, {PARALLEL_DEFAULT_STRATEGY} above (the fastest at 2 threads "
+          "in BENCHMARKS.md section 2)")
     for n in names():
         doc = (BUILDERS[n].__doc__ or "").strip().splitlines()
         print(f"{n:20s} {doc[0] if doc else ''}")
@@ -117,7 +120,7 @@ def main(argv=None):
 
 
 def _main(argv):
-    args = build_parser("dump" if argv[:1] == ["dump"] else None).parse_args(argv)
+    args = build_parser("dump" if argv[:1] == ["dump"] else None).parse_args(cli.join_negative_values(argv))
     if args.command == "bench":  # warm-up runs compile the parallel render kernels the timed runs use
         kernels = parallel_first()
     else:

@@ -1,6 +1,7 @@
 """Arguments shared by the subcommands, and their conversion into engine objects."""
 
 import argparse
+import re
 from dataclasses import fields
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
@@ -10,7 +11,24 @@ from gridrt.pipeline import FramePipeline
 from gridrt.scene import DEFORM_KINDS, scene_choices
 from gridrt.scene.deform import DEFAULT_AMPLITUDE_FRACTION
 from gridrt.scene.spec import SceneSpec
-from gridrt.threads import MAX_THREADS
+from gridrt.threads import MAX_THREADS, warn_more_threads_than_cores
+
+
+#: a value argparse would take for an option: one or more comma-separated numbers starting with a
+#: minus sign ("-0.02,0.1,0", "-1e6")
+_NEGATIVE_VALUE = re.compile(r"-(\d+\.?\d*|\.\d+)(e[-+]?\d+)?(,\s*[-+]?(\d+\.?\d*|\.\d+)(e[-+]?\d+)?)*", re.I)
+
+
+def join_negative_values(argv):
+    """``argv`` with each ``--option VALUE`` whose VALUE is numbers starting with a minus sign
+    written ``--option=VALUE``: argparse takes "-0.02,0.1,0" for an option and "-1e6" too."""
+    out = []
+    for tok in argv:
+        if out and out[-1].startswith("--") and "=" not in out[-1] and _NEGATIVE_VALUE.fullmatch(tok):
+            out[-1] = f"{out[-1]}={tok}"
+        else:
+            out.append(tok)
+    return out
 
 
 def vec3(text):
@@ -129,7 +147,12 @@ def add_render_args(p):
     g.add_argument("--fov", type=float, default=c["fov"],
                    help=f"vertical field of view in degrees (default {c['fov']:g})")
     g.add_argument("--follow-camera", action="store_true",
-                   help="look through the scene's own animated camera (BART, glTF) where it has one")
+                   help="look through the scene's own animated camera (BART, glTF) where it has one, also with "
+                        "--eye/--target (default: the scene's camera unless --eye/--target or --no-scene-camera)")
+    g.add_argument("--no-scene-camera", dest="scene_camera", action="store_false",
+                   help="use a camera that frames the scene, not the scene's own camera (BART, glTF: the default "
+                        "where the scene has one and no --eye/--target is given); in the viewer the panel's "
+                        "\"scene camera\" box or the C key switches it")
 
 
 def add_packet_args(g):
@@ -165,18 +188,26 @@ def render_params(a):
                         packet_precision=a.packet_precision)
 
 
+def follows_scene_camera(a):
+    """Whether the parsed arguments look through the scene's own camera (where it has one):
+    --follow-camera, or neither --eye/--target nor --no-scene-camera."""
+    return bool(a.follow_camera) or (bool(getattr(a, "scene_camera", True)) and a.eye is None and a.target is None)
+
+
 def view_spec(a):
     """The ViewSpec of the parsed arguments: camera (--eye/--target, --fov, --up, --follow-camera),
     --no-split, --size, and a dump's --t0 and --dt (a command without them has the defaults)."""
     d = defaults(ViewSpec)
-    return ViewSpec(eye=a.eye, target=a.target, fov=a.fov, up=a.up, follow_camera=a.follow_camera,
+    return ViewSpec(eye=a.eye, target=a.target, fov=a.fov, up=a.up, follow_camera=follows_scene_camera(a),
                     split_static=a.split_static, t0=getattr(a, "t0", d["t0"]), dt=getattr(a, "dt", d["dt"]),
                     size=tuple(a.size))
 
 
 def frame_spec(a):
     """The FrameSpec of the parsed arguments: what the command renders (the one conversion of the
-    scene, grid, render and view arguments into engine values; each part validated)."""
+    scene, grid, render and view arguments into engine values; each part validated).  More
+    --threads than cores is warned about (once)."""
+    warn_more_threads_than_cores(a.threads)
     return FrameSpec(scene=scene_spec(a), grid=grid_params(a), render=render_params(a), view=view_spec(a))
 
 

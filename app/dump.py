@@ -180,11 +180,20 @@ def _dump(a, spec):
                 writer.close()
     if error is not None or stop():
         return writer.stopped(error=error, signum=stop.signum)
-    med = lambda k: float(np.median([r[k] for r in rows]))  # noqa: E731
+    # frames that compiled kernels are not rendering times: the medians leave them out
+    timed = [r for r in rows if not r["compiled"]]
+    left_out = len(rows) - len(timed)
+    if left_out and timed:
+        note = f" ({left_out} frame{'s' if left_out > 1 else ''} that compiled kernels left out)"
+    elif left_out:
+        note = " (every frame compiled kernels: the medians include compile time)"
+    else:
+        note = ""
+    med = lambda k: float(np.median([r[k] for r in (timed or rows)]))  # noqa: E731
     print(
         f"wrote {len(rows)} frames to {out}/{resumed(start, a.frames)} ({pipe.scene.name}, {rows[0]['triangles']} "
         f"triangles, {rows[0]['width']}x{rows[0]['height']}, {rows[0]['strategy']}, {rows[0]['threads']} threads, "
         f"{rows[0]['grid']} grid of {rows[0]['bytes_per_tri']:.1f} bytes per triangle): "
-        f"median build {med('build_ms'):.2f} ms, render {med('render_ms'):.2f} ms, frame {med('frame_ms'):.2f} ms"
+        f"median build {med('build_ms'):.2f} ms, render {med('render_ms'):.2f} ms, frame {med('frame_ms'):.2f} ms{note}"
     )
     return 0

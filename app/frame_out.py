@@ -48,6 +48,8 @@ from gridrt.pipeline import STATS_COLUMNS
 from . import cli
 
 STATS = "stats.csv"
+#: what stats.csv and the panel say for a figure that does not apply to a frame (pandas reads it as NaN)
+NOT_APPLICABLE = "n/a"
 RUN = "run.json"
 #: a frame's files: frame number and kind
 FRAME_FILE = re.compile(r"frame_(\d{5,})(\.png|_t\.npy|_id\.npy)\Z")
@@ -93,7 +95,9 @@ class FrameWriteError(GridrtError):
 
 
 def fmt(v):
-    """A stats value as ``stats.csv`` holds it."""
+    """A stats value as ``stats.csv`` holds it: "n/a" for a figure that does not apply (None)."""
+    if v is None:
+        return NOT_APPLICABLE
     if isinstance(v, float):
         return f"{v:.6g}"
     return v

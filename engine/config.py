@@ -17,6 +17,11 @@ INSERT_MODES = ("bbox", "exact")
 #: refuses to load when its classes and these names differ)
 STRATEGIES = ("serial", "sort_first", "global_lock", "cell_locks", "lock_pool", "thread_grids_merge", "thread_grids",
               "sort_middle", "counting")
+#: GridParams.strategy "auto" (the default): serial at one thread, and above it the strategy
+#: fastest at 2 threads in BENCHMARKS.md section 2 (``gridrt bench build``: counting on 4 of its
+#: 5 scenes); :func:`resolve_strategy` gives the name it stands for
+AUTO_STRATEGY = "auto"
+PARALLEL_DEFAULT_STRATEGY = "counting"
 #: Grid kinds (GridParams.grid): one uniform grid, a two-level grid (gridrt.grid.two_level), or
 #: the one of the two that the scene's spread of triangles asks for (gridrt.grid.build.crowding,
 #: AUTO_CROWDING)
@@ -41,10 +46,19 @@ DEFAULT_LEAF_DENSITY = 2.0
 
 
 def check_strategy(name):
-    """``name`` if it is a registered build strategy (:data:`STRATEGIES`); InputError listing the
-    valid names otherwise."""
-    if not isinstance(name, str) or name not in STRATEGIES:
-        raise InputError(f"unknown build strategy {name!r}; choose one of {', '.join(STRATEGIES)}")
+    """``name`` if it is a registered build strategy (:data:`STRATEGIES`) or "auto"; InputError
+    listing the valid names otherwise."""
+    if not isinstance(name, str) or (name not in STRATEGIES and name != AUTO_STRATEGY):
+        raise InputError(f"unknown build strategy {name!r}; choose one of {AUTO_STRATEGY}, {', '.join(STRATEGIES)}")
+    return name
+
+
+def resolve_strategy(name, threads):
+    """The registered strategy a GridParams.strategy of ``name`` builds with at ``threads`` threads:
+    "auto" is serial at one thread and :data:`PARALLEL_DEFAULT_STRATEGY` above; any other name is
+    itself."""
+    if name == AUTO_STRATEGY:
+        return "serial" if threads == 1 else PARALLEL_DEFAULT_STRATEGY
     return name
 
 
@@ -52,7 +66,8 @@ def check_strategy(name):
 class GridParams:
     """How to build the grid each frame.
 
-    strategy   name of a registered build strategy (gridrt.grid.registry)
+    strategy   name of a registered build strategy (gridrt.grid.registry), or "auto" (the
+               default): serial at one thread, counting above (:func:`resolve_strategy`)
     density    lambda: target cells ~ density * triangles, shaped by the scene bounds
     macro      macro-cell edge k in cells (a macro cell is k**3 cells); 1 disables skipping gain
     insert     "bbox" (triangle bounding box, fast) or "exact" (separating-axis test, fewer refs)
@@ -74,7 +89,7 @@ class GridParams:
                beforehand when it exceeds the memory this process has left (gridrt.memory)
     """
 
-    strategy: str = "serial"
+    strategy: str = AUTO_STRATEGY
     density: float = 4.0
     macro: int = 4
     insert: str = "bbox"

@@ -12,6 +12,7 @@ from .errors import InputError
 from .grid.build import GridBuilder
 from .memory import allocating, check_render_fits
 from .precision import warn_detail
+from .compiles import CompileWatch
 from .stats import FrameStats
 from .threads import use_threads
 from .trace.render import Looks, Renderer
@@ -23,6 +24,7 @@ STATS_COLUMNS = (
     "anim_ms", "bounds_ms", "rebuilt", "refs_per_tri", "dims", "macro_full", "grid_bytes",
     "width", "height", "shading", "traversal", "mrays", "hit_fraction", "tests_per_ray", "cells_per_ray",
     "grid", "top_density", "leaf_density", "bytes_per_tri", "lights", "shadow_rays_per_pixel", "shade_ms",
+    "compiled",
 )
 
 
@@ -287,9 +289,10 @@ class FramePipeline:
         rp = self.render_params
         with allocating(lambda: f"rendering frame {self.frame_index} ({rp.width}x{rp.height} pixels, "
                                 f"{self.scene.n_triangles:,} triangles)", "ask for a smaller image or scene"):
-            return self._render_frame(t, camera)
+            with CompileWatch() as watch:
+                return self._render_frame(t, camera, watch)
 
-    def _render_frame(self, t, camera=None):
+    def _render_frame(self, t, camera, watch):
         t_frame = time.perf_counter()
         rp = self.render_params
         surface = self.scene.surface
@@ -319,7 +322,7 @@ class FramePipeline:
             static=self.static_grid.stats if split is not None else None, render=res.stats,
             rebuilt=bool(rebuild), anim_ms=anim_ms, static_build_ms=static_ms,
             frame_ms=(time.perf_counter() - t_frame) * 1e3, width=rp.width, height=rp.height, shading=shading,
-            top_density=gp.top_density, leaf_density=gp.leaf_density,
+            top_density=gp.top_density, leaf_density=gp.leaf_density, compiled=watch.check(),
         )
         self.frame_index += 1
         return Frame(res.image, res.t, res.tri, stats, grid, self.origin)

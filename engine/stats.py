@@ -95,7 +95,8 @@ class RenderStats(_Row):
                    axis); None for the single-ray traversal, which has no packets
     lights         lights the hits were shaded with (the ``material`` mode: the scene's, or 1 for
                    the default light; the other modes: 1 with shadows, else 0, a headlight)
-    shadow_rays_per_pixel   shadow rays cast, per pixel
+    shadow_rays_per_pixel   shadow rays cast, per pixel (None where they are not counted: lambert
+                   with shadows; a CSV or panel says "n/a")
     shade_ms       of render_ms, the ``material`` mode's shading pass and its shadow rays (0 otherwise)
     """
 
@@ -108,7 +109,7 @@ class RenderStats(_Row):
     traversal: str
     fallback_rays: int | None = None
     lights: int = 0
-    shadow_rays_per_pixel: float = 0.0
+    shadow_rays_per_pixel: float | None = 0.0
     shade_ms: float = 0.0
 
     @property
@@ -144,6 +145,8 @@ class FrameStats(_Row):
     top_density, leaf_density   the two-level densities of the GridParams the frame was built
                           with (None: not given); the row also has bytes_per_tri, the grids'
                           bytes (static part included) per triangle of the scene
+    compiled              numba compiled kernels while the frame ran (gridrt.compiles): its times
+                          are not rendering times, and medians and plots leave it out
     """
 
     frame: int
@@ -161,6 +164,7 @@ class FrameStats(_Row):
     static: BuildStats | None = None
     top_density: float | None = None
     leaf_density: float | None = None
+    compiled: bool = False
 
     def _total(self, name):
         return getattr(self.build, name) + (getattr(self.static, name) if self.static is not None else 0)
@@ -202,6 +206,7 @@ class FrameStats(_Row):
             "cells_per_ray": r.cells_per_ray, "grid": b.grid, "top_density": self.top_density,
             "leaf_density": self.leaf_density, "bytes_per_tri": self._total("grid_bytes") / max(self.triangles, 1),
             "lights": r.lights, "shadow_rays_per_pixel": r.shadow_rays_per_pixel, "shade_ms": r.shade_ms,
+            "compiled": int(self.compiled),
         }
         for k, v in parts.items():  # the strategy's own stages (count_ms, bucket_ms, merge_ms, ...)
             row.setdefault(k, v)

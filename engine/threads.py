@@ -136,6 +136,27 @@ def check_threads(n):
     return n
 
 
+def usable_cores():
+    """The cores this process may run on (its CPU affinity where the OS tells, else all)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+_WARNED_CORES = []
+
+
+def warn_more_threads_than_cores(n):
+    """Warn, once per process, when ``n`` threads are more than :func:`usable_cores`: they run
+    correctly, sharing the cores, but cannot run faster than as many threads as cores."""
+    cores = usable_cores()
+    if n is not None and n > cores and not _WARNED_CORES:
+        _WARNED_CORES.append(n)
+        warnings.warn(f"{n} threads on {cores} core{'s' if cores != 1 else ''}: the threads share the cores, so the "
+                      f"build and render run no faster than with {cores} (correct all the same)", stacklevel=2)
+
+
 def use_threads(n):
     """Set numba's thread count for kernels launched from the calling Python thread."""
     import numba  # deferred: numba reads the settings configure_env makes when it is first imported

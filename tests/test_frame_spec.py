@@ -68,9 +68,14 @@ def test_command_line_gives_the_spec():
 
 
 def test_command_line_defaults_are_the_spec_defaults():
+    """Every default is FrameSpec's, but for the command line's camera policy: the scene's own
+    camera (where it has one) unless --eye/--target or --no-scene-camera, as in the viewer."""
     a = dump_parser().parse_args(["dump"])
     spec = cli.frame_spec(a)
-    assert spec == FrameSpec().resized(*a.size)
+    assert spec == FrameSpec(view=ViewSpec(follow_camera=True)).resized(*a.size)
+    for argv, follows in ((["--no-scene-camera"], False), (["--eye", "1,2,3", "--target", "0,0,0"], False),
+                          (["--eye", "1,2,3", "--target", "0,0,0", "--follow-camera"], True)):
+        assert cli.frame_spec(dump_parser().parse_args(["dump", *argv])).view.follow_camera is follows, argv
 
 
 def test_viewer_state_changes_the_spec_by_replace():

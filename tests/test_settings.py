@@ -122,5 +122,5 @@ def test_build_stats_read_like_a_row():
     assert s["grid_bytes"] == g.memory_bytes() and s["dims"] == "x".join(str(int(d)) for d in g.spec.dims)
     assert "lock_waits" in s.counters and "lock_waits" not in s.stages and s["lock_waits"] == s.counters["lock_waits"]
     assert dict(s) == s.as_row()
-    serial = GridBuilder(GridParams()).build(tris).stats
+    serial = GridBuilder(GridParams(strategy="serial")).build(tris).stats
     assert serial.counters == {} and serial.strategy == "serial"

@@ -320,7 +320,7 @@ def test_animated_scene_switching_every_frame():
     seen = set()
     for i, (s, T, mode) in enumerate(plan):
         tris = scene.triangles_at(0.23 * i).copy()
-        ref = GridBuilder(GridParams(insert=mode)).build(tris)
+        ref = GridBuilder(GridParams(strategy="serial", insert=mode)).build(tris)
         if i % 4 == 0:
             check_serial_vs_reference(ref, tris, mode)
         expect = (pair_keys(ref), ref.macro_full.copy())

@@ -119,7 +119,7 @@ def test_viewer_state_actions():
     assert st.set_grid(density=2.5) and st.set_grid(macro=3, insert="exact")
     assert st.set_render(shading="normal") and st.set_render(shadows=True, watertight=False)
     st.set_threads(1)
-    assert st.grid_params() == GridParams(strategy="serial", threads=1, density=2.5, macro=3, insert="exact")
+    assert st.grid_params() == GridParams(threads=1, density=2.5, macro=3, insert="exact")
     assert st.render_params(64, 48) == RenderParams(width=64, height=48, shading="normal", shadows=True,
                                                     watertight=False, threads=1)
     assert not st.set_grid(density=-1.0) and st.grid.density == 2.5 and "density" in st.scene_error

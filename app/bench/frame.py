@@ -39,7 +39,7 @@ def add_parser(bsub, common):
     p.add_argument("--threads", default=None, help="thread counts (default: 1 and all cores)")
     p.add_argument("--size", type=int, default=1024, help="square image edge (default 1024)")
     p.add_argument("--strategy", default="auto",
-                   help="build strategy (default auto: serial at 1 thread, sort_middle above)")
+                   help="build strategy (default auto: serial at 1 thread, counting above)")
     p.add_argument("--traversal", default=FRAME_TRAVERSAL, help=f"comma-separated of {', '.join(TRAVERSALS)} (default "
                    f"{FRAME_TRAVERSAL}: the packet traversal the fps figures of Ize et al. 2006 and CGT used; single-ray DDA "
                    "takes seconds per frame on some scenes)")
@@ -198,7 +198,7 @@ def _frame_summary(rows, size, runs, warmup, strategy):
     body = [f"Per frame: the scene at t = i/30 s, grid rebuild (only the moving part when the static/moving split "
             f"is on; nothing for a static scene), one primary ray per pixel at {size}x{size}, lambert shading, "
             f"watertight test.  {warmup} warm-up + {runs} timed frames; ms median [min-max].  Strategy "
-            f"{'auto = serial at 1 thread, sort_middle above' if strategy == 'auto' else strategy}.  fps = 1000 / "
+            f"{'auto = serial at 1 thread, counting above' if strategy == 'auto' else strategy}.  fps = 1000 / "
             "median frame ms (frame = animation + rebuild + render); the figure of Ize et al. 2006 counts rebuild + ray cast "
             "(fps b+r).", ""]
     table = []

@@ -4,7 +4,7 @@ loads."""
 
 import math
 
-from gridrt.config import GRID_KINDS, GridParams
+from gridrt.config import GRID_KINDS, GridParams, resolve_strategy
 from gridrt.errors import InputError
 from gridrt.frame import ViewSpec
 from gridrt.grid.registry import get_builder
@@ -96,7 +96,5 @@ def add_dt_arg(q):
 
 def frame_strategy(name, threads):
     """The build strategy a --strategy of ``name`` means at ``threads`` threads: "auto" is serial at
-    1 thread and sort_middle above; any other name is itself."""
-    if name == "auto":
-        return "serial" if threads == 1 else "sort_middle"
-    return name
+    1 thread and counting above (gridrt.config.resolve_strategy); any other name is itself."""
+    return resolve_strategy(name, threads)

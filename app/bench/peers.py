@@ -79,7 +79,7 @@ def add_parser(bsub, common):
     p.add_argument("--threads", default=None, help="thread counts (default: 1 and all cores)")
     p.add_argument("--size", type=int, default=1024, help="camera image edge: size x size rays (default 1024)")
     p.add_argument("--strategy", default="auto",
-                   help="gridrt build strategy (default auto: serial at 1 thread, sort_middle above)")
+                   help="gridrt build strategy (default auto: serial at 1 thread, counting above)")
     p.add_argument("--embree-fast", action="store_true",
                    help="Embree without RTC_SCENE_FLAG_ROBUST (default robust, like gridrt's watertight test)")
     add_dt_arg(p)

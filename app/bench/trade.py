@@ -31,11 +31,10 @@ from dataclasses import dataclass
 import numpy as np
 
 import gridrt  # noqa: F401
-from gridrt.config import GRID_KINDS, PACKET_PRECISIONS, TRAVERSALS, GridParams, RenderParams, _packet_shape
+from gridrt.config import GRID_KINDS, PACKET_PRECISIONS, TRAVERSALS, GridParams, RenderParams, _packet_shape, check_strategy
 from gridrt.errors import InputError
 from gridrt.frame import FrameSpec, ViewSpec
 from gridrt.grid.build import GridBuilder
-from gridrt.grid.registry import get_builder
 from gridrt.scene import StaticMesh
 from gridrt.scene.mesh import quiet_trimesh
 from gridrt.threads import check_threads
@@ -306,7 +305,7 @@ def _options(a):
         float_list(a.top_densities, "--top-densities")
     if "leaf_density" in knobs:
         float_list(a.leaf_densities, "--leaf-densities")
-    get_builder(a.strategy)
+    check_strategy(a.strategy)
     threads = check_threads(a.threads)
     size = 64 if a.quick else a.size
     if size < 2:

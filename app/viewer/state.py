@@ -34,13 +34,16 @@ DEFAULT_SPAN = 10.0
 
 @dataclass
 class StatsHistory:
-    """Ring buffers of the last HISTORY rendered frames' build and render ms."""
+    """Ring buffers of the last HISTORY rendered frames' build and render ms; a frame that compiled
+    kernels (``stats["compiled"]``) is left out: its times are not rendering times."""
 
     build_ms: deque = field(default_factory=lambda: deque(maxlen=HISTORY))
     render_ms: deque = field(default_factory=lambda: deque(maxlen=HISTORY))
     frame_ms: deque = field(default_factory=lambda: deque(maxlen=HISTORY))
 
     def add(self, stats):
+        if stats.get("compiled"):
+            return
         self.build_ms.append(float(stats["build_ms"]))
         self.render_ms.append(float(stats["render_ms"]))
         self.frame_ms.append(float(stats["frame_ms"]))

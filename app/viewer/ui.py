@@ -385,8 +385,9 @@ def shade_line(st):
 
 def lights_line(st):
     """The stats' lights line: the lights the hits were shaded with and the shadow rays per pixel."""
+    rays = st.get("shadow_rays_per_pixel", 0.0)
     return (f"lights {int(st.get('lights', 0) or 0)}   "
-            f"shadow rays {float(st.get('shadow_rays_per_pixel', 0.0) or 0.0):.2f}/px")
+            f"shadow rays {'n/a' if rays is None or rays != rays else f'{float(rays):.2f}/px'}")
 
 
 def references_line(st):
@@ -415,7 +416,8 @@ def _draw_stats(state):
     else:
         _line(state, "build", "build  reused (static scene)")
     _line(state, "render",
-          f"render {st['render_ms']:8.2f} ms  {st['width']}x{st['height']}, {st.get('mrays', 0):.1f} Mray/s")
+          f"render {st['render_ms']:8.2f} ms  {st['width']}x{st['height']}, {st.get('mrays', 0):.1f} Mray/s"
+          + ("  (compiled kernels)" if st.get("compiled") else ""))
     _line(state, "shade", shade_line(st))
     _line(state, "lights", lights_line(st))
     _line(state, "frame", f"frame  {st['frame_ms']:8.2f} ms  {state.render_fps:.1f} fps (window {state.ui_fps:.0f})")

@@ -9,9 +9,11 @@ Nothing is written to the working directory unless the user asks (a screenshot k
 writes there only when no --screenshot-dir is given); imgui.ini is disabled.
 """
 
+import argparse
 import json
 import math
 import os
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -21,6 +23,7 @@ import numpy as np
 from gridrt.commands import gridrt_command
 from gridrt.errors import InputError
 from gridrt.frame import ViewSpec
+from gridrt.config import AUTO_STRATEGY
 from gridrt.grid.registry import names
 from gridrt.pipeline import FramePipeline
 from gridrt.scene import BUILTIN_SCENES, scene_choices
@@ -65,11 +68,6 @@ def add_parser(sub):
                    help="render resolution as a fraction of the window (0.1..2; default 1)")
     g.add_argument("--paused", action="store_true", help="start with the animation paused")
     g.add_argument("--hide-panel", action="store_true", help="start with the panel hidden (H toggles)")
-    g.add_argument("--no-scene-camera", dest="scene_camera", action="store_false",
-                   help="start on a camera that frames the scene, not on the scene's own camera (BART, glTF; "
-                        "the viewer's default where the scene has one, as with --follow-camera; an explicit "
-                        "--eye/--target also starts off it unless --follow-camera is given). The panel's "
-                        "\"scene camera\" box or the C key switches it")
     g.add_argument("--screenshot-dir", type=Path, default=None,
                    help="folder for F12/P screenshots (default: the current directory, only when asked)")
     g.add_argument("--state-file", type=Path, default=None,
@@ -79,24 +77,59 @@ def add_parser(sub):
     return p
 
 
-def headless_command():
+def headless_command(a=None):
     """The headless dump to run instead, as a command that works as printed (named the way this
-    process was started: ``.venv/bin/gridrt`` after the README's set-up; see gridrt.commands)."""
-    return f"{gridrt_command()} dump --scene marbles --frames 60 --out out/marbles"
+    process was started: ``.venv/bin/gridrt`` after the README's set-up; see gridrt.commands),
+    with the options of the parsed view arguments ``a`` that the dump shares and that differ from
+    their defaults (the user's scene, camera, grid and render settings), 60 frames into
+    out/SCENE."""
+    from .. import dump  # deferred: the dump's parser, built only for a message
+
+    words = ["dump"]
+    scene = "marbles"
+    if a is not None:
+        parser = dump.add_parser(argparse.ArgumentParser().add_subparsers())
+        for act in parser._actions:
+            if not act.option_strings or act.dest in ("help",) or not hasattr(a, act.dest):
+                continue
+            v = getattr(a, act.dest)
+            if v == act.default:
+                continue
+            words += _option_words(act, v)
+        scene = str(a.scene)
+    if "--scene" not in words:
+        words[1:1] = ["--scene", scene]
+    name = Path(scene).stem or "frames"
+    words += ["--frames", "60", "--out", f"out/{name}"]
+    return f"{gridrt_command()} {shlex.join(words)}"
 
 
-def no_display_message():
+def _option_words(act, v):
+    """The command-line words that give the option of argparse action ``act`` the value ``v``."""
+    opt = act.option_strings[-1] if act.option_strings[-1].startswith("--") else act.option_strings[0]
+    if isinstance(act, (argparse._StoreTrueAction, argparse._StoreFalseAction)):
+        return [opt]
+    if isinstance(v, tuple) and act.dest == "size":
+        text = f"{v[0]}x{v[1]}"
+    elif isinstance(v, tuple):
+        text = ",".join(f"{x:g}" for x in v)
+    else:
+        text = str(v)
+    return [f"{opt}={text}"] if text.startswith("-") else [opt, text]
+
+
+def no_display_message(a=None):
     return ("gridrt view: no display found (DISPLAY and WAYLAND_DISPLAY are unset); render headless instead: "
-            + headless_command())
+            + headless_command(a))
 
 
-def window_failed_message(why):
-    return f"gridrt view: cannot open an OpenGL 3.3 window ({why}); render headless instead: " + headless_command()
+def window_failed_message(why, a=None):
+    return f"gridrt view: cannot open an OpenGL 3.3 window ({why}); render headless instead: " + headless_command(a)
 
 
 def run(a):
     if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-        print(no_display_message(), file=sys.stderr)
+        print(no_display_message(a), file=sys.stderr)
         return 3
     if not (SCALE_MIN <= a.scale <= SCALE_MAX):
         raise InputError(f"--scale must be between {SCALE_MIN} and {SCALE_MAX}, got {a.scale}")
@@ -110,10 +143,9 @@ def run(a):
 
 def start_on_scene_camera(a):
     """Whether the command line's scene starts on its own camera (when it has one): by default,
-    unless --no-scene-camera, or an explicit --eye/--target without --follow-camera."""
-    if a.follow_camera:
-        return True
-    return bool(getattr(a, "scene_camera", True)) and a.eye is None and a.target is None
+    unless --no-scene-camera, or an explicit --eye/--target without --follow-camera (as the dump:
+    gridrt.app.cli.follows_scene_camera)."""
+    return cli.follows_scene_camera(a)
 
 
 def initial_state(a):
@@ -190,7 +222,7 @@ class Viewer:
         st = self.state
         glfw.set_error_callback(self._on_glfw_error)
         if not glfw.init():
-            print(window_failed_message(self.glfw_error or "glfw could not initialise"), file=sys.stderr)
+            print(window_failed_message(self.glfw_error or "glfw could not initialise", self.args), file=sys.stderr)
             return 3
         win = ui = blitter = ctx = worker = None
         try:
@@ -201,13 +233,13 @@ class Viewer:
             w, h = st.window_size
             win = glfw.create_window(int(w), int(h), TITLE, None, None)
             if not win:
-                print(window_failed_message(self.glfw_error or "no OpenGL 3.3 core context"), file=sys.stderr)
+                print(window_failed_message(self.glfw_error or "no OpenGL 3.3 core context", self.args), file=sys.stderr)
                 return 3
             glfw.make_context_current(win)
             glfw.swap_interval(1)
             ctx = moderngl.create_context()
             self.glfw, self.win, self.ctx = glfw, win, ctx
-            self.strategies = names()
+            self.strategies = (AUTO_STRATEGY, *names())
             self.input = InputHandler(glfw, win, st, self.strategies)
             ui = ImguiRuntime(win)
             blitter = Blitter(ctx)

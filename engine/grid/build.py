@@ -8,7 +8,7 @@ import numpy as np
 
 from ..arrays import (TRI_DTYPE, as_origin, as_triangles, float_contiguous, frame_centre, refuse_bad_values,
                       triangle_array)
-from ..config import GridParams
+from ..config import GridParams, resolve_strategy
 from ..errors import InputError
 from ..precision import ONE_SHOT_SAMPLE, warn_detail
 from ..stats import BuildStats
@@ -106,8 +106,9 @@ class GridBuilder:
                 self._auto = None
             self.params = params
         p = self.params
-        strategy = get_builder(p.strategy)()
         threads = check_threads(p.threads)
+        strategy_name = resolve_strategy(p.strategy, threads)
+        strategy = get_builder(strategy_name)()
         t_start = time.perf_counter()
         times = {}
         tris = _check_tris(tris)
@@ -243,7 +244,7 @@ class GridBuilder:
         grid.stats = BuildStats(
             stages=times,
             build_ms=build_ms,
-            strategy=p.strategy,
+            strategy=resolve_strategy(p.strategy, threads),
             threads=threads,
             insert=p.insert,
             triangles=F,

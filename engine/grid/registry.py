@@ -11,6 +11,7 @@ class's docstring is what ``gridrt strategies`` prints.
 """
 
 from ..config import STRATEGIES, check_strategy
+from ..errors import InputError
 from .strategies.counting import Counting
 from .strategies.serial import Serial
 from .strategies.sort_first import SortFirst
@@ -27,8 +28,12 @@ if tuple(BUILDERS) != STRATEGIES:
 
 
 def get_builder(name):
-    """The strategy class registered as ``name``; InputError listing the valid names otherwise."""
-    return BUILDERS[check_strategy(name)]
+    """The strategy class registered as ``name``; InputError listing the valid names otherwise
+    ("auto" names no class: gridrt.config.resolve_strategy gives the one it stands for)."""
+    if check_strategy(name) not in BUILDERS:
+        raise InputError(f"build strategy {name!r} stands for one of the others at a given thread count; "
+                         f"choose one of {', '.join(STRATEGIES)}")
+    return BUILDERS[name]
 
 
 def names():

@@ -450,8 +450,9 @@ class Renderer:
         ms = (time.perf_counter() - t0) * 1e3
         n = W * H
         if n_shadow is None:  # lambert's shadow rays (one per hit facing the light) are not counted
-            n_shadow = float("nan") if params.shadows else 0
-        extra = dict(lights=n_lights, shadow_rays_per_pixel=n_shadow / n, shade_ms=shade_ms)
+            n_shadow = None if params.shadows else 0
+        extra = dict(lights=n_lights, shadow_rays_per_pixel=None if n_shadow is None else n_shadow / n,
+                     shade_ms=shade_ms)
         stats = RenderStats(
             render_ms=ms,
             mrays=n / (ms * 1e3) if ms > 0 else float("nan"),
