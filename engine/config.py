@@ -149,8 +149,8 @@ class RenderParams:
     width, height  image size in pixels (each 1..MAX_IMAGE_SIDE); a size whose buffers
                    (gridrt.memory.render_bytes) exceed the memory this process has left
                    (gridrt.memory) is refused, stating both
-    shading        "auto" (the default: "material" for a scene with materials, textures or vertex
-                   colours (Surface.has_materials), else "lambert"),
+    shading        "auto" (the default: "material" for a scene with materials, textures, vertex
+                   colours or smooth normals (Surface.has_looks), else "lambert"),
                    "material" (the scene's materials, textures, smooth normals and lights:
                    gridrt.trace.material), "lambert" (one colour; a headlight, or the point
                    light when shadows are on), "normal" (geometric normal facing the viewer,
@@ -221,8 +221,9 @@ class RenderParams:
         return replace(self, **kw)
 
     def resolved(self, has_materials):
-        """The shading mode to render with: "auto" is "material" when ``has_materials`` (the scene
-        has a surface), else "lambert"; the others are themselves."""
+        """The shading mode to render with: "auto" is "material" when ``has_materials`` (the
+        scene's surface has looks of its own: Surface.has_looks), else "lambert"; the others are
+        themselves."""
         if self.shading != "auto":
             return self.shading
         return "material" if has_materials else "lambert"

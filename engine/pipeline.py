@@ -296,7 +296,7 @@ class FramePipeline:
         t_frame = time.perf_counter()
         rp = self.render_params
         surface = self.scene.surface
-        shading = rp.resolved(surface is not None and surface.has_materials)
+        shading = rp.resolved(surface is not None and surface.has_looks)
         W, H = rp.width, rp.height
         # the render's buffers and shadow rays, before the scene and its grid take their memory
         check_render_fits(W, H, shading == "material" and bool(rp.shadows), self._rendered_size != (W, H),

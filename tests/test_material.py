@@ -372,9 +372,10 @@ def test_gltf_checkerboard_texels(tmp_path, rng, traversal):
     assert len(np.unique(got, axis=0)) == 16  # every square seen
 
 
-def test_auto_keeps_lambert_for_a_file_with_normals_only(tmp_path):
-    """An OBJ whose only looks are its normals renders as before (auto = lambert); the same file with
-    a material of its own renders in the material mode; the default material's colour is lambert's."""
+def test_auto_shades_a_file_with_normals_only_with_its_normals(tmp_path):
+    """An OBJ whose only looks are its normals renders with them by default (auto = material: its
+    smooth normals under the default material, whose colour is lambert's), not faceted; the same
+    file with a material of its own renders in the material mode too."""
     from gridrt.scene import make_scene
     from gridrt.scene.surface import AMBIENT_FRACTION, DEFAULT_DIFFUSE
 
@@ -387,7 +388,14 @@ def test_auto_keeps_lambert_for_a_file_with_normals_only(tmp_path):
     plain, red = make_scene(tmp_path / "n.obj"), make_scene(tmp_path / "m.obj")
     assert plain.surface is not None and plain.surface.normals is not None and not plain.surface.has_materials
     assert red.surface.has_materials
-    assert FramePipeline(plain, render_params=rp).step(0.0).stats["shading"] == "lambert"
+    auto = FramePipeline(plain, render_params=rp).step(0.0)
+    assert auto.stats["shading"] == "material"
+    smooth = FramePipeline(plain, render_params=rp.replace(shading="material")).step(0.0)
+    flat = FramePipeline(plain, render_params=rp.replace(shading="lambert")).step(0.0)
+    hit = auto.tri >= 0
+    assert hit.sum() > 50 and np.array_equal(auto.image, smooth.image)
+    # the vertex normals lean away from the faces' own: the faceted image differs from the smooth one
+    assert (np.abs(auto.image[hit][:, :3].astype(int) - flat.image[hit][:, :3].astype(int)) > 2).any()
     fr = FramePipeline(red, render_params=rp).step(0.0)
     assert fr.stats["shading"] == "material"
     lit = fr.image[fr.tri >= 0][:, :3].astype(int)

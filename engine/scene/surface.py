@@ -259,8 +259,8 @@ class Surface:
     def has_materials(self):
         """True when the file gave the triangles looks of their own: a texture, vertex colours, or a
         material other than a default one (gridrt's grey DEFAULT_DIFFUSE, or glTF's white, each with
-        AMBIENT_FRACTION of it as ambient).  A surface of normals only has none: shading "auto" then
-        keeps the ``lambert`` look, and "material" gives its smooth normals."""
+        AMBIENT_FRACTION of it as ambient).  A surface of normals only has none (see
+        :attr:`has_looks`)."""
         if self.textured or self.colors is not None:
             return True
         for d in (DEFAULT_DIFFUSE, (1.0, 1.0, 1.0)):
@@ -269,6 +269,13 @@ class Surface:
                                                                             atol=1e-6):
                 return False
         return True
+
+    @property
+    def has_looks(self):
+        """True when the file gave the triangles anything the ``material`` shading shows and
+        ``lambert`` does not: materials (:attr:`has_materials`) or smooth normals.  Shading "auto"
+        is "material" for such a surface."""
+        return self.has_materials or self.normals is not None
 
     @property
     def textured(self):

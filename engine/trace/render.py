@@ -391,7 +391,7 @@ class Renderer:
         n_scene = len(tris) + (len(second[1]) if second is not None else 0)
         if looks is not None:
             looks = _check_looks(looks, n_scene)
-        shading = params.resolved(looks is not None and looks[1] is not None and looks[1].has_materials)
+        shading = params.resolved(looks is not None and looks[1] is not None and looks[1].has_looks)
         if shading == "material" and looks is None:
             if second is not None:
                 raise InputError("the material shading of two grids needs looks= (the scene's triangles by scene id)")
