@@ -483,3 +483,32 @@ def test_layout_is_the_tree():
                 if p.split("/")[0] in ("engine", "app") and p.count("/") >= 2 and p.endswith("/__init__.py")
                 and p.count("/") == 2}
     assert packages <= set(named), f"subpackages the Layout omits: {sorted(packages - set(named))}"
+
+
+# ----------------------------------------------------------------------------- short table cells
+
+
+def long_cells(text, limit=160):
+    """The markdown table cells of ``text`` longer than one sentence: over ``limit`` characters, or
+    holding a sentence's end followed by another sentence."""
+    bad = []
+    for ln in text.splitlines():
+        if not ln.startswith("|") or re.fullmatch(r"\|[\s:|-]+\|", ln.strip()):
+            continue
+        for cell in re.split(r"(?<!\\)\|", ln.strip())[1:-1]:
+            cell = cell.strip()
+            if len(cell) > limit or re.search(r"[a-z0-9)][.;!?] +[A-Z]", cell):
+                bad.append(cell)
+    return bad
+
+
+def test_document_table_cells_hold_at_most_a_sentence():
+    for doc in [README, *sorted(DOCS.glob("**/*.md"))]:
+        bad = long_cells(doc.read_text(encoding="utf-8"))
+        assert not bad, f"{doc.relative_to(REPO)}: table cells longer than a sentence: {bad}"
+
+
+def test_long_cell_check_catches_a_planted_cell():
+    table = "| a | b |\n|---|---|\n| short | one sentence. Then another one. |\n| x | " + "y" * 200 + " |\n"
+    assert long_cells(table) == ["one sentence. Then another one.", "y" * 200]
+    assert long_cells("| a | b |\n|---|---|\n| e.g. this | 1.5 ms |\n") == []
