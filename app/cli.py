@@ -5,13 +5,57 @@ import re
 from dataclasses import fields
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
-from gridrt.config import GRID_KINDS, INSERT_MODES, PACKET_PRECISIONS, SHADING_MODES, TRAVERSALS, GridParams, RenderParams
+from gridrt.config import (
+    AUTO_STRATEGY, GRID_KINDS, INSERT_MODES, PACKET_MAX, PACKET_PRECISIONS, PARALLEL_DEFAULT_STRATEGY, SHADING_MODES,
+    TRAVERSALS, GridParams, RenderParams,
+)
 from gridrt.frame import FrameSpec, ViewSpec
 from gridrt.pipeline import FramePipeline
 from gridrt.scene import DEFORM_KINDS, scene_choices
 from gridrt.scene.deform import DEFAULT_AMPLITUDE_FRACTION
 from gridrt.scene.spec import SceneSpec
 from gridrt.threads import MAX_THREADS, warn_more_threads_than_cores
+
+
+#: The help of each option that several commands take (view, dump and the benchmarks): the one text
+#: every parser shows for it (tests/test_names_and_help.py checks them all).  ``--help`` appends the
+#: default; a command whose default the help cannot show (None: "all cores") or that explains its own
+#: says it after the text, and a benchmark that measures several values side by side adds
+#: :data:`SEVERAL` (:func:`option_help`).
+OPTION_HELP = {
+    "--strategy": f"grid build strategy: one of `gridrt strategies`, or {AUTO_STRATEGY} (serial at 1 thread, "
+                  f"{PARALLEL_DEFAULT_STRATEGY} above)",
+    "--threads": f"threads for build and render, 1..{MAX_THREADS}",
+    "--lambda": "grid density: cells ~ lambda x triangles",
+    "--macro": "macro-cell edge in cells",
+    "--grid": "grid kind: one uniform grid, a two-level grid (a coarse grid whose non-empty cells hold grids of their "
+              "own) or auto (two_level when the triangles crowd into few top cells)",
+    "--top-density": "two-level grid: top cells per triangle",
+    "--leaf-density": "two-level grid: leaf cells per reference (triangle) of a top cell",
+    "--insert": "triangle insertion test: bounding box (fast) or exact SAT (fewer references)",
+    "--shading": "auto (material for a scene with materials, textures or vertex colours, else lambert), material (the "
+                 "scene's materials, textures, smooth normals and lights), lambert (one colour; a headlight, or the "
+                 "point light when shadows are on), normal (geometric normals as colours) or cost (a heat map of "
+                 "triangle tests per ray)",
+    "--shadows": "hard shadows: towards the point light (lambert) or each of the scene's lights (material)",
+    "--traversal": "ray traversal: single-ray 3D DDA, or coherent grid traversal of ray packets (cgt; same image, "
+                   "faster)",
+    "--packet": f"CGT packet size in pixels, N or WxH, each 1..{PACKET_MAX}",
+    "--packet-precision": "precision of the CGT packets' triangle tests: float64 (the DDA's hits bit for bit) or "
+                          "float32 (twice the lanes; hits agree up to float32 rounding)",
+    "--dt": "time step between frames, seconds",
+}
+
+
+#: what the help of a shared option adds where a benchmark takes several values of it
+SEVERAL = "; several, comma-separated, are measured side by side"
+
+
+def option_help(option, default=None, several=False):
+    """The help of a shared option (:data:`OPTION_HELP`): with :data:`SEVERAL` where the command
+    takes several values (a benchmark), and ``default`` (words) after it where the command's default
+    is one ``--help`` cannot show (None) or explains."""
+    return OPTION_HELP[option] + (SEVERAL if several else "") + (f" (default: {default})" if default else "")
 
 
 #: a value argparse would take for an option: one or more comma-separated numbers starting with a
@@ -88,19 +132,13 @@ def add_scene_args(p):
 def add_grid_args(p):
     d = defaults(GridParams)
     g = p.add_argument_group("grid")
-    g.add_argument("--strategy", default=d["strategy"], help="grid build strategy (see `gridrt strategies`)")
-    g.add_argument("--threads", type=int, default=d["threads"], help=f"threads for build and render (1..{MAX_THREADS}; "
-                   "default: all cores)")
-    g.add_argument("--lambda", dest="density", type=float, default=d["density"],
-                   help=f"grid density: cells ~ lambda x triangles (default {d['density']:g})")
-    g.add_argument("--macro", type=int, default=d["macro"], help=f"macro-cell edge in cells (default {d['macro']})")
-    g.add_argument("--grid", choices=GRID_KINDS, default=d["grid"],
-                   help="grid kind: one uniform grid, a two-level grid (a coarse grid whose non-empty cells hold "
-                        "grids of their own) or auto (two_level when the triangles crowd into few top cells; "
-                        f"default {d['grid']})")
+    g.add_argument("--strategy", default=d["strategy"], help=option_help("--strategy"))
+    g.add_argument("--threads", type=int, default=d["threads"], help=option_help("--threads", "all cores"))
+    g.add_argument("--lambda", dest="density", type=float, default=d["density"], help=option_help("--lambda"))
+    g.add_argument("--macro", type=int, default=d["macro"], help=option_help("--macro"))
+    g.add_argument("--grid", choices=GRID_KINDS, default=d["grid"], help=option_help("--grid"))
     add_density_args(g)
-    g.add_argument("--insert", choices=INSERT_MODES, default=d["insert"],
-                   help="triangle insertion test: bounding box (fast) or exact SAT (fewer references)")
+    g.add_argument("--insert", choices=INSERT_MODES, default=d["insert"], help=option_help("--insert"))
     g.add_argument("--max-cells", type=int, default=d["max_cells"],
                    help=f"ceiling on grid cells (default {d['max_cells']})")
     g.add_argument("--no-split", dest="split_static", action="store_false",
@@ -111,31 +149,22 @@ def add_density_args(g):
     """--top-density and --leaf-density (GridParams.top_density, leaf_density: a two-level grid's)
     on the parser or argument group g."""
     d = defaults(GridParams)
-    g.add_argument("--top-density", type=float, default=d["top_density"],
-                   help=f"two-level grid: top cells per triangle (default {d['top_density']:g})")
-    g.add_argument("--leaf-density", type=float, default=d["leaf_density"],
-                   help=f"two-level grid: leaf cells per reference (triangle) of a top cell (default {d['leaf_density']:g})")
+    g.add_argument("--top-density", type=float, default=d["top_density"], help=option_help("--top-density"))
+    g.add_argument("--leaf-density", type=float, default=d["leaf_density"], help=option_help("--leaf-density"))
 
 
 def add_render_args(p):
     d = defaults(RenderParams)  # shadows off and the watertight test: the two switches below change them
     g = p.add_argument_group("render")
     g.add_argument("--size", type=size, default=(d["width"], d["height"]), help="image size WIDTHxHEIGHT")
-    g.add_argument("--shading", choices=SHADING_MODES, default=d["shading"],
-                   help="auto (material for a scene with materials, textures or vertex colours, "
-                        "else lambert), material (the scene's materials, textures, smooth normals and lights), "
-                        "lambert (one colour; a headlight, or the point light with --shadows), normal (geometric "
-                        "normals as colours) or cost (a heat map of triangle tests per ray)")
-    g.add_argument("--shadows", action="store_true",
-                   help="hard shadows: towards the point light (lambert) or each of the scene's lights (material)")
+    g.add_argument("--shading", choices=SHADING_MODES, default=d["shading"], help=option_help("--shading"))
+    g.add_argument("--shadows", action="store_true", help=option_help("--shadows"))
     g.add_argument("--light", type=vec3, default=d["light"],
                    help="point light X,Y,Z (default: above and behind the camera; in the material mode it replaces "
                         "the scene's lights)")
     g.add_argument("--fast-intersect", action="store_true",
                    help="Moller-Trumbore instead of the watertight test (faster, may leak at edges)")
-    g.add_argument("--traversal", choices=TRAVERSALS, default=d["traversal"],
-                   help="ray traversal: single-ray 3D DDA, or coherent grid traversal of ray packets "
-                        "(cgt; same image, faster)")
+    g.add_argument("--traversal", choices=TRAVERSALS, default=d["traversal"], help=option_help("--traversal"))
     add_packet_args(g)
     g.add_argument("--eye", type=vec3, default=None,
                    help="camera position X,Y,Z, with --target (default: a camera that frames the scene)")
@@ -159,11 +188,9 @@ def add_packet_args(g):
     """--packet and --packet-precision (RenderParams.packet, packet_precision) on the parser or
     argument group g."""
     d = defaults(RenderParams)
-    g.add_argument("--packet", default="x".join(map(str, d["packet"])),
-                   help="CGT packet size in pixels, N or WxH, each 1..16 (default %(default)s)")
+    g.add_argument("--packet", default="x".join(map(str, d["packet"])), help=option_help("--packet"))
     g.add_argument("--packet-precision", choices=PACKET_PRECISIONS, default=d["packet_precision"],
-                   help="precision of the CGT packets' triangle tests: float64 (the DDA's hits bit for bit) or "
-                        "float32 (twice the lanes; hits agree up to float32 rounding) (default %(default)s)")
+                   help=option_help("--packet-precision"))
 
 
 def scene_spec(a):

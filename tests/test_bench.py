@@ -460,16 +460,17 @@ def test_bench_bad_arguments(tmp_path, capsys, args, message):
     assert message in capsys.readouterr().err
 
 
-def test_bench_shortcuts_fall_back_to_the_shipped_assets(tmp_path, monkeypatch):
-    """Without the development data set, a bench shortcut whose scene ships in assets/ uses the
-    asset (the Armadillo as binary PLY, Cesium Man); one that does not ship says it is absent."""
+def test_bench_scene_names_without_the_data_set(tmp_path, monkeypatch):
+    """Without the development data set, a scene name that ships in assets/ is the asset (as it is
+    with the data set: the Armadillo as binary PLY, Cesium Man by its older name too); a data set
+    scene says which file it needs."""
     from gridrt.app.bench import scenes
     from gridrt.errors import InputError
-    from gridrt.scene.assets import asset_path
+    from gridrt.scene import assets
 
-    monkeypatch.setattr(scenes, "DATA", tmp_path)
-    assert scenes.data_path("armadillo") == asset_path("armadillo")
-    assert scenes.parse_scene_spec("cesium")[0] == str(asset_path("cesium_man"))
+    monkeypatch.setattr(assets, "DATA_DIR", tmp_path)
+    assert scenes.data_path("armadillo") == assets.asset_path("armadillo")
+    assert scenes.parse_scene_spec("cesium")[0] == str(assets.asset_path("cesium_man"))
     assert scenes.scene_available("morphsphere") and not scenes.scene_available("lucy")
-    with pytest.raises(InputError, match="absent"):
+    with pytest.raises(InputError, match="lucy.*needs .*Lucy100k.ply"):
         scenes.parse_scene_spec("lucy")

@@ -12,7 +12,7 @@ from gridrt.app.__main__ import build_parser, main
 from gridrt.app.bench import build, core, looks, packets, peers
 from gridrt.app.bench.scenes import resolve_scene
 from gridrt.camera import Camera
-from gridrt.config import GridParams, RenderParams
+from gridrt.config import PARALLEL_DEFAULT_STRATEGY, GridParams, RenderParams
 from gridrt.frame import FrameSpec, ViewSpec
 from gridrt.scene import SceneSpec, make_scene
 
@@ -87,8 +87,9 @@ def test_bench_peers_configurations_are_the_options(strategy):
         assert [(s.grid.threads, s.grid.grid) for s in specs] == [(t, k) for t in threads for k in kinds]
         for s in specs:
             g, r, T = s.grid, s.render, s.grid.threads
-            # --strategy auto: serial at 1 thread, sort_middle above (the option's help)
-            assert g.strategy == ((("serial" if T == 1 else "sort_middle") if strategy == "auto" else strategy))
+            # --strategy auto: serial at 1 thread, counting above (the option's help)
+            auto = "serial" if T == 1 else PARALLEL_DEFAULT_STRATEGY
+            assert g.strategy == (auto if strategy == "auto" else strategy)
             assert (g.top_density, g.leaf_density) == (0.125, 3.0)
             check_defaults(g, GridParams, "strategy", "threads", "grid", "top_density", "leaf_density")
             assert (r.width, r.height, r.threads, r.traversal) == (32, 32, T, "cgt")

@@ -40,7 +40,7 @@ from gridrt.grid.traffic import MODELLED, stage_bytes, stream_bandwidth
 from gridrt.threads import check_threads
 from gridrt.trace.render import Renderer
 
-from ..cli import defaults
+from ..cli import defaults, option_help
 from ..cluster.scheduler import add_cluster_args, wants_cluster
 from .machine import finish_machine, machine_info
 from ..cluster.bench import _bench_scene, open_cluster, run_configs, stream_on_worker, worker_cores
@@ -399,13 +399,12 @@ def add_parser(bsub, common):
     p = bsub.add_parser("build", help="build strategies x threads x scenes, total and per stage")
     common(p, "build", warmup=2, scenes=(BUILD_SCENES, BUILD_FALLBACK))
     p.add_argument("--strategies", default=None, help="comma-separated strategy names (default: all)")
-    p.add_argument("--threads", default=None, help="thread counts (default: 1 .. all cores)")
+    p.add_argument("--threads", default=None, help=option_help("--threads", "every count from 1 to all cores",
+                                                               several=True))
     g = defaults(GridParams)
-    p.add_argument("--insert", choices=INSERT_MODES, default=g["insert"],
-                   help=f"insertion test (default {g['insert']})")
-    p.add_argument("--lambda", dest="density", type=float, default=g["density"],
-                   help=f"grid density (default {g['density']:g})")
-    p.add_argument("--macro", type=int, default=g["macro"], help=f"macro-cell edge in cells (default {g['macro']})")
+    p.add_argument("--insert", choices=INSERT_MODES, default=g["insert"], help=option_help("--insert"))
+    p.add_argument("--lambda", dest="density", type=float, default=g["density"], help=option_help("--lambda"))
+    p.add_argument("--macro", type=int, default=g["macro"], help=option_help("--macro"))
     add_grid_kind_args(p)
     p.add_argument("--size", type=int, default=BUILD_RENDER_SIZE,
                    help="square image edge of a render of each configuration's last grid, for its render ms, tests "

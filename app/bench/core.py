@@ -13,6 +13,7 @@ from gridrt.frame import FrameSpec
 from gridrt.grid.build import GridBuilder, build_grid
 from gridrt.trace.render import Renderer
 
+from ..cli import option_help
 from .machine import finish_machine, machine_info
 from .options import check_runs, thread_list
 from .output import figure, md_table, out_dir, progress, write_csv, write_json, write_summary
@@ -28,9 +29,10 @@ def add_parser(bsub, common):
     p = bsub.add_parser("core", help="serial build ms (bbox, exact) and primary-ray Mrays/s on ~100k and ~1M triangles")
     common(p, "core", scenes=(CORE_SCENES, CORE_FALLBACK))
     p.add_argument("--size", type=int, default=1024, help="square image edge for the ray figures (default 1024)")
-    p.add_argument("--threads", default=None, help="thread counts for the ray figures (default: 1 and all cores)")
-    p.add_argument("--traversal", default=",".join(TRAVERSALS), help=f"ray traversals, comma-separated of "
-                   f"{', '.join(TRAVERSALS)} (default {','.join(TRAVERSALS)}: DDA and CGT side by side)")
+    p.add_argument("--threads", default=None,
+                   help=option_help("--threads", "1 and all cores; the ray figures only, the builds are serial",
+                                    several=True))
+    p.add_argument("--traversal", default=",".join(TRAVERSALS), help=option_help("--traversal", several=True))
     p.set_defaults(func=run_core)
 
 

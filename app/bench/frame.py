@@ -13,7 +13,7 @@ from gridrt.errors import InputError
 from gridrt.frame import FrameSpec, ViewSpec
 from gridrt.pipeline import FramePipeline
 
-from ..cli import add_packet_args, defaults
+from ..cli import add_packet_args, defaults, option_help
 from ..cluster.scheduler import add_cluster_args, wants_cluster
 from .machine import finish_machine, machine_info
 from ..cluster.bench import _bench_scene, open_cluster, run_configs, worker_cores
@@ -36,17 +36,16 @@ FRAME_FALLBACK = ["marbles", "icosphere:20480:twist", "icosphere:1310720:twist"]
 def add_parser(bsub, common):
     p = bsub.add_parser("frame", help="rebuild + render per frame at 1024x1024 per scene, 1 thread and all cores")
     common(p, "frame", warmup=2, scenes=(FRAME_SCENES, FRAME_FALLBACK))
-    p.add_argument("--threads", default=None, help="thread counts (default: 1 and all cores)")
+    p.add_argument("--threads", default=None, help=option_help("--threads", "1 and all cores", several=True))
     p.add_argument("--size", type=int, default=1024, help="square image edge (default 1024)")
-    p.add_argument("--strategy", default="auto",
-                   help="build strategy (default auto: serial at 1 thread, counting above)")
-    p.add_argument("--traversal", default=FRAME_TRAVERSAL, help=f"comma-separated of {', '.join(TRAVERSALS)} (default "
-                   f"{FRAME_TRAVERSAL}: the packet traversal the fps figures of Ize et al. 2006 and CGT used; single-ray DDA "
-                   "takes seconds per frame on some scenes)")
+    p.add_argument("--strategy", default="auto", help=option_help("--strategy"))
+    p.add_argument("--traversal", default=FRAME_TRAVERSAL,
+                   help=option_help("--traversal", f"{FRAME_TRAVERSAL}, the packet traversal the fps figures of Ize et al. "
+                                    "2006 and CGT used; single-ray DDA takes seconds per frame on some scenes",
+                                    several=True))
     p.add_argument("--split", choices=("both", "on", "off"), default="both",
                    help="static/moving split for scenes with static parts (default both: measure on and off)")
-    p.add_argument("--shading", choices=SHADING_MODES, default="lambert",
-                   help="shading of the rendered frames (default %(default)s)")
+    p.add_argument("--shading", choices=SHADING_MODES, default="lambert", help=option_help("--shading"))
     add_dt_arg(p)
     add_grid_kind_args(p)
     add_packet_args(p)

@@ -18,7 +18,7 @@ from gridrt.config import TRAVERSALS, GridParams, RenderParams
 from gridrt.frame import FrameSpec, ViewSpec
 from gridrt.pipeline import FramePipeline
 
-from ..cli import defaults
+from ..cli import defaults, option_help
 from .machine import finish_machine, machine_info
 from .options import check_runs, thread_list
 from .output import md_table, out_dir, progress, write_csv, write_json, write_summary
@@ -35,10 +35,9 @@ def add_parser(bsub, common):
                         description=__doc__.split("\n\n")[0])
     common(p, "looks", runs=5, warmup=2, scenes=(LOOKS_SCENES, LOOKS_FALLBACK))
     p.add_argument("--size", type=int, default=1024, help="square image edge (default 1024)")
-    p.add_argument("--threads", default="1,2", help="thread counts, comma-separated (default 1,2)")
-    traversal = defaults(RenderParams)["traversal"]
-    p.add_argument("--traversal", choices=sorted(TRAVERSALS), default=traversal,
-                   help=f"primary-ray traversal (default {traversal})")
+    p.add_argument("--threads", default="1,2", help=option_help("--threads", several=True))
+    p.add_argument("--traversal", choices=sorted(TRAVERSALS), default=defaults(RenderParams)["traversal"],
+                   help=option_help("--traversal"))
     p.set_defaults(func=run_looks)
 
 

@@ -10,7 +10,7 @@ from gridrt.frame import ViewSpec
 from gridrt.grid.registry import get_builder
 from gridrt.threads import check_threads
 
-from ..cli import add_density_args, defaults
+from ..cli import add_density_args, defaults, option_help
 
 
 def int_list(text, what, lo=1):
@@ -48,10 +48,7 @@ def grid_list(text):
 def add_grid_kind_args(q):
     """--grid (grid kinds, comma-separated: measured side by side), --top-density and --leaf-density
     (a two-level grid's densities) of a benchmark; :func:`grid_kinds` reads them."""
-    g = defaults(GridParams)
-    q.add_argument("--grid", default=g["grid"],
-                   help=f"grid kinds, comma-separated of {', '.join(GRID_KINDS)} (uniform,two_level measures both side "
-                        f"by side; default {g['grid']})")
+    q.add_argument("--grid", default=defaults(GridParams)["grid"], help=option_help("--grid", several=True))
     add_density_args(q)
 
 
@@ -91,7 +88,7 @@ def check_frame_args(a):
 def add_dt_arg(q):
     """--dt, the seconds between the frames of a frame-by-frame benchmark (default: ViewSpec's)."""
     dt = defaults(ViewSpec)["dt"]
-    q.add_argument("--dt", type=float, default=dt, help=f"seconds between frames (default 1/{1 / dt:g})")
+    q.add_argument("--dt", type=float, default=dt, help=option_help("--dt", f"1/{1 / dt:g}"))
 
 
 def frame_strategy(name, threads):

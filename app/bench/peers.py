@@ -43,7 +43,7 @@ from gridrt.frame import FrameSpec, ViewSpec
 from gridrt.grid.build import GridBuilder
 from gridrt.trace.render import Renderer, cast_rays
 
-from ..cli import add_packet_args
+from ..cli import add_packet_args, option_help
 
 from .affinity import Affinity
 from .machine import finish_machine, machine_info
@@ -76,10 +76,9 @@ def add_parser(bsub, common):
                         description=__doc__.split("\n\n")[0])
     common(p, "peers", warmup=2, scenes=False)
     p.add_argument("--scenes", default=None, help=scenes_help(PEER_SCENES, PEER_FALLBACK))
-    p.add_argument("--threads", default=None, help="thread counts (default: 1 and all cores)")
+    p.add_argument("--threads", default=None, help=option_help("--threads", "1 and all cores", several=True))
     p.add_argument("--size", type=int, default=1024, help="camera image edge: size x size rays (default 1024)")
-    p.add_argument("--strategy", default="auto",
-                   help="gridrt build strategy (default auto: serial at 1 thread, counting above)")
+    p.add_argument("--strategy", default="auto", help=option_help("--strategy"))
     p.add_argument("--embree-fast", action="store_true",
                    help="Embree without RTC_SCENE_FLAG_ROBUST (default robust, like gridrt's watertight test)")
     add_dt_arg(p)

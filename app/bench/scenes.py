@@ -1,11 +1,10 @@
-"""The benchmarks' scenes: the spec text NAME[:N][:twist|wave] (built-ins, mesh and animation
-files, short names for the development data set's meshes), its parsing, which scenes are present,
+"""The benchmarks' scenes: the spec text NAME[:N][:twist|wave] (NAME: a scene name of ``--scene``,
+gridrt.scene.BUILTIN_SCENES, or a mesh or animation file), its parsing, which scenes are present,
 the camera a benchmark looks at a scene with and that camera's rays (also moved in until the scene
 fills the view)."""
 
 import dataclasses
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,39 +16,40 @@ from gridrt.config import GridParams
 from gridrt.errors import InputError
 from gridrt.grid.build import GridBuilder
 from gridrt.scene import SceneSpec
-from gridrt.scene.assets import ASSET_SCENES, asset_path
+from gridrt.scene.assets import ASSET_SCENES, DATA_DIR, DATA_HIDDEN, DATA_SCENES, scene_file, scene_present
+from gridrt.scene.make import PROCEDURAL_SCENES, named_scene_file
 from gridrt.trace.render import cast_rays
-#: the development data set: real meshes in shared/data beside the repository, when present (not
-#: part of the repository; a user's clone has the shipped assets/ instead).  GRIDRT_NO_SHARED_DATA
-#: (anything but "" or "0") hides it, as in a user's clone (the tests' quick run sets it)
-DATA = Path(os.devnull if os.environ.get("GRIDRT_NO_SHARED_DATA", "") not in ("", "0") else
-            Path(__file__).resolve().parents[3] / "shared" / "data")
-#: short names for the real scenes of the development data set
-SHORTCUTS = {
-    "lucy": "static/lucy/Lucy100k.ply",
-    "armadillo": "static/armadillo/armadillo.off",
-    "dragon": "static/stanford_dragon/dragon.obj",
-    "bunny": "static/stanford_bunny/stanford-bunny.obj",
-    "teapot": "static/utah_teapot/teapot.obj",
-    "kitchen": "animated/bart/kitchen/aff/kitchen.aff",
-    "robots": "animated/bart/robots/aff/Robot.aff",
-    "museum": "animated/bart/museum/aff/museum5.aff",
-    "cesium": "animated/cesium_man/CesiumMan.glb",
-    "tokyo": "animated/littlest_tokyo/LittlestTokyo.glb",
-    "sydney": "animated/md2_sydney/sydney.md2",
-    "faerie": "animated/md2_faerie/faerie.md2",
-    "morphsphere": "animated/animated_morph_sphere/AnimatedMorphSphere.gltf",
-}
-SCENE_HELP = ("comma-separated scene specs NAME[:N][:twist|wave]: built-ins marbles, icosphere (N = triangle "
-              "count), a mesh or animation file, or a short name for a real mesh of the development data set, "
-              "when present, or the shipped asset of the same scene (" + ", ".join(SHORTCUTS)
-              + "; N = subdivide a static mesh to at least N triangles); twist/wave deform a static mesh")
+
+#: older names of two scenes, which the recorded benchmark commands use (BENCHMARKS.md,
+#: results/*/machine.json): a spec may still say them; help and documents name the scenes as
+#: ``--scene`` does
+ALIASES = {"cesium": "cesium_man", "morphsphere": "morph_sphere"}
+
+SCENE_HELP = ("comma-separated scene specs NAME[:N][:twist|wave]: a scene of --scene (" + ", ".join(PROCEDURAL_SCENES)
+              + ": N = triangle count; " + ", ".join(ASSET_SCENES) + "; with the development data set beside the "
+              "repository also " + ", ".join(DATA_SCENES) + ") or a mesh or animation file; N = subdivide a static "
+              "mesh to at least N triangles; twist/wave deform a static mesh")
+
+
+def scene_name(text):
+    """The scene name (a key of gridrt.scene.BUILTIN_SCENES) a spec's NAME part stands for, an alias
+    (:data:`ALIASES`) as the name it stands for; None for anything else (a file)."""
+    key = text.strip().lower()
+    key = ALIASES.get(key, key)
+    return key if key in PROCEDURAL_SCENES or key in ASSET_SCENES or key in DATA_SCENES else None
+
+
+def canonical_spec(spec):
+    """A spec with its NAME as ``--scene`` spells it ("cesium:twist" -> "cesium_man:twist")."""
+    base, *mods = spec.split(":")
+    return ":".join([scene_name(base) or base.strip(), *mods])
 
 
 def scenes_help(defaults, fallback):
     """--scenes help of a benchmark whose default scenes are ``defaults`` (those present) and
     ``fallback`` (when none of them is)."""
-    return f"{SCENE_HELP} (default: {', '.join(defaults)}, those of them present; {', '.join(fallback)} when none is)"
+    return (f"{SCENE_HELP} (default: {', '.join(map(canonical_spec, defaults))}, those of them present; "
+            f"{', '.join(map(canonical_spec, fallback))} when none is)")
 
 
 @dataclass
@@ -63,24 +63,17 @@ class BenchScene:
     path: Path | None
 
 
-#: SHORTCUTS names whose scene also ships in assets/ under another name
-_ASSET_NAMES = {"cesium": "cesium_man", "morphsphere": "morph_sphere"}
-
-
 def data_path(name):
-    """The file behind a SHORTCUTS name: the development data set's file, else the same scene's
-    shipped asset (assets/, see gridrt.scene.assets) where there is one; may not exist."""
-    p = DATA / SHORTCUTS[name]
-    asset = _ASSET_NAMES.get(name, name)
-    if not p.exists() and asset in ASSET_SCENES and asset_path(asset).exists():
-        return asset_path(asset)
-    return p
+    """The file behind a real scene's name (or alias): its shipped asset, or its file in the
+    development data set; may not exist (see :func:`scene_available`)."""
+    return scene_file(scene_name(name) or name)
 
 
 def scene_available(spec):
-    """True unless the spec names a scene of the development data set that is absent."""
-    base = spec.split(":")[0].strip().lower()
-    return base not in SHORTCUTS or data_path(base).exists()
+    """True unless the spec names a real scene whose file is absent (one of the development data
+    set's, where it is absent)."""
+    name = scene_name(spec.split(":")[0])
+    return name is None or name in PROCEDURAL_SCENES or scene_present(name)
 
 
 def _count(text, spec):
@@ -101,28 +94,24 @@ def _count(text, spec):
 
 
 def parse_scene_spec(spec):
-    """(source, make_scene kwargs) for NAME[:N][:twist|wave]; see SCENE_HELP."""
+    """(source, make_scene kwargs) for NAME[:N][:twist|wave]; see SCENE_HELP.  A real scene's name
+    becomes its file (gridrt.scene.named_scene_file: InputError where a data set scene's is absent);
+    a spec that is an existing file's path is that file."""
     text = spec.strip()
     if not text:
         raise InputError("empty scene spec")
-    if Path(text).exists():
-        return text, {}
     base, *mods = [m.strip() for m in text.split(":")]
-    key = base.lower()
+    name = scene_name(base)
+    if name is None and Path(text).exists():
+        return text, {}
     kw = {}
-    if key in SHORTCUTS:
-        src = data_path(key)
-        if not src.exists():
-            raise InputError(f"scene {base!r} needs {src}, which is absent (the development data set is not part "
-                             "of the repository; use a built-in scene such as marbles or icosphere)")
-    else:
-        src = base
-    builtin = key in ("marbles", "icosphere")
+    procedural = name in PROCEDURAL_SCENES
+    src = name if procedural else base if name is None else named_scene_file(name)
     for m in mods:
         if m.lower() in ("twist", "wave"):
             kw["animate"] = m.lower()
         else:
-            kw["count" if builtin else "subdivide"] = _count(m, spec)
+            kw["count" if procedural else "subdivide"] = _count(m, spec)
     return str(src), kw
 
 
@@ -146,13 +135,15 @@ def scene_list(text, defaults, fallback, quick=None):
         return [s.strip() for s in text.split(",") if s.strip()], None
     if quick is not None:
         return list(quick), None
+    defaults = [canonical_spec(s) for s in defaults]
     have = [s for s in defaults if scene_available(s)]
     missing = [s for s in defaults if not scene_available(s)]
     note = None
     if missing:
-        note = f"skipped (absent from {DATA}): {', '.join(missing)}"
+        where = "hidden: GRIDRT_NO_SHARED_DATA is set" if DATA_HIDDEN else f"absent from {DATA_DIR}"
+        note = f"skipped ({where}): {', '.join(missing)}"
     if not have:
-        return list(fallback), note
+        return [canonical_spec(s) for s in fallback], note
     return have, note
 
 

@@ -40,6 +40,7 @@ from gridrt.scene.mesh import quiet_trimesh
 from gridrt.threads import check_threads
 from gridrt.trace.render import Renderer, cast_rays
 
+from ..cli import option_help
 from .machine import finish_machine, machine_info
 from .options import check_runs, float_list, int_list
 from .output import figure, grid_columns, md_table, out_dir, progress, write_csv, write_json, write_summary
@@ -71,9 +72,9 @@ def add_parser(bsub, common):
     t.add_argument("--size", type=int, default=1024, help="full image edge in pixels (default 1024)")
     t.add_argument("--samples", type=int, default=4096, help="sampled pixels for the reference (default 4096)")
     t.add_argument("--probes", type=int, default=100000, help="probe rays for the holes count (default 100000)")
-    t.add_argument("--threads", type=int, default=None, help="render threads (default: all cores)")
-    t.add_argument("--strategy", default="serial", help="build strategy (default serial, as in the "
-                   "bbox/exact comparison of Ize et al. 2006)")
+    t.add_argument("--threads", type=int, default=None, help=option_help("--threads", "all cores"))
+    t.add_argument("--strategy", default="serial",
+                   help=option_help("--strategy", "serial, as in the bbox/exact comparison of Ize et al. 2006"))
     t.add_argument("--knobs", default=None, help=f"comma-separated of {', '.join(KNOBS)} (default: all)")
     t.add_argument("--lambdas", default=DEFAULT_LAMBDAS, help=f"lambda sweep (default {DEFAULT_LAMBDAS})")
     t.add_argument("--macros", default=DEFAULT_MACROS, help=f"macro-cell sizes (default {DEFAULT_MACROS})")

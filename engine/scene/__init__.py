@@ -8,7 +8,9 @@
   ``animate``);
 * the real assets that ship with gridrt (``"armadillo"``, ``"teapot"``, ``"cesium_man"``,
   ``"morph_sphere"``, ``"sydney"``, ``"museum"``; see :data:`ASSET_SCENES` and
-  ``assets/README.md``): loaded as their files below;
+  ``assets/README.md``) and, where the development data set is present beside the repository,
+  its other scenes (``"lucy"``, ``"dragon"``, ``"bunny"``, ``"kitchen"``, ``"robots"``,
+  ``"tokyo"``, ``"faerie"``; see :data:`DATA_SCENES`): loaded as their files below;
 * a .gltf/.glb file with animations: :class:`GltfAnimation` (node animation, skinning, morph
   targets); without animations it is static;
 * a BART .aff file: :class:`BartAnimation` (spline-animated transform hierarchy, ``tpa``
@@ -23,13 +25,15 @@ Static meshes (and the icosphere) can be split 1 -> 4 to a target triangle count
 """
 
 from .animation import Animation, StaticMesh, gather_triangles
-from .assets import ASSET_DIR, ASSET_SCENES, asset_path
+from .assets import ASSET_DIR, ASSET_SCENES, DATA_SCENES, asset_path, scene_file
 from .bart import BartAnimation
 from .deform import DEFORM_KINDS, Deform
 from .frames import FRAME_EXTENSIONS, KeyframeMesh, load_frame_folder
 from .gltf import DRACO_HINT, GltfAnimation
 from .loader import SUPPORTED_EXTENSIONS, load_mesh
-from .make import BUILTIN_SCENES, SCENE_EXTENSIONS, SceneCountWarning, icosphere_mesh, make_scene, scene_choices
+from .make import (
+    BUILTIN_SCENES, SCENE_EXTENSIONS, SceneCountWarning, icosphere_mesh, make_scene, named_scene_file, scene_choices,
+)
 from .marbles import Marbles
 from .md2 import Md2Model
 from .mesh import Mesh
@@ -42,6 +46,7 @@ __all__ = [
     "Animation",
     "BUILTIN_SCENES",
     "BartAnimation",
+    "DATA_SCENES",
     "DEFORM_KINDS",
     "DRACO_HINT",
     "Deform",
@@ -62,6 +67,8 @@ __all__ = [
     "load_frame_folder",
     "load_mesh",
     "make_scene",
+    "named_scene_file",
     "scene_choices",
+    "scene_file",
     "subdivide_mesh",
 ]

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..errors import InputError, SceneFileError
 from .animation import StaticMesh
-from .assets import ASSET_SCENES, asset_path
+from .assets import ASSET_SCENES, DATA_HIDDEN, DATA_SCENES, scene_file, scene_present
 from .bart import BartAnimation
 from .deform import DEFORM_KINDS, Deform
 from .frames import FRAME_EXTENSIONS, check_fps, is_frame_folder, load_frame_folder
@@ -25,20 +25,48 @@ from .subdivide import subdivide_mesh
 #: Every file extension :func:`make_scene` accepts (static meshes, glTF, BART, MD2).
 SCENE_EXTENSIONS = SUPPORTED_EXTENSIONS + (".aff", ".md2")
 
-#: Built-in scene names and what each is: the procedural ones (``count`` = their size) and the
-#: shipped assets (:data:`ASSET_SCENES`, fixed meshes: ``count`` does not apply).
-BUILTIN_SCENES = {
+#: The procedural scenes, whose size is ``count``.
+PROCEDURAL_SCENES = {
     "marbles": "rigid marbles bouncing in a box; count = exact triangle count (default 8800)",
     "icosphere": "unit icosphere; count = approximate triangle count, 20*4^k (default 5120)",
+}
+
+#: Scene names and what each is, the one list of names every command takes (``--scene`` and the
+#: benchmarks' scene specs): the procedural ones (``count`` = their size), the shipped assets
+#: (:data:`ASSET_SCENES`) and the development data set's other scenes (:data:`DATA_SCENES`, where
+#: that data set is present); the real ones are fixed files: ``count`` does not apply.
+BUILTIN_SCENES = {
+    **PROCEDURAL_SCENES,
     **{name: what for name, (_, what) in ASSET_SCENES.items()},
+    **{name: f"{what}; development data set" for name, (_, what) in DATA_SCENES.items()},
 }
 
 
 def scene_choices():
-    """What a scene may be, in words: the one list of built-in scenes and formats that
-    ``--help``, the error messages and the README quote (a test checks the README's)."""
-    return (f"a built-in scene ({', '.join(BUILTIN_SCENES)}), a scene file ({', '.join(SCENE_EXTENSIONS)}) or a "
-            f"folder of frames f000.obj, f001.obj, ... ({', '.join(FRAME_EXTENSIONS)})")
+    """What a scene may be, in words: the one list of scene names and formats that ``--help``, the
+    error messages and the README quote (a test checks the README's)."""
+    return (f"a built-in scene ({', '.join([*PROCEDURAL_SCENES, *ASSET_SCENES])}; with the development data set "
+            f"beside the repository also {', '.join(DATA_SCENES)}), a scene file ({', '.join(SCENE_EXTENSIONS)}) "
+            f"or a folder of frames f000.obj, f001.obj, ... ({', '.join(FRAME_EXTENSIONS)})")
+
+
+def named_scene_file(name, count=None):
+    """The file behind the real scene called ``name`` (a key of :data:`ASSET_SCENES` or
+    :data:`DATA_SCENES`), refusing ``count`` (a fixed mesh) and a file that is not there: a data set
+    scene's in one line (InputError naming the file and the scenes that ship), a shipped one's as
+    an incomplete install (SceneFileError)."""
+    if count is not None:
+        raise InputError(f"count applies to the marbles and icosphere scenes, not to {name!r} (a fixed "
+                         "mesh: subdivide= splits a static one)")
+    path = scene_file(name)
+    if scene_present(name):
+        return path
+    if name in ASSET_SCENES:
+        raise SceneFileError(path, f"file of the built-in scene {name!r} not found (an incomplete "
+                             "gridrt install: its assets folder is missing)")
+    why = "GRIDRT_NO_SHARED_DATA hides" if DATA_HIDDEN else "is absent"
+    raise InputError(f"scene {name!r} needs {path}, which {why}: a scene of the development data set, which is not "
+                     f"part of gridrt; the scenes that ship: {', '.join([*PROCEDURAL_SCENES, *ASSET_SCENES])}")
 
 
 _ICOSPHERE_DEFAULT = 5120
@@ -90,8 +118,9 @@ def make_scene(name_or_path, count=None, animate=None, amplitude=None, speed=1.0
     ----------
     name_or_path : str or os.PathLike
         One of :data:`BUILTIN_SCENES`, a file with one of :data:`SCENE_EXTENSIONS`, or a folder
-        of frame meshes (``f000.obj, f001.obj, ...``).  A shipped asset's name loads its file,
-        with that file's options.
+        of frame meshes (``f000.obj, f001.obj, ...``).  A real scene's name (a shipped asset, or
+        a scene of the development data set where it is present) loads its file, with that
+        file's options.
     count : int, optional
         Marbles and icosphere only: triangle count (exact for marbles, nearest ``20*4^k`` for
         icosphere).
@@ -123,8 +152,9 @@ def make_scene(name_or_path, count=None, animate=None, amplitude=None, speed=1.0
     ------
     InputError
         Unknown scene name that is not an existing file (the message lists the built-in names
-        and the supported extensions), unknown ``animate`` kind (lists the kinds), unknown clip
-        (lists the clips), or an option that does not apply to the chosen scene.
+        and the supported extensions), a development data set scene whose file is absent (names
+        the file and the scenes that ship), unknown ``animate`` kind (lists the kinds), unknown
+        clip (lists the clips), or an option that does not apply to the chosen scene.
     SceneFileError
         The file cannot be loaded; the message names the file and the problem.
     """
@@ -147,8 +177,8 @@ def make_scene(name_or_path, count=None, animate=None, amplitude=None, speed=1.0
         mesh = icosphere_mesh(_ICOSPHERE_DEFAULT if count is None else count)
         return _static_or_deformed(mesh, subdivide, animate, amplitude, speed)
 
-    if key in ASSET_SCENES:
-        name_or_path = _asset_file(key, count)
+    if key in ASSET_SCENES or key in DATA_SCENES:
+        name_or_path = named_scene_file(key, count)
     path = Path(name_or_path)
     ext = path.suffix.lower()
     if not path.exists() and ext not in SCENE_EXTENSIONS:
@@ -168,18 +198,6 @@ def _marbles_scene(count, animate, amplitude, speed, seed, clip, subdivide, fps)
     if subdivide is not None:
         raise InputError("subdivide does not apply to the marbles scene: choose its size with count=")
     return Marbles(8800 if count is None else count, seed=seed, speed=speed)
-
-
-def _asset_file(key, count):
-    """The file behind the shipped asset scene ``key`` (refusing ``count`` and a missing file)."""
-    if count is not None:
-        raise InputError(f"count applies to the marbles and icosphere scenes, not to {key!r} (a fixed "
-                         "mesh: subdivide= splits a static one)")
-    path = asset_path(key)
-    if not path.exists():
-        raise SceneFileError(path, f"file of the built-in scene {key!r} not found (an incomplete "
-                             "gridrt install: its assets folder is missing)")
-    return path
 
 
 def _file_scene(path, animate, amplitude, speed, clip, subdivide, fps, allow_outside):
