@@ -19,6 +19,7 @@ from gridrt.errors import InputError, SceneFileError
 from gridrt.scene import (
     ASSET_SCENES,
     BUILTIN_SCENES,
+    DATA_SCENES,
     SCENE_EXTENSIONS,
     SUPPORTED_EXTENSIONS,
     Animation,
@@ -915,7 +916,8 @@ def test_deform_bad_vertex_out():
 
 
 def test_make_scene_builtins():
-    assert set(BUILTIN_SCENES) == {"marbles", "icosphere", *ASSET_SCENES}  # the assets: test_assets.py
+    # the shipped assets (test_assets.py) and the development data set's scenes, by name
+    assert set(BUILTIN_SCENES) == {"marbles", "icosphere", *ASSET_SCENES, *DATA_SCENES}
     m = make_scene("marbles")
     assert isinstance(m, Marbles) and m.n_triangles == 8800
     assert make_scene("Marbles", count=10_000, seed=2).n_triangles == 10_000
