@@ -36,8 +36,7 @@ def add_parser(sub):
     view = cli.defaults(ViewSpec)
     p.add_argument("--t0", type=float, default=view["t0"],
                    help="time of the first frame, seconds (default %(default)g)")
-    p.add_argument("--dt", type=float, default=view["dt"],
-                   help="time step between frames, seconds (default %(default).6g)")
+    p.add_argument("--dt", type=float, default=view["dt"], help=cli.option_help("--dt", f"{view['dt']:.6g}"))
     p.add_argument("--out", type=Path, default=Path("out/dump"),
                    help="output folder (created); one that holds another dump is refused unless --overwrite or "
                         "--resume")

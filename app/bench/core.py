@@ -183,7 +183,7 @@ def _plot_core(rows, path):
     for k, ins in enumerate(("bbox", "exact")):
         ms = [next(r["median_ms"] for r in rows if r["scene"] == s and r["what"] == f"serial build {ins}") for s in scenes]
         ax[0, 0].bar(x + (k - 0.5) * 0.38, ms, 0.38, label=ins)
-    ax[0, 0].set_xticks(x, [s[:22] for s in scenes], fontsize=7)
+    ax[0, 0].set_xticks(x, list(scenes), fontsize=7)
     ax[0, 0].set_ylabel("serial build ms (median)")
     ax[0, 0].set_yscale("log")
     ax[0, 0].legend(fontsize=8)
@@ -194,7 +194,7 @@ def _plot_core(rows, path):
                    0) for s in scenes]
         w = 0.8 / len(variants)
         ax[0, 1].bar(x + (k - (len(variants) - 1) / 2) * w, mr, w, label=f"{th} thread(s) {tv}")
-    ax[0, 1].set_xticks(x, [s[:22] for s in scenes], fontsize=7)
+    ax[0, 1].set_xticks(x, list(scenes), fontsize=7)
     ax[0, 1].set_ylabel("primary Mrays/s (median)")
     ax[0, 1].legend(fontsize=8)
     fig.suptitle("bench core")

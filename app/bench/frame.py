@@ -293,7 +293,7 @@ def _plot_frame(rows, path):
                for s in scenes]
         ax[0, 0].bar(x + (k - (len(variants) - 1) / 2) * w, fps, w,
                      label=f"{v[0]}T {v[1]}{' split' if v[2] else ''}{f' {v[3]}' if len(kinds) > 1 else ''}")
-    ax[0, 0].set_xticks(x, [s[:18] for s in scenes], fontsize=7, rotation=20)
+    ax[0, 0].set_xticks(x, list(scenes), fontsize=7, rotation=20)
     ax[0, 0].set_ylabel("fps (1000 / median frame ms)")
     ax[0, 0].set_yscale("log")
     ax[0, 0].legend(fontsize=6)
@@ -305,7 +305,7 @@ def _plot_frame(rows, path):
         vals = np.array([r[key] for r in sel])
         ax[0, 1].bar(x, vals, 0.6, bottom=bottom, label=lab)
         bottom += vals
-    ax[0, 1].set_xticks(x, [s[:18] for s in scenes], fontsize=7, rotation=20)
+    ax[0, 1].set_xticks(x, list(scenes), fontsize=7, rotation=20)
     ax[0, 1].set_ylabel(f"ms per frame at {tmax} thread(s), fastest variant")
     ax[0, 1].legend(fontsize=7)
     fig.suptitle(f"bench frame: {sel[0]['size']}x{sel[0]['size']}, median of {sel[0]['frames']} frames")

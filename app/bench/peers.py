@@ -542,7 +542,7 @@ def _side_by_side(rows, emb, others):
 
 
 def _plot(rows, path, embree=True):
-    labels = [f"{r['scene'][:16]}\n{r['threads']}T{grid_label(r, rows)}" for r in rows]
+    labels = [f"{r['scene']}\n{r['threads']}T{grid_label(r, rows)}" for r in rows]
     x = np.arange(len(rows))
     fig, ax = figure(1, 2, w=6.0)
     a = ax[0, 0]
