@@ -107,7 +107,8 @@ def pytest_collectreport(report):
 def pytest_sessionfinish(session):
     """A quick run (GRIDRT_NO_SHARED_DATA, not --rest) remembers the tests it skipped for --rest."""
     config = session.config
-    if NO_SHARED_DATA and not config.getoption("rest") and getattr(config, "cache", None) is not None:
+    worker = hasattr(config, "workerinput")  # a pytest-xdist worker: the controller sees every report
+    if NO_SHARED_DATA and not config.getoption("rest") and not worker and getattr(config, "cache", None) is not None:
         config.cache.set(QUICK_SKIPPED, sorted(_SKIPPED))
 
 
