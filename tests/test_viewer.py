@@ -30,6 +30,15 @@ from gridrt.camera import DEFAULT_FOV, DEFAULT_UP
 from helpers.viewer import REPO, H, W, _App, _app_env, _X
 
 
+@pytest.fixture(autouse=True)
+def config_home(tmp_path_factory, monkeypatch):
+    """The viewer's config folder (GRIDRT_CONFIG_HOME: where it remembers the panel) for each test:
+    a fresh temporary one, inherited by the viewers the tests start; never the user's own."""
+    d = tmp_path_factory.mktemp("config")
+    monkeypatch.setenv("GRIDRT_CONFIG_HOME", str(d))
+    return d
+
+
 # ---------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("display", [None, ":987"])
 def test_view_without_display(tmp_path, display):
@@ -111,6 +120,28 @@ def test_viewer_state_actions():
     st.scale = SCALE_MIN
     assert st.render_size_for(3, 3) == (1, 1)
 
+    # the layout: the image area at the left, the panel's column (or its strip) at the right edge,
+    # nothing while hidden; a window for a w x h image adds the column
+    from gridrt.app.viewer.state import PANEL_STRIP_WIDTH, PANEL_WIDTH
+
+    assert st.show_panel and not st.panel_collapsed
+    assert st.window_for_image(640, 480) == (640 + PANEL_WIDTH, 480)
+    assert st.layout(640 + PANEL_WIDTH, 480) == ((0, 0, 640, 480), (640, 0, PANEL_WIDTH, 480))
+    st.image_rect = st.layout(640 + PANEL_WIDTH, 480)[0]
+    assert st.in_image(0, 0) and st.in_image(639, 479) and not st.in_image(640, 10) and not st.in_image(10, 480)
+    st.panel_collapsed = True
+    assert st.window_for_image(640, 480) == (640 + PANEL_STRIP_WIDTH, 480)
+    assert st.layout(1000, 480) == ((0, 0, 1000 - PANEL_STRIP_WIDTH, 480), (1000 - PANEL_STRIP_WIDTH, 0,
+                                                                            PANEL_STRIP_WIDTH, 480))
+    st.toggle_panel()
+    assert not st.show_panel and st.window_for_image(640, 480) == (640, 480)
+    assert st.layout(1000, 480) == ((0, 0, 1000, 480), (1000, 0, 0, 480))
+    st.toggle_panel()
+    st.panel_collapsed = False
+    assert st.layout(100, 50) == ((0, 0, 1, 50), (1, 0, 99, 50))   # a window narrower than the panel
+    snap = st.snapshot()
+    assert (snap["show_panel"], snap["panel_collapsed"], snap["image_rect"]) == (True, False, [0, 0, 640, 480])
+
     # the defaults are the dataclasses' own (one thread count for both); widgets replace fields
     st = ViewerState(max_threads=4)
     assert st.grid_params() == GridParams(threads=st.threads)
@@ -125,7 +156,7 @@ def test_viewer_state_actions():
     assert not st.set_grid(density=-1.0) and st.grid.density == 2.5 and "density" in st.scene_error
     # the grid kind and a two-level grid's densities are GridParams fields too, and in the state dump
     assert st.set_grid(grid="two_level") and st.set_grid(top_density=0.25, leaf_density=4.0)
-    assert st.grid_params() == GridParams(strategy="serial", threads=1, density=2.5, macro=3, insert="exact",
+    assert st.grid_params() == GridParams(threads=1, density=2.5, macro=3, insert="exact",
                                           grid="two_level", top_density=0.25, leaf_density=4.0)
     snap = st.snapshot()
     assert (snap["grid"], snap["top_density"], snap["leaf_density"]) == ("two_level", 0.25, 4.0)
@@ -182,6 +213,51 @@ def test_scene_camera_options(argv, first, later):
     a = build_parser().parse_args(["view", "--scene", "marbles", *argv])
     assert start_on_scene_camera(a) is first
     assert initial_state(a).prefer_scene_camera is later
+
+
+def test_viewer_prefs(tmp_path, monkeypatch, config_home):
+    """The remembered panel (prefs.py): GRIDRT_CONFIG_HOME, else $XDG_CONFIG_HOME/gridrt, else
+    ~/.config/gridrt; saving merges into what is there; an unreadable file counts as empty and a
+    failed write is ignored silently; the viewer's initial state starts the panel as remembered
+    (--hide-panel hides it anyway), the window the image's --size plus the panel's column."""
+    from gridrt.app.__main__ import build_parser
+    from gridrt.app.viewer.prefs import config_dir, load_prefs, panel_prefs, prefs_path, save_prefs
+    from gridrt.app.viewer.state import PANEL_STRIP_WIDTH, PANEL_WIDTH
+    from gridrt.app.viewer.view import initial_state
+
+    assert config_dir() == config_home and prefs_path() == config_home / "viewer.json"
+    monkeypatch.delenv("GRIDRT_CONFIG_HOME")
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "xdg"))
+    assert config_dir() == tmp_path / "xdg" / "gridrt"
+    monkeypatch.setenv("XDG_CONFIG_HOME", "relative/xdg")   # not absolute: ignored, as the XDG spec asks
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert config_dir() == tmp_path / "home" / ".config" / "gridrt"
+    monkeypatch.setenv("GRIDRT_CONFIG_HOME", str(config_home))
+
+    assert load_prefs() == {} and panel_prefs({}) == (True, False)
+    assert save_prefs({"panel_collapsed": True}) and save_prefs({"other": 1})
+    assert load_prefs() == {"panel_collapsed": True, "other": 1} and panel_prefs(load_prefs()) == (True, True)
+    assert sorted(p.name for p in config_home.iterdir()) == ["viewer.json"]
+    assert panel_prefs({"show_panel": "no", "panel_collapsed": 1}) == (True, False)   # wrong types: defaults
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    assert save_prefs({"show_panel": False}, path=blocker / "viewer.json") is False   # silently refused
+    broken = tmp_path / "broken.json"
+    broken.write_text("{not json")
+    assert load_prefs(broken) == {}
+
+    parse = build_parser().parse_args
+    st = initial_state(parse(["view", "--scene", "marbles", "--size", "200x100"]))
+    assert (st.show_panel, st.panel_collapsed, st.window_size) == (True, True, (200 + PANEL_STRIP_WIDTH, 100))
+    save_prefs({"show_panel": False, "panel_collapsed": False})
+    st = initial_state(parse(["view", "--scene", "marbles", "--size", "200x100"]))
+    assert (st.show_panel, st.window_size) == (False, (200, 100))
+    save_prefs({"show_panel": True})
+    st = initial_state(parse(["view", "--scene", "marbles", "--size", "200x100"]))
+    assert (st.show_panel, st.panel_collapsed, st.window_size) == (True, False, (200 + PANEL_WIDTH, 100))
+    st = initial_state(parse(["view", "--scene", "marbles", "--size", "200x100", "--hide-panel"]))
+    assert (st.show_panel, st.window_size) == (False, (200, 100))
+    assert load_prefs()["show_panel"] is True   # the option is for this run: not remembered
 
 
 def _textured_gltf(folder):
@@ -285,23 +361,16 @@ def _pattern(w, h):
     return img
 
 
-def _panel_blend(img_rgb):
-    """Expected panel background over img_rgb (float, 0..255): PANEL_BG at PANEL_ALPHA."""
-    from gridrt.app.viewer.ui import PANEL_ALPHA, PANEL_BG
+def _panel_bg_fraction(pixels):
+    """The fraction of ``pixels`` ((..., 3) uint8) that show the panel's own (opaque) background."""
+    from gridrt.app.viewer.ui import PANEL_BG
 
-    return np.asarray(PANEL_BG) * 255.0 * PANEL_ALPHA + img_rgb.astype(np.float64) * (1.0 - PANEL_ALPHA)
+    return np.all(np.abs(pixels.astype(np.float64) - np.asarray(PANEL_BG) * 255.0) <= 3, axis=-1).mean()
 
 
 def _rect_slice(rect, shrink=2):
     x, y, w, h = (int(round(v)) for v in rect)
     return slice(y + shrink, y + h - shrink), slice(x + shrink, x + w - shrink)
-
-
-def _outside_panel_mask(shape, rect):
-    m = np.ones(shape[:2], bool)
-    x, y, w, h = (int(round(v)) for v in rect)
-    m[max(y - 1, 0):y + h + 1, max(x - 1, 0):x + w + 1] = False
-    return m
 
 
 def test_panel_headless_egl(tmp_path, monkeypatch):
@@ -321,12 +390,14 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
     from gridrt.frame import FrameSpec
     from gridrt.stats import BuildStats, FrameStats, RenderStats
 
-    W, H = 640, 870   # tall enough for the whole panel (the viewer scrolls it in smaller windows)
+    from gridrt.app.viewer.ui import PANEL_STRIP_WIDTH, PANEL_WIDTH
+
+    W, H = 960, 870   # tall enough for the whole panel (the viewer scrolls it in smaller windows)
+    IW = W - PANEL_WIDTH   # the image area's width beside the panel's column
     fbo = ctx.simple_framebuffer((W, H), components=4)
     ui = ImguiRuntime()
     blit = Blitter(ctx)
-    img = _pattern(W, H)
-    blit.upload(img)
+    img = _pattern(IW, H)
     st = ViewerState(spec=FrameSpec(grid=GridParams(threads=2)), max_threads=8, triangles=1234, scene_name="marbles")
     build = BuildStats(stages=dict(clear_ms=0.1, insert_ms=1.5, macro_ms=0.2), build_ms=1.8, strategy="serial",
                        threads=2, insert="bbox", triangles=1234, cells=5000, references=8000, refs_per_tri=6.5,
@@ -342,6 +413,8 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
     io = imgui.get_io()
 
     def frame(events=(), overlay=False):
+        """One frame as the viewer draws it: the panel in its column, the image (a _pattern of the
+        image area's size) in the image area."""
         for ev in events:
             ev()
         ui.new_frame((W, H), 1 / 60)
@@ -349,9 +422,12 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
         draw_panel(st, names)
         if overlay:
             draw_overlay(st, 2.5)
+        (ix, iy, iw, ih), _ = st.layout(W, H)
+        if blit.size != (iw, ih):
+            blit.upload(_pattern(iw, ih))
         fbo.use()
         ctx.clear(0.0, 0.0, 0.0, 1.0)
-        blit.draw((0, 0, W, H))
+        blit.draw((ix, H - iy - ih, iw, ih))
         ui.render()
         return np.frombuffer(fbo.read(components=3), np.uint8).reshape(H, W, 3)[::-1]
 
@@ -367,21 +443,19 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
     try:
         for _ in range(3):
             out = frame()
+        # the panel: a column of its own at the right edge, full height, beside the image area
         px, py, pw, ph = st.panel_rect
-        assert (px, py) == (8.0, 8.0) and 100 < pw <= W / 2 and 100 < ph <= H
-        # the image shows through, pixel-exact and the right way up, wherever the panel is not
-        outside = _outside_panel_mask(out.shape, st.panel_rect)
-        assert outside.mean() > 0.4
-        assert np.array_equal(out[outside], img[..., :3][outside])
-        # the panel: mostly its translucent background over the image, plus bright text
-        sy, sx = _rect_slice(st.panel_rect)
-        panel = out[sy, sx].astype(np.float64)
-        bg = np.all(np.abs(panel - _panel_blend(img[sy, sx, :3])) <= 3, axis=-1)
-        assert bg.mean() > 0.3, bg.mean()
-        assert (panel.mean(axis=-1) > 170).mean() > 0.01
-        for name in ("built-in", "triangles", "mesh file", "open file", "play", "time", "speed", "strategy",
-                     "threads", "grid", "lambda", "macro cell", "insertion", "intersection", "shading", "traversal",
-                     "shadows", "resolution", "save image", "save window", "reset view", "plot"):
+        assert st.panel_rect == (IW, 0.0, PANEL_WIDTH, H)
+        assert st.layout(W, H) == ((0, 0, IW, H), (IW, 0, PANEL_WIDTH, H))
+        # the whole image shows, pixel-exact and the right way up, in the image area: nothing over it
+        assert np.array_equal(out[:, :IW], img[..., :3])
+        # the panel: mostly its opaque background, plus bright text
+        panel = out[:, IW:]
+        assert _panel_bg_fraction(panel) > 0.3, _panel_bg_fraction(panel)
+        assert (panel.astype(np.float64).mean(axis=-1) > 170).mean() > 0.01
+        for name in ("collapse panel", "built-in", "triangles", "mesh file", "open file", "play", "time", "speed",
+                     "strategy", "threads", "grid", "lambda", "macro cell", "insertion", "intersection", "shading",
+                     "traversal", "shadows", "resolution", "save image", "save window", "reset view", "plot"):
             x, y, w, h = st.widget_rects[name]
             assert px <= x and x + w <= px + pw and py <= y and y + h <= py + ph, name
         assert not (tmp_path / "imgui.ini").exists()
@@ -482,14 +556,30 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
         assert st.grid.grid == "uniform" and "top density" not in st.widget_rects
         assert st.grid.leaf_density == pytest.approx(LEAF_DENSITY_RANGE[1], rel=1e-3)   # kept for the next switch
 
-        # the progress overlay sits in the middle of the window
+        # the progress overlay sits in the middle of the image area
         st.busy = "compiling numba kernels"
         out = frame(overlay=True)
         out = frame(overlay=True)
         x, y, w, h = st.widget_rects["busy overlay"]
-        assert abs(x + w / 2 - W / 2) <= 1 and abs(y + h / 2 - H / 2) <= 1
+        assert abs(x + w / 2 - IW / 2) <= 1 and abs(y + h / 2 - H / 2) <= 1
         sy, sx = _rect_slice((x, y, w, h))
         assert not np.array_equal(out[sy, sx], img[sy, sx, :3])
+        st.busy = None
+
+        # the panel's arrow collapses it to a thin strip at the right edge (its own arrow opens it
+        # again): the image area takes the rest of the window, the strip only its arrow
+        click("collapse panel")
+        out = frame()
+        assert st.panel_collapsed and st.panel_rect == (W - PANEL_STRIP_WIDTH, 0.0, PANEL_STRIP_WIDTH, H)
+        assert set(st.widget_rects) == {"expand panel"}
+        x, y, w, h = st.widget_rects["expand panel"]
+        assert W - PANEL_STRIP_WIDTH < x and x + w < W and y < 40
+        assert np.array_equal(out[:, :W - PANEL_STRIP_WIDTH], _pattern(W - PANEL_STRIP_WIDTH, H)[..., :3])
+        assert _panel_bg_fraction(out[:, W - PANEL_STRIP_WIDTH:]) > 0.8
+        click("expand panel")
+        out = frame()
+        assert not st.panel_collapsed and st.panel_rect == (IW, 0.0, PANEL_WIDTH, H)
+        assert np.array_equal(out[:, :IW], img[..., :3])
         assert list(tmp_path.iterdir()) == []
     finally:
         ui.shutdown()
@@ -538,13 +628,17 @@ def _check_scene_image(img):
 def test_viewer_window_under_xvfb(tmp_path):
     from gridrt.grid.registry import names
 
+    from gridrt.app.viewer.state import PANEL_WIDTH
+
     x = _X()
     app = None
     try:
         app = _App(x.display, tmp_path)
         s = app.wait(lambda s: s["rendered_frames"] >= 3 and s["camera"], "the first frames", timeout=120)
         home = s["camera"]
-        assert s["render_size"] == [W, H] and s["window_size"] == [W, H]
+        # the window: the image at --size, the panel's column beside it
+        assert s["render_size"] == [W, H] and s["window_size"] == [W + PANEL_WIDTH, H]
+        assert s["image_rect"] == [0, 0, W, H] and s["panel_rect"] == [W, 0, PANEL_WIDTH, H]
         assert s["playing"] and s["scene_name"] == "marbles" and s["triangles"] == 2000
         # frames keep coming and the clock runs
         s2 = app.wait(lambda q: q["rendered_frames"] >= s["rendered_frames"] + 3 and q["time"] != s["time"],
@@ -560,8 +654,11 @@ def test_viewer_window_under_xvfb(tmp_path):
         s3 = app.wait(lambda q: q["shadows"], "shadows on")
         assert s3["camera"] == home
 
-        # keys: next strategy, one thread fewer (or more); the pipeline reports using them
-        strategies = names()
+        # keys: next strategy (the viewer's list: auto, then each strategy), one thread fewer (or
+        # more); the pipeline reports using them
+        from gridrt.config import AUTO_STRATEGY
+
+        strategies = [AUTO_STRATEGY, *names()]
         want_strategy = strategies[(strategies.index(s3["strategy"]) + 1) % len(strategies)]
         want_threads = s3["threads"] - 1 if s3["threads"] > 1 else s3["threads"] + 1
         app.xdo("key", "bracketright")
@@ -633,29 +730,28 @@ def test_viewer_window_under_xvfb(tmp_path):
                                   pipe.render_params.replace(shadows=False))
         assert not np.array_equal(shot, no_shadow.step(s6["stats"]["t"], camera=pipe.camera).image[..., :3])
 
-        # a click on "Save window": the window as shown, panel included
-        app.click(s6, "save window")
+        # a click on "Save window": the window as shown: the image, then the panel's column beside it
+        # (the panel scrolls to it in 480 pixels, below the message with the screenshot's path)
+        app.click(app.scroll_to(_laid_out(app, s6), "save window"), "save window", hold=0.2)
         s7 = app.wait(lambda q: q["last_window_shot"], "window screenshot")
         win = np.asarray(Image.open(s7["last_window_shot"]).convert("RGB"))
-        assert win.shape == (H, W, 3)
-        outside = _outside_panel_mask(win.shape, s7["panel_rect"])
-        assert np.array_equal(win[outside], shot[outside])
-        sy, sx = _rect_slice(s7["panel_rect"])
-        bg = np.all(np.abs(win[sy, sx] - _panel_blend(shot[sy, sx])) <= 3, axis=-1)
-        assert bg.mean() > 0.3, bg.mean()
+        assert win.shape == (H, W + PANEL_WIDTH, 3)
+        assert np.array_equal(win[:, :W], shot)
+        assert _panel_bg_fraction(win[:, W:]) > 0.3, _panel_bg_fraction(win[:, W:])
         # and what the X server really shows agrees (when imagemagick's `import` is installed)
         if shutil.which("import"):
             root = tmp_path / "root.png"
             subprocess.run(["import", "-window", "root", str(root)], env=_app_env(DISPLAY=x.display), check=True,
                            timeout=30)
-            scr = np.asarray(Image.open(root).convert("RGB"))[:H, :W]
-            assert np.array_equal(scr[outside], shot[outside])
-            assert np.all(np.abs(scr[sy, sx] - _panel_blend(shot[sy, sx])) <= 3, axis=-1).mean() > 0.3
+            scr = np.asarray(Image.open(root).convert("RGB"))[:H, :W + PANEL_WIDTH]
+            assert np.array_equal(scr[:, :W], shot)
+            assert _panel_bg_fraction(scr[:, W:]) > 0.3
 
         # the panel's file box: a missing file reports an error and the viewer carries on; a real
         # file typed in and opened with the "Open file" button replaces the scene
         tet = tmp_path / "tet.obj"
         tet.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+        s7 = app.scroll_to(_laid_out(app, s7), "mesh file")
         app.click(s7, "mesh file")
         typed = str(tmp_path / "missing_phr.obj")   # p, h, r typed into the text box are not shortcuts
         app.xdo("type", "--delay", 5, typed)
@@ -679,21 +775,24 @@ def test_viewer_window_under_xvfb(tmp_path):
         fg = np.any(tet_img != np.round(np.asarray(BACKGROUND) * 255).astype(np.uint8), axis=-1)
         assert 0.01 < fg.mean() < 0.9   # the reframed tetrahedron fills part of the view
 
-        # resizing the window: the render resolution follows (even while paused); in 420 pixels the
-        # panel scrolls (by the wheel) to show the resolution slider
-        app.xdo("windowsize", wid, 520, 420)
-        s8 = app.wait(lambda q: q["framebuffer_size"] == [520, 420] and q["stats"].get("width") == 520
+        # resizing the window: the render resolution follows the image area, the window less the
+        # panel's column (even while paused); in 420 pixels the panel scrolls (by the wheel) to show
+        # the resolution slider
+        app.xdo("windowsize", wid, 760, 420)
+        iw = 760 - PANEL_WIDTH
+        s8 = app.wait(lambda q: q["framebuffer_size"] == [760, 420] and q["stats"].get("width") == iw
                       and q["stats"].get("height") == 420, "resize")
-        assert s8["render_size"] == [520, 420]
-        # the resolution slider at its left end: render at SCALE_MIN of the window
+        assert s8["render_size"] == [iw, 420] and s8["image_rect"] == [0, 0, iw, 420]
+        assert s8["panel_rect"] == [iw, 0, PANEL_WIDTH, 420]
+        # the resolution slider at its left end: render at SCALE_MIN of the image area
         from gridrt.app.viewer.state import SCALE_MIN
 
         s8 = app.scroll_to(s8, "resolution")
         app.click(s8, "resolution", 0.0)
-        want = [round(520 * SCALE_MIN), round(420 * SCALE_MIN)]
+        want = [round(iw * SCALE_MIN), round(420 * SCALE_MIN)]
         s9 = app.wait(lambda q: q["render_size"] == want and [q["stats"].get("width"), q["stats"].get("height")] == want,
                       "render scale")
-        assert s9["framebuffer_size"] == [520, 420] and s9["scale"] == pytest.approx(SCALE_MIN)
+        assert s9["framebuffer_size"] == [760, 420] and s9["scale"] == pytest.approx(SCALE_MIN)
 
         # the panel's grid kind: a click opens the combo's list, a click on an item picks it; the
         # pipeline builds a two-level grid, and the leaf density slider at its right end refines its
@@ -711,15 +810,16 @@ def test_viewer_window_under_xvfb(tmp_path):
         assert s11["leaf_density"] == pytest.approx(LEAF_DENSITY_RANGE[1], rel=1e-3)
         assert s11["stats"]["cells"] > s10["stats"]["cells"] and s11["stats"]["grid"] == "two_level"
         assert s11["stats"]["bytes_per_tri"] == pytest.approx(s11["stats"]["grid_bytes"] / 4)
-        app.xdo("mousemove", 400, 300, "sleep", 0.1, "key", "p")
+        app.xdo("mousemove", 300, 300, "sleep", 0.1, "key", "p")
         s12 = app.wait(lambda q: q["last_screenshot"] != s_tet["last_screenshot"], "two-level screenshot")
         _, ref = _headless_frame(make_scene(str(tet)), s12, *want)
         assert ref.stats["grid"] == "two_level" and ref.stats["cells"] == s12["stats"]["cells"]
         assert np.array_equal(np.asarray(Image.open(s12["last_screenshot"]).convert("RGB")), ref.image[..., :3])
 
-        # H hides the panel; Esc quits with status 0
+        # H hides the panel: the image takes the whole window; Esc quits with status 0
         app.xdo("key", "h")
-        app.wait(lambda q: not q["show_panel"] and not q["widget_rects"], "panel hidden")
+        app.wait(lambda q: not q["show_panel"] and not q["widget_rects"] and q["image_rect"] == [0, 0, 760, 420]
+                 and q["render_size"] == [round(760 * SCALE_MIN), want[1]], "panel hidden")
         app.xdo("key", "Escape")
         assert app.proc.wait(30) == 0, app.output()
         out = app.output()
@@ -729,6 +829,187 @@ def test_viewer_window_under_xvfb(tmp_path):
         if app is not None:
             app.close()
         x.close()
+
+
+class _Run(_App):
+    """A viewer under Xvfb like _App, on a command line of the test's own: ``gridrt view`` with
+    ``args`` and --state-file, started in the folder ``cwd``; its state file and log lie in
+    ``tmp``, not in ``cwd``."""
+
+    def __init__(self, display, tmp, cwd, args):
+        tmp.mkdir(parents=True, exist_ok=True)
+        self.display, self.cwd, self.shots = display, cwd, None
+        self.state_file = tmp / "state.json"
+        self.log = open(tmp / "app.log", "w+")
+        cmd = [sys.executable, "-m", "gridrt", "view", *args, "--state-file", str(self.state_file)]
+        self.proc = subprocess.Popen(cmd, cwd=cwd, env=_app_env(DISPLAY=display), stdout=self.log,
+                                     stderr=subprocess.STDOUT, text=True)
+
+
+def _first_frame(app, w, h):
+    """The state once the viewer shows its first frame at w x h (the panel's state settled)."""
+    return app.wait(lambda q: q["rendered_frames"] >= 1 and q["camera"] and q["stats"].get("width") == w
+                    and q["stats"].get("height") == h and q["ui_frames"] >= 3, "the first frame", timeout=180)
+
+
+def _laid_out(app, s):
+    """A state two frames after ``s``: the panel laid out again (after a screenshot, the state that
+    first names it has the widgets of the frame before the message with its path)."""
+    return app.wait(lambda q: q["ui_frames"] > s["ui_frames"] + 1, "the panel laid out again")
+
+
+def _png(path):
+    return np.asarray(Image.open(path).convert("RGB"))
+
+
+def _quit(app):
+    """Esc; the viewer ends with status 0.  Its output."""
+    app.xdo("key", "Escape")
+    assert app.proc.wait(30) == 0, app.output()
+    return app.output()
+
+
+needs_x = pytest.mark.skipif(shutil.which("Xvfb") is None or shutil.which("xdotool") is None,
+                             reason="needs Xvfb and xdotool (apt-get install xvfb xauth xdotool)")
+
+
+@pytest.fixture
+def xvfb():
+    """An Xvfb server for one test; the viewers the test starts on it (``xvfb.start(app)``) are
+    killed after it when still running."""
+    x = _X()
+    apps = []
+
+    def start(app):
+        apps.append(app)
+        return app
+
+    x.start = start
+    try:
+        yield x
+    finally:
+        for app in apps:
+            app.close()
+        x.close()
+
+
+@needs_x
+def test_viewer_side_panel_under_xvfb(tmp_path, xvfb):
+    """At the window size the viewer opens with, the panel hides nothing of the image: the window
+    is --size plus the panel's column; a window shot (the panel's "Save window") holds the frame the
+    P key saves, pixel for pixel, in the --size area at its left, and the panel's column at its
+    right.  H hides the panel: the image then fills the window (rendered at the window's size, with
+    the window's aspect: the headless pipeline's frame at that size), and H shows it again."""
+    from gridrt.app.viewer.state import PANEL_WIDTH
+    from gridrt.scene import make_scene
+
+    app = xvfb.start(_App(xvfb.display, tmp_path, extra=("--paused",)))
+    s = _first_frame(app, W, H)
+    assert s["window_size"] == s["framebuffer_size"] == [W + PANEL_WIDTH, H]
+    assert s["image_rect"] == [0, 0, W, H] and s["render_size"] == [W, H]
+    assert s["panel_rect"] == [W, 0, PANEL_WIDTH, H] and s["show_panel"] and not s["panel_collapsed"]
+    for name in ("collapse panel", "built-in", "play", "strategy", "shading", "save window"):
+        rx, _, rw, _ = s["widget_rects"][name]
+        assert W <= rx and rx + rw <= W + PANEL_WIDTH, name   # in the panel's column, right of the image
+    wid = app.xdo("search", "--sync", "--name", "^gridrt$").split()[0]
+    app.xdo("windowfocus", "--sync", wid)
+
+    app.xdo("mousemove", W // 2, H // 2, "sleep", 0.1, "key", "p")
+    s1 = app.wait(lambda q: q["last_screenshot"], "screenshot (P)")
+    shot = _png(s1["last_screenshot"])
+    assert shot.shape == (H, W, 3)
+    _check_scene_image(shot)
+    app.click(app.scroll_to(_laid_out(app, s1), "save window"), "save window", hold=0.2)   # (scrolls in 480 px)
+    s2 = app.wait(lambda q: q["last_window_shot"], "window screenshot")
+    win = _png(s2["last_window_shot"])
+    assert win.shape == (H, W + PANEL_WIDTH, 3)
+    assert np.array_equal(win[:, :W], shot)   # the whole image, no panel pixel over it
+    assert _panel_bg_fraction(win[:, W:]) > 0.3   # the panel beside it
+
+    app.xdo("key", "h")
+    s3 = app.wait(lambda q: not q["show_panel"] and q["stats"].get("width") == W + PANEL_WIDTH
+                  and q["stats"].get("height") == H, "the image over the whole window")
+    assert s3["image_rect"] == [0, 0, W + PANEL_WIDTH, H] and s3["render_size"] == [W + PANEL_WIDTH, H]
+    assert s3["window_size"] == [W + PANEL_WIDTH, H] and not s3["widget_rects"]
+    app.xdo("key", "p")
+    s4 = app.wait(lambda q: q["last_screenshot"] != s1["last_screenshot"], "screenshot without the panel")
+    full = _png(s4["last_screenshot"])
+    _, ref = _headless_frame(make_scene("marbles", count=2000), s4, W + PANEL_WIDTH, H)
+    assert np.array_equal(full, ref.image[..., :3])
+    if shutil.which("import"):   # what the X server shows: the image over the whole window
+        root = tmp_path / "root.png"
+        subprocess.run(["import", "-window", "root", str(root)], env=_app_env(DISPLAY=xvfb.display), check=True,
+                       timeout=30)
+        assert np.array_equal(_png(root)[:H, :W + PANEL_WIDTH], full)
+    app.xdo("key", "h")
+    s5 = app.wait(lambda q: q["show_panel"] and q["stats"].get("width") == W and q["widget_rects"], "the panel back")
+    assert s5["image_rect"] == [0, 0, W, H] and s5["panel_rect"] == [W, 0, PANEL_WIDTH, H]
+    _quit(app)
+
+
+@needs_x
+def test_viewer_panel_remembered_under_xvfb(tmp_path, xvfb, config_home):
+    """The panel's arrow collapses it to a strip (the image takes the rest of the window); the next
+    run starts collapsed, its window --size plus the strip; there the strip's arrow opens the panel
+    and H hides it, and the run after starts hidden (saying so), its window --size.  The choice
+    lies in GRIDRT_CONFIG_HOME/viewer.json."""
+    from gridrt.app.viewer.state import PANEL_STRIP_WIDTH, PANEL_WIDTH
+
+    prefs = config_home / "viewer.json"
+
+    def run(n):
+        (tmp_path / n).mkdir()
+        app = xvfb.start(_App(xvfb.display, tmp_path / n, extra=("--paused",)))
+        return app, _first_frame(app, W, H)
+
+    app, s = run("1")
+    assert not s["panel_collapsed"] and not prefs.exists()
+    app.click(s, "collapse panel", hold=0.2)
+    wide = W + PANEL_WIDTH - PANEL_STRIP_WIDTH   # the image area beside the strip
+    s = app.wait(lambda q: q["panel_collapsed"] and q["stats"].get("width") == wide, "the panel collapsed")
+    assert s["image_rect"] == [0, 0, wide, H] and s["panel_rect"] == [wide, 0, PANEL_STRIP_WIDTH, H]
+    assert list(s["widget_rects"]) == ["expand panel"]
+    assert json.loads(prefs.read_text()) == {"show_panel": True, "panel_collapsed": True}
+    _quit(app)
+
+    app, s = run("2")
+    assert s["panel_collapsed"] and s["show_panel"] and s["window_size"] == [W + PANEL_STRIP_WIDTH, H]
+    assert s["image_rect"] == [0, 0, W, H] and s["panel_rect"] == [W, 0, PANEL_STRIP_WIDTH, H]
+    app.click(s, "expand panel", hold=0.2)
+    s = app.wait(lambda q: not q["panel_collapsed"] and "collapse panel" in q["widget_rects"], "the panel open")
+    assert s["image_rect"] == [0, 0, W + PANEL_STRIP_WIDTH - PANEL_WIDTH, H]
+    assert json.loads(prefs.read_text()) == {"show_panel": True, "panel_collapsed": False}
+    app.xdo("mousemove", 100, 100, "sleep", 0.1, "key", "h")
+    app.wait(lambda q: not q["show_panel"], "the panel hidden")
+    _quit(app)
+    assert json.loads(prefs.read_text()) == {"show_panel": False, "panel_collapsed": False}
+
+    app, s = run("3")
+    assert not s["show_panel"] and s["window_size"] == [W, H] and s["image_rect"] == [0, 0, W, H]
+    assert f"the panel starts hidden, as last time (H shows it; remembered in {prefs})" in _quit(app)
+
+
+@needs_x
+def test_viewer_screenshot_default_folder_under_xvfb(tmp_path, xvfb):
+    """Without --screenshot-dir, P saves into out/screenshots under the viewer's working directory
+    (made on the first shot), prints the file's full path and shows it in the panel; nothing else
+    lands in that folder."""
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    app = xvfb.start(_Run(xvfb.display, tmp_path / "run", cwd,
+                          ("--scene", "marbles", "--count", "2000", "--size", f"{W}x{H}", "--paused")))
+    _first_frame(app, W, H)
+    assert list(cwd.iterdir()) == []
+    wid = app.xdo("search", "--sync", "--name", "^gridrt$").split()[0]
+    app.xdo("windowfocus", "--sync", wid)
+    app.xdo("mousemove", W // 2, H // 2, "sleep", 0.1, "key", "p")
+    s = app.wait(lambda q: q["last_screenshot"], "screenshot (P)")
+    saved = Path(s["last_screenshot"])
+    assert saved.is_absolute() and saved.resolve() == (cwd / "out" / "screenshots" / "gridrt_0000.png").resolve()
+    assert _png(saved).shape == (H, W, 3) and s["message"] == f"saved {saved}"
+    assert f"gridrt view: saved screenshot {saved}\n" in _quit(app)
+    assert sorted(str(p.relative_to(cwd)) for p in cwd.rglob("*")) == [
+        "out", "out/screenshots", "out/screenshots/gridrt_0000.png"]
 
 
 def _same_camera(cam_json, cam):

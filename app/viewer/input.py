@@ -4,12 +4,14 @@ glfw callbacks only queue events.  :meth:`InputHandler.process` runs in the fram
 ``imgui.new_frame()``, when ``io.want_capture_mouse`` / ``io.want_capture_keyboard`` describe the
 current frame (inside a callback they still hold the previous frame's values), and sends each
 event either to the panel (imgui already received it through its chained callbacks) or to the
-camera.  A drag belongs to whoever got its button press.
+camera.  A drag belongs to whoever got its button press: the camera gets a press (and the wheel)
+only in the image area (``ViewerState.image_rect``), never over the panel's column.
 
 Keys (when the panel does not want the keyboard): left drag orbit, right or middle drag pan,
 wheel zoom, W/S forward/back, A/D left/right, Q/E down/up, Shift flies 4x faster, R reset view,
-C scene camera on/off, Space play/pause, F12 or P screenshot, H hide/show panel, [ and ] previous/next strategy, - and =
-fewer/more threads, Esc quit.
+C scene camera on/off, Space play/pause, F12 or P screenshot (into --screenshot-dir), H hide/show
+panel (the image then takes the whole window), [ and ] previous/next strategy, - and = fewer/more
+threads, Esc quit.
 
 The scene's own camera (BART, glTF; the panel's "scene camera" box, on by default for a scene that
 has one): any camera move (drag, wheel, fly keys) leaves it, starting from the view on screen, as
@@ -87,13 +89,13 @@ class InputHandler:
             kind, a, b, mods = self.events.popleft()
             if kind == "button":
                 if b == glfw.PRESS:
-                    self.owner[a] = "ui" if ui_mouse else "camera"
+                    self.owner[a] = "ui" if ui_mouse or not st.in_image(*self.last_pos) else "camera"
                 elif b == glfw.RELEASE:
                     self.owner.pop(a, None)
             elif kind == "move":
                 self._drag(a, b)
             elif kind == "scroll":
-                if not ui_mouse and st.camera is not None and b != 0:
+                if not ui_mouse and st.in_image(*self.last_pos) and st.camera is not None and b != 0:
                     st.leave_scene_camera()
                     st.camera = cc.dolly(st.camera, ZOOM_STEP ** b)
             elif kind == "key" and b in (glfw.PRESS, glfw.REPEAT) and not ui_keys:
@@ -118,7 +120,7 @@ class InputHandler:
         elif key in (glfw.KEY_F12, glfw.KEY_P):
             st.want_shot = True
         elif key == glfw.KEY_H:
-            st.show_panel = not st.show_panel
+            st.toggle_panel()
         elif key == glfw.KEY_R:
             st.reset_view()
         elif key == glfw.KEY_C:

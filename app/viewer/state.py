@@ -24,12 +24,16 @@ from gridrt.threads import check_threads
 
 #: frames kept for the live build/render plots
 HISTORY = 300
-#: render resolution scale limits (render size = framebuffer size x scale)
+#: render resolution scale limits (render size = the image area's framebuffer size x scale)
 SCALE_MIN, SCALE_MAX = 0.1, 2.0
 #: animation speed limits (x real time)
 SPEED_MIN, SPEED_MAX = 0.0, 4.0
 #: time range of the scrub slider when the scene does not loop
 DEFAULT_SPAN = 10.0
+#: width (window pixels) of the panel column at the window's right edge, and of the strip it
+#: collapses to; the image area is the rest of the window (all of it while the panel is hidden)
+PANEL_WIDTH = 320
+PANEL_STRIP_WIDTH = 32
 
 
 @dataclass
@@ -118,8 +122,10 @@ class ViewerState:
     # camera: spec.view (``camera``, ``fov``, ``up``); ``home``: where Reset view returns
     home: Camera | None = None
     scene_radius: float = 1.0
-    # window / ui
+    # window / ui: the panel is a column at the window's right edge (PANEL_WIDTH), a strip
+    # (PANEL_STRIP_WIDTH) while collapsed, nothing while hidden; the image fills the rest
     show_panel: bool = True
+    panel_collapsed: bool = False
     quit: bool = False
     want_shot: bool = False                 # save the ray-traced image (F12 / P)
     want_window_shot: bool = False          # save the window with the panel (panel button)
@@ -139,6 +145,7 @@ class ViewerState:
     ui_fps: float = 0.0
     render_fps: float = 0.0
     panel_rect: tuple = (0.0, 0.0, 0.0, 0.0)   # x, y, w, h in window pixels
+    image_rect: tuple = (0, 0, 0, 0)           # the image area: x, y, w, h in window pixels
     widget_rects: dict = field(default_factory=dict)  # label -> (x, y, w, h), for tests
     panel_text: dict = field(default_factory=dict)    # name -> a line of the panel's stats, for tests
 
@@ -204,12 +211,42 @@ class ViewerState:
         self.grid = self.grid.replace(threads=n)
         self.render = self.render.replace(threads=n)
 
+    # ---- layout ----------------------------------------------------------------------------
+    def panel_width(self):
+        """Width of the panel's column in window pixels: PANEL_WIDTH, PANEL_STRIP_WIDTH while
+        collapsed, 0 while hidden."""
+        if not self.show_panel:
+            return 0
+        return PANEL_STRIP_WIDTH if self.panel_collapsed else PANEL_WIDTH
+
+    def layout(self, win_w, win_h):
+        """(image rect, panel rect), each (x, y, w, h) in window pixels, of a win_w x win_h window:
+        the image area at the left, the panel's column at the right edge, full height (the image
+        keeps at least one pixel of width in a window narrower than the panel)."""
+        win_w, win_h = max(int(win_w), 1), max(int(win_h), 1)
+        iw = max(win_w - self.panel_width(), 1)
+        return (0, 0, iw, win_h), (iw, 0, win_w - iw, win_h)
+
+    def window_for_image(self, w, h):
+        """Window size whose image area is w x h (the panel's column beside it)."""
+        return int(w) + self.panel_width(), int(h)
+
+    def in_image(self, x, y):
+        """Whether window point (x, y) lies in the image area."""
+        ix, iy, iw, ih = self.image_rect
+        return ix <= x < ix + iw and iy <= y < iy + ih
+
+    def toggle_panel(self):
+        """H: hide the panel (the image takes the whole window) or show it again."""
+        self.show_panel = not self.show_panel
+
     # ---- engine parameters -----------------------------------------------------------------
     def grid_params(self):
         return self.grid
 
     def render_size_for(self, fb_w, fb_h):
-        """Render resolution for a framebuffer of fb_w x fb_h pixels at the current scale."""
+        """Render resolution for an image area of fb_w x fb_h framebuffer pixels at the current
+        scale."""
         s = min(max(float(self.scale), SCALE_MIN), SCALE_MAX)
         return max(1, int(round(fb_w * s))), max(1, int(round(fb_h * s)))
 
@@ -300,6 +337,7 @@ class ViewerState:
             "packet_precision": self.render.packet_precision,
             "scale": self.scale,
             "show_panel": self.show_panel,
+            "panel_collapsed": self.panel_collapsed,
             "busy": self.busy,
             "window_size": list(self.window_size),
             "framebuffer_size": list(self.framebuffer_size),
@@ -310,6 +348,7 @@ class ViewerState:
             "last_window_shot": self.last_window_shot,
             "message": self.message,
             "panel_rect": list(self.panel_rect),
+            "image_rect": list(self.image_rect),
             "widget_rects": {k: list(v) for k, v in self.widget_rects.items()},
             "panel_text": dict(self.panel_text),
             "stats": st,

@@ -1,6 +1,8 @@
 """The imgui panel: widgets that change :class:`gridrt.app.viewer.state.ViewerState` fields and nothing else
-(no kernels, no GL).  The panel sits at a fixed place in the top-left corner; the progress overlay
-is centred over the image while a slow operation runs.
+(no kernels, no GL).  The panel is a column of fixed width at the window's right edge, full height,
+beside the image (never over it: ViewerState.layout splits the window); its arrow button collapses
+it to a thin strip whose arrow opens it again.  The progress overlay is centred over the image
+area while a slow operation runs.
 
 :class:`ImguiRuntime` owns the imgui + implot contexts and imgui's OpenGL 3 renderer (and, in a
 window, its glfw backend), for the windowed viewer and the headless panel test alike.
@@ -17,13 +19,10 @@ from gridrt.scene import BUILTIN_SCENES, DEFORM_KINDS, FRAME_EXTENSIONS, SCENE_E
 from gridrt.scene.assets import STATIC_ASSETS
 
 from .input import KEY_HELP
-from .state import SCALE_MAX, SCALE_MIN, SPEED_MAX, SPEED_MIN
+from .state import PANEL_STRIP_WIDTH, PANEL_WIDTH, SCALE_MAX, SCALE_MIN, SPEED_MAX, SPEED_MIN  # noqa: F401
 
-PANEL_POS = (8.0, 8.0)
-PANEL_WIDTH = 320.0
-#: panel background (RGB 0..1) and opacity
+#: panel background (RGB 0..1; opaque: the panel lies beside the image)
 PANEL_BG = (0.09, 0.10, 0.12)
-PANEL_ALPHA = 0.92
 INTERSECTION_LABELS = ("watertight (Woop et al.)", "fast (Moller-Trumbore)")
 #: ranges of the panel's two-level density sliders (logarithmic): top cells per triangle, leaf
 #: cells per reference of a top cell
@@ -110,7 +109,7 @@ def apply_style():
     style.window_rounding = 4.0
     style.item_spacing = imgui.ImVec2(6.0, 3.0)
     style.frame_padding = imgui.ImVec2(5.0, 2.0)
-    style.set_color_(imgui.Col_.window_bg, imgui.ImVec4(*PANEL_BG, PANEL_ALPHA))
+    style.set_color_(imgui.Col_.window_bg, imgui.ImVec4(*PANEL_BG, 1.0))
     style.set_color_(imgui.Col_.frame_bg, imgui.ImVec4(0.20, 0.25, 0.33, 1.0))
     style.set_color_(imgui.Col_.frame_bg_hovered, imgui.ImVec4(0.26, 0.34, 0.46, 1.0))
     style.set_color_(imgui.Col_.frame_bg_active, imgui.ImVec4(0.30, 0.40, 0.56, 1.0))
@@ -147,8 +146,12 @@ def _combo(state, label, items, current, preview=None):
 
 
 def draw_panel(state, strategy_names):
-    """Draw the control panel for one frame; widgets write into ``state`` only (and record
-    their rectangles in ``state.widget_rects``)."""
+    """Draw the control panel for one frame in its column (``state.layout`` of the window), or
+    the collapsed strip; widgets write into ``state`` only (and record their rectangles in
+    ``state.widget_rects``)."""
+    if state.panel_collapsed:
+        _draw_strip(state)
+        return
     _begin_panel(state)
     _draw_title(state)
     _section(state, "Scene", "scene header", _draw_scene)
@@ -159,30 +162,66 @@ def draw_panel(state, strategy_names):
     _draw_help()
 
 
-def _begin_panel(state):
-    """The panel's window at its fixed place, as tall as the window allows."""
+#: flags of the panel's and the strip's windows: fixed in their column, no title bar
+_COLUMN_FLAGS = (imgui.WindowFlags_.no_title_bar | imgui.WindowFlags_.no_move | imgui.WindowFlags_.no_resize
+                 | imgui.WindowFlags_.no_collapse | imgui.WindowFlags_.no_saved_settings)
+
+
+def _begin_column(state, name, flags, padding):
+    """Begin the window ``name`` filling the panel's column of the window's layout (square
+    corners, no border, ``padding`` pixels inside); records it as ``state.panel_rect``."""
     io = imgui.get_io()
-    max_h = max(float(io.display_size.y) - 2 * PANEL_POS[1], 100.0)
-    imgui.set_next_window_pos(imgui.ImVec2(*PANEL_POS), imgui.Cond_.always)
-    imgui.set_next_window_size_constraints(imgui.ImVec2(PANEL_WIDTH, 0.0), imgui.ImVec2(PANEL_WIDTH, max_h))
-    flags = (imgui.WindowFlags_.always_auto_resize | imgui.WindowFlags_.no_move
-             | imgui.WindowFlags_.no_saved_settings | imgui.WindowFlags_.no_collapse)
-    imgui.begin("gridrt", None, flags)
+    _, (x, y, w, h) = state.layout(io.display_size.x, io.display_size.y)
+    imgui.set_next_window_pos(imgui.ImVec2(x, y), imgui.Cond_.always)
+    imgui.set_next_window_size(imgui.ImVec2(w, h), imgui.Cond_.always)
+    imgui.push_style_var(imgui.StyleVar_.window_rounding, 0.0)
+    imgui.push_style_var(imgui.StyleVar_.window_border_size, 0.0)
+    imgui.push_style_var(imgui.StyleVar_.window_min_size, imgui.ImVec2(1.0, 1.0))
+    imgui.push_style_var(imgui.StyleVar_.window_padding, imgui.ImVec2(padding, padding))
+    imgui.begin(name, None, _COLUMN_FLAGS | flags)
+    imgui.pop_style_var(4)
     p, s = imgui.get_window_pos(), imgui.get_window_size()
     state.panel_rect = (float(p.x), float(p.y), float(s.x), float(s.y))
+
+
+def _begin_panel(state):
+    """The panel's window: its whole column (it scrolls when its sections are taller)."""
+    _begin_column(state, "gridrt", 0, 8.0)
     imgui.push_item_width(-90.0)
 
 
+def _draw_strip(state):
+    """The collapsed panel: a thin strip at the window's right edge with the arrow that opens it."""
+    pad = max((PANEL_STRIP_WIDTH - imgui.get_frame_height()) / 2, 1.0)   # the arrow in the strip's middle
+    _begin_column(state, "##panel strip", imgui.WindowFlags_.no_scrollbar, pad)
+    _collapse_arrow(state)
+    imgui.end()
+
+
+def _collapse_arrow(state):
+    """The arrow that collapses the panel to its strip (right), or in the strip opens it (left);
+    recorded as "collapse panel" / "expand panel"."""
+    name, tip = (("expand panel", "open the panel") if state.panel_collapsed
+                 else ("collapse panel", "collapse the panel to a strip"))
+    if imgui.arrow_button("##" + name, imgui.Dir.left if state.panel_collapsed else imgui.Dir.right):
+        state.panel_collapsed = not state.panel_collapsed
+    _rect(state, name)
+    if imgui.is_item_hovered():
+        imgui.set_tooltip(tip + " (H hides it altogether)")
+
+
 def _draw_title(state):
-    """The scene's name and size, then the last error and message."""
+    """The collapse arrow and the scene's name and size, then the last error and message."""
+    _collapse_arrow(state)
+    imgui.same_line()
     title = state.scene_name or state.scene.source
     imgui.text(f"{title}: {state.triangles:,} triangles" if state.triangles else title)
+    imgui.push_text_wrap_pos(0.0)
     if state.scene_error:
-        imgui.push_text_wrap_pos(0.0)
         imgui.text_colored(ERROR_COLOR, state.scene_error)
-        imgui.pop_text_wrap_pos()
     if state.message:
         imgui.text_colored(DIM_COLOR, state.message)
+    imgui.pop_text_wrap_pos()
 
 
 def _section(state, title, rect_name, draw):
@@ -439,13 +478,13 @@ def _draw_stats(state):
 
 
 def draw_overlay(state, elapsed):
-    """A centred box with the label of the slow operation in progress and an indeterminate
-    progress bar (only while ``state.busy`` is set)."""
+    """A box centred over the image area with the label of the slow operation in progress and an
+    indeterminate progress bar (only while ``state.busy`` is set)."""
     if not state.busy:
         return
     io = imgui.get_io()
-    w, h = float(io.display_size.x), float(io.display_size.y)
-    imgui.set_next_window_pos(imgui.ImVec2(w * 0.5, h * 0.5), imgui.Cond_.always, imgui.ImVec2(0.5, 0.5))
+    (x, y, w, h), _ = state.layout(io.display_size.x, io.display_size.y)
+    imgui.set_next_window_pos(imgui.ImVec2(x + w * 0.5, y + h * 0.5), imgui.Cond_.always, imgui.ImVec2(0.5, 0.5))
     imgui.set_next_window_bg_alpha(0.95)
     flags = (imgui.WindowFlags_.no_decoration | imgui.WindowFlags_.always_auto_resize
              | imgui.WindowFlags_.no_saved_settings | imgui.WindowFlags_.no_inputs

@@ -1,12 +1,18 @@
 """``gridrt view``: the interactive viewer.
 
-A glfw window with an OpenGL 3.3 core context; moderngl shows the ray-traced image (blit.py,
-shaders from shaders/); an imgui-bundle panel floats over it (ui.py).  The FramePipeline runs
-on a worker thread (worker.py), so the window keeps answering while a scene loads, the numba
-kernels compile or a heavy frame renders, and shows what it is waiting for.
+A glfw window with an OpenGL 3.3 core context, split into the image area and the imgui-bundle
+panel's column at the right edge (ViewerState.layout; ui.py): moderngl shows the ray-traced image
+in the image area only (blit.py, shaders from shaders/), the render resolution and the camera's
+aspect follow that area, and the mouse moves the camera there.  The window opens at --size plus
+the panel's column, so the image starts at the size asked for; H hides the panel (the image takes
+the whole window), its arrow collapses it to a strip, and both are remembered across runs
+(prefs.py).  The FramePipeline runs on a worker thread (worker.py), so the window keeps answering
+while a scene loads, the numba kernels compile or a heavy frame renders, and shows what it is
+waiting for.
 
-Nothing is written to the working directory unless the user asks (a screenshot key or button
-writes there only when no --screenshot-dir is given); imgui.ini is disabled.
+Screenshots (P, F12, the panel's buttons) go to --screenshot-dir, out/screenshots under the
+working directory by default, made on the first shot; each saved path is printed in full.  Nothing
+else is written to the working directory; imgui.ini is disabled.
 """
 
 import argparse
@@ -33,6 +39,7 @@ from gridrt.warmup import cache_is_cold
 from .. import cli
 from .blit import Blitter
 from .input import KEY_HELP, InputHandler
+from .prefs import load_prefs, panel_prefs, prefs_path, save_prefs
 from .state import SCALE_MAX, SCALE_MIN, ViewerState, view_with_camera
 from .worker import FrameJob, LoadJob, LoadResult, RenderWorker
 
@@ -52,24 +59,32 @@ SLOW_LOAD_S = 0.15
 PROGRESS_PRINT_S = 1.0
 #: how long the viewer waits at exit for the render thread to finish its frame
 STOP_WAIT_S = 1.5
+#: where screenshots go without --screenshot-dir (relative to the working directory)
+DEFAULT_SHOT_DIR = Path("out") / "screenshots"
 
 
 def add_parser(sub):
     p = sub.add_parser("view", help="open the interactive viewer (needs a display)",
                        description="Interactive viewer: a window with the ray-traced animation and a control "
-                                   "panel.  --size is the initial window size; the render resolution follows "
-                                   "the window (times --scale).  Without a display, use `gridrt dump`.",
+                                   "panel in a column beside it.  --size is the image's initial size (the "
+                                   "window adds the panel's column); the render resolution follows the image "
+                                   "area (times --scale).  Whether the panel is hidden or collapsed is "
+                                   "remembered in $XDG_CONFIG_HOME/gridrt/viewer.json (~/.config/gridrt/"
+                                   "viewer.json; GRIDRT_CONFIG_HOME names another folder).  Without a display, "
+                                   "use `gridrt dump`.",
                        epilog="keys: " + KEY_HELP)
     cli.add_scene_args(p)
     cli.add_grid_args(p)
     cli.add_render_args(p)
     g = p.add_argument_group("viewer")
     g.add_argument("--scale", type=float, default=1.0,
-                   help="render resolution as a fraction of the window (0.1..2; default 1)")
+                   help="render resolution as a fraction of the image area (0.1..2; default 1)")
     g.add_argument("--paused", action="store_true", help="start with the animation paused")
-    g.add_argument("--hide-panel", action="store_true", help="start with the panel hidden (H toggles)")
-    g.add_argument("--screenshot-dir", type=Path, default=None,
-                   help="folder for F12/P screenshots (default: the current directory, only when asked)")
+    g.add_argument("--hide-panel", action="store_true",
+                   help="start with the panel hidden, the image filling the window (H toggles)")
+    g.add_argument("--screenshot-dir", type=Path, default=DEFAULT_SHOT_DIR,
+                   help="folder for P/F12 screenshots, made on the first shot; each saved path is printed "
+                        "(default: %(default)s under the current directory)")
     g.add_argument("--state-file", type=Path, default=None,
                    help="write the viewer state as JSON to this file several times a second "
                         "(frame counters, parameters, screenshot paths, widget positions; for scripts/tests; default: none)")
@@ -165,8 +180,10 @@ def initial_state(a):
     )
     st.scale = float(a.scale)
     st.home = st.camera
-    st.show_panel = not a.hide_panel
-    st.window_size = (w, h)
+    shown, collapsed = panel_prefs(load_prefs())
+    st.show_panel = shown and not a.hide_panel
+    st.panel_collapsed = collapsed
+    st.window_size = st.window_for_image(w, h)   # the image at --size, the panel's column beside it
     st.cold_cache = cache_is_cold(st.render.traversal)
     if source not in BUILTIN_SCENES:
         st.file_text = source
@@ -199,7 +216,8 @@ class Viewer:
     def __init__(self, args, state):
         self.args = args
         self.state = state
-        self.shot_dir = Path(args.screenshot_dir) if args.screenshot_dir is not None else None
+        shot_dir = args.screenshot_dir if args.screenshot_dir is not None else DEFAULT_SHOT_DIR
+        self.shot_dir = Path(os.path.abspath(os.path.expanduser(shot_dir)))   # printed in full
         self.state_file = Path(args.state_file) if args.state_file is not None else None
         self.image = None              # the frame on screen, (H, W, 4) uint8
         self.start_view = state.spec.view  # the command line's view (a new scene is framed with its fov and up)
@@ -209,6 +227,7 @@ class Viewer:
         self._last_state_write = 0.0
         self._last_result_time = None
         self._progress_printed = (0.0, 0)   # (perf_counter, textures) of the last console progress line
+        self._panel_kept = (state.show_panel, state.panel_collapsed)   # as remembered (or as started)
 
     # ---- lifecycle ------------------------------------------------------------------------
     def run(self):
@@ -245,6 +264,11 @@ class Viewer:
             blitter = Blitter(ctx)
             worker = RenderWorker(self._make_pipeline, on_result=glfw.post_empty_event)
             self.ui, self.blitter, self.worker = ui, blitter, worker
+            st.window_size = tuple(glfw.get_window_size(win))   # (the loop keeps both up to date)
+            st.framebuffer_size = tuple(glfw.get_framebuffer_size(win))
+            if not st.show_panel and not self.args.hide_panel:
+                print(f"gridrt view: the panel starts hidden, as last time (H shows it; remembered in "
+                      f"{prefs_path()})", flush=True)
             self._start_load(st.scene, keep_camera=True, scene_camera=start_on_scene_camera(self.args))
             self._loop()
             return 0
@@ -291,7 +315,7 @@ class Viewer:
         command line's fov and up (not with those of a camera looked through before)."""
         st = self.state
         self.generation += 1
-        spec = st.spec.resized(*st.render_size_for(*self._fb_size())).replace(scene=scene)
+        spec = st.spec.resized(*st.render_size_for(*self._image_viewport()[2:])).replace(scene=scene)
         if not keep_camera:
             start = self.start_view
             spec = spec.replace(view=spec.view.replace(eye=None, target=None, fov=start.fov, up=start.up))
@@ -301,9 +325,19 @@ class Viewer:
         self.last_key = None
         self._progress_printed = (0.0, 0)
 
-    def _fb_size(self):
-        fw, fh = self.glfw.get_framebuffer_size(self.win)
-        return max(fw, 1), max(fh, 1)
+    def _image_viewport(self):
+        """The image area (ViewerState.layout of ``state.window_size``) in framebuffer pixels
+        (``state.framebuffer_size``), as a GL viewport (x, y from the bottom, w, h); it also sets
+        ``state.image_rect`` (window pixels)."""
+        st = self.state
+        ww, wh = (max(int(v), 1) for v in st.window_size)
+        fw, fh = (max(int(v), 1) for v in st.framebuffer_size)
+        (ix, iy, iw, ih), _ = st.layout(ww, wh)
+        st.image_rect = (ix, iy, iw, ih)
+        s = fh / wh   # framebuffer pixels per window pixel (HiDPI; the same both ways)
+        x0, x1 = min(round(ix * s), fw - 1), min(round((ix + iw) * s), fw)
+        y0, y1 = min(round(iy * s), fh - 1), min(round((iy + ih) * s), fh)
+        return x0, fh - y1, max(x1 - x0, 1), max(y1 - y0, 1)
 
     # ---- frame loop -----------------------------------------------------------------------
     def _loop(self):
@@ -331,6 +365,7 @@ class Viewer:
                 continue
             st.framebuffer_size = (fw, fh)
             st.window_size = tuple(glfw.get_window_size(self.win))
+            self._image_viewport()   # state.image_rect, where the mouse moves the camera
 
             self.ui.new_frame()
             self.input.process(io, dt)
@@ -345,11 +380,14 @@ class Viewer:
             self._update_busy(now)
             job, elapsed = self.worker.current()
             draw_overlay(st, elapsed)
+            self._remember_panel()
+            viewport = self._image_viewport()   # this frame's (H or the panel's arrow may have changed it)
 
             self.ctx.screen.use()
             self.ctx.viewport = (0, 0, fw, fh)
             self.ctx.clear(0.12, 0.13, 0.16, 1.0)
-            self.blitter.draw((0, 0, fw, fh))
+            self.blitter.draw(viewport)
+            self.ctx.viewport = (0, 0, fw, fh)
             self.ui.render()
             if st.want_window_shot:
                 st.want_window_shot = False
@@ -453,8 +491,7 @@ class Viewer:
         st = self.state
         if self.worker.busy or self.worker.pipeline is None:
             return
-        fw, fh = st.framebuffer_size
-        rw, rh = st.render_size_for(fw, fh)
+        rw, rh = st.render_size_for(*self._image_viewport()[2:])
         st.render_size = (rw, rh)
         if st.spec.size != (rw, rh):
             try:
@@ -469,10 +506,17 @@ class Viewer:
         self.worker.submit(FrameJob(st.spec, st.time, generation=self.generation))
 
     # ---- outputs --------------------------------------------------------------------------
+    def _remember_panel(self):
+        """Remember (prefs.py) whether the panel is hidden or collapsed when the user changes it."""
+        st = self.state
+        now = (st.show_panel, st.panel_collapsed)
+        if now != self._panel_kept:
+            self._panel_kept = now
+            save_prefs({"show_panel": now[0], "panel_collapsed": now[1]})
+
     def _shot_folder(self):
-        d = self.shot_dir or Path.cwd()
-        d.mkdir(parents=True, exist_ok=True)
-        return d
+        self.shot_dir.mkdir(parents=True, exist_ok=True)
+        return self.shot_dir
 
     def _save_png(self, rgb, stem, what):
         """Save (H, W, 3) uint8 ``rgb`` as the next free ``stem_NNNN.png`` in the shot folder and say
@@ -487,7 +531,7 @@ class Viewer:
             st.message = f"{what} failed: {e}"
             print(f"gridrt view: {st.message}", file=sys.stderr, flush=True)
             return None
-        st.message = f"saved {p.name}"
+        st.message = f"saved {p}"
         print(f"gridrt view: saved {what} {p}", flush=True)
         return p
 
