@@ -328,3 +328,17 @@ def test_benchmark_plots_are_legible_at_their_saved_size(kind, tmp_path, monkeyp
         boxes = sorted((t.get_window_extent(renderer) for t in level), key=lambda b: b.x0)
         assert all(a.x1 <= b.x0 for a, b in zip(boxes, boxes[1:])), f"x tick labels overlap in {ax.get_title()!r}"
         assert output._crowding(ax, renderer) <= 1, f"x tick labels overlap in {ax.get_title()!r}"
+
+
+def test_static_data_set_scenes_are_the_static_ones():
+    """STATIC_DATA_SCENES (the viewer offers a deformation for these) are the data set's scenes that
+    do not move, each one present checked by loading it."""
+    from gridrt.scene import DATA_SCENES, make_scene
+    from gridrt.scene.assets import STATIC_DATA_SCENES, scene_present
+
+    assert set(STATIC_DATA_SCENES) == {n for n, (_, what) in DATA_SCENES.items() if what.endswith("(static)")}
+    present = [n for n in DATA_SCENES if scene_present(n) and n != "tokyo"]  # (tokyo needs DracoPy, 141k)
+    if not present:
+        pytest.skip("the development data set is absent or hidden")
+    for n in present:
+        assert make_scene(n).static == (n in STATIC_DATA_SCENES), n

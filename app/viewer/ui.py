@@ -16,7 +16,7 @@ from imgui_bundle import imgui, implot
 
 from gridrt.config import GRID_KINDS, INSERT_MODES, SHADING_MODES
 from gridrt.scene import BUILTIN_SCENES, DEFORM_KINDS, FRAME_EXTENSIONS, SCENE_EXTENSIONS, SceneSpec
-from gridrt.scene.assets import STATIC_ASSETS
+from gridrt.scene.assets import DATA_SCENES, STATIC_ASSETS, STATIC_DATA_SCENES, scene_present
 
 from .input import KEY_HELP
 from .state import PANEL_STRIP_WIDTH, PANEL_WIDTH, SCALE_MAX, SCALE_MIN, SPEED_MAX, SPEED_MIN  # noqa: F401
@@ -347,7 +347,8 @@ def _draw_render(state):
 
 
 def _draw_scene(state):
-    builtins = list(BUILTIN_SCENES)
+    # the data set's scenes where they are present (a user's clone has the shipped ones only)
+    builtins = [n for n in BUILTIN_SCENES if n not in DATA_SCENES or scene_present(n)]
     is_builtin = state.scene.source in builtins
     v = _combo(state, "built-in", builtins, state.scene.source if is_builtin else None)
     if v is not None:
@@ -361,7 +362,7 @@ def _draw_scene(state):
             state.scene_request = SceneSpec(source=state.scene.source, count=int(n), seed=state.scene.seed)
         if imgui.is_item_hovered():
             imgui.set_tooltip("press Enter to rebuild the scene with this many triangles")
-    if state.scene.source == "icosphere" or state.scene.source in STATIC_ASSETS or not is_builtin:
+    if state.scene.source == "icosphere" or state.scene.source in STATIC_ASSETS + STATIC_DATA_SCENES or not is_builtin:
         v = _combo(state, "deform", list(_ANIMATE), state.scene.animate or "none")
         if v is not None:
             s = state.scene

@@ -42,6 +42,8 @@ DATA_SCENES = {
 
 #: the asset scenes that do not move (the ones a deformation can animate)
 STATIC_ASSETS = ("armadillo", "teapot")
+#: the data set's scenes that do not move (a deformation can animate them too)
+STATIC_DATA_SCENES = ("lucy", "dragon", "bunny")
 
 
 def _asset_dir():
