@@ -33,7 +33,7 @@ OPTION_HELP = {
     "--top-density": "two-level grid: top cells per triangle",
     "--leaf-density": "two-level grid: leaf cells per reference (triangle) of a top cell",
     "--insert": "triangle insertion test: bounding box (fast) or exact SAT (fewer references)",
-    "--shading": "auto (material for a scene with materials, textures or vertex colours, else lambert), material (the "
+    "--shading": "auto (material for a scene with materials, textures, vertex colours or smooth normals, else lambert), material (the "
                  "scene's materials, textures, smooth normals and lights), lambert (one colour; a headlight, or the "
                  "point light when shadows are on), normal (geometric normals as colours) or cost (a heat map of "
                  "triangle tests per ray)",

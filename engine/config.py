@@ -26,8 +26,8 @@ PARALLEL_DEFAULT_STRATEGY = "counting"
 #: the one of the two that the scene's spread of triangles asks for (gridrt.grid.build.crowding,
 #: AUTO_CROWDING)
 GRID_KINDS = ("uniform", "two_level", "auto")
-#: Shading modes (RenderParams.shading): "auto" is "material" for a scene with materials
-#: (Animation.surface) and "lambert" for one without (resolve_shading)
+#: Shading modes (RenderParams.shading): "auto" is "material" for a scene with looks of its own
+#: (Surface.has_looks: materials or smooth normals) and "lambert" for one without (RenderParams.resolved)
 SHADING_MODES = ("auto", "material", "lambert", "normal", "cost")
 #: Ray traversal: single-ray 3D DDA, or coherent grid traversal of ray packets (gridrt.trace.cgt)
 TRAVERSALS = ("dda", "cgt")
