@@ -8,7 +8,7 @@ from gridrt.config import GRID_KINDS, GridParams, resolve_strategy
 from gridrt.errors import InputError
 from gridrt.frame import ViewSpec
 from gridrt.grid.registry import get_builder
-from gridrt.threads import check_threads
+from gridrt.threads import check_threads, warn_more_threads_than_cores
 
 from ..cli import add_density_args, defaults, option_help
 
@@ -60,11 +60,14 @@ def grid_kinds(a):
 
 
 def thread_list(text):
-    """Thread counts from '1,2' (validated), default: 1 and all cores."""
+    """Thread counts from '1,2' (validated), default: 1 and all cores; more than the cores is
+    warned about once (the runs are measured all the same: a scaling experiment)."""
     cores = check_threads(None)
     if text is None:
         return sorted({1, cores})
-    return [check_threads(t) for t in int_list(text, "--threads")]
+    threads = [check_threads(t) for t in int_list(text, "--threads")]
+    warn_more_threads_than_cores(max(threads))
+    return threads
 
 
 def check_runs(runs, warmup):
