@@ -71,8 +71,8 @@ def build_parser(command=None):
 
 
 def _list_strategies(a):
-    print(f"{AUTO_STRATEGY:20s} the default: serial at 1 thread, {PARALLEL_DEFAULT_STRATEGY} above (the fastest at 2 threads "
-          "in BENCHMARKS.md section 2)")
+    print(f"{AUTO_STRATEGY:20s} the default: serial at 1 thread, {PARALLEL_DEFAULT_STRATEGY} above (of the strategies that build "
+          "the serial grid, cell lists in the same order, the fastest at 2 threads in BENCHMARKS.md section 2)")
     for n in names():
         doc = (BUILDERS[n].__doc__ or "").strip().splitlines()
         print(f"{n:20s} {doc[0] if doc else ''}")

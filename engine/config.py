@@ -17,11 +17,16 @@ INSERT_MODES = ("bbox", "exact")
 #: refuses to load when its classes and these names differ)
 STRATEGIES = ("serial", "sort_first", "global_lock", "cell_locks", "lock_pool", "thread_grids_merge", "thread_grids",
               "sort_middle", "counting")
-#: GridParams.strategy "auto" (the default): serial at one thread, and above it the strategy
-#: fastest at 2 threads in BENCHMARKS.md section 2 (``gridrt bench build``: counting on 4 of its
-#: 5 scenes); :func:`resolve_strategy` gives the name it stands for
+#: GridParams.strategy "auto" (the default): serial at one thread, and above it the fastest at 2
+#: threads in BENCHMARKS.md section 2 (``gridrt bench build``, geometric mean over its scenes) of
+#: the strategies whose grids equal the serial build's, cell lists in the same order, at any
+#: thread count (:data:`SERIAL_ORDER_STRATEGIES`): frames then come out the same every run, and a
+#: resumed dump is the one-run dump (counting and thread_grids, a little faster, scatter with
+#: atomics in an order that changes from run to run); :func:`resolve_strategy` gives the name
 AUTO_STRATEGY = "auto"
-PARALLEL_DEFAULT_STRATEGY = "counting"
+PARALLEL_DEFAULT_STRATEGY = "sort_first"
+#: the strategies whose grids equal the serial build's, cell lists in the same order
+SERIAL_ORDER_STRATEGIES = ("serial", "sort_first", "thread_grids_merge", "sort_middle")
 #: Grid kinds (GridParams.grid): one uniform grid, a two-level grid (gridrt.grid.two_level), or
 #: the one of the two that the scene's spread of triangles asks for (gridrt.grid.build.crowding,
 #: AUTO_CROWDING)
@@ -67,7 +72,7 @@ class GridParams:
     """How to build the grid each frame.
 
     strategy   name of a registered build strategy (gridrt.grid.registry), or "auto" (the
-               default): serial at one thread, counting above (:func:`resolve_strategy`)
+               default): serial at one thread, sort_first above (:func:`resolve_strategy`)
     density    lambda: target cells ~ density * triangles, shaped by the scene bounds
     macro      macro-cell edge k in cells (a macro cell is k**3 cells); 1 disables skipping gain
     insert     "bbox" (triangle bounding box, fast) or "exact" (separating-axis test, fewer refs)

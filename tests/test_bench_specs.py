@@ -87,7 +87,7 @@ def test_bench_peers_configurations_are_the_options(strategy):
         assert [(s.grid.threads, s.grid.grid) for s in specs] == [(t, k) for t in threads for k in kinds]
         for s in specs:
             g, r, T = s.grid, s.render, s.grid.threads
-            # --strategy auto: serial at 1 thread, counting above (the option's help)
+            # --strategy auto: serial at 1 thread, PARALLEL_DEFAULT_STRATEGY above (the option's help)
             auto = "serial" if T == 1 else PARALLEL_DEFAULT_STRATEGY
             assert g.strategy == (auto if strategy == "auto" else strategy)
             assert (g.top_density, g.leaf_density) == (0.125, 3.0)

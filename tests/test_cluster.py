@@ -29,8 +29,10 @@ pytest.importorskip("distributed", reason="the cluster extra (pip install 'gridr
 
 REPO = Path(__file__).resolve().parents[1]
 DASK = Path(sys.executable).parent / "dask"
-#: stats columns a cluster run may change: timings (and the rate made of one), thread counts, the worker
-UNCOMPARED = {"mrays", "threads", "render_threads", "worker"}
+#: stats columns a cluster run may change: timings (and the rate made of one), thread counts (and the
+#: strategy the default "auto" resolves to for them: each builds the serial grid), the worker, and
+#: whether kernels compiled during the frame
+UNCOMPARED = {"mrays", "threads", "render_threads", "worker", "strategy", "compiled"}
 
 FAST = ["--scene", "marbles", "--count", "3000", "--frames", "30", "--size", "96x72", "--save-buffers"]
 #: frames slow enough (single-ray DDA at 640x480, about 80 ms each) that a kill or a Ctrl-C lands mid-run

@@ -35,8 +35,9 @@ REPO = Path(__file__).resolve().parents[1]
 #: another: no parallel kernel compiles in the background meanwhile)
 SMALL = ["--scene", "icosphere", "--count", "320", "--frames", "3", "--size", "32x24", "--save-buffers",
          "--threads", "1", "--no-progress"]
-#: stats columns that differ between two runs of the same frames: timings, rates, threads, the worker
-TIMED = {"mrays", "threads", "render_threads", "worker"}
+#: stats columns that differ between two runs of the same frames: timings, rates, threads (and the
+#: strategy "auto" resolves to for them), the worker, whether kernels compiled during the frame
+TIMED = {"mrays", "threads", "render_threads", "worker", "strategy", "compiled"}
 STOP_LINE = re.compile(r"gridrt: stopped after (\d+) of (\d+) frames \((.*)\): (.*)\Z")
 
 

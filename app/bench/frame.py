@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 
-from gridrt.config import SHADING_MODES, TRAVERSALS, GridParams, RenderParams
+from gridrt.config import PARALLEL_DEFAULT_STRATEGY, SHADING_MODES, TRAVERSALS, GridParams, RenderParams
 from gridrt.errors import InputError
 from gridrt.frame import FrameSpec, ViewSpec
 from gridrt.pipeline import FramePipeline
@@ -197,7 +197,7 @@ def _frame_summary(rows, size, runs, warmup, strategy):
     body = [f"Per frame: the scene at t = i/30 s, grid rebuild (only the moving part when the static/moving split "
             f"is on; nothing for a static scene), one primary ray per pixel at {size}x{size}, lambert shading, "
             f"watertight test.  {warmup} warm-up + {runs} timed frames; ms median [min-max].  Strategy "
-            f"{'auto = serial at 1 thread, counting above' if strategy == 'auto' else strategy}.  fps = 1000 / "
+            f"{f'auto = serial at 1 thread, {PARALLEL_DEFAULT_STRATEGY} above' if strategy == 'auto' else strategy}.  fps = 1000 / "
             "median frame ms (frame = animation + rebuild + render); the figure of Ize et al. 2006 counts rebuild + ray cast "
             "(fps b+r).", ""]
     table = []

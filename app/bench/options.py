@@ -96,5 +96,5 @@ def add_dt_arg(q):
 
 def frame_strategy(name, threads):
     """The build strategy a --strategy of ``name`` means at ``threads`` threads: "auto" is serial at
-    1 thread and counting above (gridrt.config.resolve_strategy); any other name is itself."""
+    1 thread and sort_first above (gridrt.config.resolve_strategy); any other name is itself."""
     return resolve_strategy(name, threads)
