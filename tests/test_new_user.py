@@ -180,6 +180,7 @@ def test_compile_watch_sees_a_compile_and_only_then():
     assert not w.compiled
 
 
+@pytest.mark.slow  # (compiles the dump's kernels from scratch, as the other cold-cache tests)
 def test_dump_leaves_compile_frames_out_of_its_medians(tmp_path):
     """A fresh numba cache: the first frames compile (marked in stats.csv), and the dump's summary
     says its medians leave them out (or include them, when every frame compiled)."""
