@@ -30,6 +30,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers.cli import all_parsers
+
 REPO = Path(__file__).resolve().parents[1]
 README = REPO / "README.md"
 DOCS = REPO / "docs"
@@ -370,17 +372,6 @@ def test_view_refuses_an_unknown_scene_naming_the_formats(tmp_path):
 
 
 # ----------------------------------------------------------------------------- --help shows defaults
-
-
-def all_parsers():
-    """(command words, parser) of gridrt and every subcommand, nested ones included."""
-    todo = [("gridrt", build_parser())]
-    while todo:
-        name, p = todo.pop(0)
-        yield name, p
-        for a in p._actions:
-            if isinstance(a, argparse._SubParsersAction):
-                todo += [(f"{name} {n}", q) for n, q in a.choices.items()]
 
 
 def option_help(parser, action):

@@ -34,7 +34,7 @@ from gridrt.scene import assets
 from gridrt.scene import make as scene_make
 from gridrt.scene.assets import scene_file, scene_present
 from gridrt.scene.make import PROCEDURAL_SCENES
-from test_first_run import all_parsers
+from helpers.cli import all_parsers
 
 
 # ----------------------------------------------------------------------------- scene names

@@ -1,10 +1,12 @@
 """Running the gridrt command in a subprocess and reading its one-line errors."""
 
+import argparse
 import os
 import subprocess
 import sys
 from pathlib import Path
 
+from gridrt.app.__main__ import build_parser
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -32,3 +34,14 @@ def one_error(r, *words):
     for w in words:
         assert w in lines[0], lines[0]
     return lines[0]
+
+
+def all_parsers():
+    """(command words, parser) of gridrt and every subcommand, nested ones included."""
+    todo = [("gridrt", build_parser())]
+    while todo:
+        name, p = todo.pop(0)
+        yield name, p
+        for a in p._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                todo += [(f"{name} {n}", q) for n, q in a.choices.items()]
