@@ -36,7 +36,7 @@ from gridrt.scene import BUILTIN_SCENES, scene_choices
 from gridrt.threads import check_threads, max_threads
 from gridrt.warmup import cache_is_cold
 
-from .. import cli
+from .. import cli, dump
 from .blit import Blitter
 from .input import KEY_HELP, InputHandler
 from .prefs import load_prefs, panel_prefs, prefs_path, save_prefs
@@ -98,8 +98,6 @@ def headless_command(a=None):
     with the options of the parsed view arguments ``a`` that the dump shares and that differ from
     their defaults (the user's scene, camera, grid and render settings), 60 frames into
     out/SCENE."""
-    from .. import dump  # deferred: the dump's parser, built only for a message
-
     words = ["dump"]
     scene = "marbles"
     if a is not None:
