@@ -22,19 +22,16 @@ from gridrt.config import (PARALLEL_DEFAULT_STRATEGY, SERIAL_ORDER_STRATEGIES, S
 from gridrt.grid import build_grid
 from gridrt.scene import make_scene
 from gridrt.threads import usable_cores
+from helpers.cli import gridrt
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def gridrt(*args, cwd=REPO, env=None, timeout=900):
-    return subprocess.run([sys.executable, "-m", "gridrt", *map(str, args)], cwd=cwd, capture_output=True, text=True,
-                          timeout=timeout, env=dict(os.environ, **(env or {})))
 
 
 def dump_rows(tmp_path, *args):
     """stats.csv rows of a one-frame dump with ``args`` (and the run's stderr)."""
     out = tmp_path / "d"
-    r = gridrt("dump", "--frames", "1", "--size", "32x24", "--out", out, "--overwrite", "--no-progress", *args)
+    r = gridrt("dump", "--frames", "1", "--size", "32x24", "--out", str(out), "--overwrite", "--no-progress",
+               *map(str, args), timeout=900)
     assert r.returncode == 0, r.stderr[-3000:]
     with open(out / "stats.csv", newline="") as fh:
         return list(csv.DictReader(fh)), r.stderr
@@ -139,7 +136,7 @@ def test_dump_looks_through_the_scenes_camera_by_default(tmp_path):
     def frame(tag, *opts):
         out = tmp_path / tag
         r = gridrt("dump", "--scene", "museum", "--frames", "1", "--t0", "1.5", "--size", "40x30", "--shading", "lambert",
-                   "--save-buffers", "--out", out, "--no-progress", *opts)
+                   "--save-buffers", "--out", str(out), "--no-progress", *opts, timeout=900)
         assert r.returncode == 0, r.stderr[-3000:]
         return np.load(out / "frame_00000_t.npy"), np.load(out / "frame_00000_id.npy")
 
@@ -186,7 +183,8 @@ def test_dump_leaves_compile_frames_out_of_its_medians(tmp_path):
     says its medians leave them out (or include them, when every frame compiled)."""
     out = tmp_path / "d"
     r = gridrt("dump", "--scene", "icosphere", "--count", "80", "--frames", "3", "--size", "16x12", "--threads", "1",
-               "--traversal", "dda", "--out", out, "--no-progress", env={"NUMBA_CACHE_DIR": str(tmp_path / "cache")})
+               "--traversal", "dda", "--out", str(out), "--no-progress", env={"NUMBA_CACHE_DIR": str(tmp_path / "cache")},
+               timeout=900)
     assert r.returncode == 0, r.stderr[-3000:]
     with open(out / "stats.csv", newline="") as fh:
         flags = [row["compiled"] for row in csv.DictReader(fh)]

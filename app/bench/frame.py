@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 
-from gridrt.config import PARALLEL_DEFAULT_STRATEGY, SHADING_MODES, TRAVERSALS, GridParams, RenderParams
+from gridrt.config import PARALLEL_DEFAULT_STRATEGY, SHADING_MODES, TRAVERSALS, GridParams, RenderParams, resolve_strategy
 from gridrt.errors import InputError
 from gridrt.frame import FrameSpec, ViewSpec
 from gridrt.pipeline import FramePipeline
@@ -17,7 +17,7 @@ from ..cli import add_packet_args, defaults, option_help
 from ..cluster.scheduler import add_cluster_args, wants_cluster
 from .machine import finish_machine, machine_info
 from ..cluster.bench import _bench_scene, open_cluster, run_configs, worker_cores
-from .options import add_dt_arg, add_grid_kind_args, check_frame_args, frame_strategy, grid_kinds, thread_list
+from .options import add_dt_arg, add_grid_kind_args, check_frame_args, grid_kinds, thread_list
 from .output import figure, grid_columns, md_table, out_dir, progress, write_csv, write_json, write_summary
 from .scenes import resolve_scene, scene_list
 from .stats import fmt_ms, put_stat
@@ -74,9 +74,9 @@ def base_spec(a, size, packet):
 def frame_spec(base, scene, variant, strategy):
     """The FrameSpec of one ``bench frame`` configuration: ``base`` (:func:`base_spec`) with the
     SceneSpec ``scene`` and variant = (threads, traversal, split, grid kind); ``strategy`` a build
-    strategy or "auto" (:func:`frame_strategy`)."""
+    strategy or "auto" (:func:`gridrt.config.resolve_strategy`)."""
     th, tr, sp, gk = variant
-    return base.replace(scene=scene, grid=base.grid.replace(strategy=frame_strategy(strategy, th), threads=th, grid=gk),
+    return base.replace(scene=scene, grid=base.grid.replace(strategy=resolve_strategy(strategy, th), threads=th, grid=gk),
                         render=base.render.replace(threads=th, traversal=tr),
                         view=base.view.replace(split_static=sp))
 

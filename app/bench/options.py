@@ -4,7 +4,7 @@ loads."""
 
 import math
 
-from gridrt.config import GRID_KINDS, GridParams, resolve_strategy
+from gridrt.config import GRID_KINDS, GridParams
 from gridrt.errors import InputError
 from gridrt.frame import ViewSpec
 from gridrt.grid.registry import get_builder
@@ -92,9 +92,3 @@ def add_dt_arg(q):
     """--dt, the seconds between the frames of a frame-by-frame benchmark (default: ViewSpec's)."""
     dt = defaults(ViewSpec)["dt"]
     q.add_argument("--dt", type=float, default=dt, help=option_help("--dt", f"1/{1 / dt:g}"))
-
-
-def frame_strategy(name, threads):
-    """The build strategy a --strategy of ``name`` means at ``threads`` threads: "auto" is serial at
-    1 thread and sort_first above (gridrt.config.resolve_strategy); any other name is itself."""
-    return resolve_strategy(name, threads)

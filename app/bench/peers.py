@@ -37,7 +37,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 import gridrt  # noqa: F401
-from gridrt.config import TRAVERSALS, GridParams, RenderParams
+from gridrt.config import TRAVERSALS, GridParams, RenderParams, resolve_strategy
 from gridrt.errors import InputError
 from gridrt.frame import FrameSpec, ViewSpec
 from gridrt.grid.build import GridBuilder
@@ -47,7 +47,7 @@ from ..cli import add_packet_args, option_help
 
 from .affinity import Affinity
 from .machine import finish_machine, machine_info
-from .options import add_dt_arg, add_grid_kind_args, check_frame_args, frame_strategy, grid_kinds, thread_list
+from .options import add_dt_arg, add_grid_kind_args, check_frame_args, grid_kinds, thread_list
 from .output import figure, grid_columns, grid_label, md_table, out_dir, progress, write_csv, write_json, write_summary
 from .scenes import FILL, camera_rays, resolve_scene, scene_list, scenes_help, seen_through
 from .stats import fmt_ms, measured, put_stat
@@ -200,11 +200,11 @@ def peer_specs(base, scene, cam, threads, kinds, strategy):
     """The FrameSpecs of one scene and view, one per thread count (built and rendered on that many
     threads) and grid kind, in that order: ``base`` (:func:`peers_spec`) with the SceneSpec
     ``scene``, seen through the Camera ``cam`` (None for the random rays: no camera), built with
-    ``strategy`` (a build strategy or "auto": :func:`frame_strategy`)."""
+    ``strategy`` (a build strategy or "auto": :func:`gridrt.config.resolve_strategy`)."""
     if cam is not None:
         base = seen_through(base, cam)
     base = base.replace(scene=scene)
-    return [base.replace(grid=base.grid.replace(strategy=frame_strategy(strategy, T), threads=T, grid=kind),
+    return [base.replace(grid=base.grid.replace(strategy=resolve_strategy(strategy, T), threads=T, grid=kind),
                          render=base.render.replace(threads=T)) for T in threads for kind in kinds]
 
 
