@@ -107,8 +107,7 @@ class GridBuilder:
             self.params = params
         p = self.params
         threads = check_threads(p.threads)
-        strategy_name = resolve_strategy(p.strategy, threads)
-        strategy = get_builder(strategy_name)()
+        strategy = get_builder(resolve_strategy(p.strategy, threads))()
         t_start = time.perf_counter()
         times = {}
         tris = _check_tris(tris)
@@ -244,7 +243,7 @@ class GridBuilder:
         grid.stats = BuildStats(
             stages=times,
             build_ms=build_ms,
-            strategy=resolve_strategy(p.strategy, threads),
+            strategy=strategy.name,
             threads=threads,
             insert=p.insert,
             triangles=F,
