@@ -4,11 +4,13 @@ not a rendering time (its stats say so, and medians and plots leave it out).
 numba broadcasts a ``numba:compile`` event when a dispatcher really compiles (not when it loads
 from the on-disk cache); :class:`CompileWatch` counts them from any thread, and also knows a
 compile that was under way when it began or ended (a parallel kernel compiling in the background,
-gridrt.trace.twin, while frames render on its serial twin)."""
+gridrt.trace.twin, while frames render on its serial twin).
+
+:func:`one_per_types` keeps a kernel called from other kernels to one compile per argument types."""
 
 import threading
 
-from numba.core import event
+from numba.core import event, types
 
 
 class _Counter(event.Listener):
@@ -55,3 +57,22 @@ class CompileWatch:
     def __exit__(self, *exc):
         self.check()
         return False
+
+
+def one_per_types(dispatcher):
+    """Decorate a jitted function (above ``@njit``) so that a call from another jitted function
+    compiles it for the argument types alone, not for the literal values given.
+
+    numba types a constant argument (``f(x, True)``, ``f(x, 0)``, a module constant) as a literal
+    and compiles the callee once per literal value it is called with; for a traversal called with
+    any_hit True from the shading and False from the camera rays, that is two compiles of several
+    seconds each, of one and the same code (a flag that stays a run-time value costs a predictable
+    branch).  Calls from Python are not affected (numba never makes their arguments literal).
+    """
+    base = dispatcher.get_call_template
+
+    def get_call_template(args, kws):
+        return base(tuple(types.unliteral(a) for a in args), {k: types.unliteral(v) for k, v in kws.items()})
+
+    dispatcher.get_call_template = get_call_template
+    return dispatcher

@@ -38,6 +38,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit, prange
 
+from ..compiles import one_per_types
 from ..errors import InputError
 from .common import EPS, cell_overlaps
 from .layout import Grid
@@ -144,6 +145,7 @@ def _leaf_range(b0, b1, slo, isc, r):
     return max(a0, 0), min(a1, r - 1)
 
 
+@one_per_types
 @njit(cache=True, _nrt=False)
 def _top_cell_leaves(tris, top, box, leaves, t, a0, exact, scatter, base0):
     """Count (scatter=False) or place (True) the leaf references of top cell t of the grid ``box``

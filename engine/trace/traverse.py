@@ -32,6 +32,7 @@ import math
 import numpy as np
 from numba import njit
 
+from ..compiles import one_per_types
 from ..grid.two_level import leaf_axis
 from .grids import is_two_level, with_leaves_only
 from .intersect import intersect_fast, intersect_watertight, ray_shear
@@ -353,6 +354,7 @@ def _next_block(ray, tm, bi, m, mdims, k, lo, c, n):
     return te, entered, mi, mj, mk, m, tmx, tmy, tmz, False
 
 
+@one_per_types
 @njit(cache=True, _nrt=False)
 def trace_ray(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
     """Nearest (or, with any_hit, any) hit with tmin < t < tmax of the ray from o along d (float64
@@ -555,6 +557,7 @@ _trace_2l = with_leaves_only("_trace_2l", "g, o, d, tmin, tmax, watertight, any_
                              (-1, np.inf, 0.0, 0.0, 0, 0))
 
 
+@one_per_types
 @njit(cache=True)
 def _result(best_f, best_t, best_u, best_v, cells, tests):
     if best_f < 0:
@@ -562,6 +565,7 @@ def _result(best_f, best_t, best_u, best_v, cells, tests):
     return best_f, best_t, best_u, best_v, cells, tests
 
 
+@one_per_types
 @njit(cache=True, _nrt=False)
 def trace_grids(grids, o, d, tmin, tmax, watertight, any_hit, mailbox):
     """Nearest (or, with any_hit, any) hit of the ray from o along d over the tuple of grids, in

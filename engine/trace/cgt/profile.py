@@ -3,6 +3,7 @@
 
 from numba import njit
 
+from ...compiles import one_per_types
 from ..prefetch import _cycles
 
 
@@ -21,6 +22,7 @@ def _now(prof):
     return _cycles()
 
 
+@one_per_types
 @njit(cache=True, _nrt=False)
 def _lap(prof, k, t):
     """Add the cycles since t to phase k of prof; returns the counter now (0 without prof)."""
@@ -31,6 +33,7 @@ def _lap(prof, k, t):
     return now
 
 
+@one_per_types
 @njit(cache=True, _nrt=False)
 def _prof_count(prof, k, n):
     if prof is not None:

@@ -8,6 +8,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
+from ...compiles import one_per_types
 from ...config import PACKET_MAX
 from ..intersect import woop_edges, woop_shear
 from ..traverse import TINY_DIR
@@ -87,6 +88,7 @@ _U_T, _U_F, _U_NT, _U_NC = np.uint64(IO_T * PN), np.uint64(IO_F * PN), np.uint64
 _U_PN, _U_2PN = np.uint64(PN), np.uint64(2 * PN)
 
 
+@one_per_types
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _clip_axis(io, n, S, r_o, r_d, lo, hi):
     """traverse._slab of every packet ray on one axis, applied to the ranges in S rows CT0/CT1."""
@@ -434,6 +436,7 @@ def _outside(p0, p1, p2, planes):
     return p0v > v1 + h0 * sv1 and p1v > v1 + h1 * sv1 and p2v > v1 + h2 * sv1
 
 
+@one_per_types
 @njit(cache=True, _nrt=False)
 def _finish(pk, a, counts):
     """Active ray a's results into the packet's io (from the float32 tests' rows with f32), with
@@ -486,6 +489,7 @@ def _count_final32(S, S32, I32, na, xp, any_hit):
     return nf, pend
 
 
+@one_per_types
 @njit(cache=True, _nrt=False)
 def _retire(pk, na, counts):
     """Write out the rays flagged by _count_final (with the counters counts = (tests, cells)) and
@@ -523,6 +527,7 @@ def _retire(pk, na, counts):
     return na
 
 
+@one_per_types
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _step(pk, na, xp, counts):
     """Retire the packet's rays that are final at xp (counters counts = (tests, cells)); returns
@@ -546,6 +551,7 @@ def direction_class(dx, dy, dz):
     return (0 if xmaj else (2 if ymaj else 4)) + (1 if dk < 0.0 else 0), dk
 
 
+@one_per_types
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _classify(io, n, S):
     """Of rays 0..n-1 of io, clipped (S rows CT0, CT1): how many meet the box and, over those, the
@@ -566,6 +572,7 @@ def _classify(io, n, S):
     return nin, cmin, cmax, ntiny
 
 
+@one_per_types
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _gather(io, n, S, lo, hi, tmin):
     """Clip rays 0..n-1 of io to the grid box (lo, hi) and gather those that meet it into the

@@ -7,6 +7,7 @@ import math
 import numpy as np
 from numba import njit
 
+from ...compiles import one_per_types
 from ...grid.two_level import _leaf_range, leaf_axis
 from ..grids import is_two_level, with_leaves_only
 from ..prefetch import _prefetch_tri
@@ -189,6 +190,7 @@ def _test_slice(g, span, axes, box, planes, pk, na, prof=None):
     return cells, tests, hits
 
 
+@one_per_types
 @njit(cache=True, _nrt=False)
 def _move_far(g, n, io):
     """Rays 0..n-1 of io whose origins lie far outside the grid box start from just before it
@@ -225,6 +227,7 @@ def _move_far(g, n, io):
     return k
 
 
+@one_per_types
 @njit(cache=True, _nrt=False)
 def _restore_far(n, io, results):
     """Undo _move_far: the rays' own origins and tmax, and with ``results`` their hits' t from
@@ -241,6 +244,7 @@ def _restore_far(n, io, results):
             io[IO_T * PN + j] = far_t(io[IO_T * PN + j], io[IO_SH * PN + j], io[IO_SL * PN + j])
 
 
+@one_per_types
 @njit(cache=True, _nrt=False)
 def _trace_rows_singly(g, n, io, tmin, watertight, any_hit, mb1):
     """Rays 0..n-1 of io, each through trace_ray."""
@@ -275,6 +279,7 @@ def trace_packet(g, n, io, q, S, mb, mb1, max_cells=np.inf, prof=None):
     return r
 
 
+@one_per_types
 @njit(cache=True, _nrt=False, error_model="numpy")
 def _trace_packet(g, n, io, q, S, mb, mb1, max_cells, prof):
     """Trace rays 0..n-1 of the table io (NIO * PN,) float64 (origin, direction, tmax per ray)
@@ -617,6 +622,7 @@ def trace_packet_grids(grids, n, io, io2, q, S, mb, mb1):
     return nf
 
 
+@one_per_types
 @njit(cache=True, _nrt=False)
 def _chain_rays(io, io2, n, any_hit):
     """io's rays into io2, each ending where io found a hit (any_hit: not traced at all there)."""
@@ -629,6 +635,7 @@ def _chain_rays(io, io2, n, any_hit):
             io2[IO_TMAX * PN + j] = io[IO_TMAX * PN + j]
 
 
+@one_per_types
 @njit(cache=True, _nrt=False)
 def _merge_hits(io, io2, n, which):
     """io2's hits (in grid ``which``) replace io's; the counters add up."""
