@@ -100,7 +100,7 @@ def _fill_rays(basis, W, H, origins, dirs):
     for y in prange(H):
         for x in range(W):
             i = y * W + x
-            dx, dy, dz = pixel_dir(basis, W, H, x, y)
+            dx, dy, dz = pixel_dir(basis, W, H, x, np.int64(y))
             origins[i, 0] = basis[0, 0]
             origins[i, 1] = basis[0, 1]
             origins[i, 2] = basis[0, 2]

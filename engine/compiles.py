@@ -6,7 +6,13 @@ from the on-disk cache); :class:`CompileWatch` counts them from any thread, and 
 compile that was under way when it began or ended (a parallel kernel compiling in the background,
 gridrt.trace.twin, while frames render on its serial twin).
 
-:func:`one_per_types` keeps a kernel called from other kernels to one compile per argument types."""
+:func:`one_per_types` keeps a kernel called from other kernels to one compile per argument types.
+Two more ways a kernel compiles twice for the same work, avoided where kernels call kernels:
+* a parallel loop's index is an int64 in numba's first typing of the loop and a uint64 in the
+  parallel function made of it, so a kernel given the index compiles for both; kernels pass
+  ``np.int64(i)``;
+* numba types a read-only array apart from a writable one; a record whose arrays may come from
+  either (a file's buffer, an array made here) gets read-only views of all of them."""
 
 import threading
 

@@ -87,7 +87,7 @@ def scene_bounds(tris, n_chunks, out):
     for ch in prange(n_chunks):
         e0 = ch * n_rows // n_chunks * BOUNDS_LANES
         e1 = (ch + 1) * n_rows // n_chunks * BOUNDS_LANES if ch < n_chunks - 1 else flat.size
-        _bounds_chunk(flat, e0, e1, out, ch)
+        _bounds_chunk(flat, e0, e1, out, np.int64(ch))
 
 
 @njit(cache=True)

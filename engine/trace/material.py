@@ -245,7 +245,7 @@ def shade_kernel(view, ibuf, surf, lights, deferred, img, hp):
     (:class:`gridrt.trace.records.HitPoints`) for :func:`light_rays`, :func:`add_light` and
     :func:`compose`."""
     for y in prange(view.H):
-        _shade_row(y, view, ibuf, surf, lights, deferred, img, hp)
+        _shade_row(np.int64(y), view, ibuf, surf, lights, deferred, img, hp)
 
 
 @njit(cache=True, error_model="numpy")
@@ -305,7 +305,7 @@ def compose(W, H, acc, img):
         for x in range(W):
             i = y * W + x
             if acc[i, 0] >= 0.0:
-                put_pixel(img, y, x, min(acc[i, 0], 1.0), min(acc[i, 1], 1.0), min(acc[i, 2], 1.0))  # (as _shade_row)
+                put_pixel(img, np.int64(y), x, min(acc[i, 0], 1.0), min(acc[i, 1], 1.0), min(acc[i, 2], 1.0))  # (as _shade_row)
 
 
 def default_surface(n_triangles):
@@ -320,5 +320,14 @@ def surface_arrays(tris, surface, normals):
     float32, or None: the geometric ones)."""
     ps = (surface if surface is not None else default_surface(len(tris))).packed
     nrm = normals if normals is not None else np.zeros((0, 3, 3), np.float32)
-    return SurfaceArrays(tris, nrm, ps.material, ps.diffuse, ps.ambient, ps.texture, ps.tex_data, ps.tex_info, ps.uv,
-                         ps.colors)
+    return SurfaceArrays(*(_read_only(a) for a in (tris, nrm, ps.material, ps.diffuse, ps.ambient, ps.texture,
+                                                   ps.tex_data, ps.tex_info, ps.uv, ps.colors)))
+
+
+def _read_only(a):
+    """A read-only view of a (no copy): every field of a SurfaceArrays is read-only whether its
+    array came from a file's buffer or was made here, so the material kernels compile once (numba
+    types a read-only array apart from a writable one)."""
+    v = a.view()
+    v.flags.writeable = False
+    return v

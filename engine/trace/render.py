@@ -114,7 +114,7 @@ def render_kernel(grids, view, looks, light, out):
     ntiles = ((W + tile - 1) // tile) * ((H + tile - 1) // tile)
     flat = pack_grids(grids)  # (a tuple of grids cannot enter the parallel loop as it is: see grids.py)
     for ti in prange(ntiles):
-        _render_tile(unpack_grids(flat), view, looks, light, ti, out, np.empty(MAILBOX, np.int32))
+        _render_tile(unpack_grids(flat), view, looks, light, np.int64(ti), out, np.empty(MAILBOX, np.int32))
 
 
 @njit(cache=True)

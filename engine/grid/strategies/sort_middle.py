@@ -81,7 +81,7 @@ def ranges_and_buckets(tris, box, n_threads, zmod, rng, lists, lcount):
     T = n_threads
     flat = tris.reshape(tris.size)
     for t in prange(T):
-        _ranges_buckets_block(flat, part(F, t, T), part(F, t + 1, T), box, T, zmod, rng, lists, lcount, t)
+        _ranges_buckets_block(flat, part(F, t, T), part(F, t + 1, T), box, T, zmod, rng, lists, lcount, np.int64(t))
 
 
 @njit(cache=True, _nrt=False)
@@ -115,7 +115,7 @@ def count_owned(tris, rng, box, exact, n_threads, zmod, lists, lcount, count):
     for jt in prange(T):
         for t in range(T):
             a = part(F, t, T)
-            _count_bucket(tris, rng, box, exact, T, zmod, jt, lists[jt, a:a + lcount[jt, t]], count)
+            _count_bucket(tris, rng, box, exact, T, zmod, np.int64(jt), lists[jt, a:a + lcount[jt, t]], count)
 
 
 @njit(cache=True, _nrt=False)
@@ -151,7 +151,7 @@ def scatter_owned(tris, rng, box, exact, n_threads, zmod, lists, lcount, start, 
     for jt in prange(T):
         for t in range(T - 1, -1, -1):
             a = part(F, t, T)
-            _scatter_bucket(tris, rng, box, exact, T, zmod, jt, lists[jt, a:a + lcount[jt, t]], start, tri_ids)
+            _scatter_bucket(tris, rng, box, exact, T, zmod, np.int64(jt), lists[jt, a:a + lcount[jt, t]], start, tri_ids)
 
 
 class SortMiddle(Strategy):
