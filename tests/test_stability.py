@@ -1,7 +1,7 @@
 """Numerical stability at the extremes: hits against the float64 brute force.
 
 Every test casts rays through the engine and compares each ray's triangle and t with
-``tests/reference.py`` (plain numpy float64 Moller-Trumbore over all triangles, on the same
+``tests/reference.py`` (float64 Moller-Trumbore over all triangles, on the same
 float32-rounded triangles the engine stores).  A ray may disagree only where the reference itself
 calls the case ambiguous: an exact tie (two triangles at the same t) or a ray that passes within
 ``GRAZE`` (barycentric) of an edge.  Each test prints one ``FIGURE`` line per case (run with
