@@ -88,18 +88,32 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
         pass
 
 
-def leave(code):
-    """The program's exit status ``code`` once its work is done; when a parallel kernel is still
-    compiling in the background (gridrt.trace.twin), says so in one line and ends the process at
-    once (os._exit, after flushing stdout and stderr) instead of waiting for the compile: the
-    interpreter's shutdown then never runs beside the compiling thread, and numba's cache stays
-    consistent (see gridrt.trace.twin)."""
+def leave(code, finish=False):
+    """The program's exit status ``code`` once its work is done.  When a parallel kernel is still
+    compiling in the background (gridrt.trace.twin): with ``finish`` and status 0 (a dump that
+    did its work: batch work, whose next run should find the kernel cached), says so in one line
+    and waits for the compile, which Ctrl-C skips; otherwise (the viewer, a failed or interrupted
+    dump, or Ctrl-C) says in one line that it does not wait and ends
+    the process at once (os._exit, after flushing stdout and stderr): the interpreter's shutdown
+    then never runs beside the compiling thread, and numba's cache stays consistent (see
+    gridrt.trace.twin)."""
     twin = sys.modules.get("gridrt.trace.twin")
     kernels = twin.TWINS.compiling() if twin is not None else []
     if not kernels:
         return code
+    names = ", ".join(kernels)
+    if finish and code == 0:
+        try:
+            print(f"gridrt: finishing the background compile of {names} for later runs (Ctrl-C skips it)",
+                  file=sys.stderr, flush=True)
+            twin.TWINS.wait()
+            return code
+        except KeyboardInterrupt:
+            pass
+        except (OSError, ValueError):  # stderr closed: as below, leave without waiting
+            pass
     try:
-        print(f"gridrt: not waiting for the background compile of {', '.join(kernels)} (it compiles again next start)",
+        print(f"gridrt: not waiting for the background compile of {names} (it compiles again next start)",
               file=sys.stderr)
     except (OSError, ValueError):
         pass
@@ -115,7 +129,8 @@ def main(argv=None):
     """The command line (``argv``: the arguments, default sys.argv's).  Run as the program (no
     ``argv``), it leaves through :func:`leave`; with ``argv`` (in-process) it returns the status."""
     if argv is None:
-        return leave(_main(sys.argv[1:]))
+        argv = sys.argv[1:]
+        return leave(_main(argv), finish=argv[:1] == ["dump"])
     return _main(list(argv))
 
 

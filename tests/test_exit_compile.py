@@ -1,13 +1,18 @@
-"""Leaving never waits on a background compile (gridrt.trace.twin, gridrt.app.__main__.leave).
+"""Leaving and a background compile (gridrt.trace.twin, gridrt.app.__main__.leave): a dump that
+did its work finishes it, Ctrl-C skips that, and the viewer never waits on it.
 
 * A real dump with an empty numba cache (``slow``: it compiles every kernel, minutes on a loaded
   machine): from its second frame on the parallel render kernel compiles in the background; the
-  dump ends after its last frame with every frame and stats row written, exit status 0 and the
-  one-line notice that it did not wait.  A second run with the same cache folder works (the cache
-  the abandoned compile left is consistent) and writes the same images.
-* The exit path itself (the one ``gridrt dump`` and ``gridrt view`` share), in a subprocess with a
-  stand-in compile that would run for ten minutes: the notice, the status, the output written
-  before it, and no wait.  In-process callers of main (argv given) never leave the process.
+  dump ends after its last frame with every frame and stats row written, says in one line that it
+  finishes that compile, waits for it and exits 0.  The next run with the same cache folder
+  compiles nothing (the cache files stay as they were) and writes the same images.
+* The same dump with Ctrl-C while it finishes the compile (``slow``): status 0, the frames
+  written, the one-line notice that it did not wait; a second run with the same cache folder works
+  (the cache the abandoned compile left is consistent) and writes the same images.
+* The exit path itself, in a subprocess with a stand-in compile that would run for ten minutes:
+  without ``finish`` (the viewer's), or with it after a failed run, the notice, the status, the
+  output written before it, and no wait; with ``finish`` and status 0, the finishing line and the
+  wait for a short stand-in.  In-process callers of main (argv given) never leave the process.
 * The viewer: Esc under Xvfb with an empty numba cache (``slow``) ends with status 0 and the
   notice; a render thread still busy with its frame is left behind after at most 2 s.
 * Twins' background compile of a real numba kernel runs on a daemon thread, is listed by
@@ -17,6 +22,7 @@
 import csv
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import textwrap
@@ -27,6 +33,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 NOTICE = "gridrt: not waiting for the background compile of "
+FINISHING = "gridrt: finishing the background compile of "
 
 
 def run(args, env=None, timeout=900):
@@ -51,21 +58,62 @@ def frames_complete(out, n):
     return images
 
 
+DUMP = ["-m", "gridrt", "dump", "--scene", "icosphere", "--frames", "4", "--size", "16x12", "--threads", "2",
+        "--traversal", "dda", "--no-progress"]
+
+
+def cache_files(folder):
+    """{path: (size, mtime in ns)} of the numba cache files (.nbi index, .nbc data) under folder."""
+    return {p: (p.stat().st_size, p.stat().st_mtime_ns) for p in Path(folder).rglob("*") if p.suffix in (".nbi", ".nbc")}
+
+
 @pytest.mark.slow
-def test_dump_with_a_cold_cache_leaves_without_the_background_compile(tmp_path):
+def test_dump_with_a_cold_cache_finishes_the_background_compile(tmp_path):
     cache = tmp_path / "cache"
     env = {"NUMBA_CACHE_DIR": str(cache)}
-    args = ["-m", "gridrt", "dump", "--scene", "icosphere", "--frames", "4", "--size", "16x12", "--threads", "2",
-            "--traversal", "dda", "--no-progress"]
-    r = run(args + ["--out", str(tmp_path / "a")], env)
+    r = run(DUMP + ["--out", str(tmp_path / "a")], env)
     assert r.returncode == 0, r.stderr
     assert "Traceback" not in r.stderr
-    notice = [ln for ln in r.stderr.splitlines() if ln.startswith(NOTICE)]
-    assert notice == [NOTICE + "render_kernel (it compiles again next start)"], r.stderr
+    lines = r.stderr.splitlines()
+    assert [ln for ln in lines if ln.startswith(FINISHING)] == [
+        FINISHING + "render_kernel for later runs (Ctrl-C skips it)"], r.stderr
+    assert not any(ln.startswith(NOTICE) for ln in lines), r.stderr
     assert "wrote 4 frames" in r.stdout
     first = frames_complete(tmp_path / "a", 4)
+    written = cache_files(cache)
+    assert any(p.name.startswith("render.render_kernel-") and p.suffix == ".nbi" for p in written), sorted(written)
+    # the same cache again: the parallel kernel loads, nothing compiles
+    r = run(DUMP + ["--out", str(tmp_path / "b")], env)
+    assert r.returncode == 0, r.stderr
+    assert "Compiling numba kernels" not in r.stderr and FINISHING not in r.stderr and NOTICE not in r.stderr, r.stderr
+    assert cache_files(cache) == written
+    second = frames_complete(tmp_path / "b", 4)
+    assert all(np.array_equal(a, b) for a, b in zip(first, second))
+
+
+@pytest.mark.slow
+def test_ctrl_c_skips_the_finishing_compile(tmp_path):
+    cache = tmp_path / "cache"
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    p = subprocess.Popen([sys.executable, *DUMP, "--out", str(tmp_path / "a")], cwd=REPO, env=env, text=True,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        seen = []
+        for line in p.stderr:
+            seen.append(line)
+            if line.startswith(FINISHING):
+                p.send_signal(signal.SIGINT)
+                break
+        _, err = p.communicate(timeout=600)
+    finally:
+        p.kill()
+    err = "".join(seen) + err
+    assert p.returncode == 0, err
+    assert NOTICE + "render_kernel (it compiles again next start)" in err.splitlines(), err
+    assert "Traceback" not in err
+    first = frames_complete(tmp_path / "a", 4)
     # the same cache again: whatever the abandoned compile left, the run loads or compiles cleanly
-    r = run(args + ["--out", str(tmp_path / "b")], env)
+    r = run(DUMP + ["--out", str(tmp_path / "b")], {"NUMBA_CACHE_DIR": str(cache)})
     assert r.returncode == 0, r.stderr
     assert "Traceback" not in r.stderr and "error" not in r.stderr.lower(), r.stderr
     second = frames_complete(tmp_path / "b", 4)
@@ -77,20 +125,38 @@ import sys, threading, time
 from gridrt.trace.twin import TWINS
 from gridrt.app.__main__ import leave
 
-job = threading.Thread(target=time.sleep, args=(600,), daemon=True)
+def compile_():
+    time.sleep({seconds})
+    print("compiled", flush=True)
+
+job = threading.Thread(target=compile_, daemon=True)
 job.kernel = "cgt_render_kernel"
 TWINS._compiling[("stand-in",)] = job
 job.start()
 print("the frames are written", flush=False)
-sys.exit(leave({code}))
+sys.exit(leave({code}, finish={finish}))
 """
 
 
 @pytest.mark.parametrize("code", [0, 3])
 def test_leave_does_not_wait_for_a_compile(code):
-    r = run(["-c", textwrap.dedent(STAND_IN.format(code=code))], timeout=300)  # (it would take 600 s to wait)
+    r = run(["-c", textwrap.dedent(STAND_IN.format(code=code, seconds=600, finish=False))],
+            timeout=300)  # (it would take 600 s to wait)
     assert r.returncode == code, r.stderr
     assert r.stdout == "the frames are written\n"  # (flushed before leaving)
+    assert r.stderr == NOTICE + "cgt_render_kernel (it compiles again next start)\n"
+
+
+def test_leave_after_a_dump_waits_for_a_compile():
+    """finish and status 0 (a dump that did its work): the finishing line, then the wait (a stand-in
+    of 2 s, which prints when done: a daemon thread, it would be cut short by an exit that did not
+    wait for it); a failed run (status 2) does not wait on a ten-minute one."""
+    r = run(["-c", textwrap.dedent(STAND_IN.format(code=0, seconds=2, finish=True))], timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout == "the frames are written\ncompiled\n"
+    assert r.stderr == FINISHING + "cgt_render_kernel for later runs (Ctrl-C skips it)\n"
+    r = run(["-c", textwrap.dedent(STAND_IN.format(code=2, seconds=600, finish=True))], timeout=300)
+    assert r.returncode == 2, r.stderr
     assert r.stderr == NOTICE + "cgt_render_kernel (it compiles again next start)\n"
 
 

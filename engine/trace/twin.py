@@ -21,10 +21,12 @@ Benchmarks run under :func:`parallel_first`: their untimed warm-up runs then com
 kernel on first use, in the caller's thread, so that timed runs never time the serial
 kernel standing in for it.
 
-The background compile is a daemon thread: a process that ends while it runs does not wait for it
-(the kernel then compiles again on the next start).  The command line leaves at once with
-os._exit after saying so (gridrt.app.__main__.leave, :meth:`Twins.compiling`), so that the
-interpreter's shutdown never runs beside a compiling thread.  The on-disk cache stays consistent:
+The background compile is a daemon thread.  A dump that did its work waits for it at exit, after
+saying so in one line, so that its next run finds the kernel cached (gridrt.app.__main__.leave,
+:meth:`Twins.compiling`, :meth:`Twins.wait`); Ctrl-C skips that wait.  The viewer, a failed
+dump, or a skipped wait does not wait: the command line leaves at once with os._exit after saying
+so (the kernel then compiles again on the next start), so that the interpreter's shutdown never
+runs beside a compiling thread.  The on-disk cache stays consistent:
 numba writes each cache file under a temporary name and renames it into place (os.replace, in
 numba.core.caching's IndexDataCacheFile._open_for_write), so no file is ever seen half written; an
 abandoned compile leaves at most a stray ``*.tmp.*`` file, or an index entry whose data file was
