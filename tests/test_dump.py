@@ -160,10 +160,9 @@ def test_compile_notice_only_when_compiling(tmp_path):
     """The dump announces compilation exactly when numba compiles: with an empty numba cache (a
     fresh NUMBA_CACHE_DIR), not on an identical second run (every kernel loads from the cache),
     and again on a third run with a build strategy this cache has not seen (its kernels compile).
-    DDA traversal: its cold start compiles in about half the time of the CGT one.  One thread: the
-    serial render kernel serves every frame, so no parallel twin compiles in the background (a dump
-    that ends first abandons that compile, which then reaches the cache or not depending on the
-    machine's load; tests/test_exit_compile.py covers that path).
+    DDA traversal: its cold start compiles in about half the time of the CGT one.  The first run's
+    parallel render kernel compiles in the background from its second frame, and the dump waits
+    for that compile at exit, so the second run finds every kernel cached.
 
     Whether a run compiled is read from the cache folder, independently of the notice: numba
     writes an index and a data file for every kernel it compiles (cache=True), so a run that
@@ -174,7 +173,7 @@ def test_compile_notice_only_when_compiling(tmp_path):
     assert cold_render_kernels(env) == ["True", "True"]
     before = {}
     for i, extra in enumerate([(), (), ("--strategy", "thread_grids")]):
-        r = gridrt("dump", "--frames", "2", "--size", "8x8", "--traversal", "dda", "--threads", "1", "--no-progress",
+        r = gridrt("dump", "--frames", "2", "--size", "8x8", "--traversal", "dda", "--no-progress",
                    "--out", str(tmp_path / f"d{i}"), *extra, env=env)
         assert r.returncode == 0, r.stderr
         after = cache_files(cache)
