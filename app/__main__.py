@@ -93,10 +93,9 @@ def leave(code, finish=False):
     compiling in the background (gridrt.trace.twin): with ``finish`` and status 0 (a dump that
     did its work: batch work, whose next run should find the kernel cached), says so in one line
     and waits for the compile, which Ctrl-C skips; otherwise (the viewer, a failed or interrupted
-    dump, or Ctrl-C) says in one line that it does not wait and ends
-    the process at once (os._exit, after flushing stdout and stderr): the interpreter's shutdown
-    then never runs beside the compiling thread, and numba's cache stays consistent (see
-    gridrt.trace.twin)."""
+    dump, or Ctrl-C) says in one line that it does not wait and ends the process at once
+    (os._exit, after flushing stdout and stderr): the interpreter's shutdown then never runs
+    beside the compiling thread, and numba's cache stays consistent (see gridrt.trace.twin)."""
     twin = sys.modules.get("gridrt.trace.twin")
     kernels = twin.TWINS.compiling() if twin is not None else []
     if not kernels:
