@@ -9,14 +9,13 @@ import csv
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
 
 from reference import compare_hits, ref_camera_rays, ref_cast
-from helpers.cli import REPO, gridrt
+from helpers.cli import REPO, cache_files, gridrt
 
 REQUIRED = ["frame", "t", "triangles", "cells", "references", "threads", "strategy", "clear_ms", "insert_ms",
             "macro_ms", "build_ms", "render_ms", "frame_ms"]
@@ -138,12 +137,6 @@ def test_dump_bad_arguments_give_clear_errors(tmp_path, args, message):
 def test_dump_bad_size_is_rejected_by_parser(tmp_path):
     r = gridrt("dump", "--size", "0x10", "--out", str(tmp_path))
     assert r.returncode == 2 and "image size must be positive" in r.stderr
-
-
-def cache_files(folder):
-    """{path: (size, mtime in ns)} of the numba cache files (.nbi index, .nbc data) under folder."""
-    files = [p for p in Path(folder).rglob("*") if p.suffix in (".nbi", ".nbc")]
-    return {p: (p.stat().st_size, p.stat().st_mtime_ns) for p in files}
 
 
 def cold_render_kernels(env):

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.cli import cache_files
 
 REPO = Path(__file__).resolve().parents[1]
 NOTICE = "gridrt: not waiting for the background compile of "
@@ -60,11 +61,6 @@ def frames_complete(out, n):
 
 DUMP = ["-m", "gridrt", "dump", "--scene", "icosphere", "--frames", "4", "--size", "16x12", "--threads", "2",
         "--traversal", "dda", "--no-progress"]
-
-
-def cache_files(folder):
-    """{path: (size, mtime in ns)} of the numba cache files (.nbi index, .nbc data) under folder."""
-    return {p: (p.stat().st_size, p.stat().st_mtime_ns) for p in Path(folder).rglob("*") if p.suffix in (".nbi", ".nbc")}
 
 
 @pytest.mark.slow

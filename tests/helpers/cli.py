@@ -18,6 +18,12 @@ def gridrt(*args, env=None, timeout=600):
                           env=e, timeout=timeout)
 
 
+def cache_files(folder):
+    """{path: (size, mtime in ns)} of the numba cache files (.nbi index, .nbc data) under folder."""
+    files = [p for p in Path(folder).rglob("*") if p.suffix in (".nbi", ".nbc")]
+    return {p: (p.stat().st_size, p.stat().st_mtime_ns) for p in files}
+
+
 COMPILING = "Compiling numba kernels"
 
 
