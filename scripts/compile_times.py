@@ -41,6 +41,7 @@ def _run(argv, tmp):
     t0 = time.perf_counter()
     import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
     from gridrt.app.__main__ import main as dump
+    from gridrt.warmup import kernel_name
     from numba.core import event
 
     records = []  # (kernel, own seconds)
@@ -55,8 +56,7 @@ def _run(argv, tmp):
             took = time.perf_counter() - start
             if stack:
                 stack[-1][1] += took
-            f = ev.data["dispatcher"].py_func
-            records.append((f"{f.__module__}.{f.__qualname__}", took - nested))
+            records.append((kernel_name(ev.data["dispatcher"]), took - nested))
 
     with event.install_listener("numba:compile", Listener()):
         status = dump(["dump", *argv])

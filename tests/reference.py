@@ -2,10 +2,12 @@
 
 Everything here is plain numpy in float64, written to be slow and obviously correct, except one
 numba loop that repeats :func:`ref_cast_numpy`'s formulas ray by ray for speed (checked against it
-in tests/test_reference_cast.py).  It imports nothing from ``engine``: the grid *placement* (``lo``, ``cell``, ``dims``) and the camera
-parameters are inputs, and the membership rule, the ray/triangle test, the camera model and the
-shading formulas are re-implemented from their written definitions (the papers the engine cites,
-and the docstrings of ``engine/trace/render.py`` and ``engine/trace/shade.py``).
+in tests/test_reference_cast.py).  It imports nothing from ``engine`` (nor the benchmarks'
+brute force in app/bench/reference.py, part of the package under test): the grid *placement*
+(``lo``, ``cell``, ``dims``) and the camera parameters are inputs, and the membership rule, the
+ray/triangle test, the camera model and the shading formulas are re-implemented from their
+written definitions (the papers the engine cites, and the docstrings of
+``engine/trace/render.py`` and ``engine/trace/shade.py``).
 
 Conventions (same as the engine's):
 
