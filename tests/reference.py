@@ -389,7 +389,9 @@ def ref_cast(tris, origins, dirs, tmin=0.0, tmax=np.inf):
 
     The formulas of :func:`ref_cast_numpy`, one ray and one triangle at a time in a numba loop
     (:func:`_cast_loop`): the same results (tests/test_reference_cast.py checks them against
-    each other), about twenty times faster on the tests' batches of 10^4 rays over 10^4 triangles.
+    each other), five to six times faster (one thread, medians of 3 after a warm-up: 1.6 against
+    8.2 s for 19,200 random rays over 6,320 random triangles, 25 against 149 ms for 1,500 over
+    1,280).
     """
     T, O, D, tmin, tmax = _cast_inputs(tris, origins, dirs, tmin, tmax)
     out = _empty_hits(len(O))
