@@ -25,7 +25,7 @@ import pytest
 
 from gridrt.app import cli
 from gridrt.app.__main__ import build_parser, main
-from gridrt.app.bench import build, core, frame, output, peers, trade
+from gridrt.app.bench import build, core, frame, native, output, peers, trade
 from gridrt.app.bench.scenes import ALIASES, parse_scene_spec, resolve_scene, scene_spec
 from gridrt.config import STRATEGIES
 from gridrt.errors import InputError
@@ -246,6 +246,16 @@ def peers_rows():
     return rows
 
 
+def native_rows():
+    rows = []
+    for k, s in enumerate(SCENES[:4]):  # (as many as the default run's: native.NATIVE_SCENES)
+        for th in (1, 2):
+            rows.append(dict(scene=s, threads=th, o_mrays_random=1.0 + k, n_mrays_random=4.0 + k, e_mrays_random=3.0,
+                             o_mrays_cgt=12.0 + k, o_mrays_camera=8.0 + k, n_mrays_camera=25.0 - k,
+                             o_frame_ms=60.0 * (k + 1), n_refit_frame_ms=40.0 * (k + 1), n_rebuild_frame_ms=45.0 * (k + 1)))
+    return rows
+
+
 def trade_rows():
     rows = []
     values = {"insert": ["bbox", "exact"], "lambda": ["0.5", "1", "2", "4", "8", "12"], "macro": ["1", "2", "4", "8"],
@@ -270,6 +280,7 @@ PLOTS = {
     "build steps": (build, build.plot_steps, lambda: build_rows(SCENES[:2])),
     "frame": (frame, frame._plot_frame, frame_rows),
     "peers": (peers, peers._plot, peers_rows),
+    "native": (native, native._plot, native_rows),
     "trade": (trade, trade._plot_trade, trade_rows),
     "trade knobs": (trade, trade._plot_knobs, trade_rows),
 }

@@ -7,8 +7,8 @@ This module makes the ``bench`` parser and the options every benchmark has (:fun
 benchmark's module adds its own subcommand (``add_parser(bsub, common)``), runs it and writes its
 report: :mod:`~gridrt.app.bench.core`, :mod:`~gridrt.app.bench.build`,
 :mod:`~gridrt.app.bench.frame`, :mod:`~gridrt.app.bench.trade`, :mod:`~gridrt.app.bench.peers`,
-:mod:`~gridrt.app.bench.start`, :mod:`~gridrt.app.bench.packets`, :mod:`~gridrt.app.bench.looks`
-and :mod:`~gridrt.app.cluster.scaling`.  The helpers they share sit beside them: scenes
+:mod:`~gridrt.app.bench.native`, :mod:`~gridrt.app.bench.start`, :mod:`~gridrt.app.bench.packets`,
+:mod:`~gridrt.app.bench.looks` and :mod:`~gridrt.app.cluster.scaling`.  The helpers they share sit beside them: scenes
 (:mod:`~gridrt.app.bench.scenes`), option checks (:mod:`~gridrt.app.bench.options`), statistics
 (:mod:`~gridrt.app.bench.stats`), the machine record (:mod:`~gridrt.app.bench.machine`), files and
 figures (:mod:`~gridrt.app.bench.output`).
@@ -17,11 +17,11 @@ figures (:mod:`~gridrt.app.bench.output`).
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 
 from ..cluster import scaling
-from . import build, core, frame, looks, packets, peers, start, trade
+from . import build, core, frame, looks, native, packets, peers, start, trade
 from .scenes import scenes_help
 
 #: the benchmarks, in the order ``gridrt bench --help`` lists them
-BENCHMARKS = (core, build, frame, trade, peers, start, packets, looks, scaling)
+BENCHMARKS = (core, build, frame, trade, peers, native, start, packets, looks, scaling)
 
 
 def common(q, out, runs=5, warmup=1, scenes=None):

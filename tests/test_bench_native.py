@@ -1,0 +1,130 @@
+"""``gridrt bench native``: the folders it writes for the native Embree harness hold the scene's own
+triangles, frames and rays in the harness's format, and with the harness built (from its sources
+beside the repository, when they and Embree 3's headers are there) the quick run compares the two
+tracers on the same rays, gridrt's hits right against the float64 brute force."""
+
+import json
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+import trimesh
+
+from reference import ref_cast
+
+from gridrt.app.__main__ import main
+from gridrt.app.bench.native import HARNESS_DIR, NATIVE_WARMUP
+from gridrt.app.bench.scenes import camera_rays, resolve_scene
+from gridrt.camera import Camera
+
+from test_bench import check_outputs
+
+QUICK_SCENE = "icosphere:1280:twist"
+
+
+def _export(tmp_path, *extra):
+    folder = tmp_path / "export"
+    assert main(["bench", "native", "--quick", "--no-progress", "--export", str(folder), "--export-only",
+                 *extra]) == 0
+    return folder / "icosphere_1280_twist"
+
+
+def test_export_writes_the_harness_folder(tmp_path):
+    """Every file the harness reads, with its dtype and shape; the mesh and frames are the scene's
+    own triangles at the frames' times (its pipeline frame), the camera rays those of the camera
+    camera.json names, the random rays inside the bounds with unit directions."""
+    d = _export(tmp_path, "--dt", "0.05")
+    meta = json.loads((d / "meta.json").read_text())
+    V, F = np.load(d / "vertices.npy"), np.load(d / "faces.npy")
+    frames = np.load(d / "frames.npy")
+    assert V.dtype == np.float32 and F.dtype == np.int32 and frames.dtype == np.float32
+    sc = resolve_scene(QUICK_SCENE)
+    origin = sc.scene.frame_origin(0.0)
+    n = NATIVE_WARMUP + 1  # the quick run times one frame
+    assert frames.shape == (n, len(V), 3) and meta["timed_frames"] == 1 and meta["warmup_frames"] == NATIVE_WARMUP
+    for i in range(n):
+        want = np.asarray(sc.scene.triangles_at(0.05 * i, origin=origin), np.float32)
+        np.testing.assert_array_equal(frames[i][F], want)
+    np.testing.assert_array_equal(V, frames[0])
+    assert meta["triangles"] == len(F) == 1280 and meta["vertices"] == len(V)
+    # the PLY holds the same triangles (read by trimesh, not by the code that wrote it)
+    m = trimesh.load(d / "mesh.ply", process=False)
+    np.testing.assert_array_equal(np.asarray(m.vertices, np.float32)[np.asarray(m.faces)], frames[0][F])
+    # camera rays: those of the camera camera.json describes, as the bench's fill view gives them
+    cam = json.loads((d / "camera.json").read_text())
+    o, dd = Camera(eye=tuple(cam["eye"]), target=tuple(cam["target"]), up=tuple(cam["up"]), fov=cam["fov"]).rays(64, 64)
+    po, pd = np.load(d / "primary_origins.npy"), np.load(d / "primary_directions.npy")
+    assert po.shape == pd.shape == (64 * 64, 3) and po.dtype == pd.dtype == np.float32 and meta["res"] == 64
+    np.testing.assert_array_equal(po, np.asarray(o, np.float32))
+    np.testing.assert_array_equal(pd, np.asarray(dd, np.float32))
+    _, _, fo, fd, _, _ = camera_rays(sc, 64, fill=True)
+    np.testing.assert_array_equal(pd, fd)
+    io, idr = np.load(d / "incoherent_origins.npy"), np.load(d / "incoherent_directions.npy")
+    assert io.shape == idr.shape == (64 * 64, 3) and len(io) % 64 == 0 and meta["incoherent"] == len(io)
+    lo, hi = frames[0].min(axis=0), frames[0].max(axis=0)
+    assert (io >= lo).all() and (io <= hi).all()
+    np.testing.assert_allclose(np.linalg.norm(idr.astype(np.float64), axis=1), 1.0, atol=1e-6)
+    assert (np.ptp(np.sign(idr), axis=0) == 2).all()  # directions of every sign on every axis
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--size", "60"], "multiple of 8"),
+    (["--export-only"], "--export DIR"),
+    (["--native-bin", "/nonexistent/embree_bench"], "no native Embree harness at /nonexistent/embree_bench"),
+])
+def test_bench_native_bad_arguments(tmp_path, capsys, args, message):
+    assert main(["bench", "native", "--quick", "--no-progress", "--out", str(tmp_path / "x"), *args]) == 2
+    assert message in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def harness(tmp_path_factory):
+    """The harness compiled from its sources beside the repository (as its build.sh does, without
+    installing anything), or a skip saying what is missing."""
+    src = HARNESS_DIR / "embree_bench.cpp"
+    if not src.is_file():
+        pytest.skip(f"the native Embree harness is not beside this clone ({src} is absent)")
+    gxx = shutil.which("g++")
+    if gxx is None:
+        pytest.skip("no g++ to compile the native Embree harness")
+    out = tmp_path_factory.mktemp("harness") / "embree_bench"
+    p = subprocess.run([gxx, "-O2", "-march=native", "-std=c++17", "-o", str(out), str(src), "-lembree3", "-lpthread"],
+                       capture_output=True, text=True)
+    if p.returncode != 0:
+        pytest.skip(f"the native Embree harness does not compile here (Embree 3's headers: libembree-dev): "
+                    f"{p.stderr.strip()[-200:]}")
+    return out
+
+
+def test_bench_native_quick_against_the_harness(tmp_path, harness):
+    """Both tracers on the same rays at 1 and 2 threads: every figure present, the native hit
+    fraction that of gridrt's hits, which equal the float64 brute force; the harness's saved hits
+    agree with gridrt's on nearly every ray and every disagreement is judged: gridrt's are right or
+    within float32 rounding of an edge."""
+    out, exp = tmp_path / "out", tmp_path / "export"
+    assert main(["bench", "native", "--quick", "--no-progress", "--out", str(out), "--threads", "1,2",
+                 "--native-bin", str(harness), "--export", str(exp)]) == 0
+    rows, summary = check_outputs(out, "native.csv", ["native.png"])
+    assert [int(r["threads"]) for r in rows] == [1, 2]
+    for head in ("## Arbitrary rays", "## Camera rays", "## Dynamic frames", "## Hit agreement"):
+        assert head in summary
+    d = exp / "icosphere_1280_twist"
+    tris = np.load(d / "frames.npy")[0].reshape(-1, 3, 3)
+    for rays, key in (("incoherent", "random"), ("primary", "camera")):
+        o, dr = np.load(d / f"{rays}_origins.npy"), np.load(d / f"{rays}_directions.npy")
+        ref_f = ref_cast(tris.astype(np.float64), o.astype(np.float64), dr.astype(np.float64)).tri
+        for r in rows:
+            assert float(r[f"o_hit_{key}"]) == pytest.approx((ref_f >= 0).mean(), abs=2 / len(o))
+            for m in ("1", "p16", "1M"):
+                assert float(r[f"n_mrays_{key}_{m}"]) > 0
+        native_tri = np.load(d / "hits" / f"{rays}_{'p16' if key == 'camera' else '1'}_tri.npy")
+        assert abs((native_tri >= 0).mean() - (ref_f >= 0).mean()) <= 4 / len(o)
+        first = rows[0]
+        assert float(first[f"{key}_agree"]) >= 0.999
+        assert int(first[f"{key}_checked"]) == min(int(first[f"{key}_disagree"]), 256)
+        # every disagreement gridrt has is right, or within float32 rounding of a shared edge
+        assert int(first[f"{key}_ours_right"]) + int(first[f"{key}_ours_edge"]) == int(first[f"{key}_checked"])
+    for r in rows:
+        assert float(r["o_frame_ms"]) > 0 and float(r["n_refit_frame_ms"]) > 0 and float(r["n_rebuild_frame_ms"]) > 0
+        assert float(r["random_over_native"]) == pytest.approx(float(r["o_mrays_random"]) / float(r["n_mrays_random"]))
