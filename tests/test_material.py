@@ -119,6 +119,26 @@ def test_material_matches_reference(rng, shadows, traversal, grid, threads):
         assert res.stats["shadow_rays_per_pixel"] == 0
 
 
+@pytest.mark.parametrize("traversal", ["cgt", "dda"])
+def test_material_shadows_with_partial_tiles_match_reference(rng, traversal):
+    """Shadow rays go to the caster tile by tile of the image: an image whose sides are no
+    multiple of the tile (61 x 45) still gets every pixel's shadows right, with packets (cgt) and
+    single rays (dda)."""
+    tris, looks = scene(rng)
+    w, h = 61, 45
+    ref = R.ref_material(tris, CAM, w, h, looks, shadows=True, shadow_offset=1e-6 * _diag(tris))
+    g = GridBuilder().build(tris)
+    params = RenderParams(width=w, height=h, shading="material", shadows=True, traversal=traversal, threads=2)
+    res = Renderer().render(g, tris, CAM, params, looks=Looks(tris, engine_surface(looks), looks.normals,
+                                                              engine_lights(looks)))
+    inside = compare(res, ref, True)
+    # the reference's shadowed floor: pixels the lights reach in the unshadowed reference only
+    lit = R.ref_material(tris, CAM, w, h, looks, shadows=False)
+    dark = inside & (np.abs(lit.image[..., :3].astype(int) - ref.image[..., :3].astype(int)).max(axis=2) > 8)
+    assert dark.sum() > 20  # shadows are there to be got right
+    assert 0 < res.stats["shadow_rays_per_pixel"] <= 3
+
+
 def test_shadow_pixel_dark_and_lit_pixel_lit():
     """A floor under a blocker and one point light: the floor point below the blocker gets only the
     ambient term, one beside it the light too (expected colours computed here)."""

@@ -285,6 +285,24 @@ def light_rays(lights, li, hp, off, far, rays):
             dirs[i, 2] = lights[li, 3] - oz
 
 
+@njit(cache=True, error_model="numpy")
+def lit_rows(order, rays, rows, o, d):
+    """The pixels of ``order`` (a permutation of the image's pixels) whose shadow ray the light
+    needs (rays: :class:`gridrt.trace.records.ShadowRays`, need[i] = 1), in that order: their
+    indices into rows (N,) int64 and their rays' origins and directions into o and d (N, 3)
+    float64.  Returns how many."""
+    need, origins, dirs = rays.need, rays.origins, rays.dirs
+    m = 0
+    for k in range(order.shape[0]):
+        i = order[k]
+        if need[i] != 0:
+            rows[m] = i
+            o[m, 0], o[m, 1], o[m, 2] = origins[i, 0], origins[i, 1], origins[i, 2]
+            d[m, 0], d[m, 1], d[m, 2] = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+            m += 1
+    return m
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
 def add_light(rows, blocked, weight, tvd, r, g, b, acc):
     """acc[rows[j]] += tvd * (r, g, b) * weight for every shadow ray j that hit nothing (not blocked[j])."""

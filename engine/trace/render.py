@@ -41,13 +41,13 @@ from ..memory import check_fits
 from ..stats import RenderStats
 from ..threads import check_threads, launch_guard, use_threads
 from ..scene.surface import Surface, as_lights
-from .batch import MAX_CELLS, cast_grouped, odd_directions
+from .batch import MAX_CELLS, cast_grouped, odd_directions, tile_order
 from .traverse import MAILBOX, trace_grids
 from .twin import TWINS
 from ..camera import Camera, pixel_dir
 from .cgt.frame import cgt_render_kernel, cgt_render_serial
 from .grids import grid_arrays, grid_tuple, pack_grids, unpack_grids
-from .material import add_light, compose, light_rays, shade_kernel, shade_serial, surface_arrays
+from .material import add_light, compose, light_rays, lit_rows, shade_kernel, shade_serial, surface_arrays
 from .records import Buffers, HitPoints, ShadowRays, make_packets, make_shading, make_view
 from .shade import (  # noqa: F401  (the shading constants stay importable from here)
     AMBIENT, ALBEDO, BACKGROUND, COST_SCALE, cost_rgb, facing_normal, lambert_rgb, normal_rgb, put_pixel, scene_id,
@@ -504,25 +504,35 @@ class Renderer:
         if not deferred:
             return len(lights), 0
         rays = ShadowRays(np.empty(n, np.uint8), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.float64))
-        need, origins, dirs, weight = rays
+        weight = rays.weight
         off, far = SHADOW_OFFSET * diag, 2.0 * max(diag, 1e-300)
         max_cells = MAX_CELLS if params.traversal == "cgt" else 0.0
         f32 = params.packet_precision == "float32"
         cast = 0
+        # each light's shadow rays in tiles of the image (TILE x TILE pixels): the batch caster takes
+        # them in runs of RUN = TILE^2 in this order, and a run of one tile is a narrow packet where
+        # a run of a row's pixels is a wide one (or single rays)
+        order = np.empty(n, np.int64)
+        tile_order(n, W, 0, order)
+        rows_b, o_b, d_b = np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3))
+        out_b = (np.empty(n), np.empty(n, np.int32), np.empty(n), np.empty(n))
         for li in range(len(lights)):
             light_rays(lights, li, hp, off, far, rays)
-            rows = np.flatnonzero(need)
-            cast += len(rows)
-            o, d = origins[rows], dirs[rows]
-            blocked = np.zeros(len(rows), bool)
-            for g in grids:  # any hit in any grid shadows
-                live = np.flatnonzero(~blocked)
-                if len(live) == 0:
+            m = lit_rows(order, rays, rows_b, o_b, d_b)
+            cast += m
+            rows, o, d = rows_b[:m], o_b[:m], d_b[:m]
+            blocked = np.zeros(m, bool)
+            for k, g in enumerate(grids):  # any hit in any grid shadows
+                live = None if k == 0 else np.flatnonzero(~blocked)
+                if live is not None and len(live) == 0:
                     break
-                out = (np.empty(len(live)), np.empty(len(live), np.int32), np.empty(len(live)), np.empty(len(live)))
-                cast_grouped(g, np.ascontiguousarray(o[live]), np.ascontiguousarray(d[live]), 0.0, 1.0,
-                             bool(params.watertight), True, out, max_cells, f32)
-                blocked[live[out[1] >= 0]] = True
+                lo, ld = (o, d) if live is None else (np.ascontiguousarray(o[live]), np.ascontiguousarray(d[live]))
+                out = tuple(a[:len(lo)] for a in out_b)
+                cast_grouped(g, lo, ld, 0.0, 1.0, bool(params.watertight), True, out, max_cells, f32)
+                if live is None:
+                    blocked |= out[1] >= 0
+                else:
+                    blocked[live[out[1] >= 0]] = True
             add_light(rows, blocked, weight, tvd, float(lights[li, 4]), float(lights[li, 5]), float(lights[li, 6]), acc)
         compose(W, H, acc, img)
         return len(lights), cast
