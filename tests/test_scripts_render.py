@@ -1,12 +1,13 @@
-"""The scripts behind BENCHMARKS.md's float32-floor, MAX_CELLS and packet-size tables (scripts/)
-run and print the table they make: each runs at a small size as a subprocess, exits 0 and prints
-a markdown table whose header and row labels are those of its table in BENCHMARKS.md (found by the
-script's name on the table's source line).  Timed figures are checked for their form only.
+"""The scripts behind BENCHMARKS.md's float32-floor, MAX_CELLS, packet-size and shadow-packet
+tables (scripts/) run and print the table they make: each runs at a small size as a subprocess,
+exits 0 and prints a markdown table whose header and row labels are those of its table in
+BENCHMARKS.md (found by the script's name on the table's source line).  Timed figures are checked
+for their form only.
 """
 
 import re
 
-from helpers.scripts import doc_table, needs, run_script
+from helpers.scripts import NUMBER, doc_table, needs, run_script
 
 #: "a / b": a figure at each of two settings (threads, or precisions), either maybe in bold
 PAIR = re.compile(r"(\*\*)?-?\d+(\.\d+)?(\*\*)? / (\*\*)?-?\d+(\.\d+)?(\*\*)?")
@@ -44,3 +45,18 @@ def test_packet_size_precision_prints_its_table():
     rows = check_labels("packet_size_precision.py", "--size", "64", "--renders", "1")
     for r in rows:
         assert all(PAIR.fullmatch(c) for c in r[1:]), r
+
+
+def test_shadow_max_cells_prints_its_table():
+    """The shipped scenes' rows (the script stops with an error when a value renders another image
+    than the others): the table's header, its lights and shadow rays a pixel as figures, a time
+    for every value."""
+    header, rows = run_script("shadow_max_cells.py", "--scenes", "museum,cesium_man", "--size", "64x48",
+                              "--frames", "1")
+    doc_header, doc_rows = doc_table("shadow_max_cells.py")
+    assert header == doc_header
+    assert [r[0] for r in rows] == ["museum", "cesium_man"]
+    assert {"museum", "cesium_man"} <= {r[0] for r in doc_rows}
+    for r in rows:
+        assert r[1].isdigit() and int(r[1]) >= 1 and NUMBER.fullmatch(r[2]), r
+        assert all(c.isdigit() for c in r[3:]), r

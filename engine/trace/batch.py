@@ -46,6 +46,10 @@ RUN = 64
 #: a run of rays is traced as a packet when its bounds cover at most this many cells in the
 #: widest slice (measured: BENCHMARKS.md, "Batch casts")
 MAX_CELLS = 32.0
+#: the same for the material pass's shadow rays (gridrt.trace.render), which start from a tile's hit
+#: points rather than from one eye: a run wider than this goes through the single-ray DDA (measured:
+#: BENCHMARKS.md section 15, "Shadow rays as packets")
+SHADOW_MAX_CELLS = 8.0
 #: groups of runs per parallel work item (one scratch allocation each)
 GROUPS_PER_ITEM = 16
 #: bits of each slope in the sort key's Morton code

@@ -41,7 +41,7 @@ from ..memory import check_fits
 from ..stats import RenderStats
 from ..threads import check_threads, launch_guard, use_threads
 from ..scene.surface import Surface, as_lights
-from .batch import MAX_CELLS, cast_grouped, odd_directions, tile_order
+from .batch import MAX_CELLS, SHADOW_MAX_CELLS, cast_grouped, odd_directions, tile_order
 from .traverse import MAILBOX, trace_grids
 from .twin import TWINS
 from ..camera import Camera, pixel_dir
@@ -506,7 +506,7 @@ class Renderer:
         rays = ShadowRays(np.empty(n, np.uint8), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.float64))
         weight = rays.weight
         off, far = SHADOW_OFFSET * diag, 2.0 * max(diag, 1e-300)
-        max_cells = MAX_CELLS if params.traversal == "cgt" else 0.0
+        max_cells = SHADOW_MAX_CELLS if params.traversal == "cgt" else 0.0
         f32 = params.packet_precision == "float32"
         cast = 0
         # each light's shadow rays in tiles of the image (TILE x TILE pixels): the batch caster takes
