@@ -19,7 +19,10 @@ traversal kernels stay as they are.  Per hit pixel:
   shadow ray from p + n_g * off towards the light (its direction the vector to a point light, or
   2 * diag times the unit vector to a directional one, tmax 1) must hit nothing; shadow rays are
   cast as a batch per light (gridrt.trace.batch: coherent runs as CGT packets with the ``cgt``
-  traversal, one at a time with ``dda``).
+  traversal, one at a time with ``dda``), tile by tile of the image and from the light's end of
+  the segment back to the hit (:func:`lit_rows`): a point light's rays then share one origin,
+  and a ray blocked near its light (inside a lamp's shade) stops there instead of crossing the
+  scene first.
 
 A scene without lights is lit by one default light (gridrt.trace.render.default_light, colour 1,
 no falloff); a render without a scene surface uses one material of gridrt's default colours.
@@ -289,16 +292,18 @@ def light_rays(lights, li, hp, off, far, rays):
 def lit_rows(order, rays, rows, o, d):
     """The pixels of ``order`` (a permutation of the image's pixels) whose shadow ray the light
     needs (rays: :class:`gridrt.trace.records.ShadowRays`, need[i] = 1), in that order: their
-    indices into rows (N,) int64 and their rays' origins and directions into o and d (N, 3)
-    float64.  Returns how many."""
+    indices into rows (N,) int64, and their shadow segments turned round into o and d (N, 3)
+    float64: from the light's end (origin + direction) back to the origin (t in (0, 1) covers the
+    same segment).  Returns how many."""
     need, origins, dirs = rays.need, rays.origins, rays.dirs
     m = 0
     for k in range(order.shape[0]):
         i = order[k]
         if need[i] != 0:
             rows[m] = i
-            o[m, 0], o[m, 1], o[m, 2] = origins[i, 0], origins[i, 1], origins[i, 2]
-            d[m, 0], d[m, 1], d[m, 2] = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+            for a in range(3):
+                o[m, a] = origins[i, a] + dirs[i, a]
+                d[m, a] = -dirs[i, a]
             m += 1
     return m
 
