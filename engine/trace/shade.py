@@ -74,7 +74,10 @@ def shadow_ray(e, t, d, n, light, off):
     (need, ox, oy, oz, lx, ly, lz, ld, s).
 
     s = n . l (l the unit vector to the light, ld the distance); need is True when s > 0, and then
-    the ray from p + n * off along l with tmax = ld decides visibility; otherwise s = 0.
+    the segment from p + n * off along l for ld decides visibility, traced from its far end
+    (near the light) back: the ray (ox, oy, oz) = p + n * off + ld l along (lx, ly, lz) = -l with
+    tmax = ld.  The rays of a packet then start all but together, and a ray blocked near the
+    light stops there.  Otherwise s = 0.
     """
     ex, ey, ez = e
     dx, dy, dz = d
@@ -93,7 +96,8 @@ def shadow_ray(e, t, d, n, light, off):
         lz /= ld
         s = nx * lx + ny * ly + nz * lz
         if s > 0.0:
-            return True, px + nx * off, py + ny * off, pz + nz * off, lx, ly, lz, ld, s
+            ox, oy, oz = px + nx * off, py + ny * off, pz + nz * off
+            return True, ox + ld * lx, oy + ld * ly, oz + ld * lz, -lx, -ly, -lz, ld, s
         s = 0.0
     return False, px, py, pz, lx, ly, lz, ld, s
 
