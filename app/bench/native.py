@@ -82,8 +82,8 @@ def add_parser(bsub, common):
                    help="camera image edge, a multiple of 8: size x size camera rays and as many random rays "
                         "(default 1024)")
     p.add_argument("--view", default="fill", choices=("frame", "fill"),
-                   help="the camera: the scene's own (frame) or moved in until 90%% of the pixels hit (fill, "
-                        "default: a full-frame mesh)")
+                   help="the camera: the scene's own (frame), or moved in until 90%% of the pixels hit (fill: a "
+                        "full-frame mesh) (default fill)")
     p.add_argument("--strategy", default="auto", help=option_help("--strategy"))
     add_dt_arg(p)
     p.add_argument("--native-bin", default=str(DEFAULT_BIN),
