@@ -98,8 +98,11 @@ class Open3DSide:
     def __init__(self):
         try:
             import open3d as o3d  # deferred: the optional peer open3d, absent unless installed
-        except ImportError:
+        except ModuleNotFoundError:
             raise MissingPeer(f"open3d is not installed: {pip_command()} install open3d-cpu") from None
+        except ImportError as e:  # installed, but a library it loads is missing
+            raise MissingPeer(f"open3d is installed but does not load ({e}): it needs the system package "
+                              "libusb-1.0-0") from None
         self.o3d = o3d
         self.version = o3d.__version__
         self.scene = None
