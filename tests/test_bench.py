@@ -5,8 +5,6 @@ The bench's error figures are recomputed here independently: the engine's image 
 pixels against ``reference.ref_cast`` on ``reference.ref_camera_rays``.
 """
 
-import csv
-import json
 import sys
 
 import numpy as np
@@ -18,29 +16,12 @@ from PIL import Image
 from conftest import icosphere, icosphere_tris, random_triangles
 from reference import compare_hits, ref_camera_rays, ref_cast
 
+from helpers.bench import check_outputs, read_csv
+
 from gridrt.app.__main__ import main
 from gridrt.app.bench.scenes import facing_camera, parse_scene_spec
 from gridrt.app.bench.stats import pareto_front
 from gridrt.app.bench.reference import brute_cast, compare_to_reference, count_holes, pixel_rays, probe_rays, sample_pixels
-
-
-def read_csv(path):
-    with open(path) as fh:
-        return list(csv.DictReader(fh))
-
-
-def check_outputs(out, csv_name, pngs):
-    rows = read_csv(out / csv_name)
-    assert rows
-    for name in pngs:
-        with Image.open(out / name) as im:
-            assert im.size[0] > 200 and im.size[1] > 150
-    info = json.loads((out / "machine.json").read_text())
-    for k in ("cpu", "cores", "threads_used", "python", "numpy", "numba", "embreex", "commit", "date"):
-        assert k in info, k
-    summary = (out / "summary.md").read_text()
-    assert "## Machine" in summary and info["cpu"] in summary
-    return rows, summary
 
 
 # ----------------------------------------------------------------------------------------------
