@@ -13,12 +13,12 @@ import trimesh
 
 from reference import ref_cast
 
+from helpers.bench import check_outputs
+
 from gridrt.app.__main__ import main
 from gridrt.app.bench.native import HARNESS_DIR, NATIVE_WARMUP
 from gridrt.app.bench.scenes import camera_rays, resolve_scene
 from gridrt.camera import Camera
-
-from test_bench import check_outputs
 
 QUICK_SCENE = "icosphere:1280:twist"
 
