@@ -21,9 +21,8 @@ import importlib
 import numpy as np
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
-from gridrt.config import GridParams, RenderParams
-from gridrt.frame import FrameSpec, ViewSpec
 from gridrt.pipeline import FramePipeline
+from gridrt.app.bench.looks import looks_spec
 from gridrt.app.bench.output import md_table
 from gridrt.app.bench.scenes import resolve_scene
 from tables import add_out_option, items, start
@@ -48,15 +47,10 @@ def parse_args(argv=None):
     return start(p, argv)
 
 
-def spec(scene, w, h, threads):
-    return FrameSpec(scene=scene, grid=GridParams(threads=threads),
-                     render=RenderParams(shading="material", shadows=True, threads=threads, traversal="cgt"),
-                     view=ViewSpec(follow_camera=True)).resized(w, h)
-
-
 def measure(sc, values, w, h, frames, threads):
     """(lights, shadow rays a pixel, {value: median shade ms}) of one scene."""
-    pipe = FramePipeline.from_spec(spec(sc.spec, w, h, threads), sc.scene)
+    spec = looks_spec(sc.spec, w, threads, "cgt", "material", True).resized(w, h)
+    pipe = FramePipeline.from_spec(spec, sc.scene)
     ms = {v: [] for v in values}
     first = {}
     saved = RENDER.SHADOW_MAX_CELLS

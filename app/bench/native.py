@@ -39,7 +39,7 @@ import numpy as np
 
 import gridrt  # noqa: F401
 from gridrt.api import RayCaster
-from gridrt.config import GridParams, RenderParams
+from gridrt.config import RenderParams
 from gridrt.errors import InputError
 from gridrt.frame import FrameSpec, ViewSpec
 from gridrt.grid.build import GridBuilder
@@ -51,7 +51,7 @@ from .affinity import Affinity
 from .machine import finish_machine, machine_info
 from .options import add_dt_arg, check_frame_args, thread_list
 from .output import figure, md_table, out_dir, progress, write_csv, write_json, write_summary
-from .peers import CHECK_MAX, agreement, peer_rays, peer_specs
+from .peers import CHECK_MAX, agreement, disagreeing, peer_rays, peer_specs, right_against
 from .reference import brute_cast
 from .scenes import resolve_scene, scene_list
 from .sides import EmbreeSide, MissingPeer
@@ -66,11 +66,8 @@ NATIVE_SCENES = ["icosphere:20480:twist", "lucy:twist", "icosphere:1310720:twist
 NATIVE_FALLBACK = ["icosphere:20480:twist", "icosphere:81920:twist", "icosphere:1310720:twist", "marbles:640000"]
 #: the harness's untimed dynamic frames before the timed ones
 NATIVE_WARMUP = 2
-#: the harness's cast modes and the rays it casts
+#: the harness's cast modes
 MODES = ("1", "p16", "1M")
-RAY_SETS = ("primary", "incoherent")
-#: relative t tolerance of hit agreement (as bench peers)
-T_REL = 1e-4
 
 
 def add_parser(bsub, common):
@@ -166,15 +163,15 @@ def run_harness(binary, args):
     return [json.loads(line[7:]) for line in p.stdout.splitlines() if line.startswith("RESULT ")]
 
 
-def native_figures(binary, folder, T, runs, hits=None):
+def native_figures(binary, folder, T, runs, timed, hits=None):
     """Every harness measurement of one folder at T threads: static builds and casts (``runs`` reps),
-    the refit and rebuild frames, as a flat dict of ms (and the hit fractions)."""
+    the refit and rebuild frames (``timed`` of them after the warm-up), as a flat dict of ms (and
+    the hit fractions)."""
     extra = []
     if hits:
         Path(hits).mkdir(parents=True, exist_ok=True)
         extra = ["--hits", hits]
     res = run_harness(binary, ["static", folder, T, runs, *extra])
-    timed = json.loads((Path(folder) / "meta.json").read_text())["timed_frames"]
     for update in ("refit", "rebuild"):
         res += run_harness(binary, ["dynamic", folder, T, timed, update, "p16"])
     out = {}
@@ -235,9 +232,8 @@ def _judge(tris, o, d, idx, ours, theirs, threads):
 
     def judged(t, f):
         t, f = t[idx], f[idx]
+        right = right_against(t, f, rt, rf, rt2)
         with np.errstate(invalid="ignore"):
-            tie = (f >= 0) & (rf >= 0) & (np.abs(rt2 - rt) <= 1e-9 * scale) & (np.abs(t - rt) <= 1e-6 * scale)
-            right = (f == rf) | tie
             near_t = (f < 0) | (rf < 0) | (np.abs(t - rt) <= 1e-5 * scale)
         side_edge = _bary_min(tris, o, d, f)
         ref_ok = (rf < 0) | (ref_edge <= EDGE_TOL)
@@ -256,9 +252,7 @@ def compare_hits(row, key, tris, o32, d32, ours, hdir, name, threads):
     tt = np.load(Path(hdir) / f"{name}_t.npy").astype(np.float64)
     t_o, f_o = np.asarray(ours[0], np.float64), np.asarray(ours[1], np.int64)
     ag = agreement(t_o, f_o, tt, ft)
-    with np.errstate(invalid="ignore"):
-        ok = ((f_o < 0) & (ft < 0)) | ((f_o == ft) & (f_o >= 0) & (np.abs(t_o - tt) <= T_REL * np.abs(tt)))
-    bad = np.flatnonzero(~ok)
+    bad = disagreeing(t_o, f_o, tt, ft)
     judged = _judge(np.asarray(tris, np.float64), o32.astype(np.float64), d32.astype(np.float64), bad,
                     (t_o, f_o), (tt, ft), threads)
     row.update({f"{key}_agree": (ag["same"] + ag["both_miss"]) / len(f_o), f"{key}_disagree": len(bad)})
@@ -278,7 +272,7 @@ def measure_gridrt(row, spec, frames, o32, d32, ro32, rd32, T, runs, warmup, emb
     V0 = frames[0].reshape(3 * F, 3)
     faces = np.arange(3 * F, dtype=np.int64).reshape(F, 3)
     gp = spec.grid
-    caster = RayCaster(V0, faces, GridParams(strategy=gp.strategy, threads=T, grid=gp.grid))
+    caster = RayCaster(V0, faces, gp)
     hits = {}
 
     def cast(name, o, d):
@@ -315,7 +309,6 @@ def measure_gridrt(row, spec, frames, o32, d32, ro32, rd32, T, runs, warmup, emb
             api.append((t3 - t2) * 1e3)
     for key, v in (("o_build_ms", build), ("o_render_ms", render), ("o_frame_ms", frame), ("o_frame_api_ms", api)):
         put_stat(row, key, v)
-    caster.update(V0)
     return hits
 
 
@@ -370,7 +363,7 @@ def run_native(a):
                 hdir = root / _folder_name(sc.label) / "hits" if k == 0 else None
                 with Affinity(T) as aff:
                     row["pinned"] = aff.applied
-                    row.update(native_figures(binary, folder, T, runs, hdir))
+                    row.update(native_figures(binary, folder, T, runs, runs, hdir))
                     hits = measure_gridrt(row, spec, frames, o32, d32, ro32, rd32, T, runs, warmup, emb)
                 row["o_hit_camera"] = float((hits["camera"][1] >= 0).mean())
                 row["o_hit_random"] = float((hits["random"][1] >= 0).mean())

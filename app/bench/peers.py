@@ -104,21 +104,33 @@ def agreement(t_o, f_o, t_e, f_e):
                 t_off=int((same_id & ~t_ok).sum()))
 
 
+def disagreeing(t_o, f_o, t_e, f_e):
+    """Indices of the rays on which two tracers' hits (t, triangle id) do not agree as
+    :func:`agreement` counts agreement (both miss, or the same id with t within T_REL)."""
+    with np.errstate(invalid="ignore"):
+        ok = ((f_o < 0) & (f_e < 0)) | ((f_o == f_e) & (f_o >= 0) & (
+            np.abs(t_o - t_e) <= T_REL * np.maximum(np.abs(t_o), 1e-30)))
+    return np.flatnonzero(~ok)
+
+
+def right_against(t, f, rt, rf, rt2):
+    """Which hits (t, f) are right against the brute force's (rt, rf; rt2 the nearest t of any other
+    triangle): the same triangle (or both miss), or a tie within rounding."""
+    scale = np.maximum(np.abs(rt), 1e-30)
+    with np.errstate(invalid="ignore"):
+        tie = (f >= 0) & (rf >= 0) & (np.abs(rt2 - rt) <= 1e-9 * scale) & (np.abs(t - rt) <= 1e-6 * scale)
+    return (f == rf) | tie
+
+
 def _judge(tris, o, d, idx, t_o, f_o, t_e, f_e, threads):
     """Of the disagreeing rays idx (first CHECK_MAX), how many each side got right against
-    brute force (same triangle, or a tie, or both miss)."""
+    brute force (:func:`right_against`)."""
     idx = idx[:CHECK_MAX]
     if not len(idx):
         return dict(checked=0, ours_right=0, embree_right=0)
     rt, rf, rt2 = brute_cast(tris, o[idx], d[idx], threads=threads)
-
-    def right(t, f):
-        scale = np.maximum(np.abs(rt), 1e-30)
-        with np.errstate(invalid="ignore"):
-            tie = (f >= 0) & (rf >= 0) & (np.abs(rt2 - rt) <= 1e-9 * scale) & (np.abs(t - rt) <= 1e-6 * scale)
-        return int(((f == rf) | tie).sum())
-
-    return dict(checked=len(idx), ours_right=right(t_o[idx], f_o[idx]), embree_right=right(t_e[idx], f_e[idx]))
+    return dict(checked=len(idx), ours_right=int(right_against(t_o[idx], f_o[idx], rt, rf, rt2).sum()),
+                embree_right=int(right_against(t_e[idx], f_e[idx], rt, rf, rt2).sum()))
 
 
 def run_peers(a):
@@ -326,9 +338,7 @@ def _row(sc, T, strat, pinned, size, runs, emb, o, d, frames, static, rp, others
     if emb is not None:
         te, fe = frames["embree"]
         ag = agreement(ho.t, ho.tri.astype(np.int64), te, fe)
-        with np.errstate(invalid="ignore"):
-            bad = np.flatnonzero(~(((ho.tri < 0) & (fe < 0)) | ((ho.tri == fe) & (ho.tri >= 0) & (
-                np.abs(ho.t - te) <= T_REL * np.maximum(np.abs(ho.t), 1e-30)))))
+        bad = disagreeing(ho.t, ho.tri, te, fe)
         judge = _judge(last, o, d, bad, ho.t, ho.tri.astype(np.int64), te, fe, T)
         put_stat(row, "e_static_cast_ms", se)
         if rp is not None:

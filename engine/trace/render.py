@@ -522,17 +522,14 @@ class Renderer:
             cast += m
             rows, o, d = rows_b[:m], o_b[:m], d_b[:m]
             blocked = np.zeros(m, bool)
-            for k, g in enumerate(grids):  # any hit in any grid shadows
-                live = None if k == 0 else np.flatnonzero(~blocked)
-                if live is not None and len(live) == 0:
+            for g in grids:  # any hit in any grid shadows
+                live = np.flatnonzero(~blocked)
+                if len(live) == 0:
                     break
-                lo, ld = (o, d) if live is None else (np.ascontiguousarray(o[live]), np.ascontiguousarray(d[live]))
-                out = tuple(a[:len(lo)] for a in out_b)
+                lo, ld = (o, d) if len(live) == m else (o[live], d[live])  # (no copy while none is blocked)
+                out = tuple(a[:len(live)] for a in out_b)
                 cast_grouped(g, lo, ld, 0.0, 1.0, bool(params.watertight), True, out, max_cells, f32)
-                if live is None:
-                    blocked |= out[1] >= 0
-                else:
-                    blocked[live[out[1] >= 0]] = True
+                blocked[live[out[1] >= 0]] = True
             add_light(rows, blocked, weight, tvd, float(lights[li, 4]), float(lights[li, 5]), float(lights[li, 6]), acc)
         compose(W, H, acc, img)
         return len(lights), cast
