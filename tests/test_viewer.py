@@ -27,7 +27,10 @@ from PIL import Image
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from gridrt.camera import DEFAULT_FOV, DEFAULT_UP
-from helpers.viewer import REPO, H, W, _App, _app_env, _X
+from helpers.viewer import (
+    REPO, H, W, _App, _app_env, _check_scene_image, _dist, _first_frame, _headless_frame, _laid_out, _png, _quit,
+    _Run, _X, needs_x, xvfb,  # noqa: F401  (xvfb: a fixture)
+)
 
 
 @pytest.fixture(autouse=True)
@@ -588,41 +591,6 @@ def test_panel_headless_egl(tmp_path, monkeypatch):
         ctx.release()
 
 
-def _dist(cam):
-    return float(np.linalg.norm(np.subtract(cam["eye"], cam["target"])))
-
-
-def _headless_frame(scene, s, width, height):
-    """(pipeline, frame): a headless FramePipeline over ``scene`` with the grid and render settings of
-    the viewer's state ``s`` (as the state file has it) at width x height, and its frame at the time
-    and camera of ``s``."""
-    from gridrt.camera import Camera
-    from gridrt.config import GridParams, RenderParams
-    from gridrt.pipeline import FramePipeline
-
-    st, cam = s["stats"], s["camera"]
-    pipe = FramePipeline(scene,
-                         GridParams(strategy=st["strategy"], threads=st["threads"], density=s["density"],
-                                    macro=s["macro"], insert=s["insert"], grid=s["grid"],
-                                    top_density=s["top_density"], leaf_density=s["leaf_density"]),
-                         RenderParams(width=width, height=height, shading=s["shading"], shadows=s["shadows"],
-                                      watertight=s["watertight"], threads=st["threads"], traversal=s["traversal"],
-                                      packet=tuple(s["packet"]), packet_precision=s["packet_precision"]))
-    return pipe, pipe.step(st["t"], camera=Camera(cam["eye"], cam["target"], cam["up"], cam["fov"]))
-
-
-def _check_scene_image(img):
-    """A ray-traced marbles frame: background and lit geometry, many distinct colours."""
-    from gridrt.trace.render import BACKGROUND
-
-    bg = np.round(np.asarray(BACKGROUND) * 255).astype(np.uint8)
-    is_bg = np.all(img[..., :3] == bg, axis=-1)
-    assert 0.05 < is_bg.mean() < 0.95, is_bg.mean()
-    lum = img[~is_bg][:, :3].astype(float).mean(axis=-1)
-    assert lum.std() > 5
-    assert len(np.unique(img.reshape(-1, img.shape[-1]), axis=0)) > 50
-
-
 @pytest.mark.skipif(shutil.which("Xvfb") is None or shutil.which("xdotool") is None,
                     reason="needs Xvfb and xdotool (apt-get install xvfb xauth xdotool)")
 def test_viewer_window_under_xvfb(tmp_path):
@@ -827,68 +795,6 @@ def test_viewer_window_under_xvfb(tmp_path):
         assert list(app.cwd.iterdir()) == []   # nothing written where the viewer was started
     finally:
         if app is not None:
-            app.close()
-        x.close()
-
-
-class _Run(_App):
-    """A viewer under Xvfb like _App, on a command line of the test's own: ``gridrt view`` with
-    ``args`` and --state-file, started in the folder ``cwd``; its state file and log lie in
-    ``tmp``, not in ``cwd``."""
-
-    def __init__(self, display, tmp, cwd, args):
-        tmp.mkdir(parents=True, exist_ok=True)
-        self.display, self.cwd, self.shots = display, cwd, None
-        self.state_file = tmp / "state.json"
-        self.log = open(tmp / "app.log", "w+")
-        cmd = [sys.executable, "-m", "gridrt", "view", *args, "--state-file", str(self.state_file)]
-        self.proc = subprocess.Popen(cmd, cwd=cwd, env=_app_env(DISPLAY=display), stdout=self.log,
-                                     stderr=subprocess.STDOUT, text=True)
-
-
-def _first_frame(app, w, h):
-    """The state once the viewer shows its first frame at w x h (the panel's state settled)."""
-    return app.wait(lambda q: q["rendered_frames"] >= 1 and q["camera"] and q["stats"].get("width") == w
-                    and q["stats"].get("height") == h and q["ui_frames"] >= 3, "the first frame", timeout=180)
-
-
-def _laid_out(app, s):
-    """A state two frames after ``s``: the panel laid out again (after a screenshot, the state that
-    first names it has the widgets of the frame before the message with its path)."""
-    return app.wait(lambda q: q["ui_frames"] > s["ui_frames"] + 1, "the panel laid out again")
-
-
-def _png(path):
-    return np.asarray(Image.open(path).convert("RGB"))
-
-
-def _quit(app):
-    """Esc; the viewer ends with status 0.  Its output."""
-    app.xdo("key", "Escape")
-    assert app.proc.wait(30) == 0, app.output()
-    return app.output()
-
-
-needs_x = pytest.mark.skipif(shutil.which("Xvfb") is None or shutil.which("xdotool") is None,
-                             reason="needs Xvfb and xdotool (apt-get install xvfb xauth xdotool)")
-
-
-@pytest.fixture
-def xvfb():
-    """An Xvfb server for one test; the viewers the test starts on it (``xvfb.start(app)``) are
-    killed after it when still running."""
-    x = _X()
-    apps = []
-
-    def start(app):
-        apps.append(app)
-        return app
-
-    x.start = start
-    try:
-        yield x
-    finally:
-        for app in apps:
             app.close()
         x.close()
 
