@@ -4,6 +4,11 @@ Pixel (0, 0) is the top-left pixel; the ray of pixel (x, y) passes through its c
 ``d = normalize(fwd + sx * right + sy * up)`` with
 ``sx = (2 (x + 0.5) / W - 1) * tan(fov / 2) * W / H`` and ``sy = (1 - 2 (y + 0.5) / H) * tan(fov / 2)``,
 where ``fwd = normalize(target - eye)``, ``right = normalize(fwd x up)``, ``up' = right x fwd``.
+
+A camera's ``shift`` (sx0, sy0) moves the image window in its own plane (at unit distance from the
+eye): ``d = normalize(fwd + (sx + sx0) * right + (sy + sy0) * up)``.  :meth:`Camera.jittered`
+shifts it by a fraction of a pixel, exactly, for progressive anti-aliasing: the basis's forward
+row becomes ``fwd + sx0 * right + sy0 * up`` and every ray generator reads it as it is.
 """
 
 import math
@@ -117,6 +122,8 @@ class Camera:
     target: tuple = (0.0, 0.0, 0.0)
     up: tuple = DEFAULT_UP
     fov: float = DEFAULT_FOV
+    #: the image window's shift in its plane at unit distance, (right, up); (0, 0): centred
+    shift: tuple = (0.0, 0.0)
 
     def __post_init__(self):
         eye = _vec3(self.eye, "eye")
@@ -139,6 +146,13 @@ class Camera:
         object.__setattr__(self, "target", tuple(target.tolist()))
         object.__setattr__(self, "up", tuple(up.tolist()))
         object.__setattr__(self, "fov", fov)
+        try:
+            shift = tuple(float(v) for v in self.shift)
+        except (TypeError, ValueError):
+            raise InputError(f"camera shift must be 2 numbers, got {self.shift!r}") from None
+        if len(shift) != 2 or not all(math.isfinite(v) and abs(v) <= 1e6 for v in shift):
+            raise InputError(f"camera shift must be 2 finite numbers of magnitude at most 1e6, got {self.shift!r}")
+        object.__setattr__(self, "shift", shift)
 
     @classmethod
     def frame(cls, lo, hi, fov=DEFAULT_FOV, direction=FRAME_DIR, up=DEFAULT_UP):
@@ -173,8 +187,18 @@ class Camera:
         up = np.cross(right, fwd)
         b = np.zeros((5, 3))
         b[0], b[1], b[2], b[3] = eye, fwd, right, up
+        if self.shift != (0.0, 0.0):
+            b[1] = fwd + self.shift[0] * right + self.shift[1] * up
         b[4, 0] = math.tan(math.radians(self.fov) / 2)
         return b
+
+    def jittered(self, width, height, jx, jy):
+        """This camera with its pixel grid moved by (jx, jy) pixels (right, down) at width x height:
+        the ray of pixel (x, y) passes through the point (x + 0.5 + jx, y + 0.5 + jy) of its image,
+        exactly (the shift adds to sx and sy alike for every pixel)."""
+        th = math.tan(math.radians(self.fov) / 2)
+        return replace(self, shift=(self.shift[0] + 2.0 * float(jx) / width * th * width / height,
+                                    self.shift[1] - 2.0 * float(jy) / height * th))
 
     def rays(self, width, height):
         """Primary rays, row-major from the top-left pixel: (origins, dirs), each (H*W, 3) float64;
@@ -197,7 +221,7 @@ class Camera:
         if not o.any():
             return self
         return Camera(eye=tuple(np.asarray(self.eye) + o), target=tuple(np.asarray(self.target) + o),
-                      up=self.up, fov=self.fov)
+                      up=self.up, fov=self.fov, shift=self.shift)
 
     def replace(self, **kw):
         return replace(self, **kw)

@@ -281,8 +281,10 @@ class FramePipeline:
                 self._set_origin(origin)
         self.frame_index = frame
 
-    def step(self, t, camera=None):
-        """Render the scene at time t; returns a Frame. ``camera`` overrides the pipeline's.  A
+    def step(self, t, camera=None, jitter=None):
+        """Render the scene at time t; returns a Frame. ``camera`` overrides the pipeline's;
+        ``jitter`` (jx, jy) moves every camera ray by that fraction of a pixel, right and down
+        (Camera.jittered: progressive anti-aliasing; the Frame's t and tri are those rays'). A
         render whose buffers and shadow rays (gridrt.memory.render_bytes) exceed the memory
         left (gridrt.memory) is refused before they are allocated, as are grids (GridBuilder); a
         MemoryError all the same becomes an InputError naming the frame."""
@@ -290,9 +292,9 @@ class FramePipeline:
         with allocating(lambda: f"rendering frame {self.frame_index} ({rp.width}x{rp.height} pixels, "
                                 f"{self.scene.n_triangles:,} triangles)", "ask for a smaller image or scene"):
             with CompileWatch() as watch:
-                return self._render_frame(t, camera, watch)
+                return self._render_frame(t, camera, watch, jitter)
 
-    def _render_frame(self, t, camera, watch):
+    def _render_frame(self, t, camera, watch, jitter=None):
         t_frame = time.perf_counter()
         rp = self.render_params
         surface = self.scene.surface
@@ -305,6 +307,8 @@ class FramePipeline:
         tris, grid, split, rebuild, static_ms, anim_ms, cam, local_cam = self._place(t, camera)
         if first:
             self._first_t, self._origin0 = float(t), self.origin
+        if jitter is not None and any(jitter):
+            local_cam = local_cam.jittered(W, H, *jitter)
         gp = self.grid_params
         if rp.light is not None and self.origin.any():
             rp = rp.replace(light=tuple(np.asarray(rp.light, np.float64) - self.origin))
