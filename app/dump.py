@@ -6,7 +6,6 @@ import signal
 import sys
 from pathlib import Path
 
-import numpy as np
 from tqdm import tqdm
 
 from gridrt.errors import GridrtError, InputError
@@ -18,7 +17,7 @@ from . import cli
 from .cluster.dump import dump_on_cluster
 from .cluster.scheduler import add_cluster_args, wants_cluster
 from .frame_out import (
-    FrameWriteError, FrameWriter, StopSignals, encode_frame, nothing_to_do, replace_mode, resumed, run_settings,
+    FrameWriteError, FrameWriter, StopSignals, encode_frame, frame_medians, nothing_to_do, replace_mode, resumed, run_settings,
 )
 
 
@@ -180,15 +179,7 @@ def _dump(a, spec):
     if error is not None or stop():
         return writer.stopped(error=error, signum=stop.signum)
     # frames that compiled kernels are not rendering times: the medians leave them out
-    timed = [r for r in rows if not r["compiled"]]
-    left_out = len(rows) - len(timed)
-    if left_out and timed:
-        note = f" ({left_out} frame{'s' if left_out > 1 else ''} that compiled kernels left out)"
-    elif left_out:
-        note = " (every frame compiled kernels: the medians include compile time)"
-    else:
-        note = ""
-    med = lambda k: float(np.median([r[k] for r in (timed or rows)]))  # noqa: E731
+    med, note = frame_medians(rows)
     print(
         f"wrote {len(rows)} frames to {out}/{resumed(start, a.frames)} ({pipe.scene.name}, {rows[0]['triangles']} "
         f"triangles, {rows[0]['width']}x{rows[0]['height']}, {rows[0]['strategy']}, {rows[0]['threads']} threads, "

@@ -94,6 +94,36 @@ class FrameWriteError(GridrtError):
         super().__init__(f"cannot write {what}: {self.strerror}")
 
 
+def stats_columns(stats):
+    """stats.csv's columns for the FrameStats ``stats``: STATS_COLUMNS, then its other columns."""
+    return list(STATS_COLUMNS) + [k for k in stats if k not in STATS_COLUMNS]
+
+
+def write_stats_csv(path, rows):
+    """A stats.csv of the FrameStats ``rows`` at ``path``, columns and values as the dump writes them."""
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=stats_columns(rows[0]), extrasaction="ignore")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: fmt(v) for k, v in r.items()})
+    Path(path).write_text(buf.getvalue())
+
+
+def frame_medians(rows):
+    """(median, note) of the FrameStats ``rows``: ``median(column)`` is the median over the frames
+    that compiled no kernels (their times are not rendering times; over all of them when every
+    frame compiled), and ``note`` says what was left out, for a summary line ("" when nothing)."""
+    timed = [r for r in rows if not r["compiled"]]
+    left_out = len(rows) - len(timed)
+    if left_out and timed:
+        note = f" ({left_out} frame{'s' if left_out > 1 else ''} that compiled kernels left out)"
+    elif left_out:
+        note = " (every frame compiled kernels: the medians include compile time)"
+    else:
+        note = ""
+    return (lambda k: float(np.median([r[k] for r in (timed or rows)]))), note
+
+
 def fmt(v):
     """A stats value as ``stats.csv`` holds it: "n/a" for a figure that does not apply (None)."""
     if v is None:
@@ -438,7 +468,7 @@ class FrameWriter:
     def _append_row(self, stats, extra):
         buf = io.StringIO()
         if self.columns is None:
-            self.columns = list(STATS_COLUMNS) + [k for k in stats if k not in STATS_COLUMNS] + list(extra)
+            self.columns = stats_columns(stats) + list(extra)
             csv.writer(buf).writerow(self.columns)
         row = {**{k: fmt(v) for k, v in stats.items()}, **extra}
         csv.DictWriter(buf, fieldnames=self.columns, extrasaction="ignore").writerow(row)
