@@ -1,6 +1,8 @@
 """Show a CPU image in a moderngl context: one RGBA8 texture and a fullscreen-triangle program
 loaded from ``shaders/blit.vert`` and ``shaders/blit.frag``.  numpy row 0 (the image's top row)
-is drawn at the top of the viewport."""
+is drawn at the top of the viewport.  The exposure (stops) scales the image's linear light (gamma
+2.2) by 2^stops, clipped at white, as it is drawn; :func:`exposed` does the same on the CPU, for
+the screenshots of what is shown."""
 
 from pathlib import Path
 
@@ -35,6 +37,24 @@ def load_shader_sources(shader_dir=SHADER_DIR):
     return tuple(out)
 
 
+#: the display gamma the exposure works under (the image's values are light^(1 / GAMMA))
+GAMMA = 2.2
+
+
+def exposed(image, stops):
+    """``image`` ((H, W, 3|4) uint8) as the blit shader shows it at exposure ``stops``: its colour
+    channels ``(min((c / 255)^2.2 * 2^stops, 1))^(1 / 2.2)``, rounded to 8 bits (alpha kept); the
+    image itself at 0 stops."""
+    img = np.asarray(image)
+    if stops == 0:
+        return img
+    c = img[..., :3].astype(np.float64) / 255.0
+    c = np.minimum(c ** GAMMA * 2.0 ** float(stops), 1.0) ** (1.0 / GAMMA)
+    out = img.copy()
+    out[..., :3] = np.rint(c * 255.0).astype(np.uint8)
+    return out
+
+
 class Blitter:
     """Upload (H, W, 4) or (H, W, 3) uint8 images and draw them over the whole viewport.
 
@@ -51,6 +71,7 @@ class Blitter:
         self.program = ctx.program(vertex_shader=vs, fragment_shader=fs)
         if "u_image" in self.program:
             self.program["u_image"].value = 0
+        self.exposure = 0.0
         self.vao = ctx.vertex_array(self.program, [])
         self.texture = None
         self.size = None  # (W, H) of the uploaded image
@@ -83,6 +104,8 @@ class Blitter:
         mgl = self._mgl
         f = mgl.NEAREST if tuple(viewport[2:]) == self.size else mgl.LINEAR
         self.texture.filter = (f, f)
+        if "u_exposure" in self.program:
+            self.program["u_exposure"].value = float(self.exposure)
         self.ctx.viewport = tuple(int(v) for v in viewport)
         self.texture.use(0)
         self.vao.render(mgl.TRIANGLES, vertices=3)

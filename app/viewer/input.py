@@ -11,7 +11,11 @@ Keys (when the panel does not want the keyboard): left drag orbit, right or midd
 wheel zoom, W/S forward/back, A/D left/right, Q/E down/up, Shift flies 4x faster, R reset view,
 C scene camera on/off, Space play/pause, F12 or P screenshot (into --screenshot-dir), H hide/show
 panel (the image then takes the whole window), [ and ] previous/next strategy, - and = fewer/more
-threads, Esc quit.
+threads, Esc quit; and the habits of Embree's and pbrt's viewers: , and . exposure down/up half a
+stop (/ back to 0), O the figures overlay on/off, G progressive accumulation on/off, V print the
+camera as command-line flags, Ctrl+1..9 keep the view as a bookmark (remembered across runs), 1..9
+go back to it, F (or a double click) look at the surface point under the cursor, F11 full screen,
+K start/stop recording a video and its camera path.
 
 The scene's own camera (BART, glTF; the panel's "scene camera" box, on by default for a scene that
 has one): any camera move (drag, wheel, fly keys) leaves it, starting from the view on screen, as
@@ -26,11 +30,17 @@ from gridrt import camera_control as cc
 
 from gridrt.scene import SceneSpec
 
+from .state import EXPOSURE_STEP
+
 #: keys listed in the panel's help line
 KEY_HELP = (
     "L-drag orbit | R/M-drag pan | wheel zoom | WASD/QE fly (Shift fast) | R reset | C scene camera | "
-    "Space play | P/F12 shot | H panel | [ ] strategy | - = threads | Esc quit"
+    "Space play | P/F12 shot | H panel | [ ] strategy | - = threads | , . / exposure | O overlay | "
+    "G accumulate | V print camera | Ctrl+1-9 bookmark, 1-9 go | F/double click focus | F11 full screen | "
+    "K record | Esc quit"
 )
+#: two presses of the left button within this many seconds (and DOUBLE_CLICK_PX pixels) are a double click
+DOUBLE_CLICK_S, DOUBLE_CLICK_PX = 0.35, 4.0
 #: wheel notch -> distance factor
 ZOOM_STEP = 0.85
 #: fly speed in scene radii per second
@@ -51,6 +61,7 @@ class InputHandler:
         self.last_pos = tuple(glfw.get_cursor_pos(window))
         self.dropped = []
         self.last_event = 0.0  # perf_counter() of the latest input event
+        self.last_press = (-1.0, (0.0, 0.0))   # (time, position) of the last left press on the image
         glfw.set_key_callback(window, self._on_key)
         glfw.set_mouse_button_callback(window, self._on_button)
         glfw.set_cursor_pos_callback(window, self._on_move)
@@ -90,6 +101,8 @@ class InputHandler:
             if kind == "button":
                 if b == glfw.PRESS:
                     self.owner[a] = "ui" if ui_mouse or not st.in_image(*self.last_pos) else "camera"
+                    if a == glfw.MOUSE_BUTTON_LEFT and self.owner[a] == "camera":
+                        self._double_click()
                 elif b == glfw.RELEASE:
                     self.owner.pop(a, None)
             elif kind == "move":
@@ -107,11 +120,19 @@ class InputHandler:
         if not ui_keys:
             self._fly(dt)
 
+    def _double_click(self):
+        now, pos = time.perf_counter(), self.last_pos
+        t, p = self.last_press
+        if now - t <= DOUBLE_CLICK_S and abs(pos[0] - p[0]) <= DOUBLE_CLICK_PX and abs(pos[1] - p[1]) <= DOUBLE_CLICK_PX:
+            self.state.focus_request = pos
+            now = -1.0   # a third click starts a new pair
+        self.last_press = (now, pos)
+
     def _key(self, key, action, mods):
         glfw = self.glfw
         st = self.state
         if action == glfw.REPEAT and key not in (glfw.KEY_LEFT_BRACKET, glfw.KEY_RIGHT_BRACKET,
-                                                 glfw.KEY_MINUS, glfw.KEY_EQUAL):
+                                                 glfw.KEY_MINUS, glfw.KEY_EQUAL, glfw.KEY_COMMA, glfw.KEY_PERIOD):
             return
         if key == glfw.KEY_ESCAPE:
             st.quit = True
@@ -133,6 +154,30 @@ class InputHandler:
             st.change_threads(-1)
         elif key in (glfw.KEY_EQUAL, glfw.KEY_KP_ADD):
             st.change_threads(+1)
+        elif key == glfw.KEY_COMMA:
+            st.change_exposure(-EXPOSURE_STEP)
+        elif key == glfw.KEY_PERIOD:
+            st.change_exposure(+EXPOSURE_STEP)
+        elif key == glfw.KEY_SLASH:
+            st.change_exposure(None)
+        elif key == glfw.KEY_O:
+            st.show_overlay = not st.show_overlay
+        elif key == glfw.KEY_G:
+            st.accumulate = not st.accumulate
+        elif key == glfw.KEY_V:
+            st.want_camera_print = True
+        elif glfw.KEY_1 <= key <= glfw.KEY_9:
+            if mods & glfw.MOD_CONTROL:
+                st.bookmark_store = key - glfw.KEY_0
+            else:
+                st.bookmark_recall = key - glfw.KEY_0
+        elif key == glfw.KEY_F:
+            if st.in_image(*self.last_pos):
+                st.focus_request = self.last_pos
+        elif key == glfw.KEY_F11:
+            st.want_fullscreen = True
+        elif key == glfw.KEY_K:
+            st.want_record = True
 
     def _drag(self, x, y):
         """The cursor moved to (x, y): orbit or pan for each drag the camera owns."""

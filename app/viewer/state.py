@@ -30,6 +30,8 @@ SCALE_MIN, SCALE_MAX = 0.1, 2.0
 SPEED_MIN, SPEED_MAX = 0.0, 4.0
 #: time range of the scrub slider when the scene does not loop
 DEFAULT_SPAN = 10.0
+#: exposure range (stops either way) and the , and . keys' step
+EXPOSURE_LIMIT, EXPOSURE_STEP = 8.0, 0.5
 #: width (window pixels) of the panel column at the window's right edge, and of the strip it
 #: collapses to; the image area is the rest of the window (all of it while the panel is hidden)
 PANEL_WIDTH = 320
@@ -148,6 +150,25 @@ class ViewerState:
     image_rect: tuple = (0, 0, 0, 0)           # the image area: x, y, w, h in window pixels
     widget_rects: dict = field(default_factory=dict)  # label -> (x, y, w, h), for tests
     panel_text: dict = field(default_factory=dict)    # name -> a line of the panel's stats, for tests
+    # what is shown, and how (keys: see gridrt.app.viewer.input)
+    exposure: float = 0.0                   # stops (, and . keys; / back to 0): the display only
+    show_overlay: bool = False              # the figures over the image's corner (O key, --overlay)
+    overlay_text: str = ""                  # what the overlay shows, for tests
+    accumulate: bool = False                # progressive samples while the view is still (G key)
+    samples: int = 0                        # samples averaged in the image on screen
+    want_camera_print: bool = False         # print the camera as flags (V key)
+    camera_flags: str = ""                  # the last flags printed
+    bookmark_store: int | None = None       # Ctrl+1..9: keep the view in this slot
+    bookmark_recall: int | None = None      # 1..9: go to the view kept in this slot
+    bookmarks: dict = field(default_factory=dict)   # slot -> Camera, of the scene on screen
+    focus_request: tuple | None = None      # (x, y) window pixel to focus on (F key, double click)
+    focus: tuple | None = None              # the last focus point picked (world)
+    want_fullscreen: bool = False           # toggle full screen (F11)
+    fullscreen: bool = False
+    want_record: bool = False               # start or stop recording (K key)
+    recording: str | None = None            # the recording in progress (its path)
+    last_recording: str | None = None
+    benchmark: dict | None = None           # --benchmark's figures, once measured
 
     def __post_init__(self):
         # one thread count for build and render, a concrete one (None: all cores)
@@ -277,6 +298,10 @@ class ViewerState:
     def change_threads(self, step):
         self.set_threads(self.threads + step)
 
+    def change_exposure(self, step):
+        """Exposure up or down by ``step`` stops, within EXPOSURE_LIMIT; ``None``: back to 0."""
+        self.exposure = 0.0 if step is None else min(max(self.exposure + step, -EXPOSURE_LIMIT), EXPOSURE_LIMIT)
+
     def reset_view(self):
         """Back to the starting view: the scene's camera when the scene started on it, else ``home``."""
         if self.scene_camera_home and self.scene_camera:
@@ -300,6 +325,27 @@ class ViewerState:
         wants to: see gridrt.app.viewer.view); Reset view returns to it then."""
         self.scene_camera = bool(has_camera)
         self.follow_camera = self.scene_camera_home = bool(want) and self.scene_camera
+
+    def figures_text(self):
+        """The overlay's lines for the frame on screen: its rate and Mrays/s, then its build, render
+        and frame times, as its stats row has them (the dump's stats.csv columns: fps is
+        1000 / frame_ms), then what is averaged and the exposure when not 0."""
+        st = self.stats
+        if not st:
+            return ""
+        lines = [f"{1e3 / max(st['frame_ms'], 1e-9):.1f} fps  {st['mrays']:.2f} Mrays/s"
+                 + ("  (compiled kernels)" if st.get("compiled") else ""),
+                 f"build {st['build_ms']:.2f} ms  render {st['render_ms']:.2f} ms  frame {st['frame_ms']:.2f} ms"]
+        extra = []
+        if self.samples > 1:
+            extra.append(f"{self.samples} samples")
+        if self.exposure:
+            extra.append(f"exposure {self.exposure:+g}")
+        if self.recording:
+            extra.append("recording")
+        if extra:
+            lines.append("  ".join(extra))
+        return "\n".join(lines)
 
     def snapshot(self):
         """A JSON-ready dict of the state (the --state-file dump)."""
@@ -354,6 +400,18 @@ class ViewerState:
             "stats": st,
             "ui_fps": self.ui_fps,
             "render_fps": self.render_fps,
+            "exposure": self.exposure,
+            "show_overlay": self.show_overlay,
+            "overlay_text": self.overlay_text,
+            "accumulate": self.accumulate,
+            "samples": self.samples,
+            "camera_flags": self.camera_flags,
+            "bookmarks": sorted(self.bookmarks),
+            "focus": None if self.focus is None else list(self.focus),
+            "fullscreen": self.fullscreen,
+            "recording": self.recording,
+            "last_recording": self.last_recording,
+            "benchmark": self.benchmark,
         }
 
 

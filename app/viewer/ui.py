@@ -478,6 +478,28 @@ def _draw_stats(state):
         _rect(state, "plot")
 
 
+#: a window over the image that takes no input and keeps no settings (the figures, the busy box)
+_OVERLAY_FLAGS = (imgui.WindowFlags_.no_decoration | imgui.WindowFlags_.always_auto_resize
+                  | imgui.WindowFlags_.no_saved_settings | imgui.WindowFlags_.no_inputs
+                  | imgui.WindowFlags_.no_focus_on_appearing | imgui.WindowFlags_.no_nav)
+
+
+def draw_figures(state):
+    """The figures of the frame on screen (ViewerState.figures_text) over the image's top-left
+    corner, while ``state.show_overlay`` (the O key)."""
+    if not state.show_overlay or not state.overlay_text:
+        return
+    x, y, _, _ = state.image_rect
+    imgui.set_next_window_pos(imgui.ImVec2(x + 8, y + 8), imgui.Cond_.always)
+    imgui.set_next_window_bg_alpha(0.55)
+    flags = _OVERLAY_FLAGS
+    imgui.begin("##figures", None, flags)
+    imgui.text(state.overlay_text)
+    p, s = imgui.get_window_pos(), imgui.get_window_size()
+    state.widget_rects["figures overlay"] = (float(p.x), float(p.y), float(s.x), float(s.y))
+    imgui.end()
+
+
 def draw_overlay(state, elapsed):
     """A box centred over the image area with the label of the slow operation in progress and an
     indeterminate progress bar (only while ``state.busy`` is set)."""
@@ -487,9 +509,7 @@ def draw_overlay(state, elapsed):
     (x, y, w, h), _ = state.layout(io.display_size.x, io.display_size.y)
     imgui.set_next_window_pos(imgui.ImVec2(x + w * 0.5, y + h * 0.5), imgui.Cond_.always, imgui.ImVec2(0.5, 0.5))
     imgui.set_next_window_bg_alpha(0.95)
-    flags = (imgui.WindowFlags_.no_decoration | imgui.WindowFlags_.always_auto_resize
-             | imgui.WindowFlags_.no_saved_settings | imgui.WindowFlags_.no_inputs
-             | imgui.WindowFlags_.no_focus_on_appearing | imgui.WindowFlags_.no_nav)
+    flags = _OVERLAY_FLAGS
     imgui.begin("##busy", None, flags)
     imgui.text(state.busy)
     imgui.progress_bar(-1.0 * float(imgui.get_time()), imgui.ImVec2(300, 0), f"{elapsed:.1f} s")

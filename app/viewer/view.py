@@ -37,10 +37,14 @@ from gridrt.threads import check_threads, max_threads
 from gridrt.warmup import cache_is_cold
 
 from .. import cli, dump
-from .blit import Blitter
+from ..frame_out import frame_medians, write_stats_csv
+from .accumulate import MAX_SAMPLES, Accumulator
+from .blit import Blitter, exposed
+from .bookmarks import camera_flags, load_bookmarks, save_bookmark
 from .input import KEY_HELP, InputHandler
 from .prefs import load_prefs, panel_prefs, prefs_path, save_prefs
-from .state import SCALE_MAX, SCALE_MIN, ViewerState, view_with_camera
+from .record import Recorder
+from .state import EXPOSURE_LIMIT, SCALE_MAX, SCALE_MIN, ViewerState, view_with_camera
 from .worker import FrameJob, LoadJob, LoadResult, RenderWorker
 
 TITLE = "gridrt"
@@ -85,6 +89,25 @@ def add_parser(sub):
     g.add_argument("--screenshot-dir", type=Path, default=DEFAULT_SHOT_DIR,
                    help="folder for P/F12 screenshots, made on the first shot; each saved path is printed "
                         "(default: %(default)s under the current directory)")
+    g.add_argument("--exposure", type=float, default=0.0,
+                   help=f"display exposure in stops, -{EXPOSURE_LIMIT:g}..{EXPOSURE_LIMIT:g} (the , . and / keys change it; "
+                        "default 0: the image as rendered)")
+    g.add_argument("--overlay", action="store_true",
+                   help="start with the figures (fps, Mrays/s, build/render/frame ms: the dump's stats columns) over "
+                        "the image's top-left corner (O toggles; off by default, so nothing covers the image)")
+    g.add_argument("--accumulate", action="store_true",
+                   help=f"start with progressive accumulation on (G toggles): while nothing moves, up to "
+                        f"{MAX_SAMPLES} samples with sub-pixel offsets are averaged, starting from the exact frame")
+    g.add_argument("--benchmark", type=int, nargs=2, metavar=("WARMUP", "FRAMES"), default=None,
+                   help="render WARMUP + FRAMES frames at the dump's times (--t0 + i --dt), each shown, print the "
+                        "medians of the last FRAMES (frames that compiled kernels left out) and exit (default: none, "
+                        "the viewer runs until Esc)")
+    g.add_argument("--stats-csv", type=Path, default=None,
+                   help="with --benchmark: write every frame's stats row there, the columns of the dump's stats.csv "
+                        "(default: none)")
+    view = cli.defaults(ViewSpec)
+    g.add_argument("--t0", type=float, default=view["t0"], help="time of the first frame, seconds (default %(default)g)")
+    g.add_argument("--dt", type=float, default=view["dt"], help=cli.option_help("--dt", f"{view['dt']:.6g}"))
     g.add_argument("--state-file", type=Path, default=None,
                    help="write the viewer state as JSON to this file several times a second "
                         "(frame counters, parameters, screenshot paths, widget positions; for scripts/tests; default: none)")
@@ -146,6 +169,12 @@ def run(a):
         return 3
     if not (SCALE_MIN <= a.scale <= SCALE_MAX):
         raise InputError(f"--scale must be between {SCALE_MIN} and {SCALE_MAX}, got {a.scale}")
+    if not (math.isfinite(a.exposure) and abs(a.exposure) <= EXPOSURE_LIMIT):
+        raise InputError(f"--exposure must be between -{EXPOSURE_LIMIT:g} and {EXPOSURE_LIMIT:g} stops, got {a.exposure}")
+    if a.benchmark is not None and (a.benchmark[0] < 0 or a.benchmark[1] < 1):
+        raise InputError(f"--benchmark needs WARMUP >= 0 and FRAMES >= 1, got {a.benchmark[0]} {a.benchmark[1]}")
+    if a.stats_csv is not None and a.benchmark is None:
+        raise InputError("--stats-csv goes with --benchmark WARMUP FRAMES")
     if str(a.scene).strip().lower() not in BUILTIN_SCENES and not Path(a.scene).exists():
         raise InputError(f"unknown scene {str(a.scene)!r}: not a built-in scene and not an existing file or folder; "
                          f"a scene may be {scene_choices()}")
@@ -177,6 +206,10 @@ def initial_state(a):
         prefer_scene_camera=bool(getattr(a, "scene_camera", True)) or a.follow_camera,
     )
     st.scale = float(a.scale)
+    st.exposure = float(a.exposure)
+    st.time = float(spec.view.t0)
+    st.accumulate = bool(a.accumulate)
+    st.show_overlay = bool(a.overlay)
     st.home = st.camera
     shown, collapsed = panel_prefs(load_prefs())
     st.show_panel = shown and not a.hide_panel
@@ -226,6 +259,14 @@ class Viewer:
         self._last_result_time = None
         self._progress_printed = (0.0, 0)   # (perf_counter, textures) of the last console progress line
         self._panel_kept = (state.show_panel, state.panel_collapsed)   # as remembered (or as started)
+        self.accum = Accumulator()
+        self.depth = None              # the frame on screen's hit distances, (H, W) float32
+        self.ray_camera = None         # the camera of its rays (jittered for a progressive sample)
+        self.recorder = None           # the Recorder while K records
+        self._windowed = None          # (position, size) of the window before full screen
+        bench = getattr(args, "benchmark", None)
+        self.bench = None if bench is None else {"warmup": int(bench[0]), "frames": int(bench[1]), "submitted": 0,
+                                                 "rows": [], "started": None}
 
     # ---- lifecycle ------------------------------------------------------------------------
     def run(self):
@@ -279,6 +320,8 @@ class Viewer:
                 ctx.release()
             if win is not None:
                 glfw.destroy_window(win)
+            if self.recorder is not None:
+                self._stop_recording()
             stopped = worker is None or self._stop_worker(worker)
             glfw.terminate()
             self._write_state(force=True)
@@ -343,7 +386,7 @@ class Viewer:
         st = self.state
         from imgui_bundle import imgui  # deferred: imgui_bundle loads only when a window opens
 
-        from .ui import draw_overlay, draw_panel  # deferred: the panel's imgui_bundle, with the window
+        from .ui import draw_figures, draw_overlay, draw_panel  # deferred: the panel's imgui_bundle, with the window
 
         last = time.perf_counter()
         io = imgui.get_io()
@@ -367,16 +410,19 @@ class Viewer:
 
             self.ui.new_frame()
             self.input.process(io, dt)
+            self._requests()
             if st.scene_request is not None:
                 spec, st.scene_request = st.scene_request, None
                 st.scene_error = ""
                 self._start_load(spec)
-            st.advance(dt)
+            if self.bench is None:
+                st.advance(dt)
             st.widget_rects = {}
             if st.show_panel:
                 draw_panel(st, self.strategies)
             self._update_busy(now)
             job, elapsed = self.worker.current()
+            draw_figures(st)
             draw_overlay(st, elapsed)
             self._remember_panel()
             viewport = self._image_viewport()   # this frame's (H or the panel's arrow may have changed it)
@@ -384,6 +430,7 @@ class Viewer:
             self.ctx.screen.use()
             self.ctx.viewport = (0, 0, fw, fh)
             self.ctx.clear(0.12, 0.13, 0.16, 1.0)
+            self.blitter.exposure = st.exposure
             self.blitter.draw(viewport)
             self.ctx.viewport = (0, 0, fw, fh)
             self.ui.render()
@@ -418,6 +465,7 @@ class Viewer:
                     st.home = None
                 st.scene_loaded(res.has_camera, res.job.scene_camera)
                 st.scene_name, st.triangles = res.scene_name, res.triangles
+                st.bookmarks = load_bookmarks(res.scene.source)
                 st.duration, st.static = res.duration, res.static
                 st.time = 0.0 if res.duration is None else math.fmod(st.time, res.duration)
                 st.history.clear()
@@ -437,9 +485,22 @@ class Viewer:
                 st.scene_error = f"frame failed: {res.error}"
                 print(f"gridrt view: {st.scene_error}", file=sys.stderr, flush=True)
             else:
-                self.image = res.image
-                self.blitter.upload(res.image)
+                shown = res.image
+                if self.bench is None and (st.accumulate or res.job.jitter is not None):
+                    shown = self.accum.add(frame_key(res.job.t, res.job.spec), res.image)
+                    st.samples = self.accum.count
+                else:
+                    self.accum.reset()
+                    st.samples = 1
+                self.image = shown
+                self.depth, self.ray_camera = res.depth, res.ray_camera
+                self.blitter.upload(shown)
                 st.stats = res.stats
+                st.overlay_text = st.figures_text()
+                if self.recorder is not None:
+                    self.recorder.add(exposed(shown, st.exposure)[..., :3], res.job.t, res.camera)
+                if self.bench is not None:
+                    self._bench_result(res)
                 if res.job.spec.view.follow_camera and st.follow_camera and res.camera is not None:
                     st.camera = res.camera   # the scene's camera at the frame's time: the view on screen
                 st.history.add(res.stats)
@@ -497,11 +558,173 @@ class Viewer:
             except InputError as e:
                 st.scene_error = str(e)
                 return
+        if self.bench is not None:
+            b = self.bench
+            i = b["submitted"]
+            if i < b["warmup"] + b["frames"]:
+                b["submitted"] += 1
+                self.worker.submit(FrameJob(st.spec, st.spec.view.time(i), generation=self.generation))
+            return
         key = frame_key(st.time, st.spec)
         if key == self.last_key:
+            jitter = self.accum.next_jitter(key) if st.accumulate and self.accum.count else None
+            if jitter is not None:   # the view is still: the next progressive sample
+                self.worker.submit(FrameJob(st.spec, st.time, generation=self.generation, jitter=jitter))
             return
         self.last_key = key
         self.worker.submit(FrameJob(st.spec, st.time, generation=self.generation))
+
+    # ---- the habits of Embree's and pbrt's viewers --------------------------------------------
+    def _requests(self):
+        """Carry out what the keys asked for this frame (input.py sets the requests)."""
+        st = self.state
+        if st.want_camera_print:
+            st.want_camera_print = False
+            self._print_camera()
+        if st.bookmark_store is not None:
+            slot, st.bookmark_store = st.bookmark_store, None
+            if st.camera is not None:
+                st.bookmarks[slot] = st.camera
+                kept = save_bookmark(st.scene.source, slot, st.camera)
+                st.message = f"view kept as bookmark {slot}" + ("" if kept else " (for this run only: cannot write "
+                                                                                f"{prefs_path()})")
+                print(f"gridrt view: {st.message}", flush=True)
+        if st.bookmark_recall is not None:
+            slot, st.bookmark_recall = st.bookmark_recall, None
+            cam = st.bookmarks.get(slot)
+            if cam is None:
+                st.message = f"no bookmark {slot} for this scene (Ctrl+{slot} keeps one)"
+            else:
+                st.leave_scene_camera()
+                st.camera = cam
+                st.message = f"bookmark {slot}"
+        if st.focus_request is not None:
+            at, st.focus_request = st.focus_request, None
+            self._focus(*at)
+        if st.want_fullscreen:
+            st.want_fullscreen = False
+            self._toggle_fullscreen()
+        if st.accumulate != self._accumulating:
+            self._accumulating = st.accumulate
+            self.last_key = None   # render the exact frame again (or start sampling it)
+            self.accum.reset()
+        if st.want_record:
+            st.want_record = False
+            if self.recorder is None:
+                self._start_recording()
+            else:
+                self._stop_recording()
+
+    _accumulating = False
+
+    def _print_camera(self):
+        st = self.state
+        cam = st.camera
+        if cam is None:
+            st.message = "no camera yet"
+            return
+        st.camera_flags = camera_flags(cam)
+        st.message = "camera printed to the console"
+        print(f"gridrt view: camera at t={st.time:g}: {st.camera_flags}", flush=True)
+
+    def _focus(self, x, y):
+        """Look at the surface point under window pixel (x, y): the target (the orbit's centre)
+        moves to the hit point of that pixel's ray in the frame on screen; the eye stays."""
+        st = self.state
+        if self.depth is None or self.ray_camera is None or st.camera is None or not st.in_image(x, y):
+            return
+        ix, iy, iw, ih = st.image_rect
+        h, w = self.depth.shape
+        px = min(max(int((x - ix) / max(iw, 1) * w), 0), w - 1)
+        py = min(max(int((y - iy) / max(ih, 1) * h), 0), h - 1)
+        t = float(self.depth[py, px])
+        if not math.isfinite(t):
+            st.message = "nothing under the cursor to focus on"
+            return
+        b = self.ray_camera.basis()
+        th, asp = b[4, 0], w / h
+        sx = (2.0 * (px + 0.5) / w - 1.0) * th * asp
+        sy = (1.0 - 2.0 * (py + 0.5) / h) * th
+        d = b[1] + sx * b[2] + sy * b[3]
+        point = np.asarray(self.ray_camera.eye) + t * d / np.linalg.norm(d)
+        cam = st.camera
+        st.leave_scene_camera()
+        try:
+            st.camera = cam.replace(target=tuple(point.tolist()))
+        except InputError as e:   # (the point is the eye itself: a hit at distance 0)
+            st.message = f"cannot focus there: {e}"
+            return
+        st.focus = tuple(point.tolist())
+        st.message = "focus on " + ",".join(f"{v:.6g}" for v in point)
+        print(f"gridrt view: {st.message} (pixel {px},{py} at distance {t:.6g})", flush=True)
+
+    def _toggle_fullscreen(self):
+        glfw, win, st = self.glfw, self.win, self.state
+        if self._windowed is None:
+            monitor = glfw.get_primary_monitor()
+            mode = glfw.get_video_mode(monitor) if monitor else None
+            if mode is None:
+                st.message = "no monitor to go full screen on"
+                return
+            self._windowed = (tuple(glfw.get_window_pos(win)), tuple(glfw.get_window_size(win)))
+            glfw.set_window_monitor(win, monitor, 0, 0, mode.size.width, mode.size.height, mode.refresh_rate)
+            st.fullscreen = True
+        else:
+            (x, y), (w, h) = self._windowed
+            self._windowed = None
+            glfw.set_window_monitor(win, None, x, y, w, h, 0)
+            st.fullscreen = False
+
+    def _start_recording(self):
+        st = self.state
+        try:
+            self.recorder = Recorder(self._shot_folder())
+        except (OSError, RuntimeError) as e:
+            st.message = f"cannot record: {e}"
+            print(f"gridrt view: {st.message}", file=sys.stderr, flush=True)
+            return
+        st.recording = str(self.recorder.path)
+        kind = "video" if self.recorder.video else "PNG frames (install '.[video]' for MP4)"
+        st.message = f"recording {kind} to {self.recorder.path}"
+        print(f"gridrt view: {st.message}", flush=True)
+        self.last_key = None   # the frame on screen is the recording's first
+
+    def _stop_recording(self):
+        st, rec = self.state, self.recorder
+        self.recorder = None
+        st.recording = None
+        try:
+            path = rec.close()
+        except (OSError, RuntimeError) as e:
+            st.message = f"recording failed: {e}"
+            print(f"gridrt view: {st.message}", file=sys.stderr, flush=True)
+            return
+        st.last_recording = str(path)
+        st.message = f"saved {path} ({rec.frames} frames)"
+        print(f"gridrt view: saved recording {path} ({rec.frames} frames) and its camera path {rec.camera_path}",
+              flush=True)
+
+    def _bench_result(self, res):
+        """A --benchmark frame came back: keep its stats; after the last, report and quit."""
+        b, st = self.bench, self.state
+        b["rows"].append(res.stats)
+        if len(b["rows"]) < b["warmup"] + b["frames"]:
+            return
+        rows = b["rows"][b["warmup"]:]
+        med, note = frame_medians(rows)
+        r0 = rows[0]
+        st.benchmark = {k: med(k) for k in ("build_ms", "render_ms", "frame_ms", "mrays")}
+        st.benchmark["frames"] = len(rows)
+        st.benchmark["fps"] = 1e3 / st.benchmark["frame_ms"]
+        csv_path = getattr(self.args, "stats_csv", None)
+        if csv_path is not None:
+            write_stats_csv(csv_path, b["rows"])
+        print(f"gridrt view: benchmark of {len(rows)} frames after {b['warmup']} warm-up ({st.scene_name}, "
+              f"{r0['triangles']} triangles, {r0['width']}x{r0['height']}, {r0['strategy']}, {r0['threads']} threads): "
+              f"median build {st.benchmark['build_ms']:.2f} ms, render {st.benchmark['render_ms']:.2f} ms, frame "
+              f"{st.benchmark['frame_ms']:.2f} ms ({st.benchmark['fps']:.1f} fps), {st.benchmark['mrays']:.2f} Mrays/s"
+              + note + (f"; stats rows in {csv_path}" if csv_path is not None else ""), flush=True)
+        st.quit = True
 
     # ---- outputs --------------------------------------------------------------------------
     def _remember_panel(self):
@@ -538,7 +761,8 @@ class Viewer:
         if self.image is None:
             st.message = "no frame to save yet"
             return
-        p = self._save_png(self.image[:, :, :3], "gridrt", "screenshot")
+        p = self._save_png(np.ascontiguousarray(exposed(self.image, self.state.exposure)[:, :, :3]), "gridrt",
+                           "screenshot")
         if p is not None:
             st.last_screenshot = str(p)
 

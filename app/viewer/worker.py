@@ -45,6 +45,7 @@ class FrameJob:
     t: float
     generation: int = 0     # scene generation the frame belongs to (stale results are dropped)
     label: str = "rendering"
+    jitter: tuple | None = None  # (jx, jy) pixels: a progressive sample's sub-pixel offset (None: centred)
 
 
 @dataclass
@@ -93,6 +94,8 @@ class FrameResult:
     radius: float           # half the grid's diagonal (for fly speed)
     job: FrameJob
     error: str | None = None
+    depth: np.ndarray | None = None   # (H, W) float32 hit distance along each pixel's ray (inf: miss)
+    ray_camera: object = None         # the camera of those rays (``camera``, jittered by the job's jitter)
 
 
 class RenderWorker:
@@ -214,8 +217,10 @@ class RenderWorker:
         spec, view = job.spec, job.spec.view
         pipe.grid_params, pipe.render_params = spec.grid, spec.render
         pipe.follow_camera, pipe.fov, pipe.up = view.follow_camera, view.fov, view.up
-        fr = pipe.step(job.t, camera=view.camera())
+        fr = pipe.step(job.t, camera=view.camera(), jitter=job.jitter)
         cam = pipe.last_camera
         box = getattr(fr.grid if fr.grid is not None else pipe.grid, "spec", None)   # the grid's bounds
         radius = 1.0 if box is None else 0.5 * float(np.linalg.norm(np.asarray(box.hi) - np.asarray(box.lo)))
-        return FrameResult(fr.image.copy(), fr.stats, cam, radius, job)
+        h, w = fr.t.shape
+        ray_cam = cam.jittered(w, h, *job.jitter) if job.jitter is not None and cam is not None else cam
+        return FrameResult(fr.image.copy(), fr.stats, cam, radius, job, depth=fr.t.copy(), ray_camera=ray_cam)
