@@ -34,6 +34,7 @@ from .memory import allocating, check_fits
 from .precision import ONE_SHOT_SAMPLE, PrecisionWarning, detail_warning, warn_detail
 from .scene.animation import gather_unchecked
 from .threads import launch_guard
+from .trace.all_hits import AllHits, query_hits
 from .trace.render import Hits, cast_batch
 
 
@@ -230,6 +231,30 @@ class RayCaster:
             snap.users -= 1
             if snap.users == 0 and snap is not self._snap and self._spare is None:
                 self._spare = snap.builder
+
+    def all_hits(self, origins, directions, t_min=0.0, t_max=np.inf, max_hits=None, threads=None) -> AllHits:
+        """Every crossing of every ray with the mesh with t_min < t < t_max, in order of t:
+        :class:`gridrt.trace.all_hits.AllHits` (offsets, t, tri, u, v; ray i's hits are the slice
+        ``offsets[i]:offsets[i + 1]``).  One hit per crossing, also where a ray passes through a
+        shared edge or vertex (gridrt.trace.all_hits: exact edge signs and one tie rule), so
+        crossings through a closed mesh always pair up.  t_min, t_max: numbers or one per ray;
+        ``max_hits``: each ray's nearest ones only."""
+        return self._query(origins, directions, t_min, t_max, max_hits, threads, False)
+
+    def count_hits(self, origins, directions, t_min=0.0, t_max=np.inf, threads=None):
+        """The number of crossings of each ray (:meth:`all_hits`'s, without storing them), (N,) int64."""
+        return self._query(origins, directions, t_min, t_max, None, threads, True)
+
+    def _query(self, origins, directions, t_min, t_max, max_hits, threads, count_only):
+        with self._lock:
+            snap = self._snap
+            snap.users += 1
+        try:
+            with allocating(lambda: f"finding the hits of {_rows(origins):,} rays", "cast fewer rays at a time"):
+                return query_hits(snap.grid, snap.triangles, origins, directions, snap.origin, t_min, t_max,
+                                  max_hits, threads if threads is not None else self.params.threads, count_only)
+        finally:
+            self._release(snap)
 
     def cast(self, origins, directions, tmin=0.0, tmax=np.inf, watertight=True, any_hit=False, threads=None,
              max_bytes=None, packets=True, packet_precision="float64") -> Hits:

@@ -1,0 +1,338 @@
+"""Every crossing along a ray, in order of t: the kernels behind ``RayCaster.all_hits`` and
+``RayCaster.count_hits``.
+
+One crossing, one hit.  The triangle test is Woop et al.'s watertight test (gridrt.trace.intersect)
+with two changes that make it count crossings exactly:
+
+* The three edge functions get their exact sign: each is a 2x2 determinant of the ray-sheared
+  vertex coordinates (float64 values every triangle that shares the vertex computes alike); where
+  its float64 value is too small to trust, the determinant is evaluated exactly (Dekker's
+  two-product and an exact sum), so the signs are those of the real numbers.
+* An edge function that is exactly zero (the ray passes through the edge, or through a vertex)
+  takes the sign it would have for the ray moved by an infinitesimal amount in a fixed direction
+  of the sheared plane (a symbolic perturbation, as rasterisers' fill rules): the two triangles
+  that share an edge see it with opposite signs, so exactly one of them is hit, and around a
+  vertex exactly one triangle of the fan.  The hits are those of a ray in general position
+  infinitesimally close to the ray: through a closed mesh, every ray crosses an even number of
+  times, and a ray that only touches the mesh at an edge or vertex crosses zero or two times.
+
+Triangles whose plane contains the ray (det = 0) are never hit.  A hit needs t_min < t < t_max.
+
+The traversal visits the grid's (top-level) cells along the ray with a 3D DDA from the box entry to
+the exit or t_max, tests every triangle listed in each (a two-level grid's top cell: all its leaf
+cells' triangles) and keeps each triangle's hit once (a triangle listed in several cells gives the
+same hit each time).  The hits of a ray are sorted by t, ties by triangle id.
+"""
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit, prange
+
+from ..arrays import check_ray_values, check_rays
+from ..errors import InputError
+from ..memory import check_fits
+from ..threads import check_threads, launch_guard, use_threads
+from .intersect import permute, shear_setup, woop_edges, woop_shear
+
+
+@njit(cache=True, inline="always")
+def _two_product(a, b):
+    """(p, e) with p + e = a * b exactly (Dekker's split; no FMA needed)."""
+    p = a * b
+    c = 134217729.0 * a   # 2^27 + 1
+    ah = c - (c - a)
+    al = a - ah
+    c = 134217729.0 * b
+    bh = c - (c - b)
+    bl = b - bh
+    e = ((ah * bh - p) + ah * bl + al * bh) + al * bl
+    return p, e
+
+
+@njit(cache=True, inline="always")
+def _two_sum(a, b):
+    s = a + b
+    bb = s - a
+    return s, (a - (s - bb)) + (b - bb)
+
+
+@njit(cache=True)
+def det2_sign(a, b, c, d):
+    """The exact sign (-1, 0, 1) of a * d - b * c for finite float64 a, b, c, d (no overflow)."""
+    x, y = a * d, b * c
+    r = x - y
+    if abs(r) > 1e-14 * (abs(x) + abs(y)):
+        return 1 if r > 0 else -1
+    p1, e1 = _two_product(a, d)
+    p2, e2 = _two_product(-b, c)
+    # the exact sum of p1 + e1 + p2 + e2 as a non-overlapping expansion: its sign is its largest term's
+    s, t1 = _two_sum(p1, p2)
+    u, t2 = _two_sum(e1, e2)
+    v, t3 = _two_sum(s, u)
+    w, t4 = _two_sum(t1, t2)
+    q, t5 = _two_sum(v, w)
+    rest = t3 + t4 + t5   # |rest| is below half an ulp of q whenever q != 0
+    if q != 0.0:
+        return 1 if q > 0 else -1
+    if rest != 0.0:
+        return 1 if rest > 0 else -1
+    return 0
+
+
+@njit(cache=True, inline="always")
+def _edge_sign(px, py, qx, qy):
+    """The sign of the edge function of the sheared edge p -> q at the ray (the origin of the
+    sheared plane), qx * py - qy * px, perturbed where it is exactly zero (see the module doc)."""
+    s = det2_sign(qx, qy, px, py)
+    if s != 0:
+        return s
+    dx, dy = qx - px, qy - py
+    if dx != 0.0:
+        return -1 if dx > 0 else 1
+    if dy != 0.0:
+        return 1 if dy > 0 else -1
+    return 0
+
+
+@njit(cache=True)
+def intersect_once(v0, v1, v2, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz, tmin, tmax):
+    """(hit, t, u, v) of the triangle v0, v1, v2 ((3,) float32 rows, world order) with the sheared
+    ray (shear_setup's kx..Sz, its origin permuted as okx, oky, okz): Woop's test with exact,
+    perturbed edge signs (one hit per crossing, see the module doc)."""
+    p0 = permute(float(v0[0]), float(v0[1]), float(v0[2]), kx, ky, kz)
+    p1 = permute(float(v1[0]), float(v1[1]), float(v1[2]), kx, ky, kz)
+    p2 = permute(float(v2[0]), float(v2[1]), float(v2[2]), kx, ky, kz)
+    Ax, Ay, Bx, By, Cx, Cy, az, bz, cz = woop_shear(p0, p1, p2, (okx, oky, okz), Sx, Sy)
+    su = _edge_sign(Bx, By, Cx, Cy)   # U = Cx By - Cy Bx: the edge B -> C
+    sv = _edge_sign(Cx, Cy, Ax, Ay)   # V: the edge C -> A
+    sw = _edge_sign(Ax, Ay, Bx, By)   # W: the edge A -> B
+    if su == 0 or su != sv or sv != sw:
+        return False, 0.0, 0.0, 0.0
+    U, V, W = woop_edges(Ax, Ay, Bx, By, Cx, Cy)
+    det = U + V + W   # (of the signs su: never 0 where all three agree, unless it underflows)
+    if det == 0.0:
+        return False, 0.0, 0.0, 0.0
+    t = (U * (Sz * az) + V * (Sz * bz) + W * (Sz * cz)) / det
+    if not (tmin < t < tmax):
+        return False, 0.0, 0.0, 0.0
+    return True, t, V / det, W / det
+
+
+@njit(cache=True)
+def _clip(lo, hi, o, d, tmin, tmax):
+    t0, t1 = tmin, tmax
+    for a in range(3):
+        if d[a] != 0.0:
+            inv = 1.0 / d[a]
+            ta, tb = (lo[a] - o[a]) * inv, (hi[a] - o[a]) * inv
+            if ta > tb:
+                ta, tb = tb, ta
+            t0 = max(t0, ta)
+            t1 = min(t1, tb)
+        elif o[a] < lo[a] or o[a] > hi[a]:
+            return 1.0, 0.0
+    return t0, t1
+
+
+@njit(cache=True)
+def ray_hits(tris, lo, hi, cell, dims, cs, tri_ids, o, d, tmin, tmax, bt, bf, bu, bv):
+    """The hits of the ray from o along d ((3,) float64) with tmin < t < tmax, each triangle once,
+    into bt, bf, bu, bv (unsorted); their count, or -1 when they do not fit the buffers."""
+    t0, t1 = _clip(lo, hi, o, d, tmin, tmax)
+    if not (t0 <= t1):
+        return 0
+    kx, ky, kz, Sx, Sy, Sz = shear_setup(d[0], d[1], d[2])
+    okx, oky, okz = permute(o[0], o[1], o[2], kx, ky, kz)
+    nx, ny, nz = dims[0], dims[1], dims[2]
+    idx = np.empty(3, np.int64)
+    step = np.empty(3, np.int64)
+    tnext = np.empty(3)
+    tdelta = np.empty(3)
+    n = np.empty(3, np.int64)
+    n[0], n[1], n[2] = nx, ny, nz
+    for a in range(3):
+        p = o[a] + t0 * d[a]
+        i = int(math.floor((p - lo[a]) / cell[a])) if cell[a] > 0 else 0
+        i = min(max(i, 0), n[a] - 1)
+        idx[a] = i
+        if d[a] > 0.0:
+            step[a] = 1
+            tnext[a] = (lo[a] + (i + 1) * cell[a] - o[a]) / d[a]
+            tdelta[a] = cell[a] / d[a]
+        elif d[a] < 0.0:
+            step[a] = -1
+            tnext[a] = (lo[a] + i * cell[a] - o[a]) / d[a]
+            tdelta[a] = -cell[a] / d[a]
+        else:
+            step[a] = 0
+            tnext[a] = np.inf
+            tdelta[a] = np.inf
+    L = cs.shape[0]
+    nh = 0
+    cap = len(bt)
+    while True:
+        c = idx[0] + nx * (idx[1] + ny * idx[2])
+        for l in range(L):
+            for r in range(cs[l, c], cs[l, c + 1]):
+                f = tri_ids[r]
+                hit, t, u, v = intersect_once(tris[f, 0], tris[f, 1], tris[f, 2], kx, ky, kz, okx, oky, okz,
+                                              Sx, Sy, Sz, tmin, tmax)
+                if hit:
+                    seen = False
+                    for j in range(nh):
+                        if bf[j] == f:
+                            seen = True
+                            break
+                    if not seen:
+                        if nh == cap:
+                            return -1
+                        bt[nh] = t
+                        bf[nh] = f
+                        bu[nh] = u
+                        bv[nh] = v
+                        nh += 1
+        # the next cell: the axis whose boundary comes first
+        a = 0
+        if tnext[1] < tnext[a]:
+            a = 1
+        if tnext[2] < tnext[a]:
+            a = 2
+        te = tnext[a]
+        if te > t1:
+            break
+        idx[a] += step[a]
+        if idx[a] < 0 or idx[a] >= n[a]:
+            break
+        tnext[a] += tdelta[a]
+    return nh
+
+
+@njit(cache=True)
+def sort_hits(bt, bf, bu, bv, n):
+    """Sort the first n hits by t, ties by triangle id (insertion sort: a ray's hits are few)."""
+    for i in range(1, n):
+        t, f, u, v = bt[i], bf[i], bu[i], bv[i]
+        j = i - 1
+        while j >= 0 and (bt[j] > t or (bt[j] == t and bf[j] > f)):
+            bt[j + 1], bf[j + 1], bu[j + 1], bv[j + 1] = bt[j], bf[j], bu[j], bv[j]
+            j -= 1
+        bt[j + 1], bf[j + 1], bu[j + 1], bv[j + 1] = t, f, u, v
+
+
+@njit(cache=True, parallel=True)
+def count_kernel(tris, lo, hi, cell, dims, cs, tri_ids, O, D, tmin, tmax, cap, chunks, counts):
+    """counts[i]: the hits of ray i (O, D: (N, 3) float64 in the grid's frame); -1 for a ray with
+    more than ``cap`` hits.  The rays go in ``chunks`` parallel runs, each with its own scratch."""
+    N = len(O)
+    for k in prange(chunks):
+        bt, bf = np.empty(cap), np.empty(cap, np.int32)
+        bu, bv = np.empty(cap), np.empty(cap)
+        for i in range(k * N // chunks, (k + 1) * N // chunks):
+            counts[i] = ray_hits(tris, lo, hi, cell, dims, cs, tri_ids, O[i], D[i], tmin[i], tmax[i], bt, bf, bu, bv)
+
+
+@njit(cache=True, parallel=True)
+def fill_kernel(tris, lo, hi, cell, dims, cs, tri_ids, O, D, tmin, tmax, cap, chunks, offsets, t, tri, u, v):
+    """The hits of ray i, sorted, into t, tri, u, v[offsets[i]:offsets[i + 1]] (the nearest ones
+    when the slot is shorter than the ray's hits: a max_hits cap)."""
+    N = len(O)
+    for k in prange(chunks):
+        bt, bf = np.empty(cap), np.empty(cap, np.int32)
+        bu, bv = np.empty(cap), np.empty(cap)
+        for i in range(k * N // chunks, (k + 1) * N // chunks):
+            nh = ray_hits(tris, lo, hi, cell, dims, cs, tri_ids, O[i], D[i], tmin[i], tmax[i], bt, bf, bu, bv)
+            sort_hits(bt, bf, bu, bv, nh)
+            s = offsets[i]
+            for j in range(min(nh, offsets[i + 1] - s)):
+                t[s + j] = bt[j]
+                tri[s + j] = bf[j]
+                u[s + j] = bu[j]
+                v[s + j] = bv[j]
+
+
+# ---- the Python boundary: every check before a kernel runs --------------------------------------
+#: hits a ray may have before its count is taken again with room for every triangle
+FIRST_CAP = 1024
+
+
+class AllHits(NamedTuple):
+    """Every hit of every ray: ray i's hits are ``t[offsets[i]:offsets[i + 1]]`` (and the same
+    slice of tri, u, v), sorted by t; offsets (N + 1,) int64, t float64, tri int32 (the mesh's
+    triangle index), u, v float64 barycentrics (p = (1 - u - v) v0 + u v1 + v v2)."""
+
+    offsets: np.ndarray
+    t: np.ndarray
+    tri: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+
+    def counts(self):
+        """Hits per ray, (N,) int64."""
+        return np.diff(self.offsets)
+
+
+def _t_bounds(name, value, n):
+    a = np.asarray(value, dtype=np.float64) if not isinstance(value, np.ndarray) or value.dtype != object else None
+    if a is None or a.ndim > 1 or (a.ndim == 1 and len(a) != n):
+        raise InputError(f"{name} must be a number or an array of one number a ray ({n}), got shape "
+                         f"{getattr(np.asarray(value, dtype=object), 'shape', ())}")
+    return np.ascontiguousarray(np.broadcast_to(a, (n,)), np.float64)
+
+
+def query_hits(grid, tris, origins, dirs, origin, t_min, t_max, max_hits=None, threads=None, count_only=False):
+    """The hits (AllHits) or, with ``count_only``, the hit counts ((N,) int64) of rays ``origins``,
+    ``dirs`` (N, 3) in world coordinates against ``grid`` over its own (F, 3, 3) float32 ``tris``
+    in the frame at ``origin`` ((3,) float64); t_min, t_max: numbers or (N,) arrays;
+    ``max_hits``: keep each ray's nearest ones only (None: all)."""
+    o, d = check_rays(origins, dirs)
+    N = len(o)
+    check_ray_values(o, d, 0, origin)
+    tmin, tmax = _t_bounds("t_min", t_min, N), _t_bounds("t_max", t_max, N)
+    bad = np.isnan(tmin) | np.isnan(tmax) | (tmin < 0) | (tmax < tmin)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(f"need 0 <= t_min <= t_max, got t_min={tmin[i]}, t_max={tmax[i]} for ray {i}")
+    if max_hits is not None and (isinstance(max_hits, bool) or not isinstance(max_hits, (int, np.integer))
+                                 or max_hits < 1):
+        raise InputError(f"max_hits must be a whole number >= 1 or None, got {max_hits!r}")
+    threads = check_threads(threads)
+    check_fits(64 * N, f"finding every hit of {N:,} rays", "rays in float64, t bounds and counts",
+               "cast fewer rays at a time")
+    O = np.ascontiguousarray(o, np.float64) - np.asarray(origin, np.float64)
+    D = np.ascontiguousarray(d, np.float64)
+    s = grid.spec
+    lo, hi = np.ascontiguousarray(s.lo, np.float64), np.ascontiguousarray(s.hi, np.float64)
+    cell, dims = np.ascontiguousarray(s.cell, np.float64), np.ascontiguousarray(s.dims, np.int64)
+    if grid.kind == "two_level":   # a top cell's triangles: those of its leaf cells, one run of tri_ids
+        cs = np.ascontiguousarray(grid.cell_start[0][grid.leaf_first][None, :], np.int32)
+    else:
+        cs = np.ascontiguousarray(grid.cell_start, np.int32)
+    ids = np.ascontiguousarray(grid.tri_ids, np.int32)
+    F = len(tris)
+    use_threads(threads)
+    chunks = max(1, min(N, 4 * threads))
+    counts = np.zeros(N, np.int64)
+    args = (tris, lo, hi, cell, dims, cs, ids)
+    with launch_guard():
+        if N:
+            count_kernel(*args, O, D, tmin, tmax, min(F, FIRST_CAP), chunks, counts)
+            many = np.flatnonzero(counts < 0)
+            if len(many):   # rays with more hits than the first scratch holds: room for every triangle
+                sub = np.zeros(len(many), np.int64)
+                count_kernel(*args, O[many], D[many], tmin[many], tmax[many], F, max(1, min(len(many), threads)), sub)
+                counts[many] = sub
+        if count_only:
+            return counts
+        kept = counts if max_hits is None else np.minimum(counts, max_hits)
+        offsets = np.zeros(N + 1, np.int64)
+        np.cumsum(kept, out=offsets[1:])
+        total = int(offsets[-1])
+        check_fits(28 * total, f"keeping {total:,} hits of {N:,} rays", "t, triangle ids and barycentrics",
+                   "cast fewer rays at a time, or give max_hits")
+        out = AllHits(offsets, np.empty(total), np.empty(total, np.int32), np.empty(total), np.empty(total))
+        if total:
+            cap = max(1, int(counts.max()))
+            fill_kernel(*args, O, D, tmin, tmax, cap, chunks, offsets, out.t, out.tri, out.u, out.v)
+    return out

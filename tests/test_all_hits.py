@@ -1,0 +1,231 @@
+"""RayCaster.all_hits and count_hits against references of their own: a float64 brute force over
+every triangle (random rays on real meshes), crossings that must pair up on closed meshes (rays
+through the shared edges and vertices of the icosphere and of the shipped armadillo, from outside
+and from inside), the exact sign of a 2x2 determinant (fractions), and the same hits for every
+thread count, ray order, grid kind, t range and cap."""
+
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import gridrt
+from gridrt.config import GridParams
+from gridrt.errors import InputError
+from gridrt.scene import icosphere_mesh
+from gridrt.trace.all_hits import det2_sign
+
+ASSETS = Path(__file__).resolve().parents[1] / "assets"
+
+
+def _armadillo():
+    import trimesh
+
+    m = trimesh.load(ASSETS / "armadillo.ply", process=False)
+    return np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int64)
+
+
+def _brute_all(tris, O, D, tmin=0.0, tmax=np.inf):
+    """Every (t, tri, u, v, edge distance) of each ray over every triangle: double-sided
+    Moller-Trumbore in float64 (a triangle is hit iff u, v >= 0, u + v <= 1, tmin < t < tmax)."""
+    T = np.asarray(tris, np.float64)
+    v0, e1, e2 = T[:, 0], T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]
+    out = []
+    for o, d in zip(O, D):
+        p = np.cross(d, e2)
+        det = np.einsum("ij,ij->i", e1, p)
+        ok = det != 0
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        s = o - v0
+        u = np.einsum("ij,ij->i", s, p) * inv
+        q = np.cross(s, e1)
+        v = (q @ d) * inv
+        t = np.einsum("ij,ij->i", e2, q) * inv
+        hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > tmin) & (t < tmax)
+        i = np.flatnonzero(hit)
+        i = i[np.lexsort((i, t[i]))]
+        out.append((t[i], i, u[i], v[i], np.minimum(np.minimum(u[i], v[i]), 1 - u[i] - v[i])))
+    return out
+
+
+def test_det2_sign_exact():
+    """The sign of a d - b c, also where float64 rounding of the products would decide it."""
+    rng = np.random.default_rng(5)
+    cases = [(1.0, 1.0, 1.0, 1.0), (0.0, 3.0, 0.0, 7.0), (1e-300, 1e300, 1e-300, 1e300)]
+    for _ in range(3000):
+        a, b = rng.normal(size=2) * 10.0 ** rng.integers(-8, 8, 2)
+        k = rng.normal()
+        c, d = a * k, b * k   # nearly dependent rows: a d - b c is tiny against its terms
+        c = np.nextafter(c, c + rng.choice([-1, 1])) if rng.random() < 0.5 else c
+        cases.append((a, b, c, d))
+    for a, b, c, d in cases:
+        exact = Fraction(a) * Fraction(d) - Fraction(b) * Fraction(c)
+        assert det2_sign(a, b, c, d) == (exact > 0) - (exact < 0), (a, b, c, d)
+
+
+@pytest.mark.parametrize("mesh", ["icosphere", "armadillo"])
+def test_all_hits_against_brute_force(mesh):
+    """Random rays (origins inside and around the mesh): the hits, in order, are the float64 brute
+    force's, triangle for triangle, wherever no brute-force hit lies within 1e-6 (barycentric) of
+    an edge; count_hits agrees with all_hits; every ray's crossings of the closed mesh pair up
+    (even counts from outside the bounds)."""
+    if mesh == "icosphere":
+        m = icosphere_mesh(5120)
+        V, Fc = m.vertices, m.faces
+    else:
+        V, Fc = _armadillo()
+    caster = gridrt.RayCaster(V, Fc)
+    tris = caster.triangles   # the mesh as the caster keeps it: float32, in its frame at caster.origin
+    lo, hi = V.min(0), V.max(0)
+    rng = np.random.default_rng(11)
+    N = 400
+    O = rng.uniform(lo - 0.3 * (hi - lo), hi + 0.3 * (hi - lo), (N, 3))
+    D = rng.uniform(lo + 0.2 * (hi - lo), hi - 0.2 * (hi - lo), (N, 3)) - O   # towards the mesh's middle
+    got = caster.all_hits(O, D)
+    assert np.array_equal(caster.count_hits(O, D), got.counts())
+    ref = _brute_all(tris, O - caster.origin, D)
+    compared = 0
+    for i, (t, f, u, v, edge) in enumerate(ref):
+        s = slice(got.offsets[i], got.offsets[i + 1])
+        assert np.all(np.diff(got.t[s]) >= 0)
+        if len(edge) and edge.min() < 1e-6:
+            continue
+        compared += 1
+        assert np.array_equal(got.tri[s], f), i
+        assert np.allclose(got.t[s], t, rtol=1e-9, atol=0) and np.allclose(got.u[s], u, atol=1e-9) \
+            and np.allclose(got.v[s], v, atol=1e-9)
+    assert compared > 0.95 * N and got.counts().sum() > N, (compared, got.counts().sum())
+    outside = np.any((O < lo) | (O > hi), axis=1)
+    assert np.all(got.counts()[outside] % 2 == 0)
+
+
+def _edges_and_vertices(faces):
+    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    return np.unique(e, axis=0)
+
+
+def test_one_crossing_at_shared_edges_and_vertices():
+    """Rays aimed exactly at the icosphere's vertices and edge midpoints (and at points along its
+    edges): from outside, through the sphere, exactly 2 crossings each; from inside, exactly 1 (no
+    hole, no double count where two or six triangles meet); the armadillo (closed, not convex):
+    an even count for every ray from outside its bounds through its vertices and edges."""
+    m = icosphere_mesh(20480)
+    V, Fc = m.vertices, m.faces
+    caster = gridrt.RayCaster(V, Fc)
+    E = _edges_and_vertices(Fc)
+    rng = np.random.default_rng(2)
+    w = rng.random((len(E), 1))
+    targets = np.concatenate([V, 0.5 * (V[E[:, 0]] + V[E[:, 1]]), (1 - w) * V[E[:, 0]] + w * V[E[:, 1]]])
+    inner = rng.normal(size=(len(targets), 3)) * 0.2
+    inner /= np.maximum(1.0, np.linalg.norm(inner, axis=1) / 0.8)[:, None]   # origins inside (|o| <= 0.8)
+    outer = targets * 3.0 + rng.normal(size=(len(targets), 3)) * 0.2   # outside (10 sigma), aimed through the target
+    for O, want in ((inner, 1), (outer, 2), (np.zeros((len(targets), 3)), 1)):
+        D = targets - O
+        n = caster.count_hits(O, D)
+        assert np.all(n == want), (want, np.bincount(n))
+    assert len(targets) > 60000
+
+    V, Fc = _armadillo()
+    caster = gridrt.RayCaster(V, Fc)
+    E = _edges_and_vertices(Fc)
+    targets = np.concatenate([V, 0.5 * (V[E[:, 0]] + V[E[:, 1]])]).astype(np.float64)
+    lo, hi = V.min(0), V.max(0)
+    O = rng.uniform(lo, hi, (len(targets), 3))
+    O[:, rng.integers(0, 3, len(O))[0]] = hi.max() + 2 * (hi - lo).max()   # beyond the bounds
+    n = caster.count_hits(O, targets - O)
+    assert np.all(n % 2 == 0) and np.mean(n >= 2) > 0.99, np.bincount(n)
+
+
+def test_rays_from_the_surface_and_grazing():
+    """A ray starting on the sphere's surface (t_min 0: the open interval leaves its own point out
+    when the ray leaves the surface along the normal): inward, one crossing, outward none; a ray in
+    a triangle's plane (det 0) never hits it."""
+    m = icosphere_mesh(1280)
+    caster = gridrt.RayCaster(m.vertices, m.faces)
+    tris = m.vertices[m.faces]
+    rng = np.random.default_rng(4)
+    b = rng.dirichlet([2, 2, 2], len(tris))
+    P = np.einsum("ij,ijk->ik", b, tris)
+    normal = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    normal *= np.sign(np.einsum("ij,ij->i", normal, P))[:, None]
+    eps = np.full(len(P), 1e-9)
+    assert np.all(caster.count_hits(P, -normal, t_min=eps) == 1)
+    assert np.all(caster.count_hits(P, normal, t_min=eps) == 0)
+    flat = gridrt.RayCaster(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]]))
+    assert flat.count_hits(np.array([[-1.0, 0.25, 0.0]]), np.array([[1.0, 0.0, 0.0]]))[0] == 0
+
+
+@pytest.mark.parametrize("grid", ["uniform", "two_level"])
+def test_all_hits_ranges_cap_threads_order(grid):
+    """t_min / t_max (numbers or one per ray) keep the hits inside them; max_hits keeps each ray's
+    nearest ones; the hits are the same for 1, 2 and 3 threads, for the rays in any order, and for
+    a uniform or two-level grid."""
+    m = icosphere_mesh(5120)
+    V = np.concatenate([m.vertices, m.vertices * 0.5 + 0.1])   # two nested spheres: up to 4 crossings
+    Fc = np.concatenate([m.faces, m.faces + len(m.vertices)])
+    caster = gridrt.RayCaster(V, Fc, GridParams(grid=grid))
+    base = gridrt.RayCaster(V, Fc, GridParams(grid="uniform", threads=1))
+    rng = np.random.default_rng(8)
+    N = 3000
+    O = rng.uniform(-3, 3, (N, 3))
+    D = (rng.normal(scale=0.2, size=(N, 3)) - O)
+    ref = base.all_hits(O, D, threads=1)
+    assert np.bincount(ref.counts()).shape[0] == 5   # rays with 0 .. 4 crossings
+    for threads in (1, 2, 3):
+        h = caster.all_hits(O, D, threads=threads)
+        for a, b in zip(h, ref):
+            assert np.array_equal(a, b)
+    perm = rng.permutation(N)
+    h = caster.all_hits(O[perm], D[perm])
+    for i in range(0, N, 97):
+        j = perm[i]
+        assert np.array_equal(h.t[h.offsets[i]:h.offsets[i + 1]], ref.t[ref.offsets[j]:ref.offsets[j + 1]])
+    tmin = rng.uniform(0, 0.5, N)
+    tmax = tmin + rng.uniform(0, 1.0, N)
+    r = caster.all_hits(O, D, t_min=tmin, t_max=tmax)
+    for i in range(N):
+        t = ref.t[ref.offsets[i]:ref.offsets[i + 1]]
+        assert np.array_equal(r.t[r.offsets[i]:r.offsets[i + 1]], t[(t > tmin[i]) & (t < tmax[i])])
+    assert np.array_equal(caster.count_hits(O, D, 0.2, 0.9), np.diff(caster.all_hits(O, D, 0.2, 0.9).offsets))
+    c = caster.all_hits(O, D, max_hits=2)
+    assert np.array_equal(c.counts(), np.minimum(ref.counts(), 2))
+    for i in range(N):
+        assert np.array_equal(c.tri[c.offsets[i]:c.offsets[i + 1]], ref.tri[ref.offsets[i]:ref.offsets[i + 1]][:2])
+
+
+def test_all_hits_after_update_and_far_from_the_origin():
+    """update() moves the hits with the mesh; a mesh far from the world origin gives the same hits
+    (the caster's frame)."""
+    m = icosphere_mesh(1280)
+    caster = gridrt.RayCaster(m.vertices, m.faces)
+    O = np.array([[0.0, 0.0, 5.0], [0.3, 0.1, -5.0]])
+    D = -O
+    h0 = caster.all_hits(O, D)
+    caster.update(m.vertices * 2.0)
+    h1 = caster.all_hits(O, D)
+    z0, z1 = 5.0 - 5.0 * h0.t[:2], 5.0 - 5.0 * h1.t[:2]   # ray 0, along the z axis through the centre
+    assert h0.counts()[0] == h1.counts()[0] == 2 and np.allclose(z1, 2 * z0, rtol=1e-6)
+    shift = np.array([1e6, -2e6, 3e5])
+    far = gridrt.RayCaster(m.vertices + shift, m.faces).all_hits(O + shift, D)
+    assert np.array_equal(far.tri, h0.tri) and np.allclose(far.t, h0.t, rtol=1e-6)
+
+
+@pytest.mark.parametrize("kw, message", [
+    ({"t_min": 2.0, "t_max": 1.0}, "need 0 <= t_min <= t_max"),
+    ({"t_min": np.nan}, "need 0 <= t_min <= t_max"),
+    ({"t_min": -1.0}, "need 0 <= t_min <= t_max"),
+    ({"t_max": np.ones(5)}, "t_max must be a number or an array of one number a ray"),
+    ({"max_hits": 0}, "max_hits must be a whole number >= 1"),
+    ({"max_hits": True}, "max_hits must be a whole number >= 1"),
+    ({"max_hits": 2.5}, "max_hits must be a whole number >= 1"),
+])
+def test_all_hits_bad_arguments(kw, message):
+    m = icosphere_mesh(80)
+    caster = gridrt.RayCaster(m.vertices, m.faces)
+    with pytest.raises(InputError, match=message):
+        caster.all_hits(np.zeros((3, 3)), np.ones((3, 3)), **kw)
+    with pytest.raises(InputError, match="NaN"):
+        caster.count_hits(np.array([[0.0, np.nan, 0]]), np.ones((1, 3)))
+    empty = caster.all_hits(np.zeros((0, 3)), np.zeros((0, 3)))
+    assert empty.offsets.tolist() == [0] and len(empty.t) == 0
