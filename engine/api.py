@@ -115,6 +115,12 @@ def _centred_vertices(vertices, faces, shape):
     return _in_centred_frame(v, lo, hi, faces, "update")
 
 
+#: contains' ray directions: the first alone for a closed mesh, all three for a best-effort vote
+#: (directions that no axis-aligned or simply placed mesh holds: fewer grazing rays)
+CONTAINS_DIRECTIONS = ((0.5772854991, 0.3316624790, 0.7461309638), (-0.2673, 0.8018, -0.5345),
+                       (0.8944, -0.4472, 0.0313))
+CONTAINS_DIRECTION = CONTAINS_DIRECTIONS[0]
+
 #: bytes a RayCaster's mesh takes beyond its grid (which GridBuilder checks itself): per vertex its
 #: float32 copy in the caster's frame, per face the int32 indices and the float32 triangles
 MESH_VERTEX_BYTES, MESH_FACE_BYTES, TRIANGLE_BYTES = 12, 48, 36
@@ -170,6 +176,7 @@ class RayCaster:
         self._lock = threading.Lock()  # guards _snap, its users counts and _spare
         self._update_lock = threading.Lock()  # one update at a time
         self._spare = None  # a builder no snapshot holds, for the next update
+        self._open = None  # how many edges do not have two triangles (contains), once asked
 
     # the current mesh (read together, under updates from other threads, through one snapshot:
     # a cast does that itself)
@@ -244,6 +251,105 @@ class RayCaster:
     def count_hits(self, origins, directions, t_min=0.0, t_max=np.inf, threads=None):
         """The number of crossings of each ray (:meth:`all_hits`'s, without storing them), (N,) int64."""
         return self._query(origins, directions, t_min, t_max, None, threads, True)
+
+    def contains(self, points, best_effort=False, threads=None):
+        """Whether each point ((N, 3), world coordinates) lies inside the closed mesh, (N,) bool:
+        the parity of the crossings (:meth:`count_hits`) of a ray from the point in the fixed
+        direction :data:`CONTAINS_DIRECTION`.  Deterministic, and exact where that ray passes
+        through edges and vertices (one crossing each); a point on the surface itself may go
+        either way.  A mesh that is not closed (an edge with other than two triangles) is refused
+        with InputError, unless ``best_effort``: then a point is inside when most of three rays
+        (the direction and two others) cross an odd number of times."""
+        open_edges = self._open_edges()
+        if open_edges and not best_effort:
+            raise InputError(f"contains needs a closed mesh: {open_edges:,} of its edges do not have exactly two "
+                             f"triangles (holes, borders or non-manifold edges); pass best_effort=True for a vote "
+                             f"of three rays")
+        p = np.asarray(points)
+        dirs = CONTAINS_DIRECTIONS[:1] if not open_edges else CONTAINS_DIRECTIONS
+        votes = None
+        for d in dirs:
+            D = np.broadcast_to(np.asarray(d, np.float64), p.shape) if p.ndim == 2 and p.shape[1:] == (3,) else d
+            odd = self._query(p, D, 0.0, np.inf, None, threads, True) % 2 == 1
+            votes = odd.astype(np.int64) if votes is None else votes + odd
+        return votes * 2 > len(dirs)
+
+    # ---- surface attributes at hits (cast's Hits, all_hits' AllHits: anything with tri, u, v) ----
+    def interpolate(self, hits, values):
+        """A per-vertex array ``values`` ((V,) or (V, k): texture coordinates, colours, normals,
+        anything) at each hit: ``(1 - u - v) values[i0] + u values[i1] + v values[i2]`` over the hit
+        triangle's vertices, float64; NaN for a miss (tri -1)."""
+        tri, u, v = self._hit_parts(hits)
+        a = np.asarray(values)
+        if a.ndim not in (1, 2) or len(a) != len(self._snap.vertices):
+            raise InputError(f"values must have one row a vertex ({len(self._snap.vertices)}), got shape {a.shape}")
+        if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
+            raise InputError(f"values must be real numbers, got dtype {a.dtype}")
+        a = a.astype(np.float64, copy=False)
+        hit = tri >= 0
+        f = self.faces[np.where(hit, tri, 0)]
+        w0, w1, w2 = 1.0 - u - v, u, v
+        shape = (len(tri),) + a.shape[1:]
+        ex = (slice(None),) + (None,) * (a.ndim - 1)
+        out = w0[ex] * a[f[:, 0]] + w1[ex] * a[f[:, 1]] + w2[ex] * a[f[:, 2]]
+        out = out.reshape(shape)
+        out[~hit] = np.nan
+        return out
+
+    def geometric_normals(self, hits):
+        """The unit normal of each hit triangle ((N, 3), float64, NaN for a miss), on the side its
+        winding makes front: ``normalize((p1 - p0) x (p2 - p0))``."""
+        tri, _, _ = self._hit_parts(hits)
+        hit = tri >= 0
+        t = self._snap.triangles[np.where(hit, tri, 0)].astype(np.float64)
+        n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            n /= np.linalg.norm(n, axis=1, keepdims=True)
+        n[~hit] = np.nan
+        return n
+
+    def vertex_normals(self):
+        """Area-weighted unit normals of the current mesh's vertices, (V, 3) float64 (the sum of
+        the adjacent triangles' cross products, normalised; 0 for a vertex of no triangle)."""
+        v = self._snap.vertices.astype(np.float64)
+        f = self.faces
+        c = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        n = np.zeros_like(v)
+        for k in range(3):
+            np.add.at(n, f[:, k], c)
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+    def shading_normals(self, hits):
+        """The interpolated vertex normals at each hit, normalised ((N, 3), NaN for a miss)."""
+        n = self.interpolate(hits, self.vertex_normals())
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+    def _hit_parts(self, hits):
+        try:
+            tri, u, v = (np.asarray(getattr(hits, k)) for k in ("tri", "u", "v"))
+        except AttributeError:
+            raise InputError(f"hits must be what cast or all_hits returns (with tri, u, v), got "
+                             f"{type(hits).__name__}") from None
+        if not (tri.ndim == u.ndim == v.ndim == 1 and len(tri) == len(u) == len(v)) \
+                or not np.issubdtype(tri.dtype, np.integer):
+            raise InputError("hits need tri, u, v of one length each, tri integers")
+        if len(tri) and (tri.min() < -1 or tri.max() >= len(self.faces)):
+            raise InputError(f"hits name triangles outside this mesh's {len(self.faces)}")
+        return tri.astype(np.int64), u.astype(np.float64), v.astype(np.float64)
+
+    def _open_edges(self):
+        """How many of the mesh's edges do not have exactly two triangles, its corners welded by
+        position (counted once: faces never change)."""
+        if self._open is None:
+            # corners at the same position are one vertex (a triangle soup, or a mesh split at seams)
+            _, weld = np.unique(self._snap.vertices, axis=0, return_inverse=True)
+            f = weld.reshape(-1)[np.asarray(self.faces, np.int64)]
+            e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+            _, n = np.unique(e[:, 0] * (int(f.max(initial=0)) + 1) + e[:, 1], return_counts=True)
+            self._open = int(np.count_nonzero(n != 2))
+        return self._open
 
     def _query(self, origins, directions, t_min, t_max, max_hits, threads, count_only):
         with self._lock:

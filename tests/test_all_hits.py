@@ -229,3 +229,109 @@ def test_all_hits_bad_arguments(kw, message):
         caster.count_hits(np.array([[0.0, np.nan, 0]]), np.ones((1, 3)))
     empty = caster.all_hits(np.zeros((0, 3)), np.zeros((0, 3)))
     assert empty.offsets.tolist() == [0] and len(empty.t) == 0
+
+
+# ---- contains ---------------------------------------------------------------------------------
+def test_contains_sphere_through_vertices_and_edges():
+    """Inside the icosphere: every point well inside, none outside; points whose ray (the fixed
+    direction) passes exactly through a vertex or an edge midpoint on its way in or out are decided
+    by the parity of real crossings; a triangle soup of the same sphere (corners welded by
+    position) gives the same answers; the answers do not depend on the thread count."""
+    from gridrt.api import CONTAINS_DIRECTION
+
+    m = icosphere_mesh(5120)
+    V, Fc = m.vertices, m.faces
+    caster = gridrt.RayCaster(V, Fc)
+    rng = np.random.default_rng(6)
+    P = rng.uniform(-1.3, 1.3, (20000, 3))
+    r = np.linalg.norm(P, axis=1)
+    got = caster.contains(P)
+    assert got[r < 0.99].all() and not got[r > 1.0].any()
+    d = np.asarray(CONTAINS_DIRECTION) / np.linalg.norm(CONTAINS_DIRECTION)
+    E = _edges_and_vertices(Fc)
+    targets = np.concatenate([V, 0.5 * (V[E[:, 0]] + V[E[:, 1]])])
+    cos = targets @ d
+    leave = targets[cos > 0.3] - 0.4 * d    # inside; the ray leaves through the target
+    enter = targets[cos < -0.3] - 0.4 * d   # outside; the ray enters through the target and leaves
+    assert len(leave) > 2000 and len(enter) > 2000
+    assert caster.contains(leave).all() and not caster.contains(enter).any()
+    soup = gridrt.RayCaster.from_triangles(V[Fc])
+    for threads in (1, 3):
+        assert np.array_equal(soup.contains(P, threads=threads), got)
+
+
+def test_contains_armadillo_against_parity():
+    """The armadillo (closed, not convex): contains equals the parity of a float64 brute-force
+    count of crossings along three directions, at points where the three agree."""
+    V, Fc = _armadillo()
+    caster = gridrt.RayCaster(V, Fc)
+    lo, hi = V.min(0), V.max(0)
+    rng = np.random.default_rng(9)
+    P = rng.uniform(lo, hi, (150, 3))
+    tris = caster.triangles
+    parity = []
+    for d in ((0.3, 0.5, 0.81), (-0.7, 0.2, 0.3), (0.1, -0.9, -0.2)):
+        hits = _brute_all(tris, P - caster.origin, np.broadcast_to(np.asarray(d, float), P.shape))
+        parity.append([len(h[0]) % 2 for h in hits])
+    parity = np.asarray(parity)
+    agree = (parity == parity[0]).all(axis=0)
+    assert agree.mean() > 0.95 and 10 < parity[0][agree].sum() < agree.sum() - 10
+    assert np.array_equal(caster.contains(P)[agree], parity[0][agree] == 1)
+
+
+def test_contains_open_mesh():
+    """A mesh with borders (the teapot) is refused, naming how many edges are open, unless
+    best_effort: then the vote of three rays, the same on every call."""
+    import trimesh
+
+    t = trimesh.load(ASSETS / "teapot.obj", process=False)
+    caster = gridrt.RayCaster(np.asarray(t.vertices), np.asarray(t.faces))
+    P = np.random.default_rng(1).uniform(t.bounds[0], t.bounds[1], (500, 3))
+    with pytest.raises(InputError, match=r"contains needs a closed mesh: [\d,]+ of its edges .* best_effort=True"):
+        caster.contains(P)
+    a = caster.contains(P, best_effort=True)
+    assert a.dtype == bool and 0 < a.sum() < len(a) and np.array_equal(a, caster.contains(P, best_effort=True))
+
+
+# ---- attributes at hits -----------------------------------------------------------------------
+def test_attributes_at_hits():
+    """Interpolated per-vertex arrays at the hits of cast and of all_hits: the vertices themselves
+    give the hit points o + t d, a linear function of position gives its value there (texture
+    coordinates of a planar projection); geometric normals are the triangles' own, unit, facing
+    out of the sphere; vertex normals of the sphere point along the vertices, and the shading
+    normals at a hit along the hit point; misses give NaN."""
+    m = icosphere_mesh(5120)
+    V, Fc = m.vertices, m.faces
+    caster = gridrt.RayCaster(V, Fc)
+    rng = np.random.default_rng(12)
+    N = 2000
+    O = rng.normal(size=(N, 3)) * 3
+    D = rng.uniform(-0.7, 0.7, (N, 3)) - O
+    for hits, idx in ((caster.cast(O, D), np.arange(N)),
+                      (caster.all_hits(O, D), np.repeat(np.arange(N), caster.count_hits(O, D)))):
+        hit = hits.tri >= 0
+        assert 0.3 < hit.mean() <= 1
+        P = O[idx] + hits.t[:, None] * D[idx]
+        got = caster.interpolate(hits, V)
+        assert np.allclose(got[hit], P[hit], atol=1e-6) and np.isnan(got[~hit]).all()
+        A = np.array([[0.3, -1.2], [0.7, 0.1], [-0.4, 2.0]])
+        uv = caster.interpolate(hits, V @ A + [0.5, -0.25])
+        assert uv.shape == (len(hits.tri), 2) and np.allclose(uv[hit], P[hit] @ A + [0.5, -0.25], atol=1e-6)
+        n = caster.geometric_normals(hits)
+        T = V[Fc[hits.tri[hit]]]
+        want = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
+        want /= np.linalg.norm(want, axis=1, keepdims=True)
+        assert np.allclose(n[hit], want, atol=1e-6) and np.isnan(n[~hit]).all()
+        assert (np.einsum("ij,ij->i", n[hit], P[hit]) > 0).all()   # the icosphere's winding faces out
+        s = caster.shading_normals(hits)
+        assert np.allclose(np.linalg.norm(s[hit], axis=1), 1) and \
+            (np.einsum("ij,ij->i", s[hit], P[hit] / np.linalg.norm(P[hit], axis=1, keepdims=True)) > 0.999).all()
+    vn = caster.vertex_normals()
+    assert (np.einsum("ij,ij->i", vn, V / np.linalg.norm(V, axis=1, keepdims=True)) > 0.9999).all()
+    h = caster.cast(O[:3], D[:3])
+    with pytest.raises(InputError, match="one row a vertex"):
+        caster.interpolate(h, V[:-1])
+    with pytest.raises(InputError, match="hits must be what cast or all_hits returns"):
+        caster.interpolate((1, 2, 3), V)
+    with pytest.raises(InputError, match="outside this mesh"):
+        caster.geometric_normals(type(h)(h.t, np.array([0, 5120, 1], np.int32), h.u, h.v))
