@@ -34,7 +34,7 @@ from ..arrays import check_ray_values, check_rays
 from ..errors import InputError
 from ..memory import check_fits
 from ..threads import check_threads, launch_guard, use_threads
-from .intersect import permute, shear_setup, woop_edges, woop_shear
+from .intersect import permute, shear_setup, woop_shear
 
 
 @njit(cache=True, inline="always")
@@ -58,13 +58,25 @@ def _two_sum(a, b):
     return s, (a - (s - bb)) + (b - bb)
 
 
+#: a 2x2 determinant a d - b c whose float64 value exceeds this fraction of |a d| + |b c| has that
+#: value's sign (the rounding of two products and a difference stays below 3 units of 2^-53 of it)
+TRUST = 1e-14
+
+
 @njit(cache=True)
 def det2_sign(a, b, c, d):
     """The exact sign (-1, 0, 1) of a * d - b * c for finite float64 a, b, c, d (no overflow)."""
     x, y = a * d, b * c
     r = x - y
-    if abs(r) > 1e-14 * (abs(x) + abs(y)):
+    if abs(r) > TRUST * (abs(x) + abs(y)):
         return 1 if r > 0 else -1
+    return _det2_sign_exact(a, b, c, d)
+
+
+@njit(cache=True)
+def _det2_sign_exact(a, b, c, d):
+    """det2_sign where rounding could decide it: the products split exactly (two-product) and
+    summed exactly."""
     p1, e1 = _two_product(a, d)
     p2, e2 = _two_product(-b, c)
     # the exact sum of p1 + e1 + p2 + e2 as a non-overlapping expansion: its sign is its largest term's
@@ -82,10 +94,22 @@ def det2_sign(a, b, c, d):
 
 
 @njit(cache=True, inline="always")
+def _edge(px, py, qx, qy):
+    """(value, sign) of the edge function of the sheared edge p -> q at the ray (the origin of the
+    sheared plane), qx * py - qy * px: its float64 value, and its sign when that value decides it
+    (0 when it does not: :func:`_edge_sign` then)."""
+    x, y = qx * py, qy * px
+    r = x - y
+    if abs(r) > TRUST * (abs(x) + abs(y)):
+        return r, (1 if r > 0 else -1)
+    return r, 0
+
+
+@njit(cache=True)
 def _edge_sign(px, py, qx, qy):
-    """The sign of the edge function of the sheared edge p -> q at the ray (the origin of the
-    sheared plane), qx * py - qy * px, perturbed where it is exactly zero (see the module doc)."""
-    s = det2_sign(qx, qy, px, py)
+    """The exact sign of the edge function of p -> q, perturbed where it is exactly zero (see
+    the module doc)."""
+    s = _det2_sign_exact(qx, qy, px, py)
     if s != 0:
         return s
     dx, dy = qx - px, qy - py
@@ -105,12 +129,19 @@ def intersect_once(v0, v1, v2, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz, tmin, tmax
     p1 = permute(float(v1[0]), float(v1[1]), float(v1[2]), kx, ky, kz)
     p2 = permute(float(v2[0]), float(v2[1]), float(v2[2]), kx, ky, kz)
     Ax, Ay, Bx, By, Cx, Cy, az, bz, cz = woop_shear(p0, p1, p2, (okx, oky, okz), Sx, Sy)
-    su = _edge_sign(Bx, By, Cx, Cy)   # U = Cx By - Cy Bx: the edge B -> C
-    sv = _edge_sign(Cx, Cy, Ax, Ay)   # V: the edge C -> A
-    sw = _edge_sign(Ax, Ay, Bx, By)   # W: the edge A -> B
+    U, su = _edge(Bx, By, Cx, Cy)   # U = Cx By - Cy Bx: the edge B -> C
+    V, sv = _edge(Cx, Cy, Ax, Ay)   # V: the edge C -> A
+    W, sw = _edge(Ax, Ay, Bx, By)   # W: the edge A -> B
+    if su * sv < 0 or sv * sw < 0 or su * sw < 0:   # two signs the values decide disagree: a miss
+        return False, 0.0, 0.0, 0.0
+    if su == 0:
+        su = _edge_sign(Bx, By, Cx, Cy)
+    if sv == 0:
+        sv = _edge_sign(Cx, Cy, Ax, Ay)
+    if sw == 0:
+        sw = _edge_sign(Ax, Ay, Bx, By)
     if su == 0 or su != sv or sv != sw:
         return False, 0.0, 0.0, 0.0
-    U, V, W = woop_edges(Ax, Ay, Bx, By, Cx, Cy)
     det = U + V + W   # (of the signs su: never 0 where all three agree, unless it underflows)
     if det == 0.0:
         return False, 0.0, 0.0, 0.0
@@ -136,76 +167,131 @@ def _clip(lo, hi, o, d, tmin, tmax):
     return t0, t1
 
 
+@njit(cache=True, inline="always")
+def _index(p, lo, size, n):
+    """The index of the slab of ``size`` from ``lo`` holding ``p``, clamped to [0, n - 1]."""
+    x = (p - lo) / size
+    i = int(math.floor(x)) if x > -1.0 else -1
+    return min(max(i, 0), n - 1)
+
+
+@njit(cache=True, inline="always")
+def _axis(o, d, lo, size, i):
+    """(step, t of the next slab boundary, t across a slab) along one axis from slab i."""
+    if d > 0.0:
+        return 1, (lo + (i + 1) * size - o) / d, size / d
+    if d < 0.0:
+        return -1, (lo + i * size - o) / d, -size / d
+    return 0, np.inf, np.inf
+
+
+@njit(cache=True, inline="always")
+def _add_hit(f, t, u, v, nh, bt, bf, bu, bv):
+    """Keep the hit of triangle f unless it is kept already (a triangle listed in several cells);
+    the new count, or -1 when the buffers are full."""
+    for j in range(nh):
+        if bf[j] == f:
+            return nh
+    if nh == len(bt):
+        return -1
+    bt[nh] = t
+    bf[nh] = f
+    bu[nh] = u
+    bv[nh] = v
+    return nh + 1
+
+
 @njit(cache=True)
-def ray_hits(tris, lo, hi, cell, dims, cs, tri_ids, o, d, tmin, tmax, bt, bf, bu, bv):
+def ray_hits(tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids, o, d, tmin, tmax, bt, bf, bu, bv):
     """The hits of the ray from o along d ((3,) float64) with tmin < t < tmax, each triangle once,
-    into bt, bf, bu, bv (unsorted); their count, or -1 when they do not fit the buffers."""
+    into bt, bf, bu, bv (unsorted); their count, or -1 when they do not fit the buffers.  Two
+    nested DDAs: over the macro cells (k^3 cells; an empty one is crossed in one step) and over the
+    cells of each macro cell that holds triangles."""
     t0, t1 = _clip(lo, hi, o, d, tmin, tmax)
     if not (t0 <= t1):
         return 0
     kx, ky, kz, Sx, Sy, Sz = shear_setup(d[0], d[1], d[2])
     okx, oky, okz = permute(o[0], o[1], o[2], kx, ky, kz)
+    ox, oy, oz = o[0], o[1], o[2]
+    dx, dy, dz = d[0], d[1], d[2]
     nx, ny, nz = dims[0], dims[1], dims[2]
-    idx = np.empty(3, np.int64)
-    step = np.empty(3, np.int64)
-    tnext = np.empty(3)
-    tdelta = np.empty(3)
-    n = np.empty(3, np.int64)
-    n[0], n[1], n[2] = nx, ny, nz
-    for a in range(3):
-        p = o[a] + t0 * d[a]
-        i = int(math.floor((p - lo[a]) / cell[a])) if cell[a] > 0 else 0
-        i = min(max(i, 0), n[a] - 1)
-        idx[a] = i
-        if d[a] > 0.0:
-            step[a] = 1
-            tnext[a] = (lo[a] + (i + 1) * cell[a] - o[a]) / d[a]
-            tdelta[a] = cell[a] / d[a]
-        elif d[a] < 0.0:
-            step[a] = -1
-            tnext[a] = (lo[a] + i * cell[a] - o[a]) / d[a]
-            tdelta[a] = -cell[a] / d[a]
-        else:
-            step[a] = 0
-            tnext[a] = np.inf
-            tdelta[a] = np.inf
+    mx, my, mz = mdims[0], mdims[1], mdims[2]
+    cx, cy, cz = cell[0], cell[1], cell[2]
+    bx, by, bz = k * cx, k * cy, k * cz
+    mi = _index(ox + t0 * dx, lo[0], bx, mx)
+    mj = _index(oy + t0 * dy, lo[1], by, my)
+    mk = _index(oz + t0 * dz, lo[2], bz, mz)
+    msx, mtx, mdtx = _axis(ox, dx, lo[0], bx, mi)
+    msy, mty, mdty = _axis(oy, dy, lo[1], by, mj)
+    msz, mtz, mdtz = _axis(oz, dz, lo[2], bz, mk)
     L = cs.shape[0]
     nh = 0
-    cap = len(bt)
+    tin = t0
     while True:
-        c = idx[0] + nx * (idx[1] + ny * idx[2])
-        for l in range(L):
-            for r in range(cs[l, c], cs[l, c + 1]):
-                f = tri_ids[r]
-                hit, t, u, v = intersect_once(tris[f, 0], tris[f, 1], tris[f, 2], kx, ky, kz, okx, oky, okz,
-                                              Sx, Sy, Sz, tmin, tmax)
-                if hit:
-                    seen = False
-                    for j in range(nh):
-                        if bf[j] == f:
-                            seen = True
-                            break
-                    if not seen:
-                        if nh == cap:
-                            return -1
-                        bt[nh] = t
-                        bf[nh] = f
-                        bu[nh] = u
-                        bv[nh] = v
-                        nh += 1
-        # the next cell: the axis whose boundary comes first
-        a = 0
-        if tnext[1] < tnext[a]:
-            a = 1
-        if tnext[2] < tnext[a]:
-            a = 2
-        te = tnext[a]
-        if te > t1:
+        tout = min(mtx, mty, mtz)
+        if macro_full[mi + mx * (mj + my * mk)] != 0:
+            x0, y0, z0 = mi * k, mj * k, mk * k
+            x1, y1, z1 = min(x0 + k, nx) - 1, min(y0 + k, ny) - 1, min(z0 + k, nz) - 1
+            ix = min(max(_index(ox + tin * dx, lo[0], cx, nx), x0), x1)
+            iy = min(max(_index(oy + tin * dy, lo[1], cy, ny), y0), y1)
+            iz = min(max(_index(oz + tin * dz, lo[2], cz, nz), z0), z1)
+            sx, tx, dtx = _axis(ox, dx, lo[0], cx, ix)
+            sy, ty, dty = _axis(oy, dy, lo[1], cy, iy)
+            sz, tz, dtz = _axis(oz, dz, lo[2], cz, iz)
+            tend = min(tout, t1)
+            while True:
+                c = ix + nx * (iy + ny * iz)
+                for l in range(L):
+                    for r in range(cs[l, c], cs[l, c + 1]):
+                        f = tri_ids[r]
+                        hit, t, u, v = intersect_once(tris[f, 0], tris[f, 1], tris[f, 2], kx, ky, kz, okx, oky,
+                                                      okz, Sx, Sy, Sz, tmin, tmax)
+                        if hit:
+                            nh = _add_hit(f, t, u, v, nh, bt, bf, bu, bv)
+                            if nh < 0:
+                                return -1
+                if tx <= ty and tx <= tz:
+                    if tx > tend:
+                        break
+                    ix += sx
+                    if ix < x0 or ix > x1:
+                        break
+                    tx += dtx
+                elif ty <= tz:
+                    if ty > tend:
+                        break
+                    iy += sy
+                    if iy < y0 or iy > y1:
+                        break
+                    ty += dty
+                else:
+                    if tz > tend:
+                        break
+                    iz += sz
+                    if iz < z0 or iz > z1:
+                        break
+                    tz += dtz
+        # the next macro cell
+        if tout > t1:
             break
-        idx[a] += step[a]
-        if idx[a] < 0 or idx[a] >= n[a]:
-            break
-        tnext[a] += tdelta[a]
+        if mtx <= mty and mtx <= mtz:
+            mi += msx
+            if mi < 0 or mi >= mx:
+                break
+            tin = mtx
+            mtx += mdtx
+        elif mty <= mtz:
+            mj += msy
+            if mj < 0 or mj >= my:
+                break
+            tin = mty
+            mty += mdty
+        else:
+            mk += msz
+            if mk < 0 or mk >= mz:
+                break
+            tin = mtz
+            mtz += mdtz
     return nh
 
 
@@ -222,27 +308,30 @@ def sort_hits(bt, bf, bu, bv, n):
 
 
 @njit(cache=True, parallel=True)
-def count_kernel(tris, lo, hi, cell, dims, cs, tri_ids, O, D, tmin, tmax, cap, chunks, counts):
+def count_kernel(tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids, O, D, tmin, tmax, cap, chunks, counts):
     """counts[i]: the hits of ray i (O, D: (N, 3) float64 in the grid's frame); -1 for a ray with
     more than ``cap`` hits.  The rays go in ``chunks`` parallel runs, each with its own scratch."""
     N = len(O)
-    for k in prange(chunks):
+    for part in prange(chunks):
         bt, bf = np.empty(cap), np.empty(cap, np.int32)
         bu, bv = np.empty(cap), np.empty(cap)
-        for i in range(k * N // chunks, (k + 1) * N // chunks):
-            counts[i] = ray_hits(tris, lo, hi, cell, dims, cs, tri_ids, O[i], D[i], tmin[i], tmax[i], bt, bf, bu, bv)
+        for i in range(part * N // chunks, (part + 1) * N // chunks):
+            counts[i] = ray_hits(tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids, O[i], D[i], tmin[i],
+                                 tmax[i], bt, bf, bu, bv)
 
 
 @njit(cache=True, parallel=True)
-def fill_kernel(tris, lo, hi, cell, dims, cs, tri_ids, O, D, tmin, tmax, cap, chunks, offsets, t, tri, u, v):
+def fill_kernel(tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids, O, D, tmin, tmax, cap, chunks, offsets, t,
+                tri, u, v):
     """The hits of ray i, sorted, into t, tri, u, v[offsets[i]:offsets[i + 1]] (the nearest ones
     when the slot is shorter than the ray's hits: a max_hits cap)."""
     N = len(O)
-    for k in prange(chunks):
+    for part in prange(chunks):
         bt, bf = np.empty(cap), np.empty(cap, np.int32)
         bu, bv = np.empty(cap), np.empty(cap)
-        for i in range(k * N // chunks, (k + 1) * N // chunks):
-            nh = ray_hits(tris, lo, hi, cell, dims, cs, tri_ids, O[i], D[i], tmin[i], tmax[i], bt, bf, bu, bv)
+        for i in range(part * N // chunks, (part + 1) * N // chunks):
+            nh = ray_hits(tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids, O[i], D[i], tmin[i], tmax[i],
+                          bt, bf, bu, bv)
             sort_hits(bt, bf, bu, bv, nh)
             s = offsets[i]
             for j in range(min(nh, offsets[i + 1] - s)):
@@ -314,7 +403,8 @@ def query_hits(grid, tris, origins, dirs, origin, t_min, t_max, max_hits=None, t
     use_threads(threads)
     chunks = max(1, min(N, 4 * threads))
     counts = np.zeros(N, np.int64)
-    args = (tris, lo, hi, cell, dims, cs, ids)
+    args = (tris, lo, hi, cell, dims, int(s.macro), np.ascontiguousarray(s.mdims, np.int64),
+            np.ascontiguousarray(grid.macro_full, np.uint8), cs, ids)
     with launch_guard():
         if N:
             count_kernel(*args, O, D, tmin, tmax, min(F, FIRST_CAP), chunks, counts)
