@@ -186,6 +186,18 @@ def _axis(o, d, lo, size, i):
 
 
 @njit(cache=True, inline="always")
+def _advance(i, s, t, dt, i0, i1, tend):
+    """One DDA step along an axis from slab i, whose far boundary is at t: (stop, slab, its far
+    boundary); stop when that boundary lies beyond tend or the slab beyond [i0, i1]."""
+    if t > tend:
+        return True, i, t
+    i += s
+    if i < i0 or i > i1:
+        return True, i, t
+    return False, i, t + dt
+
+
+@njit(cache=True, inline="always")
 def _add_hit(f, t, u, v, nh, bt, bf, bu, bv):
     """Keep the hit of triangle f unless it is kept already (a triangle listed in several cells);
     the new count, or -1 when the buffers are full."""
@@ -251,47 +263,23 @@ def ray_hits(tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids, o, d, 
                             if nh < 0:
                                 return -1
                 if tx <= ty and tx <= tz:
-                    if tx > tend:
-                        break
-                    ix += sx
-                    if ix < x0 or ix > x1:
-                        break
-                    tx += dtx
+                    stop, ix, tx = _advance(ix, sx, tx, dtx, x0, x1, tend)
                 elif ty <= tz:
-                    if ty > tend:
-                        break
-                    iy += sy
-                    if iy < y0 or iy > y1:
-                        break
-                    ty += dty
+                    stop, iy, ty = _advance(iy, sy, ty, dty, y0, y1, tend)
                 else:
-                    if tz > tend:
-                        break
-                    iz += sz
-                    if iz < z0 or iz > z1:
-                        break
-                    tz += dtz
-        # the next macro cell
-        if tout > t1:
-            break
+                    stop, iz, tz = _advance(iz, sz, tz, dtz, z0, z1, tend)
+                if stop:
+                    break
+        # the next macro cell, entered at tout
         if mtx <= mty and mtx <= mtz:
-            mi += msx
-            if mi < 0 or mi >= mx:
-                break
-            tin = mtx
-            mtx += mdtx
+            stop, mi, mtx = _advance(mi, msx, mtx, mdtx, 0, mx - 1, t1)
         elif mty <= mtz:
-            mj += msy
-            if mj < 0 or mj >= my:
-                break
-            tin = mty
-            mty += mdty
+            stop, mj, mty = _advance(mj, msy, mty, mdty, 0, my - 1, t1)
         else:
-            mk += msz
-            if mk < 0 or mk >= mz:
-                break
-            tin = mtz
-            mtz += mdtz
+            stop, mk, mtz = _advance(mk, msz, mtz, mdtz, 0, mz - 1, t1)
+        if stop:
+            break
+        tin = tout
     return nh
 
 
