@@ -1,4 +1,4 @@
-"""The scripts behind BENCHMARKS.md's single-ray, cast-order and density tables (scripts/) run and
+"""The scripts behind BENCHMARKS.md's single-ray, cast-order, density and all-hits tables (scripts/) run and
 print the table they make: each runs at a small size as a subprocess, exits 0 and prints a
 markdown table whose header and row labels are those of its table in BENCHMARKS.md (found by the
 script's name on the table's source line).  The figures are timings: only their form is checked.
@@ -90,3 +90,16 @@ def test_doc_table_finds_each_script_once():
         assert len(header) >= 3 and rows and all(len(r) == len(header) for r in rows)
     with pytest.raises(AssertionError):
         doc_table("no_such_script.py")
+
+
+def test_all_hits_peers_prints_its_table():
+    """The all-hits table at a small size: BENCHMARKS.md's header, the icosphere's figures, and
+    Open3D's columns either measured (its counts then agree with gridrt's on every ray) or n/a
+    where Open3D is not installed."""
+    header, rows = run_script("all_hits_peers.py", "--sizes", "1280", "--rays", "3000", "--runs", "1")
+    doc_header, _ = doc_table("all_hits_peers.py")
+    assert header == doc_header and len(rows) == 1
+    r = rows[0]
+    assert r[:3] == ["icosphere 1.3k", "1,280", "3,000"] and 1.0 < float(r[3]) < 3.0, r
+    assert r[4].isdigit() and r[5].isdigit(), r
+    assert r[6:] == ["n/a", "n/a", "n/a"] or (r[6].isdigit() and r[7].isdigit() and r[8] == "1.0000"), r
