@@ -363,8 +363,9 @@ class RayCaster:
             self._release(snap)
 
     def cast(self, origins, directions, tmin=0.0, tmax=np.inf, watertight=True, any_hit=False, threads=None,
-             max_bytes=None, packets=True, packet_precision="float64") -> Hits:
-        """Nearest hit per ray (any hit with any_hit=True). origins, directions: (N,3), world
+             max_bytes=None, packets=True, packet_precision="float64", *, t_min=None, t_max=None) -> Hits:
+        """Nearest hit per ray (any hit with any_hit=True) with tmin < t < tmax (``t_min`` and
+        ``t_max`` name them as all_hits does). origins, directions: (N,3), world
         coordinates, any real dtype and strides (read in chunks, not copied).  Memory: the
         results (28 bytes a ray) plus a bounded scratch; a batch needing more than ``max_bytes``
         (default: params.max_bytes) or than this process has left (gridrt.memory) is refused
@@ -374,6 +375,11 @@ class RayCaster:
         order or grouping.  ``packet_precision="float32"`` runs the packets' triangle tests in
         float32 (faster on large meshes; hits then agree up to float32 rounding, see
         gridrt.trace.batch)."""
+        for alias, value, name in ((t_min, tmin, "tmin"), (t_max, tmax, "tmax")):
+            if alias is not None and value != (0.0 if name == "tmin" else np.inf):
+                raise InputError(f"give {name} or t_{name[1:]}, not both")
+        tmin = tmin if t_min is None else t_min
+        tmax = tmax if t_max is None else t_max
         with self._lock:
             snap = self._snap
             snap.users += 1

@@ -64,7 +64,7 @@ def test_det2_sign_exact():
         assert det2_sign(a, b, c, d) == (exact > 0) - (exact < 0), (a, b, c, d)
 
 
-@pytest.mark.parametrize("mesh", ["icosphere", "armadillo"])
+@pytest.mark.parametrize("mesh", ["icosphere", pytest.param("armadillo", marks=pytest.mark.slow)])
 def test_all_hits_against_brute_force(mesh):
     """Random rays (origins inside and around the mesh): the hits, in order, are the float64 brute
     force's, triangle for triangle, wherever no brute-force hit lies within 1e-6 (barycentric) of
@@ -156,6 +156,7 @@ def test_rays_from_the_surface_and_grazing():
     assert flat.count_hits(np.array([[-1.0, 0.25, 0.0]]), np.array([[1.0, 0.0, 0.0]]))[0] == 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("grid", ["uniform", "two_level"])
 def test_all_hits_ranges_cap_threads_order(grid):
     """t_min / t_max (numbers or one per ray) keep the hits inside them; max_hits keeps each ray's
@@ -260,6 +261,7 @@ def test_contains_sphere_through_vertices_and_edges():
         assert np.array_equal(soup.contains(P, threads=threads), got)
 
 
+@pytest.mark.slow
 def test_contains_armadillo_against_parity():
     """The armadillo (closed, not convex): contains equals the parity of a float64 brute-force
     count of crossings along three directions, at points where the three agree."""
@@ -335,3 +337,16 @@ def test_attributes_at_hits():
         caster.interpolate((1, 2, 3), V)
     with pytest.raises(InputError, match="outside this mesh"):
         caster.geometric_normals(type(h)(h.t, np.array([0, 5120, 1], np.int32), h.u, h.v))
+
+
+def test_cast_takes_t_min_and_t_max():
+    """cast's t_min / t_max are its tmin / tmax (the names all_hits uses); giving both names is refused."""
+    m = icosphere_mesh(1280)
+    caster = gridrt.RayCaster(m.vertices, m.faces)
+    O, D = np.array([[0.0, 0.0, 3.0], [0.0, 0.0, 0.0]]), np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]])
+    a = caster.cast(O, D, t_min=2.5, t_max=10.0)
+    b = caster.cast(O, D, 2.5, 10.0)
+    assert np.array_equal(a.t, b.t) and np.array_equal(a.tri, b.tri)
+    assert a.t[0] > 3.5 and a.tri[1] == -1   # the near side of the sphere left out by t_min; ray 1 ends inside
+    with pytest.raises(InputError, match="give tmin or t_min, not both"):
+        caster.cast(O, D, 1.0, t_min=2.0)

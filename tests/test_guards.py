@@ -126,6 +126,12 @@ BOUNDARIES = {
         "RayCaster's mesh and updates: reached after _centred_mesh / _centred_vertices checked shapes, dtypes, "
         "values (the bounds pass) and face indices; to_frame and first_nondegenerate read and write arrays of "
         "those shapes", ["test_guard_raycaster", "test_raycaster_update_is_atomic"]),
+    "gridrt.trace.all_hits:query_hits": (
+        "RayCaster.all_hits / count_hits / contains: rays through check_rays and check_ray_values, t bounds of one "
+        "a ray, not NaN, 0 <= t_min <= t_max, max_hits whole and >= 1, before any kernel; the grid and triangles "
+        "are the caster's snapshot; a ray's hits go into a scratch of FIRST_CAP (a fuller ray is counted again with "
+        "room for every triangle) and the fill pass's scratch holds the largest count; its writes stay inside the "
+        "offsets made from the counts", ["test_guard_all_hits"]),
     "gridrt.grid.common:point_bounds": (
         "the one-pass bounds kernels on a C-contiguous float32/float64 array its callers made (shape checked "
         "first); the pass is itself the NaN/inf/1e30 guard", ["test_guard_build_triangles", "test_guard_raycaster"]),
@@ -764,6 +770,30 @@ def test_guard_raycaster():
     c = RayCaster(v, f)
     expect_guard(lambda: c.update(v[:-1]), "shape")
     expect_guard(lambda: c.update(np.where(v == 1, np.inf, v)), "NaN")
+
+
+@pytest.fixture
+def all_hits_caster():
+    """A RayCaster over two triangles, built before the tripwires go in (a test asks for it first)."""
+    from gridrt.api import RayCaster
+
+    return RayCaster(GOOD.reshape(-1, 3), np.arange(6).reshape(2, 3))
+
+
+def test_guard_all_hits(all_hits_caster, tripwires):
+    """all_hits, count_hits and contains refuse bad rays, t bounds and caps before any kernel runs."""
+    c = all_hits_caster
+    o, d = np.zeros((2, 3)), np.ones((2, 3))
+    for kw, match in (({"t_min": 1.0, "t_max": 0.5}, "t_min"), ({"t_min": np.nan}, "t_min"),
+                      ({"t_max": np.ones(3)}, "one number a ray"), ({"max_hits": 0}, "max_hits")):
+        expect_guard(lambda: c.all_hits(o, d, **kw), match)
+    expect_guard(lambda: c.count_hits(np.array([[0.0, np.nan, 0.0]]), np.ones((1, 3))), "NaN")
+    expect_guard(lambda: c.count_hits(o, np.zeros((2, 3))), "zero")
+    expect_guard(lambda: c.all_hits(o[:, :2], d), "shape")
+    expect_guard(lambda: c.contains(np.array([[0.0, 0.0, 0.0]])), "closed mesh")
+    expect_guard(lambda: c.contains(np.full((1, 3), np.inf), best_effort=True), "NaN|inf")
+    with pytest.raises(KernelCalled):   # positive control: good rays reach the kernels
+        c.count_hits(o, d)
 
 
 def test_raycaster_update_is_atomic():

@@ -92,6 +92,7 @@ def test_doc_table_finds_each_script_once():
         doc_table("no_such_script.py")
 
 
+@pytest.mark.slow
 def test_all_hits_peers_prints_its_table():
     """The all-hits table at a small size: BENCHMARKS.md's header, the icosphere's figures, and
     Open3D's columns either measured (its counts then agree with gridrt's on every ray) or n/a

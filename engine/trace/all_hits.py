@@ -25,6 +25,7 @@ same hit each time).  The hits of a ray are sorted by t, ties by triangle id.
 """
 
 import math
+from collections import namedtuple
 from typing import NamedTuple
 
 import numpy as np
@@ -34,7 +35,7 @@ from ..arrays import check_ray_values, check_rays
 from ..errors import InputError
 from ..memory import check_fits
 from ..threads import check_threads, launch_guard, use_threads
-from .intersect import permute, shear_setup, woop_shear
+from .intersect import permute, ray_shear, woop_shear
 
 
 @njit(cache=True, inline="always")
@@ -121,10 +122,11 @@ def _edge_sign(px, py, qx, qy):
 
 
 @njit(cache=True)
-def intersect_once(v0, v1, v2, kx, ky, kz, okx, oky, okz, Sx, Sy, Sz, tmin, tmax):
-    """(hit, t, u, v) of the triangle v0, v1, v2 ((3,) float32 rows, world order) with the sheared
-    ray (shear_setup's kx..Sz, its origin permuted as okx, oky, okz): Woop's test with exact,
+def intersect_once(v0, v1, v2, sh, tmin, tmax):
+    """(hit, t, u, v) of the triangle v0, v1, v2 ((3,) float32 rows, world order) with the ray of
+    the :class:`gridrt.trace.query.Shear` ``sh`` (intersect.ray_shear): Woop's test with exact,
     perturbed edge signs (one hit per crossing, see the module doc)."""
+    kx, ky, kz, okx, oky, okz, Sx, Sy, Sz = sh
     p0 = permute(float(v0[0]), float(v0[1]), float(v0[2]), kx, ky, kz)
     p1 = permute(float(v1[0]), float(v1[1]), float(v1[2]), kx, ky, kz)
     p2 = permute(float(v2[0]), float(v2[1]), float(v2[2]), kx, ky, kz)
@@ -214,16 +216,17 @@ def _add_hit(f, t, u, v, nh, bt, bf, bu, bv):
 
 
 @njit(cache=True)
-def ray_hits(tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids, o, d, tmin, tmax, bt, bf, bu, bv):
-    """The hits of the ray from o along d ((3,) float64) with tmin < t < tmax, each triangle once,
-    into bt, bf, bu, bv (unsorted); their count, or -1 when they do not fit the buffers.  Two
-    nested DDAs: over the macro cells (k^3 cells; an empty one is crossed in one step) and over the
-    cells of each macro cell that holds triangles."""
+def ray_hits(g, o, d, tmin, tmax, buf):
+    """The hits of the ray from o along d ((3,) float64) with tmin < t < tmax in the
+    :data:`HitGrid` g, each triangle once, into the :data:`HitBuffers` buf (unsorted); their
+    count, or -1 when they do not fit.  Two nested DDAs: over the macro cells (k^3 cells; an
+    empty one is crossed in one step) and over the cells of each macro cell that holds triangles."""
+    tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids = g
+    bt, bf, bu, bv = buf
     t0, t1 = _clip(lo, hi, o, d, tmin, tmax)
     if not (t0 <= t1):
         return 0
-    kx, ky, kz, Sx, Sy, Sz = shear_setup(d[0], d[1], d[2])
-    okx, oky, okz = permute(o[0], o[1], o[2], kx, ky, kz)
+    sh = ray_shear((o[0], o[1], o[2]), (d[0], d[1], d[2]))
     ox, oy, oz = o[0], o[1], o[2]
     dx, dy, dz = d[0], d[1], d[2]
     nx, ny, nz = dims[0], dims[1], dims[2]
@@ -256,8 +259,7 @@ def ray_hits(tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids, o, d, 
                 for l in range(L):
                     for r in range(cs[l, c], cs[l, c + 1]):
                         f = tri_ids[r]
-                        hit, t, u, v = intersect_once(tris[f, 0], tris[f, 1], tris[f, 2], kx, ky, kz, okx, oky,
-                                                      okz, Sx, Sy, Sz, tmin, tmax)
+                        hit, t, u, v = intersect_once(tris[f, 0], tris[f, 1], tris[f, 2], sh, tmin, tmax)
                         if hit:
                             nh = _add_hit(f, t, u, v, nh, bt, bf, bu, bv)
                             if nh < 0:
@@ -296,30 +298,30 @@ def sort_hits(bt, bf, bu, bv, n):
 
 
 @njit(cache=True, parallel=True)
-def count_kernel(tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids, O, D, tmin, tmax, cap, chunks, counts):
-    """counts[i]: the hits of ray i (O, D: (N, 3) float64 in the grid's frame); -1 for a ray with
-    more than ``cap`` hits.  The rays go in ``chunks`` parallel runs, each with its own scratch."""
+def count_kernel(g, rays, cap, chunks, counts):
+    """counts[i]: the hits of ray i of the :data:`HitRays` rays (in the grid's frame) in the
+    :data:`HitGrid` g; -1 for a ray with more than ``cap`` hits.  The rays go in ``chunks``
+    parallel runs, each with its own scratch."""
+    O, D, tmin, tmax = rays
     N = len(O)
     for part in prange(chunks):
-        bt, bf = np.empty(cap), np.empty(cap, np.int32)
-        bu, bv = np.empty(cap), np.empty(cap)
+        buf = HitBuffers(np.empty(cap), np.empty(cap, np.int32), np.empty(cap), np.empty(cap))
         for i in range(part * N // chunks, (part + 1) * N // chunks):
-            counts[i] = ray_hits(tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids, O[i], D[i], tmin[i],
-                                 tmax[i], bt, bf, bu, bv)
+            counts[i] = ray_hits(g, O[i], D[i], tmin[i], tmax[i], buf)
 
 
 @njit(cache=True, parallel=True)
-def fill_kernel(tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids, O, D, tmin, tmax, cap, chunks, offsets, t,
-                tri, u, v):
-    """The hits of ray i, sorted, into t, tri, u, v[offsets[i]:offsets[i + 1]] (the nearest ones
-    when the slot is shorter than the ray's hits: a max_hits cap)."""
+def fill_kernel(g, rays, cap, chunks, out):
+    """The hits of ray i, sorted, into the :class:`AllHits` out: t, tri, u, v[offsets[i]:offsets[i +
+    1]] (the nearest ones when the slot is shorter than the ray's hits: a max_hits cap)."""
+    O, D, tmin, tmax = rays
+    offsets, t, tri, u, v = out
     N = len(O)
     for part in prange(chunks):
-        bt, bf = np.empty(cap), np.empty(cap, np.int32)
-        bu, bv = np.empty(cap), np.empty(cap)
+        buf = HitBuffers(np.empty(cap), np.empty(cap, np.int32), np.empty(cap), np.empty(cap))
+        bt, bf, bu, bv = buf
         for i in range(part * N // chunks, (part + 1) * N // chunks):
-            nh = ray_hits(tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids, O[i], D[i], tmin[i], tmax[i],
-                          bt, bf, bu, bv)
+            nh = ray_hits(g, O[i], D[i], tmin[i], tmax[i], buf)
             sort_hits(bt, bf, bu, bv, nh)
             s = offsets[i]
             for j in range(min(nh, offsets[i + 1] - s)):
@@ -327,6 +329,16 @@ def fill_kernel(tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids, O, 
                 tri[s + j] = bf[j]
                 u[s + j] = bu[j]
                 v[s + j] = bv[j]
+
+
+#: the grid as the all-hits kernels take it: the grid's (F, 3, 3) float32 triangles, its box lo,
+#: hi, cell size and dims, macro size k, macro dims and flags, and one CSR of triangle ids over
+#: its (top-level) cells: cs (L, C + 1) int32, tri_ids (R,) int32
+HitGrid = namedtuple("HitGrid", "tris lo hi cell dims k mdims macro_full cs tri_ids")
+#: the rays: origins and directions (N, 3) float64 in the grid's frame, t bounds (N,) float64
+HitRays = namedtuple("HitRays", "O D tmin tmax")
+#: one worker's scratch: t, triangle, u, v of a ray's hits so far
+HitBuffers = namedtuple("HitBuffers", "t tri u v")
 
 
 # ---- the Python boundary: every check before a kernel runs --------------------------------------
@@ -391,15 +403,16 @@ def query_hits(grid, tris, origins, dirs, origin, t_min, t_max, max_hits=None, t
     use_threads(threads)
     chunks = max(1, min(N, 4 * threads))
     counts = np.zeros(N, np.int64)
-    args = (tris, lo, hi, cell, dims, int(s.macro), np.ascontiguousarray(s.mdims, np.int64),
-            np.ascontiguousarray(grid.macro_full, np.uint8), cs, ids)
+    g = HitGrid(tris, lo, hi, cell, dims, int(s.macro), np.ascontiguousarray(s.mdims, np.int64),
+                np.ascontiguousarray(grid.macro_full, np.uint8), cs, ids)
     with launch_guard():
         if N:
-            count_kernel(*args, O, D, tmin, tmax, min(F, FIRST_CAP), chunks, counts)
+            count_kernel(g, HitRays(O, D, tmin, tmax), min(F, FIRST_CAP), chunks, counts)
             many = np.flatnonzero(counts < 0)
             if len(many):   # rays with more hits than the first scratch holds: room for every triangle
                 sub = np.zeros(len(many), np.int64)
-                count_kernel(*args, O[many], D[many], tmin[many], tmax[many], F, max(1, min(len(many), threads)), sub)
+                count_kernel(g, HitRays(O[many], D[many], tmin[many], tmax[many]), F, max(1, min(len(many), threads)),
+                             sub)
                 counts[many] = sub
         if count_only:
             return counts
@@ -412,5 +425,5 @@ def query_hits(grid, tris, origins, dirs, origin, t_min, t_max, max_hits=None, t
         out = AllHits(offsets, np.empty(total), np.empty(total, np.int32), np.empty(total), np.empty(total))
         if total:
             cap = max(1, int(counts.max()))
-            fill_kernel(*args, O, D, tmin, tmax, cap, chunks, offsets, out.t, out.tri, out.u, out.v)
+            fill_kernel(g, HitRays(O, D, tmin, tmax), cap, chunks, tuple(out))
     return out
