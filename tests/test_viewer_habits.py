@@ -385,3 +385,32 @@ def test_viewer_benchmark_matches_dump(tmp_path, xvfb):
     line = next(ln for ln in app.output().splitlines() if ln.startswith("gridrt view: benchmark of 3 frames"))
     for col, label in (("build_ms", "build"), ("render_ms", "render"), ("frame_ms", "frame")):
         assert f"{label} {np.median([float(r[col]) for r in timed]):.2f} ms" in line, (col, line)
+
+
+@pytest.mark.slow
+def test_accumulation_error_falls_with_still_frames():
+    """Headless, the viewer's accumulation (Accumulator + the pipeline's jitter): against a 4x4
+    supersampled render of the same view, the mean error falls as still frames add up (1, 4, 16,
+    64 samples), the first sample being the exact frame."""
+    from gridrt.config import GridParams, RenderParams
+    from gridrt.pipeline import FramePipeline
+    from gridrt.scene import make_scene
+
+    w, h = 64, 48
+    scene = make_scene("marbles", count=2000)
+    pipe = FramePipeline(scene, GridParams(threads=2), RenderParams(width=w, height=h, threads=2))
+    exact = pipe.step(0.0).image[..., :3]
+    cam = pipe.last_camera
+    big = FramePipeline(scene, GridParams(threads=2), RenderParams(width=4 * w, height=4 * h, threads=2))
+    ref = big.step(0.0, camera=cam).image[..., :3].astype(float).reshape(h, 4, w, 4, 3).mean(axis=(1, 3))
+    acc = Accumulator()
+    errors = {}
+    for k in range(64):
+        jit = acc.next_jitter("still")
+        shown = acc.add("still", pipe.step(0.0, camera=cam, jitter=jit).image[..., :3])
+        if k == 0:
+            assert np.array_equal(shown, exact)
+        if k + 1 in (1, 4, 16, 64):
+            errors[k + 1] = np.abs(shown.astype(float) - ref).mean()
+    assert errors[1] > errors[4] > errors[16] > errors[64], errors
+    assert errors[64] < 0.5 * errors[1], errors
