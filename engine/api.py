@@ -146,11 +146,12 @@ class _Snapshot:
     """One mesh as casts see it; never modified after construction (``users`` aside: the casts
     holding it, counted under the caster's lock)."""
 
-    __slots__ = ("origin", "vertices", "triangles", "grid", "builder", "users")
+    __slots__ = ("origin", "vertices", "triangles", "grid", "builder", "users", "normals")
 
     def __init__(self, origin, vertices, triangles, grid, builder):
         self.origin, self.vertices, self.triangles, self.grid, self.builder = origin, vertices, triangles, grid, builder
         self.users = 0
+        self.normals = None  # vertex normals, made on the first RayCaster.vertex_normals
 
 
 class RayCaster:
@@ -288,11 +289,8 @@ class RayCaster:
         a = a.astype(np.float64, copy=False)
         hit = tri >= 0
         f = self.faces[np.where(hit, tri, 0)]
-        w0, w1, w2 = 1.0 - u - v, u, v
-        shape = (len(tri),) + a.shape[1:]
         ex = (slice(None),) + (None,) * (a.ndim - 1)
-        out = w0[ex] * a[f[:, 0]] + w1[ex] * a[f[:, 1]] + w2[ex] * a[f[:, 2]]
-        out = out.reshape(shape)
+        out = (1.0 - u - v)[ex] * a[f[:, 0]] + u[ex] * a[f[:, 1]] + v[ex] * a[f[:, 2]]
         out[~hit] = np.nan
         return out
 
@@ -310,8 +308,15 @@ class RayCaster:
 
     def vertex_normals(self):
         """Area-weighted unit normals of the current mesh's vertices, (V, 3) float64 (the sum of
-        the adjacent triangles' cross products, normalised; 0 for a vertex of no triangle)."""
-        v = self._snap.vertices.astype(np.float64)
+        the adjacent triangles' cross products, normalised; 0 for a vertex of no triangle); made
+        once per mesh (update makes a new one)."""
+        snap = self._snap
+        if snap.normals is None:
+            snap.normals = self._vertex_normals(snap)
+        return snap.normals
+
+    def _vertex_normals(self, snap):
+        v = snap.vertices.astype(np.float64)
         f = self.faces
         c = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
         n = np.zeros_like(v)

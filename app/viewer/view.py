@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gridrt.camera import pixel_dir
 from gridrt.commands import gridrt_command
 from gridrt.errors import InputError
 from gridrt.frame import ViewSpec
@@ -260,6 +261,7 @@ class Viewer:
         self._progress_printed = (0.0, 0)   # (perf_counter, textures) of the last console progress line
         self._panel_kept = (state.show_panel, state.panel_collapsed)   # as remembered (or as started)
         self.accum = Accumulator()
+        self._accumulating = False     # st.accumulate as the last frame loop saw it
         self.depth = None              # the frame on screen's hit distances, (H, W) float32
         self.ray_camera = None         # the camera of its rays (jittered for a progressive sample)
         self.recorder = None           # the Recorder while K records
@@ -615,8 +617,6 @@ class Viewer:
             else:
                 self._stop_recording()
 
-    _accumulating = False
-
     def _print_camera(self):
         st = self.state
         cam = st.camera
@@ -641,12 +641,8 @@ class Viewer:
         if not math.isfinite(t):
             st.message = "nothing under the cursor to focus on"
             return
-        b = self.ray_camera.basis()
-        th, asp = b[4, 0], w / h
-        sx = (2.0 * (px + 0.5) / w - 1.0) * th * asp
-        sy = (1.0 - 2.0 * (py + 0.5) / h) * th
-        d = b[1] + sx * b[2] + sy * b[3]
-        point = np.asarray(self.ray_camera.eye) + t * d / np.linalg.norm(d)
+        d = np.asarray(pixel_dir(self.ray_camera.basis(), w, h, px, py))   # the pixel's ray, as rendered
+        point = np.asarray(self.ray_camera.eye) + t * d
         cam = st.camera
         st.leave_scene_camera()
         try:

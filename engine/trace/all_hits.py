@@ -363,10 +363,13 @@ class AllHits(NamedTuple):
 
 
 def _t_bounds(name, value, n):
-    a = np.asarray(value, dtype=np.float64) if not isinstance(value, np.ndarray) or value.dtype != object else None
+    try:
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        a = None
     if a is None or a.ndim > 1 or (a.ndim == 1 and len(a) != n):
-        raise InputError(f"{name} must be a number or an array of one number a ray ({n}), got shape "
-                         f"{getattr(np.asarray(value, dtype=object), 'shape', ())}")
+        raise InputError(f"{name} must be a number or an array of one number a ray ({n}), got "
+                         f"{'shape ' + str(a.shape) if a is not None else repr(value)}")
     return np.ascontiguousarray(np.broadcast_to(a, (n,)), np.float64)
 
 
