@@ -530,6 +530,29 @@ class HitDiff:
     t_off: np.ndarray  # same triangle, t differs by more than t_rtol (included in bad)
 
 
+def ref_all_hits(tris, O, D, tmin=0.0, tmax=np.inf):
+    """Every (t, tri, u, v, edge distance) of each ray over every triangle: double-sided
+    Moller-Trumbore in float64 (a triangle is hit iff u, v >= 0, u + v <= 1, tmin < t < tmax)."""
+    T = np.asarray(tris, np.float64)
+    v0, e1, e2 = T[:, 0], T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]
+    out = []
+    for o, d in zip(O, D):
+        p = np.cross(d, e2)
+        det = np.einsum("ij,ij->i", e1, p)
+        ok = det != 0
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        s = o - v0
+        u = np.einsum("ij,ij->i", s, p) * inv
+        q = np.cross(s, e1)
+        v = (q @ d) * inv
+        t = np.einsum("ij,ij->i", e2, q) * inv
+        hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > tmin) & (t < tmax)
+        i = np.flatnonzero(hit)
+        i = i[np.lexsort((i, t[i]))]
+        out.append((t[i], i, u[i], v[i], np.minimum(np.minimum(u[i], v[i]), 1 - u[i] - v[i])))
+    return out
+
+
 def compare_hits(t, tri, ref, t_rtol=1e-5, tie_rtol=1e-9, graze_tol=0.0):
     """Compare engine hits (t (N,), tri (N,)) with a :class:`RefHits`.
 

@@ -15,6 +15,7 @@ from gridrt.config import GridParams
 from gridrt.errors import InputError
 from gridrt.scene import icosphere_mesh
 from gridrt.trace.all_hits import det2_sign
+from reference import ref_all_hits
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets"
 
@@ -24,29 +25,6 @@ def _armadillo():
 
     m = trimesh.load(ASSETS / "armadillo.ply", process=False)
     return np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int64)
-
-
-def _brute_all(tris, O, D, tmin=0.0, tmax=np.inf):
-    """Every (t, tri, u, v, edge distance) of each ray over every triangle: double-sided
-    Moller-Trumbore in float64 (a triangle is hit iff u, v >= 0, u + v <= 1, tmin < t < tmax)."""
-    T = np.asarray(tris, np.float64)
-    v0, e1, e2 = T[:, 0], T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]
-    out = []
-    for o, d in zip(O, D):
-        p = np.cross(d, e2)
-        det = np.einsum("ij,ij->i", e1, p)
-        ok = det != 0
-        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-        s = o - v0
-        u = np.einsum("ij,ij->i", s, p) * inv
-        q = np.cross(s, e1)
-        v = (q @ d) * inv
-        t = np.einsum("ij,ij->i", e2, q) * inv
-        hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > tmin) & (t < tmax)
-        i = np.flatnonzero(hit)
-        i = i[np.lexsort((i, t[i]))]
-        out.append((t[i], i, u[i], v[i], np.minimum(np.minimum(u[i], v[i]), 1 - u[i] - v[i])))
-    return out
 
 
 def test_det2_sign_exact():
@@ -84,7 +62,7 @@ def test_all_hits_against_brute_force(mesh):
     D = rng.uniform(lo + 0.2 * (hi - lo), hi - 0.2 * (hi - lo), (N, 3)) - O   # towards the mesh's middle
     got = caster.all_hits(O, D)
     assert np.array_equal(caster.count_hits(O, D), got.counts())
-    ref = _brute_all(tris, O - caster.origin, D)
+    ref = ref_all_hits(tris, O - caster.origin, D)
     compared = 0
     for i, (t, f, u, v, edge) in enumerate(ref):
         s = slice(got.offsets[i], got.offsets[i + 1])
@@ -273,7 +251,7 @@ def test_contains_armadillo_against_parity():
     tris = caster.triangles
     parity = []
     for d in ((0.3, 0.5, 0.81), (-0.7, 0.2, 0.3), (0.1, -0.9, -0.2)):
-        hits = _brute_all(tris, P - caster.origin, np.broadcast_to(np.asarray(d, float), P.shape))
+        hits = ref_all_hits(tris, P - caster.origin, np.broadcast_to(np.asarray(d, float), P.shape))
         parity.append([len(h[0]) % 2 for h in hits])
     parity = np.asarray(parity)
     agree = (parity == parity[0]).all(axis=0)
