@@ -14,11 +14,12 @@ from .grid import Grid, GridBuilder, build_grid  # noqa: E402
 from .trace import Hits, Renderer, cast_rays, render  # noqa: E402
 from .pipeline import Frame, FramePipeline  # noqa: E402
 from .api import RayCaster  # noqa: E402
+from .instances import RayScene, SceneAllHits, SceneHits  # noqa: E402
 from .frame import FrameSpec, ViewSpec  # noqa: E402
 from .sensors import DepthCamera, Lidar  # noqa: E402
 
 __all__ = [
     "GridrtError", "InputError", "SceneFileError", "GridParams", "RenderParams", "Camera", "Grid",
     "GridBuilder", "build_grid", "Hits", "Renderer", "cast_rays", "render", "Frame", "FramePipeline",
-    "RayCaster", "FrameSpec", "ViewSpec", "DepthCamera", "Lidar",
+    "RayCaster", "RayScene", "SceneHits", "SceneAllHits", "FrameSpec", "ViewSpec", "DepthCamera", "Lidar",
 ]

@@ -186,6 +186,13 @@ class RayCaster:
     triangles = property(lambda self: self._snap.triangles)
     grid = property(lambda self: self._snap.grid)
 
+    def bounds(self):
+        """(lo, hi), (3,) float64 world coordinates: the current mesh's grid box, which holds the
+        mesh (slightly padded)."""
+        snap = self._snap
+        spec = snap.grid.spec
+        return np.asarray(spec.lo, np.float64) + snap.origin, np.asarray(spec.hi, np.float64) + snap.origin
+
     @staticmethod
     def _centre(v64):
         if len(v64) == 0:

@@ -1,7 +1,9 @@
 """Sensors on a RayCaster's mesh, every simulation step: a pinhole depth camera and a spinning
 LiDAR.  Both make their rays in numpy and cast them with ``RayCaster.cast``, which sends coherent
 runs of rays (a camera's pixels, a LiDAR column's channels) through the CGT packets; call the
-caster's ``update`` between steps for a deforming mesh.
+caster's ``update`` between steps for a deforming mesh.  Both also take a
+:class:`gridrt.RayScene` (several meshes and instances) in place of the caster: its ids then say
+which instance each pixel or return hit.
 
 Depth camera::
 
@@ -28,12 +30,14 @@ class DepthImage(NamedTuple):
     """A depth camera's frame, (H, W) per pixel: depth float32 (distance along the optical axis,
     inf where nothing is hit), range float32 (distance along the pixel's ray), normals (H, W, 3)
     float32 (the hit triangle's unit geometric normal turned towards the camera, NaN on a miss),
-    ids int32 (the hit triangle, -1 on a miss)."""
+    ids int32 (the hit triangle in its mesh, -1 on a miss), instances int32 (the hit instance of a
+    RayScene, 0 for a RayCaster's mesh; -1 on a miss)."""
 
     depth: np.ndarray
     range: np.ndarray
     normals: np.ndarray
     ids: np.ndarray
+    instances: np.ndarray
 
 
 class DepthCamera:
@@ -54,9 +58,9 @@ class DepthCamera:
         return cam, o, d
 
     def render(self, caster, eye, target, up=DEFAULT_UP, threads=None):
-        """The :class:`DepthImage` of ``caster``'s current mesh seen from ``eye`` towards ``target``."""
+        """The :class:`DepthImage` of ``caster``'s current mesh (or a RayScene's instances) seen from ``eye`` towards ``target``."""
         cam, o, d = self.rays(eye, target, up)
-        h = caster.cast(o, d, tmin=self.near, tmax=self.far, threads=threads)
+        h = caster.cast(o, d, t_min=self.near, t_max=self.far, threads=threads)
         fwd = np.asarray(cam.basis()[1])
         rng = h.t
         depth = rng * (d @ fwd)
@@ -65,18 +69,20 @@ class DepthCamera:
         n[flip] *= -1.0
         W, H = self.width, self.height
         return DepthImage(depth.reshape(H, W).astype(np.float32), rng.reshape(H, W).astype(np.float32),
-                          n.reshape(H, W, 3).astype(np.float32), h.tri.reshape(H, W).astype(np.int32))
+                          n.reshape(H, W, 3).astype(np.float32), h.tri.reshape(H, W).astype(np.int32),
+                          _instances(h).reshape(H, W))
 
 
 class LidarScan(NamedTuple):
     """One sweep, (channels, columns) per return: points (..., 3) float64 world coordinates (NaN
     where nothing was hit), ranges float64 (inf: no return), ids int32 (the hit triangle, -1),
-    and times (columns,) float64, the time each column was fired; origins (columns, 3) float64, the
+    instances int32 (the hit instance of a RayScene, 0 for a RayCaster's mesh; -1), and times (columns,) float64, the time each column was fired; origins (columns, 3) float64, the
     sensor's position then."""
 
     points: np.ndarray
     ranges: np.ndarray
     ids: np.ndarray
+    instances: np.ndarray
     times: np.ndarray
     origins: np.ndarray
 
@@ -137,15 +143,23 @@ class Lidar:
         return origins, dirs.reshape(-1, 3), times
 
     def scan(self, caster, pose_start, pose_end=None, t_start=0.0, sweep_time=0.1, threads=None):
-        """The :class:`LidarScan` of ``caster``'s current mesh (see :meth:`rays`)."""
+        """The :class:`LidarScan` of ``caster``'s current mesh (or a RayScene's instances; see
+        :meth:`rays`)."""
         o, d, times = self.rays(pose_start, pose_end, t_start, sweep_time)
-        h = caster.cast(o, d, tmin=self.min_range, tmax=self.max_range, threads=threads)
+        h = caster.cast(o, d, t_min=self.min_range, t_max=self.max_range, threads=threads)
         C, A = self.channels, self.columns
         rng = h.t.reshape(A, C).T
         t = np.where(np.isfinite(h.t), h.t, np.nan)   # (no inf * 0 where a direction has a zero component)
         pts = (o + t[:, None] * d).reshape(A, C, 3).transpose(1, 0, 2)
         return LidarScan(np.ascontiguousarray(pts), np.ascontiguousarray(rng),
-                         np.ascontiguousarray(h.tri.reshape(A, C).T), times, o[::C].copy())
+                         np.ascontiguousarray(h.tri.reshape(A, C).T),
+                         np.ascontiguousarray(_instances(h).reshape(A, C).T), times, o[::C].copy())
+
+
+def _instances(h):
+    """The instance id of each hit: a RayScene's, else 0 where the ray hit (-1 on a miss)."""
+    inst = getattr(h, "instance", None)
+    return np.asarray(inst, np.int32) if inst is not None else np.where(h.tri >= 0, 0, -1).astype(np.int32)
 
 
 def _whole(name, v):

@@ -362,7 +362,7 @@ class AllHits(NamedTuple):
         return np.diff(self.offsets)
 
 
-def _t_bounds(name, value, n):
+def t_bounds(name, value, n):
     try:
         a = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
@@ -381,7 +381,7 @@ def query_hits(grid, tris, origins, dirs, origin, t_min, t_max, max_hits=None, t
     o, d = check_rays(origins, dirs)
     N = len(o)
     check_ray_values(o, d, 0, origin)
-    tmin, tmax = _t_bounds("t_min", t_min, N), _t_bounds("t_max", t_max, N)
+    tmin, tmax = t_bounds("t_min", t_min, N), t_bounds("t_max", t_max, N)
     bad = np.isnan(tmin) | np.isnan(tmax) | (tmin < 0) | (tmax < tmin)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
