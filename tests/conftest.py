@@ -11,9 +11,13 @@
   (see ``test_golden.py``).
 * Procedural scenes: :func:`random_triangles`, :func:`random_scene` (slivers, huge, flat,
   duplicated and zero-area triangles), :func:`icosphere`, :func:`load_tris`.
+* ``harness``: the native Embree harness compiled from its sources beside the repository, or a
+  skip saying what is missing.
 """
 
 import os
+import shutil
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -275,3 +279,24 @@ def random_rays(rng, n, lo, hi, outside=0.5, aim=False):
         d = rng.uniform(lo, hi, (n, 3)) - o
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     return o, d
+
+
+@pytest.fixture(scope="module")
+def harness(tmp_path_factory):
+    """The harness compiled from its sources beside the repository (as its build.sh does, without
+    installing anything), or a skip saying what is missing."""
+    from gridrt.app.bench.native import HARNESS_DIR  # deferred: the app's import only where the harness is asked for
+
+    src = HARNESS_DIR / "embree_bench.cpp"
+    if not src.is_file():
+        pytest.skip(f"the native Embree harness is not beside this clone ({src} is absent)")
+    gxx = shutil.which("g++")
+    if gxx is None:
+        pytest.skip("no g++ to compile the native Embree harness")
+    out = tmp_path_factory.mktemp("harness") / "embree_bench"
+    p = subprocess.run([gxx, "-O2", "-march=native", "-std=c++17", "-o", str(out), str(src), "-lembree3", "-lpthread"],
+                       capture_output=True, text=True)
+    if p.returncode != 0:
+        pytest.skip(f"the native Embree harness does not compile here (Embree 3's headers: libembree-dev): "
+                    f"{p.stderr.strip()[-200:]}")
+    return out

@@ -4,8 +4,6 @@ beside the repository, when they and Embree 3's headers are there) the quick run
 tracers on the same rays, gridrt's hits right against the float64 brute force."""
 
 import json
-import shutil
-import subprocess
 
 import numpy as np
 import pytest
@@ -16,7 +14,7 @@ from reference import ref_cast
 from helpers.bench import check_outputs
 
 from gridrt.app.__main__ import main
-from gridrt.app.bench.native import HARNESS_DIR, NATIVE_WARMUP
+from gridrt.app.bench.native import NATIVE_WARMUP
 from gridrt.app.bench.scenes import camera_rays, resolve_scene
 from gridrt.camera import Camera
 
@@ -76,25 +74,6 @@ def test_export_writes_the_harness_folder(tmp_path):
 def test_bench_native_bad_arguments(tmp_path, capsys, args, message):
     assert main(["bench", "native", "--quick", "--no-progress", "--out", str(tmp_path / "x"), *args]) == 2
     assert message in capsys.readouterr().err
-
-
-@pytest.fixture(scope="module")
-def harness(tmp_path_factory):
-    """The harness compiled from its sources beside the repository (as its build.sh does, without
-    installing anything), or a skip saying what is missing."""
-    src = HARNESS_DIR / "embree_bench.cpp"
-    if not src.is_file():
-        pytest.skip(f"the native Embree harness is not beside this clone ({src} is absent)")
-    gxx = shutil.which("g++")
-    if gxx is None:
-        pytest.skip("no g++ to compile the native Embree harness")
-    out = tmp_path_factory.mktemp("harness") / "embree_bench"
-    p = subprocess.run([gxx, "-O2", "-march=native", "-std=c++17", "-o", str(out), str(src), "-lembree3", "-lpthread"],
-                       capture_output=True, text=True)
-    if p.returncode != 0:
-        pytest.skip(f"the native Embree harness does not compile here (Embree 3's headers: libembree-dev): "
-                    f"{p.stderr.strip()[-200:]}")
-    return out
 
 
 def test_bench_native_quick_against_the_harness(tmp_path, harness):
