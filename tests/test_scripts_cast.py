@@ -4,9 +4,11 @@ markdown table whose header and row labels are those of its table in BENCHMARKS.
 script's name on the table's source line).  The figures are timings: only their form is checked.
 """
 
+import importlib.util
 import json
 import re
 
+import numpy as np
 import pytest
 
 from helpers.scripts import NUMBER, REPO, doc_table, first_table, needs, run_script
@@ -104,3 +106,49 @@ def test_all_hits_peers_prints_its_table():
     assert r[:3] == ["icosphere 1.3k", "1,280", "3,000"] and 1.0 < float(r[3]) < 3.0, r
     assert r[4].isdigit() and r[5].isdigit(), r
     assert r[6:] == ["n/a", "n/a", "n/a"] or (r[6].isdigit() and r[7].isdigit() and r[8] == "1.0000"), r
+
+
+def _script_module(monkeypatch, name):
+    monkeypatch.syspath_prepend(str(REPO / "scripts"))
+    spec = importlib.util.spec_from_file_location(name, REPO / "scripts" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_lidar_native_lays_the_sweep_out_as_tiles(monkeypatch):
+    """The LiDAR sweep as the harness's square image: each 8x8 tile holds 8 neighbouring channels of
+    8 neighbouring columns, every ray of the sweep is in the tiles exactly once, and the tiles past
+    the sweep repeat the first ones (their fraction the one the script scales native's cast by)."""
+    lidar = _script_module(monkeypatch, "lidar_native")
+    channels, columns = 16, 40                      # 2 x 5 groups: a 4 x 4 image of tiles, 6 repeated
+    res, index, repeated = lidar.tile_layout(channels, columns)
+    assert res == 32 and abs(repeated - 6 / 16) < 1e-12
+    img = index.reshape(res, res)
+    col, ch = np.divmod(img, channels)
+    tiles = [(ty, tx) for ty in range(4) for tx in range(4)]
+    seen = []
+    for k, (ty, tx) in enumerate(tiles):
+        c, a = ch[8 * ty:8 * ty + 8, 8 * tx:8 * tx + 8], col[8 * ty:8 * ty + 8, 8 * tx:8 * tx + 8]
+        assert (np.diff(c, axis=0) == 1).all() and (np.diff(a, axis=1) == 1).all() and c[0, 0] % 8 == 0 == a[0, 0] % 8
+        if k < 10:
+            seen.append(img[8 * ty:8 * ty + 8, 8 * tx:8 * tx + 8].ravel())
+        else:   # a repeat of tile k - 10
+            py, px = tiles[k - 10]
+            assert (img[8 * ty:8 * ty + 8, 8 * tx:8 * tx + 8] == img[8 * py:8 * py + 8, 8 * px:8 * px + 8]).all()
+    assert np.array_equal(np.sort(np.concatenate(seen)), np.arange(channels * columns))
+
+
+@pytest.mark.slow
+def test_lidar_native_prints_its_table(harness):
+    """The LiDAR-step table at a small size against the compiled harness: BENCHMARKS.md's header,
+    one row a thread count, times that are numbers, and the same triangle as native rtcIntersect1
+    for (nearly) every beam."""
+    header, rows = run_script("lidar_native.py", "--triangles", "5000", "--channels", "16", "--columns", "64",
+                              "--frames", "2", "--binary", str(harness))
+    doc_header, _ = doc_table("lidar_native.py")
+    assert header == doc_header and [r[3] for r in rows] == ["1", "2"]
+    for r in rows:
+        assert r[:3] == ["icosphere 5.1k", "5,120", "1,024"], r
+        assert all(NUMBER.fullmatch(c) for c in r[4:12]), r
+        assert float(r[12]) > 0.999, r
