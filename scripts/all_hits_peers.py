@@ -1,16 +1,22 @@
-"""Every hit along a ray against Open3D's RaycastingScene: BENCHMARKS.md section 18, table "mesh |
-triangles | rays | hits a ray | gridrt count_hits | gridrt all_hits | Open3D count_intersections |
-Open3D list_intersections | counts agree" (ms a batch).
+"""Every hit along a ray against Open3D's RaycastingScene and trimesh over embreex: BENCHMARKS.md
+section 18, table "mesh | rays | hits a ray | gridrt count_hits | gridrt all_hits | Open3D
+count_intersections | Open3D list_intersections | trimesh + embreex | even counts: gridrt, Open3D,
+trimesh | counts agree: Open3D, trimesh" (ms a batch).
 
     .venv/bin/python scripts/all_hits_peers.py
 
-Per mesh (unit icospheres of about --sizes triangles), ``--rays`` rays from uniform origins in
-[-2, 2]^3 towards uniform points of [-0.5, 0.5]^3 (seeded), the same float32-representable rays
-for both sides; gridrt's RayCaster (``--threads`` threads) and Open3D's RaycastingScene (Embree
-inside; Open3D picks its own thread count: all cores) each run every query once untimed, then
-``--runs`` times; a cell is the median.  "counts agree" is the fraction of rays whose counts are
-equal.  Without Open3D (``pip install open3d-cpu``; it needs libusb-1.0 on Linux) its columns say
-n/a.
+Per mesh (unit icospheres of about --sizes triangles), two sets of ``--rays`` rays, the same
+float32-representable rays for every side, from uniform origins on the sphere of radius 3: "random",
+towards uniform points of [-0.5, 0.5]^3, and "at vertices", towards the mesh's vertices (the
+direction rounded to float32, so each ray passes within rounding of a vertex; seeded).  gridrt's RayCaster (``--threads`` threads),
+Open3D's RaycastingScene (Embree inside; Open3D picks its own thread count: all cores) and
+trimesh's embreex intersector (``intersects_location(..., multiple_hits=True)``, the every-hit
+query trimesh users have: it casts again from beyond each hit) each run every query once untimed,
+then ``--runs`` times; a cell is the median.  Every ray starts outside the closed mesh, so its
+crossings pair up: "even counts" is the fraction of rays each side counts an even number of
+crossings for (the right answer is 1), "counts agree" the fraction whose counts equal gridrt's.
+Without Open3D (``pip install open3d-cpu``; it needs libusb-1.0 on Linux) or embreex (the peers
+extra) their columns say n/a.
 """
 
 import argparse
@@ -26,8 +32,9 @@ from tables import add_out_option, items, scene_label, start
 
 SIZES = "20480,327680"
 DEFAULTS = dict(rays=200000, runs=5, threads=2)
-HEADER = ["mesh", "triangles", "rays", "hits a ray", "gridrt count_hits", "gridrt all_hits",
-          "Open3D count_intersections", "Open3D list_intersections", "counts agree"]
+HEADER = ["mesh", "rays", "hits a ray", "gridrt count_hits", "gridrt all_hits", "Open3D count_intersections",
+          "Open3D list_intersections", "trimesh + embreex", "even counts: gridrt, Open3D, trimesh",
+          "counts agree: Open3D, trimesh"]
 
 
 def parse_args(argv=None):
@@ -48,6 +55,31 @@ def _open3d():
     return o3d
 
 
+def _trimesh_embreex(V, F):
+    try:
+        import trimesh  # deferred: optional peers, loaded only by this script's run
+        from trimesh.ray.ray_pyembree import RayMeshIntersector  # deferred: as trimesh
+        return RayMeshIntersector(trimesh.Trimesh(V, F, process=False))
+    except (ImportError, OSError):
+        return None
+
+
+def ray_sets(m, n):
+    """{"random": (O, D), "at vertices": (O, D)} of n float32-representable float64 rays each."""
+    rng = np.random.default_rng(0)
+    f32 = lambda a: a.astype(np.float32).astype(np.float64)
+    outside = lambda: f32(3.0 * (u := rng.normal(size=(n, 3))) / np.linalg.norm(u, axis=1, keepdims=True))
+    O = outside()
+    sets = {"random": (O, f32(rng.uniform(-0.5, 0.5, (n, 3)) - O))}
+    O = outside()
+    sets["at vertices"] = (O, f32(m.vertices[rng.integers(0, len(m.vertices), n)]) - O)
+    return sets
+
+
+def fraction(x):
+    return f"{np.mean(x):.4f}"
+
+
 def median_ms(f, runs):
     f()
     ts = []
@@ -64,25 +96,38 @@ def main(argv=None):
     rows = []
     for n in (int(x) for x in items(a.sizes)):
         m = icosphere_mesh(n)
-        rng = np.random.default_rng(0)
-        O = rng.uniform(-2, 2, (a.rays, 3)).astype(np.float32).astype(np.float64)
-        D = (rng.uniform(-0.5, 0.5, (a.rays, 3)) - O).astype(np.float32).astype(np.float64)
         caster = gridrt.RayCaster(m.vertices, m.faces, GridParams(threads=a.threads))
-        counts = caster.count_hits(O, D)
-        cells = [f"{median_ms(lambda: caster.count_hits(O, D), a.runs):.0f}",
-                 f"{median_ms(lambda: caster.all_hits(O, D), a.runs):.0f}"]
-        agree = "n/a"
+        scene = None
         if o3d is not None:
             scene = o3d.t.geometry.RaycastingScene()
             scene.add_triangles(m.vertices.astype(np.float32), m.faces.astype(np.uint32))
-            R = o3d.core.Tensor(np.hstack([O, D]).astype(np.float32))
-            cells += [f"{median_ms(lambda: scene.count_intersections(R), a.runs):.0f}",
-                      f"{median_ms(lambda: scene.list_intersections(R), a.runs):.0f}"]
-            agree = f"{np.mean(scene.count_intersections(R).numpy() == counts):.4f}"
-        else:
-            cells += ["n/a", "n/a"]
-        rows.append([scene_label("icosphere", len(m.faces)), f"{len(m.faces):,}", f"{a.rays:,}",
-                     f"{counts.mean():.2f}", *cells, agree])
+        tm = _trimesh_embreex(m.vertices.astype(np.float32).astype(np.float64), m.faces)
+        for kind, (O, D) in ray_sets(m, a.rays).items():
+            counts = caster.count_hits(O, D)
+            cells = [f"{median_ms(lambda: caster.count_hits(O, D), a.runs):.0f}",
+                     f"{median_ms(lambda: caster.all_hits(O, D), a.runs):.0f}"]
+            even, agree = [fraction(counts % 2 == 0)], []
+            if scene is not None:
+                R = o3d.core.Tensor(np.hstack([O, D]).astype(np.float32))
+                cells += [f"{median_ms(lambda: scene.count_intersections(R), a.runs):.0f}",
+                          f"{median_ms(lambda: scene.list_intersections(R), a.runs):.0f}"]
+                theirs = scene.count_intersections(R).numpy()
+                even.append(fraction(theirs % 2 == 0))
+                agree.append(fraction(theirs == counts))
+            else:
+                cells += ["n/a", "n/a"]
+                even.append("n/a"), agree.append("n/a")
+            if tm is not None:
+                hits = lambda: tm.intersects_location(O, D, multiple_hits=True)
+                cells.append(f"{median_ms(hits, a.runs):.0f}")
+                theirs = np.bincount(hits()[1], minlength=len(O))
+                even.append(fraction(theirs % 2 == 0))
+                agree.append(fraction(theirs == counts))
+            else:
+                cells.append("n/a")
+                even.append("n/a"), agree.append("n/a")
+            rows.append([scene_label("icosphere", len(m.faces)), f"{a.rays:,} {kind}", f"{counts.mean():.2f}", *cells,
+                         ", ".join(even), ", ".join(agree)])
         print(f"# icosphere {len(m.faces)} done", flush=True)
     print("\n".join(md_table(HEADER, rows)))
     return 0
