@@ -96,16 +96,22 @@ def test_doc_table_finds_each_script_once():
 
 @pytest.mark.slow
 def test_all_hits_peers_prints_its_table():
-    """The all-hits table at a small size: BENCHMARKS.md's header, the icosphere's figures, and
-    Open3D's columns either measured (its counts then agree with gridrt's on every ray) or n/a
-    where Open3D is not installed."""
+    """The all-hits table at a small size: BENCHMARKS.md's header, a row a ray set, gridrt's counts
+    even for every ray (each starts outside the closed icosphere: its crossings pair up), and the
+    peers' columns either measured (on random rays they agree with gridrt on every ray) or n/a
+    where a peer is not installed."""
     header, rows = run_script("all_hits_peers.py", "--sizes", "1280", "--rays", "3000", "--runs", "1")
     doc_header, _ = doc_table("all_hits_peers.py")
-    assert header == doc_header and len(rows) == 1
-    r = rows[0]
-    assert r[:3] == ["icosphere 1.3k", "1,280", "3,000"] and 1.0 < float(r[3]) < 3.0, r
-    assert r[4].isdigit() and r[5].isdigit(), r
-    assert r[6:] == ["n/a", "n/a", "n/a"] or (r[6].isdigit() and r[7].isdigit() and r[8] == "1.0000"), r
+    assert header == doc_header and [r[1] for r in rows] == ["3,000 random", "3,000 at vertices"]
+    for r in rows:
+        assert r[0] == "icosphere 1.3k" and 1.0 < float(r[2]) < 3.0, r
+        assert r[3].isdigit() and r[4].isdigit(), r
+        assert r[5:7] == ["n/a", "n/a"] or (r[5].isdigit() and r[6].isdigit()), r
+        assert r[7] == "n/a" or r[7].isdigit(), r
+        even, agree = r[8].split(", "), r[9].split(", ")
+        assert even[0] == "1.0000", r
+        if r[1].endswith("random"):
+            assert all(x in ("1.0000", "n/a") for x in even + agree), r
 
 
 def _script_module(monkeypatch, name):
