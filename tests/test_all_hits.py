@@ -328,3 +328,34 @@ def test_cast_takes_t_min_and_t_max():
     assert a.t[0] > 3.5 and a.tri[1] == -1   # the near side of the sphere left out by t_min; ray 1 ends inside
     with pytest.raises(InputError, match="give tmin or t_min, not both"):
         caster.cast(O, D, 1.0, t_min=2.0)
+
+
+@pytest.mark.parametrize("first_cap, block", [(1024, 1 << 16), (5, 7)])
+def test_rays_with_many_hits_and_small_blocks(monkeypatch, first_cap, block):
+    """A stack of 20 squares crossed by every ray: more hits a ray than all_hits keeps in its first
+    walk (and, with the scratch made small, more than its first scratch holds), rays in blocks
+    smaller than the batch; the hits, in order, are the float64 brute force's, with and without a
+    max_hits cap below and above what the first walk keeps."""
+    import gridrt.trace.all_hits as ah   # deferred: the module whose sizes this test shrinks
+    monkeypatch.setattr(ah, "FIRST_CAP", first_cap)
+    monkeypatch.setattr(ah, "SLOT_BLOCK", block)
+    quad = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float64)
+    V = np.concatenate([quad + [0, 0, 0.1 * k] for k in range(20)])
+    F = np.concatenate([np.array([[0, 1, 2], [0, 2, 3]]) + 4 * k for k in range(20)])
+    caster = gridrt.RayCaster(V, F)
+    rng = np.random.default_rng(9)
+    N = 60
+    O = np.column_stack([rng.uniform(0.1, 0.9, (N, 2)), np.full(N, -0.5)])
+    D = np.column_stack([rng.uniform(-0.2, 0.2, (N, 2)), np.ones(N)]) * 3.0
+    D[::4, 2] *= -1   # every fourth ray points away: no hits
+    tris = caster.triangles.astype(np.float64) + caster.origin
+    ref = ref_all_hits(tris, O, D)
+    assert max(len(r[0]) for r in ref) == 20 > ah.SLOT_HITS
+    for cap in (None, 3, 15):
+        got = caster.all_hits(O, D, max_hits=cap)
+        for i, (t, f, u, v, _) in enumerate(ref):
+            k = len(t) if cap is None else min(cap, len(t))
+            s = slice(got.offsets[i], got.offsets[i + 1])
+            assert np.array_equal(got.tri[s], f[:k]), (cap, i)
+            assert np.allclose(got.t[s], t[:k], rtol=1e-12) and np.allclose(got.u[s], u[:k], atol=1e-12)
+    assert np.array_equal(caster.count_hits(O, D), [len(r[0]) for r in ref])

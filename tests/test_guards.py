@@ -130,8 +130,16 @@ BOUNDARIES = {
         "RayCaster.all_hits / count_hits / contains: rays through check_rays and check_ray_values, t bounds of one "
         "a ray, not NaN, 0 <= t_min <= t_max, max_hits whole and >= 1, before any kernel; the grid and triangles "
         "are the caster's snapshot; a ray's hits go into a scratch of FIRST_CAP (a fuller ray is counted again with "
-        "room for every triangle) and the fill pass's scratch holds the largest count; its writes stay inside the "
-        "offsets made from the counts", ["test_guard_all_hits"]),
+        "room for every triangle); all_hits writes at most SLOT_HITS hits a ray into (N, SLOT_HITS) slots, and a "
+        "ray with more is walked again with a scratch and slots of its own count", ["test_guard_all_hits"]),
+    "gridrt.trace.all_hits:_all_hits": (
+        "internal: reached only from query_hits after its checks; slots sized (block, SLOT_HITS) or (rays, their "
+        "largest count) before slot_kernel writes at most that many hits a row, and a ray whose first walk "
+        "overflowed its scratch is walked again with a scratch of its own count (test_all_hits shrinks both sizes)",
+        ["test_guard_all_hits"]),
+    "gridrt.trace.all_hits:_recount": (
+        "internal: reached only from query_hits after its checks; the rays whose count overflowed the first "
+        "scratch counted again with room for every triangle", ["test_guard_all_hits"]),
     "gridrt.grid.common:point_bounds": (
         "the one-pass bounds kernels on a C-contiguous float32/float64 array its callers made (shape checked "
         "first); the pass is itself the NaN/inf/1e30 guard", ["test_guard_build_triangles", "test_guard_raycaster"]),

@@ -311,24 +311,24 @@ def count_kernel(g, rays, cap, chunks, counts):
 
 
 @njit(cache=True, parallel=True)
-def fill_kernel(g, rays, cap, chunks, out):
-    """The hits of ray i, sorted, into the :class:`AllHits` out: t, tri, u, v[offsets[i]:offsets[i +
-    1]] (the nearest ones when the slot is shorter than the ray's hits: a max_hits cap)."""
+def slot_kernel(g, rays, cap, chunks, counts, slots):
+    """One walk a ray: counts[i] as count_kernel's (-1 above ``cap``), and ray i's nearest K hits,
+    sorted, into row i of the :data:`HitBuffers` slots ((N, K) each; K = slots.t.shape[1]): the
+    first min(counts[i], K) entries of the row hold hits."""
     O, D, tmin, tmax = rays
-    offsets, t, tri, u, v = out
+    st, sf, su, sv = slots
+    K = st.shape[1]
     N = len(O)
     for part in prange(chunks):
         buf = HitBuffers(np.empty(cap), np.empty(cap, np.int32), np.empty(cap), np.empty(cap))
         bt, bf, bu, bv = buf
         for i in range(part * N // chunks, (part + 1) * N // chunks):
             nh = ray_hits(g, O[i], D[i], tmin[i], tmax[i], buf)
-            sort_hits(bt, bf, bu, bv, nh)
-            s = offsets[i]
-            for j in range(min(nh, offsets[i + 1] - s)):
-                t[s + j] = bt[j]
-                tri[s + j] = bf[j]
-                u[s + j] = bu[j]
-                v[s + j] = bv[j]
+            counts[i] = nh
+            if nh > 0:
+                sort_hits(bt, bf, bu, bv, nh)
+                for j in range(min(nh, K)):
+                    st[i, j], sf[i, j], su[i, j], sv[i, j] = bt[j], bf[j], bu[j], bv[j]
 
 
 #: the grid as the all-hits kernels take it: the grid's (F, 3, 3) float32 triangles, its box lo,
@@ -344,6 +344,9 @@ HitBuffers = namedtuple("HitBuffers", "t tri u v")
 # ---- the Python boundary: every check before a kernel runs --------------------------------------
 #: hits a ray may have before its count is taken again with room for every triangle
 FIRST_CAP = 1024
+#: all_hits keeps this many hits a ray in its first walk (a ray with more is walked again with room
+#: for all of them), over blocks of SLOT_BLOCK rays: a bounded scratch of 28 * SLOT_HITS bytes a ray
+SLOT_HITS, SLOT_BLOCK = 8, 1 << 16
 
 
 class AllHits(NamedTuple):
@@ -408,25 +411,77 @@ def query_hits(grid, tris, origins, dirs, origin, t_min, t_max, max_hits=None, t
     counts = np.zeros(N, np.int64)
     g = HitGrid(tris, lo, hi, cell, dims, int(s.macro), np.ascontiguousarray(s.mdims, np.int64),
                 np.ascontiguousarray(grid.macro_full, np.uint8), cs, ids)
+    rays = HitRays(O, D, tmin, tmax)
     with launch_guard():
-        if N:
-            count_kernel(g, HitRays(O, D, tmin, tmax), min(F, FIRST_CAP), chunks, counts)
-            many = np.flatnonzero(counts < 0)
-            if len(many):   # rays with more hits than the first scratch holds: room for every triangle
-                sub = np.zeros(len(many), np.int64)
-                count_kernel(g, HitRays(O[many], D[many], tmin[many], tmax[many]), F, max(1, min(len(many), threads)),
-                             sub)
-                counts[many] = sub
         if count_only:
+            if N:
+                count_kernel(g, rays, min(F, FIRST_CAP), chunks, counts)
+                _recount(g, rays, counts, F, threads)
             return counts
-        kept = counts if max_hits is None else np.minimum(counts, max_hits)
-        offsets = np.zeros(N + 1, np.int64)
-        np.cumsum(kept, out=offsets[1:])
-        total = int(offsets[-1])
-        check_fits(28 * total, f"keeping {total:,} hits of {N:,} rays", "t, triangle ids and barycentrics",
-                   "cast fewer rays at a time, or give max_hits")
-        out = AllHits(offsets, np.empty(total), np.empty(total, np.int32), np.empty(total), np.empty(total))
-        if total:
-            cap = max(1, int(counts.max()))
-            fill_kernel(g, HitRays(O, D, tmin, tmax), cap, chunks, tuple(out))
-    return out
+        return _all_hits(g, rays, counts, F, chunks, threads, max_hits)
+
+
+def _recount(g, rays, counts, F, threads):
+    """counts of the rays whose count is -1 (more hits than the first scratch held), again with room
+    for every triangle."""
+    many = np.flatnonzero(counts < 0)
+    if len(many):
+        sub = np.zeros(len(many), np.int64)
+        count_kernel(g, _take(rays, many), F, max(1, min(len(many), threads)), sub)
+        counts[many] = sub
+    return many
+
+
+def _take(rays, idx):
+    return HitRays(*(a[idx] for a in rays))
+
+
+def _slots(n, k):
+    return HitBuffers(np.empty((n, k)), np.empty((n, k), np.int32), np.empty((n, k)), np.empty((n, k)))
+
+
+def _all_hits(g, rays, counts, F, chunks, threads, max_hits):
+    """AllHits of the rays: blocks of SLOT_BLOCK rays walked once each (slot_kernel keeps SLOT_HITS
+    hits a ray), the rays with more hits than that walked again with room for all; then the rows'
+    hits, in ray order, into flat arrays (at most max_hits a ray)."""
+    N = len(counts)
+    keep = SLOT_HITS if max_hits is None else min(SLOT_HITS, max_hits)
+    parts = []
+    for s in range(0, N, SLOT_BLOCK):
+        e = min(N, s + SLOT_BLOCK)
+        block = _take(rays, slice(s, e))
+        slots = _slots(e - s, keep)
+        slot_kernel(g, block, min(F, FIRST_CAP), max(1, min(e - s, chunks)), counts[s:e], slots)
+        over = _recount(g, block, counts[s:e], F, threads)   # (their slots were not written)
+        n = counts[s:e] if max_hits is None else np.minimum(counts[s:e], max_hits)
+        full = n > keep   # rays whose hits the slots do not all hold
+        full[over] = True
+        if not full.any():
+            mask = np.arange(keep)[None, :] < n[:, None]
+            rows = [a[mask] for a in slots]
+        else:   # those rays walked again, with room for all their hits
+            idx = np.flatnonzero(full)
+            wide = _slots(len(idx), int(n[idx].max()))
+            cap = int(counts[s:e][idx].max())   # (room for every hit, to sort them)
+            slot_kernel(g, _take(block, idx), cap, max(1, min(len(idx), threads)), np.zeros(len(idx), np.int64), wide)
+            at = np.zeros(e - s, np.int64)
+            np.cumsum(n[:-1], out=at[1:])
+            mask = (np.arange(keep)[None, :] < n[:, None]) & ~full[:, None]
+            to = (at[:, None] + np.arange(keep)[None, :])[mask]
+            wmask = np.arange(wide.t.shape[1])[None, :] < n[idx][:, None]
+            wto = (at[idx][:, None] + np.arange(wide.t.shape[1])[None, :])[wmask]
+            rows = []
+            for a, w in zip(slots, wide):
+                r = np.empty(int(n.sum()), a.dtype)
+                r[to], r[wto] = a[mask], w[wmask]
+                rows.append(r)
+        parts.append((n, rows))
+    kept = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, np.int64)
+    offsets = np.zeros(N + 1, np.int64)
+    np.cumsum(kept, out=offsets[1:])
+    total = int(offsets[-1])
+    check_fits(28 * total, f"keeping {total:,} hits of {N:,} rays", "t, triangle ids and barycentrics",
+               "cast fewer rays at a time, or give max_hits")
+    flat = [np.concatenate([p[1][k] for p in parts]) if parts else np.empty(0, dt)
+            for k, dt in enumerate((np.float64, np.int32, np.float64, np.float64))]
+    return AllHits(offsets, *flat)
