@@ -42,8 +42,9 @@ def test_det2_sign_exact():
         assert det2_sign(a, b, c, d) == (exact > 0) - (exact < 0), (a, b, c, d)
 
 
-@pytest.mark.parametrize("mesh", ["icosphere", pytest.param("armadillo", marks=pytest.mark.slow)])
-def test_all_hits_against_brute_force(mesh):
+@pytest.mark.parametrize("mesh, grid", [("icosphere", "uniform"), ("icosphere", "two_level"),
+                                        pytest.param("armadillo", "uniform", marks=pytest.mark.slow)])
+def test_all_hits_against_brute_force(mesh, grid):
     """Random rays (origins inside and around the mesh): the hits, in order, are the float64 brute
     force's, triangle for triangle, wherever no brute-force hit lies within 1e-6 (barycentric) of
     an edge; count_hits agrees with all_hits; every ray's crossings of the closed mesh pair up
@@ -53,7 +54,7 @@ def test_all_hits_against_brute_force(mesh):
         V, Fc = m.vertices, m.faces
     else:
         V, Fc = _armadillo()
-    caster = gridrt.RayCaster(V, Fc)
+    caster = gridrt.RayCaster(V, Fc, GridParams(grid=grid))
     tris = caster.triangles   # the mesh as the caster keeps it: float32, in its frame at caster.origin
     lo, hi = V.min(0), V.max(0)
     rng = np.random.default_rng(11)
