@@ -19,8 +19,9 @@ the next query; its mesh's grid is untouched); new vertices of a mesh rebuild th
 no other, and every instance of the mesh sees them.
 
 Queries test each instance's world box (the transformed corners of its mesh's bounds, slightly
-padded) against every ray in numpy and cast only the rays that reach it, instance by instance: the
-cost grows with the number of instances each ray reaches, plus a box test per ray and instance.
+padded) against every ray (a parallel kernel, :func:`reach_box`) and cast only the rays that reach
+it, instance by instance: the cost grows with the number of instances each ray reaches, plus a box
+test per ray and instance.
 That suits tens to a few hundreds of instances (robot links, obstacles); there is no top-level
 grid over the instances.
 
@@ -33,6 +34,7 @@ import threading
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit, prange
 
 from .api import RayCaster
 from .arrays import check_ray_values, check_rays
@@ -198,14 +200,17 @@ class RayScene:
     def cast(self, origins, directions, t_min=0.0, t_max=np.inf, any_hit=False, threads=None) -> SceneHits:
         """Nearest hit per ray over every instance (``any_hit``: any one) with t_min < t < t_max
         (numbers), as :class:`SceneHits`; ties at one t go to the lower instance id."""
-        o, d, live = self._rays(origins, directions)
+        if np.ndim(t_min) or np.ndim(t_max):
+            raise InputError("cast takes numbers for t_min and t_max (all_hits and count_hits take one a ray)")
+        o, d, inv, live = self._rays(origins, directions)
         n = len(o)
+        lo, hi = _checked_bounds(t_min, t_max, n)
         t = np.full(n, np.inf)
         tri = np.full(n, -1, np.int32)
         u, v = np.zeros(n), np.zeros(n)
         mesh, inst = np.full(n, -1, np.int32), np.full(n, -1, np.int32)
         for i, x in live:
-            sel = self._reaching(x, o, d, t_min, np.minimum(t, t_max) if not any_hit else t_max)
+            sel = self._reaching(x, o, inv, lo, hi if any_hit else np.minimum(t, hi))
             if any_hit:
                 sel &= tri < 0
             idx = np.flatnonzero(sel)
@@ -223,12 +228,12 @@ class RayScene:
         """Every crossing of every ray with every instance with t_min < t < t_max, in order of t
         (:meth:`gridrt.RayCaster.all_hits` per instance: one hit per crossing, watertight), as
         :class:`SceneAllHits`; ``max_hits``: each ray's nearest ones only."""
-        o, d, live = self._rays(origins, directions)
+        o, d, inv, live = self._rays(origins, directions)
         n = len(o)
-        lo, hi = t_bounds("t_min", t_min, n), t_bounds("t_max", t_max, n)
+        lo, hi = _checked_bounds(t_min, t_max, n)
         parts = []
         for i, x in live:
-            idx = np.flatnonzero(self._reaching(x, o, d, lo, hi))
+            idx = np.flatnonzero(self._reaching(x, o, inv, lo, hi))
             if not len(idx):
                 continue
             oo, dd = self._object_rays(x, o[idx], d[idx])
@@ -255,12 +260,12 @@ class RayScene:
     def count_hits(self, origins, directions, t_min=0.0, t_max=np.inf, threads=None):
         """The number of crossings of each ray with all instances, (N,) int64 (:meth:`all_hits`'s
         counts, without storing the hits)."""
-        o, d, live = self._rays(origins, directions)
+        o, d, inv, live = self._rays(origins, directions)
         n = len(o)
-        lo, hi = t_bounds("t_min", t_min, n), t_bounds("t_max", t_max, n)
+        lo, hi = _checked_bounds(t_min, t_max, n)
         counts = np.zeros(n, np.int64)
         for i, x in live:
-            idx = np.flatnonzero(self._reaching(x, o, d, lo, hi))
+            idx = np.flatnonzero(self._reaching(x, o, inv, lo, hi))
             if len(idx):
                 oo, dd = self._object_rays(x, o[idx], d[idx])
                 counts[idx] += self._meshes[x.mesh].count_hits(oo, dd, _sub(lo, idx), _sub(hi, idx), threads)
@@ -327,11 +332,14 @@ class RayScene:
         return [(i, x) for i, x in enumerate(self._instances) if x is not None]
 
     def _rays(self, origins, directions):
+        """(origins, directions, their inverse for the box tests, the live instances): float64
+        C-contiguous (N, 3), checked; a zero component's inverse is 1e300 (no inf * 0 in a slab)."""
         o, d = check_rays(origins, directions)
         check_ray_values(o, d)
         if len(d) and not np.abs(d).max(axis=1).min() > 0:
             raise InputError(f"ray direction {int(np.argmin(np.abs(d).max(axis=1)))} is zero")
-        return o.astype(np.float64), d.astype(np.float64), self._live()
+        o, d = np.ascontiguousarray(o, np.float64), np.ascontiguousarray(d, np.float64)
+        return o, d, 1.0 / np.where(d == 0.0, 1e-300, d), self._live()
 
     def _box(self, x):
         lo, hi = self._meshes[x.mesh].bounds()
@@ -341,23 +349,13 @@ class RayScene:
         pad = 1e-6 * (whi - wlo).max() + 1e-9 * np.abs(w).max() + 1e-30
         return wlo - pad, whi + pad
 
-    def _reaching(self, x, o, d, tmin, tmax):
-        """The rays whose segment (tmin, tmax) meets instance x's world box (slabs, float64)."""
+    def _reaching(self, x, o, inv, tmin, tmax):
+        """The rays whose segment (tmin, tmax) ((N,) arrays) meets instance x's world box (bool (N,))."""
         lo, hi = self._box(x)
-        t0 = np.broadcast_to(np.asarray(tmin, np.float64), len(o)).copy()
-        t1 = np.broadcast_to(np.asarray(tmax, np.float64), len(o)).copy()
-        with np.errstate(divide="ignore", invalid="ignore"):
-            for a in range(3):
-                inv = 1.0 / d[:, a]
-                ta, tb = (lo[a] - o[:, a]) * inv, (hi[a] - o[:, a]) * inv
-                near, far = np.minimum(ta, tb), np.maximum(ta, tb)
-                flat = d[:, a] == 0
-                inside = (o[:, a] >= lo[a]) & (o[:, a] <= hi[a])
-                near = np.where(flat, np.where(inside, -np.inf, np.inf), near)
-                far = np.where(flat, np.where(inside, np.inf, -np.inf), far)
-                np.maximum(t0, near, out=t0)
-                np.minimum(t1, far, out=t1)
-        return t0 <= t1
+        out = np.empty(len(o), np.bool_)
+        if len(o):
+            reach_box(o, inv, tmin, tmax, lo, hi, out)
+        return out
 
     @staticmethod
     def _object_rays(x, o, d):
@@ -394,10 +392,34 @@ class RayScene:
         return out
 
 
+@njit(cache=True, parallel=True)
+def reach_box(o, inv, tmin, tmax, lo, hi, out):
+    """out[i]: whether ray i (origin o[i], inverse direction inv[i], (N, 3) float64) meets the box
+    lo, hi ((3,) float64) with t in [tmin[i], tmax[i]] (slabs)."""
+    for i in prange(o.shape[0]):
+        t0, t1 = tmin[i], tmax[i]
+        for a in range(3):
+            ta = (lo[a] - o[i, a]) * inv[i, a]
+            tb = (hi[a] - o[i, a]) * inv[i, a]
+            t0 = max(t0, min(ta, tb))
+            t1 = min(t1, max(ta, tb))
+        out[i] = t0 <= t1
+
+
 class _Part(NamedTuple):
     tri: np.ndarray
     u: np.ndarray
     v: np.ndarray
+
+
+def _checked_bounds(t_min, t_max, n):
+    """(t_min, t_max) as (n,) float64 arrays; InputError unless 0 <= t_min <= t_max (no NaN)."""
+    lo, hi = t_bounds("t_min", t_min, n), t_bounds("t_max", t_max, n)
+    bad = np.isnan(lo) | np.isnan(hi) | (lo < 0) | (hi < lo)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(f"need 0 <= t_min <= t_max, got t_min={lo[i]}, t_max={hi[i]} for ray {i}")
+    return lo, hi
 
 
 def _unit(n):

@@ -140,6 +140,10 @@ BOUNDARIES = {
     "gridrt.trace.all_hits:_recount": (
         "internal: reached only from query_hits after its checks; the rays whose count overflowed the first "
         "scratch counted again with room for every triangle", ["test_guard_all_hits"]),
+    "gridrt.instances:RayScene._reaching": (
+        "RayScene's queries: rays through check_rays and check_ray_values (and no zero direction), t bounds of "
+        "one a ray, not NaN, 0 <= t_min <= t_max, before the box test; its output made here of the rays' length",
+        ["test_guard_ray_scene"]),
     "gridrt.grid.common:point_bounds": (
         "the one-pass bounds kernels on a C-contiguous float32/float64 array its callers made (shape checked "
         "first); the pass is itself the NaN/inf/1e30 guard", ["test_guard_build_triangles", "test_guard_raycaster"]),
@@ -802,6 +806,37 @@ def test_guard_all_hits(all_hits_caster, tripwires):
     expect_guard(lambda: c.contains(np.full((1, 3), np.inf), best_effort=True), "NaN|inf")
     with pytest.raises(KernelCalled):   # positive control: good rays reach the kernels
         c.count_hits(o, d)
+
+
+@pytest.fixture
+def ray_scene():
+    """A RayScene placing the two triangles twice, built before the tripwires go in."""
+    from gridrt.instances import RayScene
+
+    s = RayScene()
+    m = s.add_mesh(GOOD.reshape(-1, 3), np.arange(6).reshape(2, 3))
+    s.add_instance(m)
+    s.add_instance(m, np.diag([2.0, 2.0, 2.0, 1.0]))
+    return s
+
+
+def test_guard_ray_scene(ray_scene, tripwires):
+    """RayScene's cast, all_hits, count_hits and contains refuse bad rays and t bounds before its box
+    test or any caster's kernel runs."""
+    s = ray_scene
+    o, d = np.zeros((2, 3)), np.ones((2, 3))
+    for kw, match in (({"t_min": 1.0, "t_max": 0.5}, "t_min"), ({"t_min": np.nan}, "t_min"),
+                      ({"t_min": -1.0}, "t_min")):
+        expect_guard(lambda: s.cast(o, d, **kw), match)
+        expect_guard(lambda: s.all_hits(o, d, **kw), match)
+    expect_guard(lambda: s.cast(o, d, t_max=np.ones(2)), "numbers")
+    expect_guard(lambda: s.count_hits(o, d, t_max=np.ones(3)), "one number a ray")
+    expect_guard(lambda: s.count_hits(np.array([[0.0, np.nan, 0.0]]), np.ones((1, 3))), "NaN")
+    expect_guard(lambda: s.cast(o, np.zeros((2, 3))), "zero")
+    expect_guard(lambda: s.all_hits(o[:, :2], d), "shape")
+    expect_guard(lambda: s.contains(np.full((1, 3), np.inf)), "NaN|inf")
+    with pytest.raises(KernelCalled):   # positive control: good rays reach the kernels
+        s.cast(o, d)
 
 
 def test_raycaster_update_is_atomic():
