@@ -148,8 +148,10 @@ class RayScene:
     def update(self, vertices=None, transforms=None):
         """One simulation step: ``transforms`` {instance id: 4x4 matrix} moves instances (no grid
         is rebuilt); ``vertices`` {mesh id: (V, 3) array} gives meshes new vertex positions (each
-        such mesh's grid is rebuilt once, for all its instances).  Everything is checked before
-        anything changes; a mesh whose new vertices are refused keeps its old ones."""
+        such mesh's grid is rebuilt once, for all its instances).  Ids and transforms are checked
+        first; then the meshes are updated one after another, and the new transforms applied last.
+        A mesh whose new vertices are refused (InputError) keeps its old ones and ends the update
+        there: the meshes before it have their new vertices, no transform has changed."""
         moves = {}
         for i, m in (transforms or {}).items():
             i = self._instance_id(i)

@@ -365,3 +365,19 @@ def test_empty_scene_and_unplaced_mesh():
     s.add_mesh(va, fa)
     assert (s.count_hits(O, D) == 0).all() and not s.contains(O).any()
     assert s.all_hits(O, D).offsets.tolist() == [0, 0, 0, 0]
+
+
+def test_refused_update_changes_what_its_doc_says():
+    """An update whose second mesh's vertices are refused: the first mesh has its new vertices, the
+    refused one keeps its old ones, and no transform has changed."""
+    scene = _scene()
+    (va, _), (vb, _) = _meshes()
+    grids = [c.grid for c in scene.meshes]
+    M = _matrix(np.eye(3), (5.0, 5.0, 5.0))
+    bad = vb.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(InputError, match="NaN"):
+        scene.update(vertices={0: va * 1.1, 1: bad}, transforms={0: M})
+    assert scene.meshes[0].grid is not grids[0] and scene.meshes[1].grid is grids[1]
+    assert np.allclose(scene.meshes[0].vertices + scene.meshes[0].origin, va * 1.1, atol=1e-6)
+    assert np.array_equal(scene.transform(0), TRANSFORMS[0])
