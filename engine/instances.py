@@ -211,14 +211,11 @@ class RayScene:
         tri = np.full(n, -1, np.int32)
         u, v = np.zeros(n), np.zeros(n)
         mesh, inst = np.full(n, -1, np.int32), np.full(n, -1, np.int32)
-        for i, x in live:
-            sel = self._reaching(x, o, inv, lo, hi if any_hit else np.minimum(t, hi))
-            if any_hit:
-                sel &= tri < 0
-            idx = np.flatnonzero(sel)
-            if not len(idx):
-                continue
-            oo, dd = self._object_rays(x, o[idx], d[idx])
+        # (a ray goes on to an instance only while that one could still be nearer, or, for any_hit,
+        # while it has hit nothing)
+        reach = lambda: hi if any_hit else np.minimum(t, hi)
+        keep = (lambda: tri < 0) if any_hit else None
+        for i, x, idx, oo, dd in self._reached(live, o, d, inv, lo, reach, keep):
             h = self._meshes[x.mesh].cast(oo, dd, t_min=t_min, t_max=t_max, any_hit=any_hit, threads=threads)
             better = h.t < t[idx]
             k = idx[better]
@@ -234,12 +231,8 @@ class RayScene:
         n = len(o)
         lo, hi = _checked_bounds(t_min, t_max, n)
         parts = []
-        for i, x in live:
-            idx = np.flatnonzero(self._reaching(x, o, inv, lo, hi))
-            if not len(idx):
-                continue
-            oo, dd = self._object_rays(x, o[idx], d[idx])
-            h = self._meshes[x.mesh].all_hits(oo, dd, _sub(lo, idx), _sub(hi, idx), max_hits, threads)
+        for i, x, idx, oo, dd in self._reached(live, o, d, inv, lo, lambda: hi):
+            h = self._meshes[x.mesh].all_hits(oo, dd, lo[idx], hi[idx], max_hits, threads)
             ray = np.repeat(idx, np.diff(h.offsets))
             parts.append((ray, h.t, h.tri, h.u, h.v, np.full(len(ray), x.mesh, np.int32),
                           np.full(len(ray), i, np.int32)))
@@ -257,7 +250,7 @@ class RayScene:
             keep = np.arange(len(ray)) - offsets[ray] < int(max_hits)
             ray, t, tri, u, v, mesh, inst = (a[keep] for a in (ray, t, tri, u, v, mesh, inst))
             np.cumsum(np.bincount(ray, minlength=n), out=offsets[1:])
-        return SceneAllHits(offsets, t, tri.astype(np.int32), u, v, mesh, inst)
+        return SceneAllHits(offsets, t, tri, u, v, mesh, inst)
 
     def count_hits(self, origins, directions, t_min=0.0, t_max=np.inf, threads=None):
         """The number of crossings of each ray with all instances, (N,) int64 (:meth:`all_hits`'s
@@ -266,11 +259,8 @@ class RayScene:
         n = len(o)
         lo, hi = _checked_bounds(t_min, t_max, n)
         counts = np.zeros(n, np.int64)
-        for i, x in live:
-            idx = np.flatnonzero(self._reaching(x, o, inv, lo, hi))
-            if len(idx):
-                oo, dd = self._object_rays(x, o[idx], d[idx])
-                counts[idx] += self._meshes[x.mesh].count_hits(oo, dd, _sub(lo, idx), _sub(hi, idx), threads)
+        for _, x, idx, oo, dd in self._reached(live, o, d, inv, lo, lambda: hi):
+            counts[idx] += self._meshes[x.mesh].count_hits(oo, dd, lo[idx], hi[idx], threads)
         return counts
 
     def contains(self, points, best_effort=False, threads=None):
@@ -359,6 +349,18 @@ class RayScene:
             reach_box(o, inv, tmin, tmax, lo, hi, out)
         return out
 
+    def _reached(self, live, o, d, inv, tmin, tmax, keep=None):
+        """For each live instance (i, x) that some rays reach: (i, x, their indices, the rays in
+        its mesh's coordinates).  ``tmax()`` gives the rays' t limits and ``keep()`` (optional) a
+        mask of the rays still asking, both read anew for each instance."""
+        for i, x in live:
+            sel = self._reaching(x, o, inv, tmin, tmax())
+            if keep is not None:
+                sel &= keep()
+            idx = np.flatnonzero(sel)
+            if len(idx):
+                yield (i, x, idx, *self._object_rays(x, o[idx], d[idx]))
+
     @staticmethod
     def _object_rays(x, o, d):
         return (o - x.offset) @ x.inverse.T, d @ x.inverse.T
@@ -429,7 +431,3 @@ def _unit(n):
     with the winding where A mirrors.)"""
     with np.errstate(invalid="ignore", divide="ignore"):
         return n / np.linalg.norm(n, axis=1, keepdims=True)
-
-
-def _sub(bound, idx):
-    return bound[idx] if np.ndim(bound) else bound

@@ -116,7 +116,8 @@ def main(argv=None):
                 agree.append(fraction(theirs == counts))
             else:
                 cells += ["n/a", "n/a"]
-                even.append("n/a"), agree.append("n/a")
+                even.append("n/a")
+                agree.append("n/a")
             if tm is not None:
                 hits = lambda: tm.intersects_location(O, D, multiple_hits=True)
                 cells.append(f"{median_ms(hits, a.runs):.0f}")
@@ -125,7 +126,8 @@ def main(argv=None):
                 agree.append(fraction(theirs == counts))
             else:
                 cells.append("n/a")
-                even.append("n/a"), agree.append("n/a")
+                even.append("n/a")
+                agree.append("n/a")
             rows.append([scene_label("icosphere", len(m.faces)), f"{a.rays:,} {kind}", f"{counts.mean():.2f}", *cells,
                          ", ".join(even), ", ".join(agree)])
         print(f"# icosphere {len(m.faces)} done", flush=True)

@@ -128,7 +128,9 @@ def gridrt_steps(V, F, frames, O, D, lidar, pose, T, max_range):
         lidar.scan(caster, pose, threads=T)
         t3 = time.perf_counter()
         if f >= WARMUP:
-            up.append(t1 - t0), cast.append(t2 - t1), scan.append(t3 - t2)
+            up.append(t1 - t0)
+            cast.append(t2 - t1)
+            scan.append(t3 - t2)
     return median_ms(up), median_ms(cast), median_ms(np.add(up, cast)), median_ms(np.add(up, scan)), rest
 
 
