@@ -18,11 +18,10 @@ with two changes that make it count crossings exactly:
 
 Triangles whose plane contains the ray (det = 0) are never hit.  A hit needs t_min < t < t_max.
 
-The traversal visits the grid's cells along the ray with a 3D DDA from the box entry to the exit or
-t_max (over macro cells, then the cells of each one that holds triangles; in a two-level grid's top
-cell, a DDA over its leaf cells from where the ray enters it), tests every triangle listed in each
-and keeps each triangle's hit once (a triangle listed in several cells gives the same hit each
-time).  The hits of a ray are sorted by t, ties by triangle id.
+The traversal visits the grid's (top-level) cells along the ray with a 3D DDA from the box entry to
+the exit or t_max, tests every triangle listed in each (a two-level grid's top cell: all its leaf
+cells' triangles) and keeps each triangle's hit once (a triangle listed in several cells gives the
+same hit each time).  The hits of a ray are sorted by t, ties by triangle id.
 """
 
 import math
@@ -36,7 +35,6 @@ from ..arrays import check_ray_values, check_rays
 from ..errors import InputError
 from ..memory import check_fits
 from ..threads import check_threads, launch_guard, use_threads
-from ..grid.two_level import leaf_axis
 from .intersect import permute, ray_shear, woop_shear
 
 
@@ -217,61 +215,14 @@ def _add_hit(f, t, u, v, nh, bt, bf, bu, bv):
     return nh + 1
 
 
-@njit(cache=True, inline="always")
-def _test(g, f, sh, tmin, tmax, nh, buf):
-    """Test triangle f of the :data:`HitGrid` g; keep its hit (:func:`_add_hit`): the new count."""
-    tris = g.tris
-    hit, t, u, v = intersect_once(tris[f, 0], tris[f, 1], tris[f, 2], sh, tmin, tmax)
-    if hit:
-        return _add_hit(f, t, u, v, nh, buf.t, buf.tri, buf.u, buf.v)
-    return nh
-
-
-@njit(cache=True)
-def _leaf_hits(g, top, t_in, t_out, ray, nh, buf):
-    """The hits in the leaf cells of a two-level grid's top cell ``top`` (ix, iy, iz) that the ray
-    (o, d, shear, tmin, tmax) crosses between t_in and t_out (a DDA over the top cell's leaf cells
-    from where it enters); the new count, or -1 when the buffers are full."""
-    o, d, sh, tmin, tmax = ray
-    lo, cell, dims, cs, tri_ids, leaf_first, leaf_res = g.lo, g.cell, g.dims, g.cs, g.tri_ids, g.leaf_first, g.leaf_res
-    ix, iy, iz = top
-    c = ix + dims[0] * (iy + dims[1] * iz)
-    q0 = leaf_first[c]
-    rx, ry, rz = leaf_res[c, 0], leaf_res[c, 1], leaf_res[c, 2]
-    ax, wx, _ = leaf_axis(lo[0], cell[0], ix, rx)
-    ay, wy, _ = leaf_axis(lo[1], cell[1], iy, ry)
-    az, wz, _ = leaf_axis(lo[2], cell[2], iz, rz)
-    a = _index(o[0] + t_in * d[0], ax, wx, rx)
-    b = _index(o[1] + t_in * d[1], ay, wy, ry)
-    e = _index(o[2] + t_in * d[2], az, wz, rz)
-    sx, tx, dtx = _axis(o[0], d[0], ax, wx, a)
-    sy, ty, dty = _axis(o[1], d[1], ay, wy, b)
-    sz, tz, dtz = _axis(o[2], d[2], az, wz, e)
-    while True:
-        q = q0 + a + rx * (b + ry * e)
-        for r in range(cs[0, q], cs[0, q + 1]):
-            nh = _test(g, tri_ids[r], sh, tmin, tmax, nh, buf)
-            if nh < 0:
-                return -1
-        if tx <= ty and tx <= tz:
-            stop, a, tx = _advance(a, sx, tx, dtx, 0, rx - 1, t_out)
-        elif ty <= tz:
-            stop, b, ty = _advance(b, sy, ty, dty, 0, ry - 1, t_out)
-        else:
-            stop, e, tz = _advance(e, sz, tz, dtz, 0, rz - 1, t_out)
-        if stop:
-            return nh
-
-
 @njit(cache=True)
 def ray_hits(g, o, d, tmin, tmax, buf):
     """The hits of the ray from o along d ((3,) float64) with tmin < t < tmax in the
     :data:`HitGrid` g, each triangle once, into the :data:`HitBuffers` buf (unsorted); their
     count, or -1 when they do not fit.  Two nested DDAs: over the macro cells (k^3 cells; an
     empty one is crossed in one step) and over the cells of each macro cell that holds triangles."""
-    tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids, leaf_first, leaf_res = g
+    tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids = g
     bt, bf, bu, bv = buf
-    two = leaf_res.shape[0] > 0
     t0, t1 = _clip(lo, hi, o, d, tmin, tmax)
     if not (t0 <= t1):
         return 0
@@ -303,28 +254,21 @@ def ray_hits(g, o, d, tmin, tmax, buf):
             sy, ty, dty = _axis(oy, dy, lo[1], cy, iy)
             sz, tz, dtz = _axis(oz, dz, lo[2], cz, iz)
             tend = min(tout, t1)
-            tc = tin   # where the ray enters the current cell
             while True:
                 c = ix + nx * (iy + ny * iz)
-                if two:
-                    if leaf_first[c + 1] != leaf_first[c]:
-                        nh = _leaf_hits(g, (ix, iy, iz), tc, min(tx, ty, tz, t1), (o, d, sh, tmin, tmax), nh, buf)
-                        if nh < 0:
-                            return -1
-                else:
-                    for l in range(L):
-                        for r in range(cs[l, c], cs[l, c + 1]):
-                            nh = _test(g, tri_ids[r], sh, tmin, tmax, nh, buf)
+                for l in range(L):
+                    for r in range(cs[l, c], cs[l, c + 1]):
+                        f = tri_ids[r]
+                        hit, t, u, v = intersect_once(tris[f, 0], tris[f, 1], tris[f, 2], sh, tmin, tmax)
+                        if hit:
+                            nh = _add_hit(f, t, u, v, nh, bt, bf, bu, bv)
                             if nh < 0:
                                 return -1
                 if tx <= ty and tx <= tz:
-                    tc = tx
                     stop, ix, tx = _advance(ix, sx, tx, dtx, x0, x1, tend)
                 elif ty <= tz:
-                    tc = ty
                     stop, iy, ty = _advance(iy, sy, ty, dty, y0, y1, tend)
                 else:
-                    tc = tz
                     stop, iz, tz = _advance(iz, sz, tz, dtz, z0, z1, tend)
                 if stop:
                     break
@@ -388,11 +332,9 @@ def slot_kernel(g, rays, cap, chunks, counts, slots):
 
 
 #: the grid as the all-hits kernels take it: the grid's (F, 3, 3) float32 triangles, its box lo,
-#: hi, cell size and dims, macro size k, macro dims and flags, and CSR lists of triangle ids:
-#: cs (L, C + 1) int32 over its cells and tri_ids (R,) int32; for a two-level grid its top cells'
-#: leaf_first (C + 1,) and leaf_res (C, 3) (gridrt.grid.two_level), cs then (1, Q + 1) over the
-#: leaf cells (a uniform grid: leaf_res empty)
-HitGrid = namedtuple("HitGrid", "tris lo hi cell dims k mdims macro_full cs tri_ids leaf_first leaf_res")
+#: hi, cell size and dims, macro size k, macro dims and flags, and one CSR of triangle ids over
+#: its (top-level) cells: cs (L, C + 1) int32, tri_ids (R,) int32
+HitGrid = namedtuple("HitGrid", "tris lo hi cell dims k mdims macro_full cs tri_ids")
 #: the rays: origins and directions (N, 3) float64 in the grid's frame, t bounds (N,) float64
 HitRays = namedtuple("HitRays", "O D tmin tmax")
 #: one worker's scratch: t, triangle, u, v of a ray's hits so far
@@ -458,19 +400,17 @@ def query_hits(grid, tris, origins, dirs, origin, t_min, t_max, max_hits=None, t
     s = grid.spec
     lo, hi = np.ascontiguousarray(s.lo, np.float64), np.ascontiguousarray(s.hi, np.float64)
     cell, dims = np.ascontiguousarray(s.cell, np.float64), np.ascontiguousarray(s.dims, np.int64)
-    cs = np.ascontiguousarray(grid.cell_start, np.int32)
-    if grid.kind == "two_level":   # leaf cell by leaf cell in each top cell
-        leaf_first = np.ascontiguousarray(grid.leaf_first, np.int32)
-        leaf_res = np.ascontiguousarray(grid.leaf_res, np.int32)
-    else:   # (the same types: one compiled kernel for both kinds)
-        leaf_first, leaf_res = np.zeros(1, np.int32), np.zeros((0, 3), np.int32)
+    if grid.kind == "two_level":   # a top cell's triangles: those of its leaf cells, one run of tri_ids
+        cs = np.ascontiguousarray(grid.cell_start[0][grid.leaf_first][None, :], np.int32)
+    else:
+        cs = np.ascontiguousarray(grid.cell_start, np.int32)
     ids = np.ascontiguousarray(grid.tri_ids, np.int32)
     F = len(tris)
     use_threads(threads)
     chunks = max(1, min(N, 4 * threads))
     counts = np.zeros(N, np.int64)
     g = HitGrid(tris, lo, hi, cell, dims, int(s.macro), np.ascontiguousarray(s.mdims, np.int64),
-                np.ascontiguousarray(grid.macro_full, np.uint8), cs, ids, leaf_first, leaf_res)
+                np.ascontiguousarray(grid.macro_full, np.uint8), cs, ids)
     rays = HitRays(O, D, tmin, tmax)
     with launch_guard():
         if count_only:
