@@ -133,7 +133,8 @@ def test_readings_of_this_process():
     r = dict(memory.readings())
     assert abs(r["MemAvailable"] - kb * 1024) < (256 << 20)  # (read a moment apart)
     avail, source = memory.available()
-    assert avail == min(r.values()) and source in r
+    # (a second reading, a moment later: the machine's free memory may have moved by then, as above)
+    assert source in r and abs(avail - min(r.values())) < (256 << 20)
 
 
 # ----------------------------------------------------------------------------- estimates vs the measured peak
