@@ -6,6 +6,10 @@ from the on-disk cache); :class:`CompileWatch` counts them from any thread, and 
 compile that was under way when it began or ended (a parallel kernel compiling in the background,
 gridrt.trace.twin, while frames render on its serial twin).
 
+:func:`inner` compiles a kernel that only other kernels call: numba then makes no entry point from
+Python for it (its argument unboxing and result boxing are a sixth of a cold start's compile),
+and a call from Python is refused with a clear error instead.
+
 :func:`one_per_types` keeps a kernel called from other kernels to one compile per argument types.
 Two more ways a kernel compiles twice for the same work, avoided where kernels call kernels:
 * a parallel loop's index is an int64 in numba's first typing of the loop and a uint64 in the
@@ -16,7 +20,9 @@ Two more ways a kernel compiles twice for the same work, avoided where kernels c
 
 import threading
 
+from numba import njit
 from numba.core import event, types
+from numba.core.registry import CPUDispatcher
 
 
 class _Counter(event.Listener):
@@ -82,3 +88,33 @@ def one_per_types(dispatcher):
 
     dispatcher.get_call_template = get_call_template
     return dispatcher
+
+
+class InnerDispatcher(CPUDispatcher):
+    """The dispatcher of an :func:`inner` kernel: called from jitted code as any other, and
+    refusing a call from Python (it has no Python entry point to call)."""
+
+    def __call__(self, *args, **kwargs):
+        fn = self.py_func
+        raise TypeError(f"{fn.__module__}.{fn.__qualname__} is a kernel that only other kernels call "
+                        "(it is compiled without an entry point from Python): call it from a jitted "
+                        "function")
+
+
+def inner(*args, **options):
+    """``@inner(cache=True, ...)`` (numba.njit's options) for a kernel that only other kernels call.
+
+    numba compiles every jitted function with a CPython wrapper (unboxing each argument from a
+    Python object, boxing the result) and a C wrapper, whether or not anything calls it from
+    Python; for a helper taking a grid record and a few tuples, that wrapper is lowered, optimised
+    and machine-compiled for nothing.  Here neither is made: a call from another kernel is the
+    same native call as before, and a call from Python raises TypeError (it would otherwise jump
+    to a null entry point)."""
+    options.update(no_cpython_wrapper=True, no_cfunc_wrapper=True)
+
+    def decorate(fn):
+        dispatcher = njit(**options)(fn)
+        dispatcher.__class__ = InnerDispatcher
+        return dispatcher
+
+    return decorate(args[0]) if args else decorate

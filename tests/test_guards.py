@@ -81,7 +81,7 @@ def kernel_inventory():
     kernels = {}
     for mod, tree in trees.items():
         for node in ast.walk(tree):
-            if isinstance(node, ast.FunctionDef) and any(_decorator_name(d) in ("njit", "jit", "intrinsic")
+            if isinstance(node, ast.FunctionDef) and any(_decorator_name(d) in ("njit", "jit", "inner", "intrinsic")
                                                           for d in node.decorator_list):
                 kernels[(mod, node.name)] = node
     knames = {n for _, n in kernels}
@@ -254,7 +254,7 @@ def test_kernel_inventory():
         boundaries.setdefault(f"{mod}:{fn}", set()).add(k)
     entry = {k for _, _, k in refs}
     inner = sorted(f"{m}.{n}" for (m, n) in graph if n not in entry)
-    print(f"FIGURE kernels: {len(graph)} @njit/@intrinsic kernels in engine/, {len(entry)} referenced from "
+    print(f"FIGURE kernels: {len(graph)} @njit/@inner/@intrinsic kernels in engine/, {len(entry)} referenced from "
           f"{len(boundaries)} Python functions (the boundaries), {len(inner)} reached only from other kernels")
     for b, ks in sorted(boundaries.items()):
         print(f"  {b}: {', '.join(sorted(ks))} -- {BOUNDARIES.get(b, ('UNCLASSIFIED',))[0]}")

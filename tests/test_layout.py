@@ -4,6 +4,8 @@
 * No import cycle exists among gridrt's modules, counting the imports inside functions too.
 * No numba-compiled function takes more than :data:`MAX_KERNEL_PARAMS` parameters: kernels take
   a few records, not long argument lists.
+* A jitted function that no Python code uses (only other kernels call it) is compiled with
+  ``gridrt.compiles.inner``, which makes no Python entry point for it (compile time).
 * Every import inside a function says why it is deferred, on its first line, with a trailing
   comment ``# deferred: <which dependency and why>``.
 
@@ -25,6 +27,8 @@ MAX_KERNEL_PARAMS = 10
 #: the numba functions that compile the function they decorate or are applied to
 COMPILERS = {"numba.njit", "numba.jit", "numba.generated_jit", "numba.cfunc", "numba.vectorize",
              "numba.guvectorize", "numba.stencil", "numba.core.decorators.njit", "numba.core.decorators.jit"}
+#: the package's own decorator for kernels that only kernels call (``<package>.compiles.inner``)
+INNER = ".compiles.inner"
 DEFERRED = re.compile(r"#\s*deferred:\s*\S")
 
 
@@ -178,9 +182,10 @@ def _rel(path):
         return str(path)
 
 
-def _aliases(tree):
+def _aliases(tree, mod="", is_pkg=False):
     """{local name: absolute dotted name} of the module's imports (``import numba as nb`` gives
-    nb -> numba, ``from numba import njit as nj`` gives nj -> numba.njit)."""
+    nb -> numba, ``from numba import njit as nj`` gives nj -> numba.njit; relative imports are
+    resolved against the module ``mod``)."""
     out = {}
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
@@ -189,9 +194,10 @@ def _aliases(tree):
                     out[a.asname] = a.name
                 else:
                     out[a.name.split(".")[0]] = a.name.split(".")[0]
-        elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+        elif isinstance(node, ast.ImportFrom) and (node.module or node.level):
+            prefix = _imported_names(mod, is_pkg, node)[0] if node.level else node.module
             for a in node.names:
-                out[a.asname or a.name] = f"{node.module}.{a.name}"
+                out[a.asname or a.name] = f"{prefix}.{a.name}"
     return out
 
 
@@ -208,10 +214,12 @@ def _dotted(expr, aliases):
 
 
 def _is_compiler(expr, aliases):
-    """True for ``njit``, ``njit(...)``, ``numba.jit(...)`` and the like (any arguments)."""
+    """True for ``njit``, ``njit(...)``, ``numba.jit(...)``, the package's ``inner(...)`` and the
+    like (any arguments)."""
     if isinstance(expr, ast.Call):
         expr = expr.func
-    return _dotted(expr, aliases) in COMPILERS
+    name = _dotted(expr, aliases) or ""
+    return name in COMPILERS or f".{name}".endswith(INNER)
 
 
 def count_params(fn):
@@ -225,7 +233,7 @@ def compiled_functions(roots=None):
     out = []
     for mod, path in modules(roots).items():
         tree = _parse(path)
-        aliases = _aliases(tree)
+        aliases = _aliases(tree, mod, path.name == "__init__.py")
         defs = {}
         for node in ast.walk(tree):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
@@ -247,6 +255,72 @@ def long_kernels(roots=None, limit=MAX_KERNEL_PARAMS):
     """Lines ``path:line name (N parameters)`` of every compiled function over ``limit``."""
     return [f"{_rel(p)}:{line} {name} ({k} parameters)"
             for p, line, name, k in compiled_functions(roots) if k > limit]
+
+
+def _plain_njit(dec, aliases):
+    """True for a decorator that compiles with numba's njit / jit as a separately compiled
+    function: not ``inner``, not ``inline="always"`` (inlined into its callers, never compiled on
+    its own), not ``parallel=True`` (an entry point with a parallel loop)."""
+    if not _is_compiler(dec, aliases) or (_dotted(dec.func if isinstance(dec, ast.Call) else dec, aliases)
+                                          or "").endswith(INNER):
+        return False
+    kw = {k.arg: k.value for k in dec.keywords} if isinstance(dec, ast.Call) else {}
+    const = {k: v.value for k, v in kw.items() if isinstance(v, ast.Constant)}
+    return const.get("inline") != "always" and const.get("parallel") is not True
+
+
+def python_uses(folders):
+    """Every name that Python code under ``folders`` loads outside a jitted function (a call, an
+    argument, an attribute): the functions Python may call."""
+    names = set()
+    for folder in folders:
+        for p in sorted(Path(folder).rglob("*.py")):
+            if "__pycache__" in p.parts:
+                continue
+            tree = _parse(p)
+            aliases = _aliases(tree)
+            jitted = set()
+            for fn in ast.walk(tree):
+                if isinstance(fn, ast.FunctionDef) and any(_is_compiler(d, aliases) for d in fn.decorator_list):
+                    jitted.update(id(n) for stmt in fn.body for n in ast.walk(stmt))
+            for n in ast.walk(tree):
+                if id(n) not in jitted:
+                    if isinstance(n, ast.Name):
+                        names.add(n.id)
+                    elif isinstance(n, ast.Attribute):
+                        names.add(n.attr)
+    return names
+
+
+def inner_kernels(roots=None):
+    """Lines ``path:line name`` of every function decorated with the package's ``inner``."""
+    out = []
+    for mod, path in modules(roots).items():
+        tree = _parse(path)
+        aliases = _aliases(tree, mod, path.name == "__init__.py")
+        for node in ast.walk(tree):
+            if isinstance(node, ast.FunctionDef) and any(
+                    (_dotted(d.func if isinstance(d, ast.Call) else d, aliases) or "").endswith(INNER)
+                    for d in node.decorator_list):
+                out.append(f"{_rel(path)}:{node.lineno} {node.name}")
+    return sorted(out)
+
+
+def should_be_inner(roots=None, users=()):
+    """Lines ``path:line name`` of every function compiled with plain njit that no Python code
+    in the package or in the folders ``users`` (tests, scripts) uses: only kernels call it, so
+    :func:`gridrt.compiles.inner` would compile it without a Python entry point."""
+    roots = ROOTS if roots is None else roots
+    used = python_uses(list(roots.values()) + list(users))
+    out = []
+    for mod, path in modules(roots).items():
+        tree = _parse(path)
+        aliases = _aliases(tree, mod, path.name == "__init__.py")
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.FunctionDef) and node.name not in used
+                    and any(_plain_njit(d, aliases) for d in node.decorator_list)):
+                out.append(f"{_rel(path)}:{node.lineno} {node.name}")
+    return sorted(out)
 
 
 def _comments(source):
@@ -304,6 +378,15 @@ def test_no_compiled_function_takes_more_than_ten_parameters():
     bad = long_kernels()
     assert not bad, (f"{len(bad)} numba-compiled functions take more than {MAX_KERNEL_PARAMS} parameters "
                      "(pass records):\n" + "\n".join(bad))
+
+
+def test_kernels_only_kernels_call_are_inner():
+    """A kernel that no Python code calls is compiled with ``inner``: numba's CPython and C
+    wrappers of the others (unboxing every argument) are compile time spent for nothing."""
+    assert len(inner_kernels()) > 100, "the detection finds too few inner kernels"
+    bad = should_be_inner(users=[REPO / "tests", REPO / "scripts"])
+    assert not bad, (f"{len(bad)} jitted functions only kernels call, compiled with plain njit "
+                     "(decorate them with gridrt.compiles.inner):\n" + "\n".join(bad))
 
 
 def test_every_import_inside_a_function_says_why_it_is_deferred():
@@ -477,3 +560,37 @@ def test_planted_test_file_import_is_reported(tmp_path):
     (tmp_path / "test_b.py").write_text("import os\n\n\ndef test_x():\n    from test_a import numpy\n")
     (tmp_path / "helpers" / "more.py").write_text("import test_b as b\n")
     assert imports_of_test_files(tmp_path) == ["helpers/more.py:1 imports test_b", "test_b.py:5 imports test_a"]
+
+
+def test_planted_kernel_only_kernels_call_is_reported(tmp_path):
+    files = dict(CLEAN)
+    files["compiles.py"] = "def inner(*a, **k):\n    return lambda f: f\n"
+    files["kern.py"] = (
+        "from numba import njit\n"
+        "from .compiles import inner\n\n\n"
+        "@njit(cache=True)\n"
+        "def only_kernels(x):\n    return x\n\n\n"
+        "@inner(cache=True)\n"
+        "def declared(x):\n    return x\n\n\n"
+        "@njit(cache=True, inline='always')\n"
+        "def inlined(x):\n    return x\n\n\n"
+        "@njit(cache=True)\n"
+        "def from_python(x):\n    return only_kernels(x) + declared(x) + inlined(x)\n\n\n"
+        "def run(x):\n    return from_python(x)\n"
+    )
+    roots = write_package(tmp_path, files)
+    kern = files["kern.py"]
+    strip = [line.replace(str(tmp_path) + "/", "") for line in should_be_inner(roots)]
+    # CLEAN's kernel (core.py) has no Python caller either; its helper has one (core.run)
+    assert strip == [f"src/core.py:{line_of(files['core.py'], 'def kernel')} kernel",
+                     f"src/kern.py:{line_of(kern, 'def only_kernels')} only_kernels"], strip
+    assert [line.replace(str(tmp_path) + "/", "") for line in inner_kernels(roots)] == [
+        f"src/kern.py:{line_of(kern, 'def declared')} declared"]
+    assert ("declared", 1) in {(name, k) for _, _, name, k in compiled_functions(roots)}
+    # a test folder that calls it from Python makes it an entry point
+    users = tmp_path / "tests"
+    users.mkdir()
+    (users / "test_k.py").write_text("from synth.kern import only_kernels\n\n\ndef test_it():\n"
+                                     "    assert only_kernels(1) == 1\n")
+    strip = [line.replace(str(tmp_path) + "/", "") for line in should_be_inner(roots, [users])]
+    assert not any("only_kernels" in line for line in strip), strip

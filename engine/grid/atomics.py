@@ -18,9 +18,11 @@ import os
 import platform
 
 import numpy as np
-from numba import njit, types
+from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
+
+from ..compiles import inner
 
 #: failed looks at a held lock before the waiting thread calls sched_yield (then after every 16)
 SPINS_BEFORE_YIELD = 64
@@ -117,7 +119,7 @@ def cpu_pause(typingctx):
 sched_yield = types.ExternalFunction("SwitchToThread" if os.name == "nt" else "sched_yield", types.int32())
 
 
-@njit(cache=True)
+@inner(cache=True)
 def spin_lock(locks, i):
     """Take lock ``i`` of ``locks`` (int32 array, 0 = free).  Returns the failed looks (0 when
     the lock was free at once): the contention figure the lock strategies report."""
@@ -133,7 +135,7 @@ def spin_lock(locks, i):
             cpu_pause()
 
 
-@njit(cache=True)
+@inner(cache=True)
 def spin_unlock(locks, i):
     """Release lock ``i`` (release store of 0)."""
     atomic_store_release(locks, i, np.int32(0))

@@ -9,6 +9,7 @@ triangles.
 import numpy as np
 from numba import njit, prange
 
+from ..compiles import inner
 from .layout import INSERT_EPS
 
 EPS = INSERT_EPS
@@ -22,7 +23,7 @@ BOUNDS_LANES = 48  # 16 vertices x 3 axes: lane l of a row holds axis l % 3
 BAD_MAGNITUDE = 1e30  # coordinates beyond this are refused (cell arithmetic would overflow)
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _bounds_lanes(flat, mn, mx, nan, out=None):
     """Lane-wise min/max of flat (a slice starting on a row boundary) into mn, mx (W,) (of flat's
     dtype), and nan (W,) += x - x, which turns NaN exactly when a NaN or infinity went by; with
@@ -53,7 +54,7 @@ def _bounds_lanes(flat, mn, mx, nan, out=None):
             out[rows * W + l] = np.float32(x)
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _bounds_chunk(flat, e0, e1, out, row):
     """out[row] = [xmin, ymin, zmin, xmax, ymax, zmax, bad] over the coordinates flat[e0:e1],
     bad = 1 when one of them is NaN, infinite or beyond BAD_MAGNITUDE."""
@@ -179,7 +180,7 @@ def first_nondegenerate(tris):
 RANGE_LANES = 16  # triangles per block of the vectorized cell-range pass
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _ranges_block(flat, n, lo, inv, top, out):
     """Cell ranges of n <= RANGE_LANES triangles: flat (9n,) float32 slice, out (6n,) int32, six
     values per triangle, (i0, j0, k0, i1, j1, k1), the inclusive range of cells its bounding box
@@ -241,13 +242,13 @@ def cell_ranges_into(flat, box, out):
     _ranges_block(flat[9 * B * nb:], F - nb * B, lo, inv, top, out[6 * B * nb:])
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _axis_test(p0, p1, p2, r):
     """True when the projections p0..p2 of the triangle are separated from [-r, r]."""
     return min(p0, p1, p2) > r or max(p0, p1, p2) < -r
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def tri_box_overlap(tris, f, cx, cy, cz, hx, hy, hz):
     """Separating-axis test of triangle f against the box centre c, half-size h (float64).
 
@@ -298,7 +299,7 @@ def tri_box_overlap(tris, f, cx, cy, cz, hx, hy, hz):
     return True
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def cell_overlaps(tris, f, i, j, k, lo, cell):
     """Exact-insertion test of triangle f against cell (i, j, k) grown by EPS cells."""
     hx = cell[0] * (0.5 + EPS)
@@ -314,7 +315,7 @@ def cell_overlaps(tris, f, i, j, k, lo, cell):
 # clear / scan / macro cells
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _macro_cells_range(m, dims, k, mdims):
     mi = m % mdims[0]
     mj = (m // mdims[0]) % mdims[1]
@@ -425,7 +426,7 @@ def scan_into(count, s, out):
     return s
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def sum_of(count):
     """Sum of an int32 slice as int64 (vectorized)."""
     s = 0

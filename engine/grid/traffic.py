@@ -20,6 +20,7 @@ import time
 import numpy as np
 from numba import njit, prange
 
+from ..compiles import inner
 from ..errors import InputError
 from ..threads import check_threads, use_threads
 
@@ -66,7 +67,7 @@ def stage_bytes(stats):
 # streaming bandwidth
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _read_part(a):
     s = 0  # an integer sum: LLVM vectorizes it (no float reassociation needed)
     for i in range(a.shape[0]):
@@ -74,13 +75,13 @@ def _read_part(a):
     return s
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _write_part(a, v):
     for i in range(a.shape[0]):
         a[i] = v
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _copy_part(a, b):
     for i in range(a.shape[0]):
         b[i] = a[i]

@@ -38,7 +38,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit, prange
 
-from ..compiles import one_per_types
+from ..compiles import inner, one_per_types
 from ..errors import InputError
 from .common import EPS, cell_overlaps
 from .layout import Grid
@@ -65,7 +65,7 @@ def leaf_axis(lo, cell, i, r):
     return lo + i * cell, sc, 1.0 / sc
 
 
-@njit(cache=True)
+@inner(cache=True)
 def sub_dims(ex, ey, ez, target, out):
     """out[0:3] = cells along x, y, z for a box of extent (ex, ey, ez) split into about
     ``target`` cubical cells (at least one a side; axes too thin for one cell get one and the
@@ -146,7 +146,7 @@ def _leaf_range(b0, b1, slo, isc, r):
 
 
 @one_per_types
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _top_cell_leaves(tris, top, box, leaves, t, a0, exact, scatter, base0):
     """Count (scatter=False) or place (True) the leaf references of top cell t of the grid ``box``
     (layout.GridBox), whose leaf cells are a0 .. a0 + rx*ry*rz - 1 with resolution leaves.res[t].

@@ -76,6 +76,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
+from ..compiles import inner
 from ..arrays import TRI_DTYPE, storage_centre
 from ..camera import Camera
 from ..errors import InputError, SceneFileError
@@ -210,7 +211,7 @@ def kb_rotation_segments(times, quats, tcb):
     return t[i1].copy(), t[i2].copy(), np.stack([q[i1], a, b, q[i2]], axis=1)
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _segment(tmin, tmax, start, count, t):
     """(segment index, u in [0,1]) of time t in segments [start, start+count), clamped at the ends.
 
@@ -238,7 +239,7 @@ def kb_position(tmin, tmax, coef, start, count, t, out):
         out[c] = coef[i, 0, c] + u * (coef[i, 1, c] + u * (coef[i, 2, c] + u * coef[i, 3, c]))
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _slerp(u, p, q, out):
     """Eberly's slerp (no shortest-path flip, as squad requires); p, q, out (4,) f64."""
     cs = p[0] * q[0] + p[1] * q[1] + p[2] * q[2] + p[3] * q[3]

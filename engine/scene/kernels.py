@@ -22,6 +22,8 @@ from collections import namedtuple
 import numpy as np
 from numba import njit, prange
 
+from ..compiles import inner
+
 __all__ = [
     "KIND_T", "KIND_R", "KIND_S", "KIND_W",
     "INTERP_LINEAR", "INTERP_STEP", "INTERP_CUBIC",
@@ -65,7 +67,7 @@ KIND_T, KIND_R, KIND_S, KIND_W = 0, 1, 2, 3
 INTERP_LINEAR, INTERP_STEP, INTERP_CUBIC = 0, 1, 2
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _find_key(times, start, count, t):
     """Largest k in [0, count-2] with times[start + k] <= t (times sorted, t inside the range)."""
     lo = 0
@@ -79,7 +81,7 @@ def _find_key(times, start, count, t):
     return lo
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _store(kind, target, j, value, node_t, node_r, node_s, weights):
     if kind == KIND_T:
         node_t[target, j] = value
@@ -218,7 +220,7 @@ def trs_matrix(t, r, s, out):
     out[3, 3] = 1.0
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _matmul4(a, b, out):
     for i in range(4):
         for j in range(4):
@@ -271,7 +273,7 @@ SERIAL_BELOW = 16384
 # per-vertex helper several times slower than writing the loop body out twice.
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _deform_one(v, local, vinst, rig, pose, centre, origin, out):
     """Pose vertex v: morph targets, then linear-blend skinning or its node's world matrix; the
     rest position is local[v] + centre, the result is written as world - origin."""

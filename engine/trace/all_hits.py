@@ -31,6 +31,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
+from ..compiles import inner
 from ..arrays import check_ray_values, check_rays
 from ..errors import InputError
 from ..memory import check_fits
@@ -74,7 +75,7 @@ def det2_sign(a, b, c, d):
     return _det2_sign_exact(a, b, c, d)
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _det2_sign_exact(a, b, c, d):
     """det2_sign where rounding could decide it: the products split exactly (two-product) and
     summed exactly."""
@@ -106,7 +107,7 @@ def _edge(px, py, qx, qy):
     return r, 0
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _edge_sign(px, py, qx, qy):
     """The exact sign of the edge function of p -> q, perturbed where it is exactly zero (see
     the module doc)."""
@@ -121,7 +122,7 @@ def _edge_sign(px, py, qx, qy):
     return 0
 
 
-@njit(cache=True)
+@inner(cache=True)
 def intersect_once(v0, v1, v2, sh, tmin, tmax):
     """(hit, t, u, v) of the triangle v0, v1, v2 ((3,) float32 rows, world order) with the ray of
     the :class:`gridrt.trace.query.Shear` ``sh`` (intersect.ray_shear): Woop's test with exact,
@@ -153,7 +154,7 @@ def intersect_once(v0, v1, v2, sh, tmin, tmax):
     return True, t, V / det, W / det
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _clip(lo, hi, o, d, tmin, tmax):
     t0, t1 = tmin, tmax
     for a in range(3):
@@ -215,7 +216,7 @@ def _add_hit(f, t, u, v, nh, bt, bf, bu, bv):
     return nh + 1
 
 
-@njit(cache=True)
+@inner(cache=True)
 def ray_hits(g, o, d, tmin, tmax, buf):
     """The hits of the ray from o along d ((3,) float64) with tmin < t < tmax in the
     :data:`HitGrid` g, each triangle once, into the :data:`HitBuffers` buf (unsorted); their
@@ -285,7 +286,7 @@ def ray_hits(g, o, d, tmin, tmax, buf):
     return nh
 
 
-@njit(cache=True)
+@inner(cache=True)
 def sort_hits(bt, bf, bu, bv, n):
     """Sort the first n hits by t, ties by triangle id (insertion sort: a ray's hits are few)."""
     for i in range(1, n):

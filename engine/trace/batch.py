@@ -34,6 +34,7 @@ rounding of an edge.
 import numpy as np
 from numba import njit, parallel_chunksize, prange
 
+from ..compiles import inner
 from .cgt import (IO_DX, IO_DY, IO_DZ, IO_F, IO_OX, IO_OY, IO_OZ, IO_TMAX, MBOX, NIO, NS, PN, PacketQuery,
                   direction_class, trace_packet)
 from .intersect import ray_shear
@@ -62,7 +63,7 @@ NO_ROWS = np.zeros(0, np.int64)
 NO_LEFT = np.zeros(0, np.uint8)
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _single(g, origins, dirs, i, q, mb1, out):
     """Ray i traced on its own (trace_ray, the :class:`Query` q, mailbox mb1) into row i of the
     :class:`HitArrays` out."""
@@ -74,7 +75,7 @@ def _single(g, origins, dirs, i, q, mb1, out):
     out.v[i] = v
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _one_class(dirs, idx, s, n, use_idx):
     """Whether rays idx[s:s+n] (s..s+n-1 when not use_idx) all have the same permutation class
     (major axis of the direction and its sign: cgt.direction_class).  A run that fails this
@@ -90,7 +91,7 @@ def _one_class(dirs, idx, s, n, use_idx):
     return cmin == cmax
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def _cast_run(g, origins, dirs, idx, s, n, q, how, scratch, out):
     """Rays idx[s:s+n] (rays s..s+n-1 when idx is empty) for the :class:`Query` q, as the
     :class:`CastPass` ``how`` says: as one packet when they make one (see the module docstring;
@@ -202,7 +203,7 @@ def odd_directions(dirs):
     return out
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _odd(dx, dy, dz):
     """max(|dx|, |dy|, |dz|) < 2**-101 or >= 2**100, for finite components, without branches."""
     ax, ay, az = abs(dx), abs(dy), abs(dz)
@@ -211,7 +212,7 @@ def _odd(dx, dy, dz):
     return ((ax < lo) & (ay < lo) & (az < lo)) | ((ax >= hi) | (ay >= hi) | (az >= hi))
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _spread_bits(x):
     """The low 16 bits of x with a zero bit after each (for a Morton code)."""
     x &= 0xFFFF

@@ -12,10 +12,11 @@ Both are double-sided and return (hit, t, u, v) with p = (1-u-v)*v0 + u*v1 + v*v
 
 from numba import njit
 
+from ..compiles import inner
 from .query import Shear
 
 
-@njit(cache=True)
+@inner(cache=True)
 def shear_setup(dx, dy, dz):
     """Per-ray constants of the watertight test: (kx, ky, kz, Sx, Sy, Sz)."""
     ax, ay, az = abs(dx), abs(dy), abs(dz)
@@ -38,12 +39,12 @@ def shear_setup(dx, dy, dz):
     return kx, ky, kz, Sx, Sy, Sz
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _pick(x, y, z, k):
     return x if k == 0 else (y if k == 1 else z)
 
 
-@njit(cache=True)
+@inner(cache=True)
 def permute(x, y, z, kx, ky, kz):
     """(v[kx], v[ky], v[kz]) of the vector (x, y, z)."""
     return _pick(x, y, z, kx), _pick(x, y, z, ky), _pick(x, y, z, kz)
@@ -88,7 +89,7 @@ def woop_edges(Ax, Ay, Bx, By, Cx, Cy):
     return Cx * By - Cy * Bx, Ax * Cy - Ay * Cx, Bx * Ay - By * Ax
 
 
-@njit(cache=True)
+@inner(cache=True)
 def intersect_watertight(p0, p1, p2, sh, tmin, tmax):
     """Woop et al. 2013 watertight test; a hit needs tmin < t < tmax.
 
@@ -110,7 +111,7 @@ def intersect_watertight(p0, p1, p2, sh, tmin, tmax):
     return True, t, V / det, W / det
 
 
-@njit(cache=True)
+@inner(cache=True)
 def intersect_fast(v0, v1, v2, o, d, tmin, tmax):
     """Möller-Trumbore test (double-sided, not watertight) of the triangle v0, v1, v2 with the ray
     from o along d (3-tuples)."""

@@ -33,6 +33,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from ..compiles import inner
 from ..camera import pixel_dir
 from ..scene.surface import (AMBIENT_FRACTION, DEFAULT_DIFFUSE, FALLOFF_INVERSE_SQUARE, LIGHT_DIRECTIONAL, LIGHT_POINT,
                              Surface)
@@ -40,7 +41,7 @@ from .records import SurfaceArrays
 from .shade import put_pixel, unit_normal
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def barycentrics(tris, f, ex, ey, ez, dx, dy, dz):
     """(w0, w1, w2) of the ray eye + t d on triangle f of tris (F,3,3) float32, in float64, clamped
     onto the triangle (each >= 0, sum 1); the centroid for a degenerate triangle."""
@@ -72,7 +73,7 @@ def barycentrics(tris, f, ex, ey, ez, dx, dy, dz):
     return 1.0 - u - v, u, v
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def _wrap(i, n, mode):
     """Texel index i in [-1, 2n] (the reduced coordinate's, see _reduce) wrapped into [0, n) by mode
     (0 repeat, 1 clamp, 2 mirror), with compares: an integer division costs more than the rest of
@@ -85,7 +86,7 @@ def _wrap(i, n, mode):
     return i + n if i < 0 else (i - n if i >= n else i)
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def _reduce(c, mode):
     """A texture coordinate brought into [0, 1] (clamp), [0, 1) (repeat) or [0, 2) (mirror) before
     it is scaled to texels, so a huge coordinate never overflows an integer."""
@@ -96,7 +97,7 @@ def _reduce(c, mode):
     return c - math.floor(c)
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def sample_bilinear(tex_data, tex_info, k, u, v):
     """Texture k at (u, v) (image convention: (0, 0) top-left), bilinearly filtered: (r, g, b) in [0, 1]."""
     off, w, h, wu, wv = tex_info[k, 0], tex_info[k, 1], tex_info[k, 2], tex_info[k, 3], tex_info[k, 4]
@@ -125,7 +126,7 @@ def sample_bilinear(tex_data, tex_info, k, u, v):
     return r * k255, g * k255, bl * k255
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def light_weight(lights, li, p, ng, ns):
     """(weight, lx, ly, lz, dist) of light li at the hit p with facing normals n_g, n_s (3-tuples):
     the unit vector l to the light, its distance (inf for a directional light) and weight n_s . l
@@ -158,7 +159,7 @@ def light_weight(lights, li, p, ng, ns):
     return s, lx, ly, lz, dist
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def surface_at(surf, f, e, d):
     """What the camera ray eye + t d (e, d: 3-tuples) sees on scene triangle f of the surface surf
     (:class:`gridrt.trace.records.SurfaceArrays`): (p, n_g, n_s, tvd, tva) with p the hit point
@@ -205,7 +206,7 @@ def surface_at(surf, f, e, d):
             tr * ambient[m, 0], tg * ambient[m, 1], tb * ambient[m, 2])
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def _shade_row(y, view, ibuf, surf, lights, deferred, img, hp):
     """Row y of shade_kernel."""
     basis, W, H = view.basis, view.W, view.H

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, parallel_chunksize, prange
 
+from ..compiles import inner
 from ..arrays import as_origin, check_ray_values, check_rays
 from ..config import DEFAULT_MAX_BYTES, PACKET_PRECISIONS, RenderParams, _positive_int
 from ..errors import InputError
@@ -59,7 +60,7 @@ SHADOW_OFFSET = 1e-6
 SHADING_CODES = {"lambert": 0, "normal": 1, "cost": 2, "material": 0}
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _render_tile(grids, view, looks, light, ti, out, mb):
     """Tile ti (row-major) of render_kernel, with the mailbox mb."""
     basis, W, H, tile = view.basis, view.W, view.H, view.tile

@@ -5,22 +5,22 @@ produce the same colours from the same hits.  The formulas are documented in
 
 import math
 
-import numpy as np
-from numba import njit
+from ..compiles import inner
 
+import numpy as np
 BACKGROUND = (0.12, 0.13, 0.16)
 ALBEDO = (0.85, 0.78, 0.66)
 AMBIENT = 0.15
 COST_SCALE = 64.0
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _u8(c):
     v = int(c * 255.0 + 0.5)
     return np.uint8(0 if v < 0 else (255 if v > 255 else v))
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def put_pixel(img, y, x, r, g, b):
     """img[y, x] = (r, g, b) as uint8(round(255 c)), alpha 255; img (H, W, 4) uint8."""
     img[y, x, 0] = _u8(r)
@@ -29,7 +29,7 @@ def put_pixel(img, y, x, r, g, b):
     img[y, x, 3] = np.uint8(255)
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def unit_normal(tris, f):
     """normalize((v1 - v0) x (v2 - v0)) of triangle f of tris (F, 3, 3) float32; zero if degenerate."""
     e1x = np.float64(tris[f, 1, 0]) - tris[f, 0, 0]
@@ -47,7 +47,7 @@ def unit_normal(tris, f):
     return nx / n, ny / n, nz / n
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def facing_normal(tris, f, dx, dy, dz):
     """Unit geometric normal of triangle f of tris turned towards the viewer, and its dot product
     with the ray direction (<= 0): (nx, ny, nz, dn)."""
@@ -58,7 +58,7 @@ def facing_normal(tris, f, dx, dy, dz):
     return nx, ny, nz, dn
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def scene_id(grids, which, f):
     """The scene's id of triangle f of grid ``which`` of the tuple grids (through the grid's ids
     map when it has one); -1 (a miss) stays -1."""
@@ -68,7 +68,7 @@ def scene_id(grids, which, f):
     return ids[f] if ids.shape[0] > 0 else f
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def shadow_ray(e, t, d, n, light, off):
     """Shadow ray of the hit at eye + t d with facing normal n (e, d, n: 3-tuples):
     (need, ox, oy, oz, lx, ly, lz, ld, s).
@@ -102,7 +102,7 @@ def shadow_ray(e, t, d, n, light, off):
     return False, px, py, pz, lx, ly, lz, ld, s
 
 
-@njit(cache=True)
+@inner(cache=True)
 def cost_rgb(nt):
     """Heat map of h = min(1, nt / COST_SCALE): blue -> green -> red."""
     h = min(1.0, nt / COST_SCALE)
@@ -111,12 +111,12 @@ def cost_rgb(nt):
     return 2.0 * h - 1.0, 2.0 - 2.0 * h, 0.0
 
 
-@njit(cache=True)
+@inner(cache=True)
 def normal_rgb(nx, ny, nz):
     return (nx + 1.0) * 0.5, (ny + 1.0) * 0.5, (nz + 1.0) * 0.5
 
 
-@njit(cache=True)
+@inner(cache=True)
 def lambert_rgb(s):
     k = AMBIENT + (1.0 - AMBIENT) * s
     return ALBEDO[0] * k, ALBEDO[1] * k, ALBEDO[2] * k

@@ -32,7 +32,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..compiles import one_per_types
+from ..compiles import inner, one_per_types
 from ..grid.two_level import leaf_axis
 from .grids import is_two_level, with_leaves_only
 from .intersect import intersect_fast, intersect_watertight, ray_shear
@@ -55,7 +55,7 @@ FAR_MAX = 2.0**110
 NEAR, MOVED, FAR_MISS = 0, 1, 2
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _floor_clamp(x, n):
     i = int(math.floor(x)) if x > -1e18 else -1
     if i < 0:
@@ -65,7 +65,7 @@ def _floor_clamp(x, n):
     return i
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _slab(o, d, lo, hi, t0, t1):
     """Clip [t0, t1] to the slab lo <= o + t d <= hi; returns an empty range (t0 > t1) on a miss."""
     if abs(d) < TINY_DIR:
@@ -80,7 +80,7 @@ def _slab(o, d, lo, hi, t0, t1):
     return max(t0, ta), min(t1, tb)
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _cell_exit_t(lo, c, i, s, o, inv_d):
     """t at which a ray (origin coordinate o, 1 / direction inv_d, step s = -1, 0, 1) leaves cell
     i along one axis of a grid starting at lo with cells of size c; inf when it does not step."""
@@ -91,7 +91,7 @@ def _cell_exit_t(lo, c, i, s, o, inv_d):
     return np.inf
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _macro_exit_t(lo, c, mi, k, n, s, o, inv_d):
     """As _cell_exit_t for macro cell mi (k cells wide, the last one cut at the grid's n cells)."""
     if s == 0:
@@ -100,7 +100,7 @@ def _macro_exit_t(lo, c, mi, k, n, s, o, inv_d):
     return (b - o) * inv_d
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _entry_cell(lo, ic, n, o, d, t, c0, c1, s, entered):
     """Cell index along one axis where a ray enters the macro cell of cells [c0, c1) at t: along
     the axis it entered through (``entered``) the macro cell's first cell on the ray's side,
@@ -110,7 +110,7 @@ def _entry_cell(lo, ic, n, o, d, t, c0, c1, s, entered):
     return min(max(_floor_clamp((o + t * d - lo) * ic, n), c0), c1 - 1)
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _two_sum(a, b):
     """(s, e) with s = fl(a + b) and s + e = a + b exactly (Knuth)."""
     s = a + b
@@ -118,7 +118,7 @@ def _two_sum(a, b):
     return s, (a - (s - bb)) + (b - bb)
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _two_prod(a, b):
     """(p, e) with p = fl(a * b) and p + e = a * b exactly (Dekker; |a|, |b| far below 1e290)."""
     p = a * b
@@ -131,7 +131,7 @@ def _two_prod(a, b):
     return p, ((ah * bh - p) + ah * bl + al * bh) + al * bl
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _add_prod(h, l, w, d):
     """The double-double h + l plus w * d (the product exact), as a double-double."""
     ph, pl = _two_prod(w, d)
@@ -155,7 +155,7 @@ def is_far(lo, hi, ox, oy, oz):
     return m <= FAR_MAX and s > 0.0 and m * m > (0.25 * FAR_RADII * FAR_RADII) * s
 
 
-@njit(cache=True)
+@inner(cache=True)
 def far_shift(lo, hi, ox, oy, oz, dx, dy, dz):
     """Where a ray from far outside the box lo..hi starts instead: (verdict, mx, my, mz, th, tl).
 
@@ -204,13 +204,13 @@ def far_shift(lo, hi, ox, oy, oz, dx, dy, dz):
     return MOVED, xh + xl, yh + yl, zh + zl, th, tl
 
 
-@njit(cache=True)
+@inner(cache=True)
 def far_interval(tmin, tmax, th, tl):
     """(tmin, tmax) of a ray moved by far_shift's th + tl, from its new origin."""
     return max(0.0, (tmin - th) - tl), (tmax - th) - tl
 
 
-@njit(cache=True)
+@inner(cache=True)
 def far_t(t, th, tl):
     """t from a ray's own origin for t from the origin far_shift moved it to (inf stays inf)."""
     return th + (tl + t)
@@ -468,7 +468,7 @@ def _trace_near(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
     return _result(best_f, best_t, best_u, best_v, cells, tests)
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def trace_ray_2l(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
     """:func:`trace_ray` through a two-level grid (gridrt.grid.two_level): a DDA over the top
     cells, and in each one that holds triangles a DDA over its own leaf cells from where the ray
@@ -558,7 +558,7 @@ _trace_2l = with_leaves_only("_trace_2l", "g, o, d, tmin, tmax, watertight, any_
 
 
 @one_per_types
-@njit(cache=True)
+@inner(cache=True)
 def _result(best_f, best_t, best_u, best_v, cells, tests):
     if best_f < 0:
         return -1, np.inf, 0.0, 0.0, cells, tests

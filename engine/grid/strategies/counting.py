@@ -19,6 +19,7 @@ particular order.
 import numpy as np
 from numba import njit, prange
 
+from ...compiles import inner
 from ..atomics import atomic_add
 from ..common import cell_overlaps
 from .base import Strategy, timed
@@ -26,7 +27,7 @@ from ..buffers import scratch
 from .shared import check_total, exclusive, parallel_scan_exclusive, part, range_volumes, ranges
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _count_block(tris, rng, f0, box, exact, count, ranks):
     """Atomic count[c] += 1 for the references of triangles f0.. (rng: their rows), storing each
     add's old value in ranks (a slice starting at this block's offset); returns ranks used."""
@@ -58,7 +59,7 @@ def count_atomic(tris, rng, box, exact, n_threads, rank_base, count, ranks):
         _count_block(tris, rng[a:b], a, box, exact, count, ranks[rank_base[t]:])
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _scatter_block(tris, rng, f0, box, exact, start, ranks, tri_ids):
     """tri_ids[start[c] + rank] = f for the references of triangles f0.., walked in the count
     pass's order."""

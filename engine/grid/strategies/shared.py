@@ -11,6 +11,7 @@ machine needs to place it on that thread's node (Ize et al. 2006, "Targeting NUM
 import numpy as np
 from numba import njit, prange
 
+from ...compiles import inner
 from ...errors import InputError
 from ..buffers import scratch
 from ..common import cell_ranges_into, scan_into, sum_of
@@ -136,7 +137,7 @@ def parallel_scan_exclusive(count, start, n_threads):
     return _scan(count, start[1:], n_threads)
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _volume_sum(rng):
     """Sum over the rows of rng (n, 6) int32 of the cell-range volumes (0 for empty ranges)."""
     s = 0

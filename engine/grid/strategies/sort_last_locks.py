@@ -24,6 +24,7 @@ no particular order.
 import numpy as np
 from numba import njit, prange
 
+from ...compiles import inner
 from ..atomics import spin_lock, spin_unlock
 from ..common import cell_overlaps
 from .base import Strategy, timed
@@ -34,7 +35,7 @@ from .shared import parallel_scan, part, ranges
 GLOBAL, PER_CELL, PER_MACRO = 0, 1, 2
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _lock_id(kind, c, i, j, k, macro, mdims):
     if kind == PER_CELL:
         return c

@@ -19,13 +19,14 @@ serial's.  The bucket buffer holds T x F int32 (checked against the build's max_
 import numpy as np
 from numba import njit, prange
 
+from ...compiles import inner
 from ..common import RANGE_LANES, cell_overlaps, cell_ranges_into
 from .base import Strategy, timed
 from ..buffers import scratch
 from .shared import parallel_scan, part
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _bucket_rows(rng, f0, T, zmod, flat_lists, pos):
     """Bucket the triangles f0.. (rng: their rows): triangle f goes to flat_lists[pos[j]] for
     every bucket j it belongs to; pos (T,) int64 holds each bucket's next slot (flat index into
@@ -48,7 +49,7 @@ def _bucket_rows(rng, f0, T, zmod, flat_lists, pos):
             pos[j] = p + (1 if d < span else 0)
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _ranges_buckets_block(flat, f0, f1, box, T, zmod, rng, lists, lcount, t):
     """Cell ranges of triangles f0..f1-1 (flat: all coordinates) into rng, and their buckets,
     16 triangles at a time so the bucket pass reads ranges still in L1; lcount[:, t] = sizes."""
@@ -84,7 +85,7 @@ def ranges_and_buckets(tris, box, n_threads, zmod, rng, lists, lcount):
         _ranges_buckets_block(flat, part(F, t, T), part(F, t + 1, T), box, T, zmod, rng, lists, lcount, np.int64(t))
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _count_bucket(tris, rng, box, exact, T, zmod, jt, bucket, count):
     """count[c] += 1 for the references of the triangles in bucket (a slice of lists) that lie
     in the layers z % T == jt."""
@@ -118,7 +119,7 @@ def count_owned(tris, rng, box, exact, n_threads, zmod, lists, lcount, count):
             _count_bucket(tris, rng, box, exact, T, zmod, np.int64(jt), lists[jt, a:a + lcount[jt, t]], count)
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _scatter_bucket(tris, rng, box, exact, T, zmod, jt, bucket, start, tri_ids):
     """Scatter bucket (a slice of lists) backwards into the layers z % T == jt by pre-decrement."""
     lo, cell, dims = box.lo, box.cell, box.dims

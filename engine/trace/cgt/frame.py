@@ -6,6 +6,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from ...compiles import inner
 from ..grids import pack_grids, unpack_grids
 from ..prefetch import _prefetch_write
 from ..records import Buffers, Scratch
@@ -21,7 +22,7 @@ from .walk import trace_packet_grids
 CHUNKS = 256
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def _camera_rays(basis, W, H, px0, py0, pw, ph, io):
     """Camera rays of the pw x ph pixels from (px0, py0) into io, row by row.
 
@@ -54,7 +55,7 @@ def _camera_rays(basis, W, H, px0, py0, pw, ph, io):
             io[_U_TMAX + j] = np.inf
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def _write_out(io, col, W, block, grids, out):
     """Write a packet's results (io) and colours (col, 3 * PN) for its block = (px0, py0, pw, ph)
     of pixels (pw x ph from (px0, py0), W pixels a row) into the image buffers out
@@ -96,7 +97,7 @@ def _write_out(io, col, W, block, grids, out):
     return hits, tests, cells
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _prefetch_tile(ti, ntx, view, out):
     """Prefetch (for writing) the lines of the flat output buffers out that tile ti (of ntx tiles
     a row) of the view covers."""
@@ -211,7 +212,7 @@ def _render_tiles(grids, view, looks, light, packets, tiles, out, scratch):
                 acc[3] += nfb
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _sums(acc):
     """The column sums of acc (nch, 4) int64, in a new (4,) array.  (A loop: acc.sum(axis=0) would
     compile numba's string formatting for its axis error, a second on a cold start.)"""
@@ -222,7 +223,7 @@ def _sums(acc):
     return out
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _chunking(W, H, tile):
     """(tiles, chunks, tiles per chunk): the frame's tiles in runs of consecutive tiles."""
     ntiles = ((W + tile - 1) // tile) * ((H + tile - 1) // tile)

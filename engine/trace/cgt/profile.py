@@ -1,9 +1,7 @@
 """Packet profiles: the cycle counter read at each phase of a packet's traversal, and the slots
 (phases and counts) of a profile array (trace_packet's ``prof``)."""
 
-from numba import njit
-
-from ...compiles import one_per_types
+from ...compiles import inner, one_per_types
 from ..prefetch import _cycles
 
 
@@ -14,7 +12,7 @@ C_PACKETS, C_SLICES, C_CELLS, C_TESTS = 8, 9, 10, 11
 NPROF = 12
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _now(prof):
     """The cycle counter when profiling (prof an array), else 0 (prof None: compiled away)."""
     if prof is None:
@@ -23,7 +21,7 @@ def _now(prof):
 
 
 @one_per_types
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _lap(prof, k, t):
     """Add the cycles since t to phase k of prof; returns the counter now (0 without prof)."""
     if prof is None:
@@ -34,7 +32,7 @@ def _lap(prof, k, t):
 
 
 @one_per_types
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _prof_count(prof, k, n):
     if prof is not None:
         prof[k] += n

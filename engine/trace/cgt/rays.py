@@ -8,7 +8,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from ...compiles import one_per_types
+from ...compiles import inner, one_per_types
 from ...config import PACKET_MAX
 from ..intersect import woop_edges, woop_shear
 from ..traverse import TINY_DIR
@@ -89,7 +89,7 @@ _U_PN, _U_2PN = np.uint64(PN), np.uint64(2 * PN)
 
 
 @one_per_types
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def _clip_axis(io, n, S, r_o, r_d, lo, hi):
     """traverse._slab of every packet ray on one axis, applied to the ranges in S rows CT0/CT1."""
     for j in range(n):
@@ -136,7 +136,7 @@ def _setup(S, na, kx, ky, kz):
         S[O_SV + i] = dky * idk
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _spread(S, na, xr):
     """Bounding form of the active rays about the K coordinate xr: every ray's (U, V) at K = x is
     within [cu0, cu1] + (x - xr) * [su0, su1] (and likewise for V).  Returns
@@ -166,7 +166,7 @@ def _spread(S, na, xr):
     return cu0, cu1, cv0, cv1, su0, su1, sv0, sv1
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def _test_wt(S, na, p0, p1, p2, ff, tmin):
     """intersect_watertight of one triangle (vertices p0, p1, p2, 3-tuples permuted by the
     packet's kx, ky, kz) with the active rays, operation for operation; a hit below the ray's best
@@ -194,7 +194,7 @@ def _test_wt(S, na, p0, p1, p2, ff, tmin):
     return nh
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def _test_mt(S, na, v0, v1, v2, ff, tmin):
     """intersect_fast (Moller-Trumbore) of one triangle (vertices v0, v1, v2, 3-tuples) with the
     active rays, operation for operation.  Returns the number of rays hit."""
@@ -236,7 +236,7 @@ def _test_mt(S, na, v0, v1, v2, ff, tmin):
     return nh
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def _setup32(S, S32, I32, na, ref, watertight):
     """The float32 rows of the active rays (see _F_OU), over whole blocks of L32 rays: origins less
     the packet's reference origin ref = (x, y, z, u, v, k), in float64 and then rounded; shear
@@ -273,7 +273,7 @@ def _setup32(S, S32, I32, na, ref, watertight):
     _dead32(S32, na)
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _dead32(S32, na):
     """Make the rays after the last active one up to its block of L32 inert in the float32 tests:
     a NaN origin fails every comparison (no hit, nothing undecided), so the test loops need not
@@ -285,7 +285,7 @@ def _dead32(S32, na):
         S32[F_BT + i] = nan
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _up32(x):
     """The smallest float32 at or above x (float64)."""
     b = np.float32(x)
@@ -333,7 +333,7 @@ def _test_wt32(S32, I32, na, q0, q1, q2, ff, tmin32):
     return int(nh), int(nz)
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def _fix_wt64(S32, I32, na, q0, q1, q2, ff, tmin):
     """The rays _test_wt32 left undecided (an edge function exactly 0 in float32), decided in
     float64 as Woop et al. do: the edge functions again from the same float32 sheared vertex
@@ -369,7 +369,7 @@ def _fix_wt64(S32, I32, na, q0, q1, q2, ff, tmin):
     return nh
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def _test_mt32(S32, I32, na, q0, q1, q2, ff, tmin32):
     """_test_mt in float32 over the packet, L32 rays at a time (vertices q0, q1, q2: float32
     3-tuples, less the packet's reference origin, rounded).  Returns 1 if some ray was hit, else 0."""
@@ -415,7 +415,7 @@ def _test_mt32(S32, I32, na, q0, q1, q2, ff, tmin32):
     return int(nh)
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _outside(p0, p1, p2, planes):
     """True when the triangle (vertices p0, p1, p2: (u, v, k) 3-tuples) lies wholly beyond one of
     the packet's four bounding planes, planes = (xr, u0, u1, v0, v1, su0, su1, sv0, sv1):
@@ -437,7 +437,7 @@ def _outside(p0, p1, p2, planes):
 
 
 @one_per_types
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _finish(pk, a, counts):
     """Active ray a's results into the packet's io (from the float32 tests' rows with f32), with
     its counters counts = (tests, cells)."""
@@ -456,7 +456,7 @@ def _finish(pk, a, counts):
     io[IO_NC * PN + j] = cells
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def _count_final(S, na, xp, any_hit):
     """Flag (row CT0, free after setup) the active rays that are final once the packet has passed
     the K plane xp: their best t is at or before the t where they cross xp, or their segment ends
@@ -474,7 +474,7 @@ def _count_final(S, na, xp, any_hit):
     return nf, pend
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def _count_final32(S, S32, I32, na, xp, any_hit):
     """_count_final on the float32 tests' best t and triangle."""
     nf = 0
@@ -490,7 +490,7 @@ def _count_final32(S, S32, I32, na, xp, any_hit):
 
 
 @one_per_types
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _retire(pk, na, counts):
     """Write out the rays flagged by _count_final (with the counters counts = (tests, cells)) and
     remove them from the packet's active set; survivors from the end fill the gaps, so the active
@@ -528,7 +528,7 @@ def _retire(pk, na, counts):
 
 
 @one_per_types
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def _step(pk, na, xp, counts):
     """Retire the packet's rays that are final at xp (counters counts = (tests, cells)); returns
     (active rays, active rays with a hit).  With f32 the float32 tests' rows are read."""
@@ -552,7 +552,7 @@ def direction_class(dx, dy, dz):
 
 
 @one_per_types
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def _classify(io, n, S):
     """Of rays 0..n-1 of io, clipped (S rows CT0, CT1): how many meet the box and, over those, the
     least and the greatest permutation class (2 * major axis + 1 where its component is negative:
@@ -573,7 +573,7 @@ def _classify(io, n, S):
 
 
 @one_per_types
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def _gather(io, n, S, lo, hi, tmin):
     """Clip rays 0..n-1 of io to the grid box (lo, hi) and gather those that meet it into the
     active rows of S, their results in io reset to a miss.  Returns (active rays, K, neg,
@@ -627,7 +627,7 @@ def _gather(io, n, S, lo, hi, tmin):
     return na, K, neg, uniform
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _reference_plane(S, na, oD):
     """The K coordinate xr about which the packet's bounds are taken, beyond which (or before
     which) all ray segments lie: the near end (camera rays share their origin) or the far end

@@ -7,7 +7,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ...compiles import one_per_types
+from ...compiles import inner, one_per_types
 from ...grid.two_level import _leaf_range, leaf_axis
 from ..grids import is_two_level, with_leaves_only
 from ..prefetch import _prefetch_tri
@@ -52,14 +52,14 @@ def _trace_singly(g, S, na, io, tmin, watertight, any_hit, mb1):
         io[IO_NC * PN + j] = nc
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _strides(K, U, V, nx, ny):
     """Index steps along the axes K, U, V of an nx x ny x nz array of cells stored x fastest."""
     return (1 if K == 0 else (nx if K == 1 else nx * ny), 1 if U == 0 else (nx if U == 1 else nx * ny),
             1 if V == 0 else (nx if V == 1 else nx * ny))
 
 
-@njit(cache=True)
+@inner(cache=True)
 def _extent(bounds, ha, hb, grow):
     """The packet's (U, V) extent between the K planes at ha and hb from the reference plane, from
     its bounds (cu0, cu1, cv0, cv1, su0, su1, sv0, sv1, see _spread), grown by grow = (eU, eV):
@@ -81,7 +81,7 @@ def _cells_of(box, loU, icU, nU, loV, icV, nV):
             _floor_clamp((box[2] - loV) * icV, nV), _floor_clamp((box[3] - loV) * icV, nV))
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _any_macro_full(macro_full, mk, mu0, mu1, mv0, mv1, mstK, mstU, mstV):
     """True when a macro cell of slab mk within [mu0, mu1] x [mv0, mv1] holds triangles."""
     for mu in range(mu0, mu1 + 1):
@@ -91,7 +91,7 @@ def _any_macro_full(macro_full, mk, mu0, mu1, mv0, mv1, mstK, mstU, mstV):
     return False
 
 
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _prefetch_slice(g, span):
     """Start the loads of the triangles of grid g in the cells span = (ck, stU, stV, cu_0, cu_1,
     cv_0, cv_1) of one slice ([cu_0, cu_1] x [cv_0, cv_1], ck: its first cell's index, stU, stV:
@@ -106,7 +106,7 @@ def _prefetch_slice(g, span):
                     _prefetch_tri(tris, tri_ids[r])
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def _test_slice(g, span, axes, box, planes, pk, na, prof=None):
     """Test the triangles of grid g in the cells span = (ck, stU, stV, cu_0, cu_1, cv_0, cv_1) of
     one slice (see _prefetch_slice) against the na active rays of the packet pk
@@ -191,7 +191,7 @@ def _test_slice(g, span, axes, box, planes, pk, na, prof=None):
 
 
 @one_per_types
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _move_far(g, n, io):
     """Rays 0..n-1 of io whose origins lie far outside the grid box start from just before it
     (:func:`gridrt.trace.traverse.far_shift`): their own origins and tmax go to rows XO, YO, ZO,
@@ -228,7 +228,7 @@ def _move_far(g, n, io):
 
 
 @one_per_types
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _restore_far(n, io, results):
     """Undo _move_far: the rays' own origins and tmax, and with ``results`` their hits' t from
     their own origins."""
@@ -245,7 +245,7 @@ def _restore_far(n, io, results):
 
 
 @one_per_types
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _trace_rows_singly(g, n, io, tmin, watertight, any_hit, mb1):
     """Rays 0..n-1 of io, each through trace_ray."""
     for j in range(n):
@@ -280,7 +280,7 @@ def trace_packet(g, n, io, q, S, mb, mb1, max_cells=np.inf, prof=None):
 
 
 @one_per_types
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def _trace_packet(g, n, io, q, S, mb, mb1, max_cells, prof):
     """Trace rays 0..n-1 of the table io (NIO * PN,) float64 (origin, direction, tmax per ray)
     through the grid g (:class:`gridrt.trace.grids.GridArrays`) for the
@@ -481,7 +481,7 @@ def _advance(pk, na, xp, counts, xr, bounds):
     return nb, pending, bounds
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@inner(cache=True, _nrt=False, error_model="numpy")
 def _walk_2l(g, pk, na, axes, start, plane, bounds, grow):
     """trace_packet's slice walk of the na active rays of the packet pk
     (:class:`gridrt.trace.cgt.rays.Packet`, its mailbox cleared) through a two-level grid g
@@ -623,7 +623,7 @@ def trace_packet_grids(grids, n, io, io2, q, S, mb, mb1):
 
 
 @one_per_types
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _chain_rays(io, io2, n, any_hit):
     """io's rays into io2, each ending where io found a hit (any_hit: not traced at all there)."""
     for j in range(n):
@@ -636,7 +636,7 @@ def _chain_rays(io, io2, n, any_hit):
 
 
 @one_per_types
-@njit(cache=True, _nrt=False)
+@inner(cache=True, _nrt=False)
 def _merge_hits(io, io2, n, which):
     """io2's hits (in grid ``which``) replace io's; the counters add up."""
     for j in range(n):
