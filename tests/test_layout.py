@@ -15,6 +15,7 @@ packages with a planted offence to show that each check fails when it should.
 """
 
 import ast
+import functools
 import io
 import re
 import tokenize
@@ -64,7 +65,15 @@ def modules(roots=None):
 
 
 def _parse(path):
-    return ast.parse(path.read_text(), filename=str(path))
+    """The module's syntax tree (parsed once per path and content: the checks read the same files
+    many times; nothing changes the trees)."""
+    path = Path(path)
+    return _parse_text(str(path), path.read_text())
+
+
+@functools.lru_cache(maxsize=None)
+def _parse_text(name, text):
+    return ast.parse(text, filename=name)
 
 
 def _imported_names(mod, is_pkg, node):
