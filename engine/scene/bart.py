@@ -76,9 +76,9 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from ..compiles import inner
 from ..arrays import TRI_DTYPE, storage_centre
 from ..camera import Camera
+from ..compiles import inner
 from ..errors import InputError, SceneFileError
 from .animation import Animation, as_static_mask, check_time, gather_unchecked, pose_moving_vertices
 from .files import ALLOW_HINT, SceneFolder, read_scene_file

@@ -31,8 +31,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from ..compiles import inner
 from ..arrays import check_ray_values, check_rays
+from ..compiles import inner
 from ..errors import InputError
 from ..memory import check_fits
 from ..threads import check_threads, launch_guard, use_threads

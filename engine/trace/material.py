@@ -33,8 +33,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..compiles import inner
 from ..camera import pixel_dir
+from ..compiles import inner
 from ..scene.surface import (AMBIENT_FRACTION, DEFAULT_DIFFUSE, FALLOFF_INVERSE_SQUARE, LIGHT_DIRECTIONAL, LIGHT_POINT,
                              Surface)
 from .records import SurfaceArrays

@@ -33,8 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, parallel_chunksize, prange
 
-from ..compiles import inner
 from ..arrays import as_origin, check_ray_values, check_rays
+from ..compiles import inner
 from ..config import DEFAULT_MAX_BYTES, PACKET_PRECISIONS, RenderParams, _positive_int
 from ..errors import InputError
 from ..grid.layout import Grid

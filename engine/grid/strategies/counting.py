@@ -21,9 +21,9 @@ from numba import njit, prange
 
 from ...compiles import inner
 from ..atomics import atomic_add
+from ..buffers import scratch
 from ..common import cell_overlaps
 from .base import Strategy, timed
-from ..buffers import scratch
 from .shared import check_total, exclusive, parallel_scan_exclusive, part, range_volumes, ranges
 
 

@@ -26,9 +26,9 @@ from numba import njit, prange
 
 from ...compiles import inner
 from ..atomics import spin_lock, spin_unlock
+from ..buffers import scratch
 from ..common import cell_overlaps
 from .base import Strategy, timed
-from ..buffers import scratch
 from .shared import parallel_scan, part, ranges
 
 #: lock granularity codes passed to the kernels

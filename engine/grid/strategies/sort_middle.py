@@ -20,9 +20,9 @@ import numpy as np
 from numba import njit, prange
 
 from ...compiles import inner
+from ..buffers import scratch
 from ..common import RANGE_LANES, cell_overlaps, cell_ranges_into
 from .base import Strategy, timed
-from ..buffers import scratch
 from .shared import parallel_scan, part
 
 
