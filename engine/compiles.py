@@ -6,9 +6,9 @@ from the on-disk cache); :class:`CompileWatch` counts them from any thread, and 
 compile that was under way when it began or ended (a parallel kernel compiling in the background,
 gridrt.trace.twin, while frames render on its serial twin).
 
-:func:`inner` compiles a kernel that only other kernels call: numba then makes no entry point from
-Python for it (its argument unboxing and result boxing are a sixth of a cold start's compile),
-and a call from Python is refused with a clear error instead.
+:func:`inner` compiles a kernel that only other kernels call: numba then makes no entry point
+from Python for it (its argument unboxing and result boxing, about a tenth of a cold start's
+compile), and a call from Python is refused with a clear error instead.
 
 :func:`one_per_types` keeps a kernel called from other kernels to one compile per argument types.
 Two more ways a kernel compiles twice for the same work, avoided where kernels call kernels:

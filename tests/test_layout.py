@@ -222,13 +222,21 @@ def _dotted(expr, aliases):
     return ".".join([head] + parts[::-1])
 
 
+def _is_inner(expr, aliases):
+    """True for the package's ``inner`` or ``inner(...)`` (any arguments)."""
+    if isinstance(expr, ast.Call):
+        expr = expr.func
+    return f".{_dotted(expr, aliases) or ''}".endswith(INNER)
+
+
 def _is_compiler(expr, aliases):
     """True for ``njit``, ``njit(...)``, ``numba.jit(...)``, the package's ``inner(...)`` and the
     like (any arguments)."""
+    if _is_inner(expr, aliases):
+        return True
     if isinstance(expr, ast.Call):
         expr = expr.func
-    name = _dotted(expr, aliases) or ""
-    return name in COMPILERS or f".{name}".endswith(INNER)
+    return _dotted(expr, aliases) in COMPILERS
 
 
 def count_params(fn):
@@ -270,8 +278,7 @@ def _plain_njit(dec, aliases):
     """True for a decorator that compiles with numba's njit / jit as a separately compiled
     function: not ``inner``, not ``inline="always"`` (inlined into its callers, never compiled on
     its own), not ``parallel=True`` (an entry point with a parallel loop)."""
-    if not _is_compiler(dec, aliases) or (_dotted(dec.func if isinstance(dec, ast.Call) else dec, aliases)
-                                          or "").endswith(INNER):
+    if not _is_compiler(dec, aliases) or _is_inner(dec, aliases):
         return False
     kw = {k.arg: k.value for k in dec.keywords} if isinstance(dec, ast.Call) else {}
     const = {k: v.value for k, v in kw.items() if isinstance(v, ast.Constant)}
@@ -301,18 +308,20 @@ def python_uses(folders):
     return names
 
 
-def inner_kernels(roots=None):
-    """Lines ``path:line name`` of every function decorated with the package's ``inner``."""
-    out = []
+def _function_defs(roots=None):
+    """(path, function node, the module's import aliases) of every function in the package."""
     for mod, path in modules(roots).items():
         tree = _parse(path)
         aliases = _aliases(tree, mod, path.name == "__init__.py")
         for node in ast.walk(tree):
-            if isinstance(node, ast.FunctionDef) and any(
-                    (_dotted(d.func if isinstance(d, ast.Call) else d, aliases) or "").endswith(INNER)
-                    for d in node.decorator_list):
-                out.append(f"{_rel(path)}:{node.lineno} {node.name}")
-    return sorted(out)
+            if isinstance(node, ast.FunctionDef):
+                yield path, node, aliases
+
+
+def inner_kernels(roots=None):
+    """Lines ``path:line name`` of every function decorated with the package's ``inner``."""
+    return sorted(f"{_rel(path)}:{node.lineno} {node.name}" for path, node, aliases in _function_defs(roots)
+                  if any(_is_inner(d, aliases) for d in node.decorator_list))
 
 
 def should_be_inner(roots=None, users=()):
@@ -321,15 +330,8 @@ def should_be_inner(roots=None, users=()):
     :func:`gridrt.compiles.inner` would compile it without a Python entry point."""
     roots = ROOTS if roots is None else roots
     used = python_uses(list(roots.values()) + list(users))
-    out = []
-    for mod, path in modules(roots).items():
-        tree = _parse(path)
-        aliases = _aliases(tree, mod, path.name == "__init__.py")
-        for node in ast.walk(tree):
-            if (isinstance(node, ast.FunctionDef) and node.name not in used
-                    and any(_plain_njit(d, aliases) for d in node.decorator_list)):
-                out.append(f"{_rel(path)}:{node.lineno} {node.name}")
-    return sorted(out)
+    return sorted(f"{_rel(path)}:{node.lineno} {node.name}" for path, node, aliases in _function_defs(roots)
+                  if node.name not in used and any(_plain_njit(d, aliases) for d in node.decorator_list))
 
 
 def _comments(source):
