@@ -16,13 +16,18 @@ Two more ways a kernel compiles twice for the same work, avoided where kernels c
   parallel function made of it, so a kernel given the index compiles for both; kernels pass
   ``np.int64(i)``;
 * numba types a read-only array apart from a writable one; a record whose arrays may come from
-  either (a file's buffer, an array made here) gets read-only views of all of them."""
+  either (a file's buffer, an array made here) gets read-only views of all of them.
+
+A gridrt kernel loaded from numba's on-disk cache skips numba's full refresh of its compiler
+contexts (see :func:`_load_ready`): a warm start compiles nothing, so it needs the runtime the
+machine code links against, not the registries of every numba extension for typing and lowering."""
 
 import threading
 
 from numba import njit
-from numba.core import event, types
+from numba.core import caching, event, types
 from numba.core.registry import CPUDispatcher
+from numba.core.runtime import rtsys
 
 
 class _Counter(event.Listener):
@@ -118,3 +123,43 @@ def inner(*args, **options):
         return dispatcher
 
     return decorate(args[0]) if args else decorate
+
+
+def _load_ready(target_context):
+    """Make the process ready to load a cached gridrt kernel, short of numba's full refresh.
+
+    numba refreshes its target and typing contexts before every cache load: it imports and
+    installs the typing and lowering registries of all its extensions (numpy, random, linalg,
+    typed containers, ...), about a quarter of a warm one-frame dump, for kernels already in
+    machine code.  A loaded kernel needs the symbols its code links against: numba's C helpers
+    and math functions (registered when its context is made), the parallel runtime (each
+    parallel kernel's own reload hook), the reference-counting runtime (initialised here), and
+    the hash secret a hashing kernel reads (registered when numba.cpython.hashing is imported).
+    A compile later in the same process runs the full refresh itself first."""
+    rtsys.initialize(target_context)
+    import numba.cpython.hashing  # noqa: F401  # deferred: its import registers the hash secret
+
+
+def _is_gridrt(py_func):
+    return getattr(py_func, "__module__", "").split(".")[0] == "gridrt"
+
+
+def _install_quick_load():
+    """Route cache loads of gridrt's own kernels through :func:`_load_ready`; every other
+    function (a user's, a test's) loads as numba does it."""
+    numba_load = caching.Cache.load_overload
+    if getattr(numba_load, "gridrt_quick_load", False):
+        return
+
+    def load_overload(self, sig, target_context):
+        if not _is_gridrt(self._py_func):
+            return numba_load(self, sig, target_context)
+        _load_ready(target_context)
+        with self._guard_against_spurious_io_errors():
+            return self._load_overload(sig, target_context)
+
+    load_overload.gridrt_quick_load = True
+    caching.Cache.load_overload = load_overload
+
+
+_install_quick_load()
