@@ -2,6 +2,7 @@
 
 import argparse
 import contextlib
+import gc
 import os
 import sys
 import warnings
@@ -126,10 +127,16 @@ def leave(code, finish=False):
 
 def main(argv=None):
     """The command line (``argv``: the arguments, default sys.argv's).  Run as the program (no
-    ``argv``), it leaves through :func:`leave`; with ``argv`` (in-process) it returns the status."""
+    ``argv``), it leaves through :func:`leave`, and its work done, freezes the garbage collector:
+    the interpreter's shutdown then does not search every object left (numba's types, compiled
+    libraries and dispatchers) for reference cycles, a tenth of a second of a warm one-frame dump;
+    every file the command wrote is closed by then.  With ``argv`` (in-process) it returns the
+    status."""
     if argv is None:
         argv = sys.argv[1:]
-        return leave(_main(argv), finish=argv[:1] == ["dump"])
+        code = leave(_main(argv), finish=argv[:1] == ["dump"])
+        gc.freeze()
+        return code
     return _main(list(argv))
 
 

@@ -162,13 +162,37 @@ def test_leave_after_a_dump_waits_for_a_compile():
 
 
 def test_leave_without_a_compile_and_in_process():
+    import gc
+
     from gridrt.app.__main__ import leave, main
     from gridrt.trace.twin import TWINS
 
     assert TWINS.compiling() == []
     assert leave(5) == 5
-    # main with arguments runs in-process and returns its status (it never ends the process)
+    # main with arguments runs in-process and returns its status (it never ends the process) and
+    # leaves the garbage collector as it was
+    frozen = gc.get_freeze_count()
     assert main(["strategies"]) == 0
+    assert gc.get_freeze_count() == frozen
+
+
+def test_the_program_freezes_the_collector_once_its_work_is_done():
+    """Run as the program, main freezes the garbage collector after the command (the shutdown then
+    searches no object for cycles); what the command printed is all there."""
+    r = run(["-c", textwrap.dedent("""
+        import atexit, gc, sys
+        atexit.register(lambda: print("frozen before exit:", gc.get_freeze_count() > 0))
+        from gridrt.app.__main__ import main
+        print("frozen before main:", gc.get_freeze_count() > 0)
+        sys.argv = ["gridrt", "strategies"]
+        sys.exit(main())
+    """)], timeout=300)
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert lines[0] == "frozen before main: False" and lines[-1] == "frozen before exit: True"
+    from gridrt.grid.registry import names
+
+    assert [line.split()[0] for line in lines[2:-1]] == list(names())
 
 
 def test_background_compile_is_a_daemon_and_listed():
