@@ -24,7 +24,8 @@ from gridrt.threads import MAX_THREADS, warn_more_threads_than_cores
 #: :data:`SEVERAL` (:func:`option_help`).
 OPTION_HELP = {
     "--strategy": f"grid build strategy: one of `gridrt strategies`, or {AUTO_STRATEGY} (serial at 1 thread, "
-                  f"{PARALLEL_DEFAULT_STRATEGY} above)",
+                  f"{PARALLEL_DEFAULT_STRATEGY} above, built by serial, the same grid, while it compiles on a "
+                  "cold cache)",
     "--threads": f"threads for build and render, 1..{MAX_THREADS}",
     "--lambda": "grid density: cells ~ lambda x triangles",
     "--macro": "macro-cell edge in cells",

@@ -72,7 +72,9 @@ class GridParams:
     """How to build the grid each frame.
 
     strategy   name of a registered build strategy (gridrt.grid.registry), or "auto" (the
-               default): serial at one thread, sort_first above (:func:`resolve_strategy`)
+               default): serial at one thread, sort_first above (:func:`resolve_strategy`);
+               on a cold numba cache the serial strategy stands in for sort_first (the same
+               grid) until sort_first has compiled in the background (GridBuilder.build)
     density    lambda: target cells ~ density * triangles, shaped by the scene bounds
     macro      macro-cell edge k in cells (a macro cell is k**3 cells); 1 disables skipping gain
     insert     "bbox" (triangle bounding box, fast) or "exact" (separating-axis test, fewer refs)

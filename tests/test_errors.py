@@ -36,6 +36,9 @@ def install_kernel_tripwires(monkeypatch):
     from importlib import import_module
 
     from gridrt.grid.registry import BUILDERS, get_builder
+    from gridrt.trace.twin import TWINS
+
+    TWINS.wait()  # (a background warm-up of an earlier test must not meet the tripwires)
 
     # import_module: gridrt.trace.render is also the name of a function in gridrt.trace
     cam_mod = import_module("gridrt.camera")
@@ -73,6 +76,9 @@ def install_insert_tripwires(monkeypatch):
     from importlib import import_module
 
     from gridrt.grid.registry import BUILDERS, get_builder
+    from gridrt.trace.twin import TWINS
+
+    TWINS.wait()  # (a background warm-up of an earlier test must not meet the tripwires)
 
     get_builder("serial")
     common = import_module("gridrt.grid.common")

@@ -264,8 +264,9 @@ def test_viewer_leaves_without_a_busy_render_thread(capsys):
                     reason="needs Xvfb and xdotool (apt-get install xvfb xauth xdotool)")
 def test_viewer_esc_with_a_cold_cache(tmp_path, monkeypatch):
     """The viewer on 2 threads with an empty numba cache (tests/test_viewer.py's Xvfb harness):
-    after its first frames (the parallel kernel compiles in the background from the second on)
-    Esc ends it with status 0 and the notice that it did not wait for that compile."""
+    after its first frames (the parallel kernel compiles in the background from the second on,
+    and so may the default build strategy's warm-up, gridrt.grid.build) Esc ends it with status 0
+    and the notice that it did not wait for that compile."""
     from helpers.viewer import _App, _X
 
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
@@ -277,7 +278,9 @@ def test_viewer_esc_with_a_cold_cache(tmp_path, monkeypatch):
         app.xdo("key", "Escape")
         assert app.proc.wait(120) == 0, app.output()
         out = app.output()
-        assert NOTICE + "render_kernel (it compiles again next start)" in out.splitlines(), out
+        notices = [line for line in out.splitlines() if line.startswith(NOTICE)]
+        assert notices in ([NOTICE + "render_kernel (it compiles again next start)"],
+                           [NOTICE + "render_kernel, sort_first build (it compiles again next start)"]), out
         assert "Traceback" not in out
     finally:
         if app is not None:

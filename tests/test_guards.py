@@ -243,6 +243,11 @@ BOUNDARIES = {
                                                      ["test_fuzz_real_files"]),
     "gridrt.scene.bart:BartAnimation.camera_at": ("internal: camera keys from the parser", ["test_fuzz_real_files"]),
     "gridrt.warmup:_kernels": ("no call: inspects the kernels' compile cache files", []),
+    "gridrt.grid.build:_parallel_ready": ("no call: inspects the kernels' compiled signatures and cache index", []),
+    "gridrt.grid.build:_parallel_ready.job": (
+        "internal: the parallel bounds pass over a copy of at most WARM_TRIANGLES of triangles the build already "
+        "checked, into a (threads, 7) array it makes", ["test_guard_build_triangles"]),
+    "gridrt.grid.strategies.sort_first:SortFirst": ("no call: names its parallel kernels", []),
 }
 
 

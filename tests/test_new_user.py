@@ -22,6 +22,7 @@ from gridrt.config import (PARALLEL_DEFAULT_STRATEGY, SERIAL_ORDER_STRATEGIES, S
 from gridrt.grid import build_grid
 from gridrt.scene import make_scene
 from gridrt.threads import usable_cores
+from gridrt.trace.twin import parallel_first
 from helpers.cli import gridrt
 
 REPO = Path(__file__).resolve().parents[1]
@@ -77,11 +78,17 @@ def test_default_strategy_is_the_fastest_measured_that_builds_the_serial_grid():
 def test_default_strategy_builds_and_reports_the_strategy_it_stands_for(tmp_path):
     tris = make_scene("icosphere", count=320).triangles_at(0.0)
     for threads, name in ((1, "serial"), (2, PARALLEL_DEFAULT_STRATEGY)):
-        g = build_grid(tris, GridParams(threads=threads))
+        with parallel_first():  # (not its serial stand-in on a cold cache: tests/test_twin.py)
+            g = build_grid(tris, GridParams(threads=threads))
         explicit = build_grid(tris, GridParams(strategy=name, threads=threads))
         assert g.stats.strategy == name
         assert np.array_equal(g.cell_start, explicit.cell_start) and g.references == explicit.references
-    rows, _ = dump_rows(tmp_path, "--threads", "2", "--scene", "icosphere", "--count", "320")
+    # a dump of two animated frames warms the parallel strategy up if its kernels were not cached
+    # (and waits for that at exit); a dump after it builds with it from its first frame
+    anim = ("--threads", "2", "--scene", "icosphere", "--count", "320", "--animate", "twist")
+    rows, _ = dump_rows(tmp_path, *anim, "--frames", "2")
+    assert {r["strategy"] for r in rows} <= {"serial", PARALLEL_DEFAULT_STRATEGY}
+    rows, _ = dump_rows(tmp_path, *anim)
     assert rows[0]["strategy"] == PARALLEL_DEFAULT_STRATEGY
     rows, _ = dump_rows(tmp_path, "--threads", "1", "--scene", "icosphere", "--count", "320")
     assert rows[0]["strategy"] == "serial"

@@ -224,3 +224,82 @@ def test_parallel_first_calls_the_parallel_kernel_at_once():
         t(2, par, _fine, x, out)
     np.testing.assert_array_equal(out, x + 1.0)
     assert t.pick(2, par, _fine, (x, out)) is par  # compiled now: parallel from here on
+
+
+# ------------------------------------------------------------------------ the build's stand-in
+
+_BUILD_DRIVER = '''
+import json, sys
+import numpy as np
+from gridrt.compiles import CompileWatch
+from gridrt.config import GridParams
+from gridrt.grid import GridBuilder, build_grid
+from gridrt.grid.build import BOUNDS_CHUNK
+from gridrt.scene import make_scene
+from gridrt.trace.twin import TWINS
+
+scene = make_scene("icosphere", count=1280, animate="twist")
+builder = GridBuilder(GridParams(threads=2))
+steps = []
+for i, wait in enumerate(json.loads(sys.argv[1])):
+    tris = scene.triangles_at(0.1 * i)
+    with CompileWatch() as w:
+        g = builder.build(tris)
+    listed = TWINS.compiling()
+    if wait:
+        TWINS.wait()
+    ref = build_grid(tris, strategy="serial", threads=1)
+    same = (np.array_equal(g.cell_start, ref.cell_start) and g.references == ref.references
+            and np.array_equal(g.tri_ids[:g.references], ref.tri_ids[:ref.references]))
+    steps.append([g.stats.strategy, w.compiled, listed, same])
+print(json.dumps(steps))
+'''
+
+
+def _build_drive(tmp_path, cache, waits):
+    (tmp_path / "build_driver.py").write_text(textwrap.dedent(_BUILD_DRIVER))
+    env = {**__import__("os").environ, "NUMBA_CACHE_DIR": str(cache)}
+    r = subprocess.run([sys.executable, str(tmp_path / "build_driver.py"), json.dumps(waits)], capture_output=True,
+                       text=True, env=env, timeout=900)
+    assert r.returncode == 0, r.stderr[-3000:]
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.slow
+def test_default_build_stands_in_serially_on_a_cold_cache(tmp_path):
+    """GridParams(strategy="auto") on two threads with a fresh numba cache: the serial strategy
+    builds (the same grid as sort_first and serial: the same cells, each list in the same order),
+    the builder's second build starts the background warm-up of sort_first, and once it is done
+    sort_first builds; a later process with that cache builds with sort_first from the first
+    build and compiles nothing for it."""
+    cache = tmp_path / "cache"
+    cold = _build_drive(tmp_path, cache, [False, True, False, False])
+    assert [s[0] for s in cold] == ["serial", "serial", "sort_first", "sort_first"]
+    assert [s[2] for s in cold] == [[], ["sort_first build"], [], []]
+    # compiles: the first build's serial kernels, then the warm-up under way as the second ended
+    # (CompileWatch counts a compile in any thread); none once sort_first builds
+    assert [s[1] for s in cold] == [True, True, False, False]
+    assert all(s[3] for s in cold)
+    warm = _build_drive(tmp_path, cache, [False])
+    assert warm == [["sort_first", False, [], True]]
+
+
+def test_warm_runs_a_job_once_when_started_and_reports_its_failure():
+    t = Twins()
+    runs = []
+    assert t.warm(("k",), "job", lambda: runs.append(1), start=False) is False
+    assert runs == [] and t.compiling() == []
+    assert t.warm(("k",), "job", lambda: runs.append(1), start=True) is False
+    t.wait()
+    assert t.warm(("k",), "job", lambda: runs.append(1), start=True) is True
+    assert runs == [1]
+
+    def fail():
+        raise ValueError("no")
+
+    t.warm(("bad",), "bad job", fail, start=True)
+    t.wait()
+    with pytest.raises(RuntimeError, match="warming up bad job failed"):
+        t.warm(("bad",), "bad job", fail, start=True)
+    with parallel_first():
+        assert t.warm(("other",), "job", fail, start=False) is True

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..arrays import (TRI_DTYPE, as_origin, as_triangles, float_contiguous, frame_centre, refuse_bad_values,
                       triangle_array)
-from ..config import GridParams, resolve_strategy
+from ..config import AUTO_STRATEGY, GridParams, resolve_strategy
 from ..errors import InputError
 from ..precision import ONE_SHOT_SAMPLE, warn_detail
 from ..stats import BuildStats
@@ -99,6 +99,7 @@ class GridBuilder:
         self.params = params or GridParams()
         self.bufs = GridBuffers()
         self._auto = None  # grid="auto": (the kind chosen, triangles, builds since it was measured)
+        self._stand_ins = 0  # builds by the serial strategy standing in for the parallel default one
 
     def build(self, tris, params: GridParams | None = None) -> Grid:
         if params is not None:
@@ -107,17 +108,22 @@ class GridBuilder:
             self.params = params
         p = self.params
         threads = check_threads(p.threads)
-        strategy = get_builder(resolve_strategy(p.strategy, threads))()
         t_start = time.perf_counter()
         times = {}
         tris = _check_tris(tris)
         F = tris.shape[0]
+        name = resolve_strategy(p.strategy, threads)
+        if p.strategy == AUTO_STRATEGY and name != "serial":
+            if not _parallel_ready(name, p, threads, tris, start=self._stand_ins > 0):
+                name = "serial"
+                self._stand_ins += 1
+        strategy = get_builder(name)()
         use_threads(threads)
 
         with timed(times, "bounds_ms"):
             # one chunk per thread from a quarter million triangles on (below that, the SIMD pass
             # takes about as long as a parallel launch); serial keeps to one thread throughout
-            n_chunks = max(1, min(threads, F // 262144 + 1)) if strategy.parallel_stages else 1
+            n_chunks = max(1, min(threads, F // BOUNDS_CHUNK + 1)) if strategy.parallel_stages else 1
             bb = np.empty((n_chunks, 7), np.float64)
             if n_chunks == 1:
                 common.scene_bounds_serial(tris, bb)
@@ -284,6 +290,56 @@ class GridBuilder:
             grid_bytes=grid.memory_bytes(),
             counters={**st.counters, "top_references": top.references, "crowding": crowd}, grid="two_level")
         return grid
+
+
+#: triangles per chunk of the parallel bounds pass (fewer: one chunk, the serial pass)
+BOUNDS_CHUNK = 262144
+#: triangles of the scene the background warm-up of the parallel default strategy builds
+WARM_TRIANGLES = 64
+
+#: parallel default strategies known to be compiled or cached, with the writeability of the
+#: triangles (part of their numba type)
+_READY = set()
+
+
+def _parallel_ready(name, p, threads, tris, start):
+    """Whether GridParams(strategy="auto") at ``threads`` > 1 builds with its parallel default
+    strategy ``name`` (True) or with the serial strategy standing in for it (False), which builds
+    the same grid (the same cells, each list in the same order) and compiles seconds faster on a
+    cold numba cache (BENCHMARKS.md section 10).
+
+    Its kernels compiled in this process or found in the on-disk cache: yes.  Otherwise the
+    serial strategy builds; with ``start`` (the builder's second build by the serial strategy, so
+    that a one-frame run never starts it) a background thread warms the parallel one up
+    (gridrt.trace.twin.Twins.warm: listed by ``TWINS.compiling()``, waited for by a dump at exit)
+    by building a few of the scene's triangles with it, twice (the second build runs the clear
+    stage); every build after that uses it.  Under parallel_first (benchmarks): yes."""
+    from ..trace.twin import TWINS, has_cache_entry  # deferred: gridrt.trace imports gridrt.grid
+
+    key = (name, bool(tris.flags.writeable))
+    if key in _READY:
+        return True
+    strategy = get_builder(name)()
+    kernels = (*strategy.parallel_kernels, common.clear_macro_parallel, common.macro_build_parallel)
+    if not all(hasattr(k, "signatures") for k in kernels):  # (one replaced by a plain function)
+        return True
+    if all(k.signatures or has_cache_entry(k) for k in kernels):
+        _READY.add(key)
+        return True
+
+    def job():
+        sample = tris[:WARM_TRIANGLES].copy()
+        sample.setflags(write=tris.flags.writeable)
+        builder = GridBuilder(p.replace(strategy=name, threads=threads))
+        builder.build(sample)
+        builder.build(sample)
+        if tris.shape[0] >= BOUNDS_CHUNK:
+            common.scene_bounds(sample, threads, np.empty((threads, 7)))
+
+    if TWINS.warm(("build", *key), f"{name} build", job, start):
+        _READY.add(key)
+        return True
+    return False
 
 
 #: GridParams(grid="auto") builds a two-level grid when the top level's crowding (:func:`crowding`)

@@ -17,6 +17,10 @@ so that every caller of a kernel stays visible where it is called):
   on, the parallel kernel compiles in a background thread while the serial one goes on serving;
   once compiled it takes over.  A one-frame run never compiles it.
 
+:meth:`Twins.warm` does the same for work that is more than one kernel: the default build
+strategy's parallel kernels (gridrt.grid.build), warmed up by a small build in the background
+while the serial strategy builds the same grids.
+
 Benchmarks run under :func:`parallel_first`: their untimed warm-up runs then compile the parallel
 kernel on first use, in the caller's thread, so that timed runs never time the serial
 kernel standing in for it.
@@ -141,6 +145,38 @@ class Twins:
             self._failed[id(parallel)] = e
         with self._lock:
             self._compiling.pop((id(parallel), sig), None)
+
+    def warm(self, key, name, job, start):
+        """Whether the work behind ``key`` has warmed up in this process (its kernels compiled by
+        ``job()``, a run of that work): yes once the job ended without error.  Until then, with
+        ``start``, the job runs on a daemon thread (once), listed as ``name`` by :meth:`compiling`
+        while it runs.  A job that failed raises in the next caller's thread.  Under
+        :func:`parallel_first`: yes."""
+        if self.eager:
+            return True
+        with self._lock:
+            failed = self._failed.get(key)
+            if failed is not None:
+                raise RuntimeError(f"warming up {name} failed") from failed
+            if key in self._ready:
+                return True
+            if start and key not in self._compiling:
+                thread = threading.Thread(target=self._warm, args=(key, job), name="gridrt-compile-parallel",
+                                          daemon=True)
+                thread.kernel = name
+                self._compiling[key] = thread
+                self.started += 1
+                thread.start()
+            return False
+
+    def _warm(self, key, job):
+        try:
+            job()
+        except Exception as e:  # noqa: BLE001 (raised in the next caller's thread)
+            self._failed[key] = e
+        with self._lock:
+            if key not in self._failed:
+                self._ready.add(key)
 
     def compiling(self):
         """The names of the parallel kernels whose background compile is still running (sorted)."""

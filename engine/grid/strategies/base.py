@@ -35,6 +35,10 @@ class Strategy:
     #: keys of the counts ``insert`` adds to its ``times`` (the rest are stage times in ms); the
     #: build keeps them apart, as BuildStats.counters
     counters = ()
+    #: the parallel kernels (numba dispatchers) ``insert`` calls on more than one thread: for a
+    #: strategy GridParams(strategy="auto") may pick, whether they are compiled or cached decides
+    #: if it builds or its serial stand-in does (gridrt.grid.build._parallel_ready)
+    parallel_kernels = ()
 
     def layers(self, threads):
         return threads if self.layered else 1

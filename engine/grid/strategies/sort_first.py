@@ -16,7 +16,7 @@ from numba import njit, prange
 
 from ..common import cell_overlaps, scan_into
 from .base import Strategy, timed
-from .shared import check_total, exclusive, part, ranges
+from .shared import cell_ranges, check_total, exclusive, part, ranges
 
 
 @njit(cache=True, parallel=True)
@@ -87,6 +87,7 @@ class SortFirst(Strategy):
     """z-slab per thread, every thread reads all triangles; no synchronization."""
 
     name = "sort_first"
+    parallel_kernels = (cell_ranges, count_slabs, scan_scatter_slabs)
 
     def insert(self, tris, spec, bufs, threads, exact, times):
         count = bufs.count[0]
