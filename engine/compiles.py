@@ -20,12 +20,19 @@ Two more ways a kernel compiles twice for the same work, avoided where kernels c
 
 A gridrt kernel loaded from numba's on-disk cache skips numba's full refresh of its compiler
 contexts (see :func:`_load_ready`): a warm start compiles nothing, so it needs the runtime the
-machine code links against, not the registries of every numba extension for typing and lowering."""
+machine code links against, not the registries of every numba extension for typing and lowering.
 
+Two steps of numba's compiler do work whose result they then drop; they are made to skip it
+(:func:`_install_cheaper_frontend`), for every function numba compiles in the process, with the
+same results: the deep copy of an inlined function's IR, and the typing of an operator on
+scalars by NumPy's array-operator rules."""
+
+import copy
 import threading
 
 from numba import njit
-from numba.core import caching, event, types
+from numba.core import caching, event, inline_closurecall, ir, types
+from numba.core.typing import npydecl
 from numba.core.registry import CPUDispatcher
 from numba.core.runtime import rtsys
 
@@ -163,3 +170,59 @@ def _install_quick_load():
 
 
 _install_quick_load()
+
+
+class _SharedScopeCopy:
+    """The copy module as numba's inliner (numba.core.inline_closurecall) sees it: the blocks of
+    one function's IR, deep-copied one after the other, share one memo.
+
+    The inliner copies the IR of the function it inlines block by block, each with a fresh memo,
+    and every block refers to the function's variable scope (all its variables): each block's
+    copy copies the whole scope again, and keeps it only to read one scope's variables.  With one
+    memo the scope and anything else the blocks share is copied once and stays shared, as in the
+    IR copied.  A new memo starts with a block of another scope, or a block copied again (the next
+    copy of the same IR, as the inliner makes a second one to return and overload inlining reuses
+    one IR at several call sites)."""
+
+    def __init__(self):
+        self._scope = None
+        self._memo = {}
+
+    def deepcopy(self, x, memo=None):
+        if memo is not None or not isinstance(x, ir.Block):
+            return copy.deepcopy(x, memo)
+        if x.scope is not self._scope or id(x) in self._memo:
+            self._scope, self._memo = x.scope, {}
+        return copy.deepcopy(x, self._memo)
+
+    def __getattr__(self, name):
+        return getattr(copy, name)
+
+
+def _install_cheaper_frontend():
+    """The two changes the module docstring names, once per process, each only where numba's code
+    is as this was written against (else numba runs as it is).
+
+    * :class:`_SharedScopeCopy` for the inliner's copy module: about 1.3 s of a cold one-frame
+      dump's 27 s (BENCHMARKS.md section 10).
+    * NumPy's array-operator typing template (npydecl.NumpyRulesArrayOperator) is one of the
+      templates numba tries for every ``+``, ``*``, ``<``, ... it types; on scalars it resolves
+      a ufunc loop and then returns None because no argument is an array.  Without an array
+      argument it now returns None at once: its result when typing fails, as on scalars, and
+      numba goes on to the scalar templates as before.  About 0.6 s of the same dump."""
+    if inline_closurecall.copy is copy:
+        inline_closurecall.copy = _SharedScopeCopy()
+    rules = npydecl.NumpyRulesArrayOperator
+    generic = rules.__dict__.get("generic")
+    if generic is not None and not getattr(generic, "gridrt_arrays_only", False):
+        def arrays_only(self, args, kws):
+            if not any(isinstance(a, types.ArrayCompatible) for a in args):
+                return None
+            return generic(self, args, kws)
+
+        arrays_only.gridrt_arrays_only = True
+        arrays_only.numba_generic = generic
+        rules.generic = arrays_only
+
+
+_install_cheaper_frontend()
