@@ -256,9 +256,9 @@ print(json.dumps(steps))
 '''
 
 
-def _build_drive(tmp_path, cache, waits):
+def _build_drive(tmp_path, cache, waits, **env):
     (tmp_path / "build_driver.py").write_text(textwrap.dedent(_BUILD_DRIVER))
-    env = {**__import__("os").environ, "NUMBA_CACHE_DIR": str(cache)}
+    env = {**__import__("os").environ, "NUMBA_CACHE_DIR": str(cache), **env}
     r = subprocess.run([sys.executable, str(tmp_path / "build_driver.py"), json.dumps(waits)], capture_output=True,
                        text=True, env=env, timeout=900)
     assert r.returncode == 0, r.stderr[-3000:]
@@ -271,7 +271,8 @@ def test_default_build_stands_in_serially_on_a_cold_cache(tmp_path):
     builds (the same grid as sort_first and serial: the same cells, each list in the same order),
     the builder's second build starts the background warm-up of sort_first, and once it is done
     sort_first builds; a later process with that cache builds with sort_first from the first
-    build and compiles nothing for it."""
+    build and compiles nothing for it; with numba's workqueue threading layer there is no
+    stand-in."""
     cache = tmp_path / "cache"
     cold = _build_drive(tmp_path, cache, [False, True, False, False])
     assert [s[0] for s in cold] == ["serial", "serial", "sort_first", "sort_first"]
@@ -282,6 +283,11 @@ def test_default_build_stands_in_serially_on_a_cold_cache(tmp_path):
     assert all(s[3] for s in cold)
     warm = _build_drive(tmp_path, cache, [False])
     assert warm == [["sort_first", False, [], True]]
+    # numba's workqueue layer must not run parallel kernels from two threads at once: no warm-up
+    # beside the frames, sort_first compiles where it is first used
+    # (the second build compiles the clear stage's kernel, which a first build does not run)
+    queue = _build_drive(tmp_path, tmp_path / "cache2", [False, False, False], NUMBA_THREADING_LAYER="workqueue")
+    assert queue == [["sort_first", True, [], True], ["sort_first", True, [], True], ["sort_first", False, [], True]]
 
 
 def test_warm_runs_a_job_once_when_started_and_reports_its_failure():

@@ -12,7 +12,7 @@ from ..config import AUTO_STRATEGY, GridParams, resolve_strategy
 from ..errors import InputError
 from ..precision import ONE_SHOT_SAMPLE, warn_detail
 from ..stats import BuildStats
-from ..threads import check_threads, use_threads
+from ..threads import check_threads, concurrent_launches_ok, use_threads
 import gridrt.grid.common as common  # (the module: the error tests replace its kernels with tripwires)
 from .buffers import GridBuffers, LeafBuffers
 from .layout import BOUNDS_PAD, Grid, GridSpec
@@ -313,11 +313,16 @@ def _parallel_ready(name, p, threads, tris, start):
     that a one-frame run never starts it) a background thread warms the parallel one up
     (gridrt.trace.twin.Twins.warm: listed by ``TWINS.compiling()``, waited for by a dump at exit)
     by building a few of the scene's triangles with it, twice (the second build runs the clear
-    stage); every build after that uses it.  Under parallel_first (benchmarks): yes."""
+    stage); every build after that uses it.  Under parallel_first (benchmarks): yes.  With a
+    threading layer that must not run parallel kernels from two threads at once (numba's
+    workqueue, without libgomp): yes, as the warm-up would run beside the frames' kernels."""
     from ..trace.twin import TWINS, has_cache_entry  # deferred: gridrt.trace imports gridrt.grid
 
     key = (name, bool(tris.flags.writeable))
     if key in _READY:
+        return True
+    if not concurrent_launches_ok():
+        _READY.add(key)
         return True
     strategy = get_builder(name)()
     kernels = (*strategy.parallel_kernels, common.clear_macro_parallel, common.macro_build_parallel)
