@@ -31,8 +31,7 @@ import copy
 import threading
 
 from numba import njit
-from numba.core import caching, event, inline_closurecall, ir, types
-from numba.core.typing import npydecl
+from numba.core import caching, event, types
 from numba.core.registry import CPUDispatcher
 from numba.core.runtime import rtsys
 
@@ -46,6 +45,7 @@ class _Counter(event.Listener):
         self.under_way = 0
 
     def on_start(self, ev):
+        _install_cheaper_frontend()  # (numba compiles under its compiler lock: one thread at a time)
         with self.lock:
             self.started += 1
             self.under_way += 1
@@ -172,7 +172,7 @@ def _install_quick_load():
 _install_quick_load()
 
 
-class _SharedScopeCopy:
+class _SharedScopeCopy:  # (its base: a plain object; numba's IR module is imported when first used)
     """The copy module as numba's inliner (numba.core.inline_closurecall) sees it: the blocks of
     one function's IR, deep-copied one after the other, share one memo.
 
@@ -189,6 +189,8 @@ class _SharedScopeCopy:
         self._memo = {}
 
     def deepcopy(self, x, memo=None):
+        from numba.core import ir  # deferred: loaded with the inliner, at the first compile
+
         if memo is not None or not isinstance(x, ir.Block):
             return copy.deepcopy(x, memo)
         if x.scope is not self._scope or id(x) in self._memo:
@@ -199,9 +201,13 @@ class _SharedScopeCopy:
         return getattr(copy, name)
 
 
+_FRONTEND = []  # [True] once installed
+
+
 def _install_cheaper_frontend():
-    """The two changes the module docstring names, once per process, each only where numba's code
-    is as this was written against (else numba runs as it is).
+    """The two changes the module docstring names, once per process at its first compile (the
+    modules they change take about 0.1 s to import, which a warm start need not pay), each only
+    where numba's code is as this was written against (else numba runs as it is).
 
     * :class:`_SharedScopeCopy` for the inliner's copy module: about 1.3 s of a cold one-frame
       dump's 27 s (BENCHMARKS.md section 10).
@@ -210,6 +216,12 @@ def _install_cheaper_frontend():
       a ufunc loop and then returns None because no argument is an array.  Without an array
       argument it now returns None at once: its result when typing fails, as on scalars, and
       numba goes on to the scalar templates as before.  About 0.6 s of the same dump."""
+    if _FRONTEND:
+        return
+    _FRONTEND.append(True)
+    from numba.core import inline_closurecall  # deferred: numba's inliner, 0.1 s to import
+    from numba.core.typing import npydecl  # deferred: numba's NumPy typing, imported by its compiler
+
     if inline_closurecall.copy is copy:
         inline_closurecall.copy = _SharedScopeCopy()
     rules = npydecl.NumpyRulesArrayOperator
@@ -223,6 +235,3 @@ def _install_cheaper_frontend():
         arrays_only.gridrt_arrays_only = True
         arrays_only.numba_generic = generic
         rules.generic = arrays_only
-
-
-_install_cheaper_frontend()

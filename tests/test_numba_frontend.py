@@ -1,5 +1,8 @@
 """The two steps of numba's compiler gridrt.compiles makes cheaper give what numba's own code gives.
 
+They are installed at the first compile in the process (importing numba's inliner takes a tenth
+of a second, which a warm start need not pay): a fresh process shows both before and after.
+
 * Operator typing: NumPy's array-operator template, as installed, against numba's own template
   function on every operator it types, for scalar, array and mixed argument types.
 * The inliner's IR copies: blocks copied as numba's inliner copies them share one copied scope,
@@ -14,13 +17,39 @@ import math
 import numpy as np
 import pytest
 from numba import njit, types
-from numba.core import inline_closurecall, ir
+from numba.core import ir
 from numba.core.compiler import run_frontend
 from numba.core.registry import cpu_target
 from numba.core.typing import npydecl
 from numba.extending import overload
 
 import gridrt.compiles as compiles  # noqa: F401  (installs the cheaper steps)
+
+@pytest.fixture
+def compiled():
+    """numba has compiled in this process (the cheaper steps are installed then)."""
+    @njit
+    def plus_one(x):
+        return x + 1
+
+    assert plus_one(1) == 2
+
+
+def test_installed_at_the_first_compile_not_at_import():
+    import subprocess
+    import sys
+
+    code = ("import sys, copy, gridrt\n"
+            "print('numba.core.inline_closurecall' in sys.modules)\n"
+            "from numba import njit\n"
+            "njit(lambda x: x + 1)(1)\n"
+            "from numba.core import inline_closurecall\n"
+            "from numba.core.typing import npydecl\n"
+            "print(inline_closurecall.copy is not copy, npydecl.NumpyRulesArrayOperator.generic.gridrt_arrays_only)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.split() == ["False", "True", "True"]
+
 
 SCALARS = [types.int64, types.int32, types.uint8, types.float64, types.float32, types.boolean, types.complex128]
 ARRAYS = [types.Array(types.float64, 1, "C"), types.Array(types.int32, 2, "C"), types.Array(types.float32, 3, "A")]
@@ -32,7 +61,7 @@ def _op_templates():
     return subs
 
 
-def test_operator_typing_is_numbas_own():
+def test_operator_typing_is_numbas_own(compiled):
     generic = npydecl.NumpyRulesArrayOperator.generic
     assert getattr(generic, "gridrt_arrays_only", False), "the array-only template is not installed"
     numba_generic = generic.numba_generic
@@ -59,6 +88,8 @@ def test_operator_typing_is_numbas_own():
 
 def _blocks_copied(func_ir):
     """The IR's blocks copied as numba's inliner copies them (one deepcopy call a block)."""
+    from numba.core import inline_closurecall
+
     return {label: inline_closurecall.copy.deepcopy(block) for label, block in func_ir.blocks.items()}
 
 
@@ -96,7 +127,9 @@ def _several_blocks(x, n):
     return s
 
 
-def test_inliner_copies_share_one_scope_and_nothing_else():
+def test_inliner_copies_share_one_scope_and_nothing_else(compiled):
+    from numba.core import inline_closurecall
+
     assert isinstance(inline_closurecall.copy, compiles._SharedScopeCopy)
     func_ir = run_frontend(_several_blocks)
     assert len(func_ir.blocks) > 4
