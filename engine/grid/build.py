@@ -114,7 +114,7 @@ class GridBuilder:
         F = tris.shape[0]
         name = resolve_strategy(p.strategy, threads)
         if p.strategy == AUTO_STRATEGY and name != "serial":
-            if not _parallel_ready(name, p, threads, tris, start=self._stand_ins > 0):
+            if not _parallel_ready(name, threads, tris, start=self._stand_ins > 0):
                 name = "serial"
                 self._stand_ins += 1
         strategy = get_builder(name)()
@@ -302,7 +302,7 @@ WARM_TRIANGLES = 64
 _READY = set()
 
 
-def _parallel_ready(name, p, threads, tris, start):
+def _parallel_ready(name, threads, tris, start):
     """Whether GridParams(strategy="auto") at ``threads`` > 1 builds with its parallel default
     strategy ``name`` (True) or with the serial strategy standing in for it (False), which builds
     the same grid (the same cells, each list in the same order) and compiles seconds faster on a
@@ -333,9 +333,11 @@ def _parallel_ready(name, p, threads, tris, start):
         return True
 
     def job():
+        # the default parameters: the kernels' types do not depend on them, and a memory budget,
+        # density or grid kind of the user's own could refuse a grid of a few triangles
         sample = tris[:WARM_TRIANGLES].copy()
         sample.setflags(write=tris.flags.writeable)
-        builder = GridBuilder(p.replace(strategy=name, threads=threads))
+        builder = GridBuilder(GridParams(strategy=name, threads=threads))
         builder.build(sample)
         builder.build(sample)
         if tris.shape[0] >= BOUNDS_CHUNK:
