@@ -172,7 +172,7 @@ def _install_quick_load():
 _install_quick_load()
 
 
-class _SharedScopeCopy:  # (its base: a plain object; numba's IR module is imported when first used)
+class _SharedScopeCopy:
     """The copy module as numba's inliner (numba.core.inline_closurecall) sees it: the blocks of
     one function's IR, deep-copied one after the other, share one memo.
 
@@ -184,14 +184,13 @@ class _SharedScopeCopy:  # (its base: a plain object; numba's IR module is impor
     copy of the same IR, as the inliner makes a second one to return and overload inlining reuses
     one IR at several call sites)."""
 
-    def __init__(self):
+    def __init__(self, block_type):
+        self._block = block_type  # numba.core.ir.Block
         self._scope = None
         self._memo = {}
 
     def deepcopy(self, x, memo=None):
-        from numba.core import ir  # deferred: loaded with the inliner, at the first compile
-
-        if memo is not None or not isinstance(x, ir.Block):
+        if memo is not None or not isinstance(x, self._block):
             return copy.deepcopy(x, memo)
         if x.scope is not self._scope or id(x) in self._memo:
             self._scope, self._memo = x.scope, {}
@@ -219,11 +218,11 @@ def _install_cheaper_frontend():
     if _FRONTEND:
         return
     _FRONTEND.append(True)
-    from numba.core import inline_closurecall  # deferred: numba's inliner, 0.1 s to import
+    from numba.core import inline_closurecall, ir  # deferred: numba's inliner, 0.1 s to import
     from numba.core.typing import npydecl  # deferred: numba's NumPy typing, imported by its compiler
 
     if inline_closurecall.copy is copy:
-        inline_closurecall.copy = _SharedScopeCopy()
+        inline_closurecall.copy = _SharedScopeCopy(ir.Block)
     rules = npydecl.NumpyRulesArrayOperator
     generic = rules.__dict__.get("generic")
     if generic is not None and not getattr(generic, "gridrt_arrays_only", False):

@@ -300,6 +300,9 @@ WARM_TRIANGLES = 64
 #: parallel default strategies known to be compiled or cached, with the writeability of the
 #: triangles (part of their numba type)
 _READY = set()
+#: those not found in the on-disk cache (its index files are read once, not at every build a
+#: serial stand-in makes)
+_COLD = set()
 
 
 def _parallel_ready(name, threads, tris, start):
@@ -324,13 +327,13 @@ def _parallel_ready(name, threads, tris, start):
     if not concurrent_launches_ok():
         _READY.add(key)
         return True
-    strategy = get_builder(name)()
-    kernels = (*strategy.parallel_kernels, common.clear_macro_parallel, common.macro_build_parallel)
+    kernels = (*get_builder(name).parallel_kernels, common.clear_macro_parallel, common.macro_build_parallel)
     if not all(hasattr(k, "signatures") for k in kernels):  # (one replaced by a plain function)
         return True
-    if all(k.signatures or has_cache_entry(k) for k in kernels):
+    if all(k.signatures or (key not in _COLD and has_cache_entry(k)) for k in kernels):
         _READY.add(key)
         return True
+    _COLD.add(key)
 
     def job():
         # the default parameters: the kernels' types do not depend on them, and a memory budget,

@@ -128,12 +128,7 @@ class Twins:
             if has_cache_entry(parallel, sig):  # it loads from the on-disk cache in milliseconds
                 return parallel
             if key in self._seen:
-                job = threading.Thread(target=self._compile, args=(parallel, sig), name="gridrt-compile-parallel",
-                                       daemon=True)
-                job.kernel = parallel.py_func.__qualname__
-                self._compiling[key] = job
-                self.started += 1
-                job.start()
+                self._start(key, parallel.py_func.__qualname__, self._compile, parallel, sig)
             else:
                 self._seen.add(key)
             return serial
@@ -161,13 +156,17 @@ class Twins:
             if key in self._ready:
                 return True
             if start and key not in self._compiling:
-                thread = threading.Thread(target=self._warm, args=(key, job), name="gridrt-compile-parallel",
-                                          daemon=True)
-                thread.kernel = name
-                self._compiling[key] = thread
-                self.started += 1
-                thread.start()
+                self._start(key, name, self._warm, key, job)
             return False
+
+    def _start(self, key, name, target, *args):
+        """Run target(*args) on a daemon thread kept under ``key``, listed as ``name`` by
+        :meth:`compiling` while it runs (the caller holds the lock)."""
+        thread = threading.Thread(target=target, args=args, name="gridrt-compile-parallel", daemon=True)
+        thread.kernel = name
+        self._compiling[key] = thread
+        self.started += 1
+        thread.start()
 
     def _warm(self, key, job):
         try:
