@@ -175,12 +175,13 @@ def test_chunk_boundaries_change_nothing(rng, monkeypatch):
     for name, (oo, dd) in variants.items():
         whole = [caster.cast(oo, dd), cast_rays(grid, tris32, oo, dd)]
         for chunk in (1, 7, 1000):
+            n = 300 if chunk == 1 else len(oo)  # (one kernel call a ray: the first 300 rays show it)
             monkeypatch.setattr(render_mod, "CAST_CHUNK", chunk)
-            parts = [caster.cast(oo, dd), cast_rays(grid, tris32, oo, dd)]
+            parts = [caster.cast(oo[:n], dd[:n]), cast_rays(grid, tris32, oo[:n], dd[:n])]
             monkeypatch.undo()
             for a, b in zip(whole, parts):
                 for field in ("t", "tri", "u", "v"):
-                    assert np.array_equal(getattr(a, field), getattr(b, field)), (name, chunk, field)
+                    assert np.array_equal(getattr(a, field)[:n], getattr(b, field)), (name, chunk, field)
         if name != "float32":
             ref = _local_ref(v, f, o, d / scale[:, None])
             assert (ref.tri >= 0).sum() > 1000

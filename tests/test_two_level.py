@@ -750,6 +750,7 @@ def museum():
     return make_scene(str(data_path("animated/bart/museum/aff/museum5.aff")))
 
 
+@pytest.mark.slow  # (the split scene's two-level kernels: 40 s of compiles on a cold cache)
 def test_pipeline_split_scene():
     """The museum (BART; its static_mask splits it into a static grid built once and a moving one
     rebuilt every frame) through FramePipeline: grid="two_level" renders grid="uniform"'s frames
@@ -880,6 +881,7 @@ def cgt_two_level(m, grid, rng, n_rays, n_row_rays, label, batch=200_000):
     assert pk["fast_holes"].sum() + rows["fast_holes"] > 0, f"{label}: the probes do not find the fast test's leaks"
 
 
+@pytest.mark.slow  # (the probes' own packet kernels on two-level grids: 25 s of compiles on a cold cache)
 def test_cgt_watertight_icosphere(rng):
     m = ProbeMesh(*icosphere(3, radius=1.0, center=(0.1, -0.2, 0.3)))
     cgt_two_level(m, build_grid(m.tris, two_level()), rng, 60_000, 50 * 512, "icosphere")
