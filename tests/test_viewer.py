@@ -352,6 +352,64 @@ def test_worker_texture_progress(tmp_path):
     assert TextureProgress().label() == ""
 
 
+def _run_jobs(worker, *jobs):
+    """Each job's result on ``worker``, one job at a time."""
+    out = []
+    for job in jobs:
+        worker.submit(job)
+        res, t0 = [], time.time()
+        while not res and time.time() - t0 < 300:
+            res = worker.take()
+            time.sleep(0.01)
+        [r] = res
+        assert r.error is None, r.error
+        out.append(r)
+    return out
+
+
+def test_worker_warm_load_steps_a_throwaway_pipeline_first():
+    """LoadJob(warm=True), the viewer's first load on a warm cache: before the load's result the
+    worker steps a pipeline of its own, at WARM_SIZE and the spec's first-frame time (so that the
+    first frame's kernels have loaded by then); the loaded pipeline is not stepped, and its first
+    frame equals, bit for bit, the first frame of a load without it."""
+    from gridrt.app.viewer.worker import WARM_SIZE, FrameJob, LoadJob, RenderWorker
+    from gridrt.config import GridParams, RenderParams
+    from gridrt.frame import FrameSpec, ViewSpec
+    from gridrt.pipeline import FramePipeline
+    from gridrt.scene import SceneSpec
+
+    made = []
+
+    def factory(scene, job):
+        pipe = FramePipeline.from_spec(job.spec, scene=scene)
+        steps, step = [], pipe.step
+        pipe.step = lambda t, *a, **k: steps.append(t) or step(t, *a, **k)
+        made.append((pipe, steps))
+        return pipe
+
+    spec = FrameSpec(scene=SceneSpec(source="icosphere", count=320, animate="twist"), grid=GridParams(threads=2),
+                     render=RenderParams(threads=2), view=ViewSpec(t0=0.4)).resized(40, 30)
+    frames = {}
+    for warm in (True, False):
+        made.clear()
+        worker = RenderWorker(factory)
+        try:
+            _, frame = _run_jobs(worker, LoadJob(spec, warm=warm), FrameJob(spec, spec.view.t0))
+        finally:
+            worker.stop()
+        frames[warm] = frame
+        loaded, loaded_steps = made[0]
+        assert loaded_steps == [0.4]   # (the frame job's, after the load)
+        if warm:
+            [(throwaway, thrown_steps)] = made[1:]
+            assert thrown_steps == [0.4]
+            assert (throwaway.render_params.width, throwaway.render_params.height) == WARM_SIZE
+        else:
+            assert len(made) == 1
+    assert np.array_equal(frames[True].image, frames[False].image)
+    assert frames[True].image.shape[:2] == (30, 40)
+
+
 # ---------------------------------------------------------------------------------------------
 def _pattern(w, h):
     """A test image whose every row and column differs: (h, w, 4) uint8."""

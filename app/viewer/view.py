@@ -272,6 +272,15 @@ class Viewer:
 
     # ---- lifecycle ------------------------------------------------------------------------
     def run(self):
+        st = self.state
+        # The scene loads on the render thread while the window opens, and on a warm cache the
+        # kernels of its first frame load with it (LoadJob.warm); a cold cache compiles them with
+        # the window up, showing the progress.  The first load's render size is the window's until
+        # the window is there to say (a frame is rendered at the image area's size in any case).
+        worker = self.worker = RenderWorker(self._make_pipeline)
+        st.framebuffer_size = st.window_size
+        self._start_load(st.scene, keep_camera=True, scene_camera=start_on_scene_camera(self.args),
+                         warm=not st.cold_cache)
         # (imgui first: it points pyglfw at its libglfw)
         from imgui_bundle import imgui  # noqa: F401  # deferred: imgui_bundle loads only when a window opens
         import glfw  # deferred: glfw loads only when a window opens
@@ -279,12 +288,13 @@ class Viewer:
 
         from .ui import ImguiRuntime  # deferred: the panel's imgui_bundle, with the window
 
-        st = self.state
         glfw.set_error_callback(self._on_glfw_error)
         if not glfw.init():
             print(window_failed_message(self.glfw_error or "glfw could not initialise", self.args), file=sys.stderr)
+            self._leave_without(worker)
             return 3
-        win = ui = blitter = ctx = worker = None
+        win = ui = blitter = ctx = None
+        code = 3   # (no window)
         try:
             for hint, value in ((glfw.CONTEXT_VERSION_MAJOR, 3), (glfw.CONTEXT_VERSION_MINOR, 3),
                                 (glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE),
@@ -303,16 +313,16 @@ class Viewer:
             self.input = InputHandler(glfw, win, st, self.strategies)
             ui = ImguiRuntime(win)
             blitter = Blitter(ctx)
-            worker = RenderWorker(self._make_pipeline, on_result=glfw.post_empty_event)
-            self.ui, self.blitter, self.worker = ui, blitter, worker
+            worker.attach(glfw.post_empty_event)
+            self.ui, self.blitter = ui, blitter
             st.window_size = tuple(glfw.get_window_size(win))   # (the loop keeps both up to date)
             st.framebuffer_size = tuple(glfw.get_framebuffer_size(win))
             if not st.show_panel and not self.args.hide_panel:
                 print(f"gridrt view: the panel starts hidden, as last time (H shows it; remembered in "
                       f"{prefs_path()})", flush=True)
-            self._start_load(st.scene, keep_camera=True, scene_camera=start_on_scene_camera(self.args))
             self._loop()
-            return 0
+            code = 0
+            return code
         finally:
             if blitter is not None:
                 blitter.release()
@@ -324,13 +334,21 @@ class Viewer:
                 glfw.destroy_window(win)
             if self.recorder is not None:
                 self._stop_recording()
-            stopped = worker is None or self._stop_worker(worker)
+            stopped = self._stop_worker(worker)
             glfw.terminate()
             self._write_state(force=True)
             if not stopped:   # a kernel compile is still running: do not wait for it at exit
                 sys.stdout.flush()
                 sys.stderr.flush()
-                os._exit(0)
+                os._exit(code)
+
+    def _leave_without(self, worker):
+        """No window after all: stop the render thread, or leave at once without it (os._exit with
+        the window's failure code) when it is still loading or compiling."""
+        if not self._stop_worker(worker):
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(3)
 
     def _stop_worker(self, worker):
         """Stop the render thread (the window is already gone); True when it finished within
@@ -351,11 +369,12 @@ class Viewer:
     def _make_pipeline(scene, job):
         return FramePipeline.from_spec(job.spec, scene=scene)
 
-    def _start_load(self, scene, keep_camera=False, scene_camera=None):
+    def _start_load(self, scene, keep_camera=False, scene_camera=None, warm=False):
         """Load the SceneSpec ``scene`` on the worker, with the state's spec at the render size;
         ``scene_camera``: look through the scene's own camera once loaded, when it has one (None:
         the state's prefer_scene_camera).  Without ``keep_camera`` the scene is framed with the
-        command line's fov and up (not with those of a camera looked through before)."""
+        command line's fov and up (not with those of a camera looked through before).  ``warm``:
+        load the first frame's kernels with the scene (LoadJob.warm)."""
         st = self.state
         self.generation += 1
         spec = st.spec.resized(*st.render_size_for(*self._image_viewport()[2:])).replace(scene=scene)
@@ -364,7 +383,7 @@ class Viewer:
             spec = spec.replace(view=spec.view.replace(eye=None, target=None, fov=start.fov, up=start.up))
         self.worker.submit(LoadJob(spec, keep_camera=keep_camera,
                                    scene_camera=st.prefer_scene_camera if scene_camera is None else scene_camera,
-                                   label=f"loading {scene.label()}"))
+                                   label=f"loading {scene.label()}", warm=warm))
         self.last_key = None
         self._progress_printed = (0.0, 0)
 

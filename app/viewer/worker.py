@@ -4,7 +4,9 @@ numba compile, a heavy frame) never blocks the window's event loop.
 The window thread submits jobs and polls for results; the worker runs one job at a time.  Each
 job carries the :class:`gridrt.frame.FrameSpec` it renders: a load makes the pipeline of its spec,
 a frame sets the kept pipeline's settings from its spec (the pipeline is not made again per
-frame).  A newly submitted job replaces one that has not started yet (only the latest request
+frame).  A load with ``warm`` also steps a throwaway pipeline of its spec at a tiny size, so that
+the first frame finds its kernels loaded (the viewer's first load, on a warm cache, while its
+window opens).  A newly submitted job replaces one that has not started yet (only the latest request
 matters).  Results are plain objects handed over under a lock; the worker copies the image out of
 the renderer's reused buffer before publishing it.
 
@@ -16,7 +18,7 @@ display, and the LoadResult the totals.
 import threading
 import time
 import traceback
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -34,6 +36,11 @@ class LoadJob:
     keep_camera: bool = False  # keep the viewer's camera (else reframe once loaded)
     scene_camera: bool = True  # look through the scene's own camera once loaded, when it has one
     label: str = "loading scene"
+    warm: bool = False      # also render a throwaway frame of the spec at WARM_SIZE (see RenderWorker._load)
+
+
+#: the size of a LoadJob's throwaway frame (width, height)
+WARM_SIZE = (16, 12)
 
 
 @dataclass
@@ -147,6 +154,10 @@ class RenderWorker:
             p = self._progress
             return None if p is None else TextureProgress(p.count, p.nbytes, p.last)
 
+    def attach(self, on_result):
+        """Call ``on_result`` after each result from now on (once the window system is up)."""
+        self._on_result = on_result
+
     def detach(self):
         """Stop calling on_result (before the window system shuts down)."""
         self._on_result = None
@@ -205,6 +216,11 @@ class RenderWorker:
             scene = s.make()
         has_camera = scene.camera_at(0.0) is not None
         self.pipeline = self._factory(scene, job)
+        if job.warm:
+            # a frame of the spec's settings at a tiny size, at its first frame's time, on a pipeline of
+            # its own: the kernels the first frame runs load from numba's cache now (the viewer
+            # submits the first load while its window opens), not when that frame is asked for
+            self._factory(scene, replace(job, spec=job.spec.resized(*WARM_SIZE))).step(job.spec.view.time(0))
         textures = self.progress()
         return LoadResult(s, scene_name=scene.name, triangles=int(scene.n_triangles), duration=scene.duration,
                           static=bool(scene.static), keep_camera=job.keep_camera,
