@@ -3,7 +3,6 @@
 import argparse
 import contextlib
 import gc
-import os
 import sys
 import warnings
 
@@ -14,7 +13,7 @@ from gridrt.grid.registry import BUILDERS, names
 from gridrt.memory import allocating
 from gridrt.trace.twin import parallel_first
 
-from . import cli, dump
+from . import cli, dump, exit_now
 
 
 class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
@@ -117,12 +116,7 @@ def leave(code, finish=False):
               file=sys.stderr)
     except (OSError, ValueError):
         pass
-    for f in (sys.stdout, sys.stderr):
-        try:
-            f.flush()
-        except (OSError, ValueError):
-            pass
-    os._exit(code)
+    exit_now(code)
 
 
 def main(argv=None):

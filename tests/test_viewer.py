@@ -313,6 +313,21 @@ def _textured_gltf(folder):
     return path, sizes
 
 
+def _run_jobs(worker, *jobs):
+    """Each job's result on ``worker``, one job at a time."""
+    out = []
+    for job in jobs:
+        worker.submit(job)
+        res, t0 = [], time.time()
+        while not res and time.time() - t0 < 300:
+            res = worker.take()
+            time.sleep(0.01)
+        [r] = res
+        assert r.error is None, r.error
+        out.append(r)
+    return out
+
+
 def test_worker_texture_progress(tmp_path):
     """A scene load on the viewer's worker counts the textures its loader reads (texture_progress):
     :meth:`RenderWorker.progress` has the running count during the load (read here from inside it,
@@ -332,16 +347,11 @@ def test_worker_texture_progress(tmp_path):
     worker = RenderWorker(factory)
     try:
         assert worker.progress() is None
-        worker.submit(LoadJob(FrameSpec(scene=SceneSpec(source=str(path)), grid=GridParams(threads=1),
-                                        render=RenderParams(threads=1))))
-        res, t0 = [], time.time()
-        while not res and time.time() - t0 < 300:
-            res = worker.take()
-            time.sleep(0.02)
+        [r] = _run_jobs(worker, LoadJob(FrameSpec(scene=SceneSpec(source=str(path)), grid=GridParams(threads=1),
+                                                  render=RenderParams(threads=1))))
         assert worker.progress() is None   # no load runs
     finally:
         worker.stop()
-    [r] = res
     assert r.error is None and r.has_camera and r.triangles == 4
     p = seen["progress"]
     assert (p.count, p.nbytes) == (2, sum(sizes)) and p.last.endswith("tex1.png")
@@ -350,21 +360,6 @@ def test_worker_texture_progress(tmp_path):
     scene = seen["scene"]
     assert scene.surface is not None and len(scene.surface.textures) == 2 and scene.camera_at(0.0) is not None
     assert TextureProgress().label() == ""
-
-
-def _run_jobs(worker, *jobs):
-    """Each job's result on ``worker``, one job at a time."""
-    out = []
-    for job in jobs:
-        worker.submit(job)
-        res, t0 = [], time.time()
-        while not res and time.time() - t0 < 300:
-            res = worker.take()
-            time.sleep(0.01)
-        [r] = res
-        assert r.error is None, r.error
-        out.append(r)
-    return out
 
 
 def test_worker_warm_load_steps_a_throwaway_pipeline_first():

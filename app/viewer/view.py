@@ -37,7 +37,7 @@ from gridrt.scene import BUILTIN_SCENES, scene_choices
 from gridrt.threads import check_threads, max_threads
 from gridrt.warmup import cache_is_cold
 
-from .. import cli, dump
+from .. import cli, dump, exit_now
 from ..frame_out import frame_medians, write_stats_csv
 from .accumulate import MAX_SAMPLES, Accumulator
 from .blit import Blitter, exposed
@@ -338,17 +338,13 @@ class Viewer:
             glfw.terminate()
             self._write_state(force=True)
             if not stopped:   # a kernel compile is still running: do not wait for it at exit
-                sys.stdout.flush()
-                sys.stderr.flush()
-                os._exit(code)
+                exit_now(code)
 
     def _leave_without(self, worker):
-        """No window after all: stop the render thread, or leave at once without it (os._exit with
-        the window's failure code) when it is still loading or compiling."""
+        """No window after all: stop the render thread, or leave at once without it (with the
+        window's failure code) when it is still loading or compiling."""
         if not self._stop_worker(worker):
-            sys.stdout.flush()
-            sys.stderr.flush()
-            os._exit(3)
+            exit_now(3)
 
     def _stop_worker(self, worker):
         """Stop the render thread (the window is already gone); True when it finished within
