@@ -1,10 +1,12 @@
-"""The two steps of numba's compiler gridrt.compiles makes cheaper give what numba's own code gives.
+"""The three steps of numba's compiler gridrt.compiles makes cheaper give what numba's own code gives.
 
 They are installed at the first compile in the process (importing numba's inliner takes a tenth
 of a second, which a warm start need not pay): a fresh process shows both before and after.
 
 * Operator typing: NumPy's array-operator template, as installed, against numba's own template
   function on every operator it types, for scalar, array and mixed argument types.
+* Compiler flags: equality and hash, as installed, against numba's own on flags with every
+  option left at its default, set to it, or set to another value, in many combinations.
 * The inliner's IR copies: blocks copied as numba's inliner copies them share one copied scope,
   share nothing with the IR copied or with the next copy of it; and kernels that inline
   functions (``inline="always"``, several call sites, nested, and an overload inlined at two call
@@ -19,6 +21,7 @@ import pytest
 from numba import njit, types
 from numba.core import ir
 from numba.core.compiler import run_frontend
+from numba.core.cpu import InlineOptions
 from numba.core.registry import cpu_target
 from numba.core.typing import npydecl
 from numba.extending import overload
@@ -45,10 +48,62 @@ def test_installed_at_the_first_compile_not_at_import():
             "njit(lambda x: x + 1)(1)\n"
             "from numba.core import inline_closurecall\n"
             "from numba.core.typing import npydecl\n"
-            "print(inline_closurecall.copy is not copy, npydecl.NumpyRulesArrayOperator.generic.gridrt_arrays_only)\n")
+            "from numba.core.targetconfig import TargetConfig\n"
+            "print(inline_closurecall.copy is not copy, npydecl.NumpyRulesArrayOperator.generic.gridrt_arrays_only,\n"
+            "      TargetConfig.__eq__.gridrt_quick)\n")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
-    assert r.stdout.split() == ["False", "True", "True"]
+    assert r.stdout.split() == ["False", "True", "True", "True"]
+
+
+def _other_value(option):
+    """A valid setting of ``option`` other than its default (None where none is known)."""
+    d = option.default
+    if isinstance(d, bool):
+        return not d
+    if isinstance(d, int):
+        return d + 1
+    if isinstance(d, str):
+        return {"python": "numpy", "numpy": "python"}.get(d)
+    if option.type is InlineOptions:
+        return "always"
+    return {"ParallelOptions": True, "FastMathOptions": {"nnan", "ninf"}}.get(option.type.__name__)
+
+
+def test_flag_comparison_is_numbas_own(compiled):
+    import random
+
+    from numba.core.compiler import Flags
+    from numba.core.targetconfig import TargetConfig
+
+    eq, hsh = TargetConfig.__eq__, TargetConfig.__hash__
+    assert getattr(eq, "gridrt_quick", False), "the flags comparison is not installed"
+    numba_eq, numba_hash = eq.numba_eq, hsh.numba_hash
+    settings = {}
+    for name, option in Flags.options.items():
+        other = _other_value(option)
+        default = {"InlineOptions": "never", "ParallelOptions": False, "FastMathOptions": set()}.get(
+            option.type.__name__, option.default)  # (the setting that reads as the default)
+        settings[name] = [default] + ([other] if other is not None else [])
+    assert sum(len(v) > 1 for v in settings.values()) >= 10
+
+    rng = random.Random(7)
+    made = []
+    for _ in range(300):
+        f = Flags()
+        for name in rng.sample(sorted(settings), rng.randint(0, 4)):
+            setattr(f, name, rng.choice(settings[name]))  # the default set explicitly, or another value
+        made.append(f)
+    made.append(Flags(made[5]))  # a copy
+    pairs = [(a, b) for a in made[:60] for b in made] + [(a, a) for a in made]
+    equal = 0
+    for a, b in pairs:
+        want = numba_eq(a, b)
+        assert (a == b) is want, (a, b)
+        equal += want
+        assert hash(a) == numba_hash(a)
+    assert equal > len(made) + 60  # equal pairs with different explicit settings among them
+    assert (made[0] == object()) is False
 
 
 SCALARS = [types.int64, types.int32, types.uint8, types.float64, types.float32, types.boolean, types.complex128]
