@@ -8,7 +8,9 @@ gridrt.trace.twin, while frames render on its serial twin).
 
 :func:`inner` compiles a kernel that only other kernels call: numba then makes no entry point
 from Python for it (its argument unboxing and result boxing, about a tenth of a cold start's
-compile), and a call from Python is refused with a clear error instead.
+compile), and a call from Python is refused with a clear error instead.  Nor is it compiled to
+machine code of its own (:class:`_InnerLibrary`): its callers link in its LLVM IR, as numba has
+them do, and compile that.
 
 :func:`one_per_types` keeps a kernel called from other kernels to one compile per argument types.
 Two more ways a kernel compiles twice for the same work, avoided where kernels call kernels:
@@ -30,9 +32,12 @@ dicts of every option's value."""
 
 import copy
 import threading
+import weakref
 
-from numba import njit
-from numba.core import caching, event, types
+from llvmlite import binding as ll
+from numba import _dynfunc, njit
+from numba.core import caching, cpu, event, typed_passes, types
+from numba.core.codegen import JITCodeLibrary, JITCPUCodegen
 from numba.core.registry import CPUDispatcher
 from numba.core.runtime import rtsys
 
@@ -107,6 +112,9 @@ class InnerDispatcher(CPUDispatcher):
     """The dispatcher of an :func:`inner` kernel: called from jitted code as any other, and
     refusing a call from Python (it has no Python entry point to call)."""
 
+    def enable_caching(self):
+        self._cache = _InnerCache(self.py_func)
+
     def __call__(self, *args, **kwargs):
         fn = self.py_func
         raise TypeError(f"{fn.__module__}.{fn.__qualname__} is a kernel that only other kernels call "
@@ -128,9 +136,109 @@ def inner(*args, **options):
     def decorate(fn):
         dispatcher = njit(**options)(fn)
         dispatcher.__class__ = InnerDispatcher
+        _INNER.add(fn)
+        if options.get("cache"):
+            dispatcher.enable_caching()  # (again, as an InnerDispatcher: its own cache files)
         return dispatcher
 
     return decorate(args[0]) if args else decorate
+
+
+_INNER = weakref.WeakSet()  # the Python functions of the inner kernels
+_LINKING = "gridrt-linking"  # the cache's name for an inner kernel's library: LLVM bitcode only
+
+
+class _InnerLibrary(JITCodeLibrary):
+    """The code library of an :func:`inner` kernel, compiled to LLVM IR and never to machine code.
+
+    A kernel that calls an inner kernel links the inner one's optimised IR into its own module
+    and compiles that to machine code (numba's way for every jitted callee); the callee's own
+    machine code is only ever reached through its Python entry point, which an inner kernel does
+    not have.  numba still makes it, for each library it finalises: about 1.4 s of a cold
+    one-frame dump (63 inner kernels).  This library finalises as numba's does (its callees linked
+    in, the module optimised and checked) short of adding the module to the JIT engine; the
+    cache keeps its IR for linking (numba keeps that too, beside the machine code)."""
+
+    def _finalize_final_module(self):
+        self._finalize_dynamic_globals()
+        self._verify_declare_only_symbols()
+        self._finalized = True
+
+    def get_pointer_to_function(self, name):
+        self._ensure_finalized()
+        return 0  # (no machine code; an inner kernel has no entry point to find)
+
+    def serialize_using_object_code(self):
+        return (self.name, _LINKING, self._get_module_for_linking().as_bitcode())
+
+    @classmethod
+    def from_linking_bitcode(cls, codegen, name, bitcode):
+        self = cls(codegen, name)
+        self._final_module = self._shared_module = ll.parse_bitcode(bitcode)
+        self._finalize_final_module()
+        return self
+
+
+class _InnerCacheImpl(caching.CompileResultCacheImpl):
+    def get_filename_base(self, fullname, abiflags):
+        return "inner-" + super().get_filename_base(fullname, abiflags)
+
+
+class _InnerCache(caching.FunctionCache):
+    """An inner kernel's on-disk cache: numba's, in files of their own (``inner-<module>.<name>-
+    <line>.pyXY.nbi`` and ``.nbc``), since their entries are IR that only this module loads: a
+    numba or gridrt without it finds no entry there, and compiles the kernel as it did."""
+
+    _impl_class = _InnerCacheImpl
+
+
+def _install_inner_libraries():
+    """Give the inner kernels :class:`_InnerLibrary` code libraries: numba's lowering pass makes
+    one for a gridrt inner kernel, numba's CPU context makes its (never called) function object
+    without an entry point, a cache entry of one loads back as one, and numba's setting of a
+    kernel's environment skips an environment that is in no machine code (an inner kernel's own
+    one; its copy in each kernel that links it in is set as before).  Other kernels compile and
+    load as numba makes them."""
+    if getattr(typed_passes.BaseNativeLowering.run_pass, "gridrt_inner", False):
+        return
+    numba_run_pass = typed_passes.BaseNativeLowering.run_pass
+    numba_executable = cpu.CPUContext.get_executable
+    numba_unserialize = JITCodeLibrary._unserialize.__func__
+    numba_set_env = JITCPUCodegen.set_env
+
+    def run_pass(self, state):
+        if state.library is None and state.func_id.func in _INNER:
+            state.library = _InnerLibrary(state.targetctx.codegen(), state.func_id.func_qualname)
+            state.library.enable_object_caching()
+        return numba_run_pass(self, state)
+
+    def get_executable(self, library, fndesc, env):
+        if not isinstance(library, _InnerLibrary):
+            return numba_executable(self, library, fndesc, env)
+        library._ensure_finalized()
+        return _dynfunc.make_function(fndesc.lookup_module(), fndesc.qualname.split(".")[-1],
+                                      f"compiled wrapper for {fndesc.qualname!r}", 0, env, (library,))
+
+    def _unserialize(cls, codegen, state):
+        name, kind, data = state
+        if kind == _LINKING:
+            return _InnerLibrary.from_linking_bitcode(codegen, name, data)
+        return numba_unserialize(cls, codegen, state)
+
+    def set_env(self, env_name, env):
+        if self._engine.get_global_value_address(env_name) == 0:
+            return
+        numba_set_env(self, env_name, env)
+
+    run_pass.gridrt_inner = True
+    typed_passes.BaseNativeLowering.run_pass = run_pass
+    cpu.CPUContext.get_executable = get_executable
+    JITCodeLibrary._unserialize = classmethod(_unserialize)
+    JITCPUCodegen.set_env = set_env
+
+
+
+_install_inner_libraries()
 
 
 def _load_ready(target_context):

@@ -2,7 +2,17 @@
 Python entry point.  Called from a kernel it computes what its Python source computes; called
 from Python it raises a TypeError naming it (without the guard, numba would call a null entry
 point and the process would die); and numba's own record of the compiled code has no CPython
-wrapper for it, where a plain njit function has one."""
+wrapper for it, where a plain njit function has one.
+
+An inner kernel is never compiled to machine code of its own (its callers link in its LLVM IR):
+numba's object-code hook never sees its module, where it sees a plain kernel's; and through the
+on-disk cache, a caller compiled afresh over inner kernels loaded from the cache, and a caller
+loaded whole, compute what the first compile computed."""
+
+import os
+import subprocess
+import sys
+import textwrap
 
 import numpy as np
 import pytest
@@ -87,3 +97,82 @@ def test_the_inner_kernel_has_no_python_wrapper_and_the_plain_one_has():
     assert _plain(a, 3) == 6.0
     with pytest.raises(TypeError, match="_twice is a kernel that only other kernels call"):
         _twice(a, 3)
+
+
+def test_an_inner_kernel_has_no_machine_code_of_its_own():
+    a = np.arange(7.0)
+    assert _caller(a) == 4.0 * a.sum()
+    (inner_result,) = _twice.overloads.values()
+    (plain_result,) = _plain.overloads.values()
+    # numba's object-code hook marks a library whose module the JIT compiled to machine code
+    assert plain_result.library._compiled and _caller.overloads[_caller.signatures[0]].library._compiled
+    assert not inner_result.library._compiled, "the inner kernel was compiled to machine code"
+
+
+_CACHED_MODULE = """
+import numpy as np
+from numba import njit
+from gridrt.compiles import inner
+
+@inner(cache=True)
+def scaled(a, i, k):
+    return k * a[i] + 1.0
+
+@inner(cache=True)
+def pair(a, i):
+    return scaled(a, i, 2.0) - scaled(a, i, 0.5)
+
+@njit(cache=True)
+def total(a):
+    s = 0.0
+    for i in range(a.shape[0]):
+        s += pair(a, i) * (i + 1)
+    return s
+"""
+
+_RUN = """
+import json, sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+import cached_kernels as m
+a = np.linspace(-2.0, 3.0, 11)
+r = m.total(a)
+print(json.dumps({"total": r, "compiled": sorted(str(k) for k, v in m.total.stats.cache_misses.items()),
+                  "inner_hits": sum(m.pair.stats.cache_hits.values()),
+                  "inner_libraries": sorted({type(c.library).__name__ for d in (m.pair, m.scaled)
+                                             for c in d.overloads.values()})}))
+"""
+
+
+def test_inner_kernels_through_the_cache(tmp_path):
+    import json
+
+    (tmp_path / "cached_kernels.py").write_text(textwrap.dedent(_CACHED_MODULE))
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+
+    def run():
+        r = subprocess.run([sys.executable, "-c", _RUN, str(tmp_path)], env=env, capture_output=True, text=True,
+                           timeout=300)
+        assert r.returncode == 0, r.stderr[-2000:]
+        return json.loads(r.stdout.strip().splitlines()[-1])
+
+    a = np.linspace(-2.0, 3.0, 11)
+    want = float(sum((1.5 * x) * (i + 1) for i, x in enumerate(a)))  # (2a + 1) - (0.5a + 1) = 1.5a
+    first = run()
+    assert first["total"] == pytest.approx(want, rel=1e-12) and first["inner_hits"] == 0
+    assert first["inner_libraries"] == ["_InnerLibrary"]
+    # the inner kernels' entries are files of their own, which a numba without gridrt never reads
+    stems = sorted(p.name.rsplit("-", 1)[0] for p in (tmp_path / "cache").rglob("*.nbi"))
+    assert stems == ["cached_kernels.total", "inner-cached_kernels.pair", "inner-cached_kernels.scaled"], stems
+    # the caller compiles again, over the inner kernels from the cache
+    files = list((tmp_path / "cache").rglob("*total*"))
+    assert files
+    for f in files:
+        f.unlink()
+    again = run()
+    assert again["compiled"] and again["inner_hits"] == 1  # (pair's IR holds scaled's, linked in)
+    assert again["inner_libraries"] == ["_InnerLibrary"]  # (pair's, loaded from the cache)
+    assert again["total"] == first["total"]
+    # and the whole caller loads from the cache
+    loaded = run()
+    assert not loaded["compiled"] and loaded["total"] == first["total"]

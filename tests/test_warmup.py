@@ -104,7 +104,7 @@ def index_files(folder):
     """{(module file stem, function): (size, mtime)} of the numba cache index files under folder."""
     out = {}
     for p in Path(folder).rglob("*.nbi"):
-        stem, func = re.match(r"(\w+)\.(.+)-\d+\.py\d+\.nbi$", p.name).groups()
+        stem, func = re.match(r"(?:inner-)?(\w+)\.(.+)-\d+\.py\d+\.nbi$", p.name).groups()
         out[(stem, func)] = (p.stat().st_size, p.stat().st_mtime_ns)
     return out
 
