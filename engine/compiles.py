@@ -36,7 +36,7 @@ import weakref
 
 from llvmlite import binding as ll
 from numba import _dynfunc, njit
-from numba.core import caching, cpu, event, typed_passes, types
+from numba.core import caching, cpu, event, targetconfig, typed_passes, types
 from numba.core.codegen import JITCodeLibrary, JITCPUCodegen
 from numba.core.registry import CPUDispatcher
 from numba.core.runtime import rtsys
@@ -336,7 +336,6 @@ def _install_cheaper_frontend():
         return
     _FRONTEND.append(True)
     from numba.core import inline_closurecall, ir  # deferred: numba's inliner, 0.1 s to import
-    from numba.core import targetconfig
     from numba.core.typing import npydecl  # deferred: numba's NumPy typing, imported by its compiler
 
     if inline_closurecall.copy is copy:
