@@ -132,13 +132,14 @@ def inner(*args, **options):
     same native call as before, and a call from Python raises TypeError (it would otherwise jump
     to a null entry point)."""
     options.update(no_cpython_wrapper=True, no_cfunc_wrapper=True)
+    cache = options.pop("cache", False)
 
     def decorate(fn):
         dispatcher = njit(**options)(fn)
         dispatcher.__class__ = InnerDispatcher
         _INNER.add(fn)
-        if options.get("cache"):
-            dispatcher.enable_caching()  # (again, as an InnerDispatcher: its own cache files)
+        if cache:
+            dispatcher.enable_caching()  # (as an InnerDispatcher: its own cache files)
         return dispatcher
 
     return decorate(args[0]) if args else decorate
