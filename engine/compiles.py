@@ -155,8 +155,8 @@ class _InnerLibrary(JITCodeLibrary):
     A kernel that calls an inner kernel links the inner one's optimised IR into its own module
     and compiles that to machine code (numba's way for every jitted callee); the callee's own
     machine code is only ever reached through its Python entry point, which an inner kernel does
-    not have.  numba still makes it, for each library it finalises: about 1.4 s of a cold
-    one-frame dump (63 inner kernels).  This library finalises as numba's does (its callees linked
+    not have.  numba still makes it, for each library it finalises: about 5 % of a cold
+    one-frame dump (63 inner kernels; BENCHMARKS.md section 10).  This library finalises as numba's does (its callees linked
     in, the module optimised and checked) short of adding the module to the JIT engine; the
     cache keeps its IR for linking (numba keeps that too, beside the machine code)."""
 
@@ -232,6 +232,7 @@ def _install_inner_libraries():
         numba_set_env(self, env_name, env)
 
     run_pass.gridrt_inner = True
+    run_pass.numba_run_pass = numba_run_pass  # (numba's pass, for a comparison to put back)
     typed_passes.BaseNativeLowering.run_pass = run_pass
     cpu.CPUContext.get_executable = get_executable
     JITCodeLibrary._unserialize = classmethod(_unserialize)
@@ -329,7 +330,7 @@ def _install_cheaper_frontend():
       the same, explicit or default; numba builds both full dicts of option values for every
       comparison and hash, and its overload templates compare the current flags with their
       cache's keys at each call they type: about 58,000 comparisons (15 us each) and 20,000
-      hashes in a cold one-frame dump of marbles, about 1 s of its 30 s.
+      hashes in a cold one-frame dump of marbles, about 2 % of it (BENCHMARKS.md section 10).
       Flags of one class are compared on the options set in either, each against the other's
       setting or default; flags of two classes are compared as numba compares them.  The hash
       (numba's hashes the sorted option names alone) is numba's, made once a class."""
