@@ -156,9 +156,10 @@ class _InnerLibrary(JITCodeLibrary):
     and compiles that to machine code (numba's way for every jitted callee); the callee's own
     machine code is only ever reached through its Python entry point, which an inner kernel does
     not have.  numba still makes it, for each library it finalises: about 5 % of a cold
-    one-frame dump (63 inner kernels; BENCHMARKS.md section 10).  This library finalises as numba's does (its callees linked
-    in, the module optimised and checked) short of adding the module to the JIT engine; the
-    cache keeps its IR for linking (numba keeps that too, beside the machine code)."""
+    one-frame dump (63 inner kernels; BENCHMARKS.md section 10).  This library finalises as
+    numba's does (its callees linked in, the module optimised and checked) short of adding the
+    module to the JIT engine; the cache keeps its IR for linking (numba keeps that too, beside
+    the machine code)."""
 
     def _finalize_final_module(self):
         self._finalize_dynamic_globals()
@@ -199,8 +200,16 @@ def _install_inner_libraries():
     without an entry point, a cache entry of one loads back as one, and numba's setting of a
     kernel's environment skips an environment that is in no machine code (an inner kernel's own
     one; its copy in each kernel that links it in is set as before).  Other kernels compile and
-    load as numba makes them."""
+    load as numba makes them.  Where numba lacks a method this relies on (its code is not as this
+    was written against), inner kernels compile as numba makes them."""
     if getattr(typed_passes.BaseNativeLowering.run_pass, "gridrt_inner", False):
+        return
+    needed = ((JITCodeLibrary, ("_finalize_final_module", "_finalize_dynamic_globals", "_verify_declare_only_symbols",
+                                "_get_module_for_linking", "_ensure_finalized", "serialize_using_object_code",
+                                "_unserialize")),
+              (JITCPUCodegen, ("set_env",)), (cpu.CPUContext, ("get_executable",)),
+              (typed_passes.BaseNativeLowering, ("run_pass",)))
+    if not all(hasattr(cls, name) for cls, names in needed for name in names):
         return
     numba_run_pass = typed_passes.BaseNativeLowering.run_pass
     numba_executable = cpu.CPUContext.get_executable
