@@ -35,8 +35,8 @@ import threading
 import weakref
 
 from llvmlite import binding as ll
-from numba import _dynfunc, njit
-from numba.core import caching, cpu, event, targetconfig, typed_passes, types
+from numba import njit
+from numba.core import caching, event, targetconfig, typed_passes, types
 from numba.core.codegen import JITCodeLibrary, JITCPUCodegen
 from numba.core.registry import CPUDispatcher
 from numba.core.runtime import rtsys
@@ -196,10 +196,10 @@ class _InnerCache(caching.FunctionCache):
 
 def _install_inner_libraries():
     """Give the inner kernels :class:`_InnerLibrary` code libraries: numba's lowering pass makes
-    one for a gridrt inner kernel, numba's CPU context makes its (never called) function object
-    without an entry point, a cache entry of one loads back as one, and numba's setting of a
-    kernel's environment skips an environment that is in no machine code (an inner kernel's own
-    one; its copy in each kernel that links it in is set as before).  Other kernels compile and
+    one for a gridrt inner kernel, a cache entry of one loads back as one, and numba's setting of
+    a kernel's environment skips an environment that is in no machine code (an inner kernel's
+    own one, when numba makes its never-called function object; its copy in each kernel that
+    links it in is set as before).  Other kernels compile and
     load as numba makes them.  Where numba lacks a method this relies on (its code is not as this
     was written against), inner kernels compile as numba makes them."""
     if getattr(typed_passes.BaseNativeLowering.run_pass, "gridrt_inner", False):
@@ -207,12 +207,11 @@ def _install_inner_libraries():
     needed = ((JITCodeLibrary, ("_finalize_final_module", "_finalize_dynamic_globals", "_verify_declare_only_symbols",
                                 "_get_module_for_linking", "_ensure_finalized", "serialize_using_object_code",
                                 "_unserialize")),
-              (JITCPUCodegen, ("set_env",)), (cpu.CPUContext, ("get_executable",)),
+              (JITCPUCodegen, ("set_env",)),
               (typed_passes.BaseNativeLowering, ("run_pass",)))
     if not all(hasattr(cls, name) for cls, names in needed for name in names):
         return
     numba_run_pass = typed_passes.BaseNativeLowering.run_pass
-    numba_executable = cpu.CPUContext.get_executable
     numba_unserialize = JITCodeLibrary._unserialize.__func__
     numba_set_env = JITCPUCodegen.set_env
 
@@ -221,13 +220,6 @@ def _install_inner_libraries():
             state.library = _InnerLibrary(state.targetctx.codegen(), state.func_id.func_qualname)
             state.library.enable_object_caching()
         return numba_run_pass(self, state)
-
-    def get_executable(self, library, fndesc, env):
-        if not isinstance(library, _InnerLibrary):
-            return numba_executable(self, library, fndesc, env)
-        library._ensure_finalized()
-        return _dynfunc.make_function(fndesc.lookup_module(), fndesc.qualname.split(".")[-1],
-                                      f"compiled wrapper for {fndesc.qualname!r}", 0, env, (library,))
 
     def _unserialize(cls, codegen, state):
         name, kind, data = state
@@ -243,10 +235,8 @@ def _install_inner_libraries():
     run_pass.gridrt_inner = True
     run_pass.numba_run_pass = numba_run_pass  # (numba's pass, for a comparison to put back)
     typed_passes.BaseNativeLowering.run_pass = run_pass
-    cpu.CPUContext.get_executable = get_executable
     JITCodeLibrary._unserialize = classmethod(_unserialize)
     JITCPUCodegen.set_env = set_env
-
 
 
 _install_inner_libraries()
