@@ -91,8 +91,9 @@ class RenderStats(_Row):
     hit_fraction   primary rays that hit
     tests_per_ray, cells_per_ray   triangle tests and cells visited per primary ray
     render_threads, traversal      how it ran
-    fallback_rays  rays the packet traversal traced alone (their packet disagreed on the major
-                   axis); None for the single-ray traversal, which has no packets
+    split_rays     rays the packet traversal traced in split packets (their packet disagreed on
+                   the major axis or its sign, and was traced as one packet per direction class);
+                   None for the single-ray traversal, which has no packets
     lights         lights the hits were shaded with (the ``material`` mode: the scene's, or 1 for
                    the default light; the other modes: 1 with shadows, else 0, a headlight)
     shadow_rays_per_pixel   shadow rays cast, per pixel (None where they are not counted: lambert
@@ -107,7 +108,7 @@ class RenderStats(_Row):
     cells_per_ray: float
     render_threads: int
     traversal: str
-    fallback_rays: int | None = None
+    split_rays: int | None = None
     lights: int = 0
     shadow_rays_per_pixel: float | None = 0.0
     shade_ms: float = 0.0
@@ -121,8 +122,8 @@ class RenderStats(_Row):
                "tests_per_ray": self.tests_per_ray, "cells_per_ray": self.cells_per_ray,
                "render_threads": self.render_threads, "traversal": self.traversal, "lights": self.lights,
                "shadow_rays_per_pixel": self.shadow_rays_per_pixel, "shade_ms": self.shade_ms}
-        if self.fallback_rays is not None:
-            row["fallback_rays"] = self.fallback_rays
+        if self.split_rays is not None:
+            row["split_rays"] = self.split_rays
         return row
 
 
@@ -184,7 +185,7 @@ class FrameStats(_Row):
 
     def as_row(self):
         """The frame's row: the columns of :data:`gridrt.pipeline.STATS_COLUMNS` (in their order,
-        with moving_triangles, static_build_ms and fallback_rays between them) and then the
+        with moving_triangles, static_build_ms and split_rays between them) and then the
         strategy's own stages; frame_ms last."""
         b, r = self.build, self.render
         parts = self.build_stages
@@ -201,7 +202,7 @@ class FrameStats(_Row):
             "moving_triangles": b.triangles, "moving_refs_per_tri": b.refs_per_tri,
             "static_build_ms": self.static_build_ms, "dims": b.dims, "macro_full": b.macro_full,
             "grid_bytes": self._total("grid_bytes"), "width": self.width, "height": self.height,
-            "shading": self.shading, "traversal": r.traversal, "fallback_rays": r.fallback_rays or 0,
+            "shading": self.shading, "traversal": r.traversal, "split_rays": r.split_rays or 0,
             "mrays": r.mrays, "hit_fraction": r.hit_fraction, "tests_per_ray": r.tests_per_ray,
             "cells_per_ray": r.cells_per_ray, "grid": b.grid, "top_density": self.top_density,
             "leaf_density": self.leaf_density, "bytes_per_tri": self._total("grid_bytes") / max(self.triangles, 1),

@@ -10,7 +10,7 @@ differing pixel there is explained as a tie.
 Cases: random triangles, a closed icosphere, the Utah teapot (shipped in assets/), a height field
 seen at grazing angles, axis-aligned cubes (rays along lattice lines: many exact ties) and a scene
 with duplicated triangles (exact ties by construction); cameras outside, inside the grid with a
-wide field of view (packets whose rays disagree on the major axis take the single-ray fallback),
+wide field of view (packets whose rays disagree on the major axis are split by direction class),
 grazing, exactly axis-aligned (direction components exactly zero, minor-axis signs flipping
 inside packets) and diagonal; odd image sizes and tiles smaller than, equal to and not a multiple
 of the 8x8 packet; shadows (shadow-ray packets), both intersection tests, the two-grid
@@ -28,8 +28,10 @@ from gridrt.config import GridParams, RenderParams
 from gridrt.errors import InputError
 from gridrt.grid import build_grid
 from gridrt.trace import render
+from gridrt.trace.grids import grid_arrays
 from gridrt.trace.render import Renderer
-from helpers.cgt import assert_same, camera, grid_of, render_both, scene
+from gridrt.trace.traverse import MAILBOX, trace_ray
+from helpers.cgt import assert_same, camera, grid_of, render_both, scene, trace_one_packet
 
 GRAZE = 1e-9
 TIE_RTOL = 1e-9
@@ -132,17 +134,17 @@ def test_cgt_fast_intersect_and_cost_shading():
     assert len(np.unique(res.cost)) > 3
 
 
-def test_cgt_counters_and_fallback():
+def test_cgt_counters_and_split_packets():
     """tests/cells per ray: 0 for rays that miss the grid box (checked with a numpy slab test),
-    at least 1 for every hit; the stats sum the buffers; a wide view from inside the grid takes
-    the single-ray fallback for some packets and still equals the DDA."""
+    at least 1 for every hit; the stats sum the buffers; a wide view from inside the grid splits
+    some packets by direction class and still equals the DDA."""
     tris, grid = grid_of("random")
     cam = camera("inside", tris)
     a, b = render_both(grid, tris, cam, width=64, height=48)
-    assert b.stats["fallback_rays"] > 0
-    assert_same(a, b, tris, cam, "random/inside fallback")
+    assert b.stats["split_rays"] > 0
+    assert_same(a, b, tris, cam, "random/inside split packets")
     axis = render(grid, tris, camera("axis", tris), RenderParams(width=64, height=48, traversal="cgt"))
-    assert axis.stats["fallback_rays"] == 0  # one major axis (z) over the whole view
+    assert axis.stats["split_rays"] == 0  # one major axis (z) over the whole view
     cam = camera("framed", tris)
     res = render(grid, tris, cam, RenderParams(width=64, height=48, traversal="cgt"))
     o, d = R.ref_camera_rays(cam.eye, cam.target, cam.up, cam.fov, 64, 48)
@@ -289,3 +291,45 @@ def test_packet_parameter():
     assert cli.render_params(p.parse_args([])).packet == (8, 8)
     with pytest.raises(InputError, match="packet"):
         cli.render_params(p.parse_args(["--packet", "40"]))
+
+
+
+@pytest.mark.parametrize("watertight,f32", [(True, False), (True, True), (False, False)])
+def test_incoherent_packet_split_by_class(watertight, f32):
+    """A packet whose rays point every way (all six direction classes: major axis and its sign)
+    from inside a closed icosphere and from outside its box, with rays that miss the box and two
+    rays of subnormal direction: traced as one packet per class, it finds the brute force's hits
+    (float64 packets: the single-ray DDA's, bit for bit); a subnormal direction is a miss; it
+    returns the number of rays it traced in split packets; with a finite max_cells (the batch
+    caster's) it traces nothing and returns -1."""
+    tris = icosphere_tris(3).astype(np.float32)
+    grid = build_grid(tris, GridParams(density=4.0, macro=2))
+    g = grid_arrays(grid, tris)
+    rng = np.random.default_rng(7)
+    n = 60
+    c, r = tris.reshape(-1, 3).mean(0), float(np.ptp(tris.reshape(-1, 3), 0).max()) / 2
+    inside = rng.random((n, 1)) < 0.5  # from inside the sphere every way, or from outside at it
+    o = np.where(inside, c + rng.uniform(-0.3 * r, 0.3 * r, (n, 3)), c + rng.uniform(-3 * r, 3 * r, (n, 3)))
+    d = np.where(inside, rng.normal(size=(n, 3)), c + rng.uniform(-0.5 * r, 0.5 * r, (n, 3)) - o)
+    o[:4] = c + 3 * r * np.array([[1, 0, 0], [0, -1, 0], [0, 0, 1], [-1, -1, -1]])  # outside the box,
+    d[:4] = o[:4] - c  # pointing away from it
+    o[4:6] = c
+    d[4:6] = [[1e-310, 0.0, 0.0], [0.0, -2e-309, 1e-310]]
+    major = np.abs(d).argmax(1)
+    assert set((2 * major + (d[np.arange(n), major] < 0))[6:].tolist()) == set(range(6))  # every class
+    r, t, f = trace_one_packet(g, o, d, watertight, f32)
+    assert (f[:6] == -1).all() and np.isinf(t[:6]).all()
+    ref = R.ref_cast(tris, o[6:], d[6:])
+    assert (ref.tri >= 0).sum() > 30  # most rays hit the sphere
+    diff = R.compare_hits(t[6:], f[6:], ref, t_rtol=1e-5 if f32 else 1e-9, graze_tol=1e-6 if f32 else GRAZE)
+    assert len(diff.bad) == 0, f"{len(diff.bad)} rays differ from the brute force"
+    # every ray that meets the box went into a split packet
+    lo, hi = grid.spec.lo, grid.spec.hi
+    ta, tb = (lo - o[6:]) / d[6:], (hi - o[6:]) / d[6:]
+    assert r == int((np.maximum(np.minimum(ta, tb).max(1), 0.0) <= np.maximum(ta, tb).min(1)).sum()) > 30
+    if not f32:  # the single-ray DDA's hits, bit for bit
+        mb = np.empty(MAILBOX, np.int32)
+        for k in range(6, n):
+            fk, tk = trace_ray(g, tuple(o[k]), tuple(d[k]), 0.0, np.inf, watertight, False, mb)[:2]
+            assert fk == f[k] and tk == t[k], f"ray {k}: DDA {fk} at {tk}, packet {f[k]} at {t[k]}"
+    assert trace_one_packet(g, o, d, watertight, f32, max_cells=1e9)[0] == -1

@@ -42,7 +42,6 @@ def _packets(grids, origins, dirs, tmax, any_hit, out_w, out_f, out_t):
     io = np.empty(cgt.NIO * cgt.PN)
     io2 = np.empty(cgt.NIO * cgt.PN)
     mb = np.empty(cgt.MBOX, np.int32)
-    mb1 = np.empty(MAILBOX, np.int32)
     for a in range(0, origins.shape[0], cgt.PN):
         n = min(cgt.PN, origins.shape[0] - a)
         for j in range(n):
@@ -53,7 +52,7 @@ def _packets(grids, origins, dirs, tmax, any_hit, out_w, out_f, out_t):
             io[cgt.IO_DY * cgt.PN + j] = dirs[a + j, 1]
             io[cgt.IO_DZ * cgt.PN + j] = dirs[a + j, 2]
             io[cgt.IO_TMAX * cgt.PN + j] = tmax[a + j]
-        cgt.trace_packet_grids(grids, n, io, io2, cgt.PacketQuery(0.0, True, any_hit, False), S, mb, mb1)
+        cgt.trace_packet_grids(grids, n, io, io2, cgt.PacketQuery(0.0, True, any_hit, False), S, mb)
         for j in range(n):
             out_w[a + j] = int(io[cgt.IO_W * cgt.PN + j])
             out_f[a + j] = int(io[cgt.IO_F * cgt.PN + j])
@@ -103,7 +102,7 @@ def rays(tris, n, seed=1):
     c, r = 0.5 * (lo + hi), float(np.linalg.norm(hi - lo))
     o = c + rng.normal(size=(n, 3)) * r
     d = lo + rng.uniform(size=(n, 3)) * (hi - lo) - o
-    # packets of nearby rays from one eye (coherent) and random ones (the single-ray fallback)
+    # packets of nearby rays from one eye (coherent) and random ones (split by direction class)
     o[: n // 2] = o[0]
     return o, d / np.linalg.norm(d, axis=1, keepdims=True)
 

@@ -37,8 +37,7 @@ from gridrt.errors import InputError
 from gridrt.grid import build_grid
 from gridrt.trace import cast_rays, cgt, render
 from gridrt.trace.grids import grid_arrays
-from gridrt.trace.traverse import MAILBOX
-from helpers.cgt import camera, check_f32, grid_of
+from helpers.cgt import camera, check_f32, grid_of, trace_one_packet
 
 
 @pytest.mark.parametrize("watertight", [True, False])
@@ -112,15 +111,7 @@ def _square():
 
 
 def _packet(g, o, d, watertight=True, f32=True):
-    n = len(o)
-    S = np.empty(cgt.NS * cgt.PN)
-    io = np.empty(cgt.NIO * cgt.PN)
-    for r, col in ((cgt.IO_OX, o[:, 0]), (cgt.IO_OY, o[:, 1]), (cgt.IO_OZ, o[:, 2]), (cgt.IO_DX, d[:, 0]),
-                   (cgt.IO_DY, d[:, 1]), (cgt.IO_DZ, d[:, 2]), (cgt.IO_TMAX, np.full(n, np.inf))):
-        io[r * cgt.PN : r * cgt.PN + n] = col
-    nf = cgt.trace_packet(g, n, io, cgt.packet_query(0.0, watertight, False, f32), S, np.empty(cgt.MBOX, np.int32),
-                          np.empty(MAILBOX, np.int32), np.inf, None)
-    return nf, io[cgt.IO_T * cgt.PN : cgt.IO_T * cgt.PN + n].copy(), io[cgt.IO_F * cgt.PN : cgt.IO_F * cgt.PN + n]
+    return trace_one_packet(g, o, d, watertight, f32)
 
 
 def test_f32_fallback_on_exact_edges():

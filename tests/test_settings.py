@@ -111,7 +111,7 @@ def test_frame_stats_of_a_reused_grid():
     assert second["rebuilt"] == 0 and second["build_ms"] == 0.0
     assert all(v == 0.0 for v in second.build_stages.values()) and second.build_stages.keys() == first.build.stages.keys()
     assert second.build is first.build  # the same grid's stats
-    assert second["fallback_rays"] == second.render.fallback_rays >= 0  # CGT by default
+    assert second["split_rays"] == second.render.split_rays >= 0  # CGT by default
 
 
 def test_build_stats_read_like_a_row():

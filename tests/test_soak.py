@@ -18,8 +18,7 @@ packet kernel cgt.trace_packet) and camera rows (512 x 1 images through Renderer
 traversal="cgt", every pixel ray crossing one shared edge).  Same criterion, 0 holes with the
 watertight test, in float64 and in float32 (packet_precision="float32", t judged within 1e-5);
 the fast test's hole rate is printed.  Default: about 190,000 packet probes and
-65,536 row rays per mesh; ``-m soak``: at least 10M rays traced as packets (single-ray fallbacks
-not counted) and 10M row rays per mesh (GRIDRT_SOAK_RAYS).
+65,536 row rays per mesh; ``-m soak``: at least 10M rays traced as packets and 10M row rays per mesh (GRIDRT_SOAK_RAYS).
 
 Soak: the Marbles scene (8,800 triangles) is rendered frame after frame (t = i / 30 s) by two
 pipelines: a reference (serial build, 1 build thread, 1 render thread, DDA) and one whose build

@@ -859,8 +859,7 @@ def cgt_two_level(m, grid, rng, n_rays, n_row_rays, label, batch=200_000):
     """test_watertight's packet probes (star packets through cgt.trace_packet) and camera rows
     (Renderer, traversal="cgt") on a two-level grid: 0 holes with the watertight test in float64
     and float32; most probes hit at their target; the fast test leaks (the probes are at the
-    edges).  No bound on the single-ray fallback: how packets cross a two-level grid is the
-    implementation's choice."""
+    edges)."""
     pk = rows = {}
     t0 = time.perf_counter()
     while not pk or pk["probes"] < n_rays:
@@ -871,8 +870,8 @@ def cgt_two_level(m, grid, rng, n_rays, n_row_rays, label, batch=200_000):
     print(f"FIGURE two-level cgt holes {label}: {pk['probes']} packet probes, {rows['rays']} row rays in "
           f"{time.perf_counter() - t0:.1f} s; watertight {int(pk['wt_holes'].sum())} / {rows['wt_holes']} holes, "
           f"float32 {int(pk['wt32_holes'].sum())} / {rows['wt32_holes']} ({pk['wt32_beside']} beside); fast "
-          f"{int(pk['fast_holes'].sum())} / {rows['fast_holes']}; fallback rays {pk['wt_fallback']} / "
-          f"{rows['wt_fallback']}")
+          f"{int(pk['fast_holes'].sum())} / {rows['fast_holes']}; rays in split packets {pk['wt_split']} / "
+          f"{rows['wt_split']}")
     for key in ("wt", "wt32"):
         assert pk[key + "_holes"].sum() == 0, f"{label}: {key} packet holes by kind {pk[key + '_holes'].tolist()}"
         assert rows[key + "_holes"] == 0, f"{label}: {key} camera-row holes {rows[key + '_holes']}"

@@ -5,7 +5,7 @@ A frame's primary rays are traced packet by packet on one thread, as the CGT ren
 to :func:`gridrt.trace.cgt.trace_packet`; the cycle counter is read at every phase boundary and
 around every triangle test.  Phases: camera rays; gather, setup and bounds; macro-cell slab
 checks; slice ranges and prefetch; cell visits, the mailbox and the box and frustum culls; the
-triangle tests; retiring rays; the single-ray fallback.  Shading and writing the image are the
+triangle tests; retiring rays; the gathers of packets split by direction class.  Shading and writing the image are the
 CGT render's time (one thread, lambert) less the driver's without the profile.  The profile's
 own cost is reported (the driver with and without it); the phases are shares of the profiled
 run's cycles, scaled to the unprofiled driver's time.
@@ -22,7 +22,6 @@ from gridrt.grid.build import GridBuilder
 from gridrt.trace import cgt
 from gridrt.trace.grids import grid_arrays
 from gridrt.trace.render import Renderer
-from gridrt.trace.traverse import MAILBOX
 
 from .machine import finish_machine, machine_info
 from .options import check_runs
@@ -34,11 +33,11 @@ PACKET_SCENES = ["lucy:twist", "icosphere:1310720:twist"]
 PACKET_FALLBACK = ["icosphere:81920:twist", "icosphere:1310720:twist"]
 TILE = 16
 #: the phases reported, in order (cgt.PROFILE_PHASES, with "cells" less the tests)
-PHASES = ("rays", "setup", "macro", "slice", "cells", "tests", "retire", "fallback")
+PHASES = ("rays", "setup", "macro", "slice", "cells", "tests", "retire", "split")
 PHASE_TEXT = {
     "rays": "camera rays", "setup": "gather, setup, bounds", "macro": "macro-cell slab checks",
     "slice": "slice ranges, prefetch", "cells": "cell visits, mailbox, culls", "tests": "triangle tests",
-    "retire": "retiring rays", "fallback": "single-ray fallback",
+    "retire": "retiring rays", "split": "incoherent packets split by class",
 }
 
 
@@ -64,7 +63,6 @@ def profile_frame(g, basis, W, H, prof, f32):
     S = np.empty(cgt.NS * PN)
     io = np.empty(cgt.NIO * PN)
     mb = np.empty(cgt.MBOX, np.int32)
-    mb1 = np.empty(MAILBOX, np.int32)
     hits = 0
     for ty0 in range(0, H, TILE):
         for tx0 in range(0, W, TILE):
@@ -76,7 +74,7 @@ def profile_frame(g, basis, W, H, prof, f32):
                     t = cgt._now(prof)
                     cgt._camera_rays(basis, W, H, px0, py0, pw, ph, io)
                     cgt._lap(prof, cgt.P_RAYS, t)
-                    cgt.trace_packet(g, n, io, cgt.PacketQuery(0.0, True, False, f32), S, mb, mb1, np.inf, prof)
+                    cgt.trace_packet(g, n, io, cgt.PacketQuery(0.0, True, False, f32), S, mb, np.inf, prof)
                     for j in range(n):
                         hits += io[cgt.IO_F * PN + j] >= 0.0
     return hits

@@ -47,9 +47,9 @@ Buffers = namedtuple("Buffers", "img t tri cost cells")
 #: One worker's scratch in the CGT render (sizes in gridrt.trace.cgt.rays): S (NS * PN,) float64,
 #: the active rays of a packet; io, io2, sio (NIO * PN,) float64, the ray tables of a packet, of
 #: its rays in a later grid and of its shadow rays; sj (PN,) int64, the pixel of each shadow ray;
-#: col (3 * PN,) float64, the packet's colours; mb (MBOX,) int32 the packet's mailbox and mb1
-#: (MAILBOX,) int32 the single-ray fallback's; acc (4,) int64, the sums the kernel returns.
-Scratch = namedtuple("Scratch", "S io io2 sio sj col mb mb1 acc")
+#: col (3 * PN,) float64, the packet's colours; mb (MBOX,) int32 the packet's mailbox; acc (4,)
+#: int64, the sums the kernel returns.
+Scratch = namedtuple("Scratch", "S io io2 sio sj col mb acc")
 
 #: The scene's surface as the material pass reads it (gridrt.scene.surface.Surface.packed, by
 #: scene id): tris (F, 3, 3) float32 in the render's frame, normals (F, 3, 3) float32 per corner

@@ -472,7 +472,7 @@ class Renderer:
             cells_per_ray=int(sums[2]) / n,
             render_threads=threads,
             traversal=params.traversal,
-            fallback_rays=int(sums[3]),
+            split_rays=int(sums[3]),
             **extra,
         )
         return RenderResult(img, tb, ib, cb, nb, stats)

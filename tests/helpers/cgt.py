@@ -7,7 +7,7 @@ from conftest import TEAPOT, icosphere_tris, load_tris, random_scene, random_tri
 from gridrt.camera import Camera
 from gridrt.config import GridParams, RenderParams
 from gridrt.grid import build_grid
-from gridrt.trace import render
+from gridrt.trace import cgt, render
 
 
 def terrain(n=16, seed=3):
@@ -113,3 +113,17 @@ def check_f32(res, ref, label, max_grazing=0.01):
                                 f"float32 rounding, first {diff.bad[:5]}")
     assert len(diff.grazing) <= max_grazing * len(t) + 1, f"{label}: {len(diff.grazing)} grazing rays"
     return diff
+
+
+def trace_one_packet(g, o, d, watertight=True, f32=False, max_cells=np.inf):
+    """Rays o, d (n, 3), n <= cgt.PN, as one packet through cgt.trace_packet over the grid g
+    (GridArrays), tmin 0 and no tmax: (its return value, t (n,), triangle (n,))."""
+    n = len(o)
+    S = np.empty(cgt.NS * cgt.PN)
+    io = np.empty(cgt.NIO * cgt.PN)
+    for r, col in ((cgt.IO_OX, o[:, 0]), (cgt.IO_OY, o[:, 1]), (cgt.IO_OZ, o[:, 2]), (cgt.IO_DX, d[:, 0]),
+                   (cgt.IO_DY, d[:, 1]), (cgt.IO_DZ, d[:, 2]), (cgt.IO_TMAX, np.full(n, np.inf))):
+        io[r * cgt.PN : r * cgt.PN + n] = col
+    r = cgt.trace_packet(g, n, io, cgt.packet_query(0.0, watertight, False, f32), S, np.empty(cgt.MBOX, np.int32),
+                         float(max_cells), None)
+    return r, io[cgt.IO_T * cgt.PN : cgt.IO_T * cgt.PN + n].copy(), io[cgt.IO_F * cgt.PN : cgt.IO_F * cgt.PN + n].copy()

@@ -14,10 +14,12 @@ along K, visiting the leaf cells of the top cells in reach (:func:`_walk_2l`).
 
 Packets: the rays must agree on the major axis of their direction and its sign (the watertight
 test's permutation, :func:`gridrt.trace.intersect.shear_setup`), so that all share the slicing
-axis and the permuted intersection arithmetic.  Packets that do not agree fall back to the
-single-ray DDA (:func:`gridrt.trace.traverse.trace_ray`).  Signs on the two minor axes may differ
-(the bounds below do not need them), so packets straddling a minor-axis sign change, e.g. at the
-centre of an axis-aligned view, stay packets.
+axis and the permuted intersection arithmetic.  A packet whose rays do not agree is traced as one
+packet per direction class among its rays, each gathered anew from the packet's ray table (a
+camera packet across the view's diagonal planes, where the major axis changes: two classes).  The
+batch caster, which makes its packets of rays of one class, never splits one.  Signs on the two
+minor axes may differ (the bounds below do not need them), so packets straddling a minor-axis sign
+change, e.g. at the centre of an axis-aligned view, stay whole.
 
 Bounds: along its segment ray i's minor coordinates are linear in the K coordinate x,
 u_i(x) = c_i + (x - xr) s_i.  With xr at one end of all the segments (the camera rays' common
@@ -42,7 +44,8 @@ The package by layer:
 * :mod:`.rays`: a packet's rays: the layout of its ray tables, gathering and clipping the rays,
   their bounds, the triangle tests over all active rays (float64 and float32), retiring rays;
 * :mod:`.walk`: one packet through a grid (slices, cells, macro cells, the two-level walk, far
-  origins, the single-ray fallback): :func:`trace_packet`, :func:`trace_packet_grids`;
+  origins, incoherent packets split by direction class): :func:`trace_packet`,
+  :func:`trace_packet_grids`;
 * :mod:`.frame`: a frame rendered as packets: :func:`cgt_render_kernel`, :func:`cgt_render_serial`;
 * :mod:`.profile`: the cycle counts of a packet's phases (trace_packet's ``prof``).
 """

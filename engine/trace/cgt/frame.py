@@ -11,7 +11,6 @@ from ..grids import pack_grids, unpack_grids
 from ..prefetch import _prefetch_write
 from ..records import Buffers, Scratch
 from ..shade import BACKGROUND, _u8, cost_rgb, facing_normal, lambert_rgb, normal_rgb, scene_id, shadow_ray
-from ..traverse import MAILBOX
 from .rays import (IO_DX, IO_DY, IO_DZ, IO_F, IO_NT, IO_OX, IO_OY, IO_OZ, IO_T, IO_TMAX, IO_W, MBOX, NIO, NS, PN,
                    _U_2PN, _U_DX, _U_DY, _U_DZ, _U_F, _U_NC, _U_NT, _U_OX, _U_OY, _U_OZ, _U_PN, _U_T, _U_TMAX,
                    PacketQuery)
@@ -131,15 +130,15 @@ def _render_tiles(grids, view, looks, light, packets, tiles, out, scratch):
     buffers out (see _write_out), with the worker's scratch (:class:`gridrt.trace.records.Scratch`).
     ``light`` is None without shadows: numba then compiles no shadow path at all (a first frame
     without shadows compiles about a third less), and the (3,) light position with them.
-    Adds (hits, triangle tests, cells, fallback rays) to scratch.acc (4,) int64.  (One function
+    Adds (hits, triangle tests, cells, split rays) to scratch.acc (4,) int64.  (One function
     without reference counting: numba would otherwise count references to every array argument
     of every call.)"""
     basis, W, H, tile = view.basis, view.W, view.H, view.tile
     mode, off, watertight = looks.mode, looks.off, looks.watertight
     f32, kw, kh = packets.f32, packets.kw, packets.kh
     t0, t1 = tiles
-    S, io, io2, sio, sj, col, mb, mb1, acc = (scratch.S, scratch.io, scratch.io2, scratch.sio, scratch.sj, scratch.col,
-                                              scratch.mb, scratch.mb1, scratch.acc)
+    S, io, io2, sio, sj, col, mb, acc = (scratch.S, scratch.io, scratch.io2, scratch.sio, scratch.sj, scratch.col,
+                                         scratch.mb, scratch.acc)
     primary = PacketQuery(0.0, watertight, False, f32)  # the nearest hit
     shadow = PacketQuery(0.0, watertight, True, f32)  # any hit
     ntx = (W + tile - 1) // tile
@@ -159,7 +158,7 @@ def _render_tiles(grids, view, looks, light, packets, tiles, out, scratch):
                 ph = min(kh, ty1 - py0)
                 n = pw * ph
                 _camera_rays(basis, W, H, px0, py0, pw, ph, io)
-                nfb = trace_packet_grids(grids, n, io, io2, primary, S, mb, mb1)
+                nfb = trace_packet_grids(grids, n, io, io2, primary, S, mb)
                 # colours into col (3 * PN), shadow rays of lit hits into sio
                 m = 0
                 for j in range(n):
@@ -198,7 +197,7 @@ def _render_tiles(grids, view, looks, light, packets, tiles, out, scratch):
                     col[PN + j] = g
                     col[2 * PN + j] = b
                 if light is not None and m > 0:
-                    nfb += trace_packet_grids(grids, m, sio, io2, shadow, S, mb, mb1)
+                    nfb += trace_packet_grids(grids, m, sio, io2, shadow, S, mb)
                     for q in range(m):
                         j = sj[q]
                         r, g, b = lambert_rgb(col[j] if sio[IO_F * PN + q] < 0.0 else 0.0)
@@ -238,7 +237,8 @@ def cgt_render_kernel(grids, view, looks, light, packets, out):
     each tile, their triangle tests in float32 with f32 (packets:
     :class:`gridrt.trace.records.Packets`; see trace_packet).  out.cost / out.cells hold the CGT
     counters (see gridrt.trace.cgt).  Returns (4,) int64: pixels hit, the sums of out.cost and
-    out.cells, and the number of rays (primary and shadow) that took the single-ray fallback."""
+    out.cells, and the number of rays (primary and shadow) traced in packets split by direction
+    class (trace_packet)."""
     # scratch is allocated once per chunk (a run of consecutive tiles); call under
     # numba.parallel_chunksize(1) so threads take chunks dynamically.  The result does not
     # depend on the chunking or the scheduling.
@@ -252,8 +252,7 @@ def cgt_render_kernel(grids, view, looks, light, packets, out):
             Buffers(out.img.reshape(H * W * 4), out.t.reshape(H * W), out.tri.reshape(H * W), out.cost.reshape(H * W),
                     out.cells.reshape(H * W)),
             Scratch(np.empty(NS * PN), np.empty(NIO * PN), np.empty(NIO * PN), np.empty(NIO * PN),
-                    np.empty(PN, np.int64), np.empty(3 * PN), np.empty(MBOX, np.int32), np.empty(MAILBOX, np.int32),
-                    acc[ch]),
+                    np.empty(PN, np.int64), np.empty(3 * PN), np.empty(MBOX, np.int32), acc[ch]),
         )
     return _sums(acc)
 
@@ -272,6 +271,6 @@ def cgt_render_serial(grids, view, looks, light, packets, out):
         Buffers(out.img.reshape(H * W * 4), out.t.reshape(H * W), out.tri.reshape(H * W), out.cost.reshape(H * W),
                 out.cells.reshape(H * W)),
         Scratch(np.empty(NS * PN), np.empty(NIO * PN), np.empty(NIO * PN), np.empty(NIO * PN), np.empty(PN, np.int64),
-                np.empty(3 * PN), np.empty(MBOX, np.int32), np.empty(MAILBOX, np.int32), acc),
+                np.empty(3 * PN), np.empty(MBOX, np.int32), acc),
     )
     return acc

@@ -6,8 +6,8 @@ from ..prefetch import _cycles
 
 
 #: slots of a packet profile (trace_packet's ``prof``, (NPROF,) int64): cycles per phase, then counts
-P_SETUP, P_MACRO, P_SLICE, P_CELLS, P_TESTS, P_RETIRE, P_FALLBACK, P_RAYS = 0, 1, 2, 3, 4, 5, 6, 7
-PROFILE_PHASES = ("setup", "macro", "slice", "cells", "tests", "retire", "fallback", "rays")
+P_SETUP, P_MACRO, P_SLICE, P_CELLS, P_TESTS, P_RETIRE, P_SPLIT, P_RAYS = 0, 1, 2, 3, 4, 5, 6, 7
+PROFILE_PHASES = ("setup", "macro", "slice", "cells", "tests", "retire", "split", "rays")
 C_PACKETS, C_SLICES, C_CELLS, C_TESTS = 8, 9, 10, 11
 NPROF = 12
 

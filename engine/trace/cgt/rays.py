@@ -574,44 +574,64 @@ def _classify(io, n, S):
 
 @one_per_types
 @inner(cache=True, _nrt=False, error_model="numpy")
-def _gather(io, n, S, lo, hi, tmin):
+def _gather(io, n, S, lo, hi, tmin, c):
     """Clip rays 0..n-1 of io to the grid box (lo, hi) and gather those that meet it into the
-    active rows of S, their results in io reset to a miss.  Returns (active rays, K, neg,
-    coherent): coherent when the active rays agree on the watertight test's permutation (major
-    axis K of the direction and its sign, neg) and none has a tiny major component."""
+    active rows of S.  Returns (active rays, K, neg, coherent, least class, greatest class).
+
+    With c < 0: every ray's results in io are reset to a miss, and the rays that meet the box are
+    gathered when they are coherent: when they agree on the watertight test's permutation (major
+    axis K of the direction and its sign, neg: the direction class 2 K + neg) and none has a tiny
+    major component.  Otherwise none is gathered (active rays 0) and the least and greatest
+    classes among them tell which classes to gather one by one.
+
+    With c >= 0 (0..5): only the rays of direction class c that meet the box and have no tiny
+    major component are gathered (K = c // 2, coherent), and no results are reset (the other
+    classes' rays keep theirs).  A ray with a tiny major component (a zero or subnormal direction,
+    or NaN: never a camera or shadow ray) then stays a miss."""
     for j in range(n):
         S[O_CT0 + j] = tmin
         S[O_CT1 + j] = io[IO_TMAX * PN + j]
-        io[IO_T * PN + j] = np.inf
-        io[IO_F * PN + j] = -1.0
-        io[IO_NT * PN + j] = 0.0
-        io[IO_NC * PN + j] = 0.0
+    if c < 0:
+        for j in range(n):
+            io[IO_T * PN + j] = np.inf
+            io[IO_F * PN + j] = -1.0
+            io[IO_NT * PN + j] = 0.0
+            io[IO_NC * PN + j] = 0.0
     _clip_axis(io, n, S, IO_OX, IO_DX, lo[0], hi[0])
     _clip_axis(io, n, S, IO_OY, IO_DY, lo[1], hi[1])
     _clip_axis(io, n, S, IO_OZ, IO_DZ, lo[2], hi[2])
-    nin, cmin, cmax, ntiny = _classify(io, n, S)
-    K, neg, uniform = cmin // 2, cmin % 2 == 1, cmin == cmax and ntiny == 0
-    if nin == n:
-        # every ray meets the box (the common case): straight row copies, which vectorize
-        for j in range(n):
-            S[O_OX + j] = io[IO_OX * PN + j]
-            S[O_OY + j] = io[IO_OY * PN + j]
-            S[O_OZ + j] = io[IO_OZ * PN + j]
-            S[O_DX + j] = io[IO_DX * PN + j]
-            S[O_DY + j] = io[IO_DY * PN + j]
-            S[O_DZ + j] = io[IO_DZ * PN + j]
-            S[O_T0 + j] = S[O_CT0 + j]
-            S[O_T1 + j] = S[O_CT1 + j]
-            S[O_BT + j] = io[IO_TMAX * PN + j]
-            S[O_BF + j] = -1.0
-            S[O_J + j] = j
-        return n, K, neg, uniform
-    na = 0  # some rays miss the box: gather the others
+    if c < 0:
+        nin, cmin, cmax, ntiny = _classify(io, n, S)
+        K, neg, uniform = cmin // 2, cmin % 2 == 1, cmin == cmax and ntiny == 0
+        if not uniform:
+            return 0, K, neg, False, cmin, cmax
+        if nin == n:
+            # every ray meets the box (the common case): straight row copies, which vectorize
+            for j in range(n):
+                S[O_OX + j] = io[IO_OX * PN + j]
+                S[O_OY + j] = io[IO_OY * PN + j]
+                S[O_OZ + j] = io[IO_OZ * PN + j]
+                S[O_DX + j] = io[IO_DX * PN + j]
+                S[O_DY + j] = io[IO_DY * PN + j]
+                S[O_DZ + j] = io[IO_DZ * PN + j]
+                S[O_T0 + j] = S[O_CT0 + j]
+                S[O_T1 + j] = S[O_CT1 + j]
+                S[O_BT + j] = io[IO_TMAX * PN + j]
+                S[O_BF + j] = -1.0
+                S[O_J + j] = j
+            return n, K, neg, True, cmin, cmax
+    else:
+        K, neg, cmin, cmax = c // 2, c % 2 == 1, c, c
+    na = 0  # some rays miss the box, or are of another class: gather the others
     for j in range(n):
         t0 = S[O_CT0 + j]
         t1 = S[O_CT1 + j]
         if not (t0 <= t1):
             continue
+        if c >= 0:
+            cj, dk = direction_class(io[IO_DX * PN + j], io[IO_DY * PN + j], io[IO_DZ * PN + j])
+            if cj != c or not (abs(dk) >= TINY_DIR):
+                continue
         S[O_OX + na] = io[IO_OX * PN + j]
         S[O_OY + na] = io[IO_OY * PN + j]
         S[O_OZ + na] = io[IO_OZ * PN + j]
@@ -624,7 +644,7 @@ def _gather(io, n, S, lo, hi, tmin):
         S[O_BF + na] = -1.0
         S[O_J + na] = j
         na += 1
-    return na, K, neg, uniform
+    return na, K, neg, True, cmin, cmax
 
 
 @inner(cache=True, _nrt=False)

@@ -1,6 +1,6 @@
 """One packet through a grid: the slices, cells and macro cells it visits, the two-level walk,
-rays from far outside the grid, the single-ray fallback (trace_packet), and a packet through a
-tuple of grids (trace_packet_grids)."""
+rays from far outside the grid, incoherent packets split by direction class (trace_packet), and a
+packet through a tuple of grids (trace_packet_grids)."""
 
 import math
 
@@ -11,13 +11,13 @@ from ...compiles import inner, one_per_types
 from ...grid.two_level import _leaf_range, leaf_axis
 from ..grids import is_two_level, with_leaves_only
 from ..prefetch import _prefetch_tri
-from ..traverse import MOVED, NEAR, _floor_clamp, far_interval, far_shift, far_t, is_far, trace_ray
-from .profile import (C_CELLS, C_PACKETS, C_SLICES, C_TESTS, P_CELLS, P_FALLBACK, P_MACRO, P_RETIRE, P_SETUP, P_SLICE,
+from ..traverse import MOVED, NEAR, _floor_clamp, far_interval, far_shift, far_t, is_far
+from .profile import (C_CELLS, C_PACKETS, C_SLICES, C_TESTS, P_CELLS, P_MACRO, P_RETIRE, P_SETUP, P_SLICE, P_SPLIT,
                       P_TESTS, _lap, _now, _prof_count)
 from .rays import (IO_DX, IO_DY, IO_DZ, IO_F, IO_MV, IO_NC, IO_NT, IO_OX, IO_OY, IO_OZ, IO_SH, IO_SL, IO_T, IO_TMAX,
-                   IO_TMO, IO_W, IO_XO, IO_YO, IO_ZO, O_BT, O_DX, O_DY, O_DZ, O_F32, O_IDK, O_J, O_OK, O_OU, O_OV, O_OX,
-                   O_OY, O_OZ, PN, Packet, _finish, _fix_wt64, _gather, _outside, _reference_plane, _setup, _setup32,
-                   _spread, _step, _test_mt, _test_mt32, _test_wt, _test_wt32, _up32)
+                   IO_TMO, IO_W, IO_XO, IO_YO, IO_ZO, O_DX, O_F32, O_IDK, O_OK, O_OU, O_OV, O_OX, O_OY, O_OZ, PN,
+                   Packet, _finish, _fix_wt64, _gather, _outside, _reference_plane, _setup, _setup32, _spread, _step,
+                   _test_mt, _test_mt32, _test_wt, _test_wt32, _up32)
 
 
 #: the distance (in cells along the packet's major axis) at which a batch cast judges a packet's
@@ -34,22 +34,6 @@ EPS_CELL = 1e-5
 #: vertex finds none of its triangles (measured: 1 such hole in 10M star probes on the
 #: Armadillo with the float64 margin alone)
 EPS32 = 1e-6
-
-
-@njit(cache=True, _nrt=False, inline="always")
-def _trace_singly(g, S, na, io, tmin, watertight, any_hit, mb1):
-    """The single-ray fallback of an incoherent packet: each active ray through trace_ray (inlined
-    into its one caller at numba's IR level, so trace_ray's code is optimised once less)."""
-    for a in range(na):
-        j = int(S[O_J + a])
-        f, t, u, v, nc, nt = trace_ray(
-            g, (S[O_OX + a], S[O_OY + a], S[O_OZ + a]), (S[O_DX + a], S[O_DY + a], S[O_DZ + a]),
-            tmin, S[O_BT + a], watertight, any_hit, mb1,
-        )
-        io[IO_T * PN + j] = t
-        io[IO_F * PN + j] = f
-        io[IO_NT * PN + j] = nt
-        io[IO_NC * PN + j] = nc
 
 
 @inner(cache=True)
@@ -244,36 +228,19 @@ def _restore_far(n, io, results):
             io[IO_T * PN + j] = far_t(io[IO_T * PN + j], io[IO_SH * PN + j], io[IO_SL * PN + j])
 
 
-@one_per_types
-@inner(cache=True, _nrt=False)
-def _trace_rows_singly(g, n, io, tmin, watertight, any_hit, mb1):
-    """Rays 0..n-1 of io, each through trace_ray."""
-    for j in range(n):
-        f, t, u, v, nc, nt = trace_ray(g, (io[IO_OX * PN + j], io[IO_OY * PN + j], io[IO_OZ * PN + j]),
-                                       (io[IO_DX * PN + j], io[IO_DY * PN + j], io[IO_DZ * PN + j]), tmin,
-                                       io[IO_TMAX * PN + j], watertight, any_hit, mb1)
-        io[IO_T * PN + j] = t
-        io[IO_F * PN + j] = f
-        io[IO_NT * PN + j] = nt
-        io[IO_NC * PN + j] = nc
-
-
 @njit(cache=True, _nrt=False, error_model="numpy", inline="always")
-def trace_packet(g, n, io, q, S, mb, mb1, max_cells=np.inf, prof=None):
+def trace_packet(g, n, io, q, S, mb, max_cells=np.inf, prof=None):
     """:func:`_trace_packet`, with rays from far outside the grid traced from just before its box
-    as trace_ray traces them (:func:`gridrt.trace.traverse.far_shift`; with q.tmin > 0 such a
-    packet's rays go one by one through trace_ray, or with a finite max_cells it returns -1).
-    io's input rows are as they were on return.  Inlined into its callers at numba's IR level
-    (it is small), so that the call tree below it is optimised and compiled to machine code once
-    less."""
+    as trace_ray traces them (:func:`gridrt.trace.traverse.far_shift`).  A packet with such a ray
+    and q.tmin > 0 is not traced: it returns -1, as with a finite max_cells (the packet's rays
+    share tmin, a moved ray's would differ).  io's input rows are as they were on return.
+    Inlined into its callers at numba's IR level (it is small), so that the call tree below it is
+    optimised and compiled to machine code once less."""
     moved = _move_far(g, n, io) != 0
-    if moved and q.tmin > 0.0:  # (the packet's rays share tmin; moved rays' would differ)
+    if moved and q.tmin > 0.0:
         _restore_far(n, io, False)
-        if max_cells < np.inf:
-            return -1
-        _trace_rows_singly(g, n, io, q.tmin, q.watertight, q.any_hit, mb1)
-        return n
-    r = _trace_packet(g, n, io, q, S, mb, mb1, max_cells, prof)
+        return -1
+    r = _trace_packet(g, n, io, q, S, mb, max_cells, prof)
     if moved:
         _restore_far(n, io, r >= 0)
     return r
@@ -281,15 +248,20 @@ def trace_packet(g, n, io, q, S, mb, mb1, max_cells=np.inf, prof=None):
 
 @one_per_types
 @inner(cache=True, _nrt=False, error_model="numpy")
-def _trace_packet(g, n, io, q, S, mb, mb1, max_cells, prof):
+def _trace_packet(g, n, io, q, S, mb, max_cells, prof):
     """Trace rays 0..n-1 of the table io (NIO * PN,) float64 (origin, direction, tmax per ray)
     through the grid g (:class:`gridrt.trace.grids.GridArrays`) for the
     :class:`gridrt.trace.cgt.rays.PacketQuery` q (tmin, watertight, any_hit, f32).
 
     Fills io's result rows (IO_T, IO_F, IO_NT, IO_NC) with the hits :func:`trace_ray` finds
     (nearest, or with any_hit some hit, in (tmin, tmax)).  S (NS * PN,) float64 and mb (MBOX,)
-    int32 are scratch; mb1 (MAILBOX,) int32 is the fallback DDA's mailbox.  Returns the number of
-    rays traced by the single-ray fallback (0 when the packet was coherent).
+    int32 are scratch.
+
+    A packet whose rays disagree on the direction class (the major axis of the direction and its
+    sign, which fix the watertight test's permutation and the order of the slices) is traced as
+    one coherent packet per class among its rays, each gathered anew from io; a ray with a tiny
+    major component (a zero or subnormal direction, never a camera or shadow ray) is then left a
+    miss.  Returns the number of rays traced in such split packets (0 for a coherent packet).
 
     With a finite ``max_cells`` a packet is traced only when it is coherent and its bounds cover
     at most that many cells in the slice HORIZON cells from the reference plane; otherwise
@@ -299,8 +271,8 @@ def _trace_packet(g, n, io, q, S, mb, mb1, max_cells, prof):
     ``prof`` ((NPROF,) int64, or None: nothing measured, and nothing of it compiled) adds the
     cycles of each phase (the P_* slots: gather, setup and bounds; macro-cell slab checks; slice
     ranges and prefetch; cell visits, mailbox and culls, with the triangle tests apart in
-    P_TESTS; retiring rays; the single-ray fallback) and the counts C_* (packets, slices, cells,
-    tests).  Profiling costs a counter read per phase and per test.
+    P_TESTS; retiring rays; the gathers of a split packet's classes) and the counts C_*
+    (packets, slices, cells, tests).  Profiling costs a counter read per phase and per test.
 
     With ``f32`` the triangle tests run in float32 (_test_wt32, _test_mt32: twice the lanes of a
     vector register), relative to the packet's reference origin (active ray 0's); the
@@ -309,23 +281,36 @@ def _trace_packet(g, n, io, q, S, mb, mb1, max_cells, prof):
     near-ties in t and within that distance of an edge, the triangle may differ.
     """
     t = _now(prof)
-    tmin, watertight, any_hit, f32 = q.tmin, q.watertight, q.any_hit, q.f32
+    _prof_count(prof, C_PACKETS, 1)
+    na, K, neg, uniform, cmin, cmax = _gather(io, n, S, g.lo, g.hi, q.tmin, -1)
+    if not uniform and max_cells < np.inf:
+        _lap(prof, P_SETUP, t)
+        return -1
+    nsplit = 0
+    for p in range(1 if uniform else cmax - cmin + 1):
+        if not uniform:  # one class of an incoherent packet's rays
+            t = _lap(prof, P_SETUP, t)
+            na, K, neg, _, _, _ = _gather(io, n, S, g.lo, g.hi, q.tmin, cmin + p)
+            nsplit += na
+            t = _lap(prof, P_SPLIT, t)
+        if na == 0:
+            t = _lap(prof, P_SETUP, t)
+            continue
+        if _walk_packet(g, na, K, neg, io, q, S, mb, max_cells, prof, t) < 0:
+            return -1
+        t = _now(prof)
+    return nsplit
+
+
+@njit(cache=True, _nrt=False, error_model="numpy", inline="always")
+def _walk_packet(g, na, K, neg0, io, q, S, mb, max_cells, prof, t):
+    """The coherent packet of the na active rays gathered in S (major axis K, its sign negative
+    with neg0) through the grid g, as _trace_packet says; t is the profile's time of the current
+    phase (setup).  Returns 0, or -1 where max_cells stops it.  Inlined into its one caller at
+    numba's IR level: a kernel of its own would be optimised once more within its caller."""
+    tmin, watertight, f32 = q.tmin, q.watertight, q.f32
     lo, cell, inv_cell, dims = g.lo, g.cell, g.inv_cell, g.dims
     M, mdims, macro_full = g.macro, g.mdims, g.macro_full
-    na, K, neg0, uniform = _gather(io, n, S, lo, g.hi, tmin)
-    _prof_count(prof, C_PACKETS, 1)
-    if na == 0:
-        _lap(prof, P_SETUP, t)
-        return 0
-    if not uniform:
-        if max_cells < np.inf:
-            _lap(prof, P_SETUP, t)
-            return -1
-        t = _lap(prof, P_SETUP, t)
-        _trace_singly(g, S, na, io, tmin, watertight, any_hit, mb1)
-        _lap(prof, P_FALLBACK, t)
-        return na
-
     # the permutation of shear_setup: kx = (kz + 1) % 3, ky = (kx + 1) % 3, swapped when d[kz] < 0
     U = (K + 1) % 3
     V = (U + 1) % 3
@@ -607,17 +592,17 @@ _walk_two_level = with_leaves_only("_walk_two_level", "g, pk, na, axes, start, p
 
 
 @njit(cache=True, _nrt=False, error_model="numpy", inline="always")
-def trace_packet_grids(grids, n, io, io2, q, S, mb, mb1):
+def trace_packet_grids(grids, n, io, io2, q, S, mb):
     """:func:`trace_packet` over the tuple of grids, in order (as trace_grids does for one ray):
     each later grid's rays end at the hit found before it (nearest), or are skipped where one was
     found (q.any_hit).  io's IO_W row tells which grid the hit is in; io2 is scratch.  Returns the
     number of rays traced by the fallback."""
-    nf = trace_packet(grids[0], n, io, q, S, mb, mb1, np.inf, None)
+    nf = trace_packet(grids[0], n, io, q, S, mb, np.inf, None)
     for j in range(n):
         io[IO_W * PN + j] = 0.0
     for i in range(1, len(grids)):
         _chain_rays(io, io2, n, q.any_hit)
-        nf += trace_packet(grids[i], n, io2, q, S, mb, mb1, np.inf, None)
+        nf += trace_packet(grids[i], n, io2, q, S, mb, np.inf, None)
         _merge_hits(io, io2, n, i)
     return nf
 
