@@ -24,6 +24,10 @@ fallback _fix_wt64.
   float64 one.
 """
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -202,3 +206,46 @@ def test_f32_random_pencils(seed, n, threads):
     d = (tgt - eye) * rng.uniform(0.1, 10.0, (n, 1))
     h = cast_rays(grid, tris, o, d, threads=threads, packet_precision="float32")
     check_f32(h, R.ref_cast(tris, o, d), f"seed {seed}", 0.02)
+
+
+_KERNELS_RUN = """
+import sys
+import numpy as np
+from gridrt.camera import Camera
+from gridrt.config import GridParams, RenderParams
+from gridrt.grid import build_grid
+from gridrt.trace import render
+from gridrt.trace.cgt import rays
+rng = np.random.default_rng(0)
+tris = (rng.uniform(0, 1, (400, 1, 3)) + rng.uniform(-0.15, 0.15, (400, 3, 3))).astype(np.float32)
+grid = build_grid(tris, GridParams())
+cam = Camera.frame(tris.min(axis=(0, 1)), tris.max(axis=(0, 1)))
+res = render(grid, tris, cam, RenderParams(40, 30, shading="lambert", shadows=True, traversal="cgt",
+                                           packet_precision=sys.argv[1], threads=1))
+assert (res.tri >= 0).mean() > 0.1
+for name in ("_setup32", "_dead32", "_test_wt32", "_fix_wt64", "_count_final32", "_best32", "_move32"):
+    kernel = getattr(rays, name)
+    s32 = kernel.py_func.__code__.co_varnames.index("S32")
+    print(name, " ".join(sorted({str(sig[s32]).split("(")[0] for sig in kernel.signatures})))
+"""
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_float64_packets_compile_no_float32_tests(precision, tmp_path):
+    """A CGT render with float64 packets (the default) compiles the float32 test kernels only as
+    the stubs that return at once on S32 None (their signatures all take none), none of their
+    loops; with float32 packets they are compiled for the float32 rows (arrays) and not as stubs.
+    (In a fresh process with an empty numba cache: this one may have compiled either, and a
+    kernel loaded from the cache compiles none of the kernels it calls.)"""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    r = subprocess.run([sys.executable, "-c", _KERNELS_RUN, precision], env=env, capture_output=True, text=True,
+                       timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    seen = dict(line.split(" ", 1) for line in r.stdout.strip().splitlines())
+    assert set(seen) == {"_setup32", "_dead32", "_test_wt32", "_fix_wt64", "_count_final32", "_best32", "_move32"}
+    want = "none" if precision == "float64" else "array"
+    # kernels the frame called (_fix_wt64 and _move32 only where a ray needs them)
+    for name in ("_setup32", "_dead32", "_test_wt32", "_count_final32", "_best32"):
+        assert seen[name] == want, f"{precision}: {name} compiled for {seen[name]!r}"
+    for name in ("_fix_wt64", "_move32"):
+        assert seen[name] in (want, ""), f"{precision}: {name} compiled for {seen[name]!r}"

@@ -34,8 +34,10 @@ View = namedtuple("View", "basis W H tile")
 #: CGT kernels take None without shadows, and numba then compiles no shadow path.
 Shading = namedtuple("Shading", "mode shadows off watertight")
 
-#: The packets of the CGT render: their triangle tests in float32 (f32, bool) and their shape,
-#: kw x kh pixels (at most gridrt.trace.cgt.rays.PK_MAX each).
+#: The packets of the CGT render: their triangle tests in float32 (f32 True) or float64 (f32 None,
+#: a numba type of its own: the render's kernels then compile none of the float32 tests, see
+#: gridrt.trace.cgt.rays.rows32) and their shape, kw x kh pixels (at most
+#: gridrt.trace.cgt.rays.PK_MAX each).
 Packets = namedtuple("Packets", "f32 kw kh")
 
 #: A render's output, pixel by pixel: img (H, W, 4) uint8, t (H, W) float32 hit distance (inf: a
@@ -84,4 +86,4 @@ def make_shading(mode, shadows, off, watertight):
 
 def make_packets(f32, kw, kh):
     """The :class:`Packets` with the types the kernels are compiled for."""
-    return Packets(bool(f32), int(kw), int(kh))
+    return Packets(True if f32 else None, int(kw), int(kh))

@@ -6,7 +6,8 @@ the rays that are final."""
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.extending import overload
 
 from ...compiles import inner, one_per_types
 from ...config import PACKET_MAX
@@ -26,8 +27,25 @@ MBOX = 256
 
 #: What a packet's trace asks of its rays (trace_packet): hits with t > tmin (float64), by the
 #: watertight test or the fast one, the nearest or (any_hit) any, the triangle tests in float32
-#: (f32) or float64.  Each ray's tmax is its own, in the ray table.
+#: (f32 true) or float64 (f32 false, or None: then nothing of the float32 tests is compiled, see
+#: rows32).  Each ray's tmax is its own, in the ray table.
 PacketQuery = namedtuple("PacketQuery", "tmin watertight any_hit f32")
+
+def rows32(S, f32):
+    """(kernels only) The float32 rows of the packet scratch S (NS * PN,) float64, as the views
+    (S32, I32) = (S[O_F32:] as float32, the same as int32); (None, None) where f32 is None (a
+    float64 packet: PacketQuery.f32 None).  The float32 kernels (_setup32, _test_wt32, ...)
+    return at once on S32 None, and numba compiles nothing else of them for float64 packets.
+    Inlined at numba's IR level."""
+    raise NotImplementedError("rows32 is only callable from numba kernels")
+
+
+@overload(rows32, inline="always")
+def _rows32(S, f32):
+    if isinstance(f32, types.NoneType):
+        return lambda S, f32: (None, None)
+    return lambda S, f32: (S[O_F32:].view(np.float32), S[O_F32:].view(np.int32))
+
 
 #: A coherent packet while it is traced: its ray table io, the active rays' rows S (float64) and
 #: their float32 rows S32 / I32 (views of S, see O_F32), its mailbox mb, its :class:`PacketQuery`
@@ -241,7 +259,9 @@ def _setup32(S, S32, I32, na, ref, watertight):
     """The float32 rows of the active rays (see _F_OU), over whole blocks of L32 rays: origins less
     the packet's reference origin ref = (x, y, z, u, v, k), in float64 and then rounded; shear
     constants (watertight) or directions rounded; the best t rounded down (a hit beyond a ray's
-    tmax stays beyond it) and the best triangle."""
+    tmax stays beyond it) and the best triangle.  (S32 None: a float64 packet, see rows32.)"""
+    if S32 is None:
+        return
     rx, ry, rz, ru, rv, rk = ref
     npad = (na + L32 - 1) // L32 * L32
     if watertight:
@@ -278,6 +298,8 @@ def _dead32(S32, na):
     """Make the rays after the last active one up to its block of L32 inert in the float32 tests:
     a NaN origin fails every comparison (no hit, nothing undecided), so the test loops need not
     check which lanes are active."""
+    if S32 is None:
+        return
     nan = np.float32(np.nan)
     for i in range(na, (na + L32 - 1) // L32 * L32):
         S32[F_OU + i] = nan
@@ -308,7 +330,10 @@ def _test_wt32(S32, I32, na, q0, q1, q2, ff, tmin32):
     are exact negations and the test stays watertight in float32 (Woop, Benthin, Wald 2013).  A
     ray for which an edge function is exactly 0 and the other signs do not already exclude the
     triangle is not decided here: it is counted in the second result, for _fix_wt64 to decide in
-    float64.  Returns (1 if some ray was hit else 0, 1 if some ray is left to float64 else 0)."""
+    float64.  Returns (1 if some ray was hit else 0, 1 if some ray is left to float64 else 0).
+    (S32 None: a float64 packet, see rows32; nothing of this is compiled.)"""
+    if S32 is None:
+        return 0, 0
     zero = np.float32(0.0)
     nh = False  # (flags, not counts: an int64 count would halve the lanes of the loop)
     nz = False
@@ -341,6 +366,8 @@ def _fix_wt64(S32, I32, na, q0, q1, q2, ff, tmin):
     every neighbouring triangle got in float32 (a shared edge still gives exact negations).  An
     edge function still 0 means the ray meets the edge or vertex exactly: both triangles count it.
     Returns 1 if some ray was hit, else 0."""
+    if S32 is None:
+        return 0
     zero = np.float32(0.0)
     nh = 0
     for i in range(na):
@@ -373,6 +400,8 @@ def _fix_wt64(S32, I32, na, q0, q1, q2, ff, tmin):
 def _test_mt32(S32, I32, na, q0, q1, q2, ff, tmin32):
     """_test_mt in float32 over the packet, L32 rays at a time (vertices q0, q1, q2: float32
     3-tuples, less the packet's reference origin, rounded).  Returns 1 if some ray was hit, else 0."""
+    if S32 is None:
+        return 0
     q0x, q0y, q0z = q0
     q1x, q1y, q1z = q1
     q2x, q2y, q2z = q2
@@ -441,12 +470,11 @@ def _outside(p0, p1, p2, planes):
 def _finish(pk, a, counts):
     """Active ray a's results into the packet's io (from the float32 tests' rows with f32), with
     its counters counts = (tests, cells)."""
-    S, io, S32, I32 = pk.S, pk.io, pk.S32, pk.I32
+    S, io = pk.S, pk.io
     tests, cells = counts
     j = int(S[O_J + a])
     if pk.q.f32:
-        bf = np.float64(I32[F_BF + a])
-        bt = np.float64(S32[F_BT + a])
+        bt, bf = _best32(pk.S32, pk.I32, a)
     else:
         bf = S[O_BF + a]
         bt = S[O_BT + a]
@@ -454,6 +482,27 @@ def _finish(pk, a, counts):
     io[IO_F * PN + j] = bf
     io[IO_NT * PN + j] = tests
     io[IO_NC * PN + j] = cells
+
+
+@inner(cache=True, _nrt=False)
+def _best32(S32, I32, a):
+    """Active ray a's best t and triangle in the float32 tests' rows, as float64."""
+    if S32 is None:
+        return 0.0, 0.0
+    return np.float64(S32[F_BT + a]), np.float64(I32[F_BF + a])
+
+
+@inner(cache=True, _nrt=False)
+def _move32(S32, I32, a, b, watertight):
+    """Active ray b's float32 rows (those of the test in use, and its best t and triangle) into
+    row a."""
+    if S32 is None:
+        return
+    q0, q1 = (_F_OU, _F_OX) if watertight else (_F_OX, _F_BT)
+    for r in range(q0, q1):
+        S32[r * PN + a] = S32[r * PN + b]
+    S32[F_BT + a] = S32[F_BT + b]
+    I32[F_BF + a] = I32[F_BF + b]
 
 
 @inner(cache=True, _nrt=False, error_model="numpy")
@@ -477,6 +526,8 @@ def _count_final(S, na, xp, any_hit):
 @inner(cache=True, _nrt=False, error_model="numpy")
 def _count_final32(S, S32, I32, na, xp, any_hit):
     """_count_final on the float32 tests' best t and triangle."""
+    if S32 is None:
+        return 0, 0
     nf = 0
     pend = 0
     for i in range(na):
@@ -514,12 +565,8 @@ def _retire(pk, na, counts):
             r0, r1 = (_R_SX, _R_OX) if watertight else (_R_OX, _R_T0)
             for r in range(r0, r1):
                 S[r * PN + a] = S[r * PN + na]
-            if f32:  # the float32 rows of the test in use, and the best t and triangle
-                q0, q1 = (_F_OU, _F_OX) if watertight else (_F_OX, _F_BT)
-                for r in range(q0, q1):
-                    S32[r * PN + a] = S32[r * PN + na]
-                S32[F_BT + a] = S32[F_BT + na]
-                I32[F_BF + a] = I32[F_BF + na]
+            if f32:
+                _move32(S32, I32, a, na, watertight)
             S[O_CT0 + a] = 0.0
             a += 1
     if f32:

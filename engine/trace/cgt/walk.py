@@ -15,9 +15,9 @@ from ..traverse import MOVED, NEAR, _floor_clamp, far_interval, far_shift, far_t
 from .profile import (C_CELLS, C_PACKETS, C_SLICES, C_TESTS, P_CELLS, P_MACRO, P_RETIRE, P_SETUP, P_SLICE, P_SPLIT,
                       P_TESTS, _lap, _now, _prof_count)
 from .rays import (IO_DX, IO_DY, IO_DZ, IO_F, IO_MV, IO_NC, IO_NT, IO_OX, IO_OY, IO_OZ, IO_SH, IO_SL, IO_T, IO_TMAX,
-                   IO_TMO, IO_W, IO_XO, IO_YO, IO_ZO, O_DX, O_F32, O_IDK, O_OK, O_OU, O_OV, O_OX, O_OY, O_OZ, PN,
+                   IO_TMO, IO_W, IO_XO, IO_YO, IO_ZO, O_DX, O_IDK, O_OK, O_OU, O_OV, O_OX, O_OY, O_OZ, PN,
                    Packet, _finish, _fix_wt64, _gather, _outside, _reference_plane, _setup, _setup32, _spread, _step,
-                   _test_mt, _test_mt32, _test_wt, _test_wt32, _up32)
+                   _test_mt, _test_mt32, _test_wt, _test_wt32, _up32, rows32)
 
 
 #: the distance (in cells along the packet's major axis) at which a batch cast judges a packet's
@@ -317,8 +317,7 @@ def _walk_packet(g, na, K, neg0, io, q, S, mb, max_cells, prof, t):
     if neg0:
         U, V = V, U
     _setup(S, na, U, V, K)
-    S32 = S[O_F32:].view(np.float32)
-    I32 = S[O_F32:].view(np.int32)
+    S32, I32 = rows32(S, f32)
     ref = (S[O_OX], S[O_OY], S[O_OZ], S[O_OU], S[O_OV], S[O_OK])
     tmin32 = _up32(tmin)
     if f32:
