@@ -296,18 +296,19 @@ def _trace_packet(g, n, io, q, S, mb, max_cells, prof):
         if na == 0:
             t = _lap(prof, P_SETUP, t)
             continue
-        if _walk_packet(g, na, K, neg, io, q, S, mb, max_cells, prof, t) < 0:
+        if _walk_packet(g, na, (K, neg), io, q, S, mb, max_cells, prof, t) < 0:
             return -1
         t = _now(prof)
     return nsplit
 
 
 @njit(cache=True, _nrt=False, error_model="numpy", inline="always")
-def _walk_packet(g, na, K, neg0, io, q, S, mb, max_cells, prof, t):
-    """The coherent packet of the na active rays gathered in S (major axis K, its sign negative
-    with neg0) through the grid g, as _trace_packet says; t is the profile's time of the current
+def _walk_packet(g, na, major, io, q, S, mb, max_cells, prof, t):
+    """The coherent packet of the na active rays gathered in S (major = (K, neg): their major
+    axis K, its sign negative with neg) through the grid g, as _trace_packet says; t is the profile's time of the current
     phase (setup).  Returns 0, or -1 where max_cells stops it.  Inlined into its one caller at
     numba's IR level: a kernel of its own would be optimised once more within its caller."""
+    K, neg0 = major
     tmin, watertight, f32 = q.tmin, q.watertight, q.f32
     lo, cell, inv_cell, dims = g.lo, g.cell, g.inv_cell, g.dims
     M, mdims, macro_full = g.macro, g.mdims, g.macro_full
