@@ -53,8 +53,11 @@ def _agrees(h, ref):
     return len(compare_hits(h.t, h.tri, ref).bad) == 0
 
 
-def stress(seconds, casters=4, updaters=2):
-    """Run the threads on one caster; return a summary dict (also what the subprocess prints)."""
+def stress(seconds, casters=4, updaters=2, min_casts=40):
+    """Run the threads on one caster; return a summary dict (also what the subprocess prints).
+    Each updater runs for ``seconds`` and at least 14 rounds (12 updates, 2 refused), each caster
+    until then and for at least its share of ``min_casts``: the counts the checks ask for do not
+    depend on the machine's speed or load."""
     import numba
 
     import gridrt
@@ -77,9 +80,11 @@ def stress(seconds, casters=4, updaters=2):
         with lock:
             out[key] += n
 
+    updating = [updaters]
+
     def cast_loop(k):
         i = 0
-        while time.perf_counter() < stop:
+        while time.perf_counter() < stop or i < -(-min_casts // casters) or updating[0] > 0:
             i += 1
             try:
                 h = caster.cast(o, d, threads=1 + (i + k) % 2)
@@ -93,7 +98,7 @@ def stress(seconds, casters=4, updaters=2):
 
     def update_loop(k):
         i = 0
-        while time.perf_counter() < stop:
+        while time.perf_counter() < stop or i < 14:
             i += 1
             try:
                 if i % 7 == 0:
@@ -107,6 +112,8 @@ def stress(seconds, casters=4, updaters=2):
             except Exception as e:  # noqa: BLE001
                 with lock:
                     out["errors"].append(f"update: {type(e).__name__}: {e}")
+        with lock:
+            updating[0] -= 1
 
     threads = [threading.Thread(target=cast_loop, args=(k,)) for k in range(casters)]
     threads += [threading.Thread(target=update_loop, args=(k,)) for k in range(updaters)]
@@ -118,11 +125,12 @@ def stress(seconds, casters=4, updaters=2):
     return out
 
 
-def run_stress(seconds, env_extra=None, timeout=300):
+def run_stress(seconds, env_extra=None, timeout=300, min_casts=40):
     env = dict(os.environ)
     env.update(env_extra or {})
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), str(REPO / "tests"), env.get("PYTHONPATH", "")])
-    code = f"import json, test_caster_threads as t; print('RESULT', json.dumps(t.stress({seconds})))"
+    code = (f"import json, test_caster_threads as t; "
+            f"print('RESULT', json.dumps(t.stress({seconds}, min_casts={min_casts})))")
     r = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=env, capture_output=True, text=True, timeout=timeout)
     lines = [ln for ln in r.stdout.splitlines() if ln.startswith("RESULT ")]
     assert r.returncode == 0 and lines, f"exit code {r.returncode}: {r.stdout[-1000:]} {r.stderr[-2000:]}"
@@ -152,7 +160,7 @@ def test_threads_share_one_caster():
 def test_threads_share_one_caster_workqueue():
     """The same under numba's workqueue layer (the fallback without libgomp), which aborts the
     process when two threads launch parallel kernels at once: the caster serialises its launches."""
-    s = run_stress(1.5, {"NUMBA_THREADING_LAYER": "workqueue"})
+    s = run_stress(1.5, {"NUMBA_THREADING_LAYER": "workqueue"}, min_casts=10)
     print(f"FIGURE threads (workqueue): {s['casts']} casts, {s['updates']} updates, layer {s['threading_layer']}")
     assert s["threading_layer"] == "workqueue", s
     check_summary(s, min_casts=10)
