@@ -152,14 +152,21 @@ _LINKING = "gridrt-linking"  # the cache's name for an inner kernel's library: L
 class _InnerLibrary(JITCodeLibrary):
     """The code library of an :func:`inner` kernel, compiled to LLVM IR and never to machine code.
 
-    A kernel that calls an inner kernel links the inner one's optimised IR into its own module
-    and compiles that to machine code (numba's way for every jitted callee); the callee's own
+    A kernel that calls an inner kernel links the inner one's IR into its own module, optimises
+    it there and compiles that to machine code (numba's way for every jitted callee); the callee's own
     machine code is only ever reached through its Python entry point, which an inner kernel does
     not have.  numba still makes it, for each library it finalises: about 5 % of a cold
     one-frame dump (63 inner kernels; BENCHMARKS.md section 10).  This library finalises as
-    numba's does (its callees linked in, the module optimised and checked) short of adding the
-    module to the JIT engine; the cache keeps its IR for linking (numba keeps that too, beside
-    the machine code)."""
+    numba's does (its callees linked in, the module checked) short of optimising the module, which
+    each caller does with the caller's code, and of adding it to the JIT engine; the cache keeps
+    its IR for linking (numba keeps that too, beside the machine code)."""
+
+    def _optimize_final_module(self):
+        """Nothing: the module is optimised in each caller's library, with the caller's code (numba
+        optimises every library it finalises, so an inner kernel's code was optimised once for
+        itself and again within each caller).  A cold start compiles less so, and the callers'
+        code came out faster in the measurement of BENCHMARKS.md section 10: LLVM's inliner and
+        vectorizers meet the inner kernels' code once, in each caller."""
 
     def _finalize_final_module(self):
         self._finalize_dynamic_globals()

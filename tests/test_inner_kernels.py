@@ -17,6 +17,7 @@ import textwrap
 import numpy as np
 import pytest
 from numba import njit
+from numba.core import config as numba_config
 
 from gridrt.compiles import InnerDispatcher, inner
 from gridrt.trace import intersect
@@ -107,6 +108,43 @@ def test_an_inner_kernel_has_no_machine_code_of_its_own():
     # numba's object-code hook marks a library whose module the JIT compiled to machine code
     assert plain_result.library._compiled and _caller.overloads[_caller.signatures[0]].library._compiled
     assert not inner_result.library._compiled, "the inner kernel was compiled to machine code"
+
+
+def _module_passes(library):
+    """The names of the module-level optimisation runs numba recorded for a code library."""
+    return [name for name, _ in library.recorded_timings if name.startswith("Module passes")]
+
+
+def test_an_inner_kernels_module_is_optimised_only_within_its_callers(monkeypatch):
+    """numba optimises the module of every library it finalises; an inner kernel's IR is only
+    ever linked into its callers, whose libraries optimise it with their own code: its own
+    library runs no module optimisation, where a plain kernel's and the caller's do (numba's
+    record of the LLVM passes each library ran, kept while NUMBA_LLVM_PASS_TIMINGS is on)."""
+    monkeypatch.setattr(numba_config, "LLVM_PASS_TIMINGS", True)
+
+    @inner(cache=False)
+    def halve(a, i):
+        return 0.5 * a[i]
+
+    @njit(cache=False)
+    def plain(a, i):
+        return a[i] + 1.0
+
+    @njit(cache=False)
+    def caller(a):
+        s = 0.0
+        for i in range(a.shape[0]):
+            s += halve(a, i) + plain(a, i)
+        return s
+
+    a = np.arange(7.0)
+    assert caller(a) == 1.5 * a.sum() + 7.0
+    (inner_result,) = halve.overloads.values()
+    (plain_result,) = plain.overloads.values()
+    (caller_result,) = caller.overloads.values()
+    assert "Module passes (full optimization)" in _module_passes(plain_result.library)
+    assert "Module passes (full optimization)" in _module_passes(caller_result.library)
+    assert _module_passes(inner_result.library) == [], "the inner kernel's module was optimised on its own"
 
 
 _CACHED_MODULE = """
