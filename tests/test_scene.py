@@ -751,6 +751,23 @@ def test_marbles_fall_with_gravity_and_move_at_constant_speed():
         assert near.mean() > 0.95 and set(np.round(k[near]).astype(int).ravel()) <= {1, 2}
 
 
+@pytest.mark.parametrize("n", [8800, 100_000])
+def test_marbles_triangles_are_the_rotated_and_moved_base(n):
+    """Both fills (on the calling thread below MARBLES_SERIAL_BELOW triangles, in parallel from
+    there) give the floor and each marble's base triangles turned by its rotation and moved to its
+    centre, computed here with numpy."""
+    from gridrt.scene.marbles import MARBLES_SERIAL_BELOW
+
+    assert (n < MARBLES_SERIAL_BELOW) == (n == 8800)
+    m = Marbles(n, seed=2)
+    t = 1.7
+    got = m.triangles_at(t).astype(np.float64)
+    rot, c = m.rotations_at(t), m.centers_at(t)
+    want = np.einsum("mij,bkj->mbki", rot, m._base) + c[:, None, None, :]
+    np.testing.assert_allclose(got[: m.n_floor], m._floor, rtol=1e-6, atol=1e-6)  # (float32 rounding)
+    np.testing.assert_allclose(got[m.n_floor :].reshape(want.shape), want, rtol=1e-6, atol=1e-6)
+
+
 def test_marbles_seed():
     a = Marbles(8800, seed=0).triangles_at(1.0).copy()
     b = Marbles(8800, seed=0).triangles_at(1.0)

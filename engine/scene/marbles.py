@@ -25,6 +25,7 @@ from numbers import Integral, Real
 import numpy as np
 from numba import njit, prange
 
+from ..compiles import inner
 from ..errors import InputError
 from .animation import Animation, as_static_mask, check_time
 from .icosphere import icosphere_triangles
@@ -93,34 +94,60 @@ def floor_triangles(count, half):
     return tris
 
 
+@inner(cache=True)
+def _floor_into(floor, origin, out):
+    """The floor triangles (N,3,3) f64 into out[:N], less origin."""
+    for f in range(floor.shape[0]):
+        for j in range(3):
+            for c in range(3):
+                out[f, j, c] = floor[f, j, c] - origin[c]
+
+
+@inner(cache=True)
+def _marble_into(i, base, rot, centre, origin, out, o):
+    """Marble i (base (B,3,3) f64 turned by rot[i] and moved to centre[i]) into out[o:o+B], less
+    origin."""
+    r00, r01, r02 = rot[i, 0, 0], rot[i, 0, 1], rot[i, 0, 2]
+    r10, r11, r12 = rot[i, 1, 0], rot[i, 1, 1], rot[i, 1, 2]
+    r20, r21, r22 = rot[i, 2, 0], rot[i, 2, 1], rot[i, 2, 2]
+    cx, cy, cz = centre[i, 0] - origin[0], centre[i, 1] - origin[1], centre[i, 2] - origin[2]
+    for k in range(base.shape[0]):
+        for j in range(3):
+            x = base[k, j, 0]
+            y = base[k, j, 1]
+            z = base[k, j, 2]
+            out[o + k, j, 0] = r00 * x + r01 * y + r02 * z + cx
+            out[o + k, j, 1] = r10 * x + r11 * y + r12 * z + cy
+            out[o + k, j, 2] = r20 * x + r21 * y + r22 * z + cz
+
+
 @njit(cache=True, parallel=True)
 def _marbles_kernel(base, rot, centre, floor, origin, out):
-    """Write floor then rigidly moved marbles into ``out``, in the frame of ``origin``.
+    """Write floor then rigidly moved marbles into ``out``, in the frame of ``origin``, the
+    marbles in parallel.
 
     base (B,3,3) f64 marble triangles about the origin; rot (M,3,3) f64 rotations; centre (M,3) f64;
     floor (N,3,3) f64; origin (3,) f64; out (N + M*B, 3, 3) f32 = world - origin.  Marble i
     occupies out[N + i*B : N + (i+1)*B].
     """
-    nf = floor.shape[0]
-    nb = base.shape[0]
-    for f in range(nf):
-        for j in range(3):
-            for c in range(3):
-                out[f, j, c] = floor[f, j, c] - origin[c]
+    _floor_into(floor, origin, out)
+    nf, nb = floor.shape[0], base.shape[0]
     for i in prange(rot.shape[0]):
-        r00, r01, r02 = rot[i, 0, 0], rot[i, 0, 1], rot[i, 0, 2]
-        r10, r11, r12 = rot[i, 1, 0], rot[i, 1, 1], rot[i, 1, 2]
-        r20, r21, r22 = rot[i, 2, 0], rot[i, 2, 1], rot[i, 2, 2]
-        cx, cy, cz = centre[i, 0] - origin[0], centre[i, 1] - origin[1], centre[i, 2] - origin[2]
-        o = nf + i * nb
-        for k in range(nb):
-            for j in range(3):
-                x = base[k, j, 0]
-                y = base[k, j, 1]
-                z = base[k, j, 2]
-                out[o + k, j, 0] = r00 * x + r01 * y + r02 * z + cx
-                out[o + k, j, 1] = r10 * x + r11 * y + r12 * z + cy
-                out[o + k, j, 2] = r20 * x + r21 * y + r22 * z + cz
+        _marble_into(i, base, rot, centre, origin, out, nf + i * nb)
+
+
+@njit(cache=True)
+def _marbles_serial(base, rot, centre, floor, origin, out):
+    """_marbles_kernel on the calling thread (the same values)."""
+    _floor_into(floor, origin, out)
+    nf, nb = floor.shape[0], base.shape[0]
+    for i in range(rot.shape[0]):
+        _marble_into(i, base, rot, centre, origin, out, nf + i * nb)
+
+
+#: Scenes with fewer triangles are filled on the calling thread: a parallel launch costs more
+#: than the work, and the serial kernel compiles in a fraction of the parallel one's time.
+MARBLES_SERIAL_BELOW = 65536
 
 
 def _rotations(axis, angle):
@@ -246,4 +273,5 @@ class Marbles(Animation):
         return _rotations(self._spin_axis, angle)
 
     def _fill(self, t, out, origin):
-        _marbles_kernel(self._base, self.rotations_at(t), self.centers_at(t), self._floor, origin, out)
+        fill = _marbles_serial if len(out) < MARBLES_SERIAL_BELOW else _marbles_kernel
+        fill(self._base, self.rotations_at(t), self.centers_at(t), self._floor, origin, out)
