@@ -25,7 +25,6 @@ from numbers import Integral, Real
 import numpy as np
 from numba import njit, prange
 
-from ..compiles import inner
 from ..errors import InputError
 from .animation import Animation, as_static_mask, check_time
 from .icosphere import icosphere_triangles
@@ -94,7 +93,7 @@ def floor_triangles(count, half):
     return tris
 
 
-@inner(cache=True)
+@njit(cache=True, inline="always")
 def _floor_into(floor, origin, out):
     """The floor triangles (N,3,3) f64 into out[:N], less origin."""
     for f in range(floor.shape[0]):
@@ -103,7 +102,7 @@ def _floor_into(floor, origin, out):
                 out[f, j, c] = floor[f, j, c] - origin[c]
 
 
-@inner(cache=True)
+@njit(cache=True, inline="always")
 def _marble_into(i, base, rot, centre, origin, out, o):
     """Marble i (base (B,3,3) f64 turned by rot[i] and moved to centre[i]) into out[o:o+B], less
     origin."""
