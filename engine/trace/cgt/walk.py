@@ -597,13 +597,16 @@ def trace_packet_grids(grids, n, io, io2, q, S, mb):
     each later grid's rays end at the hit found before it (nearest), or are skipped where one was
     found (q.any_hit).  io's IO_W row tells which grid the hit is in; io2 is scratch.  Returns the
     number of rays traced by the fallback."""
-    nf = trace_packet(grids[0], n, io, q, S, mb, np.inf, None)
-    for j in range(n):
-        io[IO_W * PN + j] = 0.0
-    for i in range(1, len(grids)):
-        _chain_rays(io, io2, n, q.any_hit)
-        nf += trace_packet(grids[i], n, io2, q, S, mb, np.inf, None)
-        _merge_hits(io, io2, n, i)
+    nf = 0
+    for i in range(len(grids)):  # (one call of trace_packet, which numba inlines: one copy of it)
+        if i > 0:
+            _chain_rays(io, io2, n, q.any_hit)
+        nf += trace_packet(grids[i], n, io2 if i > 0 else io, q, S, mb, np.inf, None)
+        if i > 0:
+            _merge_hits(io, io2, n, i)
+        else:
+            for j in range(n):
+                io[IO_W * PN + j] = 0.0
     return nf
 
 
