@@ -52,7 +52,7 @@ def _packets(grids, origins, dirs, tmax, any_hit, out_w, out_f, out_t):
             io[cgt.IO_DY * cgt.PN + j] = dirs[a + j, 1]
             io[cgt.IO_DZ * cgt.PN + j] = dirs[a + j, 2]
             io[cgt.IO_TMAX * cgt.PN + j] = tmax[a + j]
-        cgt.trace_packet_grids(grids, n, io, io2, cgt.PacketQuery(0.0, True, any_hit, False), S, mb)
+        cgt.trace_packet_grids(grids, n, io, io2, cgt.PacketQuery(0.0, True, any_hit, False, True), S, mb)
         for j in range(n):
             out_w[a + j] = int(io[cgt.IO_W * cgt.PN + j])
             out_f[a + j] = int(io[cgt.IO_F * cgt.PN + j])

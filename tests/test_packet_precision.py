@@ -215,7 +215,7 @@ from gridrt.camera import Camera
 from gridrt.config import GridParams, RenderParams
 from gridrt.grid import build_grid
 from gridrt.trace import render
-from gridrt.trace.cgt import rays
+from gridrt.trace.cgt import rays, walk
 rng = np.random.default_rng(0)
 tris = (rng.uniform(0, 1, (400, 1, 3)) + rng.uniform(-0.15, 0.15, (400, 3, 3))).astype(np.float32)
 grid = build_grid(tris, GridParams())
@@ -223,10 +223,14 @@ cam = Camera.frame(tris.min(axis=(0, 1)), tris.max(axis=(0, 1)))
 res = render(grid, tris, cam, RenderParams(40, 30, shading="lambert", shadows=True, traversal="cgt",
                                            packet_precision=sys.argv[1], threads=1))
 assert (res.tri >= 0).mean() > 0.1
+if sys.argv[1] == "float32":  # and from 1e9 away (its rays are moved nearer: the far-ray path)
+    render(grid, tris, Camera(eye=(0.5, 0.5, 1e9), target=(0.5, 0.5, 0.5), fov=1e-6),
+           RenderParams(8, 6, traversal="cgt", packet_precision="float32", threads=1))
 for name in ("_setup32", "_dead32", "_test_wt32", "_fix_wt64", "_count_final32", "_best32", "_move32"):
     kernel = getattr(rays, name)
     s32 = kernel.py_func.__code__.co_varnames.index("S32")
     print(name, " ".join(sorted({str(sig[s32]).split("(")[0] for sig in kernel.signatures})))
+print("_move_far", " ".join(sorted({str(sig[3]) for sig in walk._move_far.signatures})))
 """
 
 
@@ -235,14 +239,18 @@ def test_float64_packets_compile_no_float32_tests(precision, tmp_path):
     """A CGT render with float64 packets (the default) compiles the float32 test kernels only as
     the stubs that return at once on S32 None (their signatures all take none), none of their
     loops; with float32 packets they are compiled for the float32 rows (arrays) and not as stubs.
-    (In a fresh process with an empty numba cache: this one may have compiled either, and a
-    kernel loaded from the cache compiles none of the kernels it calls.)"""
+    Likewise a render whose eye is near the grid compiles the far-ray path (_move_far) only as
+    its stub (far None), and one from 1e9 away compiles it whole (far bool).  (In a fresh process
+    with an empty numba cache: this one may have compiled either, and a kernel loaded from the
+    cache compiles none of the kernels it calls.)"""
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
     r = subprocess.run([sys.executable, "-c", _KERNELS_RUN, precision], env=env, capture_output=True, text=True,
                        timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]
     seen = dict(line.split(" ", 1) for line in r.stdout.strip().splitlines())
-    assert set(seen) == {"_setup32", "_dead32", "_test_wt32", "_fix_wt64", "_count_final32", "_best32", "_move32"}
+    assert set(seen) == {"_setup32", "_dead32", "_test_wt32", "_fix_wt64", "_count_final32", "_best32", "_move32",
+                         "_move_far"}
+    assert seen["_move_far"] == ("none" if precision == "float64" else "bool none"), seen["_move_far"]
     want = "none" if precision == "float64" else "array"
     # kernels the frame called (_fix_wt64 and _move32 only where a ray needs them)
     for name in ("_setup32", "_dead32", "_test_wt32", "_count_final32", "_best32"):

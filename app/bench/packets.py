@@ -74,7 +74,7 @@ def profile_frame(g, basis, W, H, prof, f32):
                     t = cgt._now(prof)
                     cgt._camera_rays(basis, W, H, px0, py0, pw, ph, io)
                     cgt._lap(prof, cgt.P_RAYS, t)
-                    cgt.trace_packet(g, n, io, cgt.PacketQuery(0.0, True, False, f32), S, mb, np.inf, prof)
+                    cgt.trace_packet(g, n, io, cgt.PacketQuery(0.0, True, False, f32, True), S, mb, np.inf, prof)
                     for j in range(n):
                         hits += io[cgt.IO_F * PN + j] >= 0.0
     return hits

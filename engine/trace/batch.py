@@ -114,7 +114,7 @@ def _cast_run(g, origins, dirs, idx, s, n, q, how, scratch, out):
             io[IO_DY * PN + j] = dirs[i, 1]
             io[IO_DZ * PN + j] = dirs[i, 2]
             io[IO_TMAX * PN + j] = tmax
-        r = trace_packet(g, n, io, PacketQuery(tmin, watertight, any_hit, f32), scratch.S, scratch.mb, max_cells, None)
+        r = trace_packet(g, n, io, PacketQuery(tmin, watertight, any_hit, f32, True), scratch.S, scratch.mb, max_cells, None)
     if r < 0:
         for j in range(n):
             i = idx[s + j] if use_idx else s + j

@@ -37,8 +37,11 @@ Shading = namedtuple("Shading", "mode shadows off watertight")
 #: The packets of the CGT render: their triangle tests in float32 (f32 True) or float64 (f32 None,
 #: a numba type of its own: the render's kernels then compile none of the float32 tests, see
 #: gridrt.trace.cgt.rays.rows32) and their shape, kw x kh pixels (at most
-#: gridrt.trace.cgt.rays.PK_MAX each).
-Packets = namedtuple("Packets", "f32 kw kh")
+#: gridrt.trace.cgt.rays.PK_MAX each); far True where a ray of the frame may start far from a
+#: grid (gridrt.trace.traverse.is_far), None where none can (the eye, and the light with shadows,
+#: near every grid: :func:`gridrt.trace.traverse.near_all`): the kernels then compile none of the
+#: far-ray path.
+Packets = namedtuple("Packets", "f32 kw kh far")
 
 #: A render's output, pixel by pixel: img (H, W, 4) uint8, t (H, W) float32 hit distance (inf: a
 #: miss), tri (H, W) int32 scene id of the triangle hit (-1: a miss), cost (H, W) int32 triangle
@@ -84,6 +87,6 @@ def make_shading(mode, shadows, off, watertight):
     return Shading(int(mode), bool(shadows), float(off), bool(watertight))
 
 
-def make_packets(f32, kw, kh):
+def make_packets(f32, kw, kh, far=True):
     """The :class:`Packets` with the types the kernels are compiled for."""
-    return Packets(True if f32 else None, int(kw), int(kh))
+    return Packets(True if f32 else None, int(kw), int(kh), True if far else None)

@@ -43,7 +43,7 @@ from ..stats import RenderStats
 from ..threads import check_threads, launch_guard, use_threads
 from ..scene.surface import Surface, as_lights
 from .batch import MAX_CELLS, SHADOW_MAX_CELLS, cast_grouped, odd_directions, tile_order
-from .traverse import MAILBOX, trace_grids
+from .traverse import MAILBOX, near_all, trace_grids
 from .twin import TWINS
 from ..camera import Camera, pixel_dir
 from .cgt.frame import cgt_render_kernel, cgt_render_serial
@@ -434,7 +434,9 @@ class Renderer:
         out = Buffers(img, tb, ib, cb, nb)
         t0 = time.perf_counter()
         if params.traversal == "cgt":
-            pk = make_packets(params.packet_precision == "float32", *params.packet)
+            # far None where every ray starts near every grid: the kernels without the far-ray path
+            near = near_all([(g.lo, g.hi) for g in grids], [basis[0]] + ([light] if shadows else []))
+            pk = make_packets(params.packet_precision == "float32", *params.packet, far=not near)
             # light None: the CGT kernel without its shadow path (compiles faster)
             with parallel_chunksize(1):  # dynamic scheduling of the kernel's chunks of tiles
                 # the parallel kernel, or its serial twin on one thread and while the parallel one

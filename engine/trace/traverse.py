@@ -155,6 +155,22 @@ def is_far(lo, hi, ox, oy, oz):
     return m <= FAR_MAX and s > 0.0 and m * m > (0.25 * FAR_RADII * FAR_RADII) * s
 
 
+def near_all(boxes, points):
+    """(Python) True when no ray from any of the points (3-sequences) is far from any of the
+    boxes (lo, hi) in :func:`is_far`'s sense, with a margin of 2 in distance (no rounding can
+    make one far): a render whose rays start only at those points need not compile the far-ray
+    path (gridrt.trace.records.Packets.far)."""
+    for lo, hi in boxes:
+        lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+        s = float(((hi - lo) ** 2).sum())
+        c = 0.5 * (lo + hi)
+        for p in points:
+            m = float(np.abs(np.asarray(p, np.float64) - c).max())
+            if not (s == 0.0 or m * m <= (0.25 * (0.5 * FAR_RADII) ** 2) * s):
+                return False
+    return True
+
+
 @inner(cache=True)
 def far_shift(lo, hi, ox, oy, oz, dx, dy, dz):
     """Where a ray from far outside the box lo..hi starts instead: (verdict, mx, my, mz, th, tl).

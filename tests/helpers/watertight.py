@@ -143,7 +143,7 @@ def _trace_packets(g, eyes, dirs, offs, watertight, f32, t_out, f_out, split):
             io[cgt.IO_DY * cgt.PN + j] = dirs[a + j, 1]
             io[cgt.IO_DZ * cgt.PN + j] = dirs[a + j, 2]
             io[cgt.IO_TMAX * cgt.PN + j] = np.inf
-        q = cgt.PacketQuery(0.0, watertight, False, f32)
+        q = cgt.PacketQuery(0.0, watertight, False, f32, True)
         split[p] = cgt.trace_packet(g, n, io, q, S, mb, np.inf, None)
         for j in range(n):
             t_out[a + j] = io[cgt.IO_T * cgt.PN + j]

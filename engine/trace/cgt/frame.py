@@ -135,12 +135,12 @@ def _render_tiles(grids, view, looks, light, packets, tiles, out, scratch):
     of every call.)"""
     basis, W, H, tile = view.basis, view.W, view.H, view.tile
     mode, off, watertight = looks.mode, looks.off, looks.watertight
-    f32, kw, kh = packets.f32, packets.kw, packets.kh
+    f32, kw, kh, far = packets.f32, packets.kw, packets.kh, packets.far
     t0, t1 = tiles
     S, io, io2, sio, sj, col, mb, acc = (scratch.S, scratch.io, scratch.io2, scratch.sio, scratch.sj, scratch.col,
                                          scratch.mb, scratch.acc)
-    primary = PacketQuery(0.0, watertight, False, f32)  # the nearest hit
-    shadow = PacketQuery(0.0, watertight, True, f32)  # any hit
+    primary = PacketQuery(0.0, watertight, False, f32, far)  # the nearest hit
+    shadow = PacketQuery(0.0, watertight, True, f32, far)  # any hit
     ntx = (W + tile - 1) // tile
     ex, ey, ez = basis[0, 0], basis[0, 1], basis[0, 2]
     if t0 < t1:

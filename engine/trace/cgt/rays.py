@@ -28,8 +28,10 @@ MBOX = 256
 #: What a packet's trace asks of its rays (trace_packet): hits with t > tmin (float64), by the
 #: watertight test or the fast one, the nearest or (any_hit) any, the triangle tests in float32
 #: (f32 true) or float64 (f32 false, or None: then nothing of the float32 tests is compiled, see
-#: rows32).  Each ray's tmax is its own, in the ray table.
-PacketQuery = namedtuple("PacketQuery", "tmin watertight any_hit f32")
+#: rows32); far true where a ray may start far from the grid (trace_packet moves it nearer, see
+#: gridrt.trace.traverse.far_shift), None where the caller knows none does (then nothing of that
+#: path is compiled).  Each ray's tmax is its own, in the ray table.
+PacketQuery = namedtuple("PacketQuery", "tmin watertight any_hit f32 far")
 
 def rows32(S, f32):
     """(kernels only) The float32 rows of the packet scratch S (NS * PN,) float64, as the views
@@ -717,7 +719,7 @@ def _reference_plane(S, na, oD):
     return xlo, 1.0, xlo, xhi, cu0, cu1, cv0, cv1, su0, su1, sv0, sv1
 
 
-def packet_query(tmin, watertight, any_hit, f32):
+def packet_query(tmin, watertight, any_hit, f32, far=True):
     """The :class:`PacketQuery` with the types the kernels are compiled for (float64 tmin, bool
-    flags)."""
-    return PacketQuery(float(tmin), bool(watertight), bool(any_hit), bool(f32))
+    flags, far True or None)."""
+    return PacketQuery(float(tmin), bool(watertight), bool(any_hit), bool(f32), True if far else None)

@@ -176,11 +176,14 @@ def _test_slice(g, span, axes, box, planes, pk, na, prof=None):
 
 @one_per_types
 @inner(cache=True, _nrt=False)
-def _move_far(g, n, io):
+def _move_far(g, n, io, far):
     """Rays 0..n-1 of io whose origins lie far outside the grid box start from just before it
     (:func:`gridrt.trace.traverse.far_shift`): their own origins and tmax go to rows XO, YO, ZO,
     TMO, their shifts to SH, SL and the verdict to MV; a ray that misses the box by far gets tmax
-    -inf.  Returns how many rays are not NEAR."""
+    -inf.  Returns how many rays are not NEAR.  far None (PacketQuery.far): no ray is far, and
+    nothing of this is compiled."""
+    if far is None:
+        return 0
     k = 0
     lo, hi = g.lo, g.hi
     for j in range(n):
@@ -213,9 +216,11 @@ def _move_far(g, n, io):
 
 @one_per_types
 @inner(cache=True, _nrt=False)
-def _restore_far(n, io, results):
+def _restore_far(n, io, results, far):
     """Undo _move_far: the rays' own origins and tmax, and with ``results`` their hits' t from
-    their own origins."""
+    their own origins (far None: nothing to undo, and nothing of this compiled)."""
+    if far is None:
+        return
     for j in range(n):
         v = io[IO_MV * PN + j]
         if v == NEAR:
@@ -236,13 +241,13 @@ def trace_packet(g, n, io, q, S, mb, max_cells=np.inf, prof=None):
     share tmin, a moved ray's would differ).  io's input rows are as they were on return.
     Inlined into its callers at numba's IR level (it is small), so that the call tree below it is
     optimised and compiled to machine code once less."""
-    moved = _move_far(g, n, io) != 0
+    moved = _move_far(g, n, io, q.far) != 0
     if moved and q.tmin > 0.0:
-        _restore_far(n, io, False)
+        _restore_far(n, io, False, q.far)
         return -1
     r = _trace_packet(g, n, io, q, S, mb, max_cells, prof)
     if moved:
-        _restore_far(n, io, r >= 0)
+        _restore_far(n, io, r >= 0, q.far)
     return r
 
 
