@@ -11,6 +11,8 @@ import shlex
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from gridrt.app.bench.machine import finish_machine, machine_info
 from gridrt.app.bench.output import out_dir, write_json, write_summary
 
@@ -32,6 +34,33 @@ def start(p, argv=None):
     keep_output(a.out)
     print_settings(p, a)
     return a
+
+
+def add_frame_options(p, scenes):
+    """The options of a script that runs ``gridrt bench frame`` two ways, back to back: --scenes,
+    --threads, --size, --runs, --warmup, --rounds (the table's values as defaults) and --out."""
+    p.add_argument("--scenes", default=scenes, help="comma-separated bench scene specs (default: the table's, %(default)s)")
+    p.add_argument("--threads", default="1,2", help="thread counts (default: the table's, %(default)s)")
+    p.add_argument("--size", type=int, default=1024, help="image edge (default: the table's, %(default)s)")
+    p.add_argument("--runs", type=int, default=5, help="timed frames a run (default: the table's, %(default)s)")
+    p.add_argument("--warmup", type=int, default=2, help="untimed frames a run (default: the table's, %(default)s)")
+    p.add_argument("--rounds", type=int, default=2,
+                   help="rounds of the two runs, back to back (default: the table's, %(default)s)")
+    add_out_option(p)
+
+
+def build_render_rows(scenes, labels, got, tris, threads):
+    """The rows of a table of build and render ms, one column pair per way of running (labels):
+    each cell the medians at the thread counts, "/"-separated, of got[(scene, label, threads)],
+    a list of (build ms, render ms) a round; tris: the triangle count of each scene."""
+    rows = []
+    for text in scenes:
+        cells = []
+        for i in (0, 1):
+            for label in labels:
+                cells.append(" / ".join(f"{np.median([v[i] for v in got[text, label, t]]):.1f}" for t in threads))
+        rows.append([scene_label(text, tris[text]), *cells])
+    return rows
 
 
 def print_settings(p, a):

@@ -19,11 +19,9 @@ import sys
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
 from gridrt.app.bench.output import md_table
 
-from tables import add_out_option, items, scene_label, start
+from tables import add_frame_options, build_render_rows, items, start
 
 SCENES = "icosphere:20480:twist,lucy:twist,icosphere:1310720:twist"
 WIDTHS = (("256-bit", "256"), ("512-bit", "auto"))
@@ -53,14 +51,7 @@ def run_frame(width, a, out):
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--scenes", default=SCENES, help="comma-separated bench scene specs (default: the table's, %(default)s)")
-    p.add_argument("--threads", default="1,2", help="thread counts (default: the table's, %(default)s)")
-    p.add_argument("--size", type=int, default=1024, help="image edge (default: the table's, %(default)s)")
-    p.add_argument("--runs", type=int, default=5, help="timed frames a run (default: the table's, %(default)s)")
-    p.add_argument("--warmup", type=int, default=2, help="untimed frames a run (default: the table's, %(default)s)")
-    p.add_argument("--rounds", type=int, default=2,
-                   help="rounds of the two runs, back to back (default: the table's, %(default)s)")
-    add_out_option(p)
+    add_frame_options(p, SCENES)
     a = start(p, argv)
     if not has_avx512():
         print("this CPU has no AVX-512F: both columns run 256-bit code")
@@ -77,15 +68,7 @@ def main(argv=None):
                     got.setdefault(key, []).append((float(row["build_ms"]), float(row["render_ms"])))
                     tris[row["scene"]] = int(row["triangles"])
     threads = [int(t) for t in items(a.threads)]
-    rows = []
-    for text in items(a.scenes):
-        cells = {}
-        for i, what in enumerate(("build", "render")):
-            for label, _ in WIDTHS:
-                cells[what, label] = " / ".join(f"{np.median([v[i] for v in got[text, label, t]]):.1f}"
-                                                for t in threads)
-        rows.append([scene_label(text, tris[text]), cells["build", "256-bit"], cells["build", "512-bit"],
-                     cells["render", "256-bit"], cells["render", "512-bit"]])
+    rows = build_render_rows(items(a.scenes), [label for label, _ in WIDTHS], got, tris, threads)
     print("\n".join(md_table(HEADER, rows)))
     return 0
 

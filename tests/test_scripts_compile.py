@@ -1,7 +1,8 @@
 """scripts/compile_times.py (BENCHMARKS.md section 10's per-kernel breakdown of a cold start) runs
 a real dump with an empty numba cache and lists the kernels that compiled: for the single-ray
 traversal on one thread, the DDA render tile and the serial build's passes, and none of the CGT
-packet walk, which that path never calls."""
+packet walk, which that path never calls.  scripts/inner_optimise.py (the same section's inner
+kernels compiled gridrt's way against numba's) runs both ways and prints its table."""
 
 import re
 import subprocess
@@ -29,3 +30,20 @@ def test_compile_times_lists_the_kernels_of_the_path_that_ran(tmp_path):
     assert not any(".cgt." in k for k in names), names
     parts = dict(re.findall(r"^\| (tracing and shading|grid build) \| (\d+) \|", r.stdout, re.MULTILINE))
     assert int(parts["tracing and shading"]) > 0 and int(parts["grid build"]) > 0
+
+
+@pytest.mark.slow
+def test_inner_optimise_runs_both_ways(tmp_path):
+    """scripts/inner_optimise.py (BENCHMARKS.md section 10) runs bench frame compiled gridrt's way
+    and numba's way, each in a process with a numba cache of its own, and prints the table of
+    both, with each run's wall time."""
+    r = subprocess.run([sys.executable, "scripts/inner_optimise.py", "--scenes", "icosphere:1280:twist", "--size",
+                        "24", "--runs", "1", "--warmup", "0", "--rounds", "1", "--threads", "1", "--out",
+                        str(tmp_path / "o")], cwd=REPO, capture_output=True, text=True, timeout=900, check=False)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "| scene | build, gridrt | build, numba | render, gridrt | render, numba |" in r.stdout, r.stdout
+    row = re.search(r"^\| icosphere 1\.3k twisted \| ([\d.]+) \| ([\d.]+) \| ([\d.]+) \| ([\d.]+) \|$", r.stdout,
+                    re.MULTILINE)
+    assert row and all(float(x) > 0 for x in row.groups()), r.stdout
+    assert re.search(r"whole run \(cold compile and every frame\), s: gridrt [\d.]+; numba [\d.]+", r.stdout), r.stdout
+    assert (tmp_path / "o" / "summary.md").is_file()
