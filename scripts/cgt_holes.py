@@ -39,8 +39,8 @@ HEADER = ["mesh", "packet probes", "watertight holes", "float32 watertight holes
 
 
 def probe(relpath, n_rays, rng):
-    """(packet counts, camera-row counts, seconds) of at least n_rays packet rays (single-ray
-    fallbacks not counted) and n_rays camera-row rays on one mesh."""
+    """(packet counts, camera-row counts, seconds) of at least n_rays packet rays and n_rays
+    camera-row rays on one mesh."""
     m = ProbeMesh(*load_mesh_arrays(relpath))
     grid = GridBuilder(GridParams(threads=2, density=4.0)).build(m.tris)
     t0 = time.perf_counter()
