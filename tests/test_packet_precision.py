@@ -236,8 +236,8 @@ print("_move_far", " ".join(sorted({str(sig[3]) for sig in walk._move_far.signat
 
 @pytest.mark.parametrize("precision", ["float64", "float32"])
 def test_float64_packets_compile_no_float32_tests(precision, tmp_path):
-    """A CGT render with float64 packets (the default) compiles the float32 test kernels only as
-    the stubs that return at once on S32 None (their signatures all take none), none of their
+    """A CGT render with float64 packets (the default) compiles the float32 test kernels at most
+    as the stubs that return at once on S32 None (their signatures all take none), none of their
     loops; with float32 packets they are compiled for the float32 rows (arrays) and not as stubs.
     Likewise a render whose eye is near the grid compiles the far-ray path (_move_far) only as
     its stub (far None), and one from 1e9 away compiles it whole (far bool).  (In a fresh process
@@ -251,9 +251,12 @@ def test_float64_packets_compile_no_float32_tests(precision, tmp_path):
     assert set(seen) == {"_setup32", "_dead32", "_test_wt32", "_fix_wt64", "_count_final32", "_best32", "_move32",
                          "_move_far"}
     assert seen["_move_far"] == ("none" if precision == "float64" else "bool none"), seen["_move_far"]
-    want = "none" if precision == "float64" else "array"
-    # kernels the frame called (_fix_wt64 and _move32 only where a ray needs them)
-    for name in ("_setup32", "_dead32", "_test_wt32", "_count_final32", "_best32"):
-        assert seen[name] == want, f"{precision}: {name} compiled for {seen[name]!r}"
-    for name in ("_fix_wt64", "_move32"):
-        assert seen[name] in (want, ""), f"{precision}: {name} compiled for {seen[name]!r}"
+    if precision == "float64":  # the stub at most (or not even that, where the caller's branch is dropped)
+        for name in seen:
+            if name != "_move_far":
+                assert seen[name] in ("none", ""), f"{precision}: {name} compiled for {seen[name]!r}"
+    else:  # the kernels the frame called (_fix_wt64 and _move32 only where a ray needs them)
+        for name in ("_setup32", "_dead32", "_test_wt32", "_count_final32", "_best32"):
+            assert seen[name] == "array", f"{precision}: {name} compiled for {seen[name]!r}"
+        for name in ("_fix_wt64", "_move32"):
+            assert seen[name] in ("array", ""), f"{precision}: {name} compiled for {seen[name]!r}"

@@ -91,7 +91,7 @@ def _prefetch_slice(g, span):
 
 
 @inner(cache=True, _nrt=False, error_model="numpy")
-def _test_slice(g, span, axes, box, planes, pk, na, prof=None):
+def _test_slice(g, span, axes, box, planes, pk, S32, na, prof=None):
     """Test the triangles of grid g in the cells span = (ck, stU, stV, cu_0, cu_1, cv_0, cv_1) of
     one slice (see _prefetch_slice) against the na active rays of the packet pk
     (:class:`gridrt.trace.cgt.rays.Packet`; axes = (U, V, K), its permutation): each once (the
@@ -99,13 +99,14 @@ def _test_slice(g, span, axes, box, planes, pk, na, prof=None):
     uhi, vlo, vhi)) or beyond one of its four bounding planes (planes = (xr, the planes' offsets
     u0, u1, v0, v1 and slopes, see _outside)).  With f32 the tests run in float32 (_test_wt32
     with its float64 fallback, or _test_mt32) on the float32 rows S32 and I32, vertices less the
-    reference origin ref (see _setup32).
+    reference origin ref (see _setup32); S32 is the packet's pk.S32, an argument of its own so that
+    numba drops the float32 tests where it is None (a float64 packet).
     Returns (cells visited, triangle tests, rays hit).  With ``prof`` the tests' cycles go to its
     P_TESTS slot."""
     tris, cell_start, tri_ids = g.tris, g.cell_start, g.tri_ids
     ck, stU, stV, cu_0, cu_1, cv_0, cv_1 = span
     U, V, K = axes
-    S, S32, I32, mb, tmin32 = pk.S, pk.S32, pk.I32, pk.mb, pk.tmin32
+    S, I32, mb, tmin32 = pk.S, pk.I32, pk.mb, pk.tmin32
     watertight, tmin, f32 = pk.q.watertight, pk.q.tmin, pk.q.f32
     rx, ry, rz, ru, rv, rk = pk.ref
     ulo, uhi, vlo, vhi = box
@@ -141,7 +142,7 @@ def _test_slice(g, span, axes, box, planes, pk, na, prof=None):
                         continue  # the packet's bounds only shrink: it stays outside
                     tests += 1
                     t0 = _now(prof)
-                    if f32 and watertight:
+                    if S32 is not None and f32 and watertight:
                         q0u, q0v, q0k = np.float32(p0u - ru), np.float32(p0v - rv), np.float32(p0k - rk)
                         q1u, q1v, q1k = np.float32(p1u - ru), np.float32(p1v - rv), np.float32(p1k - rk)
                         q2u, q2v, q2k = np.float32(p2u - ru), np.float32(p2v - rv), np.float32(p2k - rk)
@@ -152,7 +153,7 @@ def _test_slice(g, span, axes, box, planes, pk, na, prof=None):
                         hits += nh
                         if nz > 0:
                             hits += _fix_wt64(S32, I32, na, q0, q1, q2, np.int32(f), tmin32)
-                    elif f32:
+                    elif S32 is not None and f32:
                         hits += _test_mt32(
                             S32, I32, na,
                             (np.float32(np.float64(tris[f, 0, 0]) - rx), np.float32(np.float64(tris[f, 0, 1]) - ry),
@@ -411,7 +412,7 @@ def _walk_packet(g, na, major, io, q, S, mb, max_cells, prof, t):
                 t = _lap(prof, P_SLICE, t)
                 nc, nt, nh = _test_slice(
                     g, span, (U, V, K), (ulo, uhi, vlo, vhi),
-                    (xr, pl_u0, pl_u1, pl_v0, pl_v1, sl_u0, sl_u1, sl_v0, sl_v1), pk, na, prof)
+                    (xr, pl_u0, pl_u1, pl_v0, pl_v1, sl_u0, sl_u1, sl_v0, sl_v1), pk, S32, na, prof)
                 t = _lap(prof, P_CELLS, t)
                 _prof_count(prof, C_SLICES, 1)
                 _prof_count(prof, C_CELLS, nc)
@@ -561,7 +562,7 @@ def _walk_2l(g, pk, na, axes, start, plane, bounds, grow):
                         ju0, ju1, jv0, jv1 = _cells_of(box, sloU, iscU, rU, sloV, iscV, rV)
                         span = (q0 + jk * lK, lU, lV, ju0, ju1, jv0, jv1)
                         _prefetch_slice(g, span)
-                        nc, nt, nh = _test_slice(g, span, axes, box, planes, pk, na, None)
+                        nc, nt, nh = _test_slice(g, span, axes, box, planes, pk, pk.S32, na, None)
                         cells += nc
                         tests += nt
                         pending += nh
