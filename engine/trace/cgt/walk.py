@@ -602,7 +602,8 @@ def trace_packet_grids(grids, n, io, io2, q, S, mb):
     """:func:`trace_packet` over the tuple of grids, in order (as trace_grids does for one ray):
     each later grid's rays end at the hit found before it (nearest), or are skipped where one was
     found (q.any_hit).  io's IO_W row tells which grid the hit is in; io2 is scratch.  Returns the
-    number of rays traced by the fallback."""
+    number of rays traced in packets split by direction class (summed over the grids).  q.tmin is
+    0 for its callers (the render's queries): trace_packet's -1 never comes back."""
     nf = 0
     for i in range(len(grids)):  # (one call of trace_packet, which numba inlines: one copy of it)
         if i > 0:
