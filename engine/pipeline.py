@@ -51,11 +51,12 @@ class SplitScene:
     static_tris: np.ndarray | None = None
 
     @classmethod
-    def of_mask(cls, mask):
-        """The split of a scene whose triangles ``mask`` ((F,) bool) marks as static."""
+    def of_mask(cls, mask, builder=GridBuilder):
+        """The split of a scene whose triangles ``mask`` ((F,) bool) marks as static; ``builder``:
+        the class of its static part's builder."""
         moving_ids = np.flatnonzero(~mask).astype(np.int32)
         return cls(np.flatnonzero(mask).astype(np.int32), moving_ids,
-                   np.empty((len(moving_ids), 3, 3), np.float32), GridBuilder())
+                   np.empty((len(moving_ids), 3, 3), np.float32), builder())
 
     def second(self, moving_grid):
         """``Renderer.render``'s ``second=`` for the static grid rendered with ``moving_grid``."""
@@ -103,7 +104,15 @@ class FramePipeline:
     whose ``static_mask`` marks some triangles as never moving is split (``split_static``): the
     static part gets its own grid, built once, the moving part is rebuilt every frame, and the ray
     caster traverses both; triangle ids in the output stay the scene's.
+
+    ``before_render``: None, or a callable run once, in the first frame that has its grids and
+    has yet to render (what the cold start's helper process sets, gridrt.coldstart); it gets the
+    set of the frame's grid kinds ("uniform", "two_level"), and returns True when it waited for
+    kernels compiled elsewhere (the frame's stats then say it compiled).  ``Builder``: the class of the grid
+    builders (GridBuilder; a subclass may name another).
     """
+
+    Builder = GridBuilder
 
     def __init__(self, scene, grid_params=None, render_params=None, camera=None, fov=DEFAULT_FOV, up=DEFAULT_UP,
                  split_static=True, follow_camera=False):
@@ -114,7 +123,8 @@ class FramePipeline:
         self.render_params = render_params or RenderParams()
         self.camera = camera
         self._camera0 = camera  # the camera asked for (None: frame the scene at the first frame)
-        self.builder = GridBuilder(self.grid_params)
+        self.builder = self.Builder(self.grid_params)
+        self.before_render = None
         self.renderer = Renderer()
         self.grid = None
         self._built_params = None
@@ -174,7 +184,7 @@ class FramePipeline:
         if mask.shape != (self.scene.n_triangles,) or mask.all() or not mask.any():
             return None
         if self._split is None:
-            self._split = SplitScene.of_mask(mask)
+            self._split = SplitScene.of_mask(mask, self.Builder)
         return self._split
 
     def _build(self, tris, gp):
@@ -313,6 +323,10 @@ class FramePipeline:
         if rp.light is not None and self.origin.any():
             rp = rp.replace(light=tuple(np.asarray(rp.light, np.float64) - self.origin))
         looks = self._looks(float(t), tris) if shading == "material" else None
+        waited = False  # for kernels compiled elsewhere (a frame whose time is not a rendering time)
+        if self.before_render is not None:
+            hook, self.before_render = self.before_render, None
+            waited = bool(hook({grid.kind} | ({self.static_grid.kind} if split is not None else set())))
         if split is not None:
             res = self.renderer.render(self.static_grid, split.static_tris, local_cam, rp, second=split.second(grid),
                                        looks=looks)
@@ -326,7 +340,7 @@ class FramePipeline:
             static=self.static_grid.stats if split is not None else None, render=res.stats,
             rebuilt=bool(rebuild), anim_ms=anim_ms, static_build_ms=static_ms,
             frame_ms=(time.perf_counter() - t_frame) * 1e3, width=rp.width, height=rp.height, shading=shading,
-            top_density=gp.top_density, leaf_density=gp.leaf_density, compiled=watch.check(),
+            top_density=gp.top_density, leaf_density=gp.leaf_density, compiled=watch.check() or waited,
         )
         self.frame_index += 1
         return Frame(res.image, res.t, res.tri, stats, grid, self.origin)
