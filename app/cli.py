@@ -45,6 +45,8 @@ OPTION_HELP = {
     "--packet-precision": "precision of the CGT packets' triangle tests: float64 (the DDA's hits bit for bit) or "
                           "float32 (twice the lanes; hits agree up to float32 rounding)",
     "--dt": "time step between frames, seconds",
+    "--no-helper": "compile in this process alone; without it, on an empty numba cache and two cores or more, a "
+                   "helper process compiles the first frame's ray casting while this one builds its grid",
 }
 
 

@@ -2,12 +2,14 @@
 moderngl; runs the same FramePipeline as the viewer."""
 
 import math
+import re
 import signal
 import sys
 from pathlib import Path
 
 from tqdm import tqdm
 
+from gridrt.coldstart import CompileHelper
 from gridrt.errors import GridrtError, InputError
 from gridrt.frame import ViewSpec
 from gridrt.pipeline import FramePipeline
@@ -49,6 +51,7 @@ def add_parser(sub):
                    help="also write frame_NNNNN_t.npy (float32 hit distance, inf: miss) and "
                         "frame_NNNNN_id.npy (int32 triangle id, -1: miss), shape (height, width)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--no-helper", dest="helper", action="store_false", help=cli.option_help("--no-helper"))
     g = add_cluster_args(p)
     g.add_argument("--chunk", type=int, default=None,
                    help="frames per task on a cluster (default: about four tasks per worker, at most 16 frames)")
@@ -73,13 +76,17 @@ def run(a):
     display = CompileDisplay(progress=not a.no_progress)
     try:
         with compile_progress(display):
-            return _dump(a, spec)
+            return _dump(a, spec, display)
     finally:
         display.close()
 
 
 #: printed (once, on stderr) when the first kernel of a dump starts compiling
 COMPILING = "Compiling numba kernels (about 10-60 s the first time; cached for later runs)..."
+
+
+#: a kernel line of the helper process: name, kernels done, expected
+HELPER_LINE = re.compile(r"compiling (\S+)(?: again \(other argument types\))? \((\d+)/(\d+) kernels done")
 
 
 def _say_compiling():
@@ -100,6 +107,7 @@ class CompileDisplay:
         self.tty = bool(getattr(self.file, "isatty", lambda: False)())
         self.noticed = False
         self.bar = None
+        self.helper_bar = None
         self.last = None
 
     def __call__(self, p, started):
@@ -120,7 +128,30 @@ class CompileDisplay:
             tqdm.write(f"gridrt: {p}", file=self.file)
             self.file.flush()
 
+    def helper(self, line):
+        """Show a line of the cold start's helper process (gridrt.coldstart): the kernel it is
+        compiling and its count, or its last line."""
+        if not self.noticed:
+            self.noticed = True
+            _say_compiling()
+        if not self.progress:
+            return
+        m = HELPER_LINE.match(line)
+        if self.tty and m:
+            if self.helper_bar is None:
+                self.helper_bar = tqdm(desc="helper process compiling", unit="kernel", file=self.file, mininterval=0)
+            self.helper_bar.total = int(m.group(3))
+            self.helper_bar.n = int(m.group(2))
+            self.helper_bar.set_postfix_str(m.group(1), refresh=False)
+            self.helper_bar.refresh()
+        elif not self.tty or line.startswith("compiled "):
+            tqdm.write(f"gridrt: helper process: {line}", file=self.file)
+            self.file.flush()
+
     def close(self):
+        if self.helper_bar is not None:
+            self.helper_bar.close()
+            self.helper_bar = None
         if self.bar is not None:
             self.bar.set_postfix_str("", refresh=False)
             self.bar.close()
@@ -131,12 +162,13 @@ class CompileDisplay:
             self.file.flush()
 
 
-def _dump(a, spec):
-    """The dump of ``spec`` (FrameSpec) with the options ``a`` (frames, output, progress)."""
+def _dump(a, spec, display):
+    """The dump of ``spec`` (FrameSpec) with the options ``a`` (frames, output, progress), its cold
+    start shown by ``display`` (CompileDisplay)."""
     out = Path(a.out)
     writer = FrameWriter(out, spec, run_settings(a), a.frames, mode=replace_mode(a))
     rows = []
-    bar = error = None
+    bar = error = helper = None
 
     def stop_now(signum):  # nothing of a frame is being written: end without waiting for it
         writer.exit_now(signum, lead="\n" if bar is not None and not bar.disable else "")
@@ -147,7 +179,12 @@ def _dump(a, spec):
                 start = writer.check()
             if start >= a.frames:
                 return nothing_to_do(writer, start)
+            # on a cold cache, a helper process compiles the first frame's ray casting while this
+            # one loads the scene and compiles its grid build (gridrt.coldstart)
+            helper = CompileHelper.start(spec, spec.view.time(start)) if getattr(a, "helper", True) else None
             pipe = FramePipeline.from_spec(spec)
+            if helper is not None:
+                pipe.before_render = lambda kinds: helper.wait(kinds, display.helper)
             if start:
                 pipe.resume(start, spec.view.t0, writer.origin)
             with stop.deferred():
@@ -172,6 +209,8 @@ def _dump(a, spec):
         except KeyboardInterrupt:  # (one raised before the handlers were in place)
             stop.signum = stop.signum or signal.SIGINT
         finally:
+            if helper is not None:
+                helper.stop()
             with stop.deferred():  # (temporary files go whatever comes now)
                 if bar is not None:
                     bar.close()

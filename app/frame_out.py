@@ -56,7 +56,7 @@ FRAME_FILE = re.compile(r"frame_(\d{5,})(\.png|_t\.npy|_id\.npy)\Z")
 #: the temporary files of a dump (a run killed outright leaves them; the next run removes them)
 TEMP_FILE = re.compile(r"\.(frame_\d{5,}(\.png|_t\.npy|_id\.npy)|stats\.csv|run\.json|write-test)\.part\Z")
 #: options that do not change what the frames hold: they may differ when a dump is resumed
-FREE_OPTIONS = {"func", "command", "out", "no_progress", "overwrite", "resume", "frames", "threads", "workers",
+FREE_OPTIONS = {"func", "command", "out", "no_progress", "helper", "overwrite", "resume", "frames", "threads", "workers",
                 "scheduler", "chunk", "listen"}
 #: fields of the run's FrameSpec that may differ when a dump is resumed (--threads is free), and
 #: those not compared on their own (the render's width and height: the view's size says them)

@@ -109,11 +109,41 @@ def index_files(folder):
     return out
 
 
+HELPER = re.compile(r"gridrt: helper process: compiling (\S+)( again \(other argument types\))? "
+                    r"\((\d+)/(\d+) kernels done, ([\d.]+) s\)$")
+HELPER_LAST = re.compile(r"gridrt: helper process: compiled (\d+)/(\d+) kernels in ([\d.]+) s$")
+
+
+def _check_counts(shown, last, what):
+    """The lines of one compiling process (this one's, or its helper's) count as they should."""
+    done = [int(d) for _, _, d, _, _ in shown]
+    expected = [int(e) for _, _, _, e, _ in shown]
+    seconds = [float(s) for *_, s in shown]
+    # the expected count grows with each call tree and drops the kernels of a finished tree that numba
+    # pruned for its argument types (the shadow path, the bounding-box build's overlap test): never
+    # below the kernels done
+    assert done == sorted(done) and seconds == sorted(seconds) and all(d <= e for d, e in zip(done, expected)), what
+    assert all(d < e for (_, a, *_), d, e in zip(shown, done, expected) if not a), \
+        f"{what}: a kernel started for the first time with every expected kernel done"
+    named = {name for name, *_ in shown}
+    again = [name for name, a, *_ in shown if a]
+    assert all(name in named for name in again)
+    assert len(shown) == len(named) + len(again), f"{what}: a kernel named again without 'again'"
+    assert int(last[0]) == int(last[1]) == len(named), (what, last)
+    return named
+
+
+def _module_and_function(name):
+    return name.rpartition(".")[0].rpartition(".")[2], name.rpartition(".")[2]
+
+
 @pytest.mark.slow
 def test_cold_dump_shows_what_compiles_and_warm_dump_compiles_nothing(tmp_path):
     """A first frame of the default scene on an empty numba cache names every kernel it compiles
     (the cache folder's index files, one per compiled kernel, are the reference) and counts them
-    up to the total; the same dump again loads everything from the cache and says nothing."""
+    up to the total; on two cores or more its helper process compiles the ray casting (its lines
+    name those kernels, and this process compiles none of them) while this one compiles the scene
+    and the grid build; the same dump again loads everything from the cache and says nothing."""
     cache = tmp_path / "cache"
     env = {"NUMBA_CACHE_DIR": str(cache)}
     args = ["dump", "--frames", "1", "--size", "16x12", "--out", str(tmp_path / "d")]
@@ -123,32 +153,32 @@ def test_cold_dump_shows_what_compiles_and_warm_dump_compiles_nothing(tmp_path):
     lines = [s.strip() for s in re.split(r"[\r\n]", r.stderr)]
     shown = [m.groups() for m in map(LINE.search, lines) if m]
     last = [m.groups() for m in map(LAST.search, lines) if m]
+    by_helper = [m.groups() for m in map(HELPER.search, lines) if m]
+    helper_last = [m.groups() for m in map(HELPER_LAST.search, lines) if m]
     assert shown and len(last) == 1, r.stderr
-    named = {name for name, *_ in shown}
-    for name in named:  # each name is a real kernel of the package
+    named = _check_counts(shown, last[0], "this process")
+    helped = set()
+    if len(os.sched_getaffinity(0)) >= 2:
+        assert by_helper and len(helper_last) == 1, r.stderr
+        helped = _check_counts(by_helper, helper_last[0], "the helper process")
+        assert "gridrt.trace.cgt.frame._render_tiles" in helped and not any(".trace." in n for n in named), \
+            (sorted(named), sorted(helped))
+        assert any(".grid." in n for n in named) and not any(".grid." in n for n in helped)
+    else:
+        assert not by_helper and not helper_last, r.stderr
+    for name in named | helped:  # each name is a real kernel of the package
         module, _, func = name.rpartition(".")
         assert module.startswith("gridrt.") and hasattr(getattr(importlib.import_module(module), func), "py_func")
     compiled = index_files(cache)
-    assert {(n.rpartition(".")[0].rpartition(".")[2], n.rpartition(".")[2]) for n in named} == set(compiled)
+    # every kernel cached was named by the process that compiled it (both compile the scene's)
+    assert {_module_and_function(n) for n in named | helped} == set(compiled)
     # a render without shadows compiles no shadow path (the CGT kernel gets light=None, numba prunes it)
-    assert not any(n.endswith(".shadow_ray") for n in named), sorted(named)
-    done = [int(d) for _, _, d, _, _ in shown]
-    expected = [int(e) for _, _, _, e, _ in shown]
-    seconds = [float(s) for *_, s in shown]
-    # the expected count grows with each call tree and drops the kernels of a finished tree that numba
-    # pruned for its argument types (the shadow path, the bounding-box build's overlap test): never
-    # below the kernels done
-    assert done == sorted(done) and seconds == sorted(seconds) and all(d <= e for d, e in zip(done, expected))
-    assert all(d < e for (_, a, *_), d, e in zip(shown, done, expected) if not a), \
-        "a kernel started for the first time with every expected kernel done"
-    assert int(last[0][0]) == int(last[0][1]) == len(compiled), last
-    again = [name for name, a, *_ in shown if a]
-    assert all(name in named for name in again)
-    assert len(shown) == len(named) + len(again), "a kernel named again without 'again'"
+    assert not any(n.endswith(".shadow_ray") for n in named | helped), sorted(named | helped)
 
     r = gridrt(*args, "--overwrite", env=env)  # the same folder: replace the first dump's frame
     assert r.returncode == 0, r.stderr
     assert "Compiling numba kernels" not in r.stderr and "gridrt: compil" not in r.stderr, r.stderr
+    assert "helper process" not in r.stderr, r.stderr
     assert index_files(cache) == compiled, "the warm run compiled something"
 
 
@@ -199,3 +229,18 @@ def test_default_dump_imports_no_heavy_module(tmp_path):
     r = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr
     assert "LOADED [] 0" in r.stdout, r.stdout
+
+
+@pytest.mark.slow
+def test_no_helper_compiles_every_kernel_here(tmp_path):
+    """``--no-helper``: the same cold first frame compiles every kernel in the dump's own process,
+    the ray casting included, and starts no helper."""
+    cache = tmp_path / "cache"
+    r = gridrt("dump", "--frames", "1", "--size", "16x12", "--no-helper", "--out", str(tmp_path / "d"),
+               env={"NUMBA_CACHE_DIR": str(cache)})
+    assert r.returncode == 0, r.stderr
+    lines = [s.strip() for s in re.split(r"[\r\n]", r.stderr)]
+    named = {m.group(1) for m in map(LINE.search, lines) if m}
+    assert "gridrt.trace.cgt.frame._render_tiles" in named and any(".grid." in n for n in named), sorted(named)
+    assert "helper process" not in r.stderr, r.stderr
+    assert {_module_and_function(n) for n in named} == set(index_files(cache))

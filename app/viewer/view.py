@@ -103,6 +103,7 @@ def add_parser(sub):
                    help="render WARMUP + FRAMES frames at the dump's times (--t0 + i --dt), each shown, print the "
                         "medians of the last FRAMES (frames that compiled kernels left out) and exit (default: none, "
                         "the viewer runs until Esc)")
+    g.add_argument("--no-helper", dest="helper", action="store_false", help=cli.option_help("--no-helper"))
     g.add_argument("--stats-csv", type=Path, default=None,
                    help="with --benchmark: write every frame's stats row there, the columns of the dump's stats.csv "
                         "(default: none)")
@@ -280,7 +281,7 @@ class Viewer:
         worker = self.worker = RenderWorker(self._make_pipeline)
         st.framebuffer_size = st.window_size
         self._start_load(st.scene, keep_camera=True, scene_camera=start_on_scene_camera(self.args),
-                         warm=not st.cold_cache)
+                         warm=not st.cold_cache, helper=st.cold_cache and getattr(self.args, "helper", True))
         # (imgui first: it points pyglfw at its libglfw)
         from imgui_bundle import imgui  # noqa: F401  # deferred: imgui_bundle loads only when a window opens
         import glfw  # deferred: glfw loads only when a window opens
@@ -365,12 +366,13 @@ class Viewer:
     def _make_pipeline(scene, job):
         return FramePipeline.from_spec(job.spec, scene=scene)
 
-    def _start_load(self, scene, keep_camera=False, scene_camera=None, warm=False):
+    def _start_load(self, scene, keep_camera=False, scene_camera=None, warm=False, helper=False):
         """Load the SceneSpec ``scene`` on the worker, with the state's spec at the render size;
         ``scene_camera``: look through the scene's own camera once loaded, when it has one (None:
         the state's prefer_scene_camera).  Without ``keep_camera`` the scene is framed with the
         command line's fov and up (not with those of a camera looked through before).  ``warm``:
-        load the first frame's kernels with the scene (LoadJob.warm)."""
+        load the first frame's kernels with the scene (LoadJob.warm); ``helper``: a cold cache, a
+        helper process compiles the first frame's ray casting (LoadJob.helper)."""
         st = self.state
         self.generation += 1
         spec = st.spec.resized(*st.render_size_for(*self._image_viewport()[2:])).replace(scene=scene)
@@ -379,7 +381,7 @@ class Viewer:
             spec = spec.replace(view=spec.view.replace(eye=None, target=None, fov=start.fov, up=start.up))
         self.worker.submit(LoadJob(spec, keep_camera=keep_camera,
                                    scene_camera=st.prefer_scene_camera if scene_camera is None else scene_camera,
-                                   label=f"loading {scene.label()}", warm=warm))
+                                   label=f"loading {scene.label()}", warm=warm, helper=helper))
         self.last_key = None
         self._progress_printed = (0.0, 0)
 

@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from gridrt.coldstart import CompileHelper
 from gridrt.errors import GridrtError
 from gridrt.frame import FrameSpec
 from gridrt.scene.surface import texture_progress
@@ -37,6 +38,7 @@ class LoadJob:
     scene_camera: bool = True  # look through the scene's own camera once loaded, when it has one
     label: str = "loading scene"
     warm: bool = False      # also render a throwaway frame of the spec at WARM_SIZE (see RenderWorker._load)
+    helper: bool = False    # a cold cache: a helper process compiles the first frame's ray casting (gridrt.coldstart)
 
 
 #: the size of a LoadJob's throwaway frame (width, height)
@@ -119,6 +121,7 @@ class RenderWorker:
         self._started_at = 0.0
         self._progress = None             # TextureProgress of the load in progress
         self._stop = False
+        self._helper = None               # the CompileHelper of the last load, while it may run
         self.pipeline = None
         self._thread = threading.Thread(target=self._run, name="gridrt-render", daemon=True)
         self._thread.start()
@@ -212,10 +215,22 @@ class RenderWorker:
             if notify is not None:
                 notify()                 # wake the window to show it
 
+        if self._helper is not None:  # (a load before the last one's first frame)
+            self._helper.stop()
+            self._helper = None
+        if job.helper:
+            # it compiles the ray casting of the first frame (through the scene's own camera where
+            # that frame will look through it) while this thread loads the scene and builds the grid
+            spec = job.spec
+            if job.scene_camera:
+                spec = spec.replace(view=spec.view.replace(follow_camera=True))
+            self._helper = CompileHelper.start(spec, spec.view.time(0))
         with texture_progress(on_texture):
             scene = s.make()
         has_camera = scene.camera_at(0.0) is not None
         self.pipeline = self._factory(scene, job)
+        if self._helper is not None:
+            self.pipeline.before_render = self._helper.wait
         if job.warm:
             # a frame of the spec's settings at a tiny size, at its first frame's time, on a pipeline of
             # its own: the kernels the first frame runs load from numba's cache now (the viewer
