@@ -5,7 +5,10 @@ run: every kernel compiles) and on a warm one (every kernel loads from the cache
 Each run is a fresh process (``python -m gridrt dump ...``); its wall time is measured around it
 and its CPU time (user + system) from the children's resource usage, since on a shared machine the
 wall time also counts the other processes' share of the cores (the load average is recorded at
-every run).  Cold runs count the kernels compiled from the dump's progress lines.  With
+every run).  Cold runs count the kernels compiled from the dump's progress lines (its own and
+its helper process's, gridrt.coldstart: the CPU time counts both processes); each cold run is
+paired with one of ``--no-helper`` ("cold, no helper": every kernel compiles in the dump's own
+process), run next to it on its own fresh cache.  With
 PYTHONDONTWRITEBYTECODE set (Python writes no ``.pyc`` files, so a source without one compiles at
 every start, unlike an installed copy), the warm runs are also measured with it unset.
 """
@@ -30,6 +33,7 @@ from .output import md_table, out_dir, progress, write_csv, write_json, write_su
 COLD_AIM_S = 10.0
 WARM_AIM_S = 0.8
 _COMPILED = re.compile(r"gridrt: compiled (\d+)/(\d+) kernels in ([\d.]+) s")
+_HELPER_COMPILED = re.compile(r"gridrt: helper process: compiled (\d+)/(\d+) kernels in ([\d.]+) s")
 
 
 def add_parser(bsub, common):
@@ -69,8 +73,8 @@ def dump_once(cache_dir, out, extra=(), env=None):
     if r.returncode != 0:
         last = (r.stderr.strip().splitlines() or ["(no output)"])[-1]
         raise InputError(f"the dump failed (exit {r.returncode}): {last}")
-    m = _COMPILED.findall(r.stderr)
-    return dict(wall_s=wall, cpu_s=cpu, load=load, kernels=int(m[-1][0]) if m else 0)
+    m, h = _COMPILED.findall(r.stderr), _HELPER_COMPILED.findall(r.stderr)
+    return dict(wall_s=wall, cpu_s=cpu, load=load, kernels=(int(m[-1][0]) if m else 0) + (int(h[-1][0]) if h else 0))
 
 
 def run_start(a):
@@ -83,8 +87,8 @@ def run_start(a):
         extra = shlex.split(a.dump_args)
     except ValueError as e:
         raise InputError(f"--dump-args: {e}") from None
-    if any(x in ("--frames", "--out", "--no-progress", "--overwrite", "--resume") for x in extra):
-        raise InputError("--dump-args sets --frames, --out, --overwrite and the progress display itself")
+    if any(x in ("--frames", "--out", "--no-progress", "--overwrite", "--resume", "--no-helper") for x in extra):
+        raise InputError("--dump-args sets --frames, --out, --overwrite, --no-helper and the progress display itself")
     if a.quick:
         cold_runs, runs, warmup, extra = min(cold_runs, 1), 1, 1, ["--size", "16x12", *extra]
     else:
@@ -94,13 +98,16 @@ def run_start(a):
     pyc_off = bool(os.environ.get("PYTHONDONTWRITEBYTECODE"))
     kinds = [("warm", None)] + ([("warm, .pyc files", {k: v for k, v in os.environ.items()
                                                         if k != "PYTHONDONTWRITEBYTECODE"})] if pyc_off else [])
-    bar = progress(cold_runs + len(kinds) * (warmup + runs) + (cold_runs == 0), "bench start", a.no_progress)
+    bar = progress(2 * cold_runs + len(kinds) * (warmup + runs) + (cold_runs == 0), "bench start", a.no_progress)
     rows = []
     with tempfile.TemporaryDirectory(prefix="gridrt_start_") as tmp:
         tmp = Path(tmp)
-        for i in range(cold_runs):
+        for i in range(cold_runs):  # (in pairs: the machine's speed drifts)
             cache = tmp / f"cold{i}"  # fresh: nothing cached
             rows.append(dict(kind="cold", run=i, **dump_once(cache, tmp / "frames", extra)))
+            bar.update()
+            one = dump_once(tmp / f"one{i}", tmp / "frames", [*extra, "--no-helper"])
+            rows.append(dict(kind="cold, no helper", run=i, **one))
             bar.update()
         warm_cache = tmp / "cold0"
         if cold_runs == 0:  # fill a cache for the warm runs
@@ -121,15 +128,17 @@ def run_start(a):
         rs = [r for r in rows if r["kind"] == kind]
         wall = statistics.median(r["wall_s"] for r in rs)
         cpu = statistics.median(r["cpu_s"] for r in rs)
-        aim = COLD_AIM_S if kind == "cold" else WARM_AIM_S
+        aim = COLD_AIM_S if kind.startswith("cold") else WARM_AIM_S
         table.append([kind, len(rs), f"{wall:.2f}", f"{min(r['wall_s'] for r in rs):.2f}-{max(r['wall_s'] for r in rs):.2f}",
                       f"{cpu:.2f}", f"{statistics.median(r['load'] for r in rs):.2f}",
-                      str(rs[0]["kernels"]) if kind == "cold" else "0", f"{aim:g}"])
+                      str(rs[0]["kernels"]) if kind.startswith("cold") else "0", f"{aim:g}"])
         lines.append(f"{kind}: median {wall:.2f} s wall, {cpu:.2f} s CPU ({len(rs)} runs; aim {aim:g} s wall)")
     dump = " ".join(["gridrt dump --frames 1", *map(shlex.quote, extra)])
     body = [f"`{dump}` from the command to its first frame written, each run a fresh process.  Cold: a fresh "
-            f"NUMBA_CACHE_DIR per run (every kernel compiles); warm: {warmup} untimed run(s), then the cache "
-            "as the runs left it.  Wall time is what a user waits; CPU time is the process's own (user + "
+            f"NUMBA_CACHE_DIR per run (every kernel compiles: in the dump and its helper process, which compiles "
+            "the ray casting while the dump compiles the grid build; 'cold, no helper': --no-helper, all in the "
+            f"dump, each run next to a cold one); warm: {warmup} untimed run(s), then the cache "
+            "as the runs left it.  Wall time is what a user waits; CPU time is the processes' own (user + "
             "system), the figure that does not depend on other processes sharing the cores (load: the 1-minute "
             "load average before each run)."
             + ("  PYTHONDONTWRITEBYTECODE is set here: Python writes no .pyc files, so a source without one "
