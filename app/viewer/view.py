@@ -56,6 +56,8 @@ UI_FPS_CAP = 60.0
 IDLE_AFTER_S = 0.5
 #: longest sleep of an idle loop (seconds): the state file and fps readouts still refresh
 IDLE_WAIT_S = 0.25
+#: longest sleep of the loop while the worker is busy and nobody gives input (seconds)
+BUSY_WAIT_S = 0.1
 #: a frame job shows the progress overlay once it has run this long (seconds)
 SLOW_FRAME_S = 1.5
 #: a scene load shows the overlay once it has run this long (seconds)
@@ -410,8 +412,13 @@ class Viewer:
         last = time.perf_counter()
         io = imgui.get_io()
         while not glfw.window_should_close(self.win) and not st.quit:
-            if st.busy or io.want_text_input or last - self.input.last_event < IDLE_AFTER_S:
+            if io.want_text_input or last - self.input.last_event < IDLE_AFTER_S:
                 glfw.poll_events()
+            elif st.busy:
+                # the worker is loading, compiling or rendering: redraw a few times a second (the
+                # progress display), not at the UI cap; a result or input wakes the loop at once, and
+                # the cores stay with the work (on Xvfb every redraw is software OpenGL)
+                glfw.wait_events_timeout(BUSY_WAIT_S)
             else:
                 glfw.wait_events_timeout(IDLE_WAIT_S)   # woken by input or by a worker result
             now = time.perf_counter()
