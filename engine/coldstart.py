@@ -30,6 +30,7 @@ are not shown (the first frame here meets the same problem and says so itself).
 
 import json
 import os
+import select
 import subprocess
 import sys
 import threading
@@ -41,6 +42,9 @@ from .warmup import cache_is_cold, compile_progress
 
 #: the helper's frame size (width, height): a frame this small runs every kernel of a large one
 HELPER_SIZE = (8, 6)
+#: seconds :meth:`CompileHelper.wait` waits for the helper's next line (a kernel compiles in
+#: seconds) before it takes the helper for stuck, stops it and lets the frame compile here
+LINE_TIMEOUT_S = 300.0
 
 
 def _cores():
@@ -73,35 +77,52 @@ class CompileHelper:
             return None
         try:
             proc = subprocess.Popen([sys.executable, "-m", "gridrt.coldstart"], stdin=subprocess.PIPE,
-                                    stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, bufsize=1)
+                                    stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
         except OSError:
             return None
         try:
-            proc.stdin.write(json.dumps({"spec": spec.to_wire(), "t": float(t)}) + "\n")
+            proc.stdin.write((json.dumps({"spec": spec.to_wire(), "t": float(t)}) + "\n").encode())
             proc.stdin.flush()
         except OSError:  # (it ended already)
             cls(proc, None).stop()
             return None
         return cls(proc, _kind(spec))
 
-    def wait(self, kinds=None, report=None):
+    def wait(self, kinds=None, report=None, line_timeout=LINE_TIMEOUT_S):
         """Block until the helper has ended, calling ``report(line)`` with each line it writes;
         True when it ended having done its work.  ``kinds``: the grid kinds of the frame about to
         render (a set; None: any): when the helper compiles for others, it is stopped instead
-        (False)."""
+        (False); so is a helper silent for ``line_timeout`` seconds."""
         if self.ended:
             return False
         if kinds is not None and set(kinds) != {self.kind}:
             self.stop()
             return False
         try:
-            for line in self.proc.stdout:
+            for line in self._lines(line_timeout):
                 if report is not None:
-                    report(line.rstrip("\n"))
+                    report(line)
             ok = self.proc.wait() == 0
+        except TimeoutError:
+            ok = False
         finally:
             self.stop()
         return ok
+
+    def _lines(self, timeout):
+        """The helper's lines as it writes them, until it closes its output; TimeoutError when
+        none comes within ``timeout`` seconds."""
+        fd = self.proc.stdout.fileno()
+        rest = b""
+        while True:
+            if not select.select([fd], [], [], timeout)[0]:
+                raise TimeoutError
+            chunk = os.read(fd, 65536)
+            if not chunk:
+                return
+            *lines, rest = (rest + chunk).split(b"\n")
+            for line in lines:
+                yield line.decode("utf-8", "replace")
 
     def stop(self):
         """End the helper now (when still running) and release its pipes."""

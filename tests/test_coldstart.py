@@ -229,3 +229,28 @@ def test_helper_compiles_what_the_first_frame_then_loads(tmp_path):
     fresh, reference = _probe(spec, tmp_path / "fresh", tmp_path / "b.npy")
     assert any(".trace." in n for n in fresh)
     np.testing.assert_array_equal(image, reference)
+
+
+def test_a_silent_helper_is_stopped():
+    """A helper that writes nothing for ``line_timeout`` seconds is taken for stuck: ``wait``
+    stops it and answers False (the frame then compiles its kernels itself)."""
+    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(600)"], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+    helper = CompileHelper(proc, "uniform")
+    assert helper.wait({"uniform"}, line_timeout=0.5) is False
+    assert proc.returncode is not None and proc.returncode != 0
+
+
+def test_wait_hands_over_each_line():
+    """The helper's lines reach ``report`` whole, however its output is cut into reads."""
+    script = (
+        "import sys, time\n"
+        "sys.stdout.write('compiling a (0/2 kernels'); sys.stdout.flush(); time.sleep(0.2)\n"
+        "sys.stdout.write(' done, 0.0 s)' + chr(10) + 'compiled 2/2 kernels in 0.1 s' + chr(10))\n"
+        "sys.stdout.flush()\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", script], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            stderr=subprocess.DEVNULL)
+    lines = []
+    assert CompileHelper(proc, "uniform").wait({"uniform"}, lines.append) is True
+    assert lines == ["compiling a (0/2 kernels done, 0.0 s)", "compiled 2/2 kernels in 0.1 s"]
