@@ -8,7 +8,9 @@ kernel's own compile time (numba's ``numba:compile`` events, less the compiles o
 calls, which numba runs within it), the sum per part of the engine, and the run's wall time.  The
 numba cache is a fresh temporary folder (NUMBA_CACHE_DIR, set before numba loads), so every kernel
 the run needs compiles; nothing is written to the project's own cache, and the temporary folders
-(the cache, and the dump's when no ``--out`` is given) are removed at the end.
+(the cache, and the dump's when no ``--out`` is given) are removed at the end.  The dump runs with
+``--no-helper``: every kernel compiles in this process, one after the other (a dump's cold start
+otherwise compiles its ray casting in a helper process, gridrt.coldstart).
 """
 
 import os
@@ -38,6 +40,8 @@ def _run(argv, tmp):
     os.environ["NUMBA_CACHE_DIR"] = os.path.join(tmp, "numba")
     if "--out" not in argv and not any(a.startswith("--out=") for a in argv):
         argv = [*argv, "--out", os.path.join(tmp, "dump")]
+    if "--no-helper" not in argv:
+        argv = [*argv, "--no-helper"]
     t0 = time.perf_counter()
     import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
     from gridrt.app.__main__ import main as dump
