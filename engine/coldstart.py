@@ -25,7 +25,10 @@ input, and ends at once when that closes (its parent gone, or :meth:`CompileHelp
 writes nothing but one line per kernel it starts compiling (``compiling NAME (3/20 kernels
 done, 1.2 s)``) and a last line, on its standard output, which :meth:`CompileHelper.wait` hands
 to its ``report``.  It reads only the scene the spec names, as this process does; its errors
-are not shown (the first frame here meets the same problem and says so itself).
+are not shown (the first frame here meets the same problem and says so itself).  It maps at
+most :data:`MEMORY_SHARE` of the memory left when it starts (``RLIMIT_AS``, which gridrt's own
+memory checks count): a scene too big to be loaded twice fails in the helper, and the first
+frame compiles here.
 """
 
 import json
@@ -37,11 +40,15 @@ import threading
 
 from .frame import FrameSpec
 from .grid.one_cell import OneCellBuilder
+from .memory import cap_address_space
 from .pipeline import FramePipeline
 from .warmup import cache_is_cold, compile_progress
 
 #: the helper's frame size (width, height): a frame this small runs every kernel of a large one
 HELPER_SIZE = (8, 6)
+#: the share of the memory left that the helper may map (the rest is its parent's, which loads
+#: the same scene and builds the grid beside it)
+MEMORY_SHARE = 1 / 3
 #: seconds :meth:`CompileHelper.wait` waits for the helper's next line (a kernel compiles in
 #: seconds) before it takes the helper for stuck, stops it and lets the frame compile here
 LINE_TIMEOUT_S = 300.0
@@ -176,6 +183,7 @@ def main():
         os._exit(code)
     threading.Thread(target=_exit_when_closed, name="gridrt-helper-stdin", daemon=True).start()
     try:
+        cap_address_space(MEMORY_SHARE)  # (a scene too big for two copies fails here, not in the parent)
         with compile_progress(lambda p, started: _say(str(p)) if started else None) as progress:
             _warm(spec, t)
         _say(f"compiled {progress.done}/{progress.expected} kernels in {progress.seconds:.1f} s")

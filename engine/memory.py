@@ -114,6 +114,25 @@ def available():
     return b, source
 
 
+def cap_address_space(share):
+    """Limit this process's address space (``RLIMIT_AS``, soft) to what it maps now (``VmSize``)
+    plus ``share`` times :func:`available`, never above the limits already set; returns the cap in
+    bytes, or None where the limits cannot be read.  Used by a process that runs beside another
+    doing the same work (gridrt.coldstart's helper): what would not fit twice fails there
+    (InputError from :func:`check_fits`, or MemoryError), not in the other process."""
+    avail, _ = available()
+    used = _kib_field(_read("/proc/self/status"), "VmSize")
+    if avail is None or used is None:
+        return None
+    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    cap = used + int(share * avail)
+    for limit in (soft, hard):
+        if limit != resource.RLIM_INFINITY and limit >= 0:
+            cap = min(cap, limit)
+    resource.setrlimit(resource.RLIMIT_AS, (cap, hard))
+    return cap
+
+
 def human(n):
     """Bytes as text in decimal units: ``2.6 GB``, ``310 MB``, ``12 kB``, ``512 bytes``."""
     n = float(n)

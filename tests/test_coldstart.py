@@ -254,3 +254,51 @@ def test_wait_hands_over_each_line():
     lines = []
     assert CompileHelper(proc, "uniform").wait({"uniform"}, lines.append) is True
     assert lines == ["compiling a (0/2 kernels done, 0.0 s)", "compiled 2/2 kernels in 0.1 s"]
+
+
+CAP = """
+import json, resource, sys
+from gridrt.memory import available, cap_address_space
+preset = int(sys.argv[1])
+if preset:
+    resource.setrlimit(resource.RLIMIT_AS, (preset, resource.getrlimit(resource.RLIMIT_AS)[1]))
+vm = int(open('/proc/self/status').read().split('VmSize:')[1].split()[0]) * 1024
+avail = available()[0]
+cap = cap_address_space(0.25)
+print(json.dumps([vm, avail, cap, resource.getrlimit(resource.RLIMIT_AS)[0]]))
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="no /proc to read the address space from")
+def test_cap_address_space_keeps_a_share_of_the_memory_left():
+    """The helper's cap: what the process maps plus the share of the memory left, never above a
+    limit already set (run in processes of their own: the limit stays with a process)."""
+    for preset in (0, 1 << 40, 900 << 20):
+        r = subprocess.run([sys.executable, "-c", CAP, str(preset)], cwd=REPO, capture_output=True, text=True,
+                           timeout=120)
+        assert r.returncode == 0, r.stderr
+        vm, avail, cap, soft = json.loads(r.stdout)
+        assert soft == cap
+        expected = vm + avail // 4
+        if preset:
+            expected = min(expected, preset)
+        assert abs(cap - expected) <= 64 << 20, (preset, vm, avail, cap)  # (VmSize read twice, a page apart)
+
+
+def test_a_helper_without_the_memory_for_its_scene_fails_quietly():
+    """A scene that does not fit in the helper's share of the memory: the helper ends with 1,
+    having written no traceback and finished no compile (its parent then compiles alone)."""
+    import resource
+
+    def tight():  # what the interpreter and its imports map, and little more
+        resource.setrlimit(resource.RLIMIT_AS, (1 << 30, resource.getrlimit(resource.RLIMIT_AS)[1]))
+
+    spec = FrameSpec().replace(scene=FrameSpec().scene.replace(source="marbles", count=40_000_000)).resized(8, 6)
+    p = subprocess.Popen([sys.executable, "-m", "gridrt.coldstart"], cwd=REPO, stdin=subprocess.PIPE,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=tight)
+    p.stdin.write((json.dumps({"spec": spec.to_wire(), "t": 0.0}) + "\n").encode())
+    p.stdin.flush()
+    out, err = p.stdout.read(), p.stderr.read()
+    p.stdin.close()
+    assert p.wait(timeout=600) == 1, (out, err)
+    assert err == b"" and b"compiled " not in out, (out, err)
