@@ -2,7 +2,6 @@
 moderngl; runs the same FramePipeline as the viewer."""
 
 import math
-import re
 import signal
 import sys
 from pathlib import Path
@@ -13,7 +12,7 @@ from gridrt.coldstart import CompileHelper
 from gridrt.errors import GridrtError, InputError
 from gridrt.frame import ViewSpec
 from gridrt.pipeline import FramePipeline
-from gridrt.warmup import compile_progress
+from gridrt.warmup import PROGRESS_LINE, compile_progress
 
 from . import cli
 from .cluster.dump import dump_on_cluster
@@ -85,10 +84,6 @@ def run(a):
 COMPILING = "Compiling numba kernels (about 10-60 s the first time; cached for later runs)..."
 
 
-#: a kernel line of the helper process: name, kernels done, expected
-HELPER_LINE = re.compile(r"compiling (\S+)(?: again \(other argument types\))? \((\d+)/(\d+) kernels done")
-
-
 def _say_compiling():
     tqdm.write(COMPILING, file=sys.stderr)  # above the progress bar, if one is showing
     sys.stderr.flush()
@@ -136,7 +131,7 @@ class CompileDisplay:
             _say_compiling()
         if not self.progress:
             return
-        m = HELPER_LINE.match(line)
+        m = PROGRESS_LINE.match(line)
         if self.tty and m:
             if self.helper_bar is None:
                 self.helper_bar = tqdm(desc="helper process compiling", unit="kernel", file=self.file, mininterval=0)
@@ -181,7 +176,7 @@ def _dump(a, spec, display):
                 return nothing_to_do(writer, start)
             # on a cold cache, a helper process compiles the first frame's ray casting while this
             # one loads the scene and compiles its grid build (gridrt.coldstart)
-            helper = CompileHelper.start(spec, spec.view.time(start)) if getattr(a, "helper", True) else None
+            helper = CompileHelper.start(spec, spec.view.time(start)) if a.helper else None
             pipe = FramePipeline.from_spec(spec)
             if helper is not None:
                 pipe.before_render = lambda kinds: helper.wait(kinds, display.helper)

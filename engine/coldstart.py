@@ -54,6 +54,12 @@ MEMORY_SHARE = 1 / 3
 LINE_TIMEOUT_S = 300.0
 
 
+def request(spec, t):
+    """The helper's request for the frame of ``spec`` (FrameSpec) at time ``t``: one line of JSON,
+    as bytes."""
+    return (json.dumps({"spec": spec.to_wire(), "t": float(t)}) + "\n").encode()
+
+
 def _cores():
     try:
         return len(os.sched_getaffinity(0))
@@ -73,7 +79,6 @@ class CompileHelper:
     def __init__(self, proc, kind):
         self.proc = proc
         self.kind = kind
-        self.ended = False
 
     @classmethod
     def start(cls, spec, t, cores=None):
@@ -88,7 +93,7 @@ class CompileHelper:
         except OSError:
             return None
         try:
-            proc.stdin.write((json.dumps({"spec": spec.to_wire(), "t": float(t)}) + "\n").encode())
+            proc.stdin.write(request(spec, t))
             proc.stdin.flush()
         except OSError:  # (it ended already)
             cls(proc, None).stop()
@@ -100,7 +105,7 @@ class CompileHelper:
         True when it ended having done its work.  ``kinds``: the grid kinds of the frame about to
         render (a set; None: any): when the helper compiles for others, it is stopped instead
         (False); so is a helper silent for ``line_timeout`` seconds."""
-        if self.ended:
+        if self.proc.stdout.closed:  # (stopped already)
             return False
         if kinds is not None and set(kinds) != {self.kind}:
             self.stop()
@@ -133,7 +138,6 @@ class CompileHelper:
 
     def stop(self):
         """End the helper now (when still running) and release its pipes."""
-        self.ended = True
         for f in (self.proc.stdin, self.proc.stdout):
             try:
                 if f is not None:

@@ -18,6 +18,7 @@ them from the on-disk cache.
   (:func:`kernels_reached`), less the ones whose cache entry numba will load instead.
 """
 
+import re
 import threading
 import time
 import types as _pytypes
@@ -177,11 +178,16 @@ class CompileProgress:
         self.again = bool(inner) and id(inner[-1]) in self._done
         return ours
 
-    def __str__(self):
+    def __str__(self):  # (PROGRESS_LINE reads it back)
         what = f"compiling {self.kernel}" if self.kernel else "compiled"
         if self.kernel and self.again:
             what += " again (other argument types)"
         return f"{what} ({self.done}/{self.expected} kernels done, {self.seconds:.1f} s)"
+
+
+#: a :class:`CompileProgress` as text while a kernel compiles (its ``str``), read back: the
+#: kernel's name, kernels done, kernels expected (gridrt.coldstart's helper writes such lines)
+PROGRESS_LINE = re.compile(r"compiling (\S+)(?: again \(other argument types\))? \((\d+)/(\d+) kernels done")
 
 
 @contextmanager

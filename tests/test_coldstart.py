@@ -16,7 +16,7 @@ from numba import typeof
 
 import reference as R
 from gridrt import FramePipeline, FrameSpec, GridBuilder, GridParams, RenderParams, render
-from gridrt.coldstart import CompileHelper
+from gridrt.coldstart import CompileHelper, request
 from gridrt.grid.one_cell import OneCellBuilder
 from gridrt.scene import make_scene
 from gridrt.trace import cast_rays
@@ -142,6 +142,19 @@ def _helper(stdin_text, timeout=600):
                           text=True, cwd=REPO, timeout=timeout)
 
 
+def _held(spec, env=None, preexec_fn=None, timeout=900):
+    """A helper run on the request for the frame of ``spec`` at time 0 with its input held open
+    until it ends, as CompileHelper does (closing it would end the helper): (exit status, standard
+    output, standard error) as text."""
+    p = subprocess.Popen([sys.executable, "-m", "gridrt.coldstart"], cwd=REPO, stdin=subprocess.PIPE,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, preexec_fn=preexec_fn)
+    p.stdin.write(request(spec, 0.0))
+    p.stdin.flush()
+    out, err = p.stdout.read(), p.stderr.read()
+    p.stdin.close()
+    return p.wait(timeout=timeout), out.decode(), err.decode()
+
+
 def test_helper_with_a_bad_request_ends_and_says_nothing():
     """Whatever it is given, the helper writes no traceback and no echo of its input: it ends with
     1, and the frame of its parent reports the problem itself."""
@@ -154,7 +167,7 @@ def test_helper_with_a_bad_request_ends_and_says_nothing():
 def test_helper_ends_when_its_input_closes():
     """A helper whose parent is gone (its standard input closed) ends at once with 3, compiling
     nothing more: here its input closes right after the request."""
-    r = _helper(json.dumps({"spec": FrameSpec().resized(8, 6).to_wire(), "t": 0.0}) + "\n")
+    r = _helper(request(FrameSpec().resized(8, 6), 0.0).decode())
     assert (r.returncode, r.stderr) == (3, ""), r
 
 
@@ -213,15 +226,8 @@ def test_helper_compiles_what_the_first_frame_then_loads(tmp_path):
     that compiled everything itself makes."""
     cache = tmp_path / "cache"
     spec = FrameSpec().replace(scene=FrameSpec().scene.replace(source="icosphere")).resized(40, 30)
-    p = subprocess.Popen([sys.executable, "-m", "gridrt.coldstart"], cwd=REPO, text=True, stdin=subprocess.PIPE,
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                         env={**os.environ, "NUMBA_CACHE_DIR": str(cache)})
-    p.stdin.write(json.dumps({"spec": spec.to_wire(), "t": 0.0}) + "\n")
-    p.stdin.flush()  # (and held open, as CompileHelper does: closing it would end the helper)
-    out = p.stdout.read()
-    err = p.stderr.read()
-    p.stdin.close()
-    assert p.wait(timeout=900) == 0 and err == "", err
+    code, out, err = _held(spec, env={**os.environ, "NUMBA_CACHE_DIR": str(cache)})
+    assert code == 0 and err == "", err
     lines = out.splitlines()
     assert lines[-1].startswith("compiled ") and any("_render_tiles" in ln for ln in lines), out
     names, image = _probe(spec, cache, tmp_path / "a.npy")
@@ -294,11 +300,6 @@ def test_a_helper_without_the_memory_for_its_scene_fails_quietly():
         resource.setrlimit(resource.RLIMIT_AS, (1 << 30, resource.getrlimit(resource.RLIMIT_AS)[1]))
 
     spec = FrameSpec().replace(scene=FrameSpec().scene.replace(source="marbles", count=40_000_000)).resized(8, 6)
-    p = subprocess.Popen([sys.executable, "-m", "gridrt.coldstart"], cwd=REPO, stdin=subprocess.PIPE,
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=tight)
-    p.stdin.write((json.dumps({"spec": spec.to_wire(), "t": 0.0}) + "\n").encode())
-    p.stdin.flush()
-    out, err = p.stdout.read(), p.stderr.read()
-    p.stdin.close()
-    assert p.wait(timeout=600) == 1, (out, err)
-    assert err == b"" and b"compiled " not in out, (out, err)
+    code, out, err = _held(spec, preexec_fn=tight, timeout=600)
+    assert code == 1, (out, err)
+    assert err == "" and "compiled " not in out, (out, err)

@@ -283,7 +283,7 @@ class Viewer:
         worker = self.worker = RenderWorker(self._make_pipeline)
         st.framebuffer_size = st.window_size
         self._start_load(st.scene, keep_camera=True, scene_camera=start_on_scene_camera(self.args),
-                         warm=not st.cold_cache, helper=st.cold_cache and getattr(self.args, "helper", True))
+                         warm=not st.cold_cache, helper=st.cold_cache and self.args.helper)
         # (imgui first: it points pyglfw at its libglfw)
         from imgui_bundle import imgui  # noqa: F401  # deferred: imgui_bundle loads only when a window opens
         import glfw  # deferred: glfw loads only when a window opens
