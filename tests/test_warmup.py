@@ -201,6 +201,9 @@ def test_bench_start_quick(tmp_path):
     assert len(cold) == len(one) == 1 and warm
     assert int(cold[0]["kernels"]) >= int(one[0]["kernels"]) > 10 and all(int(row["kernels"]) == 0 for row in warm)
     assert all(float(row["wall_s"]) > 0 and float(row["cpu_s"]) > 0 for row in rows)
+    import json
+
+    assert json.loads((out / "machine.json").read_text())["threads_used"] == [os.cpu_count()]  # the dump's default
     summary = (out / "summary.md").read_text()
     assert "| cold | 1 |" in summary and "| cold, no helper | 1 |" in summary and "| warm | 1 |" in summary
 
@@ -208,6 +211,7 @@ def test_bench_start_quick(tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["--dump-args", "--frames 3"], "--dump-args sets --frames"),
     (["--dump-args", "'unclosed"], "--dump-args"),
+    (["--dump-args", "--threads two"], "--threads must be an integer"),
     (["--runs", "0"], "--runs must be >= 1"),
     (["--cold-runs", "-1"], "--cold-runs must be >= 0"),
 ])

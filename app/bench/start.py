@@ -25,6 +25,7 @@ import time
 from pathlib import Path
 
 from gridrt.errors import InputError
+from gridrt.threads import check_threads
 
 from .machine import finish_machine, machine_info
 from .output import md_table, out_dir, progress, write_csv, write_json, write_summary
@@ -77,6 +78,21 @@ def dump_once(cache_dir, out, extra=(), env=None):
     return dict(wall_s=wall, cpu_s=cpu, load=load, kernels=(int(m[-1][0]) if m else 0) + (int(h[-1][0]) if h else 0))
 
 
+def dump_threads(extra):
+    """The thread count the dumps run with: --threads among the dump's arguments extra, else the
+    dump's default (all cores)."""
+    given = None
+    for i, x in enumerate(extra):
+        if x == "--threads" and i + 1 < len(extra):
+            given = extra[i + 1]
+        elif x.startswith("--threads="):
+            given = x.split("=", 1)[1]
+    try:
+        return check_threads(None if given is None else int(given))
+    except ValueError:
+        raise InputError(f"--dump-args: --threads must be an integer, got {given!r}") from None
+
+
 def run_start(a):
     if a.runs < 1 or a.warmup < 0:
         raise InputError(f"--runs must be >= 1 and --warmup >= 0, got {a.runs} and {a.warmup}")
@@ -94,7 +110,7 @@ def run_start(a):
     else:
         runs, warmup = a.runs, a.warmup
     out = out_dir(a.out)
-    info = machine_info([])
+    info = machine_info([dump_threads(extra)])
     pyc_off = bool(os.environ.get("PYTHONDONTWRITEBYTECODE"))
     kinds = [("warm", None)] + ([("warm, .pyc files", {k: v for k, v in os.environ.items()
                                                         if k != "PYTHONDONTWRITEBYTECODE"})] if pyc_off else [])
