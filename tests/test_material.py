@@ -494,3 +494,78 @@ def test_mtl_kd_at_chosen_pixels(tmp_path):
         expect = np.array([0.2, 0.6, 0.4]) * (0.15 + cos)
         got = fr.image.reshape(-1, 4)[i, :3].astype(int)
         assert np.abs(got - R.to_u8(expect).astype(int)).max() <= 1, (point, got, R.to_u8(expect))
+
+
+def _segment_meets_box(o, d, lo, hi):
+    """Exact (rational arithmetic) test of whether the segment o + t d, 0 <= t <= 1, meets the
+    closed box lo..hi."""
+    from fractions import Fraction as Q
+
+    t0, t1 = Q(0), Q(1)
+    for a in range(3):
+        oa, da, la, ha = Q(float(o[a])), Q(float(d[a])), Q(float(lo[a])), Q(float(hi[a]))
+        if da == 0:
+            if oa < la or oa > ha:
+                return False
+            continue
+        ta, tb = (la - oa) / da, (ha - oa) / da
+        if ta > tb:
+            ta, tb = tb, ta
+        t0, t1 = max(t0, ta), min(t1, tb)
+    return t0 <= t1
+
+
+def test_segments_near_box_keeps_every_segment_that_meets_the_box(rng):
+    """The shadow pass skips a grid for the segments segments_near_box drops: it keeps every
+    segment that meets the box (exact rational reference), among them segments that end on a
+    face, an edge or a corner, run along a face or cross one at a grazing angle, and drops those
+    that pass it at more than the margin; origins a million diagonals away are kept."""
+    from gridrt.trace.material import segments_near_box
+
+    lo, hi = np.array([-1.0, -2.0, 0.5]), np.array([2.0, 1.0, 3.0])
+    diag = float(np.linalg.norm(hi - lo))
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    o, d = [], []
+    for _ in range(3000):  # random segments around the box
+        a, b = rng.uniform(-6, 6, 3), rng.uniform(-6, 6, 3)
+        o.append(a)
+        d.append(b - a)
+    for c in corners:  # segments that end on a corner, and on points of edges and faces
+        for _ in range(10):
+            a = c + rng.normal(size=3) * 3
+            o.append(a)
+            d.append(c - a)
+    for _ in range(300):
+        p = rng.uniform(lo, hi)
+        axis = rng.integers(3)
+        p[axis] = lo[axis] if rng.random() < 0.5 else hi[axis]
+        a = p + rng.normal(size=3) * 2
+        o.append(a)
+        d.append(p - a)
+        q = p.copy()  # along the face: a zero component in the face's normal direction
+        q[(axis + 1) % 3] += 5.0
+        o.append(p.copy())
+        d.append(q - p)
+        g = p + 1e-9 * diag * np.sign(p - 0.5 * (lo + hi))  # just outside the face, grazing it
+        o.append(g - 3 * (q - p))
+        d.append(6 * (q - p))
+    far = np.array([1e7 * diag, 0.0, 0.0])
+    o.append(far)
+    d.append(np.array([1.0, 0.0, 0.0]))  # heads away, but far beyond the margin's reach: kept
+    o, d = np.array(o), np.array(d)
+    rows = np.arange(len(o))
+    keep = np.empty(len(o), np.uint8)
+    n = segments_near_box(lo, hi, o, d, rows, keep)
+    assert n == int(keep.sum())
+    grow = 2e-6 * diag
+    meets = np.array([_segment_meets_box(o[i], d[i], lo, hi) for i in rows])
+    near = np.array([_segment_meets_box(o[i], d[i], lo - grow, hi + grow) for i in rows])
+    assert keep[meets].all(), np.flatnonzero(meets & (keep == 0))[:5]
+    assert not keep[:-1][~near[:-1]].any()  # the rest is dropped (all but the far origin)
+    assert keep[-1] == 1
+    assert 0 < meets.sum() < len(o) - 100  # both kinds are there
+    # a subset of the rows, in another order: the same verdicts
+    sub = rng.permutation(len(o))[:500]
+    k2 = np.empty(len(sub), np.uint8)
+    segments_near_box(lo, hi, o, d, sub, k2)
+    assert (k2 == keep[sub]).all()

@@ -310,6 +310,46 @@ def lit_rows(order, rays, rows, o, d):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
+def segments_near_box(lo, hi, o, d, rows, keep):
+    """keep[j] = 1 where the shadow segment o + t d, 0 <= t <= 1, of ray rows[j] (o, d (N, 3)
+    float64) meets the box lo..hi grown by a millionth of its diagonal on every side, else 0:
+    a segment outside it cannot reach a triangle of a grid with that box, whose own clip to its
+    box (with no margin) would end it before any triangle test.  A segment whose origin lies more
+    than a million diagonals from the box, where rounding could exceed the margin, is kept.
+    Returns how many are kept."""
+    ex, ey, ez = hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]
+    diag = math.sqrt(ex * ex + ey * ey + ez * ez)
+    grow = 1e-6 * diag
+    b0 = (lo[0] - grow, lo[1] - grow, lo[2] - grow)
+    b1 = (hi[0] + grow, hi[1] + grow, hi[2] + grow)
+    cx, cy, cz = 0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])
+    far = 1e6 * diag
+    n = 0
+    for j in prange(rows.shape[0]):
+        i = rows[j]
+        k = 1
+        if max(abs(o[i, 0] - cx), abs(o[i, 1] - cy), abs(o[i, 2] - cz)) <= far:
+            t0, t1 = 0.0, 1.0
+            for a in range(3):
+                oa, da = o[i, a], d[i, a]
+                if da == 0.0:
+                    if oa < b0[a] or oa > b1[a]:
+                        t0, t1 = 1.0, 0.0
+                else:
+                    inv = 1.0 / da
+                    ta = (b0[a] - oa) * inv
+                    tb = (b1[a] - oa) * inv
+                    if ta > tb:
+                        ta, tb = tb, ta
+                    t0, t1 = max(t0, ta), min(t1, tb)
+            if not (t0 <= t1):
+                k = 0
+        keep[j] = k
+        n += k
+    return n
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
 def add_light(rows, blocked, weight, tvd, r, g, b, acc):
     """acc[rows[j]] += tvd * (r, g, b) * weight for every shadow ray j that hit nothing (not blocked[j])."""
     for j in prange(rows.shape[0]):

@@ -48,7 +48,8 @@ from .twin import TWINS
 from ..camera import Camera, pixel_dir
 from .cgt.frame import cgt_render_kernel, cgt_render_serial
 from .grids import grid_arrays, grid_tuple, pack_grids, unpack_grids
-from .material import add_light, compose, light_rays, lit_rows, shade_kernel, shade_serial, surface_arrays
+from .material import (add_light, compose, light_rays, lit_rows, segments_near_box, shade_kernel, shade_serial,
+                       surface_arrays)
 from .records import Buffers, HitPoints, ShadowRays, make_packets, make_shading, make_view
 from .shade import (  # noqa: F401  (the shading constants stay importable from here)
     AMBIENT, ALBEDO, BACKGROUND, COST_SCALE, cost_rgb, facing_normal, lambert_rgb, normal_rgb, put_pixel, scene_id,
@@ -519,6 +520,7 @@ class Renderer:
         tile_order(n, W, 0, order)
         rows_b, o_b, d_b = np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3))
         out_b = (np.empty(n), np.empty(n, np.int32), np.empty(n), np.empty(n))
+        keep = np.empty(n, np.uint8)
         for li in range(len(lights)):
             light_rays(lights, li, hp, off, far, rays)
             m = lit_rows(order, rays, rows_b, o_b, d_b)
@@ -527,8 +529,13 @@ class Renderer:
             blocked = np.zeros(m, bool)
             for g in grids:  # any hit in any grid shadows
                 live = np.flatnonzero(~blocked)
+                if len(live) and len(grids) > 1:
+                    # of several grids (the static/moving split), each gets the segments that reach
+                    # its box: a moving part's grid is often small, and most rays pass it by
+                    if segments_near_box(g.lo, g.hi, o, d, live, keep[:len(live)]) < len(live):
+                        live = live[keep[:len(live)].view(bool)]
                 if len(live) == 0:
-                    break
+                    continue
                 lo, ld = (o, d) if len(live) == m else (o[live], d[live])  # (no copy while none is blocked)
                 out = tuple(a[:len(live)] for a in out_b)
                 cast_grouped(g, lo, ld, 0.0, 1.0, bool(params.watertight), True, out, max_cells, f32)
