@@ -309,3 +309,38 @@ def test_warm_runs_a_job_once_when_started_and_reports_its_failure():
         t.warm(("bad",), "bad job", fail, start=True)
     with parallel_first():
         assert t.warm(("other",), "job", fail, start=False) is True
+
+
+_EXIT_DRIVER = '''
+import json, sys
+import numpy as np
+import gridrt
+from gridrt.trace.twin import TWINS
+import twin_kernels as k
+
+x = np.arange(1000.0)
+out = np.zeros_like(x)
+TWINS(2, k.par, k.ser, x, out)  # the first call on two threads: serial
+TWINS(2, k.par, k.ser, x, out)  # the second starts the parallel kernel's compile in the background
+print(json.dumps({"compiling": TWINS.compiling(), "ok": bool((out == 2 * x + 1).all())}), flush=True)
+'''
+
+
+def test_library_exit_waits_for_a_background_compile(tmp_path):
+    """A program that uses gridrt as a library and ends while a parallel kernel compiles in the
+    background: the interpreter's exit waits for the compile (one line on stderr says so), exits
+    with status 0, and the kernel is in the cache for the next run."""
+    (tmp_path / "twin_kernels.py").write_text(_KERNELS)
+    (tmp_path / "driver.py").write_text(textwrap.dedent(_EXIT_DRIVER))
+    cache = tmp_path / "cache"
+    env = {"NUMBA_CACHE_DIR": str(cache), "PYTHONPATH": str(tmp_path), "PATH": "/usr/bin:/bin"}
+    r = subprocess.run([sys.executable, str(tmp_path / "driver.py")], capture_output=True, text=True, env=env,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
+    seen = json.loads(r.stdout.strip().splitlines()[-1])
+    assert seen == {"compiling": ["par"], "ok": True}
+    assert "gridrt: finishing the background compile of par before exit" in r.stderr, r.stderr
+    assert "Assertion" not in r.stderr and "Traceback" not in r.stderr, r.stderr
+    # the compile ended before the process did: the parallel kernel loads from the cache
+    assert any(p.name.startswith("twin_kernels.par") and p.suffix == ".nbi" for p in cache.rglob("*")), \
+        sorted(p.name for p in cache.rglob("*"))

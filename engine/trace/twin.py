@@ -30,7 +30,10 @@ saying so in one line, so that its next run finds the kernel cached (gridrt.app.
 :meth:`Twins.compiling`, :meth:`Twins.wait`); Ctrl-C skips that wait.  The viewer, a failed
 dump, or a skipped wait does not wait: the command line leaves at once with os._exit after saying
 so (the kernel then compiles again on the next start), so that the interpreter's shutdown never
-runs beside a compiling thread.  The on-disk cache stays consistent:
+runs beside a compiling thread.  A program that uses gridrt as a library and ends while a
+background compile runs waits for it at exit in the same way (an atexit handler, registered with
+the first background compile, says so in one line on stderr; Ctrl-C ends the process at once):
+LLVM aborts the process when the interpreter shuts down beside a compile.  The on-disk cache stays consistent:
 numba writes each cache file under a temporary name and renames it into place (os.replace, in
 numba.core.caching's IndexDataCacheFile._open_for_write), so no file is ever seen half written; an
 abandoned compile leaves at most a stray ``*.tmp.*`` file, or an index entry whose data file was
@@ -38,7 +41,9 @@ not written yet, which numba's loader (IndexDataCacheFile.load) takes for a miss
 again.
 """
 
+import atexit
 import os
+import sys
 import threading
 from contextlib import contextmanager
 
@@ -98,6 +103,7 @@ class Twins:
         self._failed = {}  # parallel kernel -> the exception of its background compile that failed
         self._ready = set()  # (parallel kernel, argument fingerprints) the parallel kernel is compiled for
         self.started = 0  # background compiles started in this process
+        self._exit_wait = False  # the atexit handler is registered
 
     @staticmethod
     def signature(parallel, args):
@@ -166,7 +172,31 @@ class Twins:
         thread.kernel = name
         self._compiling[key] = thread
         self.started += 1
+        if not self._exit_wait:
+            self._exit_wait = True
+            atexit.register(self._finish_at_exit)
         thread.start()
+
+    def _finish_at_exit(self):
+        """At the interpreter's exit: wait for the background compiles still running, after one
+        line on stderr; on Ctrl-C end the process at once (os._exit), before the shutdown."""
+        names = self.compiling()
+        if not names:
+            return
+        try:
+            print(f"gridrt: finishing the background compile of {', '.join(names)} before exit (Ctrl-C skips it)",
+                  file=sys.stderr, flush=True)
+        except (OSError, ValueError):
+            pass
+        try:
+            self.wait()
+        except KeyboardInterrupt:
+            try:
+                sys.stdout.flush()
+                sys.stderr.flush()
+            except (OSError, ValueError):
+                pass
+            os._exit(130)
 
     def _warm(self, key, job):
         try:
