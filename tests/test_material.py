@@ -569,3 +569,38 @@ def test_segments_near_box_keeps_every_segment_that_meets_the_box(rng):
     k2 = np.empty(len(sub), np.uint8)
     segments_near_box(lo, hi, o, d, sub, k2)
     assert (k2 == keep[sub]).all()
+
+
+@pytest.mark.parametrize("n", [1, 16384, 50_001])
+def test_light_segments_against_numpy(rng, n):
+    """light_segments over a random image of hits (some misses, normals either way, a point light
+    and a directional one): the lit pixels in the order's order (over several of its parallel
+    chunks and a partial last one), each weight as light_weight gives it, and each segment from
+    the light's end back to the offset hit point, against NumPy."""
+    from gridrt.trace.material import light_segments, light_weight
+    from gridrt.trace.records import HitPoints, ShadowRays, ShadowSegments
+
+    pos = rng.uniform(-1, 1, (n, 3))
+    ng = rng.normal(size=(n, 3))
+    ng /= np.linalg.norm(ng, axis=1)[:, None]
+    ns = (ng + 0.3 * rng.normal(size=(n, 3))).astype(np.float32)
+    acc = np.where(rng.random((n, 1)) < 0.2, -1.0, 0.5) * np.ones((1, 3))
+    hp = HitPoints(pos, ng, ns, np.zeros((n, 3), np.float32), acc.astype(np.float32))
+    # a point light with falloff, and a directional one (unit vector towards it)
+    lights = np.array([[0.0, 0.3, 2.0, -0.5, 1.0, 1.0, 1.0, 1.0], [1.0, 0.0, 0.6, 0.8, 0.5, 0.5, 0.5, 0.0]])
+    order = rng.permutation(n).astype(np.int64)
+    off, far = 1e-5, 7.0
+    for li in range(2):
+        rays = ShadowRays(np.full(n, 7, np.uint8), np.full(n, np.nan))
+        segs = ShadowSegments(np.full(n, -1, np.int64), np.full((n, 3), np.nan), np.full((n, 3), np.nan))
+        m = light_segments(lights, li, hp, off, far, order, rays, segs)
+        w = np.array([light_weight.py_func(lights, li, tuple(pos[i]), tuple(ng[i]), tuple(ns[i].astype(np.float64)))[0]
+                      if acc[i, 0] >= 0 else 0.0 for i in range(n)])
+        lit = w > 0
+        assert (rays.need == lit).all() and (rays.weight[lit] == w[lit]).all()
+        want = order[lit[order]]
+        assert m == len(want) and (segs.rows[:m] == want).all() and (segs.rows[m:] == -1).all()
+        start = pos[want] + ng[want] * off
+        to_light = lights[li, 1:4] * far if li == 1 else lights[li, 1:4] - start
+        assert (segs.o[:m] == start + to_light).all() and (segs.d[:m] == -to_light).all()
+        assert n < 100 or 0 < m < n  # lit and unlit hits both

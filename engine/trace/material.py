@@ -20,7 +20,7 @@ traversal kernels stay as they are.  Per hit pixel:
   2 * diag times the unit vector to a directional one, tmax 1) must hit nothing; shadow rays are
   cast as a batch per light (gridrt.trace.batch: coherent runs as CGT packets with the ``cgt``
   traversal, one at a time with ``dda``), tile by tile of the image and from the light's end of
-  the segment back to the hit (:func:`lit_rows`): a point light's rays then share one origin,
+  the segment back to the hit (:func:`light_segments`): a point light's rays then share one origin,
   and a ray blocked near its light (inside a lamp's shade) stops there instead of crossing the
   scene first.
 
@@ -246,7 +246,7 @@ def shade_kernel(view, ibuf, surf, lights, deferred, img, hp):
     (:class:`gridrt.trace.records.SurfaceArrays`) and the lights (L, 8) (frame coordinates), or
     with ``deferred`` (shadows) write each hit's point, normals, T V D and T V A (acc; -1 in
     acc[:, 0] for a miss) into the flat (W*H, 3) buffers of hp
-    (:class:`gridrt.trace.records.HitPoints`) for :func:`light_rays`, :func:`add_light` and
+    (:class:`gridrt.trace.records.HitPoints`) for :func:`light_segments`, :func:`add_light` and
     :func:`compose`."""
     for y in prange(view.H):
         _shade_row(np.int64(y), view, ibuf, surf, lights, deferred, img, hp)
@@ -259,54 +259,64 @@ def shade_serial(view, ibuf, surf, lights, deferred, img, hp):
         _shade_row(y, view, ibuf, surf, lights, deferred, img, hp)
 
 
+#: pixels of the order per work item of light_segments (its passes over the order)
+LIT_CHUNK = 16384
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
-def light_rays(lights, li, hp, off, far, rays):
-    """The shadow rays (:class:`gridrt.trace.records.ShadowRays`) of light li from every hit of hp
-    (:class:`gridrt.trace.records.HitPoints`; acc[i, 0] >= 0) it lights: need[i] = 1, the origin
-    p + n_g * off, the direction to the light (a point light's vector to it, or far times a
-    directional light's unit vector; tmax 1) and the light's weight in weight[i]."""
+def light_segments(lights, li, hp, off, far, order, rays, segs):
+    """The shadow segments of light li from the hits of hp (:class:`gridrt.trace.records.HitPoints`;
+    acc[i, 0] >= 0) it lights, in the pixel order ``order`` (a permutation of the image's pixels).
+    Per pixel (rays: :class:`gridrt.trace.records.ShadowRays`): need[i] = 1 where the light
+    lights the hit, and its weight there in weight[i].  The lit pixels' segments go, in the order's
+    order, to segs (:class:`gridrt.trace.records.ShadowSegments`): the pixel's index in rows, and
+    the segment from the light's end to the hit turned round in o and d (t in (0, 1)): the ray
+    from p + n_g * off to the light (a point light's vector to it, or far times a directional
+    light's unit vector) starts at the light's end, o = origin + direction, d = -direction.  A
+    point light's segments then share one origin, and one blocked near its light stops there.
+    Returns how many.  In three parallel passes: the lit hits, in pixel order; then over chunks of
+    LIT_CHUNK pixels of the order, each chunk's count of them, and each chunk's segments from its
+    place after the chunks before it."""
     pos, ngb, nsb, acc = hp.pos, hp.ng, hp.ns, hp.acc
-    need, origins, dirs, weight = rays.need, rays.origins, rays.dirs, rays.weight
-    for i in prange(pos.shape[0]):
+    need, weight = rays.need, rays.weight
+    rows, o, d = segs.rows, segs.o, segs.d
+    N = order.shape[0]
+    for i in prange(N):  # (in pixel order: the hit buffers are read front to back)
         need[i] = 0
         if acc[i, 0] < 0.0:
             continue
-        px, py, pz = pos[i, 0], pos[i, 1], pos[i, 2]
-        gx, gy, gz = ngb[i, 0], ngb[i, 1], ngb[i, 2]
-        s, lx, ly, lz, dist = light_weight(lights, li, (px, py, pz), (gx, gy, gz),
+        s, lx, ly, lz, dist = light_weight(lights, li, (pos[i, 0], pos[i, 1], pos[i, 2]),
+                                           (ngb[i, 0], ngb[i, 1], ngb[i, 2]),
                                            (np.float64(nsb[i, 0]), np.float64(nsb[i, 1]), np.float64(nsb[i, 2])))
-        if s <= 0.0:
-            continue
-        need[i] = 1
-        weight[i] = s
-        ox, oy, oz = px + gx * off, py + gy * off, pz + gz * off
-        origins[i, 0], origins[i, 1], origins[i, 2] = ox, oy, oz
-        if lights[li, 0] == LIGHT_DIRECTIONAL:
-            dirs[i, 0], dirs[i, 1], dirs[i, 2] = lx * far, ly * far, lz * far
-        else:
-            dirs[i, 0] = lights[li, 1] - ox
-            dirs[i, 1] = lights[li, 2] - oy
-            dirs[i, 2] = lights[li, 3] - oz
-
-
-@njit(cache=True, error_model="numpy")
-def lit_rows(order, rays, rows, o, d):
-    """The pixels of ``order`` (a permutation of the image's pixels) whose shadow ray the light
-    needs (rays: :class:`gridrt.trace.records.ShadowRays`, need[i] = 1), in that order: their
-    indices into rows (N,) int64, and their shadow segments turned round into o and d (N, 3)
-    float64: from the light's end (origin + direction) back to the origin (t in (0, 1) covers the
-    same segment).  Returns how many."""
-    need, origins, dirs = rays.need, rays.origins, rays.dirs
-    m = 0
-    for k in range(order.shape[0]):
-        i = order[k]
-        if need[i] != 0:
+        if s > 0.0:
+            need[i] = 1
+            weight[i] = s
+    nc = (N + LIT_CHUNK - 1) // LIT_CHUNK
+    start = np.zeros(nc + 1, np.int64)
+    for c in prange(nc):
+        m = 0
+        for k in range(c * LIT_CHUNK, min(N, (c + 1) * LIT_CHUNK)):
+            m += need[order[k]]
+        start[c + 1] = m
+    for c in range(nc):
+        start[c + 1] += start[c]
+    directional = lights[li, 0] == LIGHT_DIRECTIONAL
+    for c in prange(nc):
+        m = start[c]
+        for k in range(c * LIT_CHUNK, min(N, (c + 1) * LIT_CHUNK)):
+            i = order[k]
+            if need[i] == 0:
+                continue
+            ox, oy, oz = pos[i, 0] + ngb[i, 0] * off, pos[i, 1] + ngb[i, 1] * off, pos[i, 2] + ngb[i, 2] * off
+            if directional:
+                dx, dy, dz = lights[li, 1] * far, lights[li, 2] * far, lights[li, 3] * far
+            else:
+                dx, dy, dz = lights[li, 1] - ox, lights[li, 2] - oy, lights[li, 3] - oz
             rows[m] = i
-            for a in range(3):
-                o[m, a] = origins[i, a] + dirs[i, a]
-                d[m, a] = -dirs[i, a]
+            o[m, 0], o[m, 1], o[m, 2] = ox + dx, oy + dy, oz + dz
+            d[m, 0], d[m, 1], d[m, 2] = -dx, -dy, -dz
             m += 1
-    return m
+    return start[nc]
 
 
 @njit(cache=True, parallel=True, error_model="numpy")

@@ -15,7 +15,8 @@ of arrays and scalars (a tuple of tuples cannot enter it, see gridrt.trace.grids
 * :class:`Scratch`: one worker's scratch in the CGT render (gridrt.trace.cgt.frame);
 * :class:`SurfaceArrays`: the scene's surface as the material pass reads it;
 * :class:`HitPoints`: the material pass's per-pixel buffers while shadows are cast;
-* :class:`ShadowRays`: one light's shadow rays from those hits.
+* :class:`ShadowRays`: one light's shadow rays from those hits, and :class:`ShadowSegments`: the
+  segments cast.
 """
 
 from collections import namedtuple
@@ -72,9 +73,13 @@ SurfaceArrays = namedtuple("SurfaceArrays",
 HitPoints = namedtuple("HitPoints", "pos ng ns tvd acc")
 
 #: One light's shadow rays from the hits, row by pixel: need (W * H,) uint8 (1: the light lights
-#: the hit, a ray is cast), origins and dirs (W * H, 3) float64 (the ray ends at t = 1), weight
-#: (W * H,) float64 the light's weight at the hit.
-ShadowRays = namedtuple("ShadowRays", "need origins dirs weight")
+#: the hit, a ray is cast) and weight (W * H,) float64 the light's weight at the hit.
+ShadowRays = namedtuple("ShadowRays", "need weight")
+
+#: One light's shadow segments, those of the lit hits only, in the order they are cast: rows (N,)
+#: int64 the pixel of each, o and d (N, 3) float64 the segment o + t d, 0 < t < 1, from the
+#: light's end to the hit.
+ShadowSegments = namedtuple("ShadowSegments", "rows o d")
 
 
 def make_view(basis, W, H, tile):

@@ -48,9 +48,8 @@ from .twin import TWINS
 from ..camera import Camera, pixel_dir
 from .cgt.frame import cgt_render_kernel, cgt_render_serial
 from .grids import grid_arrays, grid_tuple, pack_grids, unpack_grids
-from .material import (add_light, compose, light_rays, lit_rows, segments_near_box, shade_kernel, shade_serial,
-                       surface_arrays)
-from .records import Buffers, HitPoints, ShadowRays, make_packets, make_shading, make_view
+from .material import add_light, compose, light_segments, segments_near_box, shade_kernel, shade_serial, surface_arrays
+from .records import Buffers, HitPoints, ShadowRays, ShadowSegments, make_packets, make_shading, make_view
 from .shade import (  # noqa: F401  (the shading constants stay importable from here)
     AMBIENT, ALBEDO, BACKGROUND, COST_SCALE, cost_rgb, facing_normal, lambert_rgb, normal_rgb, put_pixel, scene_id,
     shadow_ray,
@@ -507,7 +506,7 @@ class Renderer:
         TWINS(threads, shade_kernel, shade_serial, v, ib, surf, lights, deferred, img, hp)
         if not deferred:
             return len(lights), 0
-        rays = ShadowRays(np.empty(n, np.uint8), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.float64))
+        rays = ShadowRays(np.empty(n, np.uint8), np.empty(n, np.float64))
         weight = rays.weight
         off, far = SHADOW_OFFSET * diag, 2.0 * max(diag, 1e-300)
         max_cells = SHADOW_MAX_CELLS if params.traversal == "cgt" else 0.0
@@ -518,14 +517,13 @@ class Renderer:
         # a run of a row's pixels is a wide one (or single rays)
         order = np.empty(n, np.int64)
         tile_order(n, W, 0, order)
-        rows_b, o_b, d_b = np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3))
+        segs = ShadowSegments(np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)))
         out_b = (np.empty(n), np.empty(n, np.int32), np.empty(n), np.empty(n))
         keep = np.empty(n, np.uint8)
         for li in range(len(lights)):
-            light_rays(lights, li, hp, off, far, rays)
-            m = lit_rows(order, rays, rows_b, o_b, d_b)
+            m = light_segments(lights, li, hp, off, far, order, rays, segs)
             cast += m
-            rows, o, d = rows_b[:m], o_b[:m], d_b[:m]
+            rows, o, d = segs.rows[:m], segs.o[:m], segs.d[:m]
             blocked = np.zeros(m, bool)
             for g in grids:  # any hit in any grid shadows
                 live = np.flatnonzero(~blocked)
