@@ -215,6 +215,10 @@ BOUNDARIES = {
         "material and texture indices in range, texels, uv/colour/normal shapes; normals (F, 3, 3) float32 "
         "finite; lights (L, 8) finite, known kinds, unit directions); buffers sized W x H",
         ["test_guard_render_material"]),
+    "gridrt.trace.render:Renderer.shadow_buffers": (
+        "internal: called by _shade_material only, with the frame's W and H (RenderParams, checked there); "
+        "tile_order writes each of the W * H pixels' indices once into the (W * H,) buffer it allocates",
+        ["test_guard_render_material"]),
     "gridrt.scene.animation:gather_unchecked": (
         "reads vertices[faces] unchecked: reached from gather_triangles after its shape, dtype and index checks, "
         "and from the loaders' per-frame paths whose faces were validated at load time",

@@ -604,3 +604,26 @@ def test_light_segments_against_numpy(rng, n):
         to_light = lights[li, 1:4] * far if li == 1 else lights[li, 1:4] - start
         assert (segs.o[:m] == start + to_light).all() and (segs.d[:m] == -to_light).all()
         assert n < 100 or 0 < m < n  # lit and unlit hits both
+
+
+def test_renderer_keeps_shadow_buffers_without_leaking_between_frames(rng):
+    """A Renderer keeps the material pass's shadow buffers from frame to frame: a frame rendered
+    after others (another camera, another size, a frame without shadows in between) is the image
+    a fresh Renderer makes of it, and matches the reference."""
+    tris, looks = scene(rng)
+    g = GridBuilder().build(tris, GridParams())
+    lk = Looks(tris, engine_surface(looks), looks.normals, engine_lights(looks))
+    side = Camera(eye=(2.5, 1.5, 3.0), target=CAM.target, fov=CAM.fov)
+
+    def params(w, h, shadows=True):
+        return RenderParams(width=w, height=h, shading="material", shadows=shadows, threads=2)
+
+    r = Renderer()
+    r.render(g, tris, side, params(W, H), looks=lk)
+    r.render(g, tris, CAM, params(W + 7, H - 5), looks=lk)
+    r.render(g, tris, side, params(W, H, shadows=False), looks=lk)
+    got = r.render(g, tris, CAM, params(W, H), looks=lk).image.copy()
+    fresh = Renderer().render(g, tris, CAM, params(W, H), looks=lk)
+    assert np.array_equal(got, fresh.image)
+    ref = R.ref_material(tris, CAM, W, H, looks, shadows=True, shadow_offset=1e-6 * _diag(tris))
+    compare(fresh, ref, True)

@@ -16,7 +16,7 @@ of arrays and scalars (a tuple of tuples cannot enter it, see gridrt.trace.grids
 * :class:`SurfaceArrays`: the scene's surface as the material pass reads it;
 * :class:`HitPoints`: the material pass's per-pixel buffers while shadows are cast;
 * :class:`ShadowRays`: one light's shadow rays from those hits, and :class:`ShadowSegments`: the
-  segments cast.
+  segments cast (all of them in a :class:`ShadowBuffers`, kept from frame to frame).
 """
 
 from collections import namedtuple
@@ -80,6 +80,12 @@ ShadowRays = namedtuple("ShadowRays", "need weight")
 #: int64 the pixel of each, o and d (N, 3) float64 the segment o + t d, 0 < t < 1, from the
 #: light's end to the hit.
 ShadowSegments = namedtuple("ShadowSegments", "rows o d")
+
+#: The material pass's buffers for shadows (Python side, gridrt.trace.render.Renderer keeps them
+#: from frame to frame): the :class:`HitPoints` hp, the :class:`ShadowRays` rays, the pixels in
+#: tile order (W * H,) int64, the :class:`ShadowSegments` segs, the batch cast's out (t, tri, u,
+#: v), keep (W * H,) uint8 (segments near a grid's box) and blocked (W * H,) bool.
+ShadowBuffers = namedtuple("ShadowBuffers", "hp rays order segs out keep blocked")
 
 
 def make_view(basis, W, H, tile):

@@ -49,7 +49,8 @@ from ..camera import Camera, pixel_dir
 from .cgt.frame import cgt_render_kernel, cgt_render_serial
 from .grids import grid_arrays, grid_tuple, pack_grids, unpack_grids
 from .material import add_light, compose, light_segments, segments_near_box, shade_kernel, shade_serial, surface_arrays
-from .records import Buffers, HitPoints, ShadowRays, ShadowSegments, make_packets, make_shading, make_view
+from .records import (Buffers, HitPoints, ShadowBuffers, ShadowRays, ShadowSegments, make_packets, make_shading,
+                      make_view)
 from .shade import (  # noqa: F401  (the shading constants stay importable from here)
     AMBIENT, ALBEDO, BACKGROUND, COST_SCALE, cost_rgb, facing_normal, lambert_rgb, normal_rgb, put_pixel, scene_id,
     shadow_ray,
@@ -360,10 +361,12 @@ class RenderResult:
 
 
 class Renderer:
-    """Holds the output buffers from frame to frame; ``render`` fills them."""
+    """Holds the output buffers from frame to frame, and the material pass's shadow buffers;
+    ``render`` fills them."""
 
     def __init__(self):
         self._bufs = None
+        self._shadow = None  # ((W, H), ShadowBuffers): the material pass's with shadows
 
     def buffers(self, W, H):
         if self._bufs is None or self._bufs[0].shape[:2] != (H, W):
@@ -375,6 +378,26 @@ class Renderer:
                 np.zeros((H, W), np.int32),
             )
         return self._bufs
+
+    def shadow_buffers(self, W, H):
+        """The material pass's buffers for shadows at W x H (:class:`ShadowBuffers`), kept from
+        frame to frame: fresh ones cost a frame of the kitchen (1024x1024) about 0.2 GB of memory
+        the system must zero and map page by page.  The pixels' tile order is filled once."""
+        if self._shadow is None or self._shadow[0] != (W, H):
+            self._shadow = None  # (the old ones go first)
+            n = W * H
+            order = np.empty(n, np.int64)
+            tile_order(n, W, 0, order)
+            f32 = np.float32
+            self._shadow = ((W, H), ShadowBuffers(
+                HitPoints(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3), f32), np.empty((n, 3), f32),
+                          np.empty((n, 3), f32)),
+                ShadowRays(np.empty(n, np.uint8), np.empty(n, np.float64)),
+                order,
+                ShadowSegments(np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3))),
+                (np.empty(n), np.empty(n, np.int32), np.empty(n), np.empty(n)),
+                np.empty(n, np.uint8), np.empty(n, bool)))
+        return self._shadow[1]
 
     def render(self, grid, tris, camera, params: RenderParams | None = None, second=None,
                looks: Looks | None = None) -> RenderResult:
@@ -493,38 +516,32 @@ class Renderer:
             point = lights[:, 0] == 0.0
             lights[point, 1:4] -= origin  # world -> the grid's frame
         surf = surface_arrays(stris, surface, normals)
-        n = W * H
         deferred = bool(params.shadows)
         if deferred:
-            pos, ngb = np.empty((n, 3)), np.empty((n, 3))
-            nsb, tvd, acc = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
+            sb = self.shadow_buffers(W, H)
+            hp = sb.hp
         else:
-            pos = ngb = np.empty((0, 3))
-            nsb = tvd = acc = np.empty((0, 3), np.float32)
-        hp = HitPoints(pos, ngb, nsb, tvd, acc)
+            hp = HitPoints(np.empty((0, 3)), np.empty((0, 3)), np.empty((0, 3), np.float32),
+                           np.empty((0, 3), np.float32), np.empty((0, 3), np.float32))
         v = make_view(camera.basis(), W, H, params.tile)
         TWINS(threads, shade_kernel, shade_serial, v, ib, surf, lights, deferred, img, hp)
         if not deferred:
             return len(lights), 0
-        rays = ShadowRays(np.empty(n, np.uint8), np.empty(n, np.float64))
-        weight = rays.weight
+        rays, order, segs, out_b, keep = sb.rays, sb.order, sb.segs, sb.out, sb.keep
+        tvd, acc, weight = hp.tvd, hp.acc, rays.weight
         off, far = SHADOW_OFFSET * diag, 2.0 * max(diag, 1e-300)
         max_cells = SHADOW_MAX_CELLS if params.traversal == "cgt" else 0.0
         f32 = params.packet_precision == "float32"
         cast = 0
-        # each light's shadow rays in tiles of the image (TILE x TILE pixels): the batch caster takes
-        # them in runs of RUN = TILE^2 in this order, and a run of one tile is a narrow packet where
-        # a run of a row's pixels is a wide one (or single rays)
-        order = np.empty(n, np.int64)
-        tile_order(n, W, 0, order)
-        segs = ShadowSegments(np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)))
-        out_b = (np.empty(n), np.empty(n, np.int32), np.empty(n), np.empty(n))
-        keep = np.empty(n, np.uint8)
+        # each light's shadow rays in tiles of the image (TILE x TILE pixels, sb.order): the batch
+        # caster takes them in runs of RUN = TILE^2 in this order, and a run of one tile is a narrow
+        # packet where a run of a row's pixels is a wide one (or single rays)
         for li in range(len(lights)):
             m = light_segments(lights, li, hp, off, far, order, rays, segs)
             cast += m
             rows, o, d = segs.rows[:m], segs.o[:m], segs.d[:m]
-            blocked = np.zeros(m, bool)
+            blocked = sb.blocked[:m]
+            blocked[:] = False
             for g in grids:  # any hit in any grid shadows
                 live = np.flatnonzero(~blocked)
                 if len(live) and len(grids) > 1:
