@@ -515,22 +515,36 @@ def _segment_meets_box(o, d, lo, hi):
     return t0 <= t1
 
 
-def test_segments_near_box_keeps_every_segment_that_meets_the_box(rng):
-    """The shadow pass skips a grid for the segments segments_near_box drops: it keeps every
-    segment that meets the box (exact rational reference), among them segments that end on a
-    face, an edge or a corner, run along a face or cross one at a grazing angle, and drops those
-    that pass it at more than the margin; origins a million diagonals away are kept."""
-    from gridrt.trace.material import segments_near_box
+def test_near_box_keeps_every_segment_that_meets_the_box(rng):
+    """The shadow pass traces a segment through a grid only where _near_box says it may meet the
+    grid's box (grown by near_boxes): it does for every segment that meets the box (exact rational
+    reference), among them segments that end on a face, an edge or a corner, run along a face,
+    lie inside it, or graze it from just outside, and for none that passes it at more than the
+    margin; an origin a million diagonals away is kept."""
+    from numba import njit
 
-    lo, hi = np.array([-1.0, -2.0, 0.5]), np.array([2.0, 1.0, 3.0])
+    from gridrt.trace.material import _near_box, near_boxes
+
+    @njit
+    def marks(box, o, d, out):
+        for i in range(o.shape[0]):
+            out[i] = _near_box(box, (o[i, 0], o[i, 1], o[i, 2]), (d[i, 0], d[i, 1], d[i, 2]))
+
+    class Grid:  # (near_boxes reads a grid's lo and hi)
+        lo, hi = np.array([-1.0, -2.0, 0.5]), np.array([2.0, 1.0, 3.0])
+
+    lo, hi = Grid.lo, Grid.hi
     diag = float(np.linalg.norm(hi - lo))
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     o, d = [], []
-    for _ in range(3000):  # random segments around the box
+    for _ in range(3000):  # random segments around the box, and inside it
         a, b = rng.uniform(-6, 6, 3), rng.uniform(-6, 6, 3)
         o.append(a)
         d.append(b - a)
-    for c in corners:  # segments that end on a corner, and on points of edges and faces
+        a, b = rng.uniform(lo, hi), rng.uniform(lo, hi)
+        o.append(a)
+        d.append(b - a)
+    for c in corners:  # segments that end on a corner
         for _ in range(10):
             a = c + rng.normal(size=3) * 3
             o.append(a)
@@ -538,37 +552,63 @@ def test_segments_near_box_keeps_every_segment_that_meets_the_box(rng):
     for _ in range(300):
         p = rng.uniform(lo, hi)
         axis = rng.integers(3)
-        p[axis] = lo[axis] if rng.random() < 0.5 else hi[axis]
+        p[axis] = lo[axis] if rng.random() < 0.5 else hi[axis]  # a point on a face
         a = p + rng.normal(size=3) * 2
         o.append(a)
         d.append(p - a)
-        q = p.copy()  # along the face: a zero component in the face's normal direction
+        q = p.copy()  # along the face: a zero step in its normal's direction
         q[(axis + 1) % 3] += 5.0
         o.append(p.copy())
         d.append(q - p)
         g = p + 1e-9 * diag * np.sign(p - 0.5 * (lo + hi))  # just outside the face, grazing it
         o.append(g - 3 * (q - p))
         d.append(6 * (q - p))
-    far = np.array([1e7 * diag, 0.0, 0.0])
-    o.append(far)
-    d.append(np.array([1.0, 0.0, 0.0]))  # heads away, but far beyond the margin's reach: kept
+    o.append(np.array([1e7 * diag, 0.0, 0.0]))  # far away, heading away: kept
+    d.append(np.array([1.0, 0.0, 0.0]))
     o, d = np.array(o), np.array(d)
-    rows = np.arange(len(o))
-    keep = np.empty(len(o), np.uint8)
-    n = segments_near_box(lo, hi, o, d, rows, keep)
-    assert n == int(keep.sum())
+    got = np.zeros(len(o), np.bool_)
+    marks(near_boxes([Grid])[0], o, d, got)
     grow = 2e-6 * diag
-    meets = np.array([_segment_meets_box(o[i], d[i], lo, hi) for i in rows])
-    near = np.array([_segment_meets_box(o[i], d[i], lo - grow, hi + grow) for i in rows])
-    assert keep[meets].all(), np.flatnonzero(meets & (keep == 0))[:5]
-    assert not keep[:-1][~near[:-1]].any()  # the rest is dropped (all but the far origin)
-    assert keep[-1] == 1
+    meets = np.array([_segment_meets_box(o[i], d[i], lo, hi) for i in range(len(o))])
+    near = np.array([_segment_meets_box(o[i], d[i], lo - grow, hi + grow) for i in range(len(o))])
+    assert got[meets].all(), np.flatnonzero(meets & ~got)[:5]
+    assert not got[:-1][~near[:-1]].any()  # the others are not kept (all but the far origin)
+    assert got[-1]
     assert 0 < meets.sum() < len(o) - 100  # both kinds are there
-    # a subset of the rows, in another order: the same verdicts
-    sub = rng.permutation(len(o))[:500]
-    k2 = np.empty(len(sub), np.uint8)
-    segments_near_box(lo, hi, o, d, sub, k2)
-    assert (k2 == keep[sub]).all()
+
+
+def test_light_segments_mark_the_grids_each_segment_may_meet(rng):
+    """With several grids' boxes, bit g of each segment's mark is _near_box's verdict for grid
+    g's box on that segment (a large box most segments meet, a small one few do)."""
+    from numba import njit
+
+    from gridrt.trace.material import _near_box, light_segments, near_boxes
+    from gridrt.trace.records import HitPoints, ShadowRays, ShadowSegments
+
+    @njit
+    def marks(box, o, d, out):
+        for i in range(o.shape[0]):
+            out[i] = _near_box(box, (o[i, 0], o[i, 1], o[i, 2]), (d[i, 0], d[i, 1], d[i, 2]))
+
+    class Grid:
+        def __init__(self, lo, hi):
+            self.lo, self.hi = np.array(lo), np.array(hi)
+
+    n = 20000
+    pos = rng.uniform(-1, 1, (n, 3))
+    ng = np.tile([0.0, 1.0, 0.0], (n, 1))
+    hp = HitPoints(pos, ng, ng.astype(np.float32), np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32))
+    lights = np.array([[0.0, 0.1, 3.0, 0.2, 1.0, 1.0, 1.0, 0.0]])
+    boxes = near_boxes([Grid([-1, -1, -1], [1, 1, 1]), Grid([0.0, 0.5, 0.0], [0.3, 0.7, 0.4])])
+    rays = ShadowRays(np.zeros(n, np.uint8), np.zeros(n))
+    segs = ShadowSegments(np.zeros(n, np.int64), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n, np.uint8))
+    m = light_segments(lights, 0, hp, 1e-6, 5.0, np.arange(n, dtype=np.int64), rays, segs, boxes)
+    assert m == n  # every hit faces the light above
+    for k in range(2):
+        want = np.zeros(m, np.bool_)
+        marks(boxes[k], segs.o[:m], segs.d[:m], want)
+        assert (((segs.grids[:m] >> k) & 1) == want).all()
+    assert ((segs.grids[:m] & 1) == 1).mean() > 0.9 and 0 < ((segs.grids[:m] & 2) == 2).mean() < 0.2
 
 
 @pytest.mark.parametrize("n", [1, 16384, 50_001])
@@ -592,8 +632,9 @@ def test_light_segments_against_numpy(rng, n):
     off, far = 1e-5, 7.0
     for li in range(2):
         rays = ShadowRays(np.full(n, 7, np.uint8), np.full(n, np.nan))
-        segs = ShadowSegments(np.full(n, -1, np.int64), np.full((n, 3), np.nan), np.full((n, 3), np.nan))
-        m = light_segments(lights, li, hp, off, far, order, rays, segs)
+        segs = ShadowSegments(np.full(n, -1, np.int64), np.full((n, 3), np.nan), np.full((n, 3), np.nan),
+                              np.zeros(n, np.uint8))
+        m = light_segments(lights, li, hp, off, far, order, rays, segs, np.empty((0, 8)))
         w = np.array([light_weight.py_func(lights, li, tuple(pos[i]), tuple(ng[i]), tuple(ns[i].astype(np.float64)))[0]
                       if acc[i, 0] >= 0 else 0.0 for i in range(n)])
         lit = w > 0
@@ -603,6 +644,7 @@ def test_light_segments_against_numpy(rng, n):
         start = pos[want] + ng[want] * off
         to_light = lights[li, 1:4] * far if li == 1 else lights[li, 1:4] - start
         assert (segs.o[:m] == start + to_light).all() and (segs.d[:m] == -to_light).all()
+        assert (segs.grids[:m] == 255).all()  # no boxes: every grid traces every segment
         assert n < 100 or 0 < m < n  # lit and unlit hits both
 
 

@@ -264,7 +264,7 @@ LIT_CHUNK = 16384
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def light_segments(lights, li, hp, off, far, order, rays, segs):
+def light_segments(lights, li, hp, off, far, order, rays, segs, boxes):
     """The shadow segments of light li from the hits of hp (:class:`gridrt.trace.records.HitPoints`;
     acc[i, 0] >= 0) it lights, in the pixel order ``order`` (a permutation of the image's pixels).
     Per pixel (rays: :class:`gridrt.trace.records.ShadowRays`): need[i] = 1 where the light
@@ -274,12 +274,15 @@ def light_segments(lights, li, hp, off, far, order, rays, segs):
     from p + n_g * off to the light (a point light's vector to it, or far times a directional
     light's unit vector) starts at the light's end, o = origin + direction, d = -direction.  A
     point light's segments then share one origin, and one blocked near its light stops there.
+    With several grids, boxes (G, 8) (:func:`near_boxes`, G <= 8) gives their boxes, and bit g of
+    segs.grids[m] is set where segment m may meet grid g's box (:func:`_near_box`): the grids it
+    misses need not trace it; with boxes (0, 8) every bit is set.
     Returns how many.  In three parallel passes: the lit hits, in pixel order; then over chunks of
     LIT_CHUNK pixels of the order, each chunk's count of them, and each chunk's segments from its
     place after the chunks before it."""
     pos, ngb, nsb, acc = hp.pos, hp.ng, hp.ns, hp.acc
     need, weight = rays.need, rays.weight
-    rows, o, d = segs.rows, segs.o, segs.d
+    rows, o, d, grids = segs.rows, segs.o, segs.d, segs.grids
     N = order.shape[0]
     for i in prange(N):  # (in pixel order: the hit buffers are read front to back)
         need[i] = 0
@@ -313,50 +316,72 @@ def light_segments(lights, li, hp, off, far, order, rays, segs):
             else:
                 dx, dy, dz = lights[li, 1] - ox, lights[li, 2] - oy, lights[li, 3] - oz
             rows[m] = i
-            o[m, 0], o[m, 1], o[m, 2] = ox + dx, oy + dy, oz + dz
+            sx, sy, sz = ox + dx, oy + dy, oz + dz
+            o[m, 0], o[m, 1], o[m, 2] = sx, sy, sz
             d[m, 0], d[m, 1], d[m, 2] = -dx, -dy, -dz
+            bits = 255
+            if boxes.shape[0] > 0:
+                bits = 0
+                for gi in range(boxes.shape[0]):
+                    if _near_box(boxes[gi], (sx, sy, sz), (-dx, -dy, -dz)):
+                        bits |= 1 << gi
+            grids[m] = bits
             m += 1
     return start[nc]
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def segments_near_box(lo, hi, o, d, rows, keep):
-    """keep[j] = 1 where the shadow segment o + t d, 0 <= t <= 1, of ray rows[j] (o, d (N, 3)
-    float64) meets the box lo..hi grown by a millionth of its diagonal on every side, else 0:
-    a segment outside it cannot reach a triangle of a grid with that box, whose own clip to its
-    box (with no margin) would end it before any triangle test.  A segment whose origin lies more
-    than a million diagonals from the box, where rounding could exceed the margin, is kept.
-    Returns how many are kept."""
-    ex, ey, ez = hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]
-    diag = math.sqrt(ex * ex + ey * ey + ez * ez)
-    grow = 1e-6 * diag
-    b0 = (lo[0] - grow, lo[1] - grow, lo[2] - grow)
-    b1 = (hi[0] + grow, hi[1] + grow, hi[2] + grow)
-    cx, cy, cz = 0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])
-    far = 1e6 * diag
-    n = 0
-    for j in prange(rows.shape[0]):
-        i = rows[j]
-        k = 1
-        if max(abs(o[i, 0] - cx), abs(o[i, 1] - cy), abs(o[i, 2] - cz)) <= far:
-            t0, t1 = 0.0, 1.0
-            for a in range(3):
-                oa, da = o[i, a], d[i, a]
-                if da == 0.0:
-                    if oa < b0[a] or oa > b1[a]:
-                        t0, t1 = 1.0, 0.0
-                else:
-                    inv = 1.0 / da
-                    ta = (b0[a] - oa) * inv
-                    tb = (b1[a] - oa) * inv
-                    if ta > tb:
-                        ta, tb = tb, ta
-                    t0, t1 = max(t0, ta), min(t1, tb)
-            if not (t0 <= t1):
-                k = 0
-        keep[j] = k
-        n += k
-    return n
+#: a grid box (its lo and hi, see near_boxes) is grown by this fraction of its diagonal before a
+#: shadow segment is tested against it
+BOX_MARGIN = 1e-6
+
+
+def near_boxes(grids):
+    """(G, 8) float64 of the grids (GridArrays) for light_segments: each box lo..hi grown by
+    BOX_MARGIN of its diagonal on every side (x0, y0, z0, x1, y1, z1), and the distance (a million
+    diagonals from its centre along an axis) beyond which a segment's origin is taken to meet it."""
+    out = np.empty((len(grids), 8))
+    for k, g in enumerate(grids):
+        lo, hi = np.asarray(g.lo, np.float64), np.asarray(g.hi, np.float64)
+        diag = float(np.sqrt(((hi - lo) ** 2).sum()))
+        out[k, 0:3] = lo - BOX_MARGIN * diag
+        out[k, 3:6] = hi + BOX_MARGIN * diag
+        out[k, 6] = 1e6 * diag
+        out[k, 7] = 0.0
+    return out
+
+
+@inner(cache=True, _nrt=False, error_model="numpy")
+def _near_box(box, o, d):
+    """Whether the segment o + t d, 0 <= t <= 1 (3-tuples) may meet the grown box ``box`` (a row
+    of near_boxes): False only where it certainly misses it.  A segment whose origin lies beyond
+    the box's far distance from its centre, where rounding could exceed the margin, is kept; one
+    whose own bounding box lies apart from the box is not, one whose own box lies inside it is,
+    without a division; the others are clipped to its slabs."""
+    ox, oy, oz = o
+    ex, ey, ez = ox + d[0], oy + d[1], oz + d[2]
+    if max(abs(ox - 0.5 * (box[0] + box[3])), abs(oy - 0.5 * (box[1] + box[4])),
+           abs(oz - 0.5 * (box[2] + box[5]))) > box[6]:
+        return True
+    if (min(ox, ex) > box[3] or max(ox, ex) < box[0] or min(oy, ey) > box[4] or max(oy, ey) < box[1]
+            or min(oz, ez) > box[5] or max(oz, ez) < box[2]):
+        return False
+    if (min(ox, ex) >= box[0] and max(ox, ex) <= box[3] and min(oy, ey) >= box[1] and max(oy, ey) <= box[4]
+            and min(oz, ez) >= box[2] and max(oz, ez) <= box[5]):
+        return True
+    t0, t1 = 0.0, 1.0
+    for a in range(3):
+        oa, da = o[a], d[a]
+        if da == 0.0:
+            if oa < box[a] or oa > box[a + 3]:
+                return False
+        else:
+            inv = 1.0 / da
+            ta = (box[a] - oa) * inv
+            tb = (box[a + 3] - oa) * inv
+            if ta > tb:
+                ta, tb = tb, ta
+            t0, t1 = max(t0, ta), min(t1, tb)
+    return t0 <= t1
 
 
 @njit(cache=True, parallel=True, error_model="numpy")

@@ -78,14 +78,14 @@ ShadowRays = namedtuple("ShadowRays", "need weight")
 
 #: One light's shadow segments, those of the lit hits only, in the order they are cast: rows (N,)
 #: int64 the pixel of each, o and d (N, 3) float64 the segment o + t d, 0 < t < 1, from the
-#: light's end to the hit.
-ShadowSegments = namedtuple("ShadowSegments", "rows o d")
+#: light's end to the hit, grids (N,) uint8 the grids whose boxes it may meet (bit g: grid g).
+ShadowSegments = namedtuple("ShadowSegments", "rows o d grids")
 
 #: The material pass's buffers for shadows (Python side, gridrt.trace.render.Renderer keeps them
 #: from frame to frame): the :class:`HitPoints` hp, the :class:`ShadowRays` rays, the pixels in
 #: tile order (W * H,) int64, the :class:`ShadowSegments` segs, the batch cast's out (t, tri, u,
-#: v), keep (W * H,) uint8 (segments near a grid's box) and blocked (W * H,) bool.
-ShadowBuffers = namedtuple("ShadowBuffers", "hp rays order segs out keep blocked")
+#: v) and blocked (W * H,) bool.
+ShadowBuffers = namedtuple("ShadowBuffers", "hp rays order segs out blocked")
 
 
 def make_view(basis, W, H, tile):

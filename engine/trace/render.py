@@ -48,7 +48,7 @@ from .twin import TWINS
 from ..camera import Camera, pixel_dir
 from .cgt.frame import cgt_render_kernel, cgt_render_serial
 from .grids import grid_arrays, grid_tuple, pack_grids, unpack_grids
-from .material import add_light, compose, light_segments, segments_near_box, shade_kernel, shade_serial, surface_arrays
+from .material import add_light, compose, light_segments, near_boxes, shade_kernel, shade_serial, surface_arrays
 from .records import (Buffers, HitPoints, ShadowBuffers, ShadowRays, ShadowSegments, make_packets, make_shading,
                       make_view)
 from .shade import (  # noqa: F401  (the shading constants stay importable from here)
@@ -394,9 +394,9 @@ class Renderer:
                           np.empty((n, 3), f32)),
                 ShadowRays(np.empty(n, np.uint8), np.empty(n, np.float64)),
                 order,
-                ShadowSegments(np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3))),
+                ShadowSegments(np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.uint8)),
                 (np.empty(n), np.empty(n, np.int32), np.empty(n), np.empty(n)),
-                np.empty(n, np.uint8), np.empty(n, bool)))
+                np.empty(n, bool)))
         return self._shadow[1]
 
     def render(self, grid, tris, camera, params: RenderParams | None = None, second=None,
@@ -527,7 +527,10 @@ class Renderer:
         TWINS(threads, shade_kernel, shade_serial, v, ib, surf, lights, deferred, img, hp)
         if not deferred:
             return len(lights), 0
-        rays, order, segs, out_b, keep = sb.rays, sb.order, sb.segs, sb.out, sb.keep
+        rays, order, segs, out_b = sb.rays, sb.order, sb.segs, sb.out
+        # of several grids (the static/moving split), each traces only the segments that may meet
+        # its box: a moving part's grid is often small, and most segments pass it by
+        boxes = near_boxes(grids) if 1 < len(grids) <= 8 else np.empty((0, 8))
         tvd, acc, weight = hp.tvd, hp.acc, rays.weight
         off, far = SHADOW_OFFSET * diag, 2.0 * max(diag, 1e-300)
         max_cells = SHADOW_MAX_CELLS if params.traversal == "cgt" else 0.0
@@ -537,18 +540,16 @@ class Renderer:
         # caster takes them in runs of RUN = TILE^2 in this order, and a run of one tile is a narrow
         # packet where a run of a row's pixels is a wide one (or single rays)
         for li in range(len(lights)):
-            m = light_segments(lights, li, hp, off, far, order, rays, segs)
+            m = light_segments(lights, li, hp, off, far, order, rays, segs, boxes)
             cast += m
             rows, o, d = segs.rows[:m], segs.o[:m], segs.d[:m]
             blocked = sb.blocked[:m]
             blocked[:] = False
-            for g in grids:  # any hit in any grid shadows
-                live = np.flatnonzero(~blocked)
-                if len(live) and len(grids) > 1:
-                    # of several grids (the static/moving split), each gets the segments that reach
-                    # its box: a moving part's grid is often small, and most rays pass it by
-                    if segments_near_box(g.lo, g.hi, o, d, live, keep[:len(live)]) < len(live):
-                        live = live[keep[:len(live)].view(bool)]
+            for gi, g in enumerate(grids):  # any hit in any grid shadows
+                if len(boxes):
+                    live = np.flatnonzero(~blocked & ((segs.grids[:m] & (1 << gi)) != 0))
+                else:
+                    live = np.flatnonzero(~blocked)
                 if len(live) == 0:
                     continue
                 lo, ld = (o, d) if len(live) == m else (o[live], d[live])  # (no copy while none is blocked)
