@@ -106,6 +106,21 @@ def test_packets_equal_single_rays_any_order(name):
             for k in hit[:200]:  # each reported hit is real: the brute force hits that triangle at that t
                 rk = R.ref_cast(tris[[a.tri[k]]], so[k : k + 1], sd[k : k + 1], tmax=1.0)
                 assert rk.tri[0] == 0 and abs(rk.t[0] - a.t[k]) <= 1e-5 * max(rk.t[0], 1e-9) + 1e-9, (name, k)
+        # the material pass's casts read only the triangle (tri_only): the same occlusion, and each
+        # reported triangle is hit within the segment
+        from gridrt.trace.batch import SHADOW_MAX_CELLS, cast_grouped
+        from gridrt.trace.grids import grid_arrays
+
+        g = grid_arrays(grid, tris)
+        for f32 in (False, True):
+            out = (np.full(len(so), np.nan), np.full(len(so), -2, np.int32), np.full(len(so), np.nan),
+                   np.full(len(so), np.nan))
+            cast_grouped(g, so, sd, 0.0, 1.0, True, True, out, SHADOW_MAX_CELLS, f32, tri_only=True)
+            assert np.array_equal(out[1] >= 0, s1.tri >= 0), f"{name}: tri_only occlusion differs (f32={f32})"
+            hit = np.flatnonzero(out[1] >= 0)
+            for k in hit[:200]:
+                rk = R.ref_cast(tris[[out[1][k]]], so[k : k + 1], sd[k : k + 1], tmax=1.0)
+                assert rk.tri[0] == 0, (name, k, f32)
 
 
 def test_ties_go_to_the_lower_index():

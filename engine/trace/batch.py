@@ -133,6 +133,8 @@ def _cast_run(g, origins, dirs, idx, s, n, q, how, scratch, out):
             out.u[i] = 0.0
             out.v[i] = 0.0
             continue
+        if how.tri_only and not f32:
+            continue  # the float64 packet's test is the single ray's: its triangle is hit in range
         # the single-ray test of the triangle hit: the packet's t bit for bit, and u, v (from
         # where the packet traced the ray: a far one from just before the grid box)
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
@@ -348,11 +350,12 @@ def pass1_order(origins, dirs):
     return order
 
 
-def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cells=MAX_CELLS, f32=False):
+def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cells=MAX_CELLS, f32=False,
+                 tri_only=False):
     """Cast the rays (origins, dirs (N,3) float64, checked) through the grid g (GridArrays) into
     out = (t, tri, u, v) as the module docstring describes; ``max_cells`` <= 0 traces every ray
-    singly; f32: the packets' triangle tests in float32.  Returns (rays traced in packets in pass
-    1, in pass 2)."""
+    singly; f32: the packets' triangle tests in float32; tri_only: the caller reads only tri (see
+    :class:`gridrt.trace.query.CastPass`).  Returns (rays traced in packets in pass 1, in pass 2)."""
     N = len(origins)
     if N == 0:
         return 0, 0
@@ -362,11 +365,13 @@ def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cel
     # items one at a time; not sort_keys, whose rows cost alike)
     if max_cells <= 0.0:
         with parallel_chunksize(1):
-            cast_runs_kernel(g, origins, dirs, NO_ROWS, q, cast_pass(-1.0, True, f32), HitArrays(*out, NO_LEFT))
+            cast_runs_kernel(g, origins, dirs, NO_ROWS, q, cast_pass(-1.0, True, f32, tri_only),
+                             HitArrays(*out, NO_LEFT))
         return 0, 0
     left = np.zeros(N, np.uint8)
     with parallel_chunksize(1):
-        p1 = cast_runs_kernel(g, origins, dirs, pass1_order(origins, dirs), q, cast_pass(max_cells, False, f32),
+        p1 = cast_runs_kernel(g, origins, dirs, pass1_order(origins, dirs), q,
+                              cast_pass(max_cells, False, f32, tri_only),
                               HitArrays(*out, left))
     rows = np.flatnonzero(left)
     if len(rows) == 0:
@@ -385,6 +390,6 @@ def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cel
         # which arrive in long sorted runs (a tile's rays share a bin)
         rows = rows[np.argsort(keys, kind="stable")]
     with parallel_chunksize(1):
-        p2 = cast_runs_kernel(g, origins, dirs, rows, q, cast_pass(max_cells if sort else -1.0, True, f32),
+        p2 = cast_runs_kernel(g, origins, dirs, rows, q, cast_pass(max_cells if sort else -1.0, True, f32, tri_only),
                               HitArrays(*out, NO_LEFT))
     return int(p1), int(p2)

@@ -34,8 +34,10 @@ Query = namedtuple("Query", "tmin tmax watertight any_hit")
 #: How one pass of a batch cast traces its runs of rays: as packets when they make one of at
 #: most max_cells cells in its widest slice (float64; <= 0: never), the packets' triangle tests
 #: in float32 with f32; the runs that do not make one are traced one ray at a time with singly,
-#: else flagged in the outputs' ``left``.
-CastPass = namedtuple("CastPass", "max_cells singly f32")
+#: else flagged in the outputs' ``left``.  With tri_only the caller reads only the outputs' tri
+#: (which triangle, or none): a float64 packet's hits then skip the single-ray test that
+#: recomputes t, u and v, which stay unwritten for them.
+CastPass = namedtuple("CastPass", "max_cells singly f32 tri_only")
 
 #: A batch cast's outputs, (N,) arrays indexed by ray: t (float64, inf on a miss), tri (int32,
 #: -1 on a miss), barycentrics u, v (float64), and left (uint8: 1 for a ray the pass left for
@@ -53,7 +55,7 @@ def query(tmin, tmax, watertight, any_hit):
     return Query(float(tmin), float(tmax), bool(watertight), bool(any_hit))
 
 
-def cast_pass(max_cells, singly, f32):
+def cast_pass(max_cells, singly, f32, tri_only=False):
     """The :class:`CastPass` of one pass, with the dtypes the kernels are compiled for."""
-    return CastPass(float(max_cells), bool(singly), bool(f32))
+    return CastPass(float(max_cells), bool(singly), bool(f32), bool(tri_only))
 

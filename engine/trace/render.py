@@ -554,7 +554,7 @@ class Renderer:
                     continue
                 lo, ld = (o, d) if len(live) == m else (o[live], d[live])  # (no copy while none is blocked)
                 out = tuple(a[:len(live)] for a in out_b)
-                cast_grouped(g, lo, ld, 0.0, 1.0, bool(params.watertight), True, out, max_cells, f32)
+                cast_grouped(g, lo, ld, 0.0, 1.0, bool(params.watertight), True, out, max_cells, f32, tri_only=True)
                 blocked[live[out[1] >= 0]] = True
             add_light(rows, blocked, weight, tvd, float(lights[li, 4]), float(lights[li, 5]), float(lights[li, 6]), acc)
         compose(W, H, acc, img)
