@@ -160,57 +160,17 @@ def light_weight(lights, li, p, ng, ns):
 
 
 @inner(cache=True, _nrt=False, error_model="numpy")
-def surface_at(surf, f, e, d):
-    """What the camera ray eye + t d (e, d: 3-tuples) sees on scene triangle f of the surface surf
-    (:class:`gridrt.trace.records.SurfaceArrays`): (p, n_g, n_s, tvd, tva) with p the hit point
-    (float64), n_g and n_s the facing geometric and shading normals, tvd = T V D and tva = T V A
-    the colours the lights and the ambient term multiply."""
-    stris, normals, material, diffuse, ambient = surf.tris, surf.normals, surf.material, surf.diffuse, surf.ambient
-    texture, tex_data, tex_info, uv, colors = surf.texture, surf.tex_data, surf.tex_info, surf.uv, surf.colors
-    ex, ey, ez = e
-    dx, dy, dz = d
-    w0, w1, w2 = barycentrics(stris, f, ex, ey, ez, dx, dy, dz)
-    px = w0 * stris[f, 0, 0] + w1 * stris[f, 1, 0] + w2 * stris[f, 2, 0]
-    py = w0 * stris[f, 0, 1] + w1 * stris[f, 1, 1] + w2 * stris[f, 2, 1]
-    pz = w0 * stris[f, 0, 2] + w1 * stris[f, 1, 2] + w2 * stris[f, 2, 2]
-    # geometric normal (v1 - v0) x (v2 - v0), towards the viewer (against the ray when degenerate)
-    gx, gy, gz = unit_normal(stris, f)
-    if gx == 0.0 and gy == 0.0 and gz == 0.0:
-        gx, gy, gz = -dx, -dy, -dz
-    if gx * dx + gy * dy + gz * dz > 0.0:
-        gx, gy, gz = -gx, -gy, -gz
-    sx, sy, sz = gx, gy, gz
-    if normals.shape[0] > 0:
-        nx = w0 * normals[f, 0, 0] + w1 * normals[f, 1, 0] + w2 * normals[f, 2, 0]
-        ny = w0 * normals[f, 0, 1] + w1 * normals[f, 1, 1] + w2 * normals[f, 2, 1]
-        nz = w0 * normals[f, 0, 2] + w1 * normals[f, 1, 2] + w2 * normals[f, 2, 2]
-        nn = math.sqrt(nx * nx + ny * ny + nz * nz)
-        if nn > 1e-12 and math.isfinite(nn):
-            r = 1.0 / nn
-            sx, sy, sz = nx * r, ny * r, nz * r
-            if sx * gx + sy * gy + sz * gz < 0.0:
-                sx, sy, sz = -sx, -sy, -sz
-    m = material[f]
-    tr, tg, tb = 1.0, 1.0, 1.0
-    k = texture[m]
-    if k >= 0:
-        u = w0 * uv[f, 0, 0] + w1 * uv[f, 1, 0] + w2 * uv[f, 2, 0]
-        v = w0 * uv[f, 0, 1] + w1 * uv[f, 1, 1] + w2 * uv[f, 2, 1]
-        tr, tg, tb = sample_bilinear(tex_data, tex_info, k, u, v)
-    if colors.shape[0] > 0:
-        tr *= w0 * colors[f, 0, 0] + w1 * colors[f, 1, 0] + w2 * colors[f, 2, 0]
-        tg *= w0 * colors[f, 0, 1] + w1 * colors[f, 1, 1] + w2 * colors[f, 2, 1]
-        tb *= w0 * colors[f, 0, 2] + w1 * colors[f, 1, 2] + w2 * colors[f, 2, 2]
-    return (px, py, pz, gx, gy, gz, sx, sy, sz,
-            tr * diffuse[m, 0], tg * diffuse[m, 1], tb * diffuse[m, 2],
-            tr * ambient[m, 0], tg * ambient[m, 1], tb * ambient[m, 2])
-
-
-@inner(cache=True, _nrt=False, error_model="numpy")
 def _shade_row(y, view, ibuf, surf, lights, deferred, img, hp):
-    """Row y of shade_kernel."""
+    """Row y of shade_kernel.  Per hit pixel, what the camera ray eye + t d sees on its scene
+    triangle f of the surface surf (:class:`gridrt.trace.records.SurfaceArrays`): the hit point p
+    (float64), the facing geometric and shading normals n_g and n_s, and the colours the lights
+    and the ambient term multiply, tvd = T V D and tva = T V A; then the lights' terms, or with
+    ``deferred`` those in the hit buffers hp.  (In one function with the loop: a call per pixel
+    returning them cost a fifth of the pass.)"""
     basis, W, H = view.basis, view.W, view.H
     pos, ngb, nsb, tvd, acc = hp.pos, hp.ng, hp.ns, hp.tvd, hp.acc
+    stris, normals, material, diffuse, ambient = surf.tris, surf.normals, surf.material, surf.diffuse, surf.ambient
+    texture, tex_data, tex_info, uv, colors = surf.texture, surf.tex_data, surf.tex_info, surf.uv, surf.colors
     ex, ey, ez = basis[0, 0], basis[0, 1], basis[0, 2]
     for x in range(W):
         f = ibuf[y, x]
@@ -220,7 +180,40 @@ def _shade_row(y, view, ibuf, surf, lights, deferred, img, hp):
                 acc[i, 0] = -1.0
             continue
         dx, dy, dz = pixel_dir(basis, W, H, x, y)
-        px, py, pz, gx, gy, gz, sx, sy, sz, dr, dg, db, ar, ag, ab = surface_at(surf, f, (ex, ey, ez), (dx, dy, dz))
+        w0, w1, w2 = barycentrics(stris, f, ex, ey, ez, dx, dy, dz)
+        px = w0 * stris[f, 0, 0] + w1 * stris[f, 1, 0] + w2 * stris[f, 2, 0]
+        py = w0 * stris[f, 0, 1] + w1 * stris[f, 1, 1] + w2 * stris[f, 2, 1]
+        pz = w0 * stris[f, 0, 2] + w1 * stris[f, 1, 2] + w2 * stris[f, 2, 2]
+        # geometric normal (v1 - v0) x (v2 - v0), towards the viewer (against the ray when degenerate)
+        gx, gy, gz = unit_normal(stris, f)
+        if gx == 0.0 and gy == 0.0 and gz == 0.0:
+            gx, gy, gz = -dx, -dy, -dz
+        if gx * dx + gy * dy + gz * dz > 0.0:
+            gx, gy, gz = -gx, -gy, -gz
+        sx, sy, sz = gx, gy, gz
+        if normals.shape[0] > 0:
+            nx = w0 * normals[f, 0, 0] + w1 * normals[f, 1, 0] + w2 * normals[f, 2, 0]
+            ny = w0 * normals[f, 0, 1] + w1 * normals[f, 1, 1] + w2 * normals[f, 2, 1]
+            nz = w0 * normals[f, 0, 2] + w1 * normals[f, 1, 2] + w2 * normals[f, 2, 2]
+            nn = math.sqrt(nx * nx + ny * ny + nz * nz)
+            if nn > 1e-12 and math.isfinite(nn):
+                r = 1.0 / nn
+                sx, sy, sz = nx * r, ny * r, nz * r
+                if sx * gx + sy * gy + sz * gz < 0.0:
+                    sx, sy, sz = -sx, -sy, -sz
+        m = material[f]
+        tr, tg, tb = 1.0, 1.0, 1.0
+        k = texture[m]
+        if k >= 0:
+            u = w0 * uv[f, 0, 0] + w1 * uv[f, 1, 0] + w2 * uv[f, 2, 0]
+            v = w0 * uv[f, 0, 1] + w1 * uv[f, 1, 1] + w2 * uv[f, 2, 1]
+            tr, tg, tb = sample_bilinear(tex_data, tex_info, k, u, v)
+        if colors.shape[0] > 0:
+            tr *= w0 * colors[f, 0, 0] + w1 * colors[f, 1, 0] + w2 * colors[f, 2, 0]
+            tg *= w0 * colors[f, 0, 1] + w1 * colors[f, 1, 1] + w2 * colors[f, 2, 1]
+            tb *= w0 * colors[f, 0, 2] + w1 * colors[f, 1, 2] + w2 * colors[f, 2, 2]
+        dr, dg, db = tr * diffuse[m, 0], tg * diffuse[m, 1], tb * diffuse[m, 2]
+        ar, ag, ab = tr * ambient[m, 0], tg * ambient[m, 1], tb * ambient[m, 2]
         if deferred:  # the lights are added once their shadow rays are cast
             pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
             ngb[i, 0], ngb[i, 1], ngb[i, 2] = gx, gy, gz
