@@ -8,6 +8,7 @@ origin; and the analytic normals of a sphere.
 
 import numpy as np
 import pytest
+from numba import njit
 
 import reference as R
 from gridrt.camera import Camera
@@ -18,6 +19,7 @@ from gridrt.pipeline import FramePipeline
 from gridrt.scene.animation import Animation, StaticMesh
 from gridrt.scene.mesh import Mesh
 from gridrt.scene.surface import Surface, Texture
+from gridrt.trace.material import _near_box
 from gridrt.trace.render import Looks, Renderer
 
 W, H = 64, 48
@@ -515,20 +517,20 @@ def _segment_meets_box(o, d, lo, hi):
     return t0 <= t1
 
 
+@njit
+def _near_box_marks(box, o, d, out):
+    """out[i] = gridrt.trace.material._near_box's verdict on segment i (o, d (N, 3)) and box."""
+    for i in range(o.shape[0]):
+        out[i] = _near_box(box, (o[i, 0], o[i, 1], o[i, 2]), (d[i, 0], d[i, 1], d[i, 2]))
+
+
 def test_near_box_keeps_every_segment_that_meets_the_box(rng):
     """The shadow pass traces a segment through a grid only where _near_box says it may meet the
     grid's box (grown by near_boxes): it does for every segment that meets the box (exact rational
     reference), among them segments that end on a face, an edge or a corner, run along a face,
     lie inside it, or graze it from just outside, and for none that passes it at more than the
     margin; an origin a million diagonals away is kept."""
-    from numba import njit
-
-    from gridrt.trace.material import _near_box, near_boxes
-
-    @njit
-    def marks(box, o, d, out):
-        for i in range(o.shape[0]):
-            out[i] = _near_box(box, (o[i, 0], o[i, 1], o[i, 2]), (d[i, 0], d[i, 1], d[i, 2]))
+    from gridrt.trace.material import near_boxes
 
     class Grid:  # (near_boxes reads a grid's lo and hi)
         lo, hi = np.array([-1.0, -2.0, 0.5]), np.array([2.0, 1.0, 3.0])
@@ -567,7 +569,7 @@ def test_near_box_keeps_every_segment_that_meets_the_box(rng):
     d.append(np.array([1.0, 0.0, 0.0]))
     o, d = np.array(o), np.array(d)
     got = np.zeros(len(o), np.bool_)
-    marks(near_boxes([Grid])[0], o, d, got)
+    _near_box_marks(near_boxes([Grid])[0], o, d, got)
     grow = 2e-6 * diag
     meets = np.array([_segment_meets_box(o[i], d[i], lo, hi) for i in range(len(o))])
     near = np.array([_segment_meets_box(o[i], d[i], lo - grow, hi + grow) for i in range(len(o))])
@@ -580,15 +582,8 @@ def test_near_box_keeps_every_segment_that_meets_the_box(rng):
 def test_light_segments_mark_the_grids_each_segment_may_meet(rng):
     """With several grids' boxes, bit g of each segment's mark is _near_box's verdict for grid
     g's box on that segment (a large box most segments meet, a small one few do)."""
-    from numba import njit
-
-    from gridrt.trace.material import _near_box, light_segments, near_boxes
+    from gridrt.trace.material import light_segments, near_boxes
     from gridrt.trace.records import HitPoints, ShadowRays, ShadowSegments
-
-    @njit
-    def marks(box, o, d, out):
-        for i in range(o.shape[0]):
-            out[i] = _near_box(box, (o[i, 0], o[i, 1], o[i, 2]), (d[i, 0], d[i, 1], d[i, 2]))
 
     class Grid:
         def __init__(self, lo, hi):
@@ -606,7 +601,7 @@ def test_light_segments_mark_the_grids_each_segment_may_meet(rng):
     assert m == n  # every hit faces the light above
     for k in range(2):
         want = np.zeros(m, np.bool_)
-        marks(boxes[k], segs.o[:m], segs.d[:m], want)
+        _near_box_marks(boxes[k], segs.o[:m], segs.d[:m], want)
         assert (((segs.grids[:m] >> k) & 1) == want).all()
     assert ((segs.grids[:m] & 1) == 1).mean() > 0.9 and 0 < ((segs.grids[:m] & 2) == 2).mean() < 0.2
 
@@ -634,7 +629,7 @@ def test_light_segments_against_numpy(rng, n):
         rays = ShadowRays(np.full(n, 7, np.uint8), np.full(n, np.nan))
         segs = ShadowSegments(np.full(n, -1, np.int64), np.full((n, 3), np.nan), np.full((n, 3), np.nan),
                               np.zeros(n, np.uint8))
-        m = light_segments(lights, li, hp, off, far, order, rays, segs, np.empty((0, 8)))
+        m = light_segments(lights, li, hp, off, far, order, rays, segs, np.empty((0, 7)))
         w = np.array([light_weight.py_func(lights, li, tuple(pos[i]), tuple(ng[i]), tuple(ns[i].astype(np.float64)))[0]
                       if acc[i, 0] >= 0 else 0.0 for i in range(n)])
         lit = w > 0

@@ -13,6 +13,7 @@ PYTHONDONTWRITEBYTECODE set (Python writes no ``.pyc`` files, so a source withou
 every start, unlike an installed copy), the warm runs are also measured with it unset.
 """
 
+import argparse
 import os
 import re
 import resource
@@ -81,12 +82,9 @@ def dump_once(cache_dir, out, extra=(), env=None):
 def dump_threads(extra):
     """The thread count the dumps run with: --threads among the dump's arguments extra, else the
     dump's default (all cores)."""
-    given = None
-    for i, x in enumerate(extra):
-        if x == "--threads" and i + 1 < len(extra):
-            given = extra[i + 1]
-        elif x.startswith("--threads="):
-            given = x.split("=", 1)[1]
+    p = argparse.ArgumentParser(add_help=False)
+    p.add_argument("--threads")
+    given = p.parse_known_args(extra)[0].threads
     try:
         return check_threads(None if given is None else int(given))
     except ValueError:

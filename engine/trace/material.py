@@ -39,6 +39,7 @@ from ..scene.surface import (AMBIENT_FRACTION, DEFAULT_DIFFUSE, FALLOFF_INVERSE_
                              Surface)
 from .records import SurfaceArrays
 from .shade import put_pixel, unit_normal
+from .traverse import _clip_box
 
 
 @inner(cache=True, _nrt=False, error_model="numpy")
@@ -267,9 +268,9 @@ def light_segments(lights, li, hp, off, far, order, rays, segs, boxes):
     from p + n_g * off to the light (a point light's vector to it, or far times a directional
     light's unit vector) starts at the light's end, o = origin + direction, d = -direction.  A
     point light's segments then share one origin, and one blocked near its light stops there.
-    With several grids, boxes (G, 8) (:func:`near_boxes`, G <= 8) gives their boxes, and bit g of
+    With several grids, boxes (G, 7) (:func:`near_boxes`, G <= 8) gives their boxes, and bit g of
     segs.grids[m] is set where segment m may meet grid g's box (:func:`_near_box`): the grids it
-    misses need not trace it; with boxes (0, 8) every bit is set.
+    misses need not trace it; with boxes (0, 7) every bit is set.
     Returns how many.  In three parallel passes: the lit hits, in pixel order; then over chunks of
     LIT_CHUNK pixels of the order, each chunk's count of them, and each chunk's segments from its
     place after the chunks before it."""
@@ -329,17 +330,16 @@ BOX_MARGIN = 1e-6
 
 
 def near_boxes(grids):
-    """(G, 8) float64 of the grids (GridArrays) for light_segments: each box lo..hi grown by
+    """(G, 7) float64 of the grids (GridArrays) for light_segments: each box lo..hi grown by
     BOX_MARGIN of its diagonal on every side (x0, y0, z0, x1, y1, z1), and the distance (a million
     diagonals from its centre along an axis) beyond which a segment's origin is taken to meet it."""
-    out = np.empty((len(grids), 8))
+    out = np.empty((len(grids), 7))
     for k, g in enumerate(grids):
         lo, hi = np.asarray(g.lo, np.float64), np.asarray(g.hi, np.float64)
         diag = float(np.sqrt(((hi - lo) ** 2).sum()))
         out[k, 0:3] = lo - BOX_MARGIN * diag
         out[k, 3:6] = hi + BOX_MARGIN * diag
         out[k, 6] = 1e6 * diag
-        out[k, 7] = 0.0
     return out
 
 
@@ -349,7 +349,8 @@ def _near_box(box, o, d):
     of near_boxes): False only where it certainly misses it.  A segment whose origin lies beyond
     the box's far distance from its centre, where rounding could exceed the margin, is kept; one
     whose own bounding box lies apart from the box is not, one whose own box lies inside it is,
-    without a division; the others are clipped to its slabs."""
+    without a division; the others are clipped to it as the traversal clips a ray to its grid's box
+    (gridrt.trace.traverse._clip_box)."""
     ox, oy, oz = o
     ex, ey, ez = ox + d[0], oy + d[1], oz + d[2]
     if max(abs(ox - 0.5 * (box[0] + box[3])), abs(oy - 0.5 * (box[1] + box[4])),
@@ -361,19 +362,7 @@ def _near_box(box, o, d):
     if (min(ox, ex) >= box[0] and max(ox, ex) <= box[3] and min(oy, ey) >= box[1] and max(oy, ey) <= box[4]
             and min(oz, ez) >= box[2] and max(oz, ez) <= box[5]):
         return True
-    t0, t1 = 0.0, 1.0
-    for a in range(3):
-        oa, da = o[a], d[a]
-        if da == 0.0:
-            if oa < box[a] or oa > box[a + 3]:
-                return False
-        else:
-            inv = 1.0 / da
-            ta = (box[a] - oa) * inv
-            tb = (box[a + 3] - oa) * inv
-            if ta > tb:
-                ta, tb = tb, ta
-            t0, t1 = max(t0, ta), min(t1, tb)
+    t0, t1 = _clip_box((box[0], box[1], box[2]), (box[3], box[4], box[5]), o, d, 0.0, 1.0)
     return t0 <= t1
 
 

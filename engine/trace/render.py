@@ -530,7 +530,7 @@ class Renderer:
         rays, order, segs, out_b = sb.rays, sb.order, sb.segs, sb.out
         # of several grids (the static/moving split), each traces only the segments that may meet
         # its box: a moving part's grid is often small, and most segments pass it by
-        boxes = near_boxes(grids) if 1 < len(grids) <= 8 else np.empty((0, 8))
+        boxes = near_boxes(grids) if 1 < len(grids) <= 8 else np.empty((0, 7))
         tvd, acc, weight = hp.tvd, hp.acc, rays.weight
         off, far = SHADOW_OFFSET * diag, 2.0 * max(diag, 1e-300)
         max_cells = SHADOW_MAX_CELLS if params.traversal == "cgt" else 0.0
@@ -546,10 +546,10 @@ class Renderer:
             blocked = sb.blocked[:m]
             blocked[:] = False
             for gi, g in enumerate(grids):  # any hit in any grid shadows
+                sel = ~blocked
                 if len(boxes):
-                    live = np.flatnonzero(~blocked & ((segs.grids[:m] & (1 << gi)) != 0))
-                else:
-                    live = np.flatnonzero(~blocked)
+                    sel &= (segs.grids[:m] & (1 << gi)) != 0
+                live = np.flatnonzero(sel)
                 if len(live) == 0:
                     continue
                 lo, ld = (o, d) if len(live) == m else (o[live], d[live])  # (no copy while none is blocked)
