@@ -24,7 +24,7 @@ from gridrt.app.bench.stats import timings
 from gridrt.config import GridParams
 from gridrt.grid.build import GridBuilder
 from gridrt.trace.grids import grid_arrays
-from gridrt.trace.traverse import MAILBOX, trace_ray
+from gridrt.trace.traverse import SCRATCH, trace_ray
 from numba import njit
 
 from tables import add_out_option, add_ray_options, items, keep_output, print_settings, scene_label
@@ -56,7 +56,7 @@ def measure(sc, g, view, size, runs):
     t = 0 and one view."""
     _origin, _cam, _o32, _d32, o, d = peer_rays(sc, size, view)
     n = len(o)
-    mailbox = np.empty(MAILBOX, np.int32)
+    mailbox = np.empty(SCRATCH, np.int32)
     tri, cells, tests = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
     # one untimed call first (it compiles trace_all), then the best of the timed ones
     _median, best_ms, _worst = timings(lambda: trace_all(g, o, d, mailbox, tri, cells, tests), runs)

@@ -30,7 +30,7 @@ from gridrt.grid import build_grid
 from gridrt.trace import render
 from gridrt.trace.grids import grid_arrays
 from gridrt.trace.render import Renderer
-from gridrt.trace.traverse import MAILBOX, trace_ray
+from gridrt.trace.traverse import SCRATCH, trace_ray
 from helpers.cgt import assert_same, camera, grid_of, render_both, scene, trace_one_packet
 
 GRAZE = 1e-9
@@ -328,7 +328,7 @@ def test_incoherent_packet_split_by_class(watertight, f32):
     ta, tb = (lo - o[6:]) / d[6:], (hi - o[6:]) / d[6:]
     assert r == int((np.maximum(np.minimum(ta, tb).max(1), 0.0) <= np.maximum(ta, tb).min(1)).sum()) > 30
     if not f32:  # the single-ray DDA's hits, bit for bit
-        mb = np.empty(MAILBOX, np.int32)
+        mb = np.empty(SCRATCH, np.int32)
         for k in range(6, n):
             fk, tk = trace_ray(g, tuple(o[k]), tuple(d[k]), 0.0, np.inf, watertight, False, mb)[:2]
             assert fk == f[k] and tk == t[k], f"ray {k}: DDA {fk} at {tk}, packet {f[k]} at {t[k]}"

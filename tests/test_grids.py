@@ -21,12 +21,12 @@ from gridrt.config import GridParams
 from gridrt.grid import build_grid
 from gridrt.trace import cgt
 from gridrt.trace.grids import GridArrays, carries_leaves, grid_tuple, pack_grids, unpack_grids
-from gridrt.trace.traverse import MAILBOX, trace_grids
+from gridrt.trace.traverse import SCRATCH, trace_grids
 
 
 @njit(cache=True)
 def _dda(grids, origins, dirs, tmax, any_hit, out_w, out_f, out_t):
-    mb = np.empty(MAILBOX, np.int32)
+    mb = np.empty(SCRATCH, np.int32)
     for i in range(origins.shape[0]):
         w, f, t, u, v, nc, nt = trace_grids(grids, (origins[i, 0], origins[i, 1], origins[i, 2]),
                                             (dirs[i, 0], dirs[i, 1], dirs[i, 2]), 0.0, tmax[i], True, any_hit, mb)

@@ -13,7 +13,7 @@ from conftest import random_triangles
 from gridrt.compiles import one_per_types
 from gridrt.grid import build_grid
 from gridrt.trace.grids import grid_tuple
-from gridrt.trace.traverse import MAILBOX, trace_grids, trace_ray
+from gridrt.trace.traverse import SCRATCH, trace_grids, trace_ray
 
 
 @njit
@@ -52,7 +52,7 @@ def test_constants_compile_once_and_keep_their_values():
 @njit
 def _nearest_and_any(grids, origins, dirs, out_f, out_t, out_any):
     """Each ray's nearest hit and its any-hit answer, each asked with constant flags."""
-    mb = np.empty(MAILBOX, np.int32)
+    mb = np.empty(SCRATCH, np.int32)
     for i in range(origins.shape[0]):
         o = (origins[i, 0], origins[i, 1], origins[i, 2])
         d = (dirs[i, 0], dirs[i, 1], dirs[i, 2])

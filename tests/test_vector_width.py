@@ -6,7 +6,8 @@ code itself: the float32 packet test (cgt._test_wt32) is compiled in a fresh pro
 fresh numba cache (inspection is not available for code loaded from the cache), and its machine
 code must use zmm packed-single arithmetic with the default width on an AVX-512 CPU, and only
 ymm (no zmm packed-single) with GRIDRT_VECTOR_WIDTH=256, on Intel cores (whose LLVM tuning
-prefers 256-bit vectors anyway) and AMD's Zen 4 (whose tuning does not) alike.
+prefers 256-bit vectors anyway) and AMD's Zen 4 (whose tuning does not) alike.  The single-ray
+traversal's side-by-side cell test is checked the same way, on packed-double arithmetic.
 """
 
 import json
@@ -61,16 +62,62 @@ print(json.dumps({"features": config.CPU_FEATURES or "", "zmm_ps": sum("zmm" in 
 """
 
 
-@pytest.mark.parametrize("width", ["auto", "256"])
-def test_generated_code_width(tmp_path, width):
+def _run_probe(tmp_path, width, src):
+    """The JSON line a probe ``src`` prints, run in a fresh process with GRIDRT_VECTOR_WIDTH=width
+    and a fresh numba cache (inspection is not available for code loaded from the cache)."""
     env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CPU_FEATURES", "NUMBA_CACHE_DIR")}
     env.update(GRIDRT_VECTOR_WIDTH=width, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
-    out = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, timeout=600)
+    out = subprocess.run([sys.executable, "-c", src], env=env, capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-2000:]
-    r = json.loads(out.stdout.strip().splitlines()[-1])
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.parametrize("width", ["auto", "256"])
+def test_generated_code_width(tmp_path, width):
+    r = _run_probe(tmp_path, width, _PROBE)
     print(width, r["zmm_ps"], "zmm packed-single ops,", r["ymm_ps"], "ymm")
     if width == "auto" and AVX512:
         assert r["features"].endswith("-prefer-256-bit")
         assert r["zmm_ps"] >= 30, "the float32 packet test does not use 512-bit registers"
     else:
         assert r["zmm_ps"] == 0 and r["ymm_ps"] >= 30, "the float32 packet test is not 8-wide ymm code"
+
+
+_PROBE_SINGLE = r"""
+import json, re
+import numpy as np
+import gridrt
+from numba import njit
+from numba.core import config
+from gridrt.config import GridParams
+from gridrt.grid import build_grid
+from gridrt.trace.grids import grid_arrays
+from gridrt.trace.traverse import SCRATCH, trace_ray
+
+@njit
+def one(g, mb):
+    return trace_ray(g, (0.1, 0.2, -1.0), (0.0, 0.0, 1.0), 0.0, np.inf, True, False, mb)
+
+tris = np.random.default_rng(0).uniform(0, 1, (50, 3, 3)).astype(np.float32)
+g = grid_arrays(build_grid(tris, GridParams(density=0.2)), tris)
+one(g, np.empty(SCRATCH, np.int32))
+asm = one.overloads[one.signatures[0]].library.get_asm_str()
+ops = re.findall(r"^\s+(v(?:sub|mul|div)pd)\s+([^\n]*)", asm, re.M)
+print(json.dumps({"features": config.CPU_FEATURES or "", "zmm_pd": sum("zmm" in a for _, a in ops),
+                  "ymm_pd": sum("ymm" in a and "zmm" not in a for _, a in ops)}))
+"""
+
+
+@pytest.mark.parametrize("width", ["auto", "256"])
+def test_single_ray_cell_test_width(tmp_path, width):
+    """The single-ray traversal tests a crowded cell's triangles side by side
+    (gridrt.trace.traverse._test_cell_wt): its compiled code (trace_ray, in a fresh process and
+    cache) holds packed-double subtractions, products and divisions, in zmm registers with the
+    default width on an AVX-512 CPU and in ymm ones with GRIDRT_VECTOR_WIDTH=256 (scalar code
+    has none)."""
+    r = _run_probe(tmp_path, width, _PROBE_SINGLE)
+    print(width, r["zmm_pd"], "zmm packed-double ops,", r["ymm_pd"], "ymm")
+    if width == "auto" and AVX512:
+        assert r["zmm_pd"] >= 20, "the single-ray cell test does not use 512-bit registers"
+    else:
+        assert r["zmm_pd"] == 0 and r["ymm_pd"] >= 20, "the single-ray cell test is not 4-wide ymm code"

@@ -39,7 +39,7 @@ from .cgt import (IO_DX, IO_DY, IO_DZ, IO_F, IO_OX, IO_OY, IO_OZ, IO_TMAX, MBOX,
                   direction_class, trace_packet)
 from .intersect import ray_shear
 from .query import HitArrays, PacketScratch, cast_pass, query
-from .traverse import (MAILBOX, MOVED, NEAR, TINY_DIR, _floor_clamp, _test_triangle, far_interval, far_shift, far_t,
+from .traverse import (SCRATCH, MOVED, NEAR, TINY_DIR, _floor_clamp, _test_triangle, far_interval, far_shift, far_t,
                        is_far, trace_ray)
 
 #: rays in a run (a packet's worth; at most cgt.PN)
@@ -176,7 +176,7 @@ def cast_runs_kernel(g, origins, dirs, idx, q, how, out):
     packets = np.zeros(nitems, np.int64)
     for it in prange(nitems):
         scratch = PacketScratch(np.empty(NIO * PN), np.empty(NS * PN), np.empty(MBOX, np.int32),
-                                np.empty(MAILBOX, np.int32))
+                                np.empty(SCRATCH, np.int32))
         for run in range(it * GROUPS_PER_ITEM, min((it + 1) * GROUPS_PER_ITEM, nruns)):
             s = run * RUN
             packets[it] += _cast_run(g, origins, dirs, idx, s, min(RUN, M - s), q, how, scratch, out)

@@ -43,7 +43,7 @@ from ..stats import RenderStats
 from ..threads import check_threads, launch_guard, use_threads
 from ..scene.surface import Surface, as_lights
 from .batch import MAX_CELLS, SHADOW_MAX_CELLS, cast_grouped, odd_directions, tile_order
-from .traverse import MAILBOX, near_all, trace_grids
+from .traverse import SCRATCH, near_all, trace_grids
 from .twin import TWINS
 from ..camera import Camera, pixel_dir
 from .cgt.frame import cgt_render_kernel, cgt_render_serial
@@ -116,7 +116,7 @@ def render_kernel(grids, view, looks, light, out):
     ntiles = ((W + tile - 1) // tile) * ((H + tile - 1) // tile)
     flat = pack_grids(grids)  # (a tuple of grids cannot enter the parallel loop as it is: see grids.py)
     for ti in prange(ntiles):
-        _render_tile(unpack_grids(flat), view, looks, light, np.int64(ti), out, np.empty(MAILBOX, np.int32))
+        _render_tile(unpack_grids(flat), view, looks, light, np.int64(ti), out, np.empty(SCRATCH, np.int32))
 
 
 @njit(cache=True)
@@ -125,7 +125,7 @@ def render_serial(grids, view, looks, light, out):
     faster (gridrt.trace.twin)."""
     W, H, tile = view.W, view.H, view.tile
     ntiles = ((W + tile - 1) // tile) * ((H + tile - 1) // tile)
-    mb = np.empty(MAILBOX, np.int32)
+    mb = np.empty(SCRATCH, np.int32)
     for ti in range(ntiles):
         _render_tile(grids, view, looks, light, ti, out, mb)
 

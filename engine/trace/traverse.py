@@ -1,7 +1,10 @@
 """Single-ray traversal of the uniform grid: 3D DDA (Amanatides & Woo, "A Fast Voxel Traversal
 Algorithm for Ray Tracing", Eurographics 1987) in two nested loops: one over the macro cells (an
 empty one is crossed in one step), one over the cells of a macro cell that holds triangles; and a
-small per-ray mailbox so a triangle spanning several cells is tested once.
+small per-ray mailbox so a triangle spanning several cells is tested once.  A cell crowded with
+triangles (SIDE_BY_SIDE or more references) has them tested side by side instead, CHUNK at a time
+in vector lanes, with the watertight test's arithmetic (:func:`_test_cell_wt`): a triangle met
+again there is tested again, which gives the same t and changes no hit.
 
 Termination: the nearest hit found so far is kept across cells; traversal stops once it lies
 inside the current cell's t-range (t_hit <= t at which the ray leaves the cell).  Because
@@ -35,12 +38,21 @@ from numba import njit
 from ..compiles import inner, one_per_types
 from ..grid.two_level import leaf_axis
 from .grids import is_two_level, with_leaves_only
-from .intersect import intersect_fast, intersect_watertight, ray_shear
+from .intersect import intersect_fast, intersect_watertight, ray_shear, woop_edges, woop_shear
 from .prefetch import _prefetch_tri
 from .query import Ray, Shear
 
 #: mailbox slots per ray (direct-mapped by triangle id)
 MAILBOX = 32
+#: a cell's references tested side by side by the watertight single-ray test (:func:`_test_cell_wt`)
+CHUNK = 8
+#: cells with at least this many references take _test_cell_wt, the others the scalar test
+SIDE_BY_SIDE = 4
+#: rows of CHUNK float64 of that test's scratch: 9 vertex coordinates, det, t, V and W
+_CROWS = 13
+#: int32 slots of a single ray's scratch (trace_ray's ``mailbox``): the mailbox, then the float64
+#: rows of _test_cell_wt
+SCRATCH = MAILBOX + 2 * _CROWS * CHUNK
 #: direction components smaller than this never step the DDA (their inverse would overflow to
 #: inf and turn 0 * inf into NaN); over any representable t they move the ray by nothing.
 TINY_DIR = 1e-300
@@ -313,6 +325,66 @@ def _test_refs(tris, tri_ids, r0, r1, mailbox, mmask, ray, best, tests):
 
 
 @njit(cache=True, inline="always")
+def _test_cell_wt(tris, tri_ids, r0, r1, buf, ray, best, tests):
+    """_test_refs for the watertight test, CHUNK references at a time: their vertices gathered
+    into the float64 rows of buf (permuted by the ray's shear), intersect_watertight of each
+    repeated operation for operation in one loop over CHUNK lanes that LLVM vectorizes (the
+    lanes past the cell's references compute on stale scratch, unread), then the nearest (ties:
+    the lowest triangle index) taken in order; u and v are divided out only for a new nearest
+    hit.  No mailbox: a triangle met again in a later cell gives the same t and changes nothing
+    (measured: the mailbox's test per reference costs more than the repeated lanes)."""
+    sh = ray.sh
+    kx, ky, kz = sh.kx, sh.ky, sh.kz
+    okx, oky, okz, Sx, Sy, Sz = sh.okx, sh.oky, sh.okz, sh.Sx, sh.Sy, sh.Sz
+    tmin = ray.tmin
+    best_f, best_t, best_u, best_v = best
+    C = CHUNK
+    for c0 in range(r0, r1, C):
+        m = min(C, r1 - c0)
+        for j in range(m):
+            f = tri_ids[c0 + j]
+            buf[j] = tris[f, 0, kx]
+            buf[C + j] = tris[f, 0, ky]
+            buf[2 * C + j] = tris[f, 0, kz]
+            buf[3 * C + j] = tris[f, 1, kx]
+            buf[4 * C + j] = tris[f, 1, ky]
+            buf[5 * C + j] = tris[f, 1, kz]
+            buf[6 * C + j] = tris[f, 2, kx]
+            buf[7 * C + j] = tris[f, 2, ky]
+            buf[8 * C + j] = tris[f, 2, kz]
+        for j in range(C):  # (a fixed trip count: whole vectors, no scalar remainder; lanes m.. hold
+            # whatever the scratch held, and their results are never read)
+            Ax, Ay, Bx, By, Cx, Cy, az, bz, cz = woop_shear(
+                (buf[j], buf[C + j], buf[2 * C + j]), (buf[3 * C + j], buf[4 * C + j], buf[5 * C + j]),
+                (buf[6 * C + j], buf[7 * C + j], buf[8 * C + j]), (okx, oky, okz), Sx, Sy)
+            U, V, W = woop_edges(Ax, Ay, Bx, By, Cx, Cy)
+            det = U + V + W
+            T = U * (Sz * az) + V * (Sz * bz) + W * (Sz * cz)
+            # (a zero det, never a hit, divides by 1: the division cannot fail, and the loop has
+            # no branch to keep it from vectorizing under numba's Python error model)
+            t = T / (det if det != 0.0 else 1.0)
+            out = ((U < 0.0) | (V < 0.0) | (W < 0.0)) & ((U > 0.0) | (V > 0.0) | (W > 0.0))
+            hit = (not out) & (det != 0.0) & (t > tmin) & (t < np.inf)
+            buf[9 * C + j] = det
+            buf[10 * C + j] = t if hit else np.inf
+            buf[11 * C + j] = V
+            buf[12 * C + j] = W
+        tests += m
+        for j in range(m):
+            t = buf[10 * C + j]
+            if t <= best_t:
+                f = tri_ids[c0 + j]
+                if t < best_t or f < best_f:
+                    best_t = t
+                    best_f = f
+                    best_u = buf[11 * C + j] / buf[9 * C + j]
+                    best_v = buf[12 * C + j] / buf[9 * C + j]
+        if ray.any_hit and best_f >= 0 and best_t < np.inf:
+            return best_f, best_t, best_u, best_v, tests, True
+    return best_f, best_t, best_u, best_v, tests, False
+
+
+@njit(cache=True, inline="always")
 def _next_cell(ray, lo, c, i, b0, b1):
     """One step of the inner DDA of the :class:`Ray` ``ray`` over cells of size c from lo: returns
     (t where the ray leaves cell i, the next cell's indices, True when that one lies outside the
@@ -377,8 +449,8 @@ def trace_ray(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
     3-tuples) in the grid g (:class:`gridrt.trace.grids.GridArrays`).
 
     Returns (tri, t, u, v, cells_visited, tests); tri = -1 and t = inf on a miss.
-    mailbox (MAILBOX,) int32 scratch.  A ray from far outside the grid is traced from just
-    before its box (:func:`far_shift`).
+    mailbox (SCRATCH,) int32 scratch (the mailbox, then the rows of _test_cell_wt).  A ray from
+    far outside the grid is traced from just before its box (:func:`far_shift`).
     """
     moved = False
     th = tl = 0.0
@@ -412,7 +484,8 @@ def _trace_near(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
     ox, oy, oz = o
     dx, dy, dz = d
     nx, ny, nz = dims[0], dims[1], dims[2]
-    ix, iy, iz, ray, mmask = _ray_setup(lo, inv_cell, dims, o, d, t0, tmin, watertight, any_hit, mailbox)
+    ix, iy, iz, ray, mmask = _ray_setup(lo, inv_cell, dims, o, d, t0, tmin, watertight, any_hit, mailbox[:MAILBOX])
+    buf = mailbox[MAILBOX:].view(np.float64)
     sx, sy, sz = ray.s
 
     best_t = tmax
@@ -454,18 +527,30 @@ def _trace_near(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
             while True:
                 cells += 1
                 c = ix + nx * (iy + ny * iz)
-                # start the loads of all the cell's triangles first: their cache misses (the
-                # triangles of a cell lie anywhere in tris) then overlap instead of queueing one
-                # test at a time
+                # a crowded cell's triangles side by side (watertight test), the others one by one
+                nref = 0
                 for l in range(L):
-                    for r in range(cell_start[l, c], cell_start[l, c + 1]):
-                        _prefetch_tri(tris, tri_ids[r])
-                for l in range(L):
-                    best_f, best_t, best_u, best_v, tests, done = _test_refs(
-                        tris, tri_ids, cell_start[l, c], cell_start[l, c + 1], mailbox, mmask, ray,
-                        (best_f, best_t, best_u, best_v), tests)
-                    if done:
-                        return best_f, best_t, best_u, best_v, cells, tests
+                    nref += cell_start[l, c + 1] - cell_start[l, c]
+                if watertight and nref >= SIDE_BY_SIDE:
+                    for l in range(L):
+                        best_f, best_t, best_u, best_v, tests, done = _test_cell_wt(
+                            tris, tri_ids, cell_start[l, c], cell_start[l, c + 1], buf, ray,
+                            (best_f, best_t, best_u, best_v), tests)
+                        if done:
+                            return best_f, best_t, best_u, best_v, cells, tests
+                else:
+                    # start the loads of all the cell's triangles first: their cache misses (the
+                    # triangles of a cell lie anywhere in tris) then overlap instead of queueing
+                    # one test at a time
+                    for l in range(L):
+                        for r in range(cell_start[l, c], cell_start[l, c + 1]):
+                            _prefetch_tri(tris, tri_ids[r])
+                    for l in range(L):
+                        best_f, best_t, best_u, best_v, tests, done = _test_refs(
+                            tris, tri_ids, cell_start[l, c], cell_start[l, c + 1], mailbox, mmask, ray,
+                            (best_f, best_t, best_u, best_v), tests)
+                        if done:
+                            return best_f, best_t, best_u, best_v, cells, tests
                 # step to the next cell, or out of the macro cell
                 te, ix, iy, iz, leaves = _next_cell(ray, l3, c3, (ix, iy, iz), (x0, y0, z0), (x1, y1, z1))
                 if best_t <= te or te > t1:
@@ -499,7 +584,8 @@ def trace_ray_2l(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
     ox, oy, oz = o
     dx, dy, dz = d
     nx, ny, nz = dims[0], dims[1], dims[2]
-    ix, iy, iz, ray, mmask = _ray_setup(lo, inv_cell, dims, o, d, t0, tmin, watertight, any_hit, mailbox)
+    ix, iy, iz, ray, mmask = _ray_setup(lo, inv_cell, dims, o, d, t0, tmin, watertight, any_hit, mailbox[:MAILBOX])
+    buf = mailbox[MAILBOX:].view(np.float64)
     sx, sy, sz = ray.s
     lx, ly, lz = lo[0], lo[1], lo[2]
     cx, cy, cz = cell[0], cell[1], cell[2]
@@ -545,10 +631,14 @@ def trace_ray_2l(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
                 q = q0 + a + rx * (b + ry * c)
                 r0 = cell_start[0, q]
                 r1 = cell_start[0, q + 1]
-                for r in range(r0, r1):
-                    _prefetch_tri(tris, tri_ids[r])
-                best_f, best_t, best_u, best_v, tests, done = _test_refs(
-                    tris, tri_ids, r0, r1, mailbox, mmask, ray, (best_f, best_t, best_u, best_v), tests)
+                if watertight and r1 - r0 >= SIDE_BY_SIDE:
+                    best_f, best_t, best_u, best_v, tests, done = _test_cell_wt(
+                        tris, tri_ids, r0, r1, buf, ray, (best_f, best_t, best_u, best_v), tests)
+                else:
+                    for r in range(r0, r1):
+                        _prefetch_tri(tris, tri_ids[r])
+                    best_f, best_t, best_u, best_v, tests, done = _test_refs(
+                        tris, tri_ids, r0, r1, mailbox, mmask, ray, (best_f, best_t, best_u, best_v), tests)
                 if done:
                     return best_f, best_t, best_u, best_v, cells, tests
                 te, a, b, c, leaves = _next_cell(ray, (ax, ay, az), (bx, by, bz), (a, b, c), (0, 0, 0), (rx, ry, rz))
