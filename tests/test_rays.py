@@ -326,23 +326,23 @@ def test_duplicates_and_degenerates():
 
 
 @njit(cache=True)
-def _exhaustive_wt(tris, o, d, out_t, out_f, out_u, out_v):
-    """Each ray (t in (0, inf)) against every triangle with the single-ray watertight test itself
-    (intersect_watertight on the vertices permuted by the ray's shear), the nearest kept and a
-    tie kept by the lower index: what a traversal of any grid must return bit for bit."""
+def _exhaustive_wt(tris, o, d, tmin, tmax, out_t, out_f, out_u, out_v):
+    """Each ray (t in (tmin, tmax)) against every triangle with the single-ray watertight test
+    itself (intersect_watertight on the vertices permuted by the ray's shear), the nearest kept
+    and a tie kept by the lower index: what a traversal of any grid must return bit for bit."""
     for i in range(o.shape[0]):
         sh = ray_shear((o[i, 0], o[i, 1], o[i, 2]), (d[i, 0], d[i, 1], d[i, 2]))
         kx, ky, kz = sh.kx, sh.ky, sh.kz
-        bt, bf, bu, bv = np.inf, -1, 0.0, 0.0
+        bt, bf, bu, bv = tmax, -1, 0.0, 0.0
         for f in range(tris.shape[0]):
             hit, t, u, v = intersect_watertight(
                 (np.float64(tris[f, 0, kx]), np.float64(tris[f, 0, ky]), np.float64(tris[f, 0, kz])),
                 (np.float64(tris[f, 1, kx]), np.float64(tris[f, 1, ky]), np.float64(tris[f, 1, kz])),
                 (np.float64(tris[f, 2, kx]), np.float64(tris[f, 2, ky]), np.float64(tris[f, 2, kz])),
-                sh, 0.0, np.inf)
+                sh, tmin, np.inf)
             if hit and t < bt:
                 bt, bf, bu, bv = t, f, u, v
-        out_t[i], out_f[i], out_u[i], out_v[i] = bt, bf, bu, bv
+        out_t[i], out_f[i], out_u[i], out_v[i] = (bt, bf, bu, bv) if bf >= 0 else (np.inf, -1, 0.0, 0.0)
 
 
 @pytest.mark.parametrize("kind", ["uniform", "two_level"])
@@ -351,7 +351,8 @@ def test_crowded_cells_bit_for_bit(kind):
     exact ties) through the single-ray traversal, which tests a crowded cell's triangles side by
     side in vector lanes, CHUNK at a time: t, triangle, u and v equal the exhaustive watertight
     test's bit for bit at 1 and 3 threads; with any_hit the hit flags agree and each reported hit
-    is that triangle's own."""
+    is that triangle's own; within a finite (tmin, tmax) the hits equal the exhaustive test's in
+    that range."""
     from conftest import random_scene
 
     rng = np.random.default_rng(29)
@@ -365,7 +366,7 @@ def test_crowded_cells_bit_for_bit(kind):
     o, d = random_rays(rng, 30_000, lo, hi, outside=0.3, aim=True)
     n = len(o)
     ref = np.empty(n), np.empty(n, np.int64), np.empty(n), np.empty(n)
-    _exhaustive_wt(tris, o, d, *ref)
+    _exhaustive_wt(tris, o, d, 0.0, np.inf, *ref)
     assert (ref[1] >= 0).mean() > 0.25
     for threads in (1, 3):
         h = cast_rays(grid, tris, o, d, packets=False, threads=threads)
@@ -377,5 +378,14 @@ def test_crowded_cells_bit_for_bit(kind):
         for k in idx:
             sub = tris[a.tri[k]:a.tri[k] + 1]
             one = np.empty(1), np.empty(1, np.int64), np.empty(1), np.empty(1)
-            _exhaustive_wt(sub, o[k:k + 1], d[k:k + 1], *one)
+            _exhaustive_wt(sub, o[k:k + 1], d[k:k + 1], 0.0, np.inf, *one)
             assert one[1][0] == 0 and one[0][0] == a.t[k]
+    # a finite range: the nearest hit beyond tmin (often behind the nearest one) and before tmax
+    hit_t = ref[0][ref[1] >= 0]
+    tmin, tmax = float(np.quantile(hit_t, 0.3)), float(np.quantile(hit_t, 0.9))
+    win = np.empty(n), np.empty(n, np.int64), np.empty(n), np.empty(n)
+    _exhaustive_wt(tris, o, d, tmin, tmax, *win)
+    assert (win[1] >= 0).sum() > 1000 and (win[1] != ref[1]).sum() > 1000  # the range changes many hits
+    h = cast_rays(grid, tris, o, d, tmin=tmin, tmax=tmax, packets=False)
+    assert np.array_equal(h.tri, win[1]) and np.array_equal(h.t, win[0])
+    assert np.array_equal(h.u, win[2]) and np.array_equal(h.v, win[3])
