@@ -89,6 +89,17 @@ def woop_edges(Ax, Ay, Bx, By, Cx, Cy):
     return Cx * By - Cy * Bx, Ax * Cy - Ay * Cx, Bx * Ay - By * Ax
 
 
+@njit(cache=True, inline="always")
+def woop_terms(U, V, W, az, bz, cz, Sz):
+    """Of a sheared triangle's edge functions (U, V, W, :func:`woop_edges`) and its vertices'
+    distances along the ray (az, bz, cz, :func:`woop_shear`): (det, T, out) with det = U + V + W,
+    T = det times the hit's t, and out whether the ray passes outside the triangle (the edge
+    functions' signs differ), as :func:`intersect_watertight` computes them, without branches, for
+    the loops that test several triangles or rays side by side and still vectorize."""
+    return (U + V + W, U * (Sz * az) + V * (Sz * bz) + W * (Sz * cz),
+            ((U < 0.0) | (V < 0.0) | (W < 0.0)) & ((U > 0.0) | (V > 0.0) | (W > 0.0)))
+
+
 @inner(cache=True)
 def intersect_watertight(p0, p1, p2, sh, tmin, tmax):
     """Woop et al. 2013 watertight test; a hit needs tmin < t < tmax.

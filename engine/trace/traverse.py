@@ -38,7 +38,7 @@ from numba import njit
 from ..compiles import inner, one_per_types
 from ..grid.two_level import leaf_axis
 from .grids import is_two_level, with_leaves_only
-from .intersect import intersect_fast, intersect_watertight, ray_shear, woop_edges, woop_shear
+from .intersect import intersect_fast, intersect_watertight, ray_shear, woop_edges, woop_shear, woop_terms
 from .prefetch import _prefetch_tri
 from .query import Ray, Shear
 
@@ -276,7 +276,8 @@ def _ray_setup(lo, inv_cell, dims, o, d, t0, tmin, watertight, any_hit, mailbox)
     """A DDA's start: the cell (ix, iy, iz) where the ray from o along d (clipped to the grid box
     from t0 on) starts, the ray's :class:`Ray` (its steps (-1, 0, 1) and 1 / direction along each
     axis, the watertight test's permutation, origin and shear: zeros for the fast test; the
-    query tmin, watertight, any_hit), and the mailbox cleared (returns its index mask)."""
+    query tmin, watertight, any_hit), with the mailbox (the first MAILBOX slots of the ray's
+    scratch) cleared."""
     ox, oy, oz = o
     dx, dy, dz = d
     ix = _floor_clamp((ox + t0 * dx - lo[0]) * inv_cell[0], dims[0])
@@ -292,21 +293,21 @@ def _ray_setup(lo, inv_cell, dims, o, d, t0, tmin, watertight, any_hit, mailbox)
         sh = ray_shear(o, d)
     else:
         sh = Shear(0, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    for s in range(mailbox.shape[0]):
+    for s in range(MAILBOX):
         mailbox[s] = -1
     ray = Ray(o, d, (sx, sy, sz), (idx, idy, idz), sh, tmin, watertight, any_hit)
-    return ix, iy, iz, ray, mailbox.shape[0] - 1
+    return ix, iy, iz, ray
 
 
 @njit(cache=True, inline="always")
-def _test_refs(tris, tri_ids, r0, r1, mailbox, mmask, ray, best, tests):
+def _test_refs(tris, tri_ids, r0, r1, mailbox, ray, best, tests):
     """The triangles tri_ids[r0:r1] of one cell against the :class:`Ray` ``ray``, each once (the
-    mailbox): returns the nearest hit so far (best_f, best_t, best_u, best_v; ``best`` on entry),
+    mailbox, MAILBOX slots direct-mapped by triangle index): returns the nearest hit so far (best_f, best_t, best_u, best_v; ``best`` on entry),
     the tests counted on, and whether the search is over (any_hit and a hit)."""
     best_f, best_t, best_u, best_v = best
     for r in range(r0, r1):
         f = tri_ids[r]
-        slot = f & mmask
+        slot = f & (MAILBOX - 1)
         if mailbox[slot] == f:
             continue
         mailbox[slot] = f
@@ -358,12 +359,10 @@ def _test_cell_wt(tris, tri_ids, r0, r1, buf, ray, best, tests):
                 (buf[j], buf[C + j], buf[2 * C + j]), (buf[3 * C + j], buf[4 * C + j], buf[5 * C + j]),
                 (buf[6 * C + j], buf[7 * C + j], buf[8 * C + j]), (okx, oky, okz), Sx, Sy)
             U, V, W = woop_edges(Ax, Ay, Bx, By, Cx, Cy)
-            det = U + V + W
-            T = U * (Sz * az) + V * (Sz * bz) + W * (Sz * cz)
+            det, T, out = woop_terms(U, V, W, az, bz, cz, Sz)
             # (a zero det, never a hit, divides by 1: the division cannot fail, and the loop has
             # no branch to keep it from vectorizing under numba's Python error model)
             t = T / (det if det != 0.0 else 1.0)
-            out = ((U < 0.0) | (V < 0.0) | (W < 0.0)) & ((U > 0.0) | (V > 0.0) | (W > 0.0))
             hit = (not out) & (det != 0.0) & (t > tmin) & (t < np.inf)
             buf[9 * C + j] = det
             buf[10 * C + j] = t if hit else np.inf
@@ -379,7 +378,38 @@ def _test_cell_wt(tris, tri_ids, r0, r1, buf, ray, best, tests):
                     best_f = f
                     best_u = buf[11 * C + j] / buf[9 * C + j]
                     best_v = buf[12 * C + j] / buf[9 * C + j]
-        if ray.any_hit and best_f >= 0 and best_t < np.inf:
+        if ray.any_hit and best_f >= 0:
+            return best_f, best_t, best_u, best_v, tests, True
+    return best_f, best_t, best_u, best_v, tests, False
+
+
+@njit(cache=True, inline="always")
+def _test_cell(tris, tri_ids, cell_start, c, mailbox, buf, ray, best, tests):
+    """The triangles of cell c (every layer of cell_start) against the :class:`Ray` ``ray``: side
+    by side (:func:`_test_cell_wt`, scratch rows buf) when the watertight test is asked for and
+    the cell holds SIDE_BY_SIDE references or more, else one by one with the mailbox
+    (:func:`_test_refs`), their loads started first: their cache misses (the triangles of a cell
+    lie anywhere in tris) then overlap instead of queueing one test at a time.  Returns what
+    _test_refs returns."""
+    L = cell_start.shape[0]
+    best_f, best_t, best_u, best_v = best
+    nref = 0
+    for l in range(L):
+        nref += cell_start[l, c + 1] - cell_start[l, c]
+    side = ray.watertight and nref >= SIDE_BY_SIDE
+    if not side:
+        for l in range(L):
+            for r in range(cell_start[l, c], cell_start[l, c + 1]):
+                _prefetch_tri(tris, tri_ids[r])
+    for l in range(L):
+        r0, r1 = cell_start[l, c], cell_start[l, c + 1]
+        if side:
+            best_f, best_t, best_u, best_v, tests, done = _test_cell_wt(
+                tris, tri_ids, r0, r1, buf, ray, (best_f, best_t, best_u, best_v), tests)
+        else:
+            best_f, best_t, best_u, best_v, tests, done = _test_refs(
+                tris, tri_ids, r0, r1, mailbox, ray, (best_f, best_t, best_u, best_v), tests)
+        if done:
             return best_f, best_t, best_u, best_v, tests, True
     return best_f, best_t, best_u, best_v, tests, False
 
@@ -484,7 +514,7 @@ def _trace_near(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
     ox, oy, oz = o
     dx, dy, dz = d
     nx, ny, nz = dims[0], dims[1], dims[2]
-    ix, iy, iz, ray, mmask = _ray_setup(lo, inv_cell, dims, o, d, t0, tmin, watertight, any_hit, mailbox[:MAILBOX])
+    ix, iy, iz, ray = _ray_setup(lo, inv_cell, dims, o, d, t0, tmin, watertight, any_hit, mailbox)
     buf = mailbox[MAILBOX:].view(np.float64)
     sx, sy, sz = ray.s
 
@@ -494,7 +524,6 @@ def _trace_near(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
     best_v = 0.0
     cells = 0
     tests = 0
-    L = cell_start.shape[0]
     lx, ly, lz = lo[0], lo[1], lo[2]
     cx, cy, cz = cell[0], cell[1], cell[2]
     l3 = (lx, ly, lz)
@@ -527,30 +556,10 @@ def _trace_near(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
             while True:
                 cells += 1
                 c = ix + nx * (iy + ny * iz)
-                # a crowded cell's triangles side by side (watertight test), the others one by one
-                nref = 0
-                for l in range(L):
-                    nref += cell_start[l, c + 1] - cell_start[l, c]
-                if watertight and nref >= SIDE_BY_SIDE:
-                    for l in range(L):
-                        best_f, best_t, best_u, best_v, tests, done = _test_cell_wt(
-                            tris, tri_ids, cell_start[l, c], cell_start[l, c + 1], buf, ray,
-                            (best_f, best_t, best_u, best_v), tests)
-                        if done:
-                            return best_f, best_t, best_u, best_v, cells, tests
-                else:
-                    # start the loads of all the cell's triangles first: their cache misses (the
-                    # triangles of a cell lie anywhere in tris) then overlap instead of queueing
-                    # one test at a time
-                    for l in range(L):
-                        for r in range(cell_start[l, c], cell_start[l, c + 1]):
-                            _prefetch_tri(tris, tri_ids[r])
-                    for l in range(L):
-                        best_f, best_t, best_u, best_v, tests, done = _test_refs(
-                            tris, tri_ids, cell_start[l, c], cell_start[l, c + 1], mailbox, mmask, ray,
-                            (best_f, best_t, best_u, best_v), tests)
-                        if done:
-                            return best_f, best_t, best_u, best_v, cells, tests
+                best_f, best_t, best_u, best_v, tests, done = _test_cell(
+                    tris, tri_ids, cell_start, c, mailbox, buf, ray, (best_f, best_t, best_u, best_v), tests)
+                if done:
+                    return best_f, best_t, best_u, best_v, cells, tests
                 # step to the next cell, or out of the macro cell
                 te, ix, iy, iz, leaves = _next_cell(ray, l3, c3, (ix, iy, iz), (x0, y0, z0), (x1, y1, z1))
                 if best_t <= te or te > t1:
@@ -584,7 +593,7 @@ def trace_ray_2l(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
     ox, oy, oz = o
     dx, dy, dz = d
     nx, ny, nz = dims[0], dims[1], dims[2]
-    ix, iy, iz, ray, mmask = _ray_setup(lo, inv_cell, dims, o, d, t0, tmin, watertight, any_hit, mailbox[:MAILBOX])
+    ix, iy, iz, ray = _ray_setup(lo, inv_cell, dims, o, d, t0, tmin, watertight, any_hit, mailbox)
     buf = mailbox[MAILBOX:].view(np.float64)
     sx, sy, sz = ray.s
     lx, ly, lz = lo[0], lo[1], lo[2]
@@ -629,16 +638,8 @@ def trace_ray_2l(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
             while True:
                 cells += 1
                 q = q0 + a + rx * (b + ry * c)
-                r0 = cell_start[0, q]
-                r1 = cell_start[0, q + 1]
-                if watertight and r1 - r0 >= SIDE_BY_SIDE:
-                    best_f, best_t, best_u, best_v, tests, done = _test_cell_wt(
-                        tris, tri_ids, r0, r1, buf, ray, (best_f, best_t, best_u, best_v), tests)
-                else:
-                    for r in range(r0, r1):
-                        _prefetch_tri(tris, tri_ids[r])
-                    best_f, best_t, best_u, best_v, tests, done = _test_refs(
-                        tris, tri_ids, r0, r1, mailbox, mmask, ray, (best_f, best_t, best_u, best_v), tests)
+                best_f, best_t, best_u, best_v, tests, done = _test_cell(
+                    tris, tri_ids, cell_start, q, mailbox, buf, ray, (best_f, best_t, best_u, best_v), tests)
                 if done:
                     return best_f, best_t, best_u, best_v, cells, tests
                 te, a, b, c, leaves = _next_cell(ray, (ax, ay, az), (bx, by, bz), (a, b, c), (0, 0, 0), (rx, ry, rz))

@@ -11,7 +11,7 @@ from numba.extending import overload
 
 from ...compiles import inner, one_per_types
 from ...config import PACKET_MAX
-from ..intersect import woop_edges, woop_shear
+from ..intersect import woop_edges, woop_shear, woop_terms
 from ..traverse import TINY_DIR
 
 
@@ -201,12 +201,10 @@ def _test_wt(S, na, p0, p1, p2, ff, tmin):
                                                         (S[O_OU + i], S[O_OV + i], S[O_OK + i]), S[O_SX + i],
                                                         S[O_SY + i])
         U, V, W = woop_edges(Ax, Ay, Bx, By, Cx, Cy)
-        det = U + V + W
-        T = U * (Sz * az) + V * (Sz * bz) + W * (Sz * cz)
+        det, T, out = woop_terms(U, V, W, az, bz, cz, Sz)
         t = T / det
         bt = S[O_BT + i]
         bf = S[O_BF + i]
-        out = ((U < 0.0) | (V < 0.0) | (W < 0.0)) & ((U > 0.0) | (V > 0.0) | (W > 0.0))
         hit = (not out) & (det != 0.0) & (t > tmin) & ((t < bt) | ((t == bt) & (ff < bf)))
         S[O_BT + i] = t if hit else bt
         S[O_BF + i] = ff if hit else bf
