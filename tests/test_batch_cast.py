@@ -12,7 +12,9 @@ coherent runs of rays as CGT packets and the rest one at a time; the hits must n
 * any-hit casts report a hit exactly where the nearest-hit cast does, and the hit is real;
 * far from the origin (a RayCaster mesh at 1e6) both paths agree;
 * hypothesis: random batches (origins inside and outside, random and aimed directions, mixed
-  lengths) give the same hits both ways and the brute force's.
+  lengths) give the same hits both ways and the brute force's;
+* shadow segments that end just off a finely split surface, with occluders just before and just
+  beyond their ends, are blocked exactly where the brute force blocks them.
 """
 
 import importlib
@@ -28,6 +30,7 @@ from gridrt import RayCaster
 from gridrt.camera import Camera
 from gridrt.errors import InputError
 from gridrt.grid import GridParams, build_grid
+from gridrt.threads import use_threads
 from gridrt.trace import cast_rays
 
 batch = importlib.import_module("gridrt.trace.batch")
@@ -274,3 +277,66 @@ def test_tile_order(N, W, c0):
         for s in range(0, N, batch.RUN):
             ys, xs = y[s : s + batch.RUN], x[s : s + batch.RUN]
             assert ys.max() - ys.min() == T - 1 and xs.max() - xs.min() == T - 1 and ys.min() % T == 0 and xs.min() % T == 0
+
+
+def _tilted_surface(n, tilt):
+    """A square of 2 n^2 triangles in the plane through the origin with normal ``tilt`` (unit):
+    (corner, edge vectors e1, e2 of the square, the normal)."""
+    nz = np.asarray(tilt, np.float64) / np.linalg.norm(tilt)
+    e1 = np.cross(nz, [0.0, 0.0, 1.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(nz, e1)
+    c0 = -0.5 * (e1 + e2)
+    tris = []
+    for i in range(n):
+        for j in range(n):
+            p = [c0 + (i + a) / n * e1 + (j + b) / n * e2 for a, b in ((0, 0), (1, 0), (1, 1), (0, 1))]
+            tris += [(p[0], p[1], p[2]), (p[0], p[2], p[3])]
+    return np.array(tris), c0, e1, e2, nz
+
+
+@pytest.mark.parametrize("kind", ["uniform", "two_level"])
+def test_shadow_segments_ending_on_a_surface(kind):
+    """Shadow segments from a point light to points just off a tilted, finely split surface (in 8x8
+    tiles, as the material pass casts them), with small occluders all along the segments, some
+    just before their ends and some just beyond them: the packets block exactly the segments the
+    float64 brute force and the single rays block, uniform and two-level grids, at 1 and 2
+    threads, float64 and float32 tests."""
+    from gridrt.trace.batch import SHADOW_MAX_CELLS, cast_grouped
+    from gridrt.trace.grids import grid_arrays
+
+    rng = np.random.default_rng(8)
+    surf, c0, e1, e2, nz = _tilted_surface(40, (0.35, 0.2, 1.0))
+    light = np.array([0.3, -0.2, 2.5])
+    off = 1e-6 * np.sqrt(3.0)
+    W = 128  # W x W points of the middle of the surface, in 8 x 8 tiles
+    ii, jj = np.meshgrid(np.arange(W), np.arange(W), indexing="ij")
+    tile = ((ii // 8) * (W // 8) + jj // 8) * 64 + (ii % 8) * 8 + jj % 8
+    s = np.empty((W * W, 2))
+    s[tile.ravel(), 0] = 0.25 + 0.5 * (ii.ravel() + 0.5) / W
+    s[tile.ravel(), 1] = 0.25 + 0.5 * (jj.ravel() + 0.5) / W
+    ends = c0 + s[:, :1] * e1 + s[:, 1:] * e2 + off * nz
+    o = np.repeat(light[None], len(ends), 0)
+    d = ends - light
+    # occluders: small triangles about points of random segments, anywhere along them, just before
+    # their ends, and just beyond them (under the surface: never hit)
+    occ = []
+    for lo_t, hi_t, k in ((0.05, 0.999, 120), (0.9999, 0.99999, 80), (1.00001, 1.001, 80)):
+        m = rng.integers(0, len(o), k)
+        c = o[m] + d[m] * rng.uniform(lo_t, hi_t, (k, 1))
+        occ.append(c[:, None, :] + rng.normal(0.0, 0.006, (k, 3, 3)))
+    tris = np.ascontiguousarray(np.concatenate([surf, *occ]), np.float32)
+    grid = build_grid(tris, GridParams(grid=kind))
+    g = grid_arrays(grid, tris)
+    ref = R.ref_cast(tris, o, d, tmax=1.0).tri >= 0
+    assert 0.02 < ref.mean() < 0.5  # some segments blocked, most not
+    single = cast_rays(grid, tris, o, d, tmax=1.0, any_hit=True, packets=False).tri >= 0
+    assert np.array_equal(single, ref), f"single rays: {int((single != ref).sum())} differ from the brute force"
+    for threads in (1, 2):
+        for f32 in (False, True):
+            out = (np.empty(len(o)), np.empty(len(o), np.int32), np.empty(len(o)), np.empty(len(o)))
+            use_threads(threads)
+            p1, _ = cast_grouped(g, o, d, 0.0, 1.0, True, True, out, SHADOW_MAX_CELLS, f32, tri_only=True)
+            assert p1 >= 0.9 * len(o), f"only {p1} of {len(o)} segments went through packets"
+            got = out[1] >= 0
+            assert np.array_equal(got, ref), f"{kind} T={threads} f32={f32}: {int((got != ref).sum())} differ"
