@@ -1,7 +1,7 @@
-"""The scripts behind BENCHMARKS.md's float32-floor, MAX_CELLS, packet-size and shadow-packet
-tables (scripts/) run and print the table they make: each runs at a small size as a subprocess,
-exits 0 and prints a markdown table whose header and row labels are those of its table in
-BENCHMARKS.md (found by the script's name on the table's source line).  Timed figures are checked
+"""The scripts behind BENCHMARKS.md's float32-floor, MAX_CELLS, packet-size, shadow-packet and
+shadow-ray tables (scripts/) run and print the table they make: each runs at a small size as a
+subprocess, exits 0 and prints a markdown table whose header and row labels are those of its table
+in BENCHMARKS.md (found by the script's name on the table's source line).  Timed figures are checked
 for their form only.
 """
 
@@ -60,3 +60,17 @@ def test_shadow_max_cells_prints_its_table():
     for r in rows:
         assert r[1].isdigit() and int(r[1]) >= 1 and NUMBER.fullmatch(r[2]), r
         assert all(c.isdigit() for c in r[3:]), r
+
+
+def test_shadow_rays_prints_its_table():
+    """A small mesh's shadow segments: the table's header, its figures in form, and every segment
+    blocked as the single rays and the float64 brute force block it (the script counts those)."""
+    header, rows = run_script("shadow_rays.py", "--scenes", "icosphere:1280:twist", "--size", "128", "--runs", "1",
+                              "--warmup", "0", "--check", "300")
+    doc_header, doc_rows = doc_table("shadow_rays.py")
+    assert header == doc_header
+    assert [r[0] for r in rows] == ["icosphere:1280:twist"] * 2 and [r[4] for r in rows] == ["1", "2"]
+    for r in rows:
+        assert r[1] == "1,280" and r[2] == "1" and int(r[3].replace(",", "")) > 1000, r
+        assert NUMBER.fullmatch(r[5]) and (r[6] == "-" or NUMBER.fullmatch(r[6])), r
+        assert r[8] == "0" and int(r[9]) >= 250 and r[10] == "0", r

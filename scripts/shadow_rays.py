@@ -1,0 +1,236 @@
+"""Hard shadows of point lights, the casts alone: BENCHMARKS.md section 15, table "scene | triangles
+| lights | shadow rays | threads | gridrt Mrays/s | embreex occluded Mrays/s | gridrt / embreex |
+differ from single rays | brute force checked | differ from brute force".
+
+    .venv/bin/python scripts/shadow_rays.py
+
+For each scene, one frame is rendered with ``material`` shading and hard shadows of every light
+(the CGT traversal; the kitchen through its own camera at SIZE x 3/4 SIZE, t = 5; the meshes from
+the fill view, their camera moved in until the mesh fills the SIZE x SIZE frame, lit by the default
+light; SIZE 1024), and every batch of shadow segments the material pass hands to the batch caster is kept
+(``gridrt.trace.batch.cast_grouped``: the grid, the segments from the light's end back to the hit,
+t in (0, 1), any hit, the pass's own settings).  Then, at each thread count, the same batches are
+cast again, ``--runs`` times after ``--warmup``: Mrays/s is the segments of all batches over the
+median time of a round (the casts alone: no shading, no segment making).
+
+Exact: the blocked flags equal those of the same segments cast one ray at a time (the single-ray
+DDA, ``max_cells`` 0: one ray per light per pixel, what the renderer's exact mode means), counted
+over every segment, and those of a float64 brute force over every triangle of the batch's grid on
+``--check`` segments drawn at random (seed 1), counted where both are clear of rounding (the brute
+force finds no crossing, or its nearest crossing lies within (1e-9, 1 - 1e-9) and more than 1e-9
+inside its triangle's edges: at an edge or an end point, float32 and float64 arithmetic may judge
+a ray differently).  embreex (robust scene, ``query='OCCLUDED'``, float32 segments, tfar 1) casts the
+same segments over the same triangles, in chunks spread over a pool of the thread count's Python
+threads, timed alike.
+"""
+
+import argparse
+import concurrent.futures
+import importlib
+import time
+
+import numpy as np
+
+import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
+from gridrt.app.bench.affinity import Affinity
+from gridrt.app.bench.looks import looks_spec
+from gridrt.app.bench.native import _bary_min
+from gridrt.app.bench.output import md_table
+from gridrt.app.bench.reference import brute_cast
+from gridrt.app.bench.scenes import camera_rays, resolve_scene
+from gridrt.app.bench.sides import MissingPeer, import_embreex
+from gridrt.config import GridParams, RenderParams
+from gridrt.grid.build import build_grid
+from gridrt.pipeline import FramePipeline
+from gridrt.threads import use_threads
+from gridrt.trace.twin import TWINS, parallel_first
+from tables import add_out_option, items, start
+
+#: the module whose cast_grouped the material pass calls (gridrt.trace names its render function
+#: render, so the module is imported by its full name)
+RENDER = importlib.import_module("gridrt.trace.render")
+SCENES = "kitchen,icosphere:20480:twist,lucy:twist,icosphere:1310720:twist"
+HEADER = ["scene", "triangles", "lights", "shadow rays", "threads", "gridrt Mrays/s", "embreex occluded Mrays/s",
+          "gridrt / embreex", "differ from single rays", "brute force checked", "differ from brute force"]
+#: clear of rounding: t and the barycentric margin (see the docstring)
+CLEAR = 1e-9
+
+
+def parse_args(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--scenes", default=SCENES, help="comma-separated scenes: kitchen (its own camera, SIZE x 3/4 "
+                   "SIZE) or bench scene specs of meshes (fill view, SIZE x SIZE) (default: the table's, %(default)s)")
+    p.add_argument("--size", type=int, default=1024, help="image edge (default: the table's, %(default)s)")
+    p.add_argument("--threads", default="1,2", help="thread counts (default: the table's, %(default)s)")
+    p.add_argument("--runs", type=int, default=5, help="timed rounds, the median kept (default: the table's, 5)")
+    p.add_argument("--warmup", type=int, default=1, help="untimed rounds first (default: the table's, 1)")
+    p.add_argument("--check", type=int, default=2000,
+                   help="segments checked against the float64 brute force (default: the table's, 2000)")
+    add_out_option(p)
+    return start(p, argv)
+
+
+class Spy:
+    """Keeps the batches of shadow segments the material pass casts (copies of the arrays)."""
+
+    def __init__(self):
+        self.calls = []
+        self.cast = RENDER.cast_grouped
+
+    def __enter__(self):
+        def spy(g, o, d, tmin, tmax, watertight, any_hit, out, max_cells, f32, tri_only=False):
+            self.calls.append((g, o.copy(), d.copy(), (tmin, tmax, watertight, any_hit), max_cells, f32, tri_only))
+            return self.cast(g, o, d, tmin, tmax, watertight, any_hit, out, max_cells, f32, tri_only=tri_only)
+        RENDER.cast_grouped = spy
+        return self
+
+    def __exit__(self, *exc):
+        RENDER.cast_grouped = self.cast
+
+
+def segments(name, size):
+    """(label, triangles, lights, the kept batches) of one scene's frame."""
+    sc = resolve_scene(name)
+    if name == "kitchen":
+        spec = looks_spec(sc.spec, size, 2, "cgt", "material", True).resized(size, size * 3 // 4)
+        pipe = FramePipeline.from_spec(spec, sc.scene)
+        pipe.step(5.0)
+        with Spy() as spy:
+            st = pipe.step(5.0).stats
+        return sc.label, int(st["triangles"]), int(st["lights"]), spy.calls
+    origin, cam, _, _, _, _ = camera_rays(sc, size, fill=True)
+    tris = np.asarray(sc.scene.triangles_at(0.0, origin=origin), np.float32)
+    grid = build_grid(tris, GridParams(threads=2), origin=np.zeros(3))
+    rp = RenderParams(width=size, height=size, shading="material", shadows=True, traversal="cgt", threads=2)
+    r = RENDER.Renderer()
+    r.render(grid, tris, cam, rp)
+    with Spy() as spy:
+        st = r.render(grid, tris, cam, rp).stats
+    return sc.label, len(tris), int(st["lights"]), spy.calls
+
+
+def outputs(calls):
+    """Output buffers for every kept batch, kept from round to round as the renderer keeps its own."""
+    return [(np.empty(len(o)), np.empty(len(o), np.int32), np.empty(len(o)), np.empty(len(o))) for _, o, *_ in calls]
+
+
+def cast_all(calls, outs, max_cells=None):
+    """Cast every kept batch again into its buffers of outs (with its own max_cells, or this one):
+    the blocked flags, joined."""
+    for (g, o, d, q, mc, f32, tri_only), out in zip(calls, outs):
+        RENDER.cast_grouped(g, o, d, *q, out, mc if max_cells is None else max_cells, f32, tri_only=tri_only)
+    return np.concatenate([out[1] >= 0 for out in outs])
+
+
+class Occluded:
+    """embreex scenes over each kept batch's grid triangles, and their occlusion casts in chunks."""
+
+    def __init__(self, calls):
+        rtc, rs, mc, self.version = import_embreex()
+        self.device = rtc.EmbreeDevice()
+        scenes = {}
+        self.jobs = []
+        for g, o, d, *_ in calls:
+            key = id(g.tris)
+            if key not in scenes:
+                sc = rs.EmbreeScene(self.device, robust=True)
+                mc.TriangleMesh(sc, np.ascontiguousarray(g.tris, np.float32))
+                z = np.zeros((0, 3), np.float32)
+                sc.run(z, z)  # (commits the scene: its BVH is built here, untimed)
+                scenes[key] = sc
+            self.jobs.append((scenes[key], np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32)))
+
+    def cast(self, pool, threads):
+        got = []
+        for sc, o, d in self.jobs:
+            n = len(o)
+            k = max(1, min(threads * 8, n // 4096 or 1))
+            b = np.linspace(0, n, k + 1).astype(np.int64)
+
+            def job(i, sc=sc, o=o, d=d):
+                m = b[i + 1] - b[i]
+                return sc.run(o[b[i]:b[i + 1]], d[b[i]:b[i + 1]], dists=np.ones(m, np.float32), query="OCCLUDED")
+
+            parts = list(pool.map(job, range(k))) if threads > 1 else [job(i) for i in range(k)]
+            got.append(np.concatenate(parts) != -1)
+        return np.concatenate(got)
+
+
+def timed(fn, runs, warmup):
+    """(median s of runs calls after warmup, the last call's result)."""
+    for _ in range(warmup):
+        fn()
+    ts = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        res = fn()
+        ts.append(time.perf_counter() - t0)
+    return float(np.median(ts)), res
+
+
+def brute_check(calls, blocked, n, rng):
+    """(checked, differing) of n segments drawn at random against the float64 brute force, where
+    its verdict is clear of rounding."""
+    sizes = np.array([len(c[1]) for c in calls])
+    starts = np.concatenate([[0], np.cumsum(sizes)])
+    pick = np.sort(rng.choice(starts[-1], size=min(n, starts[-1]), replace=False))
+    checked = differ = 0
+    for k, (g, o, d, *_rest) in enumerate(calls):
+        sel = pick[(pick >= starts[k]) & (pick < starts[k + 1])] - starts[k]
+        if not len(sel):
+            continue
+        tris = np.asarray(g.tris, np.float64)
+        oo, dd = o[sel], d[sel]
+        t, f, _ = brute_cast(tris, oo, dd, 0.0, 1.0)
+        hit = f >= 0
+        # a hit is clear when its crossing lies well within (0, 1) and well inside its triangle
+        clear = ~hit | ((t > CLEAR) & (t < 1.0 - CLEAR) & (_bary_min(tris, oo, dd, np.where(hit, f, -1)) > CLEAR))
+        ours = blocked[starts[k] + sel]
+        checked += int(clear.sum())
+        differ += int((clear & (ours != hit)).sum())
+    return checked, differ
+
+
+def main(argv=None):
+    a = parse_args(argv)
+    with parallel_first():  # (the renders compile their parallel kernels in this thread, not beside the timing)
+        rows = measure(a)
+    print("\n".join(md_table(HEADER, rows)))
+    return 0
+
+
+def measure(a):
+    """The table's rows."""
+    threads = [int(t) for t in items(a.threads)]
+    rows = []
+    for name in items(a.scenes):
+        label, ntri, lights, calls = segments(name, a.size)
+        TWINS.wait()
+        n = sum(len(c[1]) for c in calls)
+        try:
+            emb = Occluded(calls)
+        except MissingPeer as e:
+            print(f"note: embreex not measured: {e}")
+            emb = None
+        use_threads(2)
+        outs = outputs(calls)
+        single = cast_all(calls, outs, 0.0)
+        for T in threads:
+            with Affinity(T), concurrent.futures.ThreadPoolExecutor(T) as pool:
+                use_threads(T)
+                s, blocked = timed(lambda: cast_all(calls, outs), a.runs, a.warmup)
+                es, eb = timed(lambda: emb.cast(pool, T), a.runs, a.warmup) if emb else (None, None)
+            use_threads(2)
+            checked, differ = brute_check(calls, blocked, a.check, np.random.default_rng(1))
+            rows.append([label, f"{ntri:,}", str(lights), f"{n:,}", str(T), f"{n / s / 1e6:.1f}",
+                         "-" if emb is None else f"{n / es / 1e6:.1f}", "-" if emb is None else f"{es / s:.2f}",
+                         str(int((blocked != single).sum())), str(checked), str(differ)])
+            print(f"# {label} T={T}: {n / s / 1e6:.1f} Mrays/s"
+                  + ("" if emb is None else f", embreex {n / es / 1e6:.1f}; differ from embreex "
+                     f"{int((eb != blocked).sum())}"), flush=True)
+    return rows
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
