@@ -27,7 +27,6 @@ threads, timed alike.
 import argparse
 import concurrent.futures
 import importlib
-import time
 
 import numpy as np
 
@@ -38,7 +37,8 @@ from gridrt.app.bench.native import _bary_min
 from gridrt.app.bench.output import md_table
 from gridrt.app.bench.reference import brute_cast
 from gridrt.app.bench.scenes import camera_rays, resolve_scene
-from gridrt.app.bench.sides import MissingPeer, import_embreex
+from gridrt.app.bench.sides import EmbreeSide, MissingPeer
+from gridrt.app.bench.stats import timings
 from gridrt.config import GridParams, RenderParams
 from gridrt.grid.build import build_grid
 from gridrt.pipeline import FramePipeline
@@ -116,57 +116,43 @@ def outputs(calls):
 
 
 def cast_all(calls, outs, max_cells=None):
-    """Cast every kept batch again into its buffers of outs (with its own max_cells, or this one):
-    the blocked flags, joined."""
+    """Cast every kept batch again into its buffers of outs (with its own max_cells, or this one)."""
     for (g, o, d, q, mc, f32, tri_only), out in zip(calls, outs):
         RENDER.cast_grouped(g, o, d, *q, out, mc if max_cells is None else max_cells, f32, tri_only=tri_only)
+
+
+def blocked_of(outs):
+    """The blocked flags of every kept batch's buffers, joined."""
     return np.concatenate([out[1] >= 0 for out in outs])
 
 
 class Occluded:
-    """embreex scenes over each kept batch's grid triangles, and their occlusion casts in chunks."""
+    """An embreex scene (robust) over each kept batch's grid triangles (one per grid), and the
+    batches' segments in float32."""
 
     def __init__(self, calls):
-        rtc, rs, mc, self.version = import_embreex()
-        self.device = rtc.EmbreeDevice()
-        scenes = {}
+        sides = {}
         self.jobs = []
         for g, o, d, *_ in calls:
-            key = id(g.tris)
-            if key not in scenes:
-                sc = rs.EmbreeScene(self.device, robust=True)
-                mc.TriangleMesh(sc, np.ascontiguousarray(g.tris, np.float32))
-                z = np.zeros((0, 3), np.float32)
-                sc.run(z, z)  # (commits the scene: its BVH is built here, untimed)
-                scenes[key] = sc
-            self.jobs.append((scenes[key], np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32)))
+            if id(g.tris) not in sides:
+                sides[id(g.tris)] = EmbreeSide(robust=True)
+                sides[id(g.tris)].build(np.ascontiguousarray(g.tris, np.float32))  # (the BVH, untimed)
+            self.jobs.append((sides[id(g.tris)], np.ascontiguousarray(o, np.float32),
+                              np.ascontiguousarray(d, np.float32)))
 
     def cast(self, pool, threads):
-        got = []
-        for sc, o, d in self.jobs:
-            n = len(o)
-            k = max(1, min(threads * 8, n // 4096 or 1))
-            b = np.linspace(0, n, k + 1).astype(np.int64)
+        """Every batch's occlusion casts: their chunks (EmbreeSide.occluded)."""
+        return [side.occluded(pool, o, d, threads) for side, o, d in self.jobs]
 
-            def job(i, sc=sc, o=o, d=d):
-                m = b[i + 1] - b[i]
-                return sc.run(o[b[i]:b[i + 1]], d[b[i]:b[i + 1]], dists=np.ones(m, np.float32), query="OCCLUDED")
-
-            parts = list(pool.map(job, range(k))) if threads > 1 else [job(i) for i in range(k)]
-            got.append(np.concatenate(parts) != -1)
-        return np.concatenate(got)
+    @staticmethod
+    def blocked(parts):
+        """The blocked flags of :meth:`cast`'s chunks, joined."""
+        return np.concatenate([EmbreeSide.blocked(p) for p in parts])
 
 
-def timed(fn, runs, warmup):
-    """(median s of runs calls after warmup, the last call's result)."""
-    for _ in range(warmup):
-        fn()
-    ts = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        res = fn()
-        ts.append(time.perf_counter() - t0)
-    return float(np.median(ts)), res
+def median_s(fn, runs, warmup):
+    """The median seconds of ``runs`` calls of fn after ``warmup`` untimed ones."""
+    return timings(fn, runs, warmup)[0] / 1e3
 
 
 def brute_check(calls, blocked, n, rng):
@@ -215,12 +201,16 @@ def measure(a):
             emb = None
         use_threads(2)
         outs = outputs(calls)
-        single = cast_all(calls, outs, 0.0)
+        cast_all(calls, outs, 0.0)
+        single = blocked_of(outs)
         for T in threads:
             with Affinity(T), concurrent.futures.ThreadPoolExecutor(T) as pool:
                 use_threads(T)
-                s, blocked = timed(lambda: cast_all(calls, outs), a.runs, a.warmup)
-                es, eb = timed(lambda: emb.cast(pool, T), a.runs, a.warmup) if emb else (None, None)
+                s = median_s(lambda: cast_all(calls, outs), a.runs, a.warmup)
+                blocked = blocked_of(outs)
+                if emb:
+                    es = median_s(lambda: emb.cast(pool, T), a.runs, a.warmup)
+                    eb = emb.blocked(emb.cast(pool, T))
             use_threads(2)
             checked, differ = brute_check(calls, blocked, a.check, np.random.default_rng(1))
             rows.append([label, f"{ntri:,}", str(lights), f"{n:,}", str(T), f"{n / s / 1e6:.1f}",

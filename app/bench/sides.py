@@ -49,23 +49,36 @@ class EmbreeSide:
         self.scene = scene
         return (t1 - t0) * 1e3, (t2 - t1) * 1e3
 
-    def cast(self, pool, o32, d32, threads):
-        """(t (N,) float64 [inf: miss], prim (N,) int64 [-1: miss]) over chunks in the pool."""
-        N = len(o32)
+    def _chunks(self, pool, N, threads, job):
+        """job(a, b) over chunks [a, b) of N rays, in the pool when threads > 1: the results in order."""
         n_chunks = max(1, min(threads * 8, N // 4096 or 1))
         bounds = np.linspace(0, N, n_chunks + 1).astype(np.int64)
+        spans = list(zip(bounds[:-1], bounds[1:]))
+        return list(pool.map(lambda ab: job(*ab), spans)) if threads > 1 else [job(a, b) for a, b in spans]
+
+    def cast(self, pool, o32, d32, threads):
+        """(t (N,) float64 [inf: miss], prim (N,) int64 [-1: miss]) over chunks in the pool."""
         sc = self.scene
-
-        def job(k):
-            return sc.run(o32[bounds[k]:bounds[k + 1]], d32[bounds[k]:bounds[k + 1]], output=1)
-
-        parts = list(pool.map(job, range(n_chunks))) if threads > 1 else [job(k) for k in range(n_chunks)]
+        parts = self._chunks(pool, len(o32), threads, lambda a, b: sc.run(o32[a:b], d32[a:b], output=1))
         prim = np.concatenate([p["primID"] for p in parts]).astype(np.int64)
         t = np.concatenate([p["tfar"] for p in parts]).astype(np.float64)
         miss = prim < 0
         t[miss] = np.inf
         prim[miss] = -1
         return t, prim
+
+    def occluded(self, pool, o32, d32, threads):
+        """The segments o + t d, t in (0, 1), as Embree's occlusion query (tfar 1) over chunks in the
+        pool: one int32 array per chunk, -1 where a segment is not occluded (join with
+        :meth:`blocked`; apart, so that a caller can time the casts alone)."""
+        sc = self.scene
+        return self._chunks(pool, len(o32), threads, lambda a, b: sc.run(
+            o32[a:b], d32[a:b], dists=np.ones(b - a, np.float32), query="OCCLUDED"))
+
+    @staticmethod
+    def blocked(parts):
+        """(N,) bool of :meth:`occluded`'s chunks: True where a segment is occluded."""
+        return np.concatenate(parts) != -1
 
 
 class EmbreeFastSide(EmbreeSide):

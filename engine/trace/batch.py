@@ -39,7 +39,7 @@ from .cgt import (IO_DX, IO_DY, IO_DZ, IO_F, IO_OX, IO_OY, IO_OZ, IO_TMAX, MBOX,
                   direction_class, trace_packet)
 from .intersect import ray_shear
 from .query import HitArrays, PacketScratch, cast_pass, query
-from .traverse import (SCRATCH, MOVED, NEAR, TINY_DIR, _floor_clamp, _test_triangle, far_interval, far_shift, far_t,
+from .traverse import (MOVED, NEAR, SCRATCH, TINY_DIR, _floor_clamp, _test_triangle, far_interval, far_shift, far_t,
                        is_far, trace_ray)
 
 #: rays in a run (a packet's worth; at most cgt.PN)

@@ -302,8 +302,9 @@ def _ray_setup(lo, inv_cell, dims, o, d, t0, tmin, watertight, any_hit, mailbox)
 @njit(cache=True, inline="always")
 def _test_refs(tris, tri_ids, r0, r1, mailbox, ray, best, tests):
     """The triangles tri_ids[r0:r1] of one cell against the :class:`Ray` ``ray``, each once (the
-    mailbox, MAILBOX slots direct-mapped by triangle index): returns the nearest hit so far (best_f, best_t, best_u, best_v; ``best`` on entry),
-    the tests counted on, and whether the search is over (any_hit and a hit)."""
+    mailbox, MAILBOX slots direct-mapped by triangle index): returns the nearest hit so far
+    (best_f, best_t, best_u, best_v; ``best`` on entry), the tests counted on, and whether the
+    search is over (any_hit and a hit)."""
     best_f, best_t, best_u, best_v = best
     for r in range(r0, r1):
         f = tri_ids[r]
