@@ -6,8 +6,8 @@ from dataclasses import fields
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from gridrt.config import (
-    AUTO_STRATEGY, GRID_KINDS, INSERT_MODES, PACKET_MAX, PACKET_PRECISIONS, PARALLEL_DEFAULT_STRATEGY, SHADING_MODES,
-    TRAVERSALS, GridParams, RenderParams,
+    AUTO_STRATEGY, GRID_KINDS, INSERT_MODES, MAX_LIGHT_SAMPLES, PACKET_MAX, PACKET_PRECISIONS, PARALLEL_DEFAULT_STRATEGY,
+    SHADING_MODES, TRAVERSALS, GridParams, RenderParams,
 )
 from gridrt.frame import FrameSpec, ViewSpec
 from gridrt.pipeline import FramePipeline
@@ -39,6 +39,9 @@ OPTION_HELP = {
                  "point light when shadows are on), normal (geometric normals as colours) or cost (a heat map of "
                  "triangle tests per ray)",
     "--shadows": "hard shadows: towards the point light (lambert) or each of the scene's lights (material)",
+    "--light-samples": f"material shadows: 0 casts a ray towards every light (exact); K (1..{MAX_LIGHT_SAMPLES}) "
+                       "casts K a pixel, towards lights drawn by their light there (faster, noisy in shadows; the "
+                       "viewer averages draws while the view is still, towards the exact image)",
     "--traversal": "ray traversal: single-ray 3D DDA, or coherent grid traversal of ray packets (cgt; same image, "
                    "faster)",
     "--packet": f"CGT packet size in pixels, N or WxH, each 1..{PACKET_MAX}",
@@ -162,6 +165,8 @@ def add_render_args(p):
     g.add_argument("--size", type=size, default=(d["width"], d["height"]), help="image size WIDTHxHEIGHT")
     g.add_argument("--shading", choices=SHADING_MODES, default=d["shading"], help=option_help("--shading"))
     g.add_argument("--shadows", action="store_true", help=option_help("--shadows"))
+    g.add_argument("--light-samples", type=int, default=d["light_samples"], metavar="K",
+                   help=option_help("--light-samples", "0, every light"))
     g.add_argument("--light", type=vec3, default=d["light"],
                    help="point light X,Y,Z (default: above and behind the camera; in the material mode it replaces "
                         "the scene's lights)")
@@ -215,7 +220,7 @@ def render_params(a):
     w, h = a.size
     return RenderParams(width=w, height=h, shading=a.shading, shadows=a.shadows, light=a.light,
                         watertight=not a.fast_intersect, threads=a.threads, traversal=a.traversal, packet=a.packet,
-                        packet_precision=a.packet_precision)
+                        packet_precision=a.packet_precision, light_samples=a.light_samples)
 
 
 def follows_scene_camera(a):

@@ -28,7 +28,7 @@ def _positive_int(name, v, lo=1, hi=None):
             if int(v) != v:
                 raise ValueError
             v = int(v)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise InputError(f"{name} must be an integer, got {v!r}") from None
     if v < lo or (hi is not None and v > hi):
         rng = f">= {lo}" if hi is None else f"between {lo} and {hi}"

@@ -40,6 +40,8 @@ TRAVERSALS = ("dda", "cgt")
 PACKET_PRECISIONS = ("float64", "float32")
 #: the largest CGT packet edge in pixels (RenderParams.packet)
 PACKET_MAX = 16
+#: the most lights drawn per hit pixel (RenderParams.light_samples)
+MAX_LIGHT_SAMPLES = 8
 #: Default ceiling on grid cells (two int32 arrays of this size plus cell lists): 256 MiB.
 DEFAULT_MAX_CELLS = 1 << 25
 #: Default memory budget of one grid (cell arrays + references): 2 GiB.
@@ -184,6 +186,18 @@ class RenderParams:
                    up to float32 rounding: about 1e-7 relative in t, the triangle only at
                    near-ties and within that distance of an edge; at that level results may
                    then also depend on the packet size).  CGT only.
+    light_samples  0 (the default, exact): the material mode's shadows cast a ray towards every
+                   light that lights a hit.  k (1..MAX_LIGHT_SAMPLES): k rays a hit pixel, towards
+                   lights drawn in proportion to their unshadowed light there (stratified over
+                   the k draws), each weighted by 1 / (k p): an unbiased estimate of the exact
+                   image, equal to it wherever no drawn light is blocked and the lights are
+                   grey, noisy in shadows and penumbrae; lights that do not light a hit are
+                   never drawn.  A scene of one light is exact either way
+                   (gridrt.trace.material.pick_lights)
+    light_seed     which draw (an int >= 0): the same seed draws the same lights; the mean of the
+                   images of seeds 0 .. n-1 tends to the exact image as n grows (each pixel's
+                   draws follow a shifted van der Corput sequence; the viewer accumulates them
+                   while the view is still)
     """
 
     width: int = 1024
@@ -197,11 +211,13 @@ class RenderParams:
     traversal: str = "cgt"
     packet: int | tuple = (8, 8)
     packet_precision: str = "float64"
+    light_samples: int = 0
+    light_seed: int = 0
 
     def __post_init__(self):
         W, H = _positive_int("image width", self.width, 1), _positive_int("image height", self.height, 1)
         # (shading "auto" with shadows: FramePipeline.step checks the shadow rays once it is resolved)
-        check_render_fits(W, H, self.shading == "material" and bool(self.shadows))
+        check_render_fits(W, H, self.shading == "material" and bool(self.shadows), light_samples=self.light_samples)
         object.__setattr__(self, "width", _positive_int("image width", W, 1, MAX_IMAGE_SIDE))
         object.__setattr__(self, "height", _positive_int("image height", H, 1, MAX_IMAGE_SIDE))
         object.__setattr__(self, "tile", _positive_int("tile size", self.tile, 1, 256))
@@ -213,6 +229,9 @@ class RenderParams:
         if self.packet_precision not in PACKET_PRECISIONS:
             raise InputError(f"unknown packet precision {self.packet_precision!r}; choose one of "
                              f"{', '.join(PACKET_PRECISIONS)}")
+        object.__setattr__(self, "light_samples",
+                           _positive_int("light samples", self.light_samples, 0, MAX_LIGHT_SAMPLES))
+        object.__setattr__(self, "light_seed", _positive_int("light seed", self.light_seed, 0, 2**31 - 1))
         if self.light is not None:
             try:
                 light = tuple(float(x) for x in self.light)

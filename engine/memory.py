@@ -174,24 +174,29 @@ def allocating(what, advice="free memory or ask for less"):
 #: from frame to frame by a Renderer) and the hit mask of its statistics (1)
 RENDER_PIXEL_BYTES = 21
 #: bytes per pixel of the material pass's shadows (Renderer._shade_material): the deferred surface
-#: points, normals, light terms and sums (84), a light's need flags, shadow rays and weights (57),
+#: points, normals, light terms and sums (84), a light's need flags, shadow rays and weights (65),
 #: and the cast of a light's rays, at most one a pixel: their rows (8), origins and directions
 #: (48) and their contiguous copies (48), blocked and live flags and rows (17), results (28) and
 #: their grouping into packets (33)
-SHADOW_PIXEL_BYTES = 323
+SHADOW_PIXEL_BYTES = 331
+#: bytes per pixel and light drawn (RenderParams.light_samples): its light and factor (12) and its
+#: segment (gridrt.trace.material.drawn_segments: row, origin, direction, grids and weight, 65)
+DRAWN_LIGHT_BYTES = 77
 
 
-def render_bytes(width, height, shadows=False, buffers=True):
+def render_bytes(width, height, shadows=False, buffers=True, light_samples=0):
     """Bytes a render of ``width`` x ``height`` pixels allocates at its peak: the output buffers
     (``buffers=False``: a Renderer that already holds them at that size) and, for the material
-    mode with shadows (``shadows``), the scratch of its shadow rays."""
+    mode with shadows (``shadows``), the scratch of its shadow rays, with the lights drawn per
+    pixel where ``light_samples`` (RenderParams.light_samples) draws them."""
     n = int(width) * int(height)
-    return n * ((RENDER_PIXEL_BYTES if buffers else 1) + (SHADOW_PIXEL_BYTES if shadows else 0))
+    drawn = DRAWN_LIGHT_BYTES * int(light_samples) if shadows else 0
+    return n * ((RENDER_PIXEL_BYTES if buffers else 1) + (SHADOW_PIXEL_BYTES if shadows else 0) + drawn)
 
 
-def check_render_fits(width, height, shadows=False, buffers=True, what="rendering"):
+def check_render_fits(width, height, shadows=False, buffers=True, what="rendering", light_samples=0):
     """InputError (gridrt.memory.check_fits) when :func:`render_bytes` exceed the memory this
     process has left, stating both and the most pixels that fit."""
-    check_fits(render_bytes(width, height, shadows, buffers), f"{what} {width:,}x{height:,} pixels",
+    check_fits(render_bytes(width, height, shadows, buffers, light_samples), f"{what} {width:,}x{height:,} pixels",
                "image, depth, triangle, cost and cell buffers" + (" and shadow rays" if shadows else ""),
-               lambda avail: f"ask for at most {avail // render_bytes(1, 1, shadows):,} pixels")
+               lambda avail: f"ask for at most {avail // render_bytes(1, 1, shadows, True, light_samples):,} pixels")

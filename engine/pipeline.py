@@ -69,6 +69,8 @@ class Frame:
 
     ``grid`` is the frame's grid and ``origin`` ((3,) float64) the world position of the frame it
     was built in: the grid covers the scene's triangles moved by ``-origin`` (see FramePipeline).
+    ``hdr`` (H,W,3) float32 (material shading with shadows, else None): the hit pixels' colours
+    before they are clamped and rounded into the image (RenderResult.hdr).
     """
 
     image: np.ndarray
@@ -77,6 +79,7 @@ class Frame:
     stats: FrameStats
     grid: object = None
     origin: np.ndarray = None
+    hdr: np.ndarray = None
 
 
 class FramePipeline:
@@ -312,7 +315,7 @@ class FramePipeline:
         W, H = rp.width, rp.height
         # the render's buffers and shadow rays, before the scene and its grid take their memory
         check_render_fits(W, H, shading == "material" and bool(rp.shadows), self._rendered_size != (W, H),
-                          "rendering a frame of")
+                          "rendering a frame of", rp.light_samples)
         first = self.origin is None
         tris, grid, split, rebuild, static_ms, anim_ms, cam, local_cam = self._place(t, camera)
         if first:
@@ -343,4 +346,4 @@ class FramePipeline:
             top_density=gp.top_density, leaf_density=gp.leaf_density, compiled=watch.check() or waited,
         )
         self.frame_index += 1
-        return Frame(res.image, res.t, res.tri, stats, grid, self.origin)
+        return Frame(res.image, res.t, res.tri, stats, grid, self.origin, res.hdr)

@@ -644,6 +644,9 @@ class RefImage:
     t: np.ndarray
     tri: np.ndarray
     hits: RefHits
+    colour: np.ndarray | None = None       # (H, W, 3) the material mode's colour before clamping (-1: miss)
+    tvd: np.ndarray | None = None          # (H, W, 3) the material mode's T V D (0: miss)
+    light_total: np.ndarray | None = None  # (H, W) sum over the lights of n_s . l (/ d^2) (r + g + b), unshadowed
 
 
 def ref_render(tris, camera, width, height, shading="lambert", light=None, shadow_offset=None):
@@ -796,6 +799,7 @@ def ref_material(tris, camera, width, height, looks, shadows=False, shadow_offse
     D = np.asarray(looks.diffuse, np.float64)[m]
     A = np.asarray(looks.ambient, np.float64)[m]
     light_sum = np.zeros((len(hit), 3))
+    total = np.zeros(len(hit))
     for kind, xyz, rgb, falloff in looks.lights:
         xyz = np.asarray(xyz, np.float64)
         if kind == "point":
@@ -809,6 +813,7 @@ def ref_material(tris, camera, width, height, looks, shadows=False, shadow_offse
         s = np.where(((ng * lu).sum(axis=1) > 0) & (s > 0), s, 0.0)
         if falloff and kind == "point":
             s = s / dist**2
+        total += s * float(np.sum(rgb))
         if shadows:
             lit = np.flatnonzero(s > 0)
             po = p[lit] + ng[lit] * shadow_offset
@@ -825,5 +830,8 @@ def ref_material(tris, camera, width, height, looks, shadows=False, shadow_offse
     img = np.empty((N, 4), np.uint8)
     img[:, :3] = to_u8(col)
     img[:, 3] = 255
+    colour, tvd, light_total = np.full((N, 3), -1.0), np.zeros((N, 3)), np.zeros(N)
+    colour[hit], tvd[hit], light_total[hit] = col[hit], tex * D, total
     return RefImage(image=img.reshape(height, width, 4), t=h.t.reshape(height, width),
-                    tri=h.tri.reshape(height, width), hits=h)
+                    tri=h.tri.reshape(height, width), hits=h, colour=colour.reshape(height, width, 3),
+                    tvd=tvd.reshape(height, width, 3), light_total=light_total.reshape(height, width))

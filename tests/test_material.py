@@ -518,7 +518,7 @@ def test_light_segments_mark_the_grids_each_segment_may_meet(rng):
     lights = np.array([[0.0, 0.1, 3.0, 0.2, 1.0, 1.0, 1.0, 0.0]])
     boxes = near_boxes([Grid([-1, -1, -1], [1, 1, 1]), Grid([0.0, 0.5, 0.0], [0.3, 0.7, 0.4])])
     rays = ShadowRays(np.zeros(n, np.uint8), np.zeros(n))
-    segs = ShadowSegments(np.zeros(n, np.int64), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n, np.uint8))
+    segs = ShadowSegments(np.zeros(n, np.int64), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n, np.uint8), np.zeros(n))
     m = light_segments(lights, 0, hp, 1e-6, 5.0, np.arange(n, dtype=np.int64), rays, segs, boxes)
     assert m == n  # every hit faces the light above
     for k in range(2):
@@ -532,8 +532,8 @@ def test_light_segments_mark_the_grids_each_segment_may_meet(rng):
 def test_light_segments_against_numpy(rng, n):
     """light_segments over a random image of hits (some misses, normals either way, a point light
     and a directional one): the lit pixels in the order's order (over several of its parallel
-    chunks and a partial last one), each weight as light_weight gives it, and each segment from
-    the light's end back to the offset hit point, against NumPy."""
+    chunks and a partial last one), each weight as light_weight gives it (per pixel and per
+    segment), and each segment from the light's end back to the offset hit point, against NumPy."""
     from gridrt.trace.material import light_segments, light_weight
     from gridrt.trace.records import HitPoints, ShadowRays, ShadowSegments
 
@@ -550,7 +550,7 @@ def test_light_segments_against_numpy(rng, n):
     for li in range(2):
         rays = ShadowRays(np.full(n, 7, np.uint8), np.full(n, np.nan))
         segs = ShadowSegments(np.full(n, -1, np.int64), np.full((n, 3), np.nan), np.full((n, 3), np.nan),
-                              np.zeros(n, np.uint8))
+                              np.zeros(n, np.uint8), np.full(n, np.nan))
         m = light_segments(lights, li, hp, off, far, order, rays, segs, np.empty((0, 7)))
         w = np.array([light_weight.py_func(lights, li, tuple(pos[i]), tuple(ng[i]), tuple(ns[i].astype(np.float64)))[0]
                       if acc[i, 0] >= 0 else 0.0 for i in range(n)])
@@ -562,6 +562,7 @@ def test_light_segments_against_numpy(rng, n):
         to_light = lights[li, 1:4] * far if li == 1 else lights[li, 1:4] - start
         assert (segs.o[:m] == start + to_light).all() and (segs.d[:m] == -to_light).all()
         assert (segs.grids[:m] == 255).all()  # no boxes: every grid traces every segment
+        assert (segs.weight[:m] == w[want]).all()
         assert n < 100 or 0 < m < n  # lit and unlit hits both
 
 

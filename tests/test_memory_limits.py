@@ -253,23 +253,28 @@ def test_grid_estimate_matches_peak(strategy):
 PLANE = np.array([[[-10, -10, 0], [10, -10, 0], [10, 10, 0]], [[-10, -10, 0], [10, 10, 0], [-10, 10, 0]]], np.float32)
 
 
-@pytest.mark.parametrize("shading,shadows", [("lambert", False), ("material", True)])
-def test_render_estimate_matches_peak(shading, shadows):
+@pytest.mark.parametrize("shading,shadows,k", [("lambert", False, 0), ("material", True, 0), ("material", True, 4)])
+def test_render_estimate_matches_peak(shading, shadows, k):
     """render_bytes against tracemalloc's peak of a fresh Renderer's frame over a plane that
     fills the view (every pixel a hit facing the light: the material pass casts a shadow ray a
-    pixel, its most)."""
+    pixel, its most; with 4 lights drawn a pixel of 4 lights, buffers for every light's segments
+    at once)."""
     from gridrt.memory import render_bytes
-    from gridrt.trace.render import Renderer
+    from gridrt.trace.render import Looks, Renderer
 
     grid = gridrt.build_grid(PLANE)
     cam = gridrt.Camera(eye=(0, 0, 5), target=(0, 0, 0), fov=40)
-    rp = gridrt.RenderParams(400, 300, shading=shading, shadows=shadows)
-    Renderer().render(grid, PLANE, cam, rp)  # (kernels loaded outside the measurement)
-    res, peak = traced_peak(lambda: Renderer().render(grid, PLANE, cam, rp))
+    rp = gridrt.RenderParams(400, 300, shading=shading, shadows=shadows, light_samples=k)
+    looks = None
+    if k:
+        lights = np.array([[0, x, y, 3.0, 1, 1, 1, 0] for x in (-1.0, 1.0) for y in (-1.0, 1.0)])
+        looks = Looks(PLANE, None, None, lights)
+    Renderer().render(grid, PLANE, cam, rp, looks=looks)  # (kernels loaded outside the measurement)
+    res, peak = traced_peak(lambda: Renderer().render(grid, PLANE, cam, rp, looks=looks))
     assert res.stats.hit_fraction == 1.0
     if shadows:
-        assert res.stats.shadow_rays_per_pixel == 1.0
-    est = render_bytes(400, 300, shadows)
+        assert res.stats.shadow_rays_per_pixel == 1.0 if not k else 3 < res.stats.shadow_rays_per_pixel <= 4
+    est = render_bytes(400, 300, shadows, light_samples=k)
     assert LOW <= est / peak <= HIGH, (est, peak)
 
 

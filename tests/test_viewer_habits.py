@@ -72,7 +72,8 @@ def test_jittered_camera_rays(jx, jy):
 
 def test_accumulator_mean_and_offsets():
     """The first sample is centred, the next ones are distinct points of the pixel square; the
-    image shown is the rounded mean of the samples of one frame, and a new frame starts again."""
+    image shown is the mean of the samples of one frame rounded half up, and a new frame starts
+    again."""
     offs = [jitter(k) for k in range(64)]
     assert offs[0] == (0.0, 0.0)
     assert len(set(offs)) == 64 and all(-0.5 <= a < 0.5 and -0.5 <= b < 0.5 for a, b in offs)
@@ -88,7 +89,7 @@ def test_accumulator_mean_and_offsets():
         assert acc.next_jitter("a") == jitter(i)
         shown = acc.add("a", img)
     assert acc.next_jitter("a") is None   # complete
-    assert np.array_equal(shown, np.rint(imgs.astype(float).mean(axis=0)).astype(np.uint8))
+    assert np.array_equal(shown, np.floor(imgs.astype(float).mean(axis=0) + 0.5).astype(np.uint8))
     assert np.array_equal(acc.add("b", imgs[0]), imgs[0]) and acc.count == 1
     assert acc.next_jitter("c") == (0.0, 0.0) and acc.count == 0
 
@@ -420,3 +421,41 @@ def test_accumulation_error_falls_with_still_frames():
             errors[k + 1] = np.abs(shown.astype(float) - ref).mean()
     assert errors[1] > errors[4] > errors[16] > errors[64], errors
     assert errors[64] < 0.5 * errors[1], errors
+
+
+@needs_x
+@pytest.mark.slow
+def test_viewer_draws_lights_and_averages_the_draws_under_xvfb(tmp_path, xvfb):
+    """--shadows --light-samples 1 on the museum (two lights): each pixel's shadow ray goes to one
+    light drawn by its light there; while the view is still the viewer averages draws (its
+    samples count up) and the image comes closer to the exact one (the dump with every light, at
+    the camera V prints) than one draw (the dump with --light-samples 1) is; the panel's "shadow
+    rays" combo set to every light shows the exact frame, pixel for pixel."""
+    museum = REPO / "assets" / "museum" / "museum5.aff"
+    app = xvfb.start(_App(xvfb.display, tmp_path, scene=("--scene", str(museum)),
+                          extra=("--paused", "--shadows", "--light-samples", "1")))
+    s = app.wait(lambda q: q["rendered_frames"] >= 1 and q["camera"] and q["stats"].get("width") == W,
+                 "the first museum frame", timeout=600)   # a cold cache compiles the material kernels
+    assert s["light_samples"] == 1 and s["stats"]["lights"] == 2 and s["stats"]["shadow_rays_per_pixel"] <= 1
+    _window(app)
+    s = app.wait(lambda q: q["samples"] >= 32, "32 draws averaged", timeout=600)
+    s, shown = _shot(app, s)
+    _key(app, "v")
+    flags = app.wait(lambda q: q["camera_flags"], "the camera printed")["camera_flags"]
+    dumps = {}
+    for name, extra in (("exact", ()), ("draw", ("--light-samples", "1"))):
+        out = tmp_path / name
+        r = subprocess.run([sys.executable, "-m", "gridrt", "dump", "--scene", str(museum), "--size", f"{W}x{H}",
+                            "--frames", "1", "--no-progress", "--shadows", "--out", str(out), *flags.split(), *extra],
+                           cwd=tmp_path, env=_app_env(), capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, r.stderr
+        dumps[name] = _png(out / "frame_00000.png").astype(float)
+    exact, draw = dumps["exact"], dumps["draw"]
+    err_draw, err_shown = np.abs(draw - exact).mean(), np.abs(shown - exact).mean()
+    assert err_draw > 0.2 and err_shown < 0.1 * err_draw, (err_shown, err_draw)
+    s = app.pick("shadow rays", "every light (exact)")
+    s = app.wait(lambda q: q["light_samples"] == 0 and q["samples"] == 1 and q["stats"]["shadow_rays_per_pixel"] > 1,
+                 "every light's rays", timeout=300)
+    s, again = _shot(app, s)
+    assert np.array_equal(again, exact.astype(np.uint8))
+    _quit(app)

@@ -4,6 +4,10 @@ samples, so edges converge to the pixel's box-filtered average (anti-aliasing) w
 moves.  The first sample is the centred frame, the exact image; the offsets that follow are the
 (2, 3) Halton points of the pixel square, so any count of samples covers it evenly.  Anything that
 changes the frame (time, camera, settings, size) starts again from the exact image.
+
+Where the render draws its lights (RenderParams.light_samples) each sample is a draw of its own
+(light_seed = the sample's number), and the mean is taken of the colours before they are clamped
+(Frame.hdr): that mean tends to the exact image, where a mean of clamped draws would not.
 """
 
 import numpy as np
@@ -50,15 +54,23 @@ class Accumulator:
             return None
         return jitter(self.count)
 
-    def add(self, key, image):
+    def add(self, key, image, hdr=None):
         """Add sample ``image`` ((H, W, 3|4) uint8) of frame ``key``; returns the mean so far as
-        uint8 (the image itself for a first sample, or a sample of another frame)."""
+        uint8, rounded half up (the image itself for a first sample, or a sample of another
+        frame).  ``hdr`` ((H, W, 3) float, Frame.hdr) gives the hit pixels' colours before
+        clamping (-1 for a miss): those pixels add 255 times them instead of the image's values."""
         img = np.asarray(image)
+        v = img.astype(np.float64)
+        if hdr is not None:
+            hit = hdr[..., 0] >= 0.0
+            v[..., :3][hit] = 255.0 * hdr[hit].astype(np.float64)
         if key != self.key or self.sum is None or self.sum.shape != img.shape:
             self.reset(key)
-            self.sum = img.astype(np.float32)
+            self.sum = v
             self.count = 1
             return img
-        self.sum += img
+        self.sum += v
         self.count += 1
-        return np.clip(np.rint(self.sum / self.count), 0, 255).astype(np.uint8)
+        # rounded as the renderer rounds a colour into the image (half up), so that draws which
+        # agree show the exact image
+        return np.clip(np.floor(self.sum / self.count + 0.5), 0, 255).astype(np.uint8)

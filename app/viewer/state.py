@@ -22,6 +22,16 @@ from gridrt.stats import FrameStats
 from gridrt.scene import SceneSpec  # noqa: F401  (the viewer's scene spec; input, ui and tests import it here too)
 from gridrt.threads import check_threads
 
+#: the panel's choices of shadow rays a pixel (RenderParams.light_samples): every light, or a few
+#: drawn by their light (averaged while the view is still)
+LIGHT_SAMPLE_LABELS = {"every light (exact)": 0, "1 drawn a pixel": 1, "2 drawn a pixel": 2, "4 drawn a pixel": 4}
+
+
+def light_samples_label(k):
+    """The panel's words for RenderParams.light_samples ``k``."""
+    return "every light (exact)" if k == 0 else f"{k} drawn a pixel"
+
+
 #: frames kept for the live build/render plots
 HISTORY = 300
 #: render resolution scale limits (render size = the image area's framebuffer size x scale)
@@ -375,6 +385,8 @@ class ViewerState:
             "watertight": self.render.watertight,
             "shading": self.render.shading,
             "shadows": self.render.shadows,
+            "light_samples": self.render.light_samples,
+            "shadow rays": light_samples_label(self.render.light_samples),
             "follow_camera": self.follow_camera,
             "scene_camera": self.scene_camera,
             "textures": self.textures,

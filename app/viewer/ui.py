@@ -19,7 +19,9 @@ from gridrt.scene import BUILTIN_SCENES, DEFORM_KINDS, FRAME_EXTENSIONS, SCENE_E
 from gridrt.scene.assets import DATA_SCENES, STATIC_ASSETS, STATIC_DATA_SCENES, scene_present
 
 from .input import KEY_HELP
-from .state import PANEL_STRIP_WIDTH, PANEL_WIDTH, SCALE_MAX, SCALE_MIN, SPEED_MAX, SPEED_MIN  # noqa: F401
+from .state import (  # noqa: F401
+    LIGHT_SAMPLE_LABELS, PANEL_STRIP_WIDTH, PANEL_WIDTH, SCALE_MAX, SCALE_MIN, SPEED_MAX, SPEED_MIN, light_samples_label,
+)
 
 #: panel background (RGB 0..1; opaque: the panel lies beside the image)
 PANEL_BG = (0.09, 0.10, 0.12)
@@ -328,6 +330,16 @@ def _draw_render(state):
     if imgui.is_item_hovered(imgui.HoveredFlags_.allow_when_disabled):
         imgui.set_tooltip("look through the scene's own (animated) camera (C); moving the view leaves it"
                           if state.scene_camera else "this scene has no camera of its own")
+    imgui.begin_disabled(not rp.shadows)
+    current = light_samples_label(rp.light_samples)
+    v = _combo(state, "shadow rays", list(LIGHT_SAMPLE_LABELS), current)
+    imgui.end_disabled()
+    if imgui.is_item_hovered(imgui.HoveredFlags_.allow_when_disabled):
+        imgui.set_tooltip("material shading with shadows: a ray towards every light, or towards lights drawn by "
+                          "their light at each pixel (faster, noisy in shadows; averaged towards the exact image "
+                          "while the view is still)")
+    if v is not None:
+        state.set_render(light_samples=LIGHT_SAMPLE_LABELS[v])
     w = imgui.calc_item_width()
     changed, sc = imgui.slider_float("resolution", float(state.scale), SCALE_MIN, SCALE_MAX, "%.2fx")
     _rect(state, "resolution", w)

@@ -225,6 +225,13 @@ def initial_state(a):
     return st
 
 
+def draws_lights(rp):
+    """Whether frames of the RenderParams ``rp`` may draw their lights (light_samples with shadows):
+    their draws are averaged while the view is still, as with accumulation on (the frames of
+    shading modes that have no such lights come back without Frame.hdr and are the same every draw)."""
+    return bool(rp.light_samples) and bool(rp.shadows)
+
+
 def frame_key(t, spec):
     """What decides the frame at time ``t`` of the FrameSpec ``spec``: both, but while the scene's
     own camera is followed, the view's camera (eye, target, up, fov) does not choose the frame (it
@@ -512,8 +519,8 @@ class Viewer:
                 print(f"gridrt view: {st.scene_error}", file=sys.stderr, flush=True)
             else:
                 shown = res.image
-                if self.bench is None and (st.accumulate or res.job.jitter is not None):
-                    shown = self.accum.add(frame_key(res.job.t, res.job.spec), res.image)
+                if self.bench is None and (st.accumulate or res.job.jitter is not None or res.hdr is not None):
+                    shown = self.accum.add(frame_key(res.job.t, res.job.spec), res.image, res.hdr)
                     st.samples = self.accum.count
                 else:
                     self.accum.reset()
@@ -593,9 +600,12 @@ class Viewer:
             return
         key = frame_key(st.time, st.spec)
         if key == self.last_key:
-            jitter = self.accum.next_jitter(key) if st.accumulate and self.accum.count else None
-            if jitter is not None:   # the view is still: the next progressive sample
-                self.worker.submit(FrameJob(st.spec, st.time, generation=self.generation, jitter=jitter))
+            drawn = draws_lights(st.spec.render)
+            jitter = self.accum.next_jitter(key) if (st.accumulate or drawn) and self.accum.count else None
+            if jitter is not None:   # the view is still: the next progressive sample (a new draw of the lights)
+                self.worker.submit(FrameJob(st.spec, st.time, generation=self.generation,
+                                            jitter=jitter if st.accumulate else None,
+                                            light_seed=self.accum.count if drawn else 0))
             return
         self.last_key = key
         self.worker.submit(FrameJob(st.spec, st.time, generation=self.generation))

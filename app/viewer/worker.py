@@ -55,6 +55,7 @@ class FrameJob:
     generation: int = 0     # scene generation the frame belongs to (stale results are dropped)
     label: str = "rendering"
     jitter: tuple | None = None  # (jx, jy) pixels: a progressive sample's sub-pixel offset (None: centred)
+    light_seed: int = 0     # the draw of the lights where the spec draws them (RenderParams.light_seed)
 
 
 @dataclass
@@ -105,6 +106,7 @@ class FrameResult:
     error: str | None = None
     depth: np.ndarray | None = None   # (H, W) float32 hit distance along each pixel's ray (inf: miss)
     ray_camera: object = None         # the camera of those rays (``camera``, jittered by the job's jitter)
+    hdr: np.ndarray | None = None     # (H, W, 3) float32 colours before clamping where lights are drawn (Frame.hdr)
 
 
 class RenderWorker:
@@ -246,7 +248,8 @@ class RenderWorker:
         if pipe is None:
             raise GridrtError("no scene loaded")
         spec, view = job.spec, job.spec.view
-        pipe.grid_params, pipe.render_params = spec.grid, spec.render
+        pipe.grid_params = spec.grid
+        pipe.render_params = spec.render.replace(light_seed=job.light_seed) if job.light_seed else spec.render
         pipe.follow_camera, pipe.fov, pipe.up = view.follow_camera, view.fov, view.up
         fr = pipe.step(job.t, camera=view.camera(), jitter=job.jitter)
         cam = pipe.last_camera
@@ -254,4 +257,6 @@ class RenderWorker:
         radius = 1.0 if box is None else 0.5 * float(np.linalg.norm(np.asarray(box.hi) - np.asarray(box.lo)))
         h, w = fr.t.shape
         ray_cam = cam.jittered(w, h, *job.jitter) if job.jitter is not None and cam is not None else cam
-        return FrameResult(fr.image.copy(), fr.stats, cam, radius, job, depth=fr.t.copy(), ray_camera=ray_cam)
+        drew = fr.hdr is not None and spec.render.light_samples and fr.stats.render.lights > 1
+        hdr = fr.hdr.copy() if drew else None
+        return FrameResult(fr.image.copy(), fr.stats, cam, radius, job, depth=fr.t.copy(), ray_camera=ray_cam, hdr=hdr)

@@ -178,7 +178,7 @@ def _shade_row(y, view, ibuf, surf, lights, deferred, img, hp):
         i = y * W + x
         if f < 0:  # a miss: the render kernel has written the background already
             if deferred:
-                acc[i, 0] = -1.0
+                acc[i, 0], acc[i, 1], acc[i, 2] = -1.0, -1.0, -1.0
             continue
         dx, dy, dz = pixel_dir(basis, W, H, x, y)
         w0, w1, w2 = barycentrics(stris, f, ex, ey, ez, dx, dy, dz)
@@ -239,7 +239,7 @@ def shade_kernel(view, ibuf, surf, lights, deferred, img, hp):
     kernel wrote; view: :class:`gridrt.trace.records.View`) with the surface surf
     (:class:`gridrt.trace.records.SurfaceArrays`) and the lights (L, 8) (frame coordinates), or
     with ``deferred`` (shadows) write each hit's point, normals, T V D and T V A (acc; -1 in
-    acc[:, 0] for a miss) into the flat (W*H, 3) buffers of hp
+    acc[i] for a miss) into the flat (W*H, 3) buffers of hp
     (:class:`gridrt.trace.records.HitPoints`) for :func:`light_segments`, :func:`add_light` and
     :func:`compose`."""
     for y in prange(view.H):
@@ -262,21 +262,13 @@ def light_segments(lights, li, hp, off, far, order, rays, segs, boxes):
     """The shadow segments of light li from the hits of hp (:class:`gridrt.trace.records.HitPoints`;
     acc[i, 0] >= 0) it lights, in the pixel order ``order`` (a permutation of the image's pixels).
     Per pixel (rays: :class:`gridrt.trace.records.ShadowRays`): need[i] = 1 where the light
-    lights the hit, and its weight there in weight[i].  The lit pixels' segments go, in the order's
-    order, to segs (:class:`gridrt.trace.records.ShadowSegments`): the pixel's index in rows, and
-    the segment from the light's end to the hit turned round in o and d (t in (0, 1)): the ray
-    from p + n_g * off to the light (a point light's vector to it, or far times a directional
-    light's unit vector) starts at the light's end, o = origin + direction, d = -direction.  A
-    point light's segments then share one origin, and one blocked near its light stops there.
-    With several grids, boxes (G, 7) (:func:`near_boxes`, G <= 8) gives their boxes, and bit g of
-    segs.grids[m] is set where segment m may meet grid g's box (:func:`_near_box`): the grids it
-    misses need not trace it; with boxes (0, 7) every bit is set.
+    lights the hit, and its weight there in weight[i].  The lit pixels' segments go, in the
+    order's order, to segs (:class:`gridrt.trace.records.ShadowSegments`, :func:`_put_segment`).
     Returns how many.  In three parallel passes: the lit hits, in pixel order; then over chunks of
     LIT_CHUNK pixels of the order, each chunk's count of them, and each chunk's segments from its
     place after the chunks before it."""
     pos, ngb, nsb, acc = hp.pos, hp.ng, hp.ns, hp.acc
     need, weight = rays.need, rays.weight
-    rows, o, d, grids = segs.rows, segs.o, segs.d, segs.grids
     N = order.shape[0]
     for i in prange(N):  # (in pixel order: the hit buffers are read front to back)
         need[i] = 0
@@ -297,31 +289,169 @@ def light_segments(lights, li, hp, off, far, order, rays, segs, boxes):
         start[c + 1] = m
     for c in range(nc):
         start[c + 1] += start[c]
-    directional = lights[li, 0] == LIGHT_DIRECTIONAL
     for c in prange(nc):
         m = start[c]
         for k in range(c * LIT_CHUNK, min(N, (c + 1) * LIT_CHUNK)):
             i = order[k]
             if need[i] == 0:
                 continue
-            ox, oy, oz = pos[i, 0] + ngb[i, 0] * off, pos[i, 1] + ngb[i, 1] * off, pos[i, 2] + ngb[i, 2] * off
-            if directional:
-                dx, dy, dz = lights[li, 1] * far, lights[li, 2] * far, lights[li, 3] * far
-            else:
-                dx, dy, dz = lights[li, 1] - ox, lights[li, 2] - oy, lights[li, 3] - oz
-            rows[m] = i
-            sx, sy, sz = ox + dx, oy + dy, oz + dz
-            o[m, 0], o[m, 1], o[m, 2] = sx, sy, sz
-            d[m, 0], d[m, 1], d[m, 2] = -dx, -dy, -dz
-            bits = 255
-            if boxes.shape[0] > 0:
-                bits = 0
-                for gi in range(boxes.shape[0]):
-                    if _near_box(boxes[gi], (sx, sy, sz), (-dx, -dy, -dz)):
-                        bits |= 1 << gi
-            grids[m] = bits
+            _put_segment(lights, li, hp, i, off, far, boxes, segs, m, weight[i])
             m += 1
     return start[nc]
+
+
+@inner(cache=True, _nrt=False, error_model="numpy")
+def _put_segment(lights, li, hp, i, off, far, boxes, segs, m, weight):
+    """Segment m of segs (:class:`gridrt.trace.records.ShadowSegments`): pixel i's, towards light
+    li, of that weight.  The light's end to the hit turned round: the ray from p + n_g * off to
+    the light (a point light's vector to it, or far times a directional light's unit vector)
+    starts at the light's end, o = origin + direction, d = -direction (t in (0, 1)).  A point
+    light's segments then share one origin, and one blocked near its light stops there.  With
+    several grids, boxes (G, 7) (:func:`near_boxes`, G <= 8) gives their boxes, and bit g of
+    segs.grids[m] is set where the segment may meet grid g's box (:func:`_near_box`): the grids
+    it misses need not trace it; with boxes (0, 7) every bit is set."""
+    pos, ngb = hp.pos, hp.ng
+    ox, oy, oz = pos[i, 0] + ngb[i, 0] * off, pos[i, 1] + ngb[i, 1] * off, pos[i, 2] + ngb[i, 2] * off
+    if lights[li, 0] == LIGHT_DIRECTIONAL:
+        dx, dy, dz = lights[li, 1] * far, lights[li, 2] * far, lights[li, 3] * far
+    else:
+        dx, dy, dz = lights[li, 1] - ox, lights[li, 2] - oy, lights[li, 3] - oz
+    segs.rows[m] = i
+    sx, sy, sz = ox + dx, oy + dy, oz + dz
+    o, d = segs.o, segs.d
+    o[m, 0], o[m, 1], o[m, 2] = sx, sy, sz
+    d[m, 0], d[m, 1], d[m, 2] = -dx, -dy, -dz
+    bits = 255
+    if boxes.shape[0] > 0:
+        bits = 0
+        for gi in range(boxes.shape[0]):
+            if _near_box(boxes[gi], (sx, sy, sz), (-dx, -dy, -dz)):
+                bits |= 1 << gi
+    segs.grids[m] = bits
+    segs.weight[m] = weight
+
+
+#: the pixel shift of the draws of :func:`_draw`: the R2 sequence's (the plastic number's
+#: inverse and its square), so neighbouring pixels draw far apart
+R2_X, R2_Y = 0.7548776662466927, 0.5698402909980532
+
+
+def draw_shift(seed):
+    """The shift of draw ``seed`` (RenderParams.light_seed) common to every pixel: the base-2
+    radical inverse of seed (0, 1/2, 1/4, 3/4, ...), so seeds 0 .. 2^m - 1 give each pixel 2^m
+    evenly spaced draws."""
+    f, r, i = 0.5, 0.0, int(seed)
+    while i > 0:
+        r += f * (i & 1)
+        i >>= 1
+        f *= 0.5
+    return r
+
+
+@inner(cache=True, _nrt=False, error_model="numpy")
+def _draw(lights, hp, i, W, draws, w):
+    """Draw draws.k lights for hit pixel i of hp (W pixels a row) with probability p in proportion
+    to w = n_s . l (over d^2 with falloff: :func:`light_weight`) times the light's r + g + b (w:
+    scratch of L); draws.lit[i] and draws.factor[i] get the distinct lights drawn, -1 after them,
+    and n / (k p) for a light drawn n times; returns how many.  The k draws are stratified: u_j =
+    (j + x) / k, with x = frac(R2_X px + R2_Y py + draws.shift) at pixel (px, py).  Where the
+    total weight is infinite (a light at the hit itself, with falloff) the pixel keeps the first
+    K lights of infinite weight, factor 1: lit by them, the pixel is white as in the exact sum."""
+    pos, ngb, nsb = hp.pos, hp.ng, hp.ns
+    k, lit, factor = draws.k, draws.lit, draws.factor
+    L, K = lights.shape[0], lit.shape[1]
+    for j in range(K):
+        lit[i, j] = -1
+        factor[i, j] = 0.0
+    if hp.acc[i, 0] < 0.0:
+        return 0
+    total, last = 0.0, -1
+    for li in range(L):
+        s, lx, ly, lz, dist = light_weight(lights, li, (pos[i, 0], pos[i, 1], pos[i, 2]),
+                                           (ngb[i, 0], ngb[i, 1], ngb[i, 2]),
+                                           (np.float64(nsb[i, 0]), np.float64(nsb[i, 1]), np.float64(nsb[i, 2])))
+        wl = s * (lights[li, 4] + lights[li, 5] + lights[li, 6])
+        w[li] = wl if wl > 0.0 else 0.0
+        total += w[li]
+        if wl > 0.0:
+            last = li
+    if last < 0:
+        return 0
+    m = 0
+    if not math.isfinite(total):
+        for li in range(last + 1):
+            if w[li] == np.inf and m < K:
+                lit[i, m] = li
+                factor[i, m] = 1.0
+                m += 1
+        return m
+    py = i // W
+    x = R2_X * (i - py * W) + R2_Y * py + draws.shift
+    x -= math.floor(x)
+    j, cw = 0, 0.0
+    for li in range(last + 1):
+        if w[li] == 0.0:
+            continue
+        cw += w[li]
+        j0 = j
+        if li == last:  # (the rest, whatever the rounding of cw)
+            j = k
+        else:
+            while j < k and (j + x) * total < cw * k:
+                j += 1
+        if j > j0:
+            lit[i, m] = li
+            factor[i, m] = (j - j0) * total / (k * w[li])
+            m += 1
+    return m
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def drawn_segments(lights, hp, W, draws, off, far, order, segs, boxes):
+    """The shadow segments of the hits of hp (:class:`gridrt.trace.records.HitPoints`, W pixels a
+    row) towards lights drawn per pixel (draws: :class:`gridrt.trace.records.Draws`,
+    :func:`_draw`): the sum over a pixel's drawn lights of their light, each weighted by its
+    factor, is an unbiased estimate of the sum over every light.  The segments go to segs
+    (:class:`gridrt.trace.records.ShadowSegments` of at least W * H * K, :func:`_put_segment`,
+    weight n_s . l times the factor) light by light, each light's in the order ``order`` (a
+    permutation of the image's pixels).  Returns start (L + 1,) int64: light li's segments are
+    start[li]:start[li + 1].  In two parallel passes over chunks of LIT_CHUNK pixels of the order:
+    the draws, counted per light and chunk; then each chunk's segments from its place in each
+    light's run."""
+    L, N = lights.shape[0], order.shape[0]
+    lit, factor = draws.lit, draws.factor
+    nc = (N + LIT_CHUNK - 1) // LIT_CHUNK
+    count = np.zeros((nc, L), np.int64)
+    for c in prange(nc):
+        w = np.empty(L)
+        for kk in range(c * LIT_CHUNK, min(N, (c + 1) * LIT_CHUNK)):
+            i = order[kk]
+            for j in range(_draw(lights, hp, i, W, draws, w)):
+                count[c, lit[i, j]] += 1
+    start = np.zeros(L + 1, np.int64)
+    at = np.empty((nc, L), np.int64)
+    m = 0
+    for li in range(L):
+        start[li] = m
+        for c in range(nc):
+            at[c, li] = m
+            m += count[c, li]
+    start[L] = m
+    pos, ngb, nsb = hp.pos, hp.ng, hp.ns
+    for c in prange(nc):
+        for kk in range(c * LIT_CHUNK, min(N, (c + 1) * LIT_CHUNK)):
+            i = order[kk]
+            for j in range(lit.shape[1]):
+                li = lit[i, j]
+                if li < 0:
+                    break
+                s, lx, ly, lz, dist = light_weight(lights, li, (pos[i, 0], pos[i, 1], pos[i, 2]),
+                                                   (ngb[i, 0], ngb[i, 1], ngb[i, 2]),
+                                                   (np.float64(nsb[i, 0]), np.float64(nsb[i, 1]),
+                                                    np.float64(nsb[i, 2])))
+                _put_segment(lights, li, hp, i, off, far, boxes, segs, at[c, li], s * factor[i, j])
+                at[c, li] += 1
+    return start
 
 
 #: a grid box (its lo and hi, see near_boxes) is grown by this fraction of its diagonal before a
@@ -368,11 +498,11 @@ def _near_box(box, o, d):
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def add_light(rows, blocked, weight, tvd, r, g, b, acc):
-    """acc[rows[j]] += tvd * (r, g, b) * weight for every shadow ray j that hit nothing (not blocked[j])."""
+    """acc[rows[j]] += tvd * (r, g, b) * weight[j] for every shadow ray j that hit nothing (not blocked[j])."""
     for j in prange(rows.shape[0]):
         if not blocked[j]:
             i = rows[j]
-            s = weight[i]
+            s = weight[j]
             acc[i, 0] += tvd[i, 0] * r * s
             acc[i, 1] += tvd[i, 1] * g * s
             acc[i, 2] += tvd[i, 2] * b * s

@@ -15,8 +15,9 @@ of arrays and scalars (a tuple of tuples cannot enter it, see gridrt.trace.grids
 * :class:`Scratch`: one worker's scratch in the CGT render (gridrt.trace.cgt.frame);
 * :class:`SurfaceArrays`: the scene's surface as the material pass reads it;
 * :class:`HitPoints`: the material pass's per-pixel buffers while shadows are cast;
-* :class:`ShadowRays`: one light's shadow rays from those hits, and :class:`ShadowSegments`: the
-  segments cast (all of them in a :class:`ShadowBuffers`, kept from frame to frame).
+* :class:`ShadowRays`: one light's shadow rays from those hits, :class:`Draws`: lights drawn per
+  pixel instead, and :class:`ShadowSegments`: the segments cast (all of them in a
+  :class:`ShadowBuffers`, kept from frame to frame).
 """
 
 from collections import namedtuple
@@ -69,23 +70,34 @@ SurfaceArrays = namedtuple("SurfaceArrays",
 #: The material pass's per-pixel buffers while shadow rays are cast (row y * W + x): pos (W * H,
 #: 3) float64 hit point, ng (W * H, 3) float64 facing geometric normal, ns (W * H, 3) float32
 #: shading normal, tvd (W * H, 3) float32 the colour the lights multiply, acc (W * H, 3) float32
-#: the colour so far (the ambient term first; acc[i, 0] = -1 for a miss).
+#: the colour so far (the ambient term first; acc[i] = -1 for a miss).
 HitPoints = namedtuple("HitPoints", "pos ng ns tvd acc")
 
 #: One light's shadow rays from the hits, row by pixel: need (W * H,) uint8 (1: the light lights
 #: the hit, a ray is cast) and weight (W * H,) float64 the light's weight at the hit.
 ShadowRays = namedtuple("ShadowRays", "need weight")
 
-#: One light's shadow segments, those of the lit hits only, in the order they are cast: rows (N,)
-#: int64 the pixel of each, o and d (N, 3) float64 the segment o + t d, 0 < t < 1, from the
-#: light's end to the hit, grids (N,) uint8 the grids whose boxes it may meet (bit g: grid g).
-ShadowSegments = namedtuple("ShadowSegments", "rows o d grids")
+#: Shadow segments, those of the lit hits only, in the order they are cast: rows (N,) int64 the
+#: pixel of each, o and d (N, 3) float64 the segment o + t d, 0 < t < 1, from the light's end to
+#: the hit, grids (N,) uint8 the grids whose boxes it may meet (bit g: grid g), weight (N,)
+#: float64 its light's weight at the hit.
+ShadowSegments = namedtuple("ShadowSegments", "rows o d grids weight")
+
+#: Lights drawn per pixel (RenderParams.light_samples; gridrt.trace.material.drawn_segments):
+#: k draws a pixel, shift (the draw's: gridrt.trace.material.draw_shift), lit (W * H, K) int32
+#: the distinct lights drawn (-1 after them) and factor (W * H, K) float64 n / (k p) of each.
+Draws = namedtuple("Draws", "k shift lit factor")
 
 #: The material pass's buffers for shadows (Python side, gridrt.trace.render.Renderer keeps them
 #: from frame to frame): the :class:`HitPoints` hp, the :class:`ShadowRays` rays, the pixels in
 #: tile order (W * H,) int64, the :class:`ShadowSegments` segs, the batch cast's out (t, tri, u,
 #: v) and blocked (W * H,) bool.
 ShadowBuffers = namedtuple("ShadowBuffers", "hp rays order segs out blocked")
+
+
+def make_draws(k, shift, lit, factor):
+    """The :class:`Draws` with the types the kernels are compiled for."""
+    return Draws(int(k), float(shift), lit, factor)
 
 
 def make_view(basis, W, H, tile):

@@ -48,9 +48,10 @@ from .twin import TWINS
 from ..camera import Camera, pixel_dir
 from .cgt.frame import cgt_render_kernel, cgt_render_serial
 from .grids import grid_arrays, grid_tuple, pack_grids, unpack_grids
-from .material import add_light, compose, light_segments, near_boxes, shade_kernel, shade_serial, surface_arrays
-from .records import (Buffers, HitPoints, ShadowBuffers, ShadowRays, ShadowSegments, make_packets, make_shading,
-                      make_view)
+from .material import (add_light, compose, draw_shift, drawn_segments, light_segments, near_boxes, shade_kernel,
+                       shade_serial, surface_arrays)
+from .records import (Buffers, Draws, HitPoints, ShadowBuffers, ShadowRays, ShadowSegments, make_draws, make_packets,
+                      make_shading, make_view)
 from .shade import (  # noqa: F401  (the shading constants stay importable from here)
     AMBIENT, ALBEDO, BACKGROUND, COST_SCALE, cost_rgb, facing_normal, lambert_rgb, normal_rgb, put_pixel, scene_id,
     shadow_ray,
@@ -346,11 +347,20 @@ def _check_looks(looks, n_scene):
             as_lights(looks.lights, "looks.lights"))
 
 
+def segment_buffers(n):
+    """:class:`ShadowSegments` for n segments."""
+    return ShadowSegments(np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.uint8), np.empty(n))
+
+
 @dataclass
 class RenderResult:
     """image (H,W,4) uint8; t (H,W) float32 hit distance (inf: miss); tri (H,W) int32 (-1: miss);
     cost (H,W) int32 triangle tests per primary ray; cells (H,W) int32 cells visited; stats
-    RenderStats (gridrt.stats)."""
+    RenderStats (gridrt.stats); hdr (H,W,3) float32, the material mode with shadows only (else
+    None): each hit pixel's colour before it is clamped to 1 and rounded into the image (-1 for
+    a miss), so that the mean of several draws of the lights
+    (RenderParams.light_seed) is that of their unclamped estimates.  The image and hdr are the
+    renderer's buffers, overwritten by its next render."""
 
     image: np.ndarray
     t: np.ndarray
@@ -358,6 +368,7 @@ class RenderResult:
     cost: np.ndarray
     cells: np.ndarray
     stats: RenderStats
+    hdr: np.ndarray | None = None
 
 
 class Renderer:
@@ -367,6 +378,7 @@ class Renderer:
     def __init__(self):
         self._bufs = None
         self._shadow = None  # ((W, H), ShadowBuffers): the material pass's with shadows
+        self._drawn = None  # (Draws, ShadowSegments of W * H * K): the lights drawn per pixel and their segments
 
     def buffers(self, W, H):
         if self._bufs is None or self._bufs[0].shape[:2] != (H, W):
@@ -394,10 +406,18 @@ class Renderer:
                           np.empty((n, 3), f32)),
                 ShadowRays(np.empty(n, np.uint8), np.empty(n, np.float64)),
                 order,
-                ShadowSegments(np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.uint8)),
+                segment_buffers(n),
                 (np.empty(n), np.empty(n, np.int32), np.empty(n), np.empty(n)),
                 np.empty(n, bool)))
         return self._shadow[1]
+
+    def drawn_buffers(self, n, K):
+        """The buffers of lights drawn per pixel, K a pixel of n (:class:`Draws`' lit and factor,
+        and :class:`ShadowSegments` of n * K), kept from frame to frame."""
+        if self._drawn is None or self._drawn[0].lit.shape != (n, K):
+            self._drawn = None
+            self._drawn = (Draws(0, 0.0, np.empty((n, K), np.int32), np.empty((n, K))), segment_buffers(n * K))
+        return self._drawn
 
     def render(self, grid, tris, camera, params: RenderParams | None = None, second=None,
                looks: Looks | None = None) -> RenderResult:
@@ -468,11 +488,13 @@ class Renderer:
                              light if shadows else None, pk, out)
         else:
             TWINS(threads, render_kernel, render_serial, grids, v, look, light, out)
-        shade_ms, n_lights, n_shadow = 0.0, (1 if params.shadows else 0), None
+        shade_ms, n_lights, n_shadow, hdr = 0.0, (1 if params.shadows else 0), None, None
         if material:
             t1 = time.perf_counter()
             n_lights, n_shadow = self._shade_material(grids, looks, params, camera, grid.origin, light, diag, threads)
             shade_ms = (time.perf_counter() - t1) * 1e3
+            if params.shadows:
+                hdr = self._shadow[1].hp.acc.reshape(H, W, 3)
         ms = (time.perf_counter() - t0) * 1e3
         n = W * H
         if n_shadow is None:  # lambert's shadow rays (one per hit facing the light) are not counted
@@ -500,7 +522,7 @@ class Renderer:
             split_rays=int(sums[3]),
             **extra,
         )
-        return RenderResult(img, tb, ib, cb, nb, stats)
+        return RenderResult(img, tb, ib, cb, nb, stats, hdr)
 
     def _shade_material(self, grids, looks, params, camera, origin, default, diag, threads):
         """The material pass over the hits in the tri buffer (gridrt.trace.material); returns (lights
@@ -528,27 +550,37 @@ class Renderer:
         if not deferred:
             return len(lights), 0
         rays, order, segs, out_b = sb.rays, sb.order, sb.segs, sb.out
+
         # of several grids (the static/moving split), each traces only the segments that may meet
         # its box: a moving part's grid is often small, and most segments pass it by
         boxes = near_boxes(grids) if 1 < len(grids) <= 8 else np.empty((0, 7))
-        tvd, acc, weight = hp.tvd, hp.acc, rays.weight
+        tvd, acc = hp.tvd, hp.acc
         off, far = SHADOW_OFFSET * diag, 2.0 * max(diag, 1e-300)
         max_cells = SHADOW_MAX_CELLS if params.traversal == "cgt" else 0.0
         f32 = params.packet_precision == "float32"
-        cast = 0
+        cast, start = 0, None
+        k = params.light_samples
+        if k and len(lights) > 1:  # k lights drawn per hit pixel, weighted to keep the mean: every
+            # light's segments at once, each light's in a run of their own
+            draws, segs = self.drawn_buffers(W * H, min(k, len(lights)))
+            draws = make_draws(k, draw_shift(params.light_seed), draws.lit, draws.factor)
+            start = drawn_segments(lights, hp, W, draws, off, far, order, segs, boxes)
         # each light's shadow rays in tiles of the image (TILE x TILE pixels, sb.order): the batch
         # caster takes them in runs of RUN = TILE^2 in this order, and a run of one tile is a narrow
         # packet where a run of a row's pixels is a wide one (or single rays)
         for li in range(len(lights)):
-            m = light_segments(lights, li, hp, off, far, order, rays, segs, boxes)
+            if start is None:
+                s0, m = 0, light_segments(lights, li, hp, off, far, order, rays, segs, boxes)
+            else:
+                s0, m = int(start[li]), int(start[li + 1] - start[li])
             cast += m
-            rows, o, d = segs.rows[:m], segs.o[:m], segs.d[:m]
+            rows, o, d, marks = segs.rows[s0:s0 + m], segs.o[s0:s0 + m], segs.d[s0:s0 + m], segs.grids[s0:s0 + m]
             blocked = sb.blocked[:m]
             blocked[:] = False
             for gi, g in enumerate(grids):  # any hit in any grid shadows
                 sel = ~blocked
                 if len(boxes):
-                    sel &= (segs.grids[:m] & (1 << gi)) != 0
+                    sel &= (marks & (1 << gi)) != 0
                 live = np.flatnonzero(sel)
                 if len(live) == 0:
                     continue
@@ -556,7 +588,8 @@ class Renderer:
                 out = tuple(a[:len(live)] for a in out_b)
                 cast_grouped(g, lo, ld, 0.0, 1.0, bool(params.watertight), True, out, max_cells, f32, tri_only=True)
                 blocked[live[out[1] >= 0]] = True
-            add_light(rows, blocked, weight, tvd, float(lights[li, 4]), float(lights[li, 5]), float(lights[li, 6]), acc)
+            add_light(rows, blocked, segs.weight[s0:s0 + m], tvd, float(lights[li, 4]), float(lights[li, 5]),
+                      float(lights[li, 6]), acc)
         compose(W, H, acc, img)
         return len(lights), cast
 
