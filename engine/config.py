@@ -190,10 +190,11 @@ class RenderParams:
                    light that lights a hit.  k (1..MAX_LIGHT_SAMPLES): k rays a hit pixel, towards
                    lights drawn in proportion to their unshadowed light there (stratified over
                    the k draws), each weighted by 1 / (k p): an unbiased estimate of the exact
-                   image, equal to it wherever no drawn light is blocked and the lights are
-                   grey, noisy in shadows and penumbrae; lights that do not light a hit are
-                   never drawn.  A scene of one light is exact either way
-                   (gridrt.trace.material.pick_lights)
+                   image, noisy in shadows and penumbrae; lights that do not light a hit are
+                   never drawn.  A light that the centre of the pixel's 8 x 8 square does not
+                   see (one ray a light and square) is drawn a tenth as often there
+                   (gridrt.trace.render.Renderer.light_guide).  A scene of one light is exact
+                   either way (gridrt.trace.material.drawn_segments)
     light_seed     which draw (an int >= 0): the same seed draws the same lights; the mean of the
                    images of seeds 0 .. n-1 tends to the exact image as n grows (each pixel's
                    draws follow a shifted van der Corput sequence; the viewer accumulates them

@@ -19,22 +19,29 @@ from gridrt.errors import InputError
 from gridrt.grid import GridBuilder
 from gridrt.trace.material import draw_shift, drawn_segments
 from gridrt.trace.records import HitPoints, make_draws
-from gridrt.trace.render import Looks, Renderer, segment_buffers
+from gridrt.trace.render import GUIDE_BLOCK, GUIDE_FLOOR, Looks, Renderer, segment_buffers
 from helpers.material_scene import CAM, H, W, _diag, compare, engine_lights, engine_surface, scene
 
-def _render(tris, looks, grid, **kw):
-    params = RenderParams(width=W, height=H, shading="material", shadows=True, **kw)
-    res = Renderer().render(grid, tris, CAM, params, looks=Looks(tris, engine_surface(looks), looks.normals,
-                                                                 engine_lights(looks)))
+def _render(tris, looks, grid, renderer=None, size=(W, H), **kw):
+    params = RenderParams(width=size[0], height=size[1], shading="material", shadows=True, **kw)
+    res = (renderer or Renderer()).render(grid, tris, CAM, params, looks=Looks(tris, engine_surface(looks),
+                                                                               looks.normals, engine_lights(looks)))
     return res, res.hdr.copy()
+
+
+def _guide_min(renderer):
+    """(H, W): the least guide factor of any light at each pixel (Renderer.guide of its last render)."""
+    guide, bw = renderer.guide
+    y, x = np.mgrid[0:H, 0:W]
+    return guide.min(axis=1)[(y // GUIDE_BLOCK) * bw + x // GUIDE_BLOCK]
 
 
 @pytest.mark.parametrize("k,traversal,threads", [(1, "cgt", 2), (2, "dda", 1), (1, "cgt", 3)])
 def test_draws_average_to_the_exact_image(rng, k, traversal, threads):
     """Exact (every light) equals the float64 brute force; the mean of N = 32 draws is within
-    L t_vd total / (k N) of the exact colours at every hit pixel (each light drawn within one of N k p
-    times: the stratified draws), their errors cancel over the image, the first draw alone is not
-    within the bound, and fewer rays are cast."""
+    L t_vd total / (k N g) of the exact colours at every hit pixel (each light drawn within one of
+    N k p times: the stratified draws; g the least guide factor there), their errors cancel over
+    the image, the first draw alone is not within the bound, and fewer rays are cast."""
     tris, looks = scene(rng)
     ref = R.ref_material(tris, CAM, W, H, looks, shadows=True, shadow_offset=1e-6 * _diag(tris))
     g = GridBuilder().build(tris)
@@ -42,17 +49,20 @@ def test_draws_average_to_the_exact_image(rng, k, traversal, threads):
     inside = compare(res, ref, True)
     assert np.abs(exact[inside] - ref.colour[inside]).max() < 1e-4   # exact: the brute force's colours
     L, N = len(looks.lights), 32
-    # the stratification bound, from the reference's own terms (slack for float32 buffers)
-    bound = L * ref.tvd * ref.light_total[..., None] / (k * N) * (1 + 1e-4) + 1e-5
+    renderer = Renderer()
     total, first, rays = 0.0, None, []
     for seed in range(N):
-        r, hdr = _render(tris, looks, g, traversal=traversal, threads=threads, light_samples=k, light_seed=seed)
+        r, hdr = _render(tris, looks, g, renderer, traversal=traversal, threads=threads, light_samples=k,
+                         light_seed=seed)
         assert np.array_equal(r.tri, res.tri)
         rays.append(r.stats["shadow_rays_per_pixel"])
         total = total + hdr.astype(np.float64)
         if first is None:
             first = hdr
     mean = total / N
+    # the stratification bound, from the reference's own terms and the least guide factor g at the
+    # pixel (p >= g w / total for every light; slack for float32 buffers)
+    bound = L * ref.tvd * ref.light_total[..., None] / (k * N * _guide_min(renderer)[..., None]) * (1 + 1e-4) + 1e-5
     hit = res.tri >= 0
     assert np.all(mean[~hit] == -1.0)
     err = np.abs(mean - exact)[hit]
@@ -63,6 +73,43 @@ def test_draws_average_to_the_exact_image(rng, k, traversal, threads):
     assert (err1 > bound[hit]).any()          # one draw is noisy where a drawn light is blocked
     assert np.sqrt((err ** 2).mean()) < np.sqrt((err1 ** 2).mean()) / 4
     assert max(rays) <= k and max(rays) < res.stats["shadow_rays_per_pixel"]
+
+
+@pytest.mark.parametrize("grid", ["uniform", "two_level"])
+def test_light_guide_against_brute_force(rng, grid):
+    """The guide: in each GUIDE_BLOCK square, GUIDE_FLOOR for the lights whose shadow ray from the
+    hit at the square's centre pixel a float64 brute force finds blocked, 1 for the others (and
+    for misses and lights behind the hit); squares at the image's edges are cut, their centre
+    clamped into the image."""
+    tris, looks = scene(rng)
+    looks = dataclasses.replace(looks, normals=None)   # (n_s = n_g: a light lights a hit where n_g . l > 0)
+    g = GridBuilder().build(tris, GridParams(grid=grid))
+    renderer = Renderer()
+    w, h = 251, 189   # (squares cut at the right and bottom edges)
+    _render(tris, looks, g, renderer, size=(w, h), light_samples=1, threads=2)
+    guide, bw = renderer.guide
+    bh = -(-h // GUIDE_BLOCK)
+    assert bw == -(-w // GUIDE_BLOCK) and guide.shape == (bw * bh, len(looks.lights))
+    by, bx = np.divmod(np.arange(bw * bh), bw)
+    py = np.minimum(by * GUIDE_BLOCK + GUIDE_BLOCK // 2, h - 1)
+    px = np.minimum(bx * GUIDE_BLOCK + GUIDE_BLOCK // 2, w - 1)
+    o, d = R.ref_camera_rays(CAM.eye, CAM.target, CAM.up, CAM.fov, w, h)
+    o, d = o[py * w + px], d[py * w + px]
+    h = R.ref_cast(tris, o, d)
+    want = np.ones_like(guide)
+    hit = np.flatnonzero(h.tri >= 0)
+    T = tris.astype(np.float64)[h.tri[hit]]
+    ng = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
+    ng /= np.linalg.norm(ng, axis=1, keepdims=True)
+    ng = np.where(((ng * d[hit]).sum(1) > 0)[:, None], -ng, ng)
+    p = o[hit] + h.t[hit, None] * d[hit] + ng * 1e-6 * _diag(tris)
+    for li, (kind, xyz, rgb, falloff) in enumerate(looks.lights):
+        to = np.asarray(xyz) - p if kind == "point" else np.broadcast_to(2.0 * _diag(tris) * np.asarray(xyz), p.shape)
+        lit = (ng * to).sum(1) > 0
+        blocked = R.ref_cast(tris, p[lit], to[lit], 0.0, 1.0).tri >= 0
+        want[hit[lit][blocked], li] = GUIDE_FLOOR
+    assert (want == GUIDE_FLOOR).sum() > 10 and (want == 1).sum() > 10   # both kinds are there
+    assert np.array_equal(guide, want)
 
 
 def test_draws_do_not_depend_on_threads_or_traversal(rng):
@@ -176,9 +223,9 @@ def test_drawn_segments_light_by_light(rng):
     assert start[0] == 0 and np.all(np.diff(start) >= 0)
     for li in range(len(lights)):
         rows = segs.rows[start[li]:start[li + 1]]
-        drew = np.flatnonzero((lit == li).any(1))
-        assert np.array_equal(np.sort(rows), drew) and np.all(np.diff(rank[rows]) > 0)
-        f = fac[rows][lit[rows] == li]
+        drew = order[np.flatnonzero((lit == li).any(1))]     # (lit and fac: a row per place in the order)
+        assert np.array_equal(rows, drew) and np.all(np.diff(rank[rows]) > 0)
+        f = fac[rank[rows]][lit[rank[rows]] == li]
         assert np.allclose(segs.weight[start[li]:start[li + 1]], w[rows, li] * f, rtol=1e-12)
         p0 = hp.pos[rows] + hp.ng[rows] * 1e-6
         end = lights[li, 1:4] * 10.0 + p0 if lights[li, 0] == 1 else np.broadcast_to(lights[li, 1:4], p0.shape)

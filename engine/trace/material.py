@@ -349,28 +349,37 @@ def draw_shift(seed):
 
 
 @inner(cache=True, _nrt=False, error_model="numpy")
-def _draw(lights, hp, i, W, draws, w):
-    """Draw draws.k lights for hit pixel i of hp (W pixels a row) with probability p in proportion
-    to w = n_s . l (over d^2 with falloff: :func:`light_weight`) times the light's r + g + b (w:
-    scratch of L); draws.lit[i] and draws.factor[i] get the distinct lights drawn, -1 after them,
-    and n / (k p) for a light drawn n times; returns how many.  The k draws are stratified: u_j =
-    (j + x) / k, with x = frac(R2_X px + R2_Y py + draws.shift) at pixel (px, py).  Where the
-    total weight is infinite (a light at the hit itself, with falloff) the pixel keeps the first
-    K lights of infinite weight, factor 1: lit by them, the pixel is white as in the exact sum."""
+def _draw(lights, hp, i, r, W, draws, w):
+    """Draw draws.k lights for hit pixel i of hp (W pixels a row) into row r of draws.lit and
+    draws.factor: with probability p in proportion to w = n_s . l (over d^2 with falloff:
+    :func:`light_weight`) times the light's r + g + b times the guide of the pixel's block (w:
+    scratch of L); lit[r] and factor[r] get the distinct lights drawn, -1 after them, and n / (k
+    p) for a light drawn n times; returns how many.  The k draws are stratified: u_j = (j + x) /
+    k, with x = frac(R2_X px + R2_Y py + draws.shift) at pixel (px, py).  draws.k = 0 takes every
+    light that lights the hit, factor 1 (the exact sum).  Where the total weight is infinite (a
+    light at the hit itself, with falloff) the pixel keeps the first K lights of infinite
+    weight, factor 1: lit by them, the pixel is white as in the exact sum."""
     pos, ngb, nsb = hp.pos, hp.ng, hp.ns
-    k, lit, factor = draws.k, draws.lit, draws.factor
+    k, lit, factor, guide = draws.k, draws.lit, draws.factor, draws.guide
     L, K = lights.shape[0], lit.shape[1]
     for j in range(K):
-        lit[i, j] = -1
-        factor[i, j] = 0.0
+        lit[r, j] = -1
+        factor[r, j] = 0.0
     if hp.acc[i, 0] < 0.0:
         return 0
+    py = i // W
+    px = i - py * W
+    b = -1
+    if guide.shape[0] > 0:
+        b = (py // draws.block) * draws.bw + px // draws.block
     total, last = 0.0, -1
     for li in range(L):
         s, lx, ly, lz, dist = light_weight(lights, li, (pos[i, 0], pos[i, 1], pos[i, 2]),
                                            (ngb[i, 0], ngb[i, 1], ngb[i, 2]),
                                            (np.float64(nsb[i, 0]), np.float64(nsb[i, 1]), np.float64(nsb[i, 2])))
         wl = s * (lights[li, 4] + lights[li, 5] + lights[li, 6])
+        if b >= 0:
+            wl *= guide[b, li]
         w[li] = wl if wl > 0.0 else 0.0
         total += w[li]
         if wl > 0.0:
@@ -378,15 +387,14 @@ def _draw(lights, hp, i, W, draws, w):
     if last < 0:
         return 0
     m = 0
-    if not math.isfinite(total):
+    if k == 0 or not math.isfinite(total):
         for li in range(last + 1):
-            if w[li] == np.inf and m < K:
-                lit[i, m] = li
-                factor[i, m] = 1.0
+            if (w[li] > 0.0 if k == 0 else w[li] == np.inf) and m < K:
+                lit[r, m] = li
+                factor[r, m] = 1.0
                 m += 1
         return m
-    py = i // W
-    x = R2_X * (i - py * W) + R2_Y * py + draws.shift
+    x = R2_X * px + R2_Y * py + draws.shift
     x -= math.floor(x)
     j, cw = 0, 0.0
     for li in range(last + 1):
@@ -400,8 +408,8 @@ def _draw(lights, hp, i, W, draws, w):
             while j < k and (j + x) * total < cw * k:
                 j += 1
         if j > j0:
-            lit[i, m] = li
-            factor[i, m] = (j - j0) * total / (k * w[li])
+            lit[r, m] = li
+            factor[r, m] = (j - j0) * total / (k * w[li])
             m += 1
     return m
 
@@ -409,15 +417,15 @@ def _draw(lights, hp, i, W, draws, w):
 @njit(cache=True, parallel=True, error_model="numpy")
 def drawn_segments(lights, hp, W, draws, off, far, order, segs, boxes):
     """The shadow segments of the hits of hp (:class:`gridrt.trace.records.HitPoints`, W pixels a
-    row) towards lights drawn per pixel (draws: :class:`gridrt.trace.records.Draws`,
-    :func:`_draw`): the sum over a pixel's drawn lights of their light, each weighted by its
-    factor, is an unbiased estimate of the sum over every light.  The segments go to segs
-    (:class:`gridrt.trace.records.ShadowSegments` of at least W * H * K, :func:`_put_segment`,
-    weight n_s . l times the factor) light by light, each light's in the order ``order`` (a
-    permutation of the image's pixels).  Returns start (L + 1,) int64: light li's segments are
-    start[li]:start[li + 1].  In two parallel passes over chunks of LIT_CHUNK pixels of the order:
-    the draws, counted per light and chunk; then each chunk's segments from its place in each
-    light's run."""
+    row) of the pixels ``order`` lists, towards lights drawn per pixel (draws:
+    :class:`gridrt.trace.records.Draws`, :func:`_draw`, row kk of its lit and factor for
+    order[kk]): the sum over a pixel's drawn lights of their light, each weighted by its factor,
+    is an unbiased estimate of the sum over every light.  The segments go to segs
+    (:class:`gridrt.trace.records.ShadowSegments` of at least len(order) * K,
+    :func:`_put_segment`, weight n_s . l times the factor) light by light, each light's in the
+    order of ``order``.  Returns start (L + 1,) int64: light li's segments are start[li]:start[li
+    + 1].  In two parallel passes over chunks of LIT_CHUNK pixels of the order: the draws,
+    counted per light and chunk; then each chunk's segments from its place in each light's run."""
     L, N = lights.shape[0], order.shape[0]
     lit, factor = draws.lit, draws.factor
     nc = (N + LIT_CHUNK - 1) // LIT_CHUNK
@@ -425,9 +433,8 @@ def drawn_segments(lights, hp, W, draws, off, far, order, segs, boxes):
     for c in prange(nc):
         w = np.empty(L)
         for kk in range(c * LIT_CHUNK, min(N, (c + 1) * LIT_CHUNK)):
-            i = order[kk]
-            for j in range(_draw(lights, hp, i, W, draws, w)):
-                count[c, lit[i, j]] += 1
+            for j in range(_draw(lights, hp, order[kk], kk, W, draws, w)):
+                count[c, lit[kk, j]] += 1
     start = np.zeros(L + 1, np.int64)
     at = np.empty((nc, L), np.int64)
     m = 0
@@ -442,14 +449,14 @@ def drawn_segments(lights, hp, W, draws, off, far, order, segs, boxes):
         for kk in range(c * LIT_CHUNK, min(N, (c + 1) * LIT_CHUNK)):
             i = order[kk]
             for j in range(lit.shape[1]):
-                li = lit[i, j]
+                li = lit[kk, j]
                 if li < 0:
                     break
                 s, lx, ly, lz, dist = light_weight(lights, li, (pos[i, 0], pos[i, 1], pos[i, 2]),
                                                    (ngb[i, 0], ngb[i, 1], ngb[i, 2]),
                                                    (np.float64(nsb[i, 0]), np.float64(nsb[i, 1]),
                                                     np.float64(nsb[i, 2])))
-                _put_segment(lights, li, hp, i, off, far, boxes, segs, at[c, li], s * factor[i, j])
+                _put_segment(lights, li, hp, i, off, far, boxes, segs, at[c, li], s * factor[kk, j])
                 at[c, li] += 1
     return start
 

@@ -84,9 +84,11 @@ ShadowRays = namedtuple("ShadowRays", "need weight")
 ShadowSegments = namedtuple("ShadowSegments", "rows o d grids weight")
 
 #: Lights drawn per pixel (RenderParams.light_samples; gridrt.trace.material.drawn_segments):
-#: k draws a pixel, shift (the draw's: gridrt.trace.material.draw_shift), lit (W * H, K) int32
-#: the distinct lights drawn (-1 after them) and factor (W * H, K) float64 n / (k p) of each.
-Draws = namedtuple("Draws", "k shift lit factor")
+#: k draws a pixel (0: every light), shift (the draw's: gridrt.trace.material.draw_shift), lit
+#: (N, K) int32 the distinct lights drawn for each pixel of the order (-1 after them) and factor
+#: (N, K) float64 n / (k p) of each; guide (blocks, L) float64 a factor of each light's chance in
+#: each block x block square of pixels, bw of them a row (0 rows: none).
+Draws = namedtuple("Draws", "k shift lit factor guide block bw")
 
 #: The material pass's buffers for shadows (Python side, gridrt.trace.render.Renderer keeps them
 #: from frame to frame): the :class:`HitPoints` hp, the :class:`ShadowRays` rays, the pixels in
@@ -95,9 +97,13 @@ Draws = namedtuple("Draws", "k shift lit factor")
 ShadowBuffers = namedtuple("ShadowBuffers", "hp rays order segs out blocked")
 
 
-def make_draws(k, shift, lit, factor):
+#: Draws.guide of draws without one
+NO_GUIDE = np.ones((0, 1))
+
+
+def make_draws(k, shift, lit, factor, guide=NO_GUIDE, block=1, bw=1):
     """The :class:`Draws` with the types the kernels are compiled for."""
-    return Draws(int(k), float(shift), lit, factor)
+    return Draws(int(k), float(shift), lit, factor, guide, int(block), int(bw))
 
 
 def make_view(basis, W, H, tile):

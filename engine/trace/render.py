@@ -50,7 +50,7 @@ from .cgt.frame import cgt_render_kernel, cgt_render_serial
 from .grids import grid_arrays, grid_tuple, pack_grids, unpack_grids
 from .material import (add_light, compose, draw_shift, drawn_segments, light_segments, near_boxes, shade_kernel,
                        shade_serial, surface_arrays)
-from .records import (Buffers, Draws, HitPoints, ShadowBuffers, ShadowRays, ShadowSegments, make_draws, make_packets,
+from .records import (Buffers, HitPoints, ShadowBuffers, ShadowRays, ShadowSegments, make_draws, make_packets,
                       make_shading, make_view)
 from .shade import (  # noqa: F401  (the shading constants stay importable from here)
     AMBIENT, ALBEDO, BACKGROUND, COST_SCALE, cost_rgb, facing_normal, lambert_rgb, normal_rgb, put_pixel, scene_id,
@@ -347,6 +347,12 @@ def _check_looks(looks, n_scene):
             as_lights(looks.lights, "looks.lights"))
 
 
+#: the light guide's squares (Renderer.light_guide): pixels on a side
+GUIDE_BLOCK = 8
+#: the light guide's factor of a light the square's centre does not see
+GUIDE_FLOOR = 0.1
+
+
 def segment_buffers(n):
     """:class:`ShadowSegments` for n segments."""
     return ShadowSegments(np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.uint8), np.empty(n))
@@ -379,6 +385,8 @@ class Renderer:
         self._bufs = None
         self._shadow = None  # ((W, H), ShadowBuffers): the material pass's with shadows
         self._drawn = None  # (Draws, ShadowSegments of W * H * K): the lights drawn per pixel and their segments
+        self._probes = None  # ((W, H), pixels): the centres of the light guide's squares (light_guide)
+        self.guide = None    # (guide, squares a row) of the last render that drew lights (light_guide)
 
     def buffers(self, W, H):
         if self._bufs is None or self._bufs[0].shape[:2] != (H, W):
@@ -416,7 +424,7 @@ class Renderer:
         and :class:`ShadowSegments` of n * K), kept from frame to frame."""
         if self._drawn is None or self._drawn[0].lit.shape != (n, K):
             self._drawn = None
-            self._drawn = (Draws(0, 0.0, np.empty((n, K), np.int32), np.empty((n, K))), segment_buffers(n * K))
+            self._drawn = (make_draws(0, 0.0, np.empty((n, K), np.int32), np.empty((n, K))), segment_buffers(n * K))
         return self._drawn
 
     def render(self, grid, tris, camera, params: RenderParams | None = None, second=None,
@@ -559,22 +567,10 @@ class Renderer:
         max_cells = SHADOW_MAX_CELLS if params.traversal == "cgt" else 0.0
         f32 = params.packet_precision == "float32"
         cast, start = 0, None
-        k = params.light_samples
-        if k and len(lights) > 1:  # k lights drawn per hit pixel, weighted to keep the mean: every
-            # light's segments at once, each light's in a run of their own
-            draws, segs = self.drawn_buffers(W * H, min(k, len(lights)))
-            draws = make_draws(k, draw_shift(params.light_seed), draws.lit, draws.factor)
-            start = drawn_segments(lights, hp, W, draws, off, far, order, segs, boxes)
-        # each light's shadow rays in tiles of the image (TILE x TILE pixels, sb.order): the batch
-        # caster takes them in runs of RUN = TILE^2 in this order, and a run of one tile is a narrow
-        # packet where a run of a row's pixels is a wide one (or single rays)
-        for li in range(len(lights)):
-            if start is None:
-                s0, m = 0, light_segments(lights, li, hp, off, far, order, rays, segs, boxes)
-            else:
-                s0, m = int(start[li]), int(start[li + 1] - start[li])
-            cast += m
-            rows, o, d, marks = segs.rows[s0:s0 + m], segs.o[s0:s0 + m], segs.d[s0:s0 + m], segs.grids[s0:s0 + m]
+
+        def blocked_of(segs, s0, m):
+            """sb.blocked[:m]: which of segments s0 .. s0 + m of segs hit something in any grid."""
+            o, d, marks = segs.o[s0:s0 + m], segs.d[s0:s0 + m], segs.grids[s0:s0 + m]
             blocked = sb.blocked[:m]
             blocked[:] = False
             for gi, g in enumerate(grids):  # any hit in any grid shadows
@@ -588,10 +584,59 @@ class Renderer:
                 out = tuple(a[:len(live)] for a in out_b)
                 cast_grouped(g, lo, ld, 0.0, 1.0, bool(params.watertight), True, out, max_cells, f32, tri_only=True)
                 blocked[live[out[1] >= 0]] = True
-            add_light(rows, blocked, segs.weight[s0:s0 + m], tvd, float(lights[li, 4]), float(lights[li, 5]),
-                      float(lights[li, 6]), acc)
+            return blocked
+
+        k = params.light_samples
+        if k and len(lights) > 1:  # k lights drawn per hit pixel, weighted to keep the mean: every
+            # light's segments at once, each light's in a run of their own
+            guide, bw, probes = self.light_guide(W, H, lights, hp, off, far, boxes, blocked_of)
+            self.guide = (guide, bw)
+            cast += probes
+            draws, segs = self.drawn_buffers(W * H, min(k, len(lights)))
+            draws = make_draws(k, draw_shift(params.light_seed), draws.lit, draws.factor, guide, GUIDE_BLOCK, bw)
+            start = drawn_segments(lights, hp, W, draws, off, far, order, segs, boxes)
+        # each light's shadow rays in tiles of the image (TILE x TILE pixels, sb.order): the batch
+        # caster takes them in runs of RUN = TILE^2 in this order, and a run of one tile is a narrow
+        # packet where a run of a row's pixels is a wide one (or single rays)
+        for li in range(len(lights)):
+            if start is None:
+                s0, m = 0, light_segments(lights, li, hp, off, far, order, rays, segs, boxes)
+            else:
+                s0, m = int(start[li]), int(start[li + 1] - start[li])
+            cast += m
+            blocked = blocked_of(segs, s0, m)
+            add_light(segs.rows[s0:s0 + m], blocked, segs.weight[s0:s0 + m], tvd, float(lights[li, 4]),
+                      float(lights[li, 5]), float(lights[li, 6]), acc)
         compose(W, H, acc, img)
         return len(lights), cast
+
+    def light_guide(self, W, H, lights, hp, off, far, boxes, blocked_of):
+        """(guide, blocks a row, rays cast) for the draws of lights per pixel: in each GUIDE_BLOCK x
+        GUIDE_BLOCK square of the image, the hit at its centre pixel casts a shadow ray towards
+        every light that lights it (drawn_segments with k = 0), and guide[block, light] is
+        GUIDE_FLOOR where that ray is blocked, else 1 (also where the centre is a miss or the
+        light does not light it): lights that the square's centre does not see are drawn less
+        often there, and weighted up when drawn (the estimate stays unbiased)."""
+        B, L = GUIDE_BLOCK, len(lights)
+        bw, bh = -(-W // B), -(-H // B)
+        if self._probes is None or self._probes[0] != (W, H):
+            by, bx = np.divmod(np.arange(bw * bh), bw)
+            centre = np.minimum(by * B + B // 2, H - 1) * W + np.minimum(bx * B + B // 2, W - 1)
+            tiles = np.empty(bw * bh, np.int64)
+            tile_order(bw * bh, bw, 0, tiles)   # (the blocks in tiles: neighbouring rays together)
+            self._probes = ((W, H), centre[tiles].astype(np.int64))
+        probes = self._probes[1]
+        n = len(probes)
+        draws = make_draws(0, 0.0, np.empty((n, L), np.int32), np.empty((n, L)))
+        segs = segment_buffers(n * L)
+        start = drawn_segments(lights, hp, W, draws, off, far, probes, segs, boxes)
+        guide = np.ones((bw * bh, L))
+        for li in range(L):
+            s0, m = int(start[li]), int(start[li + 1] - start[li])
+            if m:
+                rows = segs.rows[s0:s0 + m][blocked_of(segs, s0, m)]
+                guide[(rows // W) // B * bw + (rows % W) // B, li] = GUIDE_FLOOR
+        return guide, bw, int(start[L])
 
 
 def default_light(diag, camera):
