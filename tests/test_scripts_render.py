@@ -1,5 +1,5 @@
-"""The scripts behind BENCHMARKS.md's float32-floor, MAX_CELLS, packet-size, shadow-packet and
-shadow-ray tables (scripts/) run and print the table they make: each runs at a small size as a
+"""The scripts behind BENCHMARKS.md's float32-floor, MAX_CELLS, packet-size, shadow-packet,
+shadow-ray and drawn-light tables (scripts/) run and print the table they make: each runs at a small size as a
 subprocess, exits 0 and prints a markdown table whose header and row labels are those of its table
 in BENCHMARKS.md (found by the script's name on the table's source line).  Timed figures are checked
 for their form only.
@@ -74,3 +74,20 @@ def test_shadow_rays_prints_its_table():
         assert r[1] == "1,280" and r[2] == "1" and int(r[3].replace(",", "")) > 1000, r
         assert NUMBER.fullmatch(r[5]) and (r[6] == "-" or NUMBER.fullmatch(r[6])), r
         assert r[8] == "0" and int(r[9]) >= 250 and r[10] == "0", r
+
+
+def test_light_samples_prints_its_table():
+    """The museum (shipped) at 128x96: the table's header; the exact row off by nothing, each drawn
+    mode's draws counted as asked, their mean off by less than one draw, its time that many frames."""
+    header, rows = run_script("light_samples.py", "--scenes", "museum:0", "--size", "128", "--samples", "1,2",
+                              "--draws", "8", "--runs", "1", "--warmup", "0")
+    doc_header, doc_rows = doc_table("light_samples.py")
+    assert header == doc_header
+    assert "museum" in {r[0] for r in doc_rows}
+    assert [(r[2], r[7]) for r in rows] == [("every light", "1"), ("1 drawn a pixel", "1"), ("1 drawn a pixel", "8"),
+                                            ("2 drawn a pixel", "1"), ("2 drawn a pixel", "8")]
+    assert rows[0][9:] == ["0.00", "0.00%", "0"] and all(r[1] == "2" and r[3] == "2" for r in rows)
+    for one, mean in ((rows[1], rows[2]), (rows[3], rows[4])):
+        assert NUMBER.fullmatch(one[4]) and NUMBER.fullmatch(one[6]) and float(one[6]) <= 2.0, one
+        assert 0 < float(mean[9]) < float(one[9]), (one, mean)
+        assert abs(float(mean[8]) - 8 * float(one[4])) <= 8, (one, mean)
