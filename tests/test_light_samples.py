@@ -75,7 +75,7 @@ def test_draws_average_to_the_exact_image(rng, k, traversal, threads):
     assert max(rays) <= k and max(rays) < res.stats["shadow_rays_per_pixel"]
 
 
-@pytest.mark.parametrize("grid", ["uniform", "two_level"])
+@pytest.mark.parametrize("grid", ["uniform", pytest.param("two_level", marks=pytest.mark.slow)])
 def test_light_guide_against_brute_force(rng, grid):
     """The guide: in each GUIDE_BLOCK square, GUIDE_FLOOR for the lights whose shadow ray from the
     hit at the square's centre pixel a float64 brute force finds blocked, 1 for the others (and
