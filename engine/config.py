@@ -217,6 +217,9 @@ class RenderParams:
 
     def __post_init__(self):
         W, H = _positive_int("image width", self.width, 1), _positive_int("image height", self.height, 1)
+        object.__setattr__(self, "light_samples",
+                           _positive_int("light samples", self.light_samples, 0, MAX_LIGHT_SAMPLES))
+        object.__setattr__(self, "light_seed", _positive_int("light seed", self.light_seed, 0, 2**31 - 1))
         # (shading "auto" with shadows: FramePipeline.step checks the shadow rays once it is resolved)
         check_render_fits(W, H, self.shading == "material" and bool(self.shadows), light_samples=self.light_samples)
         object.__setattr__(self, "width", _positive_int("image width", W, 1, MAX_IMAGE_SIDE))
@@ -230,9 +233,6 @@ class RenderParams:
         if self.packet_precision not in PACKET_PRECISIONS:
             raise InputError(f"unknown packet precision {self.packet_precision!r}; choose one of "
                              f"{', '.join(PACKET_PRECISIONS)}")
-        object.__setattr__(self, "light_samples",
-                           _positive_int("light samples", self.light_samples, 0, MAX_LIGHT_SAMPLES))
-        object.__setattr__(self, "light_seed", _positive_int("light seed", self.light_seed, 0, 2**31 - 1))
         if self.light is not None:
             try:
                 light = tuple(float(x) for x in self.light)

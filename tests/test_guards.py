@@ -215,6 +215,12 @@ BOUNDARIES = {
         "material and texture indices in range, texels, uv/colour/normal shapes; normals (F, 3, 3) float32 "
         "finite; lights (L, 8) finite, known kinds, unit directions); buffers sized W x H",
         ["test_guard_render_material"]),
+    "gridrt.trace.render:Renderer.light_guide": (
+        "internal: called by _shade_material only, where lights are drawn (RenderParams.light_samples 1..8, "
+        "checked when made), with the frame's W and H and the lights _check_looks validated; the probes are "
+        "the squares' centres clamped into the W x H image, and the draws' rows and segments are sized for "
+        "every probe and light",
+        ["test_guard_render_material", "test_guard_light_samples"]),
     "gridrt.trace.render:Renderer.shadow_buffers": (
         "internal: called by _shade_material only, with the frame's W and H (RenderParams, checked there); "
         "tile_order writes each of the W * H pixels' indices once into the (W * H,) buffer it allocates",
@@ -714,6 +720,19 @@ def test_guard_render_material(good_grid, tripwires):
         expect_guard(lambda: Surface(**args), match)
     expect_guard(lambda: Texture(np.zeros((2, 2), np.float32)), "uint8")
     expect_guard(lambda: Texture(np.zeros((2, 2, 3), np.uint8), ("repeat", "wrap")), "wrap")
+
+
+def test_guard_light_samples(good_grid, tripwires):
+    """Lights drawn per pixel: the count and the seed are checked when the RenderParams is made,
+    and the looks before the draws' kernels, as without them."""
+    from gridrt.trace.render import Looks, Renderer
+
+    for kw, match in ((dict(light_samples=9), "light samples"), (dict(light_samples=-1), "light samples"),
+                      (dict(light_samples=float("inf")), "light samples"), (dict(light_seed=-3), "light seed")):
+        expect_guard(lambda: RenderParams(width=4, height=4, shading="material", shadows=True, **kw), match)
+    p = RenderParams(width=4, height=4, shading="material", shadows=True, light_samples=2)
+    lights = np.array([[0.0, 0, 0, 5, 1, 1, 1, 0], [0.0, 1, 0, np.nan, 1, 1, 1, 0]])
+    expect_guard(lambda: Renderer().render(good_grid, GOOD, Camera(), p, looks=Looks(GOOD, None, None, lights)), "NaN")
 
 
 def test_guard_camera_rays(tripwires):

@@ -259,8 +259,11 @@ def test_draws_at_extremes(rng):
                                          ("light_samples", math.inf), ("light_samples", math.nan),
                                          ("light_seed", -1), ("light_seed", 2**31), ("light_seed", None)])
 def test_bad_settings_are_refused(field, value):
-    with pytest.raises(InputError, match=field.replace("_", " ")):
-        RenderParams(**{field: value})
+    """In one line naming the setting, whatever the shading (the memory check of shadows reads the
+    count too)."""
+    for kw in ({}, dict(shading="material", shadows=True)):
+        with pytest.raises(InputError, match=field.replace("_", " ")):
+            RenderParams(**{field: value}, **kw)
 
 
 def test_cli_refuses_a_bad_count_in_one_line(tmp_path):
