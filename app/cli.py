@@ -2,6 +2,7 @@
 
 import argparse
 import re
+import warnings
 from dataclasses import fields
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
@@ -218,9 +219,13 @@ def grid_params(a):
 
 def render_params(a):
     w, h = a.size
-    return RenderParams(width=w, height=h, shading=a.shading, shadows=a.shadows, light=a.light,
-                        watertight=not a.fast_intersect, threads=a.threads, traversal=a.traversal, packet=a.packet,
-                        packet_precision=a.packet_precision, light_samples=a.light_samples)
+    rp = RenderParams(width=w, height=h, shading=a.shading, shadows=a.shadows, light=a.light,
+                      watertight=not a.fast_intersect, threads=a.threads, traversal=a.traversal, packet=a.packet,
+                      packet_precision=a.packet_precision, light_samples=a.light_samples)
+    if rp.light_samples and not rp.shadows:
+        warnings.warn(f"--light-samples {rp.light_samples} draws the lights of shadow rays: it has no effect until "
+                      "shadows are on (--shadows)")
+    return rp
 
 
 def follows_scene_camera(a):

@@ -109,6 +109,15 @@ def test_marbles_count_beyond_its_limit_is_refused(tmp_path):
               "marbles: triangle count must be between 322 and 50,000,000, got 60000000")
 
 
+def test_light_samples_without_shadows_warn_in_one_line(tmp_path):
+    """--light-samples draws the lights of shadow rays: without --shadows the frame is the exact
+    one, and the command says so."""
+    r = dump(tmp_path, "--scene", "icosphere", "--light-samples", "2")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert stderr_lines(r) == ["gridrt: warning: --light-samples 2 draws the lights of shadow rays: it has no effect "
+                               "until shadows are on (--shadows)"], r.stderr
+
+
 def test_cell_cap_warning_is_one_plain_line(tmp_path):
     """Python's default format printed 'pipeline.py:91: GridCapWarning: ... dims (np.int64(8), ...)' and
     the source line under it."""

@@ -271,7 +271,8 @@ def test_cli_refuses_a_bad_count_in_one_line(tmp_path):
                         "--size", "16x16", "--light-samples", "99", "--out", str(tmp_path / "o")],
                        capture_output=True, text=True, timeout=300)
     assert p.returncode != 0 and "Traceback" not in p.stderr
-    assert f"light samples must be between 0 and {MAX_LIGHT_SAMPLES}, got 99" in p.stderr
+    assert p.stderr.strip().splitlines() == [f"gridrt: error: light samples must be between 0 and {MAX_LIGHT_SAMPLES}, "
+                                             "got 99"], p.stderr
 
 
 def test_accumulator_averages_colours_before_clamping():
