@@ -12,17 +12,10 @@ Where the render draws its lights (RenderParams.light_samples) each sample is a 
 
 import numpy as np
 
+from gridrt.trace.material import radical_inverse
+
 #: samples averaged at most; the view is converged after this many (the viewer then idles)
 MAX_SAMPLES = 64
-
-
-def _radical_inverse(i, base):
-    f, r = 1.0, 0.0
-    while i > 0:
-        f /= base
-        r += f * (i % base)
-        i //= base
-    return r
 
 
 def jitter(k):
@@ -30,7 +23,7 @@ def jitter(k):
     (the exact frame), then the Halton (2, 3) points of the pixel square, shifted to its centre."""
     if k == 0:
         return (0.0, 0.0)
-    return (_radical_inverse(k, 2) - 0.5, _radical_inverse(k, 3) - 0.5)
+    return (radical_inverse(k, 2) - 0.5, radical_inverse(k, 3) - 0.5)
 
 
 class Accumulator:

@@ -336,16 +336,22 @@ def _put_segment(lights, li, hp, i, off, far, boxes, segs, m, weight):
 R2_X, R2_Y = 0.7548776662466927, 0.5698402909980532
 
 
+def radical_inverse(i, base):
+    """The base-``base`` radical inverse of the integer i >= 0: its digits mirrored about the
+    point (base 2: 0, 1/2, 1/4, 3/4, 1/8, ...)."""
+    f, r = 1.0, 0.0
+    while i > 0:
+        f /= base
+        r += f * (i % base)
+        i //= base
+    return r
+
+
 def draw_shift(seed):
     """The shift of draw ``seed`` (RenderParams.light_seed) common to every pixel: the base-2
     radical inverse of seed (0, 1/2, 1/4, 3/4, ...), so seeds 0 .. 2^m - 1 give each pixel 2^m
     evenly spaced draws."""
-    f, r, i = 0.5, 0.0, int(seed)
-    while i > 0:
-        r += f * (i & 1)
-        i >>= 1
-        f *= 0.5
-    return r
+    return radical_inverse(int(seed), 2)
 
 
 @inner(cache=True, _nrt=False, error_model="numpy")

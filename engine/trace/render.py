@@ -384,7 +384,7 @@ class Renderer:
     def __init__(self):
         self._bufs = None
         self._shadow = None  # ((W, H), ShadowBuffers): the material pass's with shadows
-        self._drawn = None  # (Draws, ShadowSegments of W * H * K): the lights drawn per pixel and their segments
+        self._drawn = None  # (lit, factor, ShadowSegments of W * H * K): the lights drawn per pixel, their segments
         self._probes = None  # ((W, H), pixels): the centres of the light guide's squares (light_guide)
         self.guide = None    # (guide, squares a row) of the last render that drew lights (light_guide)
 
@@ -420,11 +420,11 @@ class Renderer:
         return self._shadow[1]
 
     def drawn_buffers(self, n, K):
-        """The buffers of lights drawn per pixel, K a pixel of n (:class:`Draws`' lit and factor,
-        and :class:`ShadowSegments` of n * K), kept from frame to frame."""
-        if self._drawn is None or self._drawn[0].lit.shape != (n, K):
+        """The buffers of lights drawn per pixel, K a pixel of n: :class:`Draws`' lit (n, K) int32
+        and factor (n, K) float64, and :class:`ShadowSegments` of n * K, kept from frame to frame."""
+        if self._drawn is None or self._drawn[0].shape != (n, K):
             self._drawn = None
-            self._drawn = (make_draws(0, 0.0, np.empty((n, K), np.int32), np.empty((n, K))), segment_buffers(n * K))
+            self._drawn = (np.empty((n, K), np.int32), np.empty((n, K)), segment_buffers(n * K))
         return self._drawn
 
     def render(self, grid, tris, camera, params: RenderParams | None = None, second=None,
@@ -502,7 +502,7 @@ class Renderer:
             n_lights, n_shadow = self._shade_material(grids, looks, params, camera, grid.origin, light, diag, threads)
             shade_ms = (time.perf_counter() - t1) * 1e3
             if params.shadows:
-                hdr = self._shadow[1].hp.acc.reshape(H, W, 3)
+                hdr = self.shadow_buffers(W, H).hp.acc.reshape(H, W, 3)
         ms = (time.perf_counter() - t0) * 1e3
         n = W * H
         if n_shadow is None:  # lambert's shadow rays (one per hit facing the light) are not counted
@@ -592,8 +592,8 @@ class Renderer:
             guide, bw, probes = self.light_guide(W, H, lights, hp, off, far, boxes, blocked_of)
             self.guide = (guide, bw)
             cast += probes
-            draws, segs = self.drawn_buffers(W * H, min(k, len(lights)))
-            draws = make_draws(k, draw_shift(params.light_seed), draws.lit, draws.factor, guide, GUIDE_BLOCK, bw)
+            lit, factor, segs = self.drawn_buffers(W * H, min(k, len(lights)))
+            draws = make_draws(k, draw_shift(params.light_seed), lit, factor, guide, GUIDE_BLOCK, bw)
             start = drawn_segments(lights, hp, W, draws, off, far, order, segs, boxes)
         # each light's shadow rays in tiles of the image (TILE x TILE pixels, sb.order): the batch
         # caster takes them in runs of RUN = TILE^2 in this order, and a run of one tile is a narrow
