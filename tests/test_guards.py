@@ -301,11 +301,16 @@ def entry_kernels():
 
 
 def install_tripwires(mp, allow=()):
-    """Replace every entry kernel, in every loaded engine module that binds it, with a tripwire."""
+    """Replace every entry kernel, in every loaded engine module that binds it, with a tripwire,
+    once the background compiles an earlier test started have ended (gridrt.trace.twin: a warm-up
+    that ran into a tripwire would be remembered as failed for the rest of the process)."""
     import gridrt.scene  # noqa: F401  (load every module that binds a kernel)
     import gridrt.grid.strategies  # noqa: F401
     import gridrt.trace.render  # noqa: F401
     import gridrt.grid.traffic  # noqa: F401
+    from gridrt.trace.twin import TWINS
+
+    TWINS.wait()
 
     patched = []
     for name in entry_kernels():
