@@ -24,6 +24,11 @@ traversal kernels stay as they are.  Per hit pixel:
   and a ray blocked near its light (inside a lamp's shade) stops there instead of crossing the
   scene first.
 
+The pass takes a row's pixels LANES at a time (:func:`_shade_row`): their triangles' corners
+gathered into scratch rows, then every step above in loops over the lanes without branches, which
+LLVM compiles to packed float64 code (512-bit on AVX-512), with the same operations in the same
+order as one pixel at a time, so the colours do not depend on the lanes.
+
 A scene without lights is lit by one default light (gridrt.trace.render.default_light, colour 1,
 no falloff); a render without a scene surface uses one material of gridrt's default colours.
 """
@@ -38,199 +43,326 @@ from ..compiles import inner
 from ..scene.surface import (AMBIENT_FRACTION, DEFAULT_DIFFUSE, FALLOFF_INVERSE_SQUARE, LIGHT_DIRECTIONAL, LIGHT_POINT,
                              Surface)
 from .records import SurfaceArrays
-from .shade import put_pixel, unit_normal
+from .shade import put_pixel
 from .traverse import _clip_box
 
 
+#: pixels shaded side by side: the lanes of the material pass's vector loops (float64, two
+#: 512-bit registers a row of scratch)
+LANES = 16
+# float64 scratch rows of a block of LANES hits (each LANES apart): the corners as gathered
+# (vertices, normals, uv, vertex colours; the material's diffuse and ambient colours), then what
+# the pass computes from them
+R_V, R_N, R_UV, R_COL, R_DIF, R_AMB = 0, 9, 18, 24, 33, 36
+R_NS, R_NG, R_P, R_TUV, R_C, R_TEX, R_TVD, R_TVA, R_RGB = 39, 42, 45, 48, 50, 53, 56, 59, 62
+ROWS = 65
+# int64 scratch rows: the texture of each hit (-1: none), its offset, size and wrap modes, and
+# its four texels' offsets
+I_K, I_INFO, I_TEXEL = 0, 1, 6
+IROWS = 10
+
+
 @inner(cache=True, _nrt=False, error_model="numpy")
-def barycentrics(tris, f, ex, ey, ez, dx, dy, dz):
-    """(w0, w1, w2) of the ray eye + t d on triangle f of tris (F,3,3) float32, in float64, clamped
-    onto the triangle (each >= 0, sum 1); the centroid for a degenerate triangle."""
-    v0x, v0y, v0z = np.float64(tris[f, 0, 0]), np.float64(tris[f, 0, 1]), np.float64(tris[f, 0, 2])
-    e1x, e1y, e1z = tris[f, 1, 0] - v0x, tris[f, 1, 1] - v0y, tris[f, 1, 2] - v0z
-    e2x, e2y, e2z = tris[f, 2, 0] - v0x, tris[f, 2, 1] - v0y, tris[f, 2, 2] - v0z
-    px = dy * e2z - dz * e2y
-    py = dz * e2x - dx * e2z
-    pz = dx * e2y - dy * e2x
-    det = e1x * px + e1y * py + e1z * pz
-    if det == 0.0 or not math.isfinite(det):
-        return 1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0
-    inv = 1.0 / det  # (one division: a division's latency is most of a hit's shading)
-    sx, sy, sz = ex - v0x, ey - v0y, ez - v0z
-    u = (sx * px + sy * py + sz * pz) * inv
-    qx = sy * e1z - sz * e1y
-    qy = sz * e1x - sx * e1z
-    qz = sx * e1y - sy * e1x
-    v = (dx * qx + dy * qy + dz * qz) * inv
-    if not (math.isfinite(u) and math.isfinite(v)):
-        return 1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0
-    u = max(u, 0.0)
-    v = max(v, 0.0)
-    s = u + v
-    if s > 1.0:
-        r = 1.0 / s
-        u *= r
-        v *= r
-    return 1.0 - u - v, u, v
+def _gather(n, fs, surf, buf):
+    """The corners of the scene triangles fs[:n] (a miss, -1, reads triangle 0, unused) into the
+    rows of buf: vertices, and where the surface has them normals, uv and vertex colours (else
+    those rows keep the zero _constant_rows wrote); each one's material's diffuse and ambient
+    colours.
+    A loop per kind of value, so that a surface without one does not test for it per hit."""
+    C = LANES
+    stris, normals, uv, colors = surf.tris, surf.normals, surf.uv, surf.colors
+    material, diffuse, ambient = surf.material, surf.diffuse, surf.ambient
+    for j in range(n):
+        f = max(fs[j], 0)
+        for c in range(9):
+            buf[(R_V + c) * C + j] = stris[f, c // 3, c % 3]
+        m = material[f]
+        for a in range(3):
+            buf[(R_DIF + a) * C + j] = diffuse[m, a]
+            buf[(R_AMB + a) * C + j] = ambient[m, a]
+    if normals.shape[0] > 0:
+        for j in range(n):
+            f = max(fs[j], 0)
+            for c in range(9):
+                buf[(R_N + c) * C + j] = normals[f, c // 3, c % 3]
+    if uv.shape[0] > 0:
+        for j in range(n):
+            f = max(fs[j], 0)
+            for c in range(6):
+                buf[(R_UV + c) * C + j] = uv[f, c // 2, c % 2]
+    if colors.shape[0] > 0:
+        for j in range(n):
+            f = max(fs[j], 0)
+            for c in range(9):
+                buf[(R_COL + c) * C + j] = colors[f, c // 3, c % 3]
+
+
+@inner(cache=True, _nrt=False, error_model="numpy")
+def _constant_rows(buf):
+    """Zero in every row of buf: the rows that _gather leaves alone for a surface without normals
+    (then the geometric normal shades), uv or vertex colours (unused), and every lane the first
+    time (the lanes past a row's end compute on what they hold, unread)."""
+    buf[:] = 0.0
+
+
+@inner(cache=True, _nrt=False, error_model="numpy")
+def _surface_lanes(x0, y, view, buf):
+    """What the camera rays of pixels x0 .. x0 + LANES - 1 of row y see on the triangles whose
+    corners _gather put into buf, in one loop over the lanes that LLVM vectorizes (no branch: each
+    choice computes both sides and keeps one).  Per hit, into the rows of buf:
+
+    * the barycentrics (w0, w1, w2) = (1 - u - v, u, v) of the float64 ray-triangle test, clamped
+      onto the triangle (u, v >= 0, scaled down where u + v > 1); the centroid where the
+      determinant or u, v is zero or not finite;
+    * the hit point p = w0 v0 + w1 v1 + w2 v2 (R_P), on the triangle's plane to float64
+      precision (not t's float32);
+    * the unit geometric normal n_g (R_NG), turned towards the viewer (against the ray for a
+      degenerate triangle); the shading normal n_s (R_NS): the corner normals weighted by the
+      barycentrics, normalised, turned to n_g's side (n_g itself where that sum is under 1e-12 or
+      not finite: no normals in the file);
+    * uv (R_TUV) and vertex colour (R_C), the corners' weighted by the barycentrics."""
+    C = LANES
+    basis, W, H = view.basis, view.W, view.H
+    ex, ey, ez = basis[0, 0], basis[0, 1], basis[0, 2]
+    for j in range(C):
+        dx, dy, dz = pixel_dir(basis, W, H, x0 + j, y)
+        v0x, v0y, v0z = buf[(R_V + 0) * C + j], buf[(R_V + 1) * C + j], buf[(R_V + 2) * C + j]
+        e1x, e1y, e1z = buf[(R_V + 3) * C + j] - v0x, buf[(R_V + 4) * C + j] - v0y, buf[(R_V + 5) * C + j] - v0z
+        e2x, e2y, e2z = buf[(R_V + 6) * C + j] - v0x, buf[(R_V + 7) * C + j] - v0y, buf[(R_V + 8) * C + j] - v0z
+        px = dy * e2z - dz * e2y
+        py = dz * e2x - dx * e2z
+        pz = dx * e2y - dy * e2x
+        det = e1x * px + e1y * py + e1z * pz
+        bad = (det == 0.0) | (not math.isfinite(det))
+        inv = 1.0 / (1.0 if bad else det)  # (one division: its latency is most of a hit's shading)
+        sx, sy, sz = ex - v0x, ey - v0y, ez - v0z
+        u = (sx * px + sy * py + sz * pz) * inv
+        qx = sy * e1z - sz * e1y
+        qy = sz * e1x - sx * e1z
+        qz = sx * e1y - sy * e1x
+        v = (dx * qx + dy * qy + dz * qz) * inv
+        bad = bad | (not (math.isfinite(u) & math.isfinite(v)))
+        u = u if u > 0.0 else 0.0
+        v = v if v > 0.0 else 0.0
+        s = u + v
+        r = 1.0 / (s if s > 1.0 else 1.0)
+        u, v = u * r, v * r
+        w0 = 1.0 / 3.0 if bad else 1.0 - u - v
+        w1 = 1.0 / 3.0 if bad else u
+        w2 = 1.0 / 3.0 if bad else v
+        for a in range(3):
+            buf[(R_P + a) * C + j] = (w0 * buf[(R_V + a) * C + j] + w1 * buf[(R_V + 3 + a) * C + j]
+                                      + w2 * buf[(R_V + 6 + a) * C + j])
+        # geometric normal (v1 - v0) x (v2 - v0), towards the viewer (against the ray when degenerate)
+        nx = e1y * e2z - e1z * e2y
+        ny = e1z * e2x - e1x * e2z
+        nz = e1x * e2y - e1y * e2x
+        nn = math.sqrt(nx * nx + ny * ny + nz * nz)
+        zero = nn == 0.0
+        nn = 1.0 if zero else nn
+        gx = 0.0 if zero else nx / nn
+        gy = 0.0 if zero else ny / nn
+        gz = 0.0 if zero else nz / nn
+        none = (gx == 0.0) & (gy == 0.0) & (gz == 0.0)
+        gx, gy, gz = (-dx if none else gx), (-dy if none else gy), (-dz if none else gz)
+        back = gx * dx + gy * dy + gz * dz > 0.0
+        gx, gy, gz = (-gx if back else gx), (-gy if back else gy), (-gz if back else gz)
+        mx = w0 * buf[(R_N + 0) * C + j] + w1 * buf[(R_N + 3) * C + j] + w2 * buf[(R_N + 6) * C + j]
+        my = w0 * buf[(R_N + 1) * C + j] + w1 * buf[(R_N + 4) * C + j] + w2 * buf[(R_N + 7) * C + j]
+        mz = w0 * buf[(R_N + 2) * C + j] + w1 * buf[(R_N + 5) * C + j] + w2 * buf[(R_N + 8) * C + j]
+        mn = math.sqrt(mx * mx + my * my + mz * mz)
+        ok = (mn > 1e-12) & math.isfinite(mn)
+        rm = 1.0 / (mn if ok else 1.0)
+        nsx, nsy, nsz = (mx * rm if ok else gx), (my * rm if ok else gy), (mz * rm if ok else gz)
+        flip = nsx * gx + nsy * gy + nsz * gz < 0.0  # (never where n_s is n_g)
+        buf[R_NS * C + j] = -nsx if flip else nsx
+        buf[(R_NS + 1) * C + j] = -nsy if flip else nsy
+        buf[(R_NS + 2) * C + j] = -nsz if flip else nsz
+        buf[R_NG * C + j], buf[(R_NG + 1) * C + j], buf[(R_NG + 2) * C + j] = gx, gy, gz
+        for a in range(2):
+            buf[(R_TUV + a) * C + j] = (w0 * buf[(R_UV + a) * C + j] + w1 * buf[(R_UV + 2 + a) * C + j]
+                                        + w2 * buf[(R_UV + 4 + a) * C + j])
+        for a in range(3):
+            buf[(R_C + a) * C + j] = (w0 * buf[(R_COL + a) * C + j] + w1 * buf[(R_COL + 3 + a) * C + j]
+                                      + w2 * buf[(R_COL + 6 + a) * C + j])
+
+
+@inner(cache=True, _nrt=False, error_model="numpy")
+def _reduce(c, mode):
+    """A texture coordinate brought into [0, 1] (mode 1, clamp), [0, 1) (0, repeat) or [0, 2)
+    (2, mirrored repeat) before it is scaled to texels, so a huge coordinate never overflows an
+    integer.  All three computed and one kept: no branch in the lanes' loop."""
+    clamp = min(max(c, 0.0), 1.0)
+    mirror = c - 2.0 * math.floor(0.5 * c)
+    repeat = c - math.floor(c)
+    return clamp if mode == 1 else (mirror if mode == 2 else repeat)
 
 
 @inner(cache=True, _nrt=False, error_model="numpy")
 def _wrap(i, n, mode):
     """Texel index i in [-1, 2n] (the reduced coordinate's, see _reduce) wrapped into [0, n) by mode
-    (0 repeat, 1 clamp, 2 mirror), with compares: an integer division costs more than the rest of
-    the lookup."""
-    if mode == 1:
-        return 0 if i < 0 else (n - 1 if i >= n else i)
-    if mode == 2:
-        m = i + 2 * n if i < 0 else (i - 2 * n if i >= 2 * n else i)
-        return m if m < n else 2 * n - 1 - m
-    return i + n if i < 0 else (i - n if i >= n else i)
+    (0 repeat, 1 clamp, 2 mirror), with compares (an integer division costs more than the rest
+    of the lookup), all three computed and one kept."""
+    clamp = 0 if i < 0 else (n - 1 if i >= n else i)
+    m = i + 2 * n if i < 0 else (i - 2 * n if i >= 2 * n else i)
+    mirror = m if m < n else 2 * n - 1 - m
+    repeat = i + n if i < 0 else (i - n if i >= n else i)
+    return clamp if mode == 1 else (mirror if mode == 2 else repeat)
 
 
 @inner(cache=True, _nrt=False, error_model="numpy")
-def _reduce(c, mode):
-    """A texture coordinate brought into [0, 1] (clamp), [0, 1) (repeat) or [0, 2) (mirror) before
-    it is scaled to texels, so a huge coordinate never overflows an integer."""
-    if mode == 1:
-        return min(max(c, 0.0), 1.0)
-    if mode == 2:
-        return c - 2.0 * math.floor(0.5 * c)
-    return c - math.floor(c)
-
-
-@inner(cache=True, _nrt=False, error_model="numpy")
-def sample_bilinear(tex_data, tex_info, k, u, v):
-    """Texture k at (u, v) (image convention: (0, 0) top-left), bilinearly filtered: (r, g, b) in [0, 1]."""
-    off, w, h, wu, wv = tex_info[k, 0], tex_info[k, 1], tex_info[k, 2], tex_info[k, 3], tex_info[k, 4]
-    x = _reduce(u, wu) * w - 0.5
-    y = _reduce(v, wv) * h - 0.5
-    x0 = math.floor(x)
-    y0 = math.floor(y)
-    fx = x - x0
-    fy = y - y0
-    ix0 = _wrap(np.int64(x0), w, wu)
-    ix1 = _wrap(np.int64(x0) + 1, w, wu)
-    iy0 = _wrap(np.int64(y0), h, wv)
-    iy1 = _wrap(np.int64(y0) + 1, h, wv)
-    a = off + (iy0 * w + ix0) * 3
-    b = off + (iy0 * w + ix1) * 3
-    c = off + (iy1 * w + ix0) * 3
-    d = off + (iy1 * w + ix1) * 3
-    w00 = (1.0 - fx) * (1.0 - fy)
-    w01 = fx * (1.0 - fy)
-    w10 = (1.0 - fx) * fy
-    w11 = fx * fy
-    r = w00 * tex_data[a] + w01 * tex_data[b] + w10 * tex_data[c] + w11 * tex_data[d]
-    g = w00 * tex_data[a + 1] + w01 * tex_data[b + 1] + w10 * tex_data[c + 1] + w11 * tex_data[d + 1]
-    bl = w00 * tex_data[a + 2] + w01 * tex_data[b + 2] + w10 * tex_data[c + 2] + w11 * tex_data[d + 2]
+def _texel_lanes(n, fs, surf, buf, ib):
+    """The texels at the uv (R_TUV) of the hits fs[:n] in buf into R_TEX ((1, 1, 1) for a hit
+    whose material has no texture): each texture (image convention, (0, 0) top-left) filtered
+    bilinearly between the four texels around (u W - 1/2, v H - 1/2), each wrapped by the
+    texture's mode.  Its size, offset and modes gathered into the int64 rows of ib, the texels'
+    offsets and weights computed side by side, then the texels fetched."""
+    C = LANES
+    material, texture, tex_data, tex_info = surf.material, surf.texture, surf.tex_data, surf.tex_info
+    if tex_data.shape[0] == 0:
+        buf[R_TEX * C:(R_TEX + 3) * C] = 1.0
+        return
+    for j in range(C):
+        k = texture[material[max(fs[j], 0)]] if j < n else -1
+        ib[I_K * C + j] = k
+        for a in range(5):
+            ib[(I_INFO + a) * C + j] = tex_info[max(k, 0), a]
+    for j in range(C):
+        off, w, h = ib[I_INFO * C + j], ib[(I_INFO + 1) * C + j], ib[(I_INFO + 2) * C + j]
+        wu, wv = ib[(I_INFO + 3) * C + j], ib[(I_INFO + 4) * C + j]
+        x = _reduce(buf[R_TUV * C + j], wu) * w - 0.5
+        y = _reduce(buf[(R_TUV + 1) * C + j], wv) * h - 0.5
+        x0 = math.floor(x)
+        y0 = math.floor(y)
+        buf[R_TEX * C + j] = x - x0
+        buf[(R_TEX + 1) * C + j] = y - y0
+        ix0 = _wrap(np.int64(x0), w, wu)
+        ix1 = _wrap(np.int64(x0) + 1, w, wu)
+        iy0 = _wrap(np.int64(y0), h, wv)
+        iy1 = _wrap(np.int64(y0) + 1, h, wv)
+        some = ib[I_K * C + j] >= 0  # (a lane without texture reads the first texel)
+        ib[I_TEXEL * C + j] = off + (iy0 * w + ix0) * 3 if some else 0
+        ib[(I_TEXEL + 1) * C + j] = off + (iy0 * w + ix1) * 3 if some else 0
+        ib[(I_TEXEL + 2) * C + j] = off + (iy1 * w + ix0) * 3 if some else 0
+        ib[(I_TEXEL + 3) * C + j] = off + (iy1 * w + ix1) * 3 if some else 0
     k255 = 1.0 / 255.0
-    return r * k255, g * k255, bl * k255
+    for j in range(C):
+        fx, fy = buf[R_TEX * C + j], buf[(R_TEX + 1) * C + j]
+        w00 = (1.0 - fx) * (1.0 - fy)
+        w01 = fx * (1.0 - fy)
+        w10 = (1.0 - fx) * fy
+        w11 = fx * fy
+        a, b = ib[I_TEXEL * C + j], ib[(I_TEXEL + 1) * C + j]
+        c, d = ib[(I_TEXEL + 2) * C + j], ib[(I_TEXEL + 3) * C + j]
+        some = ib[I_K * C + j] >= 0
+        for e in range(3):
+            t = w00 * tex_data[a + e] + w01 * tex_data[b + e] + w10 * tex_data[c + e] + w11 * tex_data[d + e]
+            buf[(R_TEX + e) * C + j] = t * k255 if some else 1.0
 
 
 @inner(cache=True, _nrt=False, error_model="numpy")
 def light_weight(lights, li, p, ng, ns):
     """(weight, lx, ly, lz, dist) of light li at the hit p with facing normals n_g, n_s (3-tuples):
     the unit vector l to the light, its distance (inf for a directional light) and weight n_s . l
-    (over d^2 with inverse-square falloff), 0 when the light is behind the surface."""
+    (over d^2 with inverse-square falloff), 0 when the light is behind the surface (all zero for
+    a point light at the hit or at no finite distance).  No branch on the hit's values: it
+    vectorizes in the lanes' loop of :func:`_shade_lanes`."""
     px, py, pz = p
     ngx, ngy, ngz = ng
     nsx, nsy, nsz = ns
-    r = 1.0
-    if lights[li, 0] == LIGHT_DIRECTIONAL:
-        lx, ly, lz = lights[li, 1], lights[li, 2], lights[li, 3]
-        dist = np.inf
-    else:
-        lx = lights[li, 1] - px
-        ly = lights[li, 2] - py
-        lz = lights[li, 3] - pz
-        dist = math.sqrt(lx * lx + ly * ly + lz * lz)
-        if not (dist > 0.0) or not math.isfinite(dist):
-            return 0.0, 0.0, 0.0, 0.0, 0.0
-        r = 1.0 / dist
-        lx *= r
-        ly *= r
-        lz *= r
-    if ngx * lx + ngy * ly + ngz * lz <= 0.0:
-        return 0.0, lx, ly, lz, dist
+    directional = lights[li, 0] == LIGHT_DIRECTIONAL
+    lx = lights[li, 1] if directional else lights[li, 1] - px
+    ly = lights[li, 2] if directional else lights[li, 2] - py
+    lz = lights[li, 3] if directional else lights[li, 3] - pz
+    dist = math.sqrt(lx * lx + ly * ly + lz * lz)
+    gone = (not directional) & ((not (dist > 0.0)) | (not math.isfinite(dist)))
+    r = 1.0 / (dist if not (directional | gone) else 1.0)
+    dist = np.inf if directional else dist
+    lx, ly, lz = lx * r, ly * r, lz * r
+    facing = ngx * lx + ngy * ly + ngz * lz > 0.0
     s = nsx * lx + nsy * ly + nsz * lz
-    if s <= 0.0:
-        return 0.0, lx, ly, lz, dist
-    if lights[li, 7] == FALLOFF_INVERSE_SQUARE and lights[li, 0] == LIGHT_POINT:
-        s *= r * r
-    return s, lx, ly, lz, dist
+    lit = facing & (s > 0.0) & (not gone)
+    square = (lights[li, 7] == FALLOFF_INVERSE_SQUARE) & (lights[li, 0] == LIGHT_POINT)
+    s = s * (r * r) if square else s
+    return ((s if lit else 0.0), (0.0 if gone else lx), (0.0 if gone else ly), (0.0 if gone else lz),
+            (0.0 if gone else dist))
 
 
 @inner(cache=True, _nrt=False, error_model="numpy")
-def _shade_row(y, view, ibuf, surf, lights, deferred, img, hp):
-    """Row y of shade_kernel.  Per hit pixel, what the camera ray eye + t d sees on its scene
-    triangle f of the surface surf (:class:`gridrt.trace.records.SurfaceArrays`): the hit point p
-    (float64), the facing geometric and shading normals n_g and n_s, and the colours the lights
-    and the ambient term multiply, tvd = T V D and tva = T V A; then the lights' terms, or with
-    ``deferred`` those in the hit buffers hp.  (In one function with the loop: a call per pixel
-    returning them cost a fifth of the pass.)"""
-    basis, W, H = view.basis, view.W, view.H
+def _shade_lanes(lights, buf):
+    """The colour of each of the LANES hits in buf (R_RGB): T V A plus every light's T V D times its
+    colour and weight (:func:`light_weight`), side by side."""
+    C = LANES
+    for j in range(C):
+        for e in range(3):
+            buf[(R_RGB + e) * C + j] = buf[(R_TVA + e) * C + j]
+    for li in range(lights.shape[0]):
+        lr, lg, lb = lights[li, 4], lights[li, 5], lights[li, 6]
+        for j in range(C):
+            s, lx, ly, lz, dist = light_weight(
+                lights, li, (buf[R_P * C + j], buf[(R_P + 1) * C + j], buf[(R_P + 2) * C + j]),
+                (buf[R_NG * C + j], buf[(R_NG + 1) * C + j], buf[(R_NG + 2) * C + j]),
+                (buf[R_NS * C + j], buf[(R_NS + 1) * C + j], buf[(R_NS + 2) * C + j]))
+            lit = s > 0.0
+            r, g, b = buf[R_RGB * C + j], buf[(R_RGB + 1) * C + j], buf[(R_RGB + 2) * C + j]
+            buf[R_RGB * C + j] = r + buf[R_TVD * C + j] * lr * s if lit else r
+            buf[(R_RGB + 1) * C + j] = g + buf[(R_TVD + 1) * C + j] * lg * s if lit else g
+            buf[(R_RGB + 2) * C + j] = b + buf[(R_TVD + 2) * C + j] * lb * s if lit else b
+
+
+@inner(cache=True, _nrt=False, error_model="numpy")
+def _shade_row(y, view, ibuf, surf, lights, deferred, img, hp, buf, ib):
+    """Row y of shade_kernel, LANES pixels at a time side by side (buf, ib: the scratch rows,
+    ROWS and IROWS of LANES): their corners gathered (:func:`_gather`), the surface they show
+    (:func:`_surface_lanes`), the texels (:func:`_texel_lanes`), the colours the lights and the
+    ambient term multiply, tvd = T V D and tva = T V A; then the lights' terms
+    (:func:`_shade_lanes`), or with ``deferred`` those in the hit buffers hp."""
+    C = LANES
+    W = view.W
     pos, ngb, nsb, tvd, acc = hp.pos, hp.ng, hp.ns, hp.tvd, hp.acc
-    stris, normals, material, diffuse, ambient = surf.tris, surf.normals, surf.material, surf.diffuse, surf.ambient
-    texture, tex_data, tex_info, uv, colors = surf.texture, surf.tex_data, surf.tex_info, surf.uv, surf.colors
-    ex, ey, ez = basis[0, 0], basis[0, 1], basis[0, 2]
-    for x in range(W):
-        f = ibuf[y, x]
-        i = y * W + x
-        if f < 0:  # a miss: the render kernel has written the background already
+    fs = ibuf[y]
+    hc = surf.colors.shape[0] > 0
+    _constant_rows(buf)
+    for x0 in range(0, W, C):
+        n = min(C, W - x0)
+        hits = 0
+        for j in range(n):
+            hits += fs[x0 + j] >= 0
+        if hits == 0:  # (no corners to gather: a scene may have no triangles at all)
             if deferred:
-                acc[i, 0], acc[i, 1], acc[i, 2] = -1.0, -1.0, -1.0
+                acc[y * W + x0:y * W + x0 + n] = -1.0
             continue
-        dx, dy, dz = pixel_dir(basis, W, H, x, y)
-        w0, w1, w2 = barycentrics(stris, f, ex, ey, ez, dx, dy, dz)
-        px = w0 * stris[f, 0, 0] + w1 * stris[f, 1, 0] + w2 * stris[f, 2, 0]
-        py = w0 * stris[f, 0, 1] + w1 * stris[f, 1, 1] + w2 * stris[f, 2, 1]
-        pz = w0 * stris[f, 0, 2] + w1 * stris[f, 1, 2] + w2 * stris[f, 2, 2]
-        # geometric normal (v1 - v0) x (v2 - v0), towards the viewer (against the ray when degenerate)
-        gx, gy, gz = unit_normal(stris, f)
-        if gx == 0.0 and gy == 0.0 and gz == 0.0:
-            gx, gy, gz = -dx, -dy, -dz
-        if gx * dx + gy * dy + gz * dz > 0.0:
-            gx, gy, gz = -gx, -gy, -gz
-        sx, sy, sz = gx, gy, gz
-        if normals.shape[0] > 0:
-            nx = w0 * normals[f, 0, 0] + w1 * normals[f, 1, 0] + w2 * normals[f, 2, 0]
-            ny = w0 * normals[f, 0, 1] + w1 * normals[f, 1, 1] + w2 * normals[f, 2, 1]
-            nz = w0 * normals[f, 0, 2] + w1 * normals[f, 1, 2] + w2 * normals[f, 2, 2]
-            nn = math.sqrt(nx * nx + ny * ny + nz * nz)
-            if nn > 1e-12 and math.isfinite(nn):
-                r = 1.0 / nn
-                sx, sy, sz = nx * r, ny * r, nz * r
-                if sx * gx + sy * gy + sz * gz < 0.0:
-                    sx, sy, sz = -sx, -sy, -sz
-        m = material[f]
-        tr, tg, tb = 1.0, 1.0, 1.0
-        k = texture[m]
-        if k >= 0:
-            u = w0 * uv[f, 0, 0] + w1 * uv[f, 1, 0] + w2 * uv[f, 2, 0]
-            v = w0 * uv[f, 0, 1] + w1 * uv[f, 1, 1] + w2 * uv[f, 2, 1]
-            tr, tg, tb = sample_bilinear(tex_data, tex_info, k, u, v)
-        if colors.shape[0] > 0:
-            tr *= w0 * colors[f, 0, 0] + w1 * colors[f, 1, 0] + w2 * colors[f, 2, 0]
-            tg *= w0 * colors[f, 0, 1] + w1 * colors[f, 1, 1] + w2 * colors[f, 2, 1]
-            tb *= w0 * colors[f, 0, 2] + w1 * colors[f, 1, 2] + w2 * colors[f, 2, 2]
-        dr, dg, db = tr * diffuse[m, 0], tg * diffuse[m, 1], tb * diffuse[m, 2]
-        ar, ag, ab = tr * ambient[m, 0], tg * ambient[m, 1], tb * ambient[m, 2]
+        _gather(n, fs[x0:], surf, buf)
+        _surface_lanes(x0, y, view, buf)
+        _texel_lanes(n, fs[x0:], surf, buf, ib)
+        if hc:  # (the texel times the vertex colour; not times the weights' sum without colours)
+            for j in range(C):
+                for e in range(3):
+                    buf[(R_TEX + e) * C + j] *= buf[(R_C + e) * C + j]
+        for j in range(C):
+            for e in range(3):
+                buf[(R_TVD + e) * C + j] = buf[(R_TEX + e) * C + j] * buf[(R_DIF + e) * C + j]
+                buf[(R_TVA + e) * C + j] = buf[(R_TEX + e) * C + j] * buf[(R_AMB + e) * C + j]
         if deferred:  # the lights are added once their shadow rays are cast
-            pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
-            ngb[i, 0], ngb[i, 1], ngb[i, 2] = gx, gy, gz
-            nsb[i, 0], nsb[i, 1], nsb[i, 2] = sx, sy, sz
-            tvd[i, 0], tvd[i, 1], tvd[i, 2] = dr, dg, db
-            acc[i, 0], acc[i, 1], acc[i, 2] = ar, ag, ab
+            for j in range(n):
+                i = y * W + x0 + j
+                if fs[x0 + j] < 0:  # a miss
+                    acc[i, 0], acc[i, 1], acc[i, 2] = -1.0, -1.0, -1.0
+                    continue
+                for e in range(3):
+                    pos[i, e] = buf[(R_P + e) * C + j]
+                    ngb[i, e] = buf[(R_NG + e) * C + j]
+                    nsb[i, e] = buf[(R_NS + e) * C + j]
+                    tvd[i, e] = buf[(R_TVD + e) * C + j]
+                    acc[i, e] = buf[(R_TVA + e) * C + j]
             continue
-        r, g, b = ar, ag, ab
-        for li in range(lights.shape[0]):
-            s, lx, ly, lz, dist = light_weight(lights, li, (px, py, pz), (gx, gy, gz), (sx, sy, sz))
-            if s > 0.0:
-                r += dr * lights[li, 4] * s
-                g += dg * lights[li, 5] * s
-                b += db * lights[li, 6] * s
-        # clamped here: a huge light or colour (1e38) must saturate, and beyond int64 put_pixel's rounding is undefined
-        put_pixel(img, y, x, min(r, 1.0), min(g, 1.0), min(b, 1.0))
+        _shade_lanes(lights, buf)
+        for j in range(n):
+            if fs[x0 + j] >= 0:  # (a miss: the render kernel has written the background already)
+                # clamped here: a huge light or colour (1e38) must saturate, and beyond int64
+                # put_pixel's rounding is undefined
+                put_pixel(img, y, x0 + j, min(buf[R_RGB * C + j], 1.0), min(buf[(R_RGB + 1) * C + j], 1.0),
+                          min(buf[(R_RGB + 2) * C + j], 1.0))
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
@@ -243,14 +375,17 @@ def shade_kernel(view, ibuf, surf, lights, deferred, img, hp):
     (:class:`gridrt.trace.records.HitPoints`) for :func:`light_segments`, :func:`add_light` and
     :func:`compose`."""
     for y in prange(view.H):
-        _shade_row(np.int64(y), view, ibuf, surf, lights, deferred, img, hp)
+        # (a row's scratch: 8 KiB, next to a row's shading)
+        _shade_row(np.int64(y), view, ibuf, surf, lights, deferred, img, hp, np.empty(ROWS * LANES),
+                   np.empty(IROWS * LANES, np.int64))
 
 
 @njit(cache=True, error_model="numpy")
 def shade_serial(view, ibuf, surf, lights, deferred, img, hp):
     """shade_kernel on one thread (gridrt.trace.twin)."""
+    buf, ib = np.empty(ROWS * LANES), np.empty(IROWS * LANES, np.int64)
     for y in range(view.H):
-        _shade_row(y, view, ibuf, surf, lights, deferred, img, hp)
+        _shade_row(y, view, ibuf, surf, lights, deferred, img, hp, buf, ib)
 
 
 #: pixels of the order per work item of light_segments (its passes over the order)
