@@ -38,7 +38,6 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..camera import pixel_dir
 from ..compiles import inner
 from ..scene.surface import (AMBIENT_FRACTION, DEFAULT_DIFFUSE, FALLOFF_INVERSE_SQUARE, LIGHT_DIRECTIONAL, LIGHT_POINT,
                              Surface)
@@ -124,8 +123,18 @@ def _surface_lanes(x0, y, view, buf):
     C = LANES
     basis, W, H = view.basis, view.W, view.H
     ex, ey, ez = basis[0, 0], basis[0, 1], basis[0, 2]
+    th = basis[4, 0]
+    asp = W / H
+    wy = (1.0 - 2.0 * (y + 0.5) / H) * th
     for j in range(C):
-        dx, dy, dz = pixel_dir(basis, W, H, x0 + j, y)
+        # the ray's direction: gridrt.camera.pixel_dir's, operation for operation (a call to it
+        # keeps this loop from vectorizing when pixel_dir comes from the cache, as machine code)
+        wx = (2.0 * (x0 + j + 0.5) / W - 1.0) * th * asp
+        dx = basis[1, 0] + wx * basis[2, 0] + wy * basis[3, 0]
+        dy = basis[1, 1] + wx * basis[2, 1] + wy * basis[3, 1]
+        dz = basis[1, 2] + wx * basis[2, 2] + wy * basis[3, 2]
+        dn = math.sqrt(dx * dx + dy * dy + dz * dz)
+        dx, dy, dz = dx / dn, dy / dn, dz / dn
         v0x, v0y, v0z = buf[(R_V + 0) * C + j], buf[(R_V + 1) * C + j], buf[(R_V + 2) * C + j]
         e1x, e1y, e1z = buf[(R_V + 3) * C + j] - v0x, buf[(R_V + 4) * C + j] - v0y, buf[(R_V + 5) * C + j] - v0z
         e2x, e2y, e2z = buf[(R_V + 6) * C + j] - v0x, buf[(R_V + 7) * C + j] - v0y, buf[(R_V + 8) * C + j] - v0z
