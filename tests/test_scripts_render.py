@@ -91,3 +91,22 @@ def test_light_samples_prints_its_table():
         assert NUMBER.fullmatch(one[4]) and NUMBER.fullmatch(one[6]) and float(one[6]) <= 2.0, one
         assert 0 < float(mean[9]) < float(one[9]), (one, mean)
         assert abs(float(mean[8]) - 8 * float(one[4])) <= 8, (one, mean)
+
+
+def test_character_frame_prints_its_table():
+    """Cesium Man and Sydney (shipped) at 96x96, filling the frame: the table's header and labels;
+    every mode's frame at least its build and trace, the material passes' time only where the
+    mode has one, the shadow rays only with shadows, and most pixels hit."""
+    header, rows = run_script("character_frame.py", "--scenes", "cesium_man,sydney", "--size", "96", "--threads", "1",
+                              "--runs", "2", "--warmup", "0")
+    doc_header, doc_rows = doc_table("character_frame.py")
+    assert header == doc_header
+    assert {r[3] for r in rows} == {r[3] for r in doc_rows} == {"lambert", "material", "material + shadows"}
+    assert [(r[0], r[3]) for r in rows] == [(s, m) for s in ("cesium_man", "sydney")
+                                            for m in ("lambert", "material", "material + shadows")]
+    for r in rows:
+        frame, fps, build, trace, shade = (float(x) for x in r[4:9])
+        assert frame >= build + trace - 0.5 and abs(fps - 1e3 / frame) <= 0.1 * fps, r
+        assert (shade == 0.0) == (r[3] == "lambert"), r
+        assert float(r[9]) >= 0.9, r
+        assert (float(r[10]) > 0) == (r[3] == "material + shadows"), r
