@@ -27,13 +27,12 @@ import numpy as np
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from gridrt.app.bench.affinity import Affinity
 from gridrt.app.bench.looks import looks_spec
-from gridrt.app.bench.output import md_table
 from gridrt.app.bench.scenes import resolve_scene
 from gridrt.app.bench.stats import stat
 from gridrt.app.viewer.accumulate import Accumulator
 from gridrt.pipeline import FramePipeline
-from gridrt.trace.twin import TWINS, parallel_first
-from tables import add_out_option, items, start
+from gridrt.trace.twin import TWINS
+from tables import add_out_option, items, print_table, start
 
 SCENES = "kitchen:5,museum:0"
 HEADER = ["scene", "lights", "shadow rays", "threads", "frame ms", "fps", "shadow rays/px", "draws averaged",
@@ -125,12 +124,7 @@ def measure(a):
 
 
 def main(argv=None):
-    a = parse_args(argv)
-    # (the frames compile their parallel kernels in this thread, not beside the timing)
-    with parallel_first():
-        table = md_table(HEADER, measure(a))
-    print("\n".join(table))
-    return 0
+    return print_table(HEADER, measure, parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from gridrt.app.bench.machine import finish_machine, machine_info
-from gridrt.app.bench.output import out_dir, write_json, write_summary
+from gridrt.app.bench.output import md_table, out_dir, write_json, write_summary
+from gridrt.trace.twin import parallel_first
 
 #: names the tables give the scenes of the development data set
 NAMES = {"cesium": "Cesium Man", "lucy": "Lucy"}
@@ -34,6 +35,15 @@ def start(p, argv=None):
     keep_output(a.out)
     print_settings(p, a)
     return a
+
+
+def print_table(header, measure, a):
+    """Print the markdown table of the rows ``measure(a)`` makes (the frames compile their parallel
+    kernels in this thread, not beside the timing); 0, the exit code."""
+    with parallel_first():
+        table = md_table(header, measure(a))
+    print("\n".join(table))
+    return 0
 
 
 def add_frame_options(p, scenes):
