@@ -6,6 +6,8 @@ uniform and two-level grids, one grid and the static/moving split, 1 and 3 threa
 origin; and the analytic normals of a sphere.
 """
 
+import math
+
 import numpy as np
 import pytest
 from numba import njit
@@ -61,6 +63,25 @@ def test_material_shadows_with_partial_tiles_match_reference(rng, traversal):
     dark = inside & (np.abs(lit.image[..., :3].astype(int) - ref.image[..., :3].astype(int)).max(axis=2) > 8)
     assert dark.sum() > 20  # shadows are there to be got right
     assert 0 < res.stats["shadow_rays_per_pixel"] <= 3
+
+
+@pytest.mark.parametrize("shadows", [False, True])
+@pytest.mark.parametrize("w,h", [(7, 5), (16, 3), (40, 4)])
+def test_material_rows_narrower_or_not_a_multiple_of_the_lanes(rng, w, h, shadows):
+    """The material pass shades a row's pixels gridrt.trace.material.LANES (16) at a time: rows
+    narrower than that, exactly that wide, and half a block over two blocks still get every hit's
+    colour of the reference."""
+    tris, looks = scene(rng)
+    # looking down on the textured floor and the blocker's shadow, 30 degrees across: every pixel a hit
+    fov = 2 * math.degrees(math.atan(math.tan(math.radians(15.0)) * h / w))
+    cam = Camera(eye=(0.3, 6.0, 1.5), target=(0.2, 0.0, 0.0), fov=fov)
+    ref = R.ref_material(tris, cam, w, h, looks, shadows=shadows, shadow_offset=1e-6 * _diag(tris))
+    params = RenderParams(width=w, height=h, shading="material", shadows=shadows, threads=2)
+    g, r = GridBuilder().build(tris), Renderer()
+    r.render(g, tris, cam, params.replace(shading="lambert", shadows=False))  # (its colours in r's buffers)
+    res = r.render(g, tris, cam, params, looks=Looks(tris, engine_surface(looks), looks.normals, engine_lights(looks)))
+    inside = compare(res, ref, shadows)
+    assert (ref.tri >= 0).all() and inside.mean() > 0.5
 
 
 def test_shadow_pixel_dark_and_lit_pixel_lit():
