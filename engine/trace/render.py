@@ -59,7 +59,8 @@ from .shade import (  # noqa: F401  (the shading constants stay importable from 
 
 #: shadow-ray origins move off the surface by this fraction of the scene's bounding-box diagonal
 SHADOW_OFFSET = 1e-6
-SHADING_CODES = {"lambert": 0, "normal": 1, "cost": 2, "material": 0}
+#: the render kernels' shading modes; "material" colours no hit (its pass does, after the trace)
+SHADING_CODES = {"lambert": 0, "normal": 1, "cost": 2, "material": 3}
 
 
 @inner(cache=True)
@@ -83,7 +84,7 @@ def _render_tile(grids, view, looks, light, ti, out, mb):
             r, g, b = BACKGROUND[0], BACKGROUND[1], BACKGROUND[2]
             if mode == 2:
                 r, g, b = cost_rgb(nt)
-            elif f >= 0:
+            elif f >= 0 and mode != 3:
                 nx, ny, nz, dn = facing_normal(grids[which].tris, f, dx, dy, dz)
                 if mode == 1:
                     r, g, b = normal_rgb(nx, ny, nz)

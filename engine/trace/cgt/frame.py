@@ -166,7 +166,7 @@ def _render_tiles(grids, view, looks, light, packets, tiles, out, scratch):
                     r, g, b = BACKGROUND[0], BACKGROUND[1], BACKGROUND[2]
                     if mode == 2:
                         r, g, b = cost_rgb(int(io[IO_NT * PN + j]))
-                    elif f >= 0:
+                    elif f >= 0 and mode != 3:  # (mode 3: the material pass colours the hits)
                         t = io[IO_T * PN + j]
                         dx = io[IO_DX * PN + j]
                         dy = io[IO_DY * PN + j]
