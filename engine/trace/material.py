@@ -66,8 +66,8 @@ def _gather(n, fs, surf, buf):
     """The corners of the scene triangles fs[:n] (a miss, -1, reads triangle 0, unused) into the
     rows of buf: vertices, and where the surface has them normals, uv and vertex colours (else
     those rows keep the zero _constant_rows wrote); each one's material's diffuse and ambient
-    colours.
-    A loop per kind of value, so that a surface without one does not test for it per hit."""
+    colours.  A loop per kind of value, so that a surface without one does not test for it per
+    hit."""
     C = LANES
     stris, normals, uv, colors = surf.tris, surf.normals, surf.uv, surf.colors
     material, diffuse, ambient = surf.material, surf.diffuse, surf.ambient
