@@ -3,7 +3,8 @@ materials, textures, smooth normals and lights (gridrt.scene.surface has the for
 
 It runs after the render kernel has filled the hit distance and triangle buffers (DDA or CGT, any
 grid kind, one grid or the static/moving split: it reads only the scene ids of the hits), so the
-traversal kernels stay as they are.  Per hit pixel:
+traversal kernels stay as they are; in this mode they leave the hits' pixels to it (shading
+mode 3).  Per hit pixel:
 
 * the hit's barycentrics (w0, w1, w2) = (1 - u - v, u, v) come from the float64 ray-triangle
   test of the triangle hit (the camera ray against the scene's triangle in the render's frame),
@@ -65,7 +66,7 @@ IROWS = 10
 def _gather(n, fs, surf, buf):
     """The corners of the scene triangles fs[:n] (a miss, -1, reads triangle 0, unused) into the
     rows of buf: vertices, and where the surface has them normals, uv and vertex colours (else
-    those rows keep the zero _constant_rows wrote); each one's material's diffuse and ambient
+    those rows keep the zero _shade_row wrote); each one's material's diffuse and ambient
     colours.  A loop per kind of value, so that a surface without one does not test for it per
     hit."""
     C = LANES
@@ -94,14 +95,6 @@ def _gather(n, fs, surf, buf):
             f = max(fs[j], 0)
             for c in range(9):
                 buf[(R_COL + c) * C + j] = colors[f, c // 3, c % 3]
-
-
-@inner(cache=True, _nrt=False, error_model="numpy")
-def _constant_rows(buf):
-    """Zero in every row of buf: the rows that _gather leaves alone for a surface without normals
-    (then the geometric normal shades), uv or vertex colours (unused), and every lane the first
-    time (the lanes past a row's end compute on what they hold, unread)."""
-    buf[:] = 0.0
 
 
 @inner(cache=True, _nrt=False, error_model="numpy")
@@ -331,7 +324,9 @@ def _shade_row(y, view, ibuf, surf, lights, deferred, img, hp, buf, ib):
     pos, ngb, nsb, tvd, acc = hp.pos, hp.ng, hp.ns, hp.tvd, hp.acc
     fs = ibuf[y]
     hc = surf.colors.shape[0] > 0
-    _constant_rows(buf)
+    # zero in the rows _gather leaves alone for a surface without normals (then the geometric
+    # normal shades), uv or vertex colours, and in the lanes past the row's end (computed, unread)
+    buf[:] = 0.0
     for x0 in range(0, W, C):
         n = min(C, W - x0)
         hits = 0

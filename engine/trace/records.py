@@ -30,10 +30,11 @@ import numpy as np
 View = namedtuple("View", "basis W H tile")
 
 #: How hits are shaded and rays tested: mode (gridrt.trace.render.SHADING_CODES: 0 lambert, 1
-#: normal, 2 cost, 3 none: a hit's pixel left for the material pass), shadows (bool: the lambert mode casts shadow rays), off (float64:
-#: the shadow rays' origins move this far off the surface) and watertight (bool: the watertight
-#: triangle test, else the fast one).  The light's position is a kernel argument of its own: the
-#: CGT kernels take None without shadows, and numba then compiles no shadow path.
+#: normal, 2 cost, 3 none: a hit's pixel left for the material pass), shadows (bool: the lambert
+#: mode casts shadow rays), off (float64: the shadow rays' origins move this far off the surface)
+#: and watertight (bool: the watertight triangle test, else the fast one).  The light's position
+#: is a kernel argument of its own: the CGT kernels take None without shadows, and numba then
+#: compiles no shadow path.
 Shading = namedtuple("Shading", "mode shadows off watertight")
 
 #: The packets of the CGT render: their triangle tests in float32 (f32 True) or float64 (f32 None,
