@@ -19,9 +19,10 @@ with two changes that make it count crossings exactly:
 Triangles whose plane contains the ray (det = 0) are never hit.  A hit needs t_min < t < t_max.
 
 The traversal visits the grid's (top-level) cells along the ray with a 3D DDA from the box entry to
-the exit or t_max, tests every triangle listed in each (a two-level grid's top cell: all its leaf
-cells' triangles) and keeps each triangle's hit once (a triangle listed in several cells gives the
-same hit each time).  The hits of a ray are sorted by t, ties by triangle id.
+the exit or t_max, tests the triangles listed in each (a two-level grid's top cell: all its leaf
+cells' triangles), each once as far as a small mailbox remembers, and keeps each triangle's hit
+once (a triangle listed in several cells gives the same hit each time).  The hits of a ray are
+sorted by t, ties by triangle id.
 """
 
 import math
@@ -36,7 +37,7 @@ from ..compiles import inner
 from ..errors import InputError
 from ..memory import check_fits
 from ..threads import check_threads, launch_guard, use_threads
-from .intersect import permute, ray_shear, woop_shear
+from .intersect import ray_shear, woop_shear
 
 
 @njit(cache=True, inline="always")
@@ -60,6 +61,8 @@ def _two_sum(a, b):
     return s, (a - (s - bb)) + (b - bb)
 
 
+#: slots of a ray's mailbox (direct-mapped by triangle id; a power of two)
+MAILBOX = 32
 #: a 2x2 determinant a d - b c whose float64 value exceeds this fraction of |a d| + |b c| has that
 #: value's sign (the rounding of two products and a difference stays below 3 units of 2^-53 of it)
 TRUST = 1e-14
@@ -122,15 +125,18 @@ def _edge_sign(px, py, qx, qy):
     return 0
 
 
-@inner(cache=True)
-def intersect_once(v0, v1, v2, sh, tmin, tmax):
-    """(hit, t, u, v) of the triangle v0, v1, v2 ((3,) float32 rows, world order) with the ray of
-    the :class:`gridrt.trace.query.Shear` ``sh`` (intersect.ray_shear): Woop's test with exact,
-    perturbed edge signs (one hit per crossing, see the module doc)."""
+@inner(cache=True, _nrt=False)
+def intersect_once(tris, f, sh, tmin, tmax):
+    """(hit, t, u, v) of triangle f of tris ((F, 3, 3) float32, world order) with the ray of the
+    :class:`gridrt.trace.query.Shear` ``sh`` (intersect.ray_shear): Woop's test with exact,
+    perturbed edge signs (one hit per crossing, see the module doc).  It takes the triangle's
+    index, not its rows: three array views a call cost more than the test's arithmetic; inlined,
+    it would save a little more a test at a longer first compile (measured: BENCHMARKS.md section
+    18)."""
     kx, ky, kz, okx, oky, okz, Sx, Sy, Sz = sh
-    p0 = permute(float(v0[0]), float(v0[1]), float(v0[2]), kx, ky, kz)
-    p1 = permute(float(v1[0]), float(v1[1]), float(v1[2]), kx, ky, kz)
-    p2 = permute(float(v2[0]), float(v2[1]), float(v2[2]), kx, ky, kz)
+    p0 = (float(tris[f, 0, kx]), float(tris[f, 0, ky]), float(tris[f, 0, kz]))
+    p1 = (float(tris[f, 1, kx]), float(tris[f, 1, ky]), float(tris[f, 1, kz]))
+    p2 = (float(tris[f, 2, kx]), float(tris[f, 2, ky]), float(tris[f, 2, kz]))
     Ax, Ay, Bx, By, Cx, Cy, az, bz, cz = woop_shear(p0, p1, p2, (okx, oky, okz), Sx, Sy)
     U, su = _edge(Bx, By, Cx, Cy)   # U = Cx By - Cy Bx: the edge B -> C
     V, sv = _edge(Cx, Cy, Ax, Ay)   # V: the edge C -> A
@@ -217,16 +223,20 @@ def _add_hit(f, t, u, v, nh, bt, bf, bu, bv):
 
 
 @inner(cache=True)
-def ray_hits(g, o, d, tmin, tmax, buf):
+def ray_hits(g, o, d, tmin, tmax, buf, mb):
     """The hits of the ray from o along d ((3,) float64) with tmin < t < tmax in the
     :data:`HitGrid` g, each triangle once, into the :data:`HitBuffers` buf (unsorted); their
     count, or -1 when they do not fit.  Two nested DDAs: over the macro cells (k^3 cells; an
-    empty one is crossed in one step) and over the cells of each macro cell that holds triangles."""
+    empty one is crossed in one step) and over the cells of each macro cell that holds triangles.
+    mb ((MAILBOX,) int32 scratch): a mailbox, so that a triangle listed in the cells the ray
+    crossed last is not tested again (a test gives the same hit every time)."""
     tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids = g
     bt, bf, bu, bv = buf
     t0, t1 = _clip(lo, hi, o, d, tmin, tmax)
     if not (t0 <= t1):
         return 0
+    for s in range(MAILBOX):
+        mb[s] = -1
     sh = ray_shear((o[0], o[1], o[2]), (d[0], d[1], d[2]))
     ox, oy, oz = o[0], o[1], o[2]
     dx, dy, dz = d[0], d[1], d[2]
@@ -260,7 +270,11 @@ def ray_hits(g, o, d, tmin, tmax, buf):
                 for l in range(L):
                     for r in range(cs[l, c], cs[l, c + 1]):
                         f = tri_ids[r]
-                        hit, t, u, v = intersect_once(tris[f, 0], tris[f, 1], tris[f, 2], sh, tmin, tmax)
+                        slot = f & (MAILBOX - 1)
+                        if mb[slot] == f:
+                            continue
+                        mb[slot] = f
+                        hit, t, u, v = intersect_once(tris, f, sh, tmin, tmax)
                         if hit:
                             nh = _add_hit(f, t, u, v, nh, bt, bf, bu, bv)
                             if nh < 0:
@@ -307,8 +321,9 @@ def count_kernel(g, rays, cap, chunks, counts):
     N = len(O)
     for part in prange(chunks):
         buf = HitBuffers(np.empty(cap), np.empty(cap, np.int32), np.empty(cap), np.empty(cap))
+        mb = np.empty(MAILBOX, np.int32)
         for i in range(part * N // chunks, (part + 1) * N // chunks):
-            counts[i] = ray_hits(g, O[i], D[i], tmin[i], tmax[i], buf)
+            counts[i] = ray_hits(g, O[i], D[i], tmin[i], tmax[i], buf, mb)
 
 
 @njit(cache=True, parallel=True)
@@ -323,8 +338,9 @@ def slot_kernel(g, rays, cap, chunks, counts, slots):
     for part in prange(chunks):
         buf = HitBuffers(np.empty(cap), np.empty(cap, np.int32), np.empty(cap), np.empty(cap))
         bt, bf, bu, bv = buf
+        mb = np.empty(MAILBOX, np.int32)
         for i in range(part * N // chunks, (part + 1) * N // chunks):
-            nh = ray_hits(g, O[i], D[i], tmin[i], tmax[i], buf)
+            nh = ray_hits(g, O[i], D[i], tmin[i], tmax[i], buf, mb)
             counts[i] = nh
             if nh > 0:
                 sort_hits(bt, bf, bu, bv, nh)
