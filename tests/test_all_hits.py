@@ -331,15 +331,32 @@ def test_cast_takes_t_min_and_t_max():
         caster.cast(O, D, 1.0, t_min=2.0)
 
 
-@pytest.mark.parametrize("first_cap, block", [(1024, 1 << 16), (5, 7)])
-def test_rays_with_many_hits_and_small_blocks(monkeypatch, first_cap, block):
+def _ordering(monkeypatch, on):
+    """Make count_hits and all_hits take every batch in the order of order_keys (on) or never
+    (off); returns the list the keys' calls are counted in."""
+    import gridrt.trace.all_hits as ah   # deferred: the module whose thresholds this changes
+    monkeypatch.setattr(ah, "ORDER_RAYS", 1 if on else 1 << 62)
+    monkeypatch.setattr(ah, "ORDER_TRIANGLES", 1 if on else 1 << 62)
+    calls, keys = [], ah.order_keys
+
+    def counted(*a):
+        calls.append(1)
+        return keys(*a)
+    monkeypatch.setattr(ah, "order_keys", counted)
+    return calls
+
+
+@pytest.mark.parametrize("first_cap, block, ordered", [(1024, 1 << 16, False), (5, 7, False), (5, 7, True)])
+def test_rays_with_many_hits_and_small_blocks(monkeypatch, first_cap, block, ordered):
     """A stack of 20 squares crossed by every ray: more hits a ray than all_hits keeps in its first
     walk (and, with the scratch made small, more than its first scratch holds), rays in blocks
-    smaller than the batch; the hits, in order, are the float64 brute force's, with and without a
-    max_hits cap below and above what the first walk keeps."""
+    smaller than the batch, taken in the caller's order or in the cache-friendly one; the hits, in
+    order, are the float64 brute force's, with and without a max_hits cap below and above what the
+    first walk keeps."""
     import gridrt.trace.all_hits as ah   # deferred: the module whose sizes this test shrinks
     monkeypatch.setattr(ah, "FIRST_CAP", first_cap)
     monkeypatch.setattr(ah, "SLOT_BLOCK", block)
+    keyed = _ordering(monkeypatch, ordered)
     quad = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float64)
     V = np.concatenate([quad + [0, 0, 0.1 * k] for k in range(20)])
     F = np.concatenate([np.array([[0, 1, 2], [0, 2, 3]]) + 4 * k for k in range(20)])
@@ -360,3 +377,45 @@ def test_rays_with_many_hits_and_small_blocks(monkeypatch, first_cap, block):
             assert np.array_equal(got.tri[s], f[:k]), (cap, i)
             assert np.allclose(got.t[s], t[:k], rtol=1e-12) and np.allclose(got.u[s], u[:k], atol=1e-12)
     assert np.array_equal(caster.count_hits(O, D), [len(r[0]) for r in ref])
+    assert len(keyed) == (4 if ordered else 0)
+
+
+def test_rays_in_cache_order_give_the_callers_order(monkeypatch):
+    """Rays of every direction with a t range each, through a sphere, taken in the order of their
+    keys (origin along a Morton curve, direction class) or as given: the same hits, ray for ray
+    in the caller's order, with and without max_hits, the same counts, and the counts the float64
+    brute force finds where no hit lies within 1e-6 of an edge.  The rays' keys do order them
+    (the order differs from the caller's)."""
+    import gridrt.trace.all_hits as ah   # deferred: the module whose order_keys this reads
+    m = icosphere_mesh(5120)
+    caster = gridrt.RayCaster(m.vertices, m.faces)
+    rng = np.random.default_rng(4)
+    N = 3000
+    O = rng.uniform(-1.3, 1.3, (N, 3))
+    D = rng.normal(size=(N, 3))
+    tmin, tmax = rng.uniform(0, 0.5, N), rng.uniform(0.5, 4.0, N)
+    tmax[::7] = np.inf
+    got = {}
+    for on in (False, True):
+        keyed = _ordering(monkeypatch, on)
+        got[on] = (caster.all_hits(O, D, tmin, tmax), caster.all_hits(O, D, tmin, tmax, max_hits=1),
+                   caster.count_hits(O, D, tmin, tmax))
+        assert len(keyed) == (3 if on else 0)
+    for a, b in zip(got[False], got[True]):
+        for x, y in zip(a if isinstance(a, tuple) else (a,), b if isinstance(b, tuple) else (b,)):
+            assert x.dtype == y.dtype and np.array_equal(x, y)
+    assert got[True][0].counts().sum() > N // 5
+    keys = np.empty(N, np.int64)
+    s = caster.grid.spec
+    lo, hi = np.asarray(s.lo, np.float64), np.asarray(s.hi, np.float64)
+    ah.order_keys(O - caster.origin, D, lo, 1024.0 / (hi - lo), keys)
+    assert not np.array_equal(np.argsort(keys), np.arange(N))
+    ref = ref_all_hits(caster.triangles.astype(np.float64) + caster.origin, O, D)
+    counts = got[True][2]
+    compared = 0
+    for i, (t, f, u, v, edge) in enumerate(ref):
+        if len(edge) and edge.min() < 1e-6:
+            continue
+        compared += 1
+        assert counts[i] == np.count_nonzero((t > tmin[i]) & (t < tmax[i])), i
+    assert compared > 0.95 * N

@@ -22,7 +22,9 @@ The traversal visits the grid's (top-level) cells along the ray with a 3D DDA fr
 the exit or t_max, tests the triangles listed in each (a two-level grid's top cell: all its leaf
 cells' triangles), each once as far as a small mailbox remembers, and keeps each triangle's hit
 once (a triangle listed in several cells gives the same hit each time).  The hits of a ray are
-sorted by t, ties by triangle id.
+sorted by t, ties by triangle id.  A large batch on a large mesh is walked in the order of its
+rays' origins along a Morton curve (:func:`order_keys`), so that rays from nearby points meet the
+same cells one after another, and its results are put back in the caller's order.
 """
 
 import math
@@ -358,7 +360,38 @@ HitRays = namedtuple("HitRays", "O D tmin tmax")
 HitBuffers = namedtuple("HitBuffers", "t tri u v")
 
 
+@njit(cache=True, parallel=True)
+def order_keys(O, D, lo, scale, keys):
+    """keys[i] (int64) of ray i: the class of its direction (major axis and sign, 6 classes) above
+    the Morton code of its origin on a 1024^3 lattice over the grid box (lo, cells of 1 / scale,
+    clamped): rays from nearby origins in similar directions get nearby keys."""
+    for i in prange(len(O)):
+        ax, ay, az = abs(D[i, 0]), abs(D[i, 1]), abs(D[i, 2])
+        if ax >= ay and ax >= az:
+            cls = 0 if D[i, 0] >= 0.0 else 1
+        elif ay >= az:
+            cls = 2 if D[i, 1] >= 0.0 else 3
+        else:
+            cls = 4 if D[i, 2] >= 0.0 else 5
+        key = np.int64(cls)
+        code = np.int64(0)
+        for a in range(3):
+            x = (O[i, a] - lo[a]) * scale[a]
+            q = np.int64(min(max(x, 0.0), 1023.0))
+            q = (q | (q << 16)) & 0x030000FF
+            q = (q | (q << 8)) & 0x0300F00F
+            q = (q | (q << 4)) & 0x030C30C3
+            q = (q | (q << 2)) & 0x09249249
+            code |= q << a
+        keys[i] = (key << 30) | code
+
+
 # ---- the Python boundary: every check before a kernel runs --------------------------------------
+#: count_hits and all_hits take a batch's rays in the order of order_keys (nearby rays one after
+#: another: their cells and triangles stay in the caches) when it has at least ORDER_RAYS rays and
+#: the mesh at least ORDER_TRIANGLES triangles: a mesh whose rays wait on memory, and enough rays to
+#: pay for the sort and the reordering, which run on one thread (measured: BENCHMARKS.md section 18)
+ORDER_RAYS, ORDER_TRIANGLES = 200_000, 1_000_000
 #: hits a ray may have before its count is taken again with room for every triangle
 FIRST_CAP = 1024
 #: all_hits keeps this many hits a ray in its first walk (a ray with more is walked again with room
@@ -410,20 +443,30 @@ def query_hits(grid, tris, origins, dirs, origin, t_min, t_max, max_hits=None, t
                                  or max_hits < 1):
         raise InputError(f"max_hits must be a whole number >= 1 or None, got {max_hits!r}")
     threads = check_threads(threads)
-    check_fits(64 * N, f"finding every hit of {N:,} rays", "rays in float64, t bounds and counts",
+    F = len(tris)
+    order = N >= ORDER_RAYS and F >= ORDER_TRIANGLES
+    check_fits((144 if order else 64) * N, f"finding every hit of {N:,} rays",
+               "rays in float64, t bounds and counts" + (", and the rays in a cache-friendly order" if order else ""),
                "cast fewer rays at a time")
     O = np.ascontiguousarray(o, np.float64) - np.asarray(origin, np.float64)
     D = np.ascontiguousarray(d, np.float64)
     s = grid.spec
     lo, hi = np.ascontiguousarray(s.lo, np.float64), np.ascontiguousarray(s.hi, np.float64)
+    use_threads(threads)
+    perm = None
+    if order:
+        keys = np.empty(N, np.int64)
+        with launch_guard():
+            order_keys(O, D, lo, 1024.0 / np.maximum(hi - lo, 1e-300), keys)
+        perm = np.argsort(keys)
+        del keys
+        O, D, tmin, tmax = O[perm], D[perm], tmin[perm], tmax[perm]
     cell, dims = np.ascontiguousarray(s.cell, np.float64), np.ascontiguousarray(s.dims, np.int64)
     if grid.kind == "two_level":   # a top cell's triangles: those of its leaf cells, one run of tri_ids
         cs = np.ascontiguousarray(grid.cell_start[0][grid.leaf_first][None, :], np.int32)
     else:
         cs = np.ascontiguousarray(grid.cell_start, np.int32)
     ids = np.ascontiguousarray(grid.tri_ids, np.int32)
-    F = len(tris)
-    use_threads(threads)
     chunks = max(1, min(N, 4 * threads))
     counts = np.zeros(N, np.int64)
     g = HitGrid(tris, lo, hi, cell, dims, int(s.macro), np.ascontiguousarray(s.mdims, np.int64),
@@ -434,8 +477,34 @@ def query_hits(grid, tris, origins, dirs, origin, t_min, t_max, max_hits=None, t
             if N:
                 count_kernel(g, rays, min(F, FIRST_CAP), chunks, counts)
                 _recount(g, rays, counts, F, threads)
-            return counts
-        return _all_hits(g, rays, counts, F, chunks, threads, max_hits)
+            return counts if perm is None else _unpermuted(counts, perm)
+        hits = _all_hits(g, rays, counts, F, chunks, threads, max_hits)
+        return hits if perm is None else _unpermuted_hits(hits, perm)
+
+
+def _unpermuted(a, perm):
+    """a's rows back in the caller's order: row k of a belongs to ray perm[k]."""
+    out = np.empty_like(a)
+    out[perm] = a
+    return out
+
+
+def _unpermuted_hits(h, perm):
+    """The AllHits h of the rays perm (h's ray k is ray perm[k]) in the caller's order."""
+    n = np.diff(h.offsets)
+    total = int(h.offsets[-1])
+    check_fits(36 * total, f"putting {total:,} hits back in the order of their rays", "t, triangle ids, "
+               "barycentrics and where each goes", "cast fewer rays at a time, or give max_hits")
+    offsets = np.zeros(len(n) + 1, np.int64)
+    np.cumsum(_unpermuted(n, perm), out=offsets[1:])
+    # hit j of sorted ray k goes to offsets[perm[k]] + j
+    dest = np.repeat(offsets[perm] - h.offsets[:-1], n) + np.arange(total, dtype=np.int64)
+    flat = []
+    for a in (h.t, h.tri, h.u, h.v):
+        b = np.empty_like(a)
+        b[dest] = a
+        flat.append(b)
+    return AllHits(offsets, *flat)
 
 
 def _recount(g, rays, counts, F, threads):
