@@ -1,5 +1,5 @@
-"""The scripts behind BENCHMARKS.md's single-ray, cast-order, density and all-hits tables (scripts/) run and
-print the table they make: each runs at a small size as a subprocess, exits 0 and prints a
+"""The scripts behind BENCHMARKS.md's single-ray, cast-order, density, all-hits and origin-order tables
+(scripts/) run and print the table they make: each runs at a small size as a subprocess, exits 0 and prints a
 markdown table whose header and row labels are those of its table in BENCHMARKS.md (found by the
 script's name on the table's source line).  The figures are timings: only their form is checked.
 """
@@ -112,6 +112,18 @@ def test_all_hits_peers_prints_its_table():
         assert even[0] == "1.0000", r
         if r[1].endswith("random"):
             assert all(x in ("1.0000", "n/a") for x in even + agree), r
+
+
+@pytest.mark.slow
+def test_contains_order_prints_its_table():
+    """The origin-order table at a small size: BENCHMARKS.md's header, a row a point count and thread
+    count, the times as numbers (the script itself stops when the two orders' verdicts differ)."""
+    header, rows = run_script("contains_order.py", "--sizes", "1280", "--points", "3000,5000", "--threads", "1,2",
+                              "--runs", "1")
+    doc_header, _ = doc_table("contains_order.py")
+    assert header == doc_header
+    assert [r[:3] for r in rows] == [["icosphere 1.3k", p, t] for t in "12" for p in ("3,000", "5,000")]
+    assert all(NUMBER.fullmatch(c) for r in rows for c in r[3:]), rows
 
 
 def _script_module(monkeypatch, name):
