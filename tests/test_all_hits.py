@@ -43,18 +43,23 @@ def test_det2_sign_exact():
 
 
 @pytest.mark.parametrize("mesh, grid", [("icosphere", "uniform"), ("icosphere", "two_level"),
+                                        ("ellipsoid", "two_level"),
                                         pytest.param("armadillo", "uniform", marks=pytest.mark.slow)])
 def test_all_hits_against_brute_force(mesh, grid):
     """Random rays (origins inside and around the mesh): the hits, in order, are the float64 brute
     force's, triangle for triangle, wherever no brute-force hit lies within 1e-6 (barycentric) of
     an edge; count_hits agrees with all_hits; every ray's crossings of the closed mesh pair up
-    (even counts from outside the bounds)."""
-    if mesh == "icosphere":
+    (even counts from outside the bounds).  The ellipsoid's two-level grid has leaf grids of
+    different resolutions along the three axes."""
+    if mesh in ("icosphere", "ellipsoid"):
         m = icosphere_mesh(5120)
-        V, Fc = m.vertices, m.faces
+        V, Fc = m.vertices * ([1.0, 1.7, 0.6] if mesh == "ellipsoid" else 1.0), m.faces
     else:
         V, Fc = _armadillo()
     caster = gridrt.RayCaster(V, Fc, GridParams(grid=grid))
+    if mesh == "ellipsoid":
+        res = caster.grid.leaf_res[caster.grid.leaf_res[:, 0] > 0]
+        assert np.any((res[:, 0] != res[:, 1]) | (res[:, 1] != res[:, 2]))
     tris = caster.triangles   # the mesh as the caster keeps it: float32, in its frame at caster.origin
     lo, hi = V.min(0), V.max(0)
     rng = np.random.default_rng(11)

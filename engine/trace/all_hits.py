@@ -18,10 +18,11 @@ with two changes that make it count crossings exactly:
 
 Triangles whose plane contains the ray (det = 0) are never hit.  A hit needs t_min < t < t_max.
 
-The traversal visits the grid's (top-level) cells along the ray with a 3D DDA from the box entry to
-the exit or t_max, tests the triangles listed in each (a two-level grid's top cell: all its leaf
-cells' triangles), each once as far as a small mailbox remembers, and keeps each triangle's hit
-once (a triangle listed in several cells gives the same hit each time).  The hits of a ray are
+The traversal visits the grid's cells along the ray with a 3D DDA from the box entry to the exit
+or t_max (macro cells, and the cells of those that hold triangles; a two-level grid's top cells,
+and the leaf cells of those that hold triangles), tests the triangles listed in each, each once
+as far as a small mailbox remembers, and keeps each triangle's hit once (a triangle listed in
+several cells gives the same hit each time).  The hits of a ray are
 sorted by t, ties by triangle id.  A large batch on a large mesh is walked in the order of its
 rays' origins along a Morton curve (:func:`order_keys`), so that rays from nearby points meet the
 same cells one after another, and its results are put back in the caller's order.
@@ -225,14 +226,17 @@ def _add_hit(f, t, u, v, nh, bt, bf, bu, bv):
 
 
 @inner(cache=True)
-def ray_hits(g, o, d, tmin, tmax, buf, mb):
+def ray_hits(g, o, d, tmin, tmax, buf, mb, leaf_first, leaf_res):
     """The hits of the ray from o along d ((3,) float64) with tmin < t < tmax in the
     :data:`HitGrid` g, each triangle once, into the :data:`HitBuffers` buf (unsorted); their
     count, or -1 when they do not fit.  Two nested DDAs: over the macro cells (k^3 cells; an
-    empty one is crossed in one step) and over the cells of each macro cell that holds triangles.
+    empty one is crossed in one step) and over the cells of each macro cell that holds triangles
+    (a two-level grid: over its top cells, and the leaf cells of each that holds triangles).
     mb ((MAILBOX,) int32 scratch): a mailbox, so that a triangle listed in the cells the ray
-    crossed last is not tested again (a test gives the same hit every time)."""
-    tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids = g
+    crossed last is not tested again (a test gives the same hit every time).  leaf_first,
+    leaf_res: g's, arguments of their own so that for a uniform grid (None) numba compiles none
+    of the leaf walk."""
+    tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids, _, _ = g
     bt, bf, bu, bv = buf
     t0, t1 = _clip(lo, hi, o, d, tmin, tmax)
     if not (t0 <= t1):
@@ -257,18 +261,33 @@ def ray_hits(g, o, d, tmin, tmax, buf, mb):
     tin = t0
     while True:
         tout = min(mtx, mty, mtz)
-        if macro_full[mi + mx * (mj + my * mk)] != 0:
-            x0, y0, z0 = mi * k, mj * k, mk * k
-            x1, y1, z1 = min(x0 + k, nx) - 1, min(y0 + k, ny) - 1, min(z0 + k, nz) - 1
-            ix = min(max(_index(ox + tin * dx, lo[0], cx, nx), x0), x1)
-            iy = min(max(_index(oy + tin * dy, lo[1], cy, ny), y0), y1)
-            iz = min(max(_index(oz + tin * dz, lo[2], cz, nz), z0), z1)
-            sx, tx, dtx = _axis(ox, dx, lo[0], cx, ix)
-            sy, ty, dty = _axis(oy, dy, lo[1], cy, iy)
-            sz, tz, dtz = _axis(oz, dz, lo[2], cz, iz)
+        m = mi + mx * (mj + my * mk)
+        if macro_full[m] != 0:
+            if leaf_first is not None:   # the top cell's own leaf grid: leaf_res[m] cells from the top cell's corner
+                rx, ry, rz = np.int64(leaf_res[m, 0]), np.int64(leaf_res[m, 1]), np.int64(leaf_res[m, 2])
+                blo = (lo[0] + mi * bx, lo[1] + mj * by, lo[2] + mk * bz)
+                bsz = (bx / rx, by / ry, bz / rz)
+                i0 = (np.int64(0), np.int64(0), np.int64(0))
+                i1 = (rx - 1, ry - 1, rz - 1)
+                base, st = np.int64(leaf_first[m]), (np.int64(1), rx, rx * ry)
+            else:     # the macro cell's k^3 cells of the grid
+                blo = (lo[0], lo[1], lo[2])
+                bsz = (cx, cy, cz)
+                i0 = (np.int64(mi * k), np.int64(mj * k), np.int64(mk * k))
+                i1 = (np.int64(min(i0[0] + k, nx) - 1), np.int64(min(i0[1] + k, ny) - 1),
+                      np.int64(min(i0[2] + k, nz) - 1))
+                base, st = np.int64(0), (np.int64(1), np.int64(nx), np.int64(nx * ny))
+            x0, y0, z0 = i0
+            x1, y1, z1 = i1
+            ix = min(max(_index(ox + tin * dx, blo[0], bsz[0], x1 + 1), x0), x1)
+            iy = min(max(_index(oy + tin * dy, blo[1], bsz[1], y1 + 1), y0), y1)
+            iz = min(max(_index(oz + tin * dz, blo[2], bsz[2], z1 + 1), z0), z1)
+            sx, tx, dtx = _axis(ox, dx, blo[0], bsz[0], ix)
+            sy, ty, dty = _axis(oy, dy, blo[1], bsz[1], iy)
+            sz, tz, dtz = _axis(oz, dz, blo[2], bsz[2], iz)
             tend = min(tout, t1)
             while True:
-                c = ix + nx * (iy + ny * iz)
+                c = base + ix * st[0] + iy * st[1] + iz * st[2]
                 for l in range(L):
                     for r in range(cs[l, c], cs[l, c + 1]):
                         f = tri_ids[r]
@@ -325,7 +344,7 @@ def count_kernel(g, rays, cap, chunks, counts):
         buf = HitBuffers(np.empty(cap), np.empty(cap, np.int32), np.empty(cap), np.empty(cap))
         mb = np.empty(MAILBOX, np.int32)
         for i in range(part * N // chunks, (part + 1) * N // chunks):
-            counts[i] = ray_hits(g, O[i], D[i], tmin[i], tmax[i], buf, mb)
+            counts[i] = ray_hits(g, O[i], D[i], tmin[i], tmax[i], buf, mb, g.leaf_first, g.leaf_res)
 
 
 @njit(cache=True, parallel=True)
@@ -342,7 +361,7 @@ def slot_kernel(g, rays, cap, chunks, counts, slots):
         bt, bf, bu, bv = buf
         mb = np.empty(MAILBOX, np.int32)
         for i in range(part * N // chunks, (part + 1) * N // chunks):
-            nh = ray_hits(g, O[i], D[i], tmin[i], tmax[i], buf, mb)
+            nh = ray_hits(g, O[i], D[i], tmin[i], tmax[i], buf, mb, g.leaf_first, g.leaf_res)
             counts[i] = nh
             if nh > 0:
                 sort_hits(bt, bf, bu, bv, nh)
@@ -351,9 +370,11 @@ def slot_kernel(g, rays, cap, chunks, counts, slots):
 
 
 #: the grid as the all-hits kernels take it: the grid's (F, 3, 3) float32 triangles, its box lo,
-#: hi, cell size and dims, macro size k, macro dims and flags, and one CSR of triangle ids over
-#: its (top-level) cells: cs (L, C + 1) int32, tri_ids (R,) int32
-HitGrid = namedtuple("HitGrid", "tris lo hi cell dims k mdims macro_full cs tri_ids")
+#: hi, cell size and dims, macro size k, macro dims and flags, one CSR of triangle ids over its
+#: cells (a two-level grid's leaf cells): cs (L, C + 1) int32, tri_ids (R,) int32, and a two-level
+#: grid's leaf_first (T + 1,) and leaf_res (T, 3) int32 (gridrt.grid.two_level; None for a uniform
+#: grid)
+HitGrid = namedtuple("HitGrid", "tris lo hi cell dims k mdims macro_full cs tri_ids leaf_first leaf_res")
 #: the rays: origins and directions (N, 3) float64 in the grid's frame, t bounds (N,) float64
 HitRays = namedtuple("HitRays", "O D tmin tmax")
 #: one worker's scratch: t, triangle, u, v of a ray's hits so far
@@ -462,15 +483,17 @@ def query_hits(grid, tris, origins, dirs, origin, t_min, t_max, max_hits=None, t
         del keys
         O, D, tmin, tmax = O[perm], D[perm], tmin[perm], tmax[perm]
     cell, dims = np.ascontiguousarray(s.cell, np.float64), np.ascontiguousarray(s.dims, np.int64)
-    if grid.kind == "two_level":   # a top cell's triangles: those of its leaf cells, one run of tri_ids
-        cs = np.ascontiguousarray(grid.cell_start[0][grid.leaf_first][None, :], np.int32)
+    cs = np.ascontiguousarray(grid.cell_start, np.int32)
+    if grid.kind == "two_level":   # the leaf cells of each top cell, walked in its own DDA
+        leaf_first = np.ascontiguousarray(grid.leaf_first, np.int32)
+        leaf_res = np.ascontiguousarray(grid.leaf_res, np.int32)
     else:
-        cs = np.ascontiguousarray(grid.cell_start, np.int32)
+        leaf_first, leaf_res = None, None
     ids = np.ascontiguousarray(grid.tri_ids, np.int32)
     chunks = max(1, min(N, 4 * threads))
     counts = np.zeros(N, np.int64)
     g = HitGrid(tris, lo, hi, cell, dims, int(s.macro), np.ascontiguousarray(s.mdims, np.int64),
-                np.ascontiguousarray(grid.macro_full, np.uint8), cs, ids)
+                np.ascontiguousarray(grid.macro_full, np.uint8), cs, ids, leaf_first, leaf_res)
     rays = HitRays(O, D, tmin, tmax)
     with launch_guard():
         if count_only:
