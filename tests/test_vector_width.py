@@ -172,3 +172,35 @@ def test_material_pass_width(tmp_path, width):
         assert r["zmm_pd"] >= 100, "the material pass does not use 512-bit registers"
     else:
         assert r["zmm_pd"] == 0 and r["ymm_pd"] >= 100, "the material pass is not 4-wide ymm code"
+
+
+_PROBE_BUILD = r"""
+import json, re
+import numpy as np
+import gridrt
+from gridrt.grid import common
+common.scene_bounds_serial(np.zeros((100, 3, 3), np.float32), np.empty((1, 7)))
+common.macro_build_range(np.zeros((1, 512), np.int32), np.array([8, 8, 8]), 4, np.array([2, 2, 2]),
+                         np.zeros(8, np.uint8), 0, 2)
+def ops(f):
+    asm = f.overloads[f.signatures[0]].library.get_asm_str()
+    return [(o, "zmm" in a or "ymm" in a) for o, a in re.findall(r"^\s+(v\w+)\s+([^\n]*)", asm, re.M)]
+b, m = ops(common.scene_bounds_serial), ops(common.macro_build_range)
+print(json.dumps({"bounds_ps": sum(w for o, w in b if re.fullmatch(r"v(?:min|max|blendv|blendm|cmp\w*)ps", o)),
+                  "macro_or": sum(w for o, w in m if re.fullmatch(r"vpor[dq]?", o))}))
+"""
+
+
+def test_build_passes_width(tmp_path):
+    """Two passes of every build are vector code when compiled without parallel=True (the
+    serial strategy's and every small scene's): the bounds lanes (gridrt.grid.common
+    ._bounds_lanes: packed-single minima and maxima, or the compares and selects that make them)
+    and the macro
+    pass's row of ORs (macro_build_range: packed integer ORs).  Before, with Python's min and
+    max and a scan of each macro cell's cells, both compiled to scalar code (about 3x slower);
+    the bounds kernel then held 24 packed compares or selects (outside the lanes' loop) against
+    84 now.  At 256 bits on every CPU, so that the counts compare across them."""
+    r = _run_probe(tmp_path, "256", _PROBE_BUILD)
+    print(r)
+    assert r["bounds_ps"] >= 48, "the bounds lanes' loop is scalar code"
+    assert r["macro_or"] >= 2, "the macro pass's ORs are scalar code"

@@ -229,7 +229,7 @@ class GridBuilder:
                 inspected = int(looked.sum())
             else:
                 inspected = common.macro_build_range(bufs.count, spec.dims, spec.macro, spec.mdims, bufs.macro_full, 0,
-                                                     spec.n_macro)
+                                                     int(spec.mdims[2]))
         bufs.prev_spec = spec
         bufs.prev_layers = layers
 
