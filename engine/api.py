@@ -16,10 +16,14 @@ against that mesh to the end, whatever updates happen meanwhile: every cast sees
 the one before or the one after a concurrent update.  Updates are serialised by a lock; each
 builds into a builder that no snapshot in use holds (the spare one, or a new one when a cast
 still holds it), then swaps the snapshot reference.  A builder returns to spare only once no
-cast holds its snapshot, so a grid is never rebuilt under a cast.  The cost is a second
-builder's buffers (about the grid's memory) and two short lock acquisitions per cast.
+cast holds its snapshot, so a grid is never rebuilt under a cast.  An update writes the new
+vertices and triangles into the arrays of the mesh before the last one when nothing holds them
+any more (no cast, no user's reference or view), so a step faults in no new memory.  The cost is
+a second builder's buffers (about the grid's memory), a second copy of the mesh's arrays (12
+bytes a vertex, 36 a triangle) and two short lock acquisitions per cast.
 """
 
+import sys
 import threading
 import warnings
 
@@ -62,18 +66,24 @@ def _vertex_array(vertices, what):
     return float_contiguous(v)
 
 
-def _in_centred_frame(v, lo, hi, faces, what):
+def _in_centred_frame(v, lo, hi, faces, what, spare=None):
     """(origin, vertices (V,3) float32 and triangles (F,3,3) float32 in the frame centred on the
-    bounds lo, hi of the checked vertices ``v``, the largest |coordinate| there) over checked
-    ``faces`` (F,3) int32: one conversion and one gather; InputError when every triangle has zero
-    area."""
+    bounds lo, hi of the checked vertices ``v``, the largest |coordinate| there, the vertices'
+    bounds in that frame) over checked ``faces`` (F,3) int32: one conversion and one gather, into
+    the arrays ``spare`` (vertices, triangles) where given; InputError when every triangle has
+    zero area.
+
+    The bounds in the frame are float32(lo - origin) and float32(hi - origin): the conversion of
+    the least and the greatest coordinate, as both the float64 difference and the rounding to
+    float32 keep the order of the values (no pass over the vertices)."""
     origin = 0.5 * (lo + hi)
-    verts = np.empty(v.shape, np.float32)
+    verts = np.empty(v.shape, np.float32) if spare is None else spare[0]
     common.to_frame(v, float(origin[0]), float(origin[1]), float(origin[2]), verts)
-    tris = gather_unchecked(verts, faces, np.empty((len(faces), 3, 3), np.float32))
+    tris = gather_unchecked(verts, faces, np.empty((len(faces), 3, 3), np.float32) if spare is None else spare[1])
     if common.first_nondegenerate(tris) < 0:
         raise InputError(f"{what}: all {len(faces)} triangles are degenerate (zero area)")
-    return origin, verts, tris, float(max(np.abs(lo - origin).max(), np.abs(hi - origin).max()))
+    box = ((lo - origin).astype(np.float32).astype(np.float64), (hi - origin).astype(np.float32).astype(np.float64))
+    return origin, verts, tris, float(max(np.abs(lo - origin).max(), np.abs(hi - origin).max())), box
 
 
 def _centred_mesh(vertices, faces):
@@ -98,21 +108,22 @@ def _centred_mesh(vertices, faces):
         tris = np.take(verts, f32, axis=0)
         return origin, verts, f32, tris, max(abs(float(verts.min())), abs(float(verts.max())))
     f32 = np.ascontiguousarray(f, dtype=np.int32)
-    origin, verts, tris, big = _in_centred_frame(v, lo, hi, f32, "mesh")
+    origin, verts, tris, big, _ = _in_centred_frame(v, lo, hi, f32, "mesh")
     return origin, verts, f32, tris, big
 
 
-def _centred_vertices(vertices, faces, shape):
-    """update's (origin, vertices, triangles, largest |coordinate|) for new ``vertices`` of
-    ``shape`` over the caster's validated ``faces``: one pass over the values for bounds and
-    NaN/inf/1e30 (the messages from the slow checks when it finds one), then as _centred_mesh."""
+def _centred_vertices(vertices, faces, shape, spare=None):
+    """update's (origin, vertices, triangles, largest |coordinate|, bounds in the frame) for new
+    ``vertices`` of ``shape`` over the caster's validated ``faces``: one pass over the values for
+    bounds and NaN/inf/1e30 (the messages from the slow checks when it finds one), then as
+    _centred_mesh (into the arrays ``spare`` where given)."""
     v = _vertex_array(vertices, "update: vertices")
     if v.shape != shape:
         raise InputError(f"update needs vertices of shape {shape}, got {v.shape}")
     lo, hi, bad = common.point_bounds(v)
     if bad:
         _vertices64(vertices, "update: vertices")  # raises naming the bad values
-    return _in_centred_frame(v, lo, hi, faces, "update")
+    return _in_centred_frame(v, lo, hi, faces, "update", spare)
 
 
 #: contains' ray directions: the first alone for a closed mesh, all three for a best-effort vote
@@ -177,6 +188,10 @@ class RayCaster:
         self._lock = threading.Lock()  # guards _snap, its users counts and _spare
         self._update_lock = threading.Lock()  # one update at a time
         self._spare = None  # a builder no snapshot holds, for the next update
+        self._spare_mesh = None  # (vertices, triangles) of a snapshot no cast holds, for the next update
+        # whether every vertex is a corner of some face (found at the first update): the vertices'
+        # bounds are then the triangles', and the updates' builds skip their pass over the triangles
+        self._every_vertex_used = None
         self._open = None  # how many edges do not have two triangles (contains), once asked
 
     # the current mesh (read together, under updates from other threads, through one snapshot:
@@ -219,7 +234,8 @@ class RayCaster:
 
     def _update(self, vertices):
         _check_mesh_fits("updating a RayCaster", len(self._snap.vertices), len(self.faces), TRIANGLE_BYTES)
-        origin, verts, tris, big = _centred_vertices(vertices, self.faces, self._snap.vertices.shape)
+        origin, verts, tris, big, box = _centred_vertices(vertices, self.faces, self._snap.vertices.shape,
+                                                          self._take_spare_mesh())
         # a cheap look (1024 triangles' edges, the extent from the vertices): warn when the mesh has
         # just become too fine for float32 at its size, not on every update of such a mesh
         if len(verts):
@@ -232,14 +248,36 @@ class RayCaster:
                 builder, self._spare = self._spare, None
             if builder is None:
                 builder = GridBuilder(self.params)
+            if self._every_vertex_used is None:
+                used = np.zeros(len(verts), np.bool_)
+                used[self.faces.reshape(-1)] = True
+                self._every_vertex_used = bool(used.all())
             with launch_guard():
-                grid = builder.build(tris, self.params)  # on an error the builder is dropped
+                # (on an error the builder is dropped)
+                grid = builder.build(tris, self.params, bounds=box if self._every_vertex_used else None)
             new = _Snapshot(origin, verts, tris, grid, builder)
             with self._lock:
                 old, self._snap = self._snap, new
                 if old.users == 0:
                     self._spare = old.builder
+                # (a cast still running holds the old snapshot, and so its arrays: see _take_spare_mesh)
+                self._spare_mesh = (old.vertices, old.triangles)
         return self
+
+    def _take_spare_mesh(self):
+        """The (vertices, triangles) arrays of the snapshot the last update replaced, to be
+        written over by this update, when nothing else holds either of them; else None (the
+        update makes new ones).  A cast still running on that mesh holds its snapshot, which
+        holds them; so does a user who kept ``caster.vertices`` or ``caster.triangles``, or a
+        view of one: those arrays stay as they were."""
+        with self._lock:
+            spare, self._spare_mesh = self._spare_mesh, None
+        if spare is None:
+            return None
+        v, t = spare
+        del spare
+        # the references left: the local name and getrefcount's argument
+        return (v, t) if sys.getrefcount(v) == 2 and sys.getrefcount(t) == 2 else None
 
     def _release(self, snap):
         with self._lock:

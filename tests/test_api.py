@@ -246,3 +246,91 @@ def test_batch_beyond_the_budget_is_refused_before_allocating(rng):
         tracemalloc.stop()
     assert peak < 1 << 16, peak
     assert caster.cast(big_o, big_d, max_bytes=1 << 30).tri.shape == (n,)
+
+
+def _grid_equal(a, b):
+    """The same grid, cell lists and geometry (and a two-level grid's leaf levels)."""
+    np.testing.assert_array_equal(a.spec.lo, b.spec.lo)
+    np.testing.assert_array_equal(a.spec.hi, b.spec.hi)
+    np.testing.assert_array_equal(a.spec.dims, b.spec.dims)
+    assert a.references == b.references
+    np.testing.assert_array_equal(a.cell_start, b.cell_start)
+    np.testing.assert_array_equal(a.tri_ids[:a.references], b.tri_ids[:b.references])
+    assert getattr(a, "kind", "uniform") == getattr(b, "kind", "uniform")
+    if getattr(a, "kind", "uniform") == "two_level":
+        for name in ("leaf_res", "leaf_first", "top_start"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+        np.testing.assert_array_equal(a.top_ids[:a.top_references], b.top_ids[:b.top_references])
+
+
+@pytest.mark.parametrize("grid,threads", [("uniform", 1), ("uniform", 2), ("two_level", 2)])
+@pytest.mark.parametrize("unused", [False, True])
+def test_caster_grid_is_the_grid_of_its_triangles(grid, threads, unused, rng):
+    """An update gives its build the bounds of the vertices in the caster's frame (float32 of the
+    float64 bounds less the origin) in place of a pass over the triangles: the grid equals the
+    one a build finds the triangles' bounds for itself, after construction and after updates, for
+    a mesh far from the world origin (where the frame's rounding matters); a mesh with a vertex no
+    face uses (far outside the triangles' box) gets the triangles' bounds."""
+    from gridrt.config import GridParams
+    from gridrt.grid.build import GridBuilder
+
+    v, f = icosphere(3)
+    v = v.astype(np.float64) * 3.7 + np.array([1e5 + 0.3, -2e4, 7.1])
+    if unused:
+        v = np.concatenate([v, v[:1] + 50.0])  # a vertex of no face
+    params = GridParams(grid=grid, threads=threads)
+    caster = gridrt.RayCaster(v, f, params)
+    for step in range(3):
+        if step:
+            caster.update(v * (1.0 + 1e-3 * step) + rng.normal(scale=1e-3, size=v.shape))
+        ref = GridBuilder(params).build(np.array(caster.triangles))
+        _grid_equal(caster.grid, ref)
+        assert np.all(caster.triangles.reshape(-1, 3).min(axis=0) == caster.grid.spec.scene_lo)
+        assert np.all(caster.triangles.reshape(-1, 3).max(axis=0) == caster.grid.spec.scene_hi)
+
+
+def test_update_writes_over_its_old_arrays_only_when_nothing_holds_them(rng):
+    """An update writes the new mesh into the arrays of the mesh before the last one when nothing
+    holds them (no new memory to fault in); a user's reference to ``caster.triangles`` or
+    ``caster.vertices``, a view of one, or a cast still running on that mesh keeps them as they
+    were.  Every mesh casts as the brute force does."""
+    import weakref
+
+    v, f = icosphere(3)
+    o, d = _rays(rng, 1500)
+    frames = [v * (1.0 + 0.05 * k) + np.float32(0.01 * k) for k in range(8)]
+    caster = gridrt.RayCaster(frames[0], f)
+
+    def check(k):
+        hits = caster.cast(o, d)
+        assert len(compare_hits(hits.t, hits.tri, _local_ref(frames[k], f, o, d)).bad) == 0
+
+    caster.update(frames[1])
+    wt, wv = weakref.ref(caster.triangles), weakref.ref(caster.vertices)
+    caster.update(frames[2])
+    caster.update(frames[3])  # into the arrays of frame 1
+    assert caster.triangles is wt() and caster.vertices is wv()
+    check(3)
+
+    held = caster.triangles  # a user's reference
+    held_copy = held.copy()
+    view = caster.vertices[::7]  # a view keeps its base
+    view_copy = view.copy()
+    for k in (4, 5, 6):
+        caster.update(frames[k])
+        check(k)
+    assert caster.triangles is not held
+    np.testing.assert_array_equal(held, held_copy)
+    np.testing.assert_array_equal(view, view_copy)
+
+    # a cast holding the current mesh (as cast and all_hits do, for their whole run)
+    with caster._lock:
+        snap = caster._snap
+        snap.users += 1
+    kept = snap.triangles.copy(), snap.vertices.copy()
+    for k in (7, 0, 1):
+        caster.update(frames[k])
+        check(k)
+    np.testing.assert_array_equal(snap.triangles, kept[0])
+    np.testing.assert_array_equal(snap.vertices, kept[1])
+    caster._release(snap)

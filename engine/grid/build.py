@@ -101,7 +101,10 @@ class GridBuilder:
         self._auto = None  # grid="auto": (the kind chosen, triangles, builds since it was measured)
         self._stand_ins = 0  # builds by the serial strategy standing in for the parallel default one
 
-    def build(self, tris, params: GridParams | None = None) -> Grid:
+    def build(self, tris, params: GridParams | None = None, *, bounds=None) -> Grid:
+        """The grid of ``tris`` (F,3,3) float32.  ``bounds``: (lo, hi) of the triangles' corners
+        when the caller knows them exactly, values checked (gridrt.RayCaster's update: its
+        vertices' bounds); the bounds pass over the triangles is then skipped."""
         if params is not None:
             if params != self.params:
                 self._auto = None
@@ -124,8 +127,10 @@ class GridBuilder:
             # one chunk per thread from a quarter million triangles on (below that, the SIMD pass
             # takes about as long as a parallel launch); serial keeps to one thread throughout
             n_chunks = max(1, min(threads, F // BOUNDS_CHUNK + 1)) if strategy.parallel_stages else 1
-            bb = np.empty((n_chunks, 7), np.float64)
-            if n_chunks == 1:
+            bb = np.zeros((1 if bounds is not None else n_chunks, 7), np.float64)
+            if bounds is not None:
+                bb[0, 0:3], bb[0, 3:6] = bounds
+            elif n_chunks == 1:
                 common.scene_bounds_serial(tris, bb)
             else:
                 common.scene_bounds(tris, n_chunks, bb)
