@@ -36,6 +36,19 @@ def _cpu_model():
     return platform.processor() or platform.machine()
 
 
+def _simd():
+    """The widest x86 vector extension LLVM may use here ("AVX-512", "AVX2", ...): hosts named
+    alike (a KVM guest's "AMD EPYC") differ in it, and so do the kernels' vector widths."""
+    import llvmlite.binding as ll
+
+    ll.initialize_native_target()
+    have = set(ll.get_host_cpu_features().flatten().split(","))
+    for flag, name in (("+avx512f", "AVX-512"), ("+avx2", "AVX2"), ("+avx", "AVX"), ("+sse4.2", "SSE4.2")):
+        if flag in have:
+            return name
+    return "none known"
+
+
 def _version(dist):
     try:
         return version(dist)
@@ -86,6 +99,7 @@ def machine_info(threads):
     return {
         "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
         "cpu": _cpu_model(),
+        "simd": _simd(),
         "cores": os.cpu_count(),
         "cpus_allowed": allowed,
         "threads_used": list(threads),
@@ -120,7 +134,8 @@ def machine_md(info):
     noisy = (info.get("load_average_start") or [0])[0]  # the end figure includes this run's own threads
     lines = [
         f"- date: {info['date']}; commit `{info['commit']}`",
-        f"- CPU: {info['cpu']}; {info['cores']} cores ({info['cpus_allowed']} allowed); memory {info['memory']}",
+        f"- CPU: {info['cpu']} ({info.get('simd', 'vector extension not recorded')}); {info['cores']} cores "
+        f"({info['cpus_allowed']} allowed); memory {info['memory']}",
         f"- threads used: {', '.join(map(str, info['threads_used']))}",
         f"- python {info['python']}, numpy {info['numpy']}, numba {info['numba']} "
         f"(threading layer {info['numba_threading_layer']}), embreex {info['embreex']}, trimesh {info['trimesh']}",
