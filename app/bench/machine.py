@@ -10,6 +10,7 @@ import sys
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
+import llvmlite.binding as ll
 import numba
 import numpy as np
 
@@ -39,8 +40,6 @@ def _cpu_model():
 def _simd():
     """The widest x86 vector extension LLVM may use here ("AVX-512", "AVX2", ...): hosts named
     alike (a KVM guest's "AMD EPYC") differ in it, and so do the kernels' vector widths."""
-    import llvmlite.binding as ll
-
     ll.initialize_native_target()
     have = set(ll.get_host_cpu_features().flatten().split(","))
     for flag, name in (("+avx512f", "AVX-512"), ("+avx2", "AVX2"), ("+avx", "AVX"), ("+sse4.2", "SSE4.2")):
