@@ -68,22 +68,16 @@ def _vertex_array(vertices, what):
 
 def _in_centred_frame(v, lo, hi, faces, what, spare=None):
     """(origin, vertices (V,3) float32 and triangles (F,3,3) float32 in the frame centred on the
-    bounds lo, hi of the checked vertices ``v``, the largest |coordinate| there, the vertices'
-    bounds in that frame) over checked ``faces`` (F,3) int32: one conversion and one gather, into
-    the arrays ``spare`` (vertices, triangles) where given; InputError when every triangle has
-    zero area.
-
-    The bounds in the frame are float32(lo - origin) and float32(hi - origin): the conversion of
-    the least and the greatest coordinate, as both the float64 difference and the rounding to
-    float32 keep the order of the values (no pass over the vertices)."""
+    bounds lo, hi of the checked vertices ``v``, the largest |coordinate| there) over checked
+    ``faces`` (F,3) int32: one conversion and one gather, into the arrays ``spare`` (vertices,
+    triangles) where given; InputError when every triangle has zero area."""
     origin = 0.5 * (lo + hi)
     verts = np.empty(v.shape, np.float32) if spare is None else spare[0]
     common.to_frame(v, float(origin[0]), float(origin[1]), float(origin[2]), verts)
     tris = gather_unchecked(verts, faces, np.empty((len(faces), 3, 3), np.float32) if spare is None else spare[1])
     if common.first_nondegenerate(tris) < 0:
         raise InputError(f"{what}: all {len(faces)} triangles are degenerate (zero area)")
-    box = ((lo - origin).astype(np.float32).astype(np.float64), (hi - origin).astype(np.float32).astype(np.float64))
-    return origin, verts, tris, float(max(np.abs(lo - origin).max(), np.abs(hi - origin).max())), box
+    return origin, verts, tris, float(max(np.abs(lo - origin).max(), np.abs(hi - origin).max()))
 
 
 def _centred_mesh(vertices, faces):
@@ -108,7 +102,7 @@ def _centred_mesh(vertices, faces):
         tris = np.take(verts, f32, axis=0)
         return origin, verts, f32, tris, max(abs(float(verts.min())), abs(float(verts.max())))
     f32 = np.ascontiguousarray(f, dtype=np.int32)
-    origin, verts, tris, big, _ = _in_centred_frame(v, lo, hi, f32, "mesh")
+    origin, verts, tris, big = _in_centred_frame(v, lo, hi, f32, "mesh")
     return origin, verts, f32, tris, big
 
 
@@ -116,14 +110,20 @@ def _centred_vertices(vertices, faces, shape, spare=None):
     """update's (origin, vertices, triangles, largest |coordinate|, bounds in the frame) for new
     ``vertices`` of ``shape`` over the caster's validated ``faces``: one pass over the values for
     bounds and NaN/inf/1e30 (the messages from the slow checks when it finds one), then as
-    _centred_mesh (into the arrays ``spare`` where given)."""
+    _centred_mesh (into the arrays ``spare`` where given).
+
+    The bounds in the frame are float32(lo - origin) and float32(hi - origin): the conversion of
+    the least and the greatest coordinate, as both the float64 difference and the rounding to
+    float32 keep the order of the values (no pass over the vertices)."""
     v = _vertex_array(vertices, "update: vertices")
     if v.shape != shape:
         raise InputError(f"update needs vertices of shape {shape}, got {v.shape}")
     lo, hi, bad = common.point_bounds(v)
     if bad:
         _vertices64(vertices, "update: vertices")  # raises naming the bad values
-    return _in_centred_frame(v, lo, hi, faces, "update", spare)
+    origin, verts, tris, big = _in_centred_frame(v, lo, hi, faces, "update", spare)
+    box = tuple((b - origin).astype(np.float32).astype(np.float64) for b in (lo, hi))
+    return origin, verts, tris, big, box
 
 
 #: contains' ray directions: the first alone for a closed mesh, all three for a best-effort vote

@@ -124,16 +124,18 @@ class GridBuilder:
         use_threads(threads)
 
         with timed(times, "bounds_ms"):
-            # one chunk per thread from a quarter million triangles on (below that, the SIMD pass
-            # takes about as long as a parallel launch); serial keeps to one thread throughout
-            n_chunks = max(1, min(threads, F // BOUNDS_CHUNK + 1)) if strategy.parallel_stages else 1
-            bb = np.zeros((1 if bounds is not None else n_chunks, 7), np.float64)
-            if bounds is not None:
+            if bounds is not None:  # the caller's, exact and checked: no pass over the triangles
+                bb = np.zeros((1, 7), np.float64)
                 bb[0, 0:3], bb[0, 3:6] = bounds
-            elif n_chunks == 1:
-                common.scene_bounds_serial(tris, bb)
             else:
-                common.scene_bounds(tris, n_chunks, bb)
+                # one chunk per thread from a quarter million triangles on (below that, the SIMD
+                # pass takes about as long as a parallel launch); serial keeps to one thread throughout
+                n_chunks = max(1, min(threads, F // BOUNDS_CHUNK + 1)) if strategy.parallel_stages else 1
+                bb = np.empty((n_chunks, 7), np.float64)
+                if n_chunks == 1:
+                    common.scene_bounds_serial(tris, bb)
+                else:
+                    common.scene_bounds(tris, n_chunks, bb)
         if bb[:, 6].sum() > 0:
             bad = np.argwhere(~(np.abs(tris) <= common.BAD_MAGNITUDE))[0]
             raise InputError(
