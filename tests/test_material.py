@@ -522,10 +522,15 @@ def test_near_box_keeps_every_segment_that_meets_the_box(rng):
     assert 0 < meets.sum() < len(o) - 100  # both kinds are there
 
 
-def test_light_segments_mark_the_grids_each_segment_may_meet(rng):
+@pytest.mark.parametrize("light_y, beyond", [(3.0, 0.0), (0.9, 0.0), (0.9, 4e-6), (0.9, -4e-6)])
+def test_light_segments_mark_the_grids_each_segment_may_meet(rng, light_y, beyond):
     """With several grids' boxes, bit g of each segment's mark is _near_box's verdict for grid
-    g's box on that segment (a large box most segments meet, a small one few do)."""
-    from gridrt.trace.material import light_segments, near_boxes
+    g's box on that segment (a large box most segments meet, a small one few do): with the light
+    above the large box, and inside it, where light_segments marks every segment without testing
+    each (_holds_light), also where some hits lie just beyond the grown box (``beyond``: a few
+    hits moved past its top or bottom face by that much more than its margin, the light above
+    them past the top one)."""
+    from gridrt.trace.material import _holds_light, light_segments, near_boxes
     from gridrt.trace.records import HitPoints, ShadowRays, ShadowSegments
 
     class Grid:
@@ -534,10 +539,16 @@ def test_light_segments_mark_the_grids_each_segment_may_meet(rng):
 
     n = 20000
     pos = rng.uniform(-1, 1, (n, 3))
+    boxes = near_boxes([Grid([-1, -1, -1], [1, 1, 1]), Grid([0.0, 0.5, 0.0], [0.3, 0.7, 0.4])])
+    lights = np.array([[0.0, 0.1, light_y, 0.2, 1.0, 1.0, 1.0, 0.0]])
+    pos[pos[:, 1] > light_y - 0.05, 1] = light_y - 0.05  # (every hit faces the light above it)
+    if beyond:
+        edge = boxes[0, 4] if beyond > 0 else boxes[0, 1]
+        pos[:5, 1] = edge + beyond  # (the normal is (0, 1, 0): these hits' ends lie past the face)
+    if beyond > 0:
+        lights[0, 2] = boxes[0, 4] + 2 * beyond  # (above the hits past the top face: their segments miss it)
     ng = np.tile([0.0, 1.0, 0.0], (n, 1))
     hp = HitPoints(pos, ng, ng.astype(np.float32), np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32))
-    lights = np.array([[0.0, 0.1, 3.0, 0.2, 1.0, 1.0, 1.0, 0.0]])
-    boxes = near_boxes([Grid([-1, -1, -1], [1, 1, 1]), Grid([0.0, 0.5, 0.0], [0.3, 0.7, 0.4])])
     rays = ShadowRays(np.zeros(n, np.uint8), np.zeros(n))
     segs = ShadowSegments(np.zeros(n, np.int64), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n, np.uint8), np.zeros(n))
     m = light_segments(lights, 0, hp, 1e-6, 5.0, np.arange(n, dtype=np.int64), rays, segs, boxes)
@@ -546,7 +557,44 @@ def test_light_segments_mark_the_grids_each_segment_may_meet(rng):
         want = np.zeros(m, np.bool_)
         _near_box_marks(boxes[k], segs.o[:m], segs.d[:m], want)
         assert (((segs.grids[:m] >> k) & 1) == want).all()
-    assert ((segs.grids[:m] & 1) == 1).mean() > 0.9 and 0 < ((segs.grids[:m] & 2) == 2).mean() < 0.2
+    assert ((segs.grids[:m] & 1) == 1).mean() > 0.9 and 0 < ((segs.grids[:m] & 2) == 2).mean() < 0.6
+    assert _holds_light.py_func(boxes[0], tuple(lights[0, 1:4])) == (light_y < 1.0 and beyond <= 0)
+    if beyond > 0:
+        assert not ((segs.grids[:m] & 1) == 1).all()  # the segments above the face miss the box
+
+
+def test_drawn_segments_mark_the_grids_each_segment_may_meet(rng):
+    """drawn_segments (every light of each pixel, and 2 drawn a pixel) marks each segment as
+    _near_box does, grid by grid: for point lights inside the large box (marked without testing
+    each segment), above it, and a directional light."""
+    from gridrt.trace.material import drawn_segments, near_boxes
+    from gridrt.trace.records import HitPoints, make_draws
+    from gridrt.trace.render import segment_buffers
+
+    class Grid:
+        def __init__(self, lo, hi):
+            self.lo, self.hi = np.array(lo), np.array(hi)
+
+    n = 6000
+    pos = rng.uniform(-1, 1, (n, 3))
+    pos[:, 1] = np.minimum(pos[:, 1], 0.4)
+    ng = np.tile([0.0, 1.0, 0.0], (n, 1))
+    hp = HitPoints(pos, ng, ng.astype(np.float32), np.ones((n, 3), np.float32), np.zeros((n, 3), np.float32))
+    lights = np.array([[0.0, 0.1, 0.9, 0.2, 1.0, 1.0, 1.0, 0.0], [0.0, -0.3, 3.0, 0.4, 1.0, 1.0, 1.0, 0.0],
+                       [1.0, 0.0, 1.0, 0.0, 1.0, 1.0, 1.0, 0.0], [0.0, 0.15, 0.6, 0.2, 1.0, 1.0, 1.0, 0.0]])
+    boxes = near_boxes([Grid([-1, -1, -1], [1, 1, 1]), Grid([0.0, 0.5, 0.0], [0.3, 0.7, 0.4])])
+    for k in (0, 2):
+        K = len(lights) if k == 0 else k
+        draws = make_draws(k, 0.25, np.empty((n, K), np.int32), np.empty((n, K)))
+        segs = segment_buffers(n * K)
+        start = drawn_segments(lights, hp, 100, draws, 1e-6, 5.0, np.arange(n, dtype=np.int64), segs, boxes)
+        m = int(start[-1])
+        assert m >= n and all(start[li + 1] > start[li] for li in range(len(lights)))
+        for g in range(2):
+            want = np.zeros(m, np.bool_)
+            _near_box_marks(boxes[g], segs.o[:m], segs.d[:m], want)
+            assert (((segs.grids[:m] >> g) & 1) == want).all()
+        assert 0 < ((segs.grids[:m] & 2) == 2).mean() < 0.6
 
 
 @pytest.mark.parametrize("n", [1, 16384, 50_001])

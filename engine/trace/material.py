@@ -405,7 +405,8 @@ def light_segments(lights, li, hp, off, far, order, rays, segs, boxes):
     order's order, to segs (:class:`gridrt.trace.records.ShadowSegments`, :func:`_put_segment`).
     Returns how many.  In three parallel passes: the lit hits, in pixel order; then over chunks of
     LIT_CHUNK pixels of the order, each chunk's count of them, and each chunk's segments from its
-    place after the chunks before it."""
+    place after the chunks before it.  A grid whose box holds a point light (:func:`_holds_light`)
+    is marked on every segment without testing each: they all start inside it."""
     pos, ngb, nsb, acc = hp.pos, hp.ng, hp.ns, hp.acc
     need, weight = rays.need, rays.weight
     N = order.shape[0]
@@ -419,6 +420,11 @@ def light_segments(lights, li, hp, off, far, order, rays, segs, boxes):
         if s > 0.0:
             need[i] = 1
             weight[i] = s
+    held = 0
+    if lights[li, 0] != LIGHT_DIRECTIONAL:
+        for gi in range(boxes.shape[0]):
+            if _holds_light(boxes[gi], (lights[li, 1], lights[li, 2], lights[li, 3])):
+                held |= 1 << gi
     nc = (N + LIT_CHUNK - 1) // LIT_CHUNK
     start = np.zeros(nc + 1, np.int64)
     for c in prange(nc):
@@ -434,27 +440,29 @@ def light_segments(lights, li, hp, off, far, order, rays, segs, boxes):
             i = order[k]
             if need[i] == 0:
                 continue
-            _put_segment(lights, li, hp, i, off, far, boxes, segs, m, weight[i])
+            _put_segment(lights[li], hp, i, off, far, boxes, held, segs, m, weight[i])
             m += 1
     return start[nc]
 
 
 @inner(cache=True, _nrt=False, error_model="numpy")
-def _put_segment(lights, li, hp, i, off, far, boxes, segs, m, weight):
-    """Segment m of segs (:class:`gridrt.trace.records.ShadowSegments`): pixel i's, towards light
-    li, of that weight.  The light's end to the hit turned round: the ray from p + n_g * off to
-    the light (a point light's vector to it, or far times a directional light's unit vector)
-    starts at the light's end, o = origin + direction, d = -direction (t in (0, 1)).  A point
+def _put_segment(light, hp, i, off, far, boxes, held, segs, m, weight):
+    """Segment m of segs (:class:`gridrt.trace.records.ShadowSegments`): pixel i's, towards the
+    light ``light`` (a row of the lights), of that weight.  The light's end to the hit turned
+    round: the ray from p + n_g * off to the light (a point light's vector to it, or far times a
+    directional light's unit vector) starts at the light's end, o = origin + direction, d =
+    -direction (t in (0, 1)).  A point
     light's segments then share one origin, and one blocked near its light stops there.  With
     several grids, boxes (G, 7) (:func:`near_boxes`, G <= 8) gives their boxes, and bit g of
     segs.grids[m] is set where the segment may meet grid g's box (:func:`_near_box`): the grids
-    it misses need not trace it; with boxes (0, 7) every bit is set."""
+    it misses need not trace it; with boxes (0, 7) every bit is set.  Bit g of ``held`` set: grid
+    g's box holds the light (:func:`_holds_light`), its bit is set without the test."""
     pos, ngb = hp.pos, hp.ng
     ox, oy, oz = pos[i, 0] + ngb[i, 0] * off, pos[i, 1] + ngb[i, 1] * off, pos[i, 2] + ngb[i, 2] * off
-    if lights[li, 0] == LIGHT_DIRECTIONAL:
-        dx, dy, dz = lights[li, 1] * far, lights[li, 2] * far, lights[li, 3] * far
+    if light[0] == LIGHT_DIRECTIONAL:
+        dx, dy, dz = light[1] * far, light[2] * far, light[3] * far
     else:
-        dx, dy, dz = lights[li, 1] - ox, lights[li, 2] - oy, lights[li, 3] - oz
+        dx, dy, dz = light[1] - ox, light[2] - oy, light[3] - oz
     segs.rows[m] = i
     sx, sy, sz = ox + dx, oy + dy, oz + dz
     o, d = segs.o, segs.d
@@ -462,9 +470,9 @@ def _put_segment(lights, li, hp, i, off, far, boxes, segs, m, weight):
     d[m, 0], d[m, 1], d[m, 2] = -dx, -dy, -dz
     bits = 255
     if boxes.shape[0] > 0:
-        bits = 0
+        bits = held
         for gi in range(boxes.shape[0]):
-            if _near_box(boxes[gi], (sx, sy, sz), (-dx, -dy, -dz)):
+            if (held >> gi) & 1 == 0 and _near_box(boxes[gi], (sx, sy, sz), (-dx, -dy, -dz)):
                 bits |= 1 << gi
     segs.grids[m] = bits
     segs.weight[m] = weight
@@ -589,6 +597,12 @@ def drawn_segments(lights, hp, W, draws, off, far, order, segs, boxes):
             at[c, li] = m
             m += count[c, li]
     start[L] = m
+    held = np.zeros(L, np.int64)
+    for li in range(L):
+        if lights[li, 0] != LIGHT_DIRECTIONAL:
+            for gi in range(boxes.shape[0]):
+                if _holds_light(boxes[gi], (lights[li, 1], lights[li, 2], lights[li, 3])):
+                    held[li] |= 1 << gi
     pos, ngb, nsb = hp.pos, hp.ng, hp.ns
     for c in prange(nc):
         for kk in range(c * LIT_CHUNK, min(N, (c + 1) * LIT_CHUNK)):
@@ -601,7 +615,7 @@ def drawn_segments(lights, hp, W, draws, off, far, order, segs, boxes):
                                                    (ngb[i, 0], ngb[i, 1], ngb[i, 2]),
                                                    (np.float64(nsb[i, 0]), np.float64(nsb[i, 1]),
                                                     np.float64(nsb[i, 2])))
-                _put_segment(lights, li, hp, i, off, far, boxes, segs, at[c, li], s * factor[kk, j])
+                _put_segment(lights[li], hp, i, off, far, boxes, held[li], segs, at[c, li], s * factor[kk, j])
                 at[c, li] += 1
     return start
 
@@ -646,6 +660,47 @@ def _near_box(box, o, d):
         return True
     t0, t1 = _clip_box((box[0], box[1], box[2]), (box[3], box[4], box[5]), o, d, 0.0, 1.0)
     return t0 <= t1
+
+
+@inner(cache=True, _nrt=False, error_model="numpy")
+def _holds_light(box, light):
+    """Whether the grown box ``box`` (a row of near_boxes) holds a point light at ``light`` (a
+    3-tuple) with room to spare: then every segment :func:`_put_segment` makes from it starts
+    inside the box (at the light, rounded by a few units in the last place), and :func:`_near_box`
+    keeps each (its clip to the box starts at t = 0), so testing them one by one can be skipped.
+    The room: 1e-12 of the largest coordinate, far beyond that rounding."""
+    s = 1e-12 * max(max(abs(light[0]), abs(light[1])), max(abs(light[2]), max(abs(box[0]), abs(box[3]))))
+    s = max(s, 1e-12 * max(max(abs(box[1]), abs(box[4])), max(abs(box[2]), abs(box[5]))))
+    inside = True
+    for a in range(3):
+        inside &= (light[a] - s >= box[a]) & (light[a] + s <= box[3 + a])
+    return inside
+
+
+@njit(cache=True, error_model="numpy")
+def live_segments(blocked, marks, bit, live):
+    """How many segments j are not blocked[j] and have ``bit`` set in marks[j] (uint8; bit -1
+    takes every mark); unless that is all of them, their indices go to live[:count] (int64) in
+    order.  One pass, two where some are left out."""
+    n = 0
+    for j in range(blocked.shape[0]):
+        n += (not blocked[j]) & ((marks[j] & bit) != 0)
+    if n < blocked.shape[0]:
+        k = 0
+        for j in range(blocked.shape[0]):
+            if (not blocked[j]) & ((marks[j] & bit) != 0):
+                live[k] = j
+                k += 1
+    return n
+
+
+@njit(cache=True, error_model="numpy")
+def mark_blocked(live, n, every, tri, blocked):
+    """blocked[r] = True for the segments r of a cast that hit a triangle (tri[j] >= 0, j < n):
+    r = j where the cast took every segment (``every``), else r = live[j]."""
+    for j in range(n):
+        if tri[j] >= 0:
+            blocked[j if every else live[j]] = True
 
 
 @njit(cache=True, parallel=True, error_model="numpy")

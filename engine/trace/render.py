@@ -48,8 +48,8 @@ from .twin import TWINS
 from ..camera import Camera, pixel_dir
 from .cgt.frame import cgt_render_kernel, cgt_render_serial
 from .grids import grid_arrays, grid_tuple, pack_grids, unpack_grids
-from .material import (add_light, compose, draw_shift, drawn_segments, light_segments, near_boxes, shade_kernel,
-                       shade_serial, surface_arrays)
+from .material import (add_light, compose, draw_shift, drawn_segments, light_segments, live_segments, mark_blocked,
+                       near_boxes, shade_kernel, shade_serial, surface_arrays)
 from .records import (Buffers, HitPoints, ShadowBuffers, ShadowRays, ShadowSegments, make_draws, make_packets,
                       make_shading, make_view)
 from .shade import (  # noqa: F401  (the shading constants stay importable from here)
@@ -574,17 +574,16 @@ class Renderer:
             o, d, marks = segs.o[s0:s0 + m], segs.d[s0:s0 + m], segs.grids[s0:s0 + m]
             blocked = sb.blocked[:m]
             blocked[:] = False
-            for gi, g in enumerate(grids):  # any hit in any grid shadows
-                sel = ~blocked
-                if len(boxes):
-                    sel &= (marks & (1 << gi)) != 0
-                live = np.flatnonzero(sel)
-                if len(live) == 0:
+            live = np.empty(m, np.int64)
+            for gi, g in enumerate(grids):  # any hit in any grid shadows: the segments not blocked yet
+                n = live_segments(blocked, marks, (1 << gi) if len(boxes) else -1, live)
+                if n == 0:
                     continue
-                lo, ld = (o, d) if len(live) == m else (o[live], d[live])  # (no copy while none is blocked)
-                out = tuple(a[:len(live)] for a in out_b)
+                every = n == m
+                lo, ld = (o, d) if every else (o[live[:n]], d[live[:n]])  # (no copy while none is blocked)
+                out = tuple(a[:n] for a in out_b)
                 cast_grouped(g, lo, ld, 0.0, 1.0, bool(params.watertight), True, out, max_cells, f32, tri_only=True)
-                blocked[live[out[1] >= 0]] = True
+                mark_blocked(live, n, every, out[1], blocked)
             return blocked
 
         k = params.light_samples
