@@ -351,11 +351,13 @@ def pass1_order(origins, dirs):
 
 
 def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cells=MAX_CELLS, f32=False,
-                 tri_only=False):
+                 tri_only=False, rows=None):
     """Cast the rays (origins, dirs (N,3) float64, checked) through the grid g (GridArrays) into
     out = (t, tri, u, v) as the module docstring describes; ``max_cells`` <= 0 traces every ray
     singly; f32: the packets' triangle tests in float32; tri_only: the caller reads only tri (see
-    :class:`gridrt.trace.query.CastPass`).  Returns (rays traced in packets in pass 1, in pass 2)."""
+    :class:`gridrt.trace.query.CastPass`).  rows (int64, non-empty): only those rays, taken in
+    that order by pass 1 (out's other rows are left as they are).  Returns (rays traced in packets
+    in pass 1, in pass 2)."""
     N = len(origins)
     if N == 0:
         return 0, 0
@@ -365,12 +367,12 @@ def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cel
     # items one at a time; not sort_keys, whose rows cost alike)
     if max_cells <= 0.0:
         with parallel_chunksize(1):
-            cast_runs_kernel(g, origins, dirs, NO_ROWS, q, cast_pass(-1.0, True, f32, tri_only),
-                             HitArrays(*out, NO_LEFT))
+            cast_runs_kernel(g, origins, dirs, NO_ROWS if rows is None else rows, q,
+                             cast_pass(-1.0, True, f32, tri_only), HitArrays(*out, NO_LEFT))
         return 0, 0
     left = np.zeros(N, np.uint8)
     with parallel_chunksize(1):
-        p1 = cast_runs_kernel(g, origins, dirs, pass1_order(origins, dirs), q,
+        p1 = cast_runs_kernel(g, origins, dirs, pass1_order(origins, dirs) if rows is None else rows, q,
                               cast_pass(max_cells, False, f32, tri_only),
                               HitArrays(*out, left))
     rows = np.flatnonzero(left.view(np.bool_))   # (0/1 bytes read as bools: numpy finds them 7x faster)

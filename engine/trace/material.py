@@ -42,7 +42,8 @@ from numba import njit, prange
 from ..compiles import inner
 from ..scene.surface import (AMBIENT_FRACTION, DEFAULT_DIFFUSE, FALLOFF_INVERSE_SQUARE, LIGHT_DIRECTIONAL, LIGHT_POINT,
                              Surface)
-from .records import SurfaceArrays
+from .lightmap import shows_clear
+from .records import LightMapArrays, SurfaceArrays
 from .shade import put_pixel
 from .traverse import _clip_box
 
@@ -397,16 +398,18 @@ LIT_CHUNK = 16384
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def light_segments(lights, li, hp, off, far, order, rays, segs, boxes):
+def light_segments(lights, li, hp, off, far, order, rays, segs, boxes, lmap):
     """The shadow segments of light li from the hits of hp (:class:`gridrt.trace.records.HitPoints`;
     acc[i, 0] >= 0) it lights, in the pixel order ``order`` (a permutation of the image's pixels).
     Per pixel (rays: :class:`gridrt.trace.records.ShadowRays`): need[i] = 1 where the light
     lights the hit, and its weight there in weight[i].  The lit pixels' segments go, in the
     order's order, to segs (:class:`gridrt.trace.records.ShadowSegments`, :func:`_put_segment`).
-    Returns how many.  In three parallel passes: the lit hits, in pixel order; then over chunks of
-    LIT_CHUNK pixels of the order, each chunk's count of them, and each chunk's segments from its
-    place after the chunks before it.  A grid whose box holds a point light (:func:`_holds_light`)
-    is marked on every segment without testing each: they all start inside it."""
+    Returns (how many, how many the light's map lmap showed clear: bit 0 cleared, see
+    :func:`_put_segment`).  In three parallel passes: the lit hits, in pixel order; then over
+    chunks of LIT_CHUNK pixels of the order, each chunk's count of them, and each chunk's segments
+    from its place after the chunks before it.  A grid whose box holds a point light
+    (:func:`_holds_light`) is marked on every segment without testing each: they all start inside
+    it."""
     pos, ngb, nsb, acc = hp.pos, hp.ng, hp.ns, hp.acc
     need, weight = rays.need, rays.weight
     N = order.shape[0]
@@ -434,19 +437,20 @@ def light_segments(lights, li, hp, off, far, order, rays, segs, boxes):
         start[c + 1] = m
     for c in range(nc):
         start[c + 1] += start[c]
+    clear = np.zeros(nc, np.int64)
     for c in prange(nc):
         m = start[c]
         for k in range(c * LIT_CHUNK, min(N, (c + 1) * LIT_CHUNK)):
             i = order[k]
             if need[i] == 0:
                 continue
-            _put_segment(lights[li], hp, i, off, far, boxes, held, segs, m, weight[i])
+            clear[c] += _put_segment(lights[li], hp, i, off, far, (boxes, held), segs, m, weight[i], lmap)
             m += 1
-    return start[nc]
+    return start[nc], clear.sum()
 
 
 @inner(cache=True, _nrt=False, error_model="numpy")
-def _put_segment(light, hp, i, off, far, boxes, held, segs, m, weight):
+def _put_segment(light, hp, i, off, far, near, segs, m, weight, lmap):
     """Segment m of segs (:class:`gridrt.trace.records.ShadowSegments`): pixel i's, towards the
     light ``light`` (a row of the lights), of that weight.  The light's end to the hit turned
     round: the ray from p + n_g * off to the light (a point light's vector to it, or far times a
@@ -455,8 +459,12 @@ def _put_segment(light, hp, i, off, far, boxes, held, segs, m, weight):
     light's segments then share one origin, and one blocked near its light stops there.  With
     several grids, boxes (G, 7) (:func:`near_boxes`, G <= 8) gives their boxes, and bit g of
     segs.grids[m] is set where the segment may meet grid g's box (:func:`_near_box`): the grids
-    it misses need not trace it; with boxes (0, 7) every bit is set.  Bit g of ``held`` set: grid
-    g's box holds the light (:func:`_holds_light`), its bit is set without the test."""
+    it misses need not trace it; with boxes (0, 7) every bit is set (near = (boxes, held)).  Bit
+    g of ``held`` set: grid g's box holds the light (:func:`_holds_light`), its bit is set without
+    the test.  Where the light's map lmap (:class:`gridrt.trace.records.LightMapArrays`; none when
+    its d1 has no rows) shows the segment clear (gridrt.trace.lightmap.shows_clear; the hit's
+    triangle from lmap.tri), bit 0 (the mapped grid's) is cleared: returns 1 then, else 0."""
+    boxes, held = near
     pos, ngb = hp.pos, hp.ng
     ox, oy, oz = pos[i, 0] + ngb[i, 0] * off, pos[i, 1] + ngb[i, 1] * off, pos[i, 2] + ngb[i, 2] * off
     if light[0] == LIGHT_DIRECTIONAL:
@@ -474,8 +482,17 @@ def _put_segment(light, hp, i, off, far, boxes, held, segs, m, weight):
         for gi in range(boxes.shape[0]):
             if (held >> gi) & 1 == 0 and _near_box(boxes[gi], (sx, sy, sz), (-dx, -dy, -dz)):
                 bits |= 1 << gi
+    cleared = 0
+    if lmap.d1.shape[0] > 0:
+        f = lmap.tri[i]
+        if lmap.local.shape[0] > 0:
+            f = lmap.local[f] if 0 <= f < lmap.local.shape[0] else -1
+        if shows_clear(lmap.light, lmap.d1, lmap.id1, lmap.d2, (sx - dx, sy - dy, sz - dz), f):
+            bits &= 254
+            cleared = 1
     segs.grids[m] = bits
     segs.weight[m] = weight
+    return cleared
 
 
 #: the pixel shift of the draws of :func:`_draw`: the R2 sequence's (the plastic number's
@@ -604,6 +621,8 @@ def drawn_segments(lights, hp, W, draws, off, far, order, segs, boxes):
                 if _holds_light(boxes[gi], (lights[li, 1], lights[li, 2], lights[li, 3])):
                     held[li] |= 1 << gi
     pos, ngb, nsb = hp.pos, hp.ng, hp.ns
+    unmapped = LightMapArrays(np.zeros(3), np.empty((0, 0, 0), np.float32), np.empty((0, 0, 0), np.int32),
+                              np.empty((0, 0, 0), np.float32), np.empty(0, np.int32), np.empty(0, np.int32))
     for c in prange(nc):
         for kk in range(c * LIT_CHUNK, min(N, (c + 1) * LIT_CHUNK)):
             i = order[kk]
@@ -615,7 +634,8 @@ def drawn_segments(lights, hp, W, draws, off, far, order, segs, boxes):
                                                    (ngb[i, 0], ngb[i, 1], ngb[i, 2]),
                                                    (np.float64(nsb[i, 0]), np.float64(nsb[i, 1]),
                                                     np.float64(nsb[i, 2])))
-                _put_segment(lights[li], hp, i, off, far, boxes, held[li], segs, at[c, li], s * factor[kk, j])
+                _put_segment(lights[li], hp, i, off, far, (boxes, held[li]), segs, at[c, li], s * factor[kk, j],
+                             unmapped)
                 at[c, li] += 1
     return start
 
@@ -696,11 +716,12 @@ def live_segments(blocked, marks, bit, live):
 
 @njit(cache=True, error_model="numpy")
 def mark_blocked(live, n, every, tri, blocked):
-    """blocked[r] = True for the segments r of a cast that hit a triangle (tri[j] >= 0, j < n):
-    r = j where the cast took every segment (``every``), else r = live[j]."""
+    """blocked[r] = True for the segments r of a cast that hit a triangle (tri[r] >= 0): r = 0 ..
+    n - 1 where the cast took every segment (``every``), else r = live[j], j < n."""
     for j in range(n):
-        if tri[j] >= 0:
-            blocked[j if every else live[j]] = True
+        r = j if every else live[j]
+        if tri[r] >= 0:
+            blocked[r] = True
 
 
 @njit(cache=True, parallel=True, error_model="numpy")

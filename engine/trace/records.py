@@ -17,7 +17,8 @@ of arrays and scalars (a tuple of tuples cannot enter it, see gridrt.trace.grids
 * :class:`HitPoints`: the material pass's per-pixel buffers while shadows are cast;
 * :class:`ShadowRays`: one light's shadow rays from those hits, :class:`Draws`: lights drawn per
   pixel instead, and :class:`ShadowSegments`: the segments cast (all of them in a
-  :class:`ShadowBuffers`, kept from frame to frame).
+  :class:`ShadowBuffers`, kept from frame to frame); :class:`LightMapArrays`: a light's map of
+  the segments it need not cast.
 """
 
 from collections import namedtuple
@@ -90,6 +91,12 @@ ShadowSegments = namedtuple("ShadowSegments", "rows o d grids weight")
 #: (N, K) float64 n / (k p) of each; guide (blocks, L) float64 a factor of each light's chance in
 #: each block x block square of pixels, bw of them a row (0 rows: none).
 Draws = namedtuple("Draws", "k shift lit factor guide block bw")
+
+#: One point light's map for the shadow segments the material pass makes (gridrt.trace.lightmap):
+#: light (3,) float64, d1, d2 (6, R, R) float32 and id1 (6, R, R) int32 (R = 0: no map), tri the
+#: image's tri buffer flat (W * H,) int32 (the scene id of each pixel's hit) and local (K,) int32
+#: the mapped grid's index of each scene id (-1 for other grids' triangles; empty: the same ids).
+LightMapArrays = namedtuple("LightMapArrays", "light d1 id1 d2 tri local")
 
 #: The material pass's buffers for shadows (Python side, gridrt.trace.render.Renderer keeps them
 #: from frame to frame): the :class:`HitPoints` hp, the :class:`ShadowRays` rays, the pixels in

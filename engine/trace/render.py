@@ -48,6 +48,7 @@ from .twin import TWINS
 from ..camera import Camera, pixel_dir
 from .cgt.frame import cgt_render_kernel, cgt_render_serial
 from .grids import grid_arrays, grid_tuple, pack_grids, unpack_grids
+from .lightmap import LightMaps, clear_lit, no_map, segment_triangles
 from .material import (add_light, compose, draw_shift, drawn_segments, light_segments, live_segments, mark_blocked,
                        near_boxes, shade_kernel, shade_serial, surface_arrays)
 from .records import (Buffers, HitPoints, ShadowBuffers, ShadowRays, ShadowSegments, make_draws, make_packets,
@@ -388,6 +389,8 @@ class Renderer:
         self._drawn = None  # (lit, factor, ShadowSegments of W * H * K): the lights drawn per pixel, their segments
         self._probes = None  # ((W, H), pixels): the centres of the light guide's squares (light_guide)
         self.guide = None    # (guide, squares a row) of the last render that drew lights (light_guide)
+        self._lightmaps = LightMaps()   # the first grid's point lights' maps (gridrt.trace.lightmap)
+        self.shadow_clear = 0   # shadow segments of the last render that a light map showed clear (not cast there)
 
     def buffers(self, W, H):
         if self._bufs is None or self._bufs[0].shape[:2] != (H, W):
@@ -576,15 +579,32 @@ class Renderer:
             blocked[:] = False
             live = np.empty(m, np.int64)
             for gi, g in enumerate(grids):  # any hit in any grid shadows: the segments not blocked yet
-                n = live_segments(blocked, marks, (1 << gi) if len(boxes) else -1, live)
+                n = live_segments(blocked, marks, (1 << gi) if gi < 8 else -1, live)
                 if n == 0:
                     continue
                 every = n == m
-                lo, ld = (o, d) if every else (o[live[:n]], d[live[:n]])  # (no copy while none is blocked)
-                out = tuple(a[:n] for a in out_b)
-                cast_grouped(g, lo, ld, 0.0, 1.0, bool(params.watertight), True, out, max_cells, f32, tri_only=True)
+                out = tuple(a[:m] for a in out_b)   # (the results in the segments' rows)
+                cast_grouped(g, o, d, 0.0, 1.0, bool(params.watertight), True, out, max_cells, f32, tri_only=True,
+                             rows=None if every else live[:n])
                 mark_blocked(live, n, every, out[1], blocked)
             return blocked
+
+        # point lights over the first grid's triangles, the same as in an earlier frame: their
+        # segments that a light map shows clear are left out of that grid's casts (bit 0)
+        maps = self._lightmaps.for_lights(grids[0], lights, diag)
+        tri_flat = ib.reshape(-1)
+
+        self.shadow_clear = 0
+
+        def leave_clear(segs, s0, m, li):
+            """Clear bit 0 of segments s0 .. s0 + m of segs (light li's) that its map shows clear."""
+            lm = maps[li]
+            if lm is None or m == 0:
+                return
+            hit_tri = np.empty(m, np.int32)
+            segment_triangles(segs.rows[s0:s0 + m], tri_flat, self._lightmaps.local, hit_tri)
+            self.shadow_clear += int(clear_lit(lm.light, lm.d1, lm.id1, lm.d2, segs.o[s0:s0 + m], segs.d[s0:s0 + m],
+                                               hit_tri, 1, segs.grids[s0:s0 + m]))
 
         k = params.light_samples
         if k and len(lights) > 1:  # k lights drawn per hit pixel, weighted to keep the mean: every
@@ -599,10 +619,14 @@ class Renderer:
         # caster takes them in runs of RUN = TILE^2 in this order, and a run of one tile is a narrow
         # packet where a run of a row's pixels is a wide one (or single rays)
         for li in range(len(lights)):
-            if start is None:
-                s0, m = 0, light_segments(lights, li, hp, off, far, order, rays, segs, boxes)
+            if start is None:   # (the map's test made as each segment is written)
+                lmap = no_map(tri_flat) if maps[li] is None else maps[li].arrays(tri_flat, self._lightmaps.local)
+                s0, (m, cl) = 0, light_segments(lights, li, hp, off, far, order, rays, segs, boxes, lmap)
+                m = int(m)
+                self.shadow_clear += int(cl)
             else:
                 s0, m = int(start[li]), int(start[li + 1] - start[li])
+                leave_clear(segs, s0, m, li)
             cast += m
             blocked = blocked_of(segs, s0, m)
             add_light(segs.rows[s0:s0 + m], blocked, segs.weight[s0:s0 + m], tvd, float(lights[li, 4]),

@@ -1,0 +1,167 @@
+"""Light maps (gridrt.trace.lightmap): the shadow segments a map shows clear are those nothing
+blocks (the single-ray DDA's verdict, one ray per light per pixel, and a float64 brute force), and
+renders that use maps are the renders without them, pixel for pixel, and match the material
+reference; maps are made only for triangles and point lights seen in an earlier frame."""
+
+import numpy as np
+import pytest
+
+import reference as R
+from gridrt.app.bench.reference import brute_cast
+from gridrt.camera import Camera
+from gridrt.config import GridParams, RenderParams
+from gridrt.grid import GridBuilder
+from gridrt.grid.build import build_grid
+from gridrt.trace.batch import cast_grouped
+from gridrt.trace.grids import grid_arrays
+from gridrt.trace.lightmap import LightMap, LightMaps, build_light_map, clear_lit
+from gridrt.trace.render import Looks, Renderer
+from gridrt.trace.twin import TWINS
+from helpers.material_scene import CAM, _diag, compare, engine_lights, engine_surface, scene
+
+
+def _floor_and_clutter(rng):
+    """A floor of 20 x 20 quads (shared edges and corners), and 600 small triangles above it."""
+    tris = []
+    for i in range(20):
+        for k in range(20):
+            x0, z0 = -2.0 + 0.2 * i, -2.0 + 0.2 * k
+            a, b, c, d = (x0, 0.0, z0), (x0 + 0.2, 0.0, z0), (x0 + 0.2, 0.0, z0 + 0.2), (x0, 0.0, z0 + 0.2)
+            tris += [[a, c, b], [a, d, c]]
+    centres = rng.uniform([-2.0, 0.2, -2.0], [2.0, 1.5, 2.0], (600, 1, 3))
+    tris = np.concatenate([np.asarray(tris), centres + rng.normal(0, 0.06, (600, 3, 3))])
+    return np.ascontiguousarray(tris, np.float32)
+
+
+def _segments(rng, tris, light, off, n):
+    """Shadow segments as the material pass makes them: from the light back to points p on
+    triangles facing it (some at corners and on edges) moved off by off along the normal; the
+    triangle each ends on."""
+    t64 = tris.astype(np.float64)
+    nrm = np.cross(t64[:, 1] - t64[:, 0], t64[:, 2] - t64[:, 0])
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    nrm *= np.sign(((light - t64[:, 0]) * nrm).sum(1))[:, None]   # facing the light
+    f = rng.integers(0, len(tris), n)
+    w = rng.dirichlet([1, 1, 1], n)
+    w[: n // 8] = np.eye(3)[rng.integers(0, 3, n // 8)]              # corners
+    w[n // 8: n // 4, rng.integers(0, 3)] = 0.0                       # edges
+    w /= w.sum(1, keepdims=True)
+    p = (w[:, :, None] * t64[f]).sum(1) + nrm[f] * off
+    o = p + (light - p)
+    return o, -(light - p), f.astype(np.int32)
+
+
+def test_light_map_clears_only_segments_nothing_blocks(rng):
+    """Segments from a point light to points on a tiled floor (its shared edges and corners too),
+    on clutter above it and in the space between (ends on no triangle of the map, as another
+    grid's hits): every segment the map shows clear is clear for the single-ray DDA and for a
+    float64 brute force, and the map shows many of the clear ones (a third or more)."""
+    tris = _floor_and_clutter(rng)
+    light = np.array([0.15, 2.2, -0.35])
+    off = 1e-6 * _diag(tris)
+    o, d, hit = _segments(rng, tris, light, off, 40000)
+    ends = rng.uniform([-2.0, 0.05, -2.0], [2.0, 1.6, 2.0], (20000, 3))   # ends on no mapped triangle (another
+    o = np.concatenate([o, ends + (light - ends)])                         # grid's hits): hit -1
+    d = np.concatenate([d, -(light - ends)])
+    hit = np.concatenate([hit, np.full(len(ends), -1, np.int32)])
+    lm = LightMap(light)
+    near = build_light_map(tris, lm.light, lm.d1, lm.id1, lm.d2)
+    assert near > 0.1
+    marks = np.full(len(o), 3, np.uint8)
+    cleared = clear_lit(lm.light, lm.d1, lm.id1, lm.d2, o, d, hit, 1, marks)
+    clear = (marks & 1) == 0
+    assert cleared == clear.sum() and ((marks & 2) == 2).all()   # (only bit 0 is touched)
+    g = grid_arrays(GridBuilder().build(tris, GridParams()), tris)
+    out = (np.empty(len(o)), np.empty(len(o), np.int32), np.empty(len(o)), np.empty(len(o)))
+    cast_grouped(g, o, d, 0.0, 1.0, True, True, out, 0.0, tri_only=True)   # one ray at a time
+    blocked = out[1] >= 0
+    assert not (clear & blocked).any(), np.flatnonzero(clear & blocked)[:5]
+    assert clear.sum() > (~blocked).sum() / 3 and blocked.mean() > 0.1
+    pick = rng.choice(np.flatnonzero(clear), 3000, replace=False)
+    t, f, _ = brute_cast(tris, o[pick], d[pick], 0.0, 1.0)
+    assert (f < 0).all()
+
+
+def _stub_maps():
+    class NoMaps(LightMaps):
+        def for_lights(self, g, lights, diag):
+            return [None] * len(lights)
+    return NoMaps()
+
+
+@pytest.mark.parametrize("traversal,threads", [("cgt", 2), ("dda", 1)])
+def test_renders_with_light_maps_are_the_renders_without(rng, traversal, threads):
+    """The material pass with shadows over one grid, frame after frame with the camera moving:
+    from the second frame the renderer leaves out segments its light maps show clear (its two
+    point lights; the directional one has none; from the third on a cold compile cache), and
+    every frame equals, pixel for pixel and in the colours before clamping, the frame of a
+    renderer without maps, and the reference."""
+    tris, looks = scene(rng)
+    w, h = 160, 120
+    g = GridBuilder().build(tris)
+    looks_e = Looks(tris, engine_surface(looks), looks.normals, engine_lights(looks))
+    params = RenderParams(width=w, height=h, shading="material", shadows=True, traversal=traversal, threads=threads)
+    with_maps, without = Renderer(), Renderer()
+    without._lightmaps = _stub_maps()
+    cleared = []
+    for k in range(4):
+        cam = Camera(eye=(0.5 + 0.3 * k, 4.5, 5.5 - 0.2 * k), target=CAM.target, fov=CAM.fov)
+        a = with_maps.render(g, tris, cam, params, looks=looks_e)
+        img, hdr = a.image.copy(), a.hdr.copy()
+        b = without.render(g, tris, cam, params, looks=looks_e)
+        assert np.array_equal(img, b.image) and np.array_equal(hdr, b.hdr)
+        cleared.append(with_maps.shadow_clear)
+        assert without.shadow_clear == 0
+        TWINS.wait()   # (on a cold cache the maps' kernel compiles in the background from the second frame)
+    assert cleared[0] == 0 and min(cleared[2:]) > 0.2 * w * h
+    ref = R.ref_material(tris, cam, w, h, looks, shadows=True, shadow_offset=1e-6 * _diag(tris))
+    compare(a, ref, True)
+
+
+def test_renders_with_light_maps_of_a_split_scene(rng):
+    """Two grids (static and moving): the maps are the first grid's, the second grid still traces
+    the segments marked for it, and the frames equal a renderer's without maps."""
+    tris, looks = scene(rng)
+    w, h = 128, 96
+    stat, mov = np.arange(7), np.arange(7, len(tris))
+    ts = tris[stat]   # (the same array every frame, as a pipeline keeps its static part)
+    ga = build_grid(ts, GridParams(), origin=np.zeros(3))
+    looks_e = Looks(tris, engine_surface(looks), looks.normals, engine_lights(looks))
+    params = RenderParams(width=w, height=h, shading="material", shadows=True, threads=2)
+    with_maps, without = Renderer(), Renderer()
+    without._lightmaps = _stub_maps()
+    for k in range(3):
+        moved = tris[mov] + np.float32([0.1 * k, 0.0, 0.0])
+        gb = build_grid(moved, GridParams(), origin=np.zeros(3))
+        second = (gb, moved, stat.astype(np.int32), mov.astype(np.int32))
+        a = with_maps.render(ga, ts, CAM, params, second=second, looks=looks_e)
+        img = a.image.copy()
+        b = without.render(ga, ts, CAM, params, second=second, looks=looks_e)
+        assert np.array_equal(img, b.image)
+        TWINS.wait()
+    assert with_maps.shadow_clear > 0
+
+
+def test_light_maps_are_made_for_what_comes_back(rng):
+    """A point light gets a map the second time the same triangles and light are seen, keeps it
+    while they stay, loses it when the triangles change in place; a directional light, a light
+    that moves every frame and a light on a triangle get none."""
+    tris = _floor_and_clutter(rng)
+    g = grid_arrays(GridBuilder().build(tris), tris)
+    lights = np.array([[0.0, 0.1, 2.0, 0.3, 1, 1, 1, 0], [1.0, 0.0, 1.0, 0.0, 1, 1, 1, 0],
+                       [0.0, 0.0, 2.0, 0.0, 1, 1, 1, 0], [0.0, *tris[0, 0], 1, 1, 1, 0]])
+    maps = LightMaps()
+    maps.for_lights(g, lights[:1], 6.0)
+    maps.for_lights(g, lights[:1], 6.0)
+    TWINS.wait()   # (build_light_map compiled, as on a warm cache)
+    maps = LightMaps()
+    made = []
+    for k in range(4):
+        lights[2, 1] = 0.1 * k   # moves
+        made.append([m is not None for m in maps.for_lights(g, lights, 6.0)])
+    assert made == [[False] * 4] + [[True, False, False, False]] * 3
+    first = maps.for_lights(g, lights, 6.0)[0]
+    assert maps.for_lights(g, lights, 6.0)[0] is first   # kept
+    tris[5, 0, 1] += 0.5   # in place
+    assert maps.for_lights(g, lights, 6.0)[0] is None
+    assert maps.for_lights(g, lights, 6.0)[0] is not None
