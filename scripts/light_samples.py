@@ -25,14 +25,11 @@ import time
 import numpy as np
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
-from gridrt.app.bench.affinity import Affinity
-from gridrt.app.bench.looks import looks_spec
-from gridrt.app.bench.scenes import resolve_scene
 from gridrt.app.bench.stats import stat
 from gridrt.app.viewer.accumulate import Accumulator
-from gridrt.pipeline import FramePipeline
 from gridrt.trace.twin import TWINS
-from tables import add_out_option, items, print_table, start
+from tables import (add_out_option, add_own_camera_options, items, material_pipeline, own_camera_runs,
+                    print_table, start)
 
 SCENES = "kitchen:5,museum:0"
 HEADER = ["scene", "lights", "shadow rays", "threads", "frame ms", "fps", "shadow rays/px", "draws averaged",
@@ -42,10 +39,7 @@ HEADER = ["scene", "lights", "shadow rays", "threads", "frame ms", "fps", "shado
 def parse_args(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--scenes", default=SCENES, help="comma-separated bench scenes with their own camera, each "
-                   "NAME:T (the frame's time) (default: the table's, %(default)s)")
-    p.add_argument("--size", type=int, default=1024, help="image width; the height is 3/4 of it (default: the "
-                   "table's, %(default)s)")
+    add_own_camera_options(p, SCENES)
     p.add_argument("--samples", default="1,2,4", help="light_samples values measured beside the exact render "
                    "(default: the table's, %(default)s)")
     p.add_argument("--draws", default="4,16,64", help="draws averaged, beside the first alone (default: the "
@@ -55,13 +49,6 @@ def parse_args(argv=None):
     p.add_argument("--warmup", type=int, default=1, help="untimed frames first (default: the table's, 1)")
     add_out_option(p)
     return start(p, argv)
-
-
-def pipeline(sc, size, threads, k):
-    """The frame pipeline of one mode: the scene through its own camera, material and shadows,
-    light_samples k."""
-    spec = looks_spec(sc.spec, size, threads, "cgt", "material", True).resized(size, size * 3 // 4)
-    return FramePipeline.from_spec(spec.replace(render=spec.render.replace(light_samples=k)), sc.scene)
 
 
 def error(img, exact):
@@ -89,37 +76,32 @@ def measure(a):
     rows = []
     ks = [int(k) for k in items(a.samples)]
     n = sorted({1, *(int(d) for d in items(a.draws))})
-    for text in items(a.scenes):
-        name, t = text.rsplit(":", 1)
-        t = float(t)
-        sc = resolve_scene(name)
-        for T in (int(x) for x in items(a.threads)):
-            with Affinity(T):
-                pipes = {k: pipeline(sc, a.size, T, k) for k in [0, *ks]}
-                for p in pipes.values():  # (compiles, and the static grid)
-                    p.step(t)
-                TWINS.wait()
-                times, last = {k: [] for k in pipes}, {}
-                for r in range(a.warmup + a.runs):
-                    for k, p in pipes.items():  # in turns
-                        t0 = time.perf_counter()
-                        last[k] = p.step(t)
-                        if r >= a.warmup:
-                            times[k].append((time.perf_counter() - t0) * 1e3)
-                ms = {k: stat(v)[0] for k, v in times.items()}
-                exact = last[0].image.copy()   # (each pipeline renders into buffers of its own)
-                lights = int(last[0].stats["lights"])
-                for k in pipes:
-                    st = last[k].stats
-                    rays = f"{st['shadow_rays_per_pixel']:.2f}"
-                    label = "every light" if k == 0 else f"{k} drawn a pixel"
-                    errs = {1: (0.0, 0.0, 0)} if k == 0 else averaged(pipes[k], t, n, exact)
-                    for m, (rmse, off, most) in errs.items():
-                        rows.append([sc.label, str(lights), label, str(T), f"{ms[k]:.1f}" if m == 1 else "",
-                                     f"{1e3 / ms[k]:.1f}" if m == 1 else "", rays if m == 1 else "", str(m),
-                                     f"{m * ms[k]:.0f}", f"{rmse:.2f}", f"{100 * off:.2f}%", str(most)])
-                    print(f"# {sc.label} T={T} {label}: {ms[k]:.1f} ms, {rays} shadow rays/px; "
-                          + ", ".join(f"{m}: RMSE {e[0]:.2f}" for m, e in errs.items()), flush=True)
+    for sc, t, T in own_camera_runs(a):
+        pipes = {k: material_pipeline(sc, a.size, T, k) for k in [0, *ks]}
+        for p in pipes.values():  # (compiles, and the static grid)
+            p.step(t)
+        TWINS.wait()
+        times, last = {k: [] for k in pipes}, {}
+        for r in range(a.warmup + a.runs):
+            for k, p in pipes.items():  # in turns
+                t0 = time.perf_counter()
+                last[k] = p.step(t)
+                if r >= a.warmup:
+                    times[k].append((time.perf_counter() - t0) * 1e3)
+        ms = {k: stat(v)[0] for k, v in times.items()}
+        exact = last[0].image.copy()   # (each pipeline renders into buffers of its own)
+        lights = int(last[0].stats["lights"])
+        for k in pipes:
+            st = last[k].stats
+            rays = f"{st['shadow_rays_per_pixel']:.2f}"
+            label = "every light" if k == 0 else f"{k} drawn a pixel"
+            errs = {1: (0.0, 0.0, 0)} if k == 0 else averaged(pipes[k], t, n, exact)
+            for m, (rmse, off, most) in errs.items():
+                rows.append([sc.label, str(lights), label, str(T), f"{ms[k]:.1f}" if m == 1 else "",
+                             f"{1e3 / ms[k]:.1f}" if m == 1 else "", rays if m == 1 else "", str(m),
+                             f"{m * ms[k]:.0f}", f"{rmse:.2f}", f"{100 * off:.2f}%", str(most)])
+            print(f"# {sc.label} T={T} {label}: {ms[k]:.1f} ms, {rays} shadow rays/px; "
+                  + ", ".join(f"{m}: RMSE {e[0]:.2f}" for m, e in errs.items()), flush=True)
     return rows
 
 

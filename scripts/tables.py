@@ -13,8 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
+from gridrt.app.bench.affinity import Affinity
+from gridrt.app.bench.looks import looks_spec
 from gridrt.app.bench.machine import finish_machine, machine_info
 from gridrt.app.bench.output import md_table, out_dir, write_json, write_summary
+from gridrt.app.bench.scenes import resolve_scene
+from gridrt.pipeline import FramePipeline
 from gridrt.trace.twin import parallel_first
 
 #: names the tables give the scenes of the development data set
@@ -144,3 +148,30 @@ def keep_output(out):
 
     sys.excepthook = on_error
     atexit.register(write)
+
+
+def add_own_camera_options(p, scenes):
+    """--scenes (NAME:T each, T the time of its first frame) and --size of a script that renders
+    scenes through their own camera at SIZE x 3/4 SIZE (the table's values as defaults)."""
+    p.add_argument("--scenes", default=scenes, help="comma-separated bench scenes with their own camera, each "
+                   "NAME:T (the time of its first frame) (default: the table's, %(default)s)")
+    p.add_argument("--size", type=int, default=1024, help="image width; the height is 3/4 of it (default: the "
+                   "table's, %(default)s)")
+
+
+def material_pipeline(sc, size, threads, light_samples=0):
+    """The frame pipeline of a bench scene through its own camera at size x 3/4 size: material
+    shading with hard shadows, CGT, light_samples k (0: every light)."""
+    spec = looks_spec(sc.spec, size, threads, "cgt", "material", True).resized(size, size * 3 // 4)
+    return FramePipeline.from_spec(spec.replace(render=spec.render.replace(light_samples=light_samples)), sc.scene)
+
+
+def own_camera_runs(a):
+    """(scene, t, threads) for each NAME:T of --scenes (the bench scene, T its first frame's time)
+    and each count of --threads, the process pinned to that many cores while the caller runs it."""
+    for text in items(a.scenes):
+        name, t = text.rsplit(":", 1)
+        sc = resolve_scene(name)
+        for T in (int(x) for x in items(a.threads)):
+            with Affinity(T):
+                yield sc, float(t), T
