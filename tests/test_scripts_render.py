@@ -1,5 +1,5 @@
 """The scripts behind BENCHMARKS.md's float32-floor, MAX_CELLS, packet-size, shadow-packet,
-shadow-ray and drawn-light tables (scripts/) run and print the table they make: each runs at a small size as a
+shadow-ray, drawn-light and light-map tables (scripts/) run and print the table they make: each runs at a small size as a
 subprocess, exits 0 and prints a markdown table whose header and row labels are those of its table
 in BENCHMARKS.md (found by the script's name on the table's source line).  Timed figures are checked
 for their form only.
@@ -91,6 +91,20 @@ def test_light_samples_prints_its_table():
         assert NUMBER.fullmatch(one[4]) and NUMBER.fullmatch(one[6]) and float(one[6]) <= 2.0, one
         assert 0 < float(mean[9]) < float(one[9]), (one, mean)
         assert abs(float(mean[8]) - 8 * float(one[4])) <= 8, (one, mean)
+
+
+def test_light_maps_prints_its_table():
+    """The museum (shipped) at 128x96: the table's header and labels; both of its point lights
+    mapped, some segments left out, and every frame of the two pipelines the same."""
+    header, rows = run_script("light_maps.py", "--scenes", "museum:0", "--size", "128", "--threads", "1",
+                              "--runs", "2")
+    doc_header, doc_rows = doc_table("light_maps.py")
+    assert header == doc_header
+    assert "museum" in {r[0] for r in doc_rows}
+    assert [r[:3] for r in rows] == [["museum", "2", "1"]]
+    r = rows[0]
+    assert NUMBER.fullmatch(r[3]) and NUMBER.fullmatch(r[4]) and NUMBER.fullmatch(r[5]), r
+    assert 0 < float(r[7].rstrip("%")) <= 100 and r[8].startswith("2 lights, ") and r[10] == "2 of 2", r
 
 
 def test_character_frame_prints_its_table():

@@ -1,0 +1,124 @@
+"""Shadow segments left out by light maps: BENCHMARKS.md section 15, table "scene | lights | threads
+| frame ms without maps | frame ms with maps | with / without | shadow rays/px | left out by maps |
+maps made (ms, once) | map memory | frames identical".
+
+    .venv/bin/python scripts/light_maps.py
+
+Each scene is rendered through its own camera at SIZE x 3/4 SIZE (SIZE 1024), ``material`` shading
+with hard shadows of every light (the CGT traversal, the frame pipeline: the scene's static part in
+a grid of its own, kept from frame to frame), by two pipelines in turns: one whose renderer makes
+light maps for its point lights over the static grid (gridrt.trace.lightmap, the default) and one
+whose renderer makes none.  Frames step from ``--t`` by 1/30 s (the camera and the moving parts
+move, the lights and the static part stay); frame ms: the median of ``--runs`` frames after two
+untimed ones (the maps are made in the second), at each thread count (the process pinned to as
+many cores).  Left out: the share of the shadow segments that the maps showed clear, which the
+static grid then does not cast.  Every timed frame of the two pipelines is compared pixel for
+pixel, in the image and the colours before clamping.
+"""
+
+import argparse
+import importlib
+import time
+
+import numpy as np
+
+import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
+from gridrt.app.bench.stats import stat
+from gridrt.trace.lightmap import RES, LightMaps
+from gridrt.trace.twin import TWINS
+from tables import (add_out_option, add_own_camera_options, material_pipeline, own_camera_runs, print_table,
+                    start)
+
+#: the module whose build_light_map LightMaps calls (timed through it)
+LIGHTMAP = importlib.import_module("gridrt.trace.lightmap")
+SCENES = "kitchen:5,museum:0"
+HEADER = ["scene", "lights", "threads", "frame ms without maps", "frame ms with maps", "with / without",
+          "shadow rays/px", "left out by maps", "maps made (ms, once)", "map memory", "frames identical"]
+
+
+def parse_args(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_own_camera_options(p, SCENES)
+    p.add_argument("--threads", default="1,2", help="thread counts (default: the table's, %(default)s)")
+    p.add_argument("--runs", type=int, default=15, help="timed frames, the median kept (default: the table's, 15)")
+    add_out_option(p)
+    return start(p, argv)
+
+
+class NoMaps(LightMaps):
+    """A renderer's light maps that are never made."""
+
+    def for_lights(self, g, lights, diag):
+        return [None] * len(lights)
+
+
+class BuildTimer:
+    """Sums the seconds of LightMaps' build_light_map calls while it is entered."""
+
+    def __init__(self):
+        self.s, self.n = 0.0, 0
+        self.build = LIGHTMAP.build_light_map
+
+    def __enter__(self):
+        def timed(*args):
+            t0 = time.perf_counter()
+            near = self.build(*args)
+            self.s += time.perf_counter() - t0
+            self.n += 1
+            return near
+        LIGHTMAP.build_light_map = timed
+        return self
+
+    def __exit__(self, *exc):
+        LIGHTMAP.build_light_map = self.build
+
+
+def pipeline(sc, size, threads, maps):
+    """The frame pipeline of one side: the scene through its own camera, material and shadows."""
+    pipe = material_pipeline(sc, size, threads)
+    if not maps:
+        pipe.renderer._lightmaps = NoMaps()
+    return pipe
+
+
+def measure(a):
+    rows = []
+    for sc, t0, T in own_camera_runs(a):
+        on, off = pipeline(sc, a.size, T, True), pipeline(sc, a.size, T, False)
+        with BuildTimer() as built:
+            for k in range(2):   # (compiles, the static grid; the maps in the second frame)
+                on.step(t0 + k / 30)
+                off.step(t0 + k / 30)
+        TWINS.wait()
+        times = {True: [], False: []}
+        same, segs, left = 0, 0, 0
+        for k in range(2, 2 + a.runs):
+            t = t0 + k / 30
+            f = {}
+            for side, p in ((True, on), (False, off)):   # in turns
+                s = time.perf_counter()
+                fr = p.step(t)
+                times[side].append((time.perf_counter() - s) * 1e3)
+                f[side] = (fr.image.copy(), fr.hdr.copy(), fr.stats)
+            same += np.array_equal(f[True][0], f[False][0]) and np.array_equal(f[True][1], f[False][1])
+            segs += f[True][2]["shadow_rays_per_pixel"] * a.size * (a.size * 3 // 4)
+            left += on.renderer.shadow_clear
+        ms = {side: stat(v)[0] for side, v in times.items()}
+        st = f[True][2]
+        mib = built.n * 3 * 6 * RES * RES * 4 / 2**20
+        rows.append([sc.label, str(int(st["lights"])), str(T), f"{ms[False]:.1f}", f"{ms[True]:.1f}",
+                     f"{ms[True] / ms[False]:.2f}", f"{st['shadow_rays_per_pixel']:.2f}",
+                     f"{left / max(segs, 1):.1%}", f"{built.n} lights, {1e3 * built.s:.0f}",
+                     f"{mib:.1f} MiB", f"{same} of {a.runs}"])
+        print(f"# {sc.label} T={T}: {ms[False]:.1f} -> {ms[True]:.1f} ms, left out {left / max(segs, 1):.1%}",
+              flush=True)
+    return rows
+
+
+def main(argv=None):
+    return print_table(HEADER, measure, parse_args(argv))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
