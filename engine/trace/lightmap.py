@@ -318,9 +318,13 @@ class LightMaps:
             key = np.ascontiguousarray(lights[li, 1:4], np.float64).tobytes()
             lm = self._maps.get(key, _UNSEEN)
             if lm is None and _compiled():   # seen in an earlier frame: made now
-                lm = LightMap(lights[li, 1:4])
-                near = build_light_map(tris, lm.light, lm.d1, lm.id1, lm.d2)
-                lm = lm if near > NEAR_FLOOR * diag else False   # (False: never for this light)
+                try:
+                    lm = LightMap(lights[li, 1:4])
+                except MemoryError:   # (a map only saves time: the frames go on without)
+                    lm = False
+                else:
+                    near = build_light_map(tris, lm.light, lm.d1, lm.id1, lm.d2)
+                    lm = lm if near > NEAR_FLOOR * diag else False   # (False: never for this light)
             maps[key] = None if lm is _UNSEEN else lm
             out.append(lm if isinstance(lm, LightMap) else None)
         self._maps = maps   # (the lights of this frame only)
