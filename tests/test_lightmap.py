@@ -165,3 +165,26 @@ def test_light_maps_are_made_for_what_comes_back(rng):
     tris[5, 0, 1] += 0.5   # in place
     assert maps.for_lights(g, lights, 6.0)[0] is None
     assert maps.for_lights(g, lights, 6.0)[0] is not None
+
+
+def test_a_light_map_without_memory_is_not_made(rng, monkeypatch):
+    """Where a map's arrays cannot be allocated, the light goes on without one (no error), and no
+    later frame tries again."""
+    import gridrt.trace.lightmap as LM
+
+    tris = _floor_and_clutter(rng)
+    g = grid_arrays(GridBuilder().build(tris), tris)
+    lights = np.array([[0.0, 0.1, 2.0, 0.3, 1, 1, 1, 0]])
+    maps = LightMaps()
+    maps.for_lights(g, lights, 6.0)
+    TWINS.wait()
+    tries = []
+
+    class NoMemory(LightMap):
+        def __init__(self, light):
+            tries.append(light)
+            raise MemoryError
+
+    monkeypatch.setattr(LM, "LightMap", NoMemory)
+    assert maps.for_lights(g, lights, 6.0) == [None] and maps.for_lights(g, lights, 6.0) == [None]
+    assert len(tries) == 1
