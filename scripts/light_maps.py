@@ -24,7 +24,7 @@ import numpy as np
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from gridrt.app.bench.stats import stat
-from gridrt.trace.lightmap import RES, LightMaps
+from gridrt.trace.lightmap import K, RES, NoLightMaps
 from gridrt.trace.twin import TWINS
 from tables import (add_out_option, add_own_camera_options, material_pipeline, own_camera_runs, print_table,
                     start)
@@ -44,13 +44,6 @@ def parse_args(argv=None):
     p.add_argument("--runs", type=int, default=15, help="timed frames, the median kept (default: the table's, 15)")
     add_out_option(p)
     return start(p, argv)
-
-
-class NoMaps(LightMaps):
-    """A renderer's light maps that are never made."""
-
-    def for_lights(self, g, lights, diag):
-        return [None] * len(lights)
 
 
 class BuildTimer:
@@ -78,7 +71,7 @@ def pipeline(sc, size, threads, maps):
     """The frame pipeline of one side: the scene through its own camera, material and shadows."""
     pipe = material_pipeline(sc, size, threads)
     if not maps:
-        pipe.renderer._lightmaps = NoMaps()
+        pipe.renderer._lightmaps = NoLightMaps()
     return pipe
 
 
@@ -106,7 +99,7 @@ def measure(a):
             left += on.renderer.shadow_clear
         ms = {side: stat(v)[0] for side, v in times.items()}
         st = f[True][2]
-        mib = built.n * 3 * 6 * RES * RES * 4 / 2**20
+        mib = built.n * 6 * RES * RES * K * 8 / 2**20
         rows.append([sc.label, str(int(st["lights"])), str(T), f"{ms[False]:.1f}", f"{ms[True]:.1f}",
                      f"{ms[True] / ms[False]:.2f}", f"{st['shadow_rays_per_pixel']:.2f}",
                      f"{left / max(segs, 1):.1%}", f"{built.n} lights, {1e3 * built.s:.0f}",

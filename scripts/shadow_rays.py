@@ -9,7 +9,8 @@ For each scene, one frame is rendered with ``material`` shading and hard shadows
 the fill view, their camera moved in until the mesh fills the SIZE x SIZE frame, lit by the default
 light; SIZE 1024), and every batch of shadow segments the material pass hands to the batch caster is kept
 (``gridrt.trace.batch.cast_grouped``: the grid, the segments from the light's end back to the hit,
-t in (0, 1), any hit, the pass's own settings).  Then, at each thread count, the same batches are
+t in (0, 1), any hit, the pass's own settings; the renderer makes no light maps, so every segment
+is cast).  Then, at each thread count, the same batches are
 cast again, ``--runs`` times after ``--warmup``: Mrays/s is the segments of all batches over the
 median time of a round (the casts alone: no shading, no segment making).
 
@@ -43,6 +44,7 @@ from gridrt.config import GridParams, RenderParams
 from gridrt.grid.build import build_grid
 from gridrt.pipeline import FramePipeline
 from gridrt.threads import use_threads
+from gridrt.trace.lightmap import NoLightMaps
 from gridrt.trace.twin import TWINS, parallel_first
 from tables import add_out_option, items, start
 
@@ -79,9 +81,11 @@ class Spy:
         self.cast = RENDER.cast_grouped
 
     def __enter__(self):
-        def spy(g, o, d, tmin, tmax, watertight, any_hit, out, max_cells, f32, tri_only=False):
-            self.calls.append((g, o.copy(), d.copy(), (tmin, tmax, watertight, any_hit), max_cells, f32, tri_only))
-            return self.cast(g, o, d, tmin, tmax, watertight, any_hit, out, max_cells, f32, tri_only=tri_only)
+        def spy(g, o, d, tmin, tmax, watertight, any_hit, out, max_cells, f32, tri_only=False, rows=None):
+            kept = (o.copy(), d.copy()) if rows is None else (o[rows], d[rows])
+            self.calls.append((g, *kept, (tmin, tmax, watertight, any_hit), max_cells, f32, tri_only))
+            return self.cast(g, o, d, tmin, tmax, watertight, any_hit, out, max_cells, f32, tri_only=tri_only,
+                             rows=rows)
         RENDER.cast_grouped = spy
         return self
 
@@ -95,6 +99,7 @@ def segments(name, size):
     if name == "kitchen":
         spec = looks_spec(sc.spec, size, 2, "cgt", "material", True).resized(size, size * 3 // 4)
         pipe = FramePipeline.from_spec(spec, sc.scene)
+        pipe.renderer._lightmaps = NoLightMaps()   # (every segment cast: no light maps)
         pipe.step(5.0)
         with Spy() as spy:
             st = pipe.step(5.0).stats
@@ -104,6 +109,7 @@ def segments(name, size):
     grid = build_grid(tris, GridParams(threads=2), origin=np.zeros(3))
     rp = RenderParams(width=size, height=size, shading="material", shadows=True, traversal="cgt", threads=2)
     r = RENDER.Renderer()
+    r._lightmaps = NoLightMaps()
     r.render(grid, tris, cam, rp)
     with Spy() as spy:
         st = r.render(grid, tris, cam, rp).stats

@@ -553,7 +553,7 @@ def test_light_segments_mark_the_grids_each_segment_may_meet(rng, light_y, beyon
     rays = ShadowRays(np.zeros(n, np.uint8), np.zeros(n))
     segs = ShadowSegments(np.zeros(n, np.int64), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n, np.uint8), np.zeros(n))
     m, _ = light_segments(lights, 0, hp, 1e-6, 5.0, np.arange(n, dtype=np.int64), rays, segs, boxes,
-                          no_map(np.zeros(n, np.int32)))
+                          no_map())
     assert m == n  # every hit faces the light above
     for k in range(2):
         want = np.zeros(m, np.bool_)
@@ -623,7 +623,7 @@ def test_light_segments_against_numpy(rng, n):
         segs = ShadowSegments(np.full(n, -1, np.int64), np.full((n, 3), np.nan), np.full((n, 3), np.nan),
                               np.zeros(n, np.uint8), np.full(n, np.nan))
         m, _ = light_segments(lights, li, hp, off, far, order, rays, segs, np.empty((0, 7)),
-                              no_map(np.zeros(n, np.int32)))
+                              no_map())
         w = np.array([light_weight.py_func(lights, li, tuple(pos[i]), tuple(ng[i]), tuple(ns[i].astype(np.float64)))[0]
                       if acc[i, 0] >= 0 else 0.0 for i in range(n)])
         lit = w > 0

@@ -462,8 +462,8 @@ def _put_segment(light, hp, i, off, far, near, segs, m, weight, lmap):
     it misses need not trace it; with boxes (0, 7) every bit is set (near = (boxes, held)).  Bit
     g of ``held`` set: grid g's box holds the light (:func:`_holds_light`), its bit is set without
     the test.  Where the light's map lmap (:class:`gridrt.trace.records.LightMapArrays`; none when
-    its d1 has no rows) shows the segment clear (gridrt.trace.lightmap.shows_clear; the hit's
-    triangle from lmap.tri), bit 0 (the mapped grid's) is cleared: returns 1 then, else 0."""
+    its dist has no rows) shows the segment clear (gridrt.trace.lightmap.shows_clear), bit 0 (the
+    mapped grid's) is cleared: returns 1 then, else 0."""
     boxes, held = near
     pos, ngb = hp.pos, hp.ng
     ox, oy, oz = pos[i, 0] + ngb[i, 0] * off, pos[i, 1] + ngb[i, 1] * off, pos[i, 2] + ngb[i, 2] * off
@@ -483,13 +483,10 @@ def _put_segment(light, hp, i, off, far, near, segs, m, weight, lmap):
             if (held >> gi) & 1 == 0 and _near_box(boxes[gi], (sx, sy, sz), (-dx, -dy, -dz)):
                 bits |= 1 << gi
     cleared = 0
-    if lmap.d1.shape[0] > 0:
-        f = lmap.tri[i]
-        if lmap.local.shape[0] > 0:
-            f = lmap.local[f] if 0 <= f < lmap.local.shape[0] else -1
-        if shows_clear(lmap.light, lmap.d1, lmap.id1, lmap.d2, (sx - dx, sy - dy, sz - dz), f):
-            bits &= 254
-            cleared = 1
+    if lmap.dist.shape[0] > 0 and shows_clear(lmap, (sx - dx, sy - dy, sz - dz), (pos[i, 0], pos[i, 1], pos[i, 2]),
+                                              (ngb[i, 0], ngb[i, 1], ngb[i, 2]), off):
+        bits &= 254
+        cleared = 1
     segs.grids[m] = bits
     segs.weight[m] = weight
     return cleared
@@ -621,8 +618,8 @@ def drawn_segments(lights, hp, W, draws, off, far, order, segs, boxes):
                 if _holds_light(boxes[gi], (lights[li, 1], lights[li, 2], lights[li, 3])):
                     held[li] |= 1 << gi
     pos, ngb, nsb = hp.pos, hp.ng, hp.ns
-    unmapped = LightMapArrays(np.zeros(3), np.empty((0, 0, 0), np.float32), np.empty((0, 0, 0), np.int32),
-                              np.empty((0, 0, 0), np.float32), np.empty(0, np.int32), np.empty(0, np.int32))
+    unmapped = LightMapArrays(np.zeros(3), np.empty((0, 0, 0, 3), np.float32), np.empty((0, 0, 0, 3), np.int32),
+                              np.empty((0, 3, 3), np.float32))
     for c in prange(nc):
         for kk in range(c * LIT_CHUNK, min(N, (c + 1) * LIT_CHUNK)):
             i = order[kk]

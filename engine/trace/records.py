@@ -93,10 +93,9 @@ ShadowSegments = namedtuple("ShadowSegments", "rows o d grids weight")
 Draws = namedtuple("Draws", "k shift lit factor guide block bw")
 
 #: One point light's map for the shadow segments the material pass makes (gridrt.trace.lightmap):
-#: light (3,) float64, d1, d2 (6, R, R) float32 and id1 (6, R, R) int32 (R = 0: no map), tri the
-#: image's tri buffer flat (W * H,) int32 (the scene id of each pixel's hit) and local (K,) int32
-#: the mapped grid's index of each scene id (-1 for other grids' triangles; empty: the same ids).
-LightMapArrays = namedtuple("LightMapArrays", "light d1 id1 d2 tri local")
+#: light (3,) float64, dist (6, R, R, K) float32 and tri (6, R, R, K) int32 (R = 0: no map), and
+#: tris (F, 3, 3) float32 the mapped grid's triangles.
+LightMapArrays = namedtuple("LightMapArrays", "light dist tri tris")
 
 #: The material pass's buffers for shadows (Python side, gridrt.trace.render.Renderer keeps them
 #: from frame to frame): the :class:`HitPoints` hp, the :class:`ShadowRays` rays, the pixels in

@@ -48,7 +48,7 @@ from .twin import TWINS
 from ..camera import Camera, pixel_dir
 from .cgt.frame import cgt_render_kernel, cgt_render_serial
 from .grids import grid_arrays, grid_tuple, pack_grids, unpack_grids
-from .lightmap import LightMaps, clear_lit, no_map, segment_triangles
+from .lightmap import LightMaps, clear_lit, no_map
 from .material import (add_light, compose, draw_shift, drawn_segments, light_segments, live_segments, mark_blocked,
                        near_boxes, shade_kernel, shade_serial, surface_arrays)
 from .records import (Buffers, HitPoints, ShadowBuffers, ShadowRays, ShadowSegments, make_draws, make_packets,
@@ -592,19 +592,14 @@ class Renderer:
         # point lights over the first grid's triangles, the same as in an earlier frame: their
         # segments that a light map shows clear are left out of that grid's casts (bit 0)
         maps = self._lightmaps.for_lights(grids[0], lights, diag)
-        tri_flat = ib.reshape(-1)
-
         self.shadow_clear = 0
 
         def leave_clear(segs, s0, m, li):
             """Clear bit 0 of segments s0 .. s0 + m of segs (light li's) that its map shows clear."""
-            lm = maps[li]
-            if lm is None or m == 0:
+            if maps[li] is None or m == 0:
                 return
-            hit_tri = np.empty(m, np.int32)
-            segment_triangles(segs.rows[s0:s0 + m], tri_flat, self._lightmaps.local, hit_tri)
-            self.shadow_clear += int(clear_lit(lm.light, lm.d1, lm.id1, lm.d2, segs.o[s0:s0 + m], segs.d[s0:s0 + m],
-                                               hit_tri, 1, segs.grids[s0:s0 + m]))
+            self.shadow_clear += int(clear_lit(maps[li].arrays(grids[0].tris), hp, segs.rows[s0:s0 + m], off,
+                                               segs.o[s0:s0 + m], segs.d[s0:s0 + m], 1, segs.grids[s0:s0 + m]))
 
         k = params.light_samples
         if k and len(lights) > 1:  # k lights drawn per hit pixel, weighted to keep the mean: every
@@ -620,7 +615,7 @@ class Renderer:
         # packet where a run of a row's pixels is a wide one (or single rays)
         for li in range(len(lights)):
             if start is None:   # (the map's test made as each segment is written)
-                lmap = no_map(tri_flat) if maps[li] is None else maps[li].arrays(tri_flat, self._lightmaps.local)
+                lmap = no_map() if maps[li] is None else maps[li].arrays(grids[0].tris)
                 s0, (m, cl) = 0, light_segments(lights, li, hp, off, far, order, rays, segs, boxes, lmap)
                 m = int(m)
                 self.shadow_clear += int(cl)
