@@ -9,9 +9,9 @@ with hard shadows of every light (the CGT traversal, the frame pipeline: the sce
 a grid of its own, kept from frame to frame), by two pipelines in turns: one whose renderer makes
 light maps for its point lights over the static grid (gridrt.trace.lightmap, the default) and one
 whose renderer makes none.  Frames step from ``--t`` by 1/30 s (the camera and the moving parts
-move, the lights and the static part stay); frame ms: the median of ``--runs`` frames after two
-untimed ones (the maps are made in the second), at each thread count (the process pinned to as
-many cores).  Left out: the share of the shadow segments that the maps showed clear, which the
+move, the lights and the static part stay); frame ms: the median of ``--runs`` frames after
+untimed ones, one and then one for each light (the maps are made one a frame from the second), at
+each thread count (the process pinned to as many cores).  Left out: the share of the shadow segments that the maps showed clear, which the
 static grid then does not cast.  Every timed frame of the two pipelines is compared pixel for
 pixel, in the image and the colours before clamping.
 """
@@ -80,13 +80,15 @@ def measure(a):
     for sc, t0, T in own_camera_runs(a):
         on, off = pipeline(sc, a.size, T, True), pipeline(sc, a.size, T, False)
         with BuildTimer() as built:
-            for k in range(2):   # (compiles, the static grid; the maps in the second frame)
-                on.step(t0 + k / 30)
+            lights, k = 1, 0
+            while k < 1 + lights:   # (compiles, the static grid; then a light's map a frame)
+                lights = int(on.step(t0 + k / 30).stats["lights"])
                 off.step(t0 + k / 30)
+                k += 1
         TWINS.wait()
         times = {True: [], False: []}
         same, segs, left = 0, 0, 0
-        for k in range(2, 2 + a.runs):
+        for k in range(k, k + a.runs):
             t = t0 + k / 30
             f = {}
             for side, p in ((True, on), (False, off)):   # in turns
