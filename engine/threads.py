@@ -11,6 +11,7 @@ import ctypes.util
 import hashlib
 import os
 import shutil
+import sys
 import threading
 import time
 import warnings
@@ -31,8 +32,12 @@ def configure_env():
     tolerates parallel kernels launched from two Python threads at once (the viewer does that).
     numba keys a cached kernel on its own file only, so after an edit to a function it calls
     from another file it would load stale machine code; a cache folder per source hash avoids that.
+    Where numba was imported first, its thread count stands (NUMBA_NUM_THREADS is set to it): numba
+    reads its variables again before each compile, and a thread count other than that of its
+    launched threads would stop the program's next compile with a RuntimeError.
     """
-    os.environ.setdefault("NUMBA_NUM_THREADS", str(MAX_THREADS))
+    config = sys.modules.get("numba.core.config")
+    os.environ.setdefault("NUMBA_NUM_THREADS", str(MAX_THREADS if config is None else config.NUMBA_NUM_THREADS))
     if "NUMBA_THREADING_LAYER" not in os.environ and _have_gomp():
         os.environ["NUMBA_THREADING_LAYER"] = "omp"
     if "OMP_WAIT_POLICY" not in os.environ:

@@ -77,3 +77,28 @@ def test_wheel_runs_from_its_own_files(wheel, tmp_path):
     where, *counts = r.stdout.split()
     assert Path(where) == site / "gridrt" / "assets"
     assert [int(c) for c in counts] == [make_scene(n).triangles_at(0.0).shape[0] for n in ("morph_sphere", "museum")]
+
+
+def test_numba_imported_before_gridrt():
+    """A program that imports numba before gridrt keeps numba's thread count: gridrt casts with it,
+    and the program's own kernels still compile after gridrt's threads run (a changed
+    NUMBA_NUM_THREADS would stop that compile with a RuntimeError)."""
+    code = (
+        "import numba, numpy as np\n"
+        "import gridrt\n"
+        "from gridrt import RayCaster\n"
+        "from gridrt.scene import icosphere_mesh\n"
+        "from gridrt.threads import max_threads\n"
+        "m = icosphere_mesh(320)\n"
+        "rc = RayCaster(m.vertices, m.faces)\n"
+        "o, d = np.zeros((20000, 3)), np.random.default_rng(1).normal(size=(20000, 3))\n"
+        "hit = rc.cast(o, d)\n"
+        "assert np.isfinite(hit.t).all()\n"
+        "own = numba.njit(lambda x: x + 1)\n"
+        "assert own(1) == 2\n"
+        "print(max_threads(), numba.config.NUMBA_NUM_THREADS)\n")
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_NUM_THREADS"}
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, cwd=REPO, env=env)
+    assert r.returncode == 0, r.stderr[-3000:]
+    have, numba_default = (int(x) for x in r.stdout.split())
+    assert have == numba_default == (os.cpu_count() or 1)
