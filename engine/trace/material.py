@@ -23,7 +23,8 @@ mode 3).  Per hit pixel:
   traversal, one at a time with ``dda``), tile by tile of the image and from the light's end of
   the segment back to the hit (:func:`light_segments`): a point light's rays then share one origin,
   and a ray blocked near its light (inside a lamp's shade) stops there instead of crossing the
-  scene first.
+  scene first.  Over triangles that stay from frame to frame, the segments a light's map shows
+  clear (gridrt.trace.lightmap) are left out of that grid's casts.
 
 The pass takes a row's pixels LANES at a time (:func:`_shade_row`): their triangles' corners
 gathered into scratch rows, then every step above in loops over the lanes without branches, which
