@@ -215,6 +215,27 @@ BOUNDARIES = {
         "material and texture indices in range, texels, uv/colour/normal shapes; normals (F, 3, 3) float32 "
         "finite; lights (L, 8) finite, known kinds, unit directions); buffers sized W x H",
         ["test_guard_render_material"]),
+    "gridrt.trace.render:Renderer._shade_material.blocked_of": (
+        "internal: the material pass's casts of segments s0 .. s0 + m of a ShadowSegments it made (m at most "
+        "its rows); live_segments and mark_blocked read and write rows 0..m-1 of the segments' marks, the "
+        "blocked flags (W * H) and a live list of m they are given, the casts' out of W * H rows",
+        ["test_guard_render_material", "test_guard_light_samples"]),
+    "gridrt.trace.render:Renderer._shade_material.leave_clear": (
+        "internal: as blocked_of; clear_lit reads segments s0 .. s0 + m, their pixels (rows the segment kernels "
+        "wrote, each below W * H) in the HitPoints of W * H, and a light map LightMaps made (cells clamped into "
+        "its RES x RES faces, its triangle indices those of the grid's tris it was made from)",
+        ["test_guard_render_material", "test_guard_light_samples"]),
+    "gridrt.trace.lightmap:LightMaps.for_lights": (
+        "internal: called by _shade_material only, with the first grid's GridArrays (its tris (F, 3, 3) float32, "
+        "checked by Renderer.render) and the lights _check_looks validated; tri_hash reads the tris' words, "
+        "build_light_map writes a map it allocates, every cell index clamped into [0, RES)",
+        ["test_guard_render_material"]),
+    "gridrt.trace.lightmap:_compiled": (
+        "internal: whether build_light_map is compiled (its cache entry), else its compile started through "
+        "_warm_build; no data", ["test_guard_render_material"]),
+    "gridrt.trace.lightmap:_warm_build": (
+        "internal: build_light_map over one triangle into a map it allocates (the kernel's compile)",
+        ["test_guard_render_material"]),
     "gridrt.trace.render:Renderer.light_guide": (
         "internal: called by _shade_material only, where lights are drawn (RenderParams.light_samples 1..8, "
         "checked when made), with the frame's W and H and the lights _check_looks validated; the probes are "
