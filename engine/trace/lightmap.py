@@ -345,9 +345,9 @@ class LightMaps:
         """The maps (LightMap or None per light) of the grid g (GridArrays) for lights (L, 8) in
         its frame, this frame; diag: the scene's diagonal."""
         tris = g.tris
-        if self._tris is not tris or self._hash != tri_hash(tris.reshape(-1).view(np.uint32)):
-            self._tris, self._maps = tris, {}
-            self._hash = tri_hash(tris.reshape(-1).view(np.uint32))
+        h = tri_hash(tris.reshape(-1).view(np.uint32))
+        if self._tris is not tris or self._hash != h:
+            self._tris, self._hash, self._maps = tris, h, {}
         out, maps, made = [], {}, False
         for li in range(len(lights)):
             if lights[li, 0] != LIGHT_POINT or li >= MAX_MAPS:
