@@ -11,9 +11,11 @@ light maps for its point lights over the static grid (gridrt.trace.lightmap, the
 whose renderer makes none.  Frames step from ``--t`` by 1/30 s (the camera and the moving parts
 move, the lights and the static part stay); frame ms: the median of ``--runs`` frames after
 untimed ones, one and then one for each light (the maps are made one a frame from the second), at
-each thread count (the process pinned to as many cores).  Left out: the share of the shadow segments that the maps showed clear, which the
-static grid then does not cast.  Every timed frame of the two pipelines is compared pixel for
-pixel, in the image and the colours before clamping.
+each thread count (the process pinned to as many cores).  Left out: the share of the shadow
+segments that the maps showed clear, which the static grid then does not cast.  Maps made: the
+time of making them and of putting the triangles in clusters (once, with the first map); map
+memory: the maps' and the clusters' arrays.  Every timed frame of the two pipelines is compared
+pixel for pixel, in the image and the colours before clamping.
 """
 
 import argparse
@@ -47,11 +49,12 @@ def parse_args(argv=None):
 
 
 class BuildTimer:
-    """Sums the seconds of LightMaps' build_light_map calls while it is entered."""
+    """Sums the seconds of LightMaps' build_light_map calls (n: how many) and of its plane_clusters
+    calls while it is entered."""
 
     def __init__(self):
         self.s, self.n = 0.0, 0
-        self.build = LIGHTMAP.build_light_map
+        self.build, self.clusters = LIGHTMAP.build_light_map, LIGHTMAP.plane_clusters
 
     def __enter__(self):
         def timed(*args):
@@ -60,11 +63,17 @@ class BuildTimer:
             self.s += time.perf_counter() - t0
             self.n += 1
             return near
-        LIGHTMAP.build_light_map = timed
+
+        def clusters(*args):
+            t0 = time.perf_counter()
+            cl = self.clusters(*args)
+            self.s += time.perf_counter() - t0
+            return cl
+        LIGHTMAP.build_light_map, LIGHTMAP.plane_clusters = timed, clusters
         return self
 
     def __exit__(self, *exc):
-        LIGHTMAP.build_light_map = self.build
+        LIGHTMAP.build_light_map, LIGHTMAP.plane_clusters = self.build, self.clusters
 
 
 def pipeline(sc, size, threads, maps):
@@ -101,7 +110,8 @@ def measure(a):
             left += on.renderer.shadow_clear
         ms = {side: stat(v)[0] for side, v in times.items()}
         st = f[True][2]
-        mib = built.n * 6 * RES * RES * K * 8 / 2**20
+        cl = on.renderer._lightmaps._clusters
+        mib = (built.n * 6 * RES * RES * K * 8 + sum(x.nbytes for x in (cl.of, cl.planes, cl.lone))) / 2**20
         rows.append([sc.label, str(int(st["lights"])), str(T), f"{ms[False]:.1f}", f"{ms[True]:.1f}",
                      f"{ms[True] / ms[False]:.2f}", f"{st['shadow_rays_per_pixel']:.2f}",
                      f"{left / max(segs, 1):.1%}", f"{built.n} lights, {1e3 * built.s:.0f}",

@@ -14,7 +14,7 @@ from gridrt.grid import GridBuilder
 from gridrt.grid.build import build_grid
 from gridrt.trace.batch import cast_grouped
 from gridrt.trace.grids import grid_arrays
-from gridrt.trace.lightmap import LightMap, LightMaps, NoLightMaps, build_light_map, clear_lit
+from gridrt.trace.lightmap import CLUSTER_EPS, LightMap, LightMaps, NoLightMaps, clear_lit, plane_clusters
 from gridrt.trace.records import HitPoints
 from gridrt.trace.render import Looks, Renderer
 from gridrt.trace.twin import TWINS
@@ -73,8 +73,8 @@ def test_light_map_clears_only_segments_nothing_blocks(rng):
     p, n = np.concatenate([p, q]), np.concatenate([n, nq])
     end = p + n * off
     o, d = end + (light - end), -(light - end)
-    lm = LightMap(light)
-    near = build_light_map(tris, lm.light, lm.dist, lm.tri)
+    lm = LightMap(light, plane_clusters(tris, CLUSTER_EPS * _diag(tris)))
+    near = lm.build(tris)
     assert near > 0.1
     marks = np.full(len(o), 3, np.uint8)
     cleared = clear_lit(lm.arrays(tris), _hits(p, n), np.arange(len(o)), off, o, d, 1, marks)
@@ -89,6 +89,99 @@ def test_light_map_clears_only_segments_nothing_blocks(rng):
     pick = rng.choice(np.flatnonzero(clear), 1500, replace=False)
     t, f, _ = brute_cast(tris, o[pick], d[pick], 0.0, 1.0)
     assert (f < 0).all()
+
+
+def _tiles(n, size, y=0.0, tilt=0.0):
+    """n x n quads of side size centred on the origin at height y (two triangles each, sharing
+    edges and corners), turned by tilt radians about the x axis."""
+    i, k = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    x0, z0 = (i.ravel() - n / 2) * size, (k.ravel() - n / 2) * size
+    a = np.stack([x0, np.zeros_like(x0), z0], 1)
+    b, c, d = a + [size, 0, 0], a + [size, 0, size], a + [0, 0, size]
+    t = np.concatenate([np.stack([a, c, b], 1), np.stack([a, d, c], 1)])
+    rot = np.array([[1, 0, 0], [0, np.cos(tilt), -np.sin(tilt)], [0, np.sin(tilt), np.cos(tilt)]])
+    return t @ rot.T + [0.0, y, 0.0]
+
+
+def test_plane_clusters_hold_their_triangles(rng):
+    """Clusters of triangles in one plane: every triangle's corners lie within its cluster's tol of
+    the cluster's plane (float64, computed here); a floor's tiles share one cluster, as do a tilted
+    plane's (its corners rounded to float32); a parallel floor 10 eps above, a triangle without
+    area and clutter each stay apart; lone names the triangle of each one-triangle cluster."""
+    eps = 1e-6
+    floor = _tiles(12, 0.25)
+    tilted = _tiles(8, 0.2, y=0.7, tilt=0.3)
+    above = _tiles(4, 0.25, y=10 * eps)
+    clutter = rng.uniform(-1, 1, (50, 3, 3))
+    flat = np.array([[[0.0, 1.0, 0.0], [1.0, 1.0, 0.0], [2.0, 1.0, 0.0]]])   # no area
+    parts = [floor, tilted, above, clutter, flat]
+    tris = np.ascontiguousarray(np.concatenate(parts), np.float32)
+    cl = plane_clusters(tris, eps)
+    of, planes, lone = cl.of, cl.planes, cl.lone
+    start = np.cumsum([0] + [len(t) for t in parts])
+    part = [of[start[k]:start[k + 1]] for k in range(len(parts))]
+    assert len(np.unique(part[0])) == 1 and len(np.unique(part[1])) == 1 and len(np.unique(part[2])) == 1
+    assert part[0][0] != part[2][0] and not np.isin(part[3], np.concatenate(part[:3])).any()
+    assert len(np.unique(part[3])) == len(clutter) and np.isinf(planes[part[4][0], 4])
+    t = tris.astype(np.float64)
+    n, h, tol = planes[of, :3], planes[of, 3], planes[of, 4]
+    ok = np.isfinite(tol)
+    assert np.allclose(np.linalg.norm(n[ok], axis=1), 1.0, atol=1e-12)
+    dev = np.abs(np.einsum("fkc,fc->fk", t, n) - h[:, None]).max(1)
+    assert (dev[ok] <= tol[ok]).all() and (tol[ok] <= eps + 1e-9).all()
+    count = np.bincount(of, minlength=len(planes))
+    assert np.array_equal(lone[of], np.where(count[of] == 1, np.arange(len(tris)), -1))
+
+
+def test_light_map_keeps_a_cluster_s_triangles_off_its_plane(rng):
+    """A floor of flat square tiles, each at its own height between 1 and 9 mm, in one cluster
+    (clusters of triangles within 1 cm of a plane): segments from a light above it to points from
+    0 to 1.2 cm above the floor are shown clear only where nothing blocks them (the DDA): the
+    cluster's corners' distance from its plane counts, not only the plane."""
+    tris = _tiles(60, 0.05)
+    tris[:, :, 1] = np.tile(rng.uniform(0.001, 0.009, 3600), 2)[:, None]   # (a quad's two triangles alike)
+    tris = np.ascontiguousarray(tris, np.float32)
+    cl = plane_clusters(tris, 0.01)
+    assert len(np.unique(cl.of)) == 1 and 0.005 < cl.planes[0, 4] < 0.01
+    light = np.array([0.1, 1.0, -0.2])
+    n = 20000
+    p = np.column_stack([rng.uniform(-1.4, 1.4, n), rng.uniform(0.0, 0.012, n), rng.uniform(-1.4, 1.4, n)])
+    up = np.tile([0.0, 1.0, 0.0], (n, 1))
+    off = 1e-6 * _diag(tris)
+    end = p + up * off
+    o, dd = end + (light - end), -(light - end)
+    lm = LightMap(light, cl)
+    lm.build(tris)
+    marks = np.full(n, 1, np.uint8)
+    clear_lit(lm.arrays(tris), _hits(p, up), np.arange(n), off, o, dd, 1, marks)
+    g = grid_arrays(GridBuilder().build(tris, GridParams()), tris)
+    out = (np.empty(n), np.empty(n, np.int32), np.empty(n), np.empty(n))
+    cast_grouped(g, o, dd, 0.0, 1.0, True, True, out, 0.0, tri_only=True)
+    blocked = out[1] >= 0
+    assert 0.2 < blocked.mean() < 0.8
+    assert not ((marks == 0) & blocked).any()
+    assert (marks == 0).sum() > 0.1 * n   # (the points above every tile)
+
+
+def test_light_map_clears_a_floor_of_small_tiles(rng):
+    """A floor of small tiles under a point light, so that more than K of them come within a cell
+    of each of the map's cells: nothing blocks its segments, and the map shows every one clear (its
+    tiles are one cluster, kept once a cell).  With every tile a cluster of its own, the cells
+    are full and most segments are not shown clear."""
+    tris = np.ascontiguousarray(_tiles(150, 0.02), np.float32)   # 45,000 triangles, 3 m wide
+    light = np.array([0.1, 1.2, -0.2])
+    off = 1e-6 * _diag(tris)
+    p, n = _segments(rng, tris, light, off, 20000)
+    end = p + n * off
+    o, d = end + (light - end), -(light - end)
+    cleared = []
+    for eps in (CLUSTER_EPS * _diag(tris), -1.0):   # (below 0: each triangle alone)
+        lm = LightMap(light, plane_clusters(tris, eps))
+        lm.build(tris)
+        marks = np.full(len(o), 1, np.uint8)
+        cleared.append(clear_lit(lm.arrays(tris), _hits(p, n), np.arange(len(o)), off, o, d, 1, marks))
+        assert cleared[-1] == (marks == 0).sum()
+    assert cleared[0] == len(o) and cleared[1] < 0.5 * len(o)
 
 
 @pytest.mark.parametrize("traversal,threads,samples", [("cgt", 2, 0), ("dda", 1, 0), ("cgt", 2, 2)])
@@ -187,7 +280,7 @@ def test_a_light_map_without_memory_is_not_made(rng, monkeypatch):
     tries = []
 
     class NoMemory(LightMap):
-        def __init__(self, light):
+        def __init__(self, light, cl):
             tries.append(light)
             raise MemoryError
 

@@ -21,7 +21,6 @@ from gridrt.pipeline import FramePipeline
 from gridrt.scene.animation import Animation, StaticMesh
 from gridrt.scene.mesh import Mesh
 from gridrt.scene.surface import Surface, Texture
-from gridrt.trace.lightmap import no_map
 from gridrt.trace.material import _near_box
 from gridrt.trace.render import Looks, Renderer
 from helpers.material_scene import CAM, H, W, _diag, _quad, compare, engine_lights, engine_surface, scene
@@ -552,8 +551,7 @@ def test_light_segments_mark_the_grids_each_segment_may_meet(rng, light_y, beyon
     hp = HitPoints(pos, ng, ng.astype(np.float32), np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32))
     rays = ShadowRays(np.zeros(n, np.uint8), np.zeros(n))
     segs = ShadowSegments(np.zeros(n, np.int64), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n, np.uint8), np.zeros(n))
-    m, _ = light_segments(lights, 0, hp, 1e-6, 5.0, np.arange(n, dtype=np.int64), rays, segs, boxes,
-                          no_map())
+    m = light_segments(lights, 0, hp, 1e-6, 5.0, np.arange(n, dtype=np.int64), rays, segs, boxes)
     assert m == n  # every hit faces the light above
     for k in range(2):
         want = np.zeros(m, np.bool_)
@@ -622,8 +620,7 @@ def test_light_segments_against_numpy(rng, n):
         rays = ShadowRays(np.full(n, 7, np.uint8), np.full(n, np.nan))
         segs = ShadowSegments(np.full(n, -1, np.int64), np.full((n, 3), np.nan), np.full((n, 3), np.nan),
                               np.zeros(n, np.uint8), np.full(n, np.nan))
-        m, _ = light_segments(lights, li, hp, off, far, order, rays, segs, np.empty((0, 7)),
-                              no_map())
+        m = light_segments(lights, li, hp, off, far, order, rays, segs, np.empty((0, 7)))
         w = np.array([light_weight.py_func(lights, li, tuple(pos[i]), tuple(ng[i]), tuple(ns[i].astype(np.float64)))[0]
                       if acc[i, 0] >= 0 else 0.0 for i in range(n)])
         lit = w > 0

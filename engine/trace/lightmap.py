@@ -2,35 +2,44 @@
 from frame to frame, a map of the directions around the light that tells, per direction, how near
 the nearest triangles come.
 
+The triangles are first put in clusters (:func:`plane_clusters`): triangles whose corners all lie
+within CLUSTER_EPS of the scene's diagonal of one plane (a floor's tiles, a wall, a table top) share
+one, with that plane and how far its corners lie from it at most; every other triangle is a cluster
+of its own.
+
 The map (:class:`LightMap`) covers the sphere of directions around the light with the six faces
 of a cube, RES x RES cells a face.  Each cell keeps the K (3) least distances from the light of
-triangles whose directions (as seen from the light) come within one cell of it, and those
-triangles' indices.  A triangle's directions are its corners' after clipping it to the face's
-pyramid, projected onto the face: the cells of each column its projection spans, with a column and
-a row to spare on each side.  Its distance in a cell is a lower bound, the greater of two: the
-distance from the light to its bounding box, and the least distance from the light to its plane
-along the cell's directions (where all of them meet the plane in front of the light), both shrunk
-by DIST_SHRINK before they are rounded to float32.
+the clusters whose triangles' directions (as seen from the light) come within one cell of it, and
+those clusters' numbers: a cluster's distance is the least of its triangles'.  A triangle's
+directions are its corners' after clipping it to the face's pyramid, projected onto the face: the
+cells of each column its projection spans, with a column and a row to spare on each side.  Its
+distance in a cell is a lower bound, the greater of two: the distance from the light to its
+bounding box, and the least distance from the light to its plane along the cell's directions
+(where all of them meet the plane in front of the light), both shrunk by DIST_SHRINK before they
+are rounded to float32.
 
 A shadow segment from the light to a lit hit p' = p + n_g off (the hit p on its triangle moved off
 it towards the light by the shadow offset, :func:`gridrt.trace.material._put_segment`) at distance
-d is clear, exactly, when each of the cell's triangles nearer than d (grown by DIST_GROW) lies
+d is clear, exactly, when each of the cell's clusters nearer than d (grown by DIST_GROW) is passed
+over, and fewer than K of them are: no other triangle comes nearer than p' in its directions.  A
+cluster is passed over when the segment's two ends lie on the same side of its plane, both farther
+from it than its triangles' corners (with a margin for rounding): the segment then meets none of
+them.  That passes over the cluster p lies on (p' lies off above it), and flat neighbours of the
+hit facing the light.  A cluster of one triangle is passed over as well when that triangle lies
 wholly at or below the plane through p along n_g, to within off / 4 (its corners' heights above
-that plane), and fewer than K of them are: the segment lies at least off / 2 above that plane (the
-light too: where the light lies lower, no triangle is passed over), so none of those can block it,
-and no other triangle comes nearer than p' in its directions.  The triangle p lies on, and its
-neighbours on a flat surface, are passed over that way.  Such a segment is left out of the grid's
-casts (its grid bit cleared), and the verdict is the one the casts would give: nothing blocks it.
-A map is never made for a light with a triangle nearer than NEAR_FLOOR of the scene's diagonal
-(segments that start there could leave the light's cell by rounding).
+that plane) while the light lies at least off / 2 above it: the segment lies at least off / 2
+above that plane (a convex neighbour's triangles, a curved surface's).  Such a segment is left out
+of the grid's casts (its grid bit cleared), and the verdict is the one the casts would give:
+nothing blocks it.  A map is never made for a light with a triangle nearer than NEAR_FLOOR of the
+scene's diagonal (segments that start there could leave the light's cell by rounding).
 
 The maps are made for the first grid of a render (the static part of a split scene, or a scene's
 only grid) when the same triangles (the same array, of the same contents: :func:`tri_hash`) and
 the same light come back in a following frame (:class:`LightMaps`): a scene whose triangles move
 every frame never makes one.  A frame makes at most one map (the lights' maps come one by one in
-the frames that follow).  On a cold compile cache, build_light_map first compiles on a background
-thread while the frames go on without maps.  Each map takes 8 K bytes a cell (9.4 MiB
-at RES 256)."""
+the frames that follow), and the clusters are found with the first.  On a cold compile cache,
+build_light_map first compiles on a background thread while the frames go on without maps.  Each
+map takes 8 K bytes a cell (9.4 MiB at RES 256); the clusters at most 48 bytes a triangle."""
 
 import numpy as np
 from numba import njit, prange
@@ -53,41 +62,99 @@ DIST_GROW = 1e-9
 NEAR_FLOOR = 1e-9
 #: lights whose maps a renderer keeps (the first ones of the scene's list)
 MAX_MAPS = 16
+#: triangles whose corners lie within this fraction of the scene's diagonal of one plane share a
+#: cluster (a tenth of the shadow offset, gridrt.trace.render.SHADOW_OFFSET)
+CLUSTER_EPS = 1e-7
+#: heights above a cluster's plane count only beyond this fraction of the coordinates' size (the
+#: rounding of the casts and of the heights themselves, with room to spare)
+PLANE_SLACK = 1e-9
 
 
-def no_map():
-    """The :class:`gridrt.trace.records.LightMapArrays` of a light without a map (R = 0), with
-    the types of a map's (one compiled kernel for both)."""
-    return LightMapArrays(np.zeros(3), _NO_D, _NO_ID, _NO_TRIS)
+class Clusters:
+    """Triangles in clusters (:func:`plane_clusters`): of (F,) int32 each triangle's cluster,
+    planes (C, 5) float64 each cluster's plane (nx, ny, nz, h: the points x with n . x = h, n a
+    unit vector; 0, 0, 0, 0 for a triangle without area) and tol, the farthest its corners lie from
+    it (inf without area), and lone (C,) int32 a cluster's triangle where it has one, else -1."""
+
+    __slots__ = ("of", "planes", "lone")
+
+    def __init__(self, of, planes, lone):
+        self.of, self.planes, self.lone = of, planes, lone
 
 
-_NO_D = np.empty((0, 0, 0, K), np.float32)
-_NO_ID = np.empty((0, 0, 0, K), np.int32)
-_NO_TRIS = np.empty((0, 3, 3), np.float32)
+def plane_clusters(tris, eps):
+    """:class:`Clusters` of the triangles tris (F, 3, 3) float32: triangles whose corners all lie
+    within eps of the plane of the first triangle of their class (their unit normals, turned so
+    that their largest component is positive, rounded to 2^-13, and their planes' distances from
+    the origin in steps of 4 eps) share a cluster, with that plane; every other triangle is one of
+    its own.  tol: the corners' farthest distance from the cluster's plane (float64), plus 1e-12 of
+    the largest coordinate for its rounding."""
+    t = tris.astype(np.float64)
+    F = len(t)
+    n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    length = np.sqrt((n * n).sum(1))
+    ok = np.isfinite(length) & (length > 0.0)
+    n = np.where(ok[:, None], n / np.where(ok, length, 1.0)[:, None], 0.0)
+    rows = np.arange(F)
+    n[n[rows, np.abs(n).argmax(1)] < 0.0] *= -1.0
+    h = (n * t[:, 0]).sum(1)
+    q = np.round(n * 8192.0).astype(np.int64)
+    qh = np.floor(h / (4.0 * eps)) if eps > 0.0 else np.zeros(F)
+    qh = np.where(np.isfinite(qh), qh, 0.0).astype(np.int64)
+    key = (q[:, 0] * np.int64(0x9E3779B97F4A7C15 - (1 << 64)) ^ q[:, 1] * np.int64(0x632BE59BD9B4E019)
+           ^ q[:, 2] * np.int64(0x2545F4914F6CDD1D) ^ qh * np.int64(0x1B873593))
+    key[~ok] = rows[~ok]   # (each on its own below)
+    _, first, cls = np.unique(key, return_index=True, return_inverse=True)
+    cls = cls.reshape(-1)
+    rep = first[cls]
+    dev = np.abs(np.einsum("fkc,fc->fk", t, n[rep]) - h[rep][:, None]).max(1)
+    alone = ~ok | ~(dev <= eps) | ~ok[rep]
+    C0 = len(first)
+    of = np.where(alone, C0 + np.cumsum(alone) - 1, cls).astype(np.int32)
+    C = C0 + int(alone.sum())
+    planes = np.zeros((C, 5))
+    planes[:C0, :3], planes[:C0, 3] = n[first], h[first]
+    planes[C0:, :3], planes[C0:, 3] = n[alone], h[alone]
+    own = np.abs(np.einsum("fkc,fc->fk", t, n) - h[:, None]).max(1)
+    dev = np.where(alone, own, dev)
+    np.maximum.at(planes[:, 4], of, dev)
+    planes[:, 4] += 1e-12 * float(np.abs(t).max(initial=0.0))
+    planes[of[~ok], 4] = np.inf
+    count = np.bincount(of, minlength=C)
+    lone = np.full(C, -1, np.int32)
+    single = count[of] == 1
+    lone[of[single]] = rows[single]
+    return Clusters(of, planes, lone)
 
 
 class LightMap:
     """One point light's map: light (3,) float64 (in the grid's frame), dist (6, RES, RES, K)
-    float32 and tri (6, RES, RES, K) int32 (see the module docstring; -1 and inf where a cell
-    keeps fewer)."""
+    float32 and key (6, RES, RES, K) int32, clusters of the :class:`Clusters` cl (see the module
+    docstring; -1 and inf where a cell keeps fewer)."""
 
-    __slots__ = ("light", "dist", "tri")
+    __slots__ = ("light", "dist", "key", "cl")
 
-    def __init__(self, light):
+    def __init__(self, light, cl):
         self.light = np.array(light, np.float64)
         self.dist = np.empty((6, RES, RES, K), np.float32)
-        self.tri = np.empty((6, RES, RES, K), np.int32)
+        self.key = np.empty((6, RES, RES, K), np.int32)
+        self.cl = cl
+
+    def build(self, tris):
+        """Fill the map over tris (the clusters' triangles); returns build_light_map's least
+        distance."""
+        return build_light_map(tris, self.cl.of, self.light, self.dist, self.key)
 
     def arrays(self, tris):
         """Its :class:`gridrt.trace.records.LightMapArrays` over the mapped triangles tris."""
-        return LightMapArrays(self.light, self.dist, self.tri, tris)
+        return LightMapArrays(self.light, self.dist, self.key, self.cl.planes, self.cl.lone, tris)
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def build_light_map(tris, light, dist, tri):
-    """Fill a map's dist and tri (see the module docstring) from the triangles tris (F, 3, 3)
-    float32 for a point light at light (3,) float64, the six faces in parallel.  Returns the
-    least distance of a triangle (its bounding box) from the light."""
+def build_light_map(tris, of, light, dist, key):
+    """Fill a map's dist and key (see the module docstring) from the triangles tris (F, 3, 3)
+    float32 in the clusters of[f] (int32) for a point light at light (3,) float64, the six faces in
+    parallel.  Returns the least distance of a triangle (its bounding box) from the light."""
     F = tris.shape[0]
     R = dist.shape[1]
     near = np.full(6, np.inf)
@@ -99,8 +166,9 @@ def build_light_map(tris, light, dist, tri):
         P = np.empty((3, 8))
         Q = np.empty((3, 8))
         dist[face] = np.inf
-        tri[face] = -1
+        key[face] = -1
         for f in range(F):
+            cf = of[f]
             mind = _box_distance(tris, f, light)
             near[face] = min(near[face], mind)
             for k in range(3):
@@ -127,15 +195,29 @@ def build_light_map(tris, light, dist, tri):
                 j1 = min(R - 1, int(np.floor((min(wh, 1.0) + 1.0) * 0.5 * R)) + 1)
                 for j in range(j0, j1 + 1):
                     d = np.float32(max(mind, _plane_distance(plane, i, j, R)) * (1.0 - DIST_SHRINK))
-                    if d < dist[face, i, j, K - 1]:
-                        k = K - 1
-                        while k > 0 and d < dist[face, i, j, k - 1]:
-                            dist[face, i, j, k] = dist[face, i, j, k - 1]
-                            tri[face, i, j, k] = tri[face, i, j, k - 1]
-                            k -= 1
-                        dist[face, i, j, k] = d
-                        tri[face, i, j, k] = f
+                    _keep(dist, key, face, i, j, d, cf)
     return near.min()
+
+
+@inner(cache=True, _nrt=False, error_model="numpy")
+def _keep(dist, key, face, i, j, d, cf):
+    """Cell (i, j) of a face keeps cluster cf at distance d among its K nearest clusters (nearest
+    first; a cluster once, at the least distance of its triangles)."""
+    k = K - 1
+    for q in range(K):
+        if key[face, i, j, q] == cf:
+            if not d < dist[face, i, j, q]:
+                return
+            k = q
+            break
+    if not d < dist[face, i, j, k]:
+        return
+    while k > 0 and d < dist[face, i, j, k - 1]:
+        dist[face, i, j, k] = dist[face, i, j, k - 1]
+        key[face, i, j, k] = key[face, i, j, k - 1]
+        k -= 1
+    dist[face, i, j, k] = d
+    key[face, i, j, k] = cf
 
 
 @inner(cache=True, _nrt=False, error_model="numpy")
@@ -247,56 +329,64 @@ def _column_span(P, n, ua, ub):
     return wl, wh
 
 
-@inner(cache=True, _nrt=False, error_model="numpy")
-def shows_clear(lmap, end, p, n, off):
-    """Whether the map lmap (:class:`gridrt.trace.records.LightMapArrays`) shows the shadow
-    segment from its light to the hit end ``end`` clear (see the module docstring): the hit p on
-    its triangle, n its unit normal towards the light, off the shadow offset (3-tuples but off)."""
-    light, dist, tri, tris = lmap.light, lmap.dist, lmap.tri, lmap.tris
-    R = dist.shape[1]
-    vx = end[0] - light[0]
-    vy = end[1] - light[1]
-    vz = end[2] - light[2]
-    ax, ay, az = abs(vx), abs(vy), abs(vz)
-    if ax >= ay and ax >= az:
-        face, z, u, w = (0 if vx > 0.0 else 1), ax, vy, vz
-    elif ay >= az:
-        face, z, u, w = (2 if vy > 0.0 else 3), ay, vz, vx
-    else:
-        face, z, u, w = (4 if vz > 0.0 else 5), az, vx, vy
-    if not z > 0.0:
-        return False
-    i = min(R - 1, max(0, int(np.floor((u / z + 1.0) * 0.5 * R))))
-    j = min(R - 1, max(0, int(np.floor((w / z + 1.0) * 0.5 * R))))
-    d = np.sqrt(vx * vx + vy * vy + vz * vz) * (1.0 + DIST_GROW)
-    px, py, pz = p
-    nx, ny, nz = n
-    above = nx * (light[0] - px) + ny * (light[1] - py) + nz * (light[2] - pz) > 0.5 * off
-    for k in range(K):
-        if not d > dist[face, i, j, k]:
-            return True
-        f = tri[face, i, j, k]
-        if not above:
-            return False
-        for c in range(3):
-            h = (nx * (np.float64(tris[f, c, 0]) - px) + ny * (np.float64(tris[f, c, 1]) - py)
-                 + nz * (np.float64(tris[f, c, 2]) - pz))
-            if not h <= 0.25 * off:
-                return False
-    return False
-
-
 @njit(cache=True, parallel=True, error_model="numpy")
 def clear_lit(lmap, hp, rows, off, o, d, bit, marks):
-    """Clear ``bit`` in marks[m] (uint8) of each shadow segment m (o + t d, 0 < t < 1, its hit end
-    o + d, from the hit of pixel rows[m] of hp, :class:`gridrt.trace.records.HitPoints`, moved off
-    by off) that the map lmap shows clear (:func:`shows_clear`).  Returns how many were cleared."""
+    """Clear ``bit`` in marks[m] (uint8) of each shadow segment m (o + t d, 0 < t < 1, from the
+    light's end o to its hit end o + d, by the hit of pixel rows[m] of hp,
+    :class:`gridrt.trace.records.HitPoints`, moved off by off along its normal n_g) that the map
+    lmap (:class:`gridrt.trace.records.LightMapArrays`) shows clear (see the module docstring).
+    Returns how many were cleared.  (The test is written out in the loop: as a function of its
+    own, called per segment with the map's arrays, it took twice as long.)"""
+    light, dist, key, planes, lone, tris = lmap.light, lmap.dist, lmap.key, lmap.planes, lmap.lone, lmap.tris
+    pos, ng = hp.pos, hp.ng
+    R = dist.shape[1]
+    lx, ly, lz = light[0], light[1], light[2]
     cleared = 0
     for m in prange(o.shape[0]):
+        ex, ey, ez = o[m, 0] + d[m, 0], o[m, 1] + d[m, 1], o[m, 2] + d[m, 2]
+        vx, vy, vz = ex - lx, ey - ly, ez - lz
+        ax, ay, az = abs(vx), abs(vy), abs(vz)
+        if ax >= ay and ax >= az:
+            face, z, u, w = (0 if vx > 0.0 else 1), ax, vy, vz
+        elif ay >= az:
+            face, z, u, w = (2 if vy > 0.0 else 3), ay, vz, vx
+        else:
+            face, z, u, w = (4 if vz > 0.0 else 5), az, vx, vy
+        if not z > 0.0:
+            continue
+        i = min(R - 1, max(0, int(np.floor((u / z + 1.0) * 0.5 * R))))
+        j = min(R - 1, max(0, int(np.floor((w / z + 1.0) * 0.5 * R))))
+        dd = np.sqrt(vx * vx + vy * vy + vz * vz) * (1.0 + DIST_GROW)
         r = rows[m]
-        end = (o[m, 0] + d[m, 0], o[m, 1] + d[m, 1], o[m, 2] + d[m, 2])
-        if shows_clear(lmap, end, (hp.pos[r, 0], hp.pos[r, 1], hp.pos[r, 2]),
-                       (hp.ng[r, 0], hp.ng[r, 1], hp.ng[r, 2]), off):
+        px, py, pz = pos[r, 0], pos[r, 1], pos[r, 2]
+        nx, ny, nz = ng[r, 0], ng[r, 1], ng[r, 2]
+        size = max(max(max(abs(lx), abs(ly)), max(abs(lz), abs(ex))), max(abs(ey), abs(ez)))
+        above = nx * (lx - px) + ny * (ly - py) + nz * (lz - pz) > 0.5 * off
+        clear = False
+        for k in range(K):
+            if not dd > dist[face, i, j, k]:   # nothing else comes nearer
+                clear = True
+                break
+            c = key[face, i, j, k]
+            cx, cy, cz, h = planes[c, 0], planes[c, 1], planes[c, 2], planes[c, 3]
+            tol = planes[c, 4] + PLANE_SLACK * (size + abs(h))
+            hl = cx * lx + cy * ly + cz * lz - h
+            he = cx * ex + cy * ey + cz * ez - h
+            if (hl > tol and he > tol) or (hl < -tol and he < -tol):   # both ends off its slab, one side
+                continue
+            f = lone[c]
+            if f < 0 or not above:
+                break
+            below = True   # its one triangle under the hit's tangent plane
+            for q in range(3):
+                hc = (nx * (np.float64(tris[f, q, 0]) - px) + ny * (np.float64(tris[f, q, 1]) - py)
+                      + nz * (np.float64(tris[f, q, 2]) - pz))
+                if not hc <= 0.25 * off:
+                    below = False
+                    break
+            if not below:
+                break
+        if clear:
             marks[m] &= ~np.uint8(bit)
             cleared += 1
     return cleared
@@ -326,8 +416,8 @@ def _compiled():
 
 def _warm_build():
     """A map over one triangle: build_light_map compiled for the types of the renders' maps."""
-    lm = LightMap(np.zeros(3))
-    build_light_map(np.ones((1, 3, 3), np.float32), lm.light, lm.dist, lm.tri)
+    tris = np.ones((1, 3, 3), np.float32)
+    LightMap(np.zeros(3), plane_clusters(tris, 1.0)).build(tris)
 
 
 class LightMaps:
@@ -340,6 +430,7 @@ class LightMaps:
         self._tris = None    # the triangle array the maps are for (held: its id stays its own)
         self._hash = None
         self._maps = {}      # light position bytes -> LightMap, or None once seen (made when seen again)
+        self._clusters = None   # the triangles' Clusters, found with the first map
 
     def for_lights(self, g, lights, diag):
         """The maps (LightMap or None per light) of the grid g (GridArrays) for lights (L, 8) in
@@ -347,7 +438,7 @@ class LightMaps:
         tris = g.tris
         h = tri_hash(tris.reshape(-1).view(np.uint32))
         if self._tris is not tris or self._hash != h:
-            self._tris, self._hash, self._maps = tris, h, {}
+            self._tris, self._hash, self._maps, self._clusters = tris, h, {}, None
         out, maps, made = [], {}, False
         for li in range(len(lights)):
             if lights[li, 0] != LIGHT_POINT or li >= MAX_MAPS:
@@ -358,17 +449,18 @@ class LightMaps:
             if lm is None and not made and _compiled():   # seen in an earlier frame: made now (one a frame)
                 made = True
                 try:
-                    lm = LightMap(lights[li, 1:4])
+                    if self._clusters is None:
+                        self._clusters = plane_clusters(tris, CLUSTER_EPS * diag)
+                    lm = LightMap(lights[li, 1:4], self._clusters)
                 except MemoryError:   # (a map only saves time: the frames go on without)
                     lm = False
                 else:
-                    near = build_light_map(tris, lm.light, lm.dist, lm.tri)
+                    near = lm.build(tris)
                     lm = lm if near > NEAR_FLOOR * diag else False   # (False: never for this light)
             maps[key] = None if lm is _UNSEEN else lm
             out.append(lm if isinstance(lm, LightMap) else None)
         self._maps = maps   # (the lights of this frame only)
         return out
-
 
 
 class NoLightMaps(LightMaps):

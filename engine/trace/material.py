@@ -43,8 +43,7 @@ from numba import njit, prange
 from ..compiles import inner
 from ..scene.surface import (AMBIENT_FRACTION, DEFAULT_DIFFUSE, FALLOFF_INVERSE_SQUARE, LIGHT_DIRECTIONAL, LIGHT_POINT,
                              Surface)
-from .lightmap import shows_clear
-from .records import LightMapArrays, SurfaceArrays
+from .records import SurfaceArrays
 from .shade import put_pixel
 from .traverse import _clip_box
 
@@ -399,14 +398,13 @@ LIT_CHUNK = 16384
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def light_segments(lights, li, hp, off, far, order, rays, segs, boxes, lmap):
+def light_segments(lights, li, hp, off, far, order, rays, segs, boxes):
     """The shadow segments of light li from the hits of hp (:class:`gridrt.trace.records.HitPoints`;
     acc[i, 0] >= 0) it lights, in the pixel order ``order`` (a permutation of the image's pixels).
     Per pixel (rays: :class:`gridrt.trace.records.ShadowRays`): need[i] = 1 where the light
     lights the hit, and its weight there in weight[i].  The lit pixels' segments go, in the
     order's order, to segs (:class:`gridrt.trace.records.ShadowSegments`, :func:`_put_segment`).
-    Returns (how many, how many the light's map lmap showed clear: bit 0 cleared, see
-    :func:`_put_segment`).  In three parallel passes: the lit hits, in pixel order; then over
+    Returns how many.  In three parallel passes: the lit hits, in pixel order; then over
     chunks of LIT_CHUNK pixels of the order, each chunk's count of them, and each chunk's segments
     from its place after the chunks before it.  A grid whose box holds a point light
     (:func:`_holds_light`) is marked on every segment without testing each: they all start inside
@@ -438,20 +436,19 @@ def light_segments(lights, li, hp, off, far, order, rays, segs, boxes, lmap):
         start[c + 1] = m
     for c in range(nc):
         start[c + 1] += start[c]
-    clear = np.zeros(nc, np.int64)
     for c in prange(nc):
         m = start[c]
         for k in range(c * LIT_CHUNK, min(N, (c + 1) * LIT_CHUNK)):
             i = order[k]
             if need[i] == 0:
                 continue
-            clear[c] += _put_segment(lights[li], hp, i, off, far, (boxes, held), segs, m, weight[i], lmap)
+            _put_segment(lights[li], hp, i, off, far, (boxes, held), segs, m, weight[i])
             m += 1
-    return start[nc], clear.sum()
+    return start[nc]
 
 
 @inner(cache=True, _nrt=False, error_model="numpy")
-def _put_segment(light, hp, i, off, far, near, segs, m, weight, lmap):
+def _put_segment(light, hp, i, off, far, near, segs, m, weight):
     """Segment m of segs (:class:`gridrt.trace.records.ShadowSegments`): pixel i's, towards the
     light ``light`` (a row of the lights), of that weight.  The light's end to the hit turned
     round: the ray from p + n_g * off to the light (a point light's vector to it, or far times a
@@ -462,9 +459,7 @@ def _put_segment(light, hp, i, off, far, near, segs, m, weight, lmap):
     segs.grids[m] is set where the segment may meet grid g's box (:func:`_near_box`): the grids
     it misses need not trace it; with boxes (0, 7) every bit is set (near = (boxes, held)).  Bit
     g of ``held`` set: grid g's box holds the light (:func:`_holds_light`), its bit is set without
-    the test.  Where the light's map lmap (:class:`gridrt.trace.records.LightMapArrays`; none when
-    its dist has no rows) shows the segment clear (gridrt.trace.lightmap.shows_clear), bit 0 (the
-    mapped grid's) is cleared: returns 1 then, else 0."""
+    the test."""
     boxes, held = near
     pos, ngb = hp.pos, hp.ng
     ox, oy, oz = pos[i, 0] + ngb[i, 0] * off, pos[i, 1] + ngb[i, 1] * off, pos[i, 2] + ngb[i, 2] * off
@@ -483,14 +478,8 @@ def _put_segment(light, hp, i, off, far, near, segs, m, weight, lmap):
         for gi in range(boxes.shape[0]):
             if (held >> gi) & 1 == 0 and _near_box(boxes[gi], (sx, sy, sz), (-dx, -dy, -dz)):
                 bits |= 1 << gi
-    cleared = 0
-    if lmap.dist.shape[0] > 0 and shows_clear(lmap, (sx - dx, sy - dy, sz - dz), (pos[i, 0], pos[i, 1], pos[i, 2]),
-                                              (ngb[i, 0], ngb[i, 1], ngb[i, 2]), off):
-        bits &= 254
-        cleared = 1
     segs.grids[m] = bits
     segs.weight[m] = weight
-    return cleared
 
 
 #: the pixel shift of the draws of :func:`_draw`: the R2 sequence's (the plastic number's
@@ -619,8 +608,6 @@ def drawn_segments(lights, hp, W, draws, off, far, order, segs, boxes):
                 if _holds_light(boxes[gi], (lights[li, 1], lights[li, 2], lights[li, 3])):
                     held[li] |= 1 << gi
     pos, ngb, nsb = hp.pos, hp.ng, hp.ns
-    unmapped = LightMapArrays(np.zeros(3), np.empty((0, 0, 0, 3), np.float32), np.empty((0, 0, 0, 3), np.int32),
-                              np.empty((0, 3, 3), np.float32))
     for c in prange(nc):
         for kk in range(c * LIT_CHUNK, min(N, (c + 1) * LIT_CHUNK)):
             i = order[kk]
@@ -632,8 +619,7 @@ def drawn_segments(lights, hp, W, draws, off, far, order, segs, boxes):
                                                    (ngb[i, 0], ngb[i, 1], ngb[i, 2]),
                                                    (np.float64(nsb[i, 0]), np.float64(nsb[i, 1]),
                                                     np.float64(nsb[i, 2])))
-                _put_segment(lights[li], hp, i, off, far, (boxes, held[li]), segs, at[c, li], s * factor[kk, j],
-                             unmapped)
+                _put_segment(lights[li], hp, i, off, far, (boxes, held[li]), segs, at[c, li], s * factor[kk, j])
                 at[c, li] += 1
     return start
 

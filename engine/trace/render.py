@@ -48,7 +48,7 @@ from .twin import TWINS
 from ..camera import Camera, pixel_dir
 from .cgt.frame import cgt_render_kernel, cgt_render_serial
 from .grids import grid_arrays, grid_tuple, pack_grids, unpack_grids
-from .lightmap import LightMaps, clear_lit, no_map
+from .lightmap import LightMaps, clear_lit
 from .material import (add_light, compose, draw_shift, drawn_segments, light_segments, live_segments, mark_blocked,
                        near_boxes, shade_kernel, shade_serial, surface_arrays)
 from .records import (Buffers, HitPoints, ShadowBuffers, ShadowRays, ShadowSegments, make_draws, make_packets,
@@ -614,14 +614,11 @@ class Renderer:
         # caster takes them in runs of RUN = TILE^2 in this order, and a run of one tile is a narrow
         # packet where a run of a row's pixels is a wide one (or single rays)
         for li in range(len(lights)):
-            if start is None:   # (the map's test made as each segment is written)
-                lmap = no_map() if maps[li] is None else maps[li].arrays(grids[0].tris)
-                s0, (m, cl) = 0, light_segments(lights, li, hp, off, far, order, rays, segs, boxes, lmap)
-                m = int(m)
-                self.shadow_clear += int(cl)
+            if start is None:
+                s0, m = 0, int(light_segments(lights, li, hp, off, far, order, rays, segs, boxes))
             else:
                 s0, m = int(start[li]), int(start[li + 1] - start[li])
-                leave_clear(segs, s0, m, li)
+            leave_clear(segs, s0, m, li)
             cast += m
             blocked = blocked_of(segs, s0, m)
             add_light(segs.rows[s0:s0 + m], blocked, segs.weight[s0:s0 + m], tvd, float(lights[li, 4]),
