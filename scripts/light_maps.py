@@ -1,6 +1,6 @@
 """Shadow segments left out by light maps: BENCHMARKS.md section 15, table "scene | lights | threads
-| frame ms without maps | frame ms with maps | with / without | shadow rays/px | left out by maps |
-maps made (ms, once) | map memory | frames identical".
+| frame ms without maps | frame ms with maps | with / without | shadow rays/px | shown clear | shown
+blocked | maps made (ms, once) | map memory | frames identical".
 
     .venv/bin/python scripts/light_maps.py
 
@@ -11,8 +11,9 @@ light maps for its point lights over the static grid (gridrt.trace.lightmap, the
 whose renderer makes none.  Frames step from ``--t`` by 1/30 s (the camera and the moving parts
 move, the lights and the static part stay); frame ms: the median of ``--runs`` frames after
 untimed ones, one and then one for each light (the maps are made one a frame from the second), at
-each thread count (the process pinned to as many cores).  Left out: the share of the shadow
-segments that the maps showed clear, which the static grid then does not cast.  Maps made: the
+each thread count (the process pinned to as many cores).  Shown clear: the share of the shadow
+segments that the maps showed clear, which the static grid then does not cast; shown blocked:
+those they showed blocked, which no grid casts.  Maps made: the
 time of making them and of putting the triangles in clusters (once, with the first map); map
 memory: the maps' and the clusters' arrays.  Every timed frame of the two pipelines is compared
 pixel for pixel, in the image and the colours before clamping.
@@ -35,7 +36,7 @@ from tables import (add_out_option, add_own_camera_options, material_pipeline, o
 LIGHTMAP = importlib.import_module("gridrt.trace.lightmap")
 SCENES = "kitchen:5,museum:0"
 HEADER = ["scene", "lights", "threads", "frame ms without maps", "frame ms with maps", "with / without",
-          "shadow rays/px", "left out by maps", "maps made (ms, once)", "map memory", "frames identical"]
+          "shadow rays/px", "shown clear", "shown blocked", "maps made (ms, once)", "map memory", "frames identical"]
 
 
 def parse_args(argv=None):
@@ -96,7 +97,7 @@ def measure(a):
                 k += 1
         TWINS.wait()
         times = {True: [], False: []}
-        same, segs, left = 0, 0, 0
+        same, segs, left, shut = 0, 0, 0, 0
         for k in range(k, k + a.runs):
             t = t0 + k / 30
             f = {}
@@ -108,15 +109,18 @@ def measure(a):
             same += np.array_equal(f[True][0], f[False][0]) and np.array_equal(f[True][1], f[False][1])
             segs += f[True][2]["shadow_rays_per_pixel"] * a.size * (a.size * 3 // 4)
             left += on.renderer.shadow_clear
+            shut += on.renderer.shadow_blocked
         ms = {side: stat(v)[0] for side, v in times.items()}
         st = f[True][2]
         cl = on.renderer._lightmaps._clusters
-        mib = (built.n * 6 * RES * RES * K * 8 + sum(x.nbytes for x in (cl.of, cl.planes, cl.lone))) / 2**20
+        mib = (built.n * 6 * RES * RES * (K * 8 + 4) + sum(x.nbytes for x in (cl.of, cl.planes, cl.lone))) / 2**20
         rows.append([sc.label, str(int(st["lights"])), str(T), f"{ms[False]:.1f}", f"{ms[True]:.1f}",
                      f"{ms[True] / ms[False]:.2f}", f"{st['shadow_rays_per_pixel']:.2f}",
-                     f"{left / max(segs, 1):.1%}", f"{built.n} lights, {1e3 * built.s:.0f}",
+                     f"{left / max(segs, 1):.1%}", f"{shut / max(segs, 1):.1%}",
+                     f"{built.n} lights, {1e3 * built.s:.0f}",
                      f"{mib:.1f} MiB", f"{same} of {a.runs}"])
-        print(f"# {sc.label} T={T}: {ms[False]:.1f} -> {ms[True]:.1f} ms, left out {left / max(segs, 1):.1%}",
+        print(f"# {sc.label} T={T}: {ms[False]:.1f} -> {ms[True]:.1f} ms, shown clear {left / max(segs, 1):.1%}, "
+              f"blocked {shut / max(segs, 1):.1%}",
               flush=True)
     return rows
 

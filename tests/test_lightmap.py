@@ -61,7 +61,8 @@ def test_light_map_clears_only_segments_nothing_blocks(rng):
     """Segments from a point light to points on a tiled floor (its shared edges and corners too),
     on clutter above it and in the space between (as another grid's hits, with normals drawn at
     random towards the light): every segment the map shows clear is clear for the single-ray DDA
-    and for a float64 brute force, and the map shows most of the clear ones."""
+    and for a float64 brute force, and the map shows most of the clear ones; every one it shows
+    blocked is blocked for both."""
     tris = _floor_and_clutter(rng)
     light = np.array([0.15, 2.2, -0.35])
     off = 1e-6 * _diag(tris)
@@ -77,7 +78,8 @@ def test_light_map_clears_only_segments_nothing_blocks(rng):
     near = lm.build(tris)
     assert near > 0.1
     marks = np.full(len(o), 3, np.uint8)
-    cleared = clear_lit(lm.arrays(tris), _hits(p, n), np.arange(len(o)), off, o, d, 1, marks)
+    blocked_map = np.zeros(len(o), bool)
+    cleared, shown = clear_lit(lm.arrays(tris), _hits(p, n), np.arange(len(o)), off, o, d, 1, marks, blocked_map)
     clear = (marks & 1) == 0
     assert cleared == clear.sum() and ((marks & 2) == 2).all()   # (only bit 0 is touched)
     g = grid_arrays(GridBuilder().build(tris, GridParams()), tris)
@@ -89,6 +91,49 @@ def test_light_map_clears_only_segments_nothing_blocks(rng):
     pick = rng.choice(np.flatnonzero(clear), 1500, replace=False)
     t, f, _ = brute_cast(tris, o[pick], d[pick], 0.0, 1.0)
     assert (f < 0).all()
+    assert shown == blocked_map.sum() and not (blocked_map & clear).any()
+    assert not (blocked_map & ~blocked).any(), np.flatnonzero(blocked_map & ~blocked)[:5]
+    assert shown > 0.1 * blocked.sum()
+    pick = rng.choice(np.flatnonzero(blocked_map), min(shown, 1500), replace=False)
+    t, f, _ = brute_cast(tris, o[pick], d[pick], 0.0, 1.0)
+    assert (f >= 0).all()
+
+
+def test_light_map_shows_blocked_only_what_a_roof_blocks(rng):
+    """A light under a roof of 8 x 8 quads (shared edges and corners): segments to points beyond
+    the roof, through its inside, edges and corners, and to points just short of it: the map shows
+    blocked only segments the DDA and a float64 brute force find blocked, and most of those that
+    pass through a quad's inside, none that end short of the roof."""
+    roof = np.ascontiguousarray(_tiles(8, 0.25, y=1.0), np.float32)
+    light = np.array([0.05, 0.2, -0.1])
+    n = 30000
+    g = rng.uniform(-0.9, 0.9, (n, 2))
+    g[: n // 6] = np.round(g[: n // 6] / 0.25) * 0.25                                  # at corners
+    g[n // 6: n // 3, 0] = np.round(g[n // 6: n // 3, 0] / 0.25) * 0.25                # on edges
+    q = np.column_stack([g[:, 0], np.ones(n), g[:, 1]])                                # on the roof
+    v = q - light
+    k = rng.uniform(0.0, 1.0, n)
+    scale = np.where(k < 0.5, 1.0 + rng.uniform(1e-4, 0.5, n), np.where(k < 0.75, 1.0 - 1e-7, 1.0 + 1e-7))
+    end = light + v * scale[:, None]
+    o, d = end + (light - end), -(light - end)
+    up = np.tile([0.0, -1.0, 0.0], (n, 1))
+    lm = LightMap(light, plane_clusters(roof, CLUSTER_EPS * _diag(roof)))
+    lm.build(roof)
+    marks = np.full(n, 1, np.uint8)
+    shown = np.zeros(n, bool)
+    cl, bl = clear_lit(lm.arrays(roof), _hits(end, up), np.arange(n), 0.0, o, d, 1, marks, shown)
+    assert bl == shown.sum()
+    gr = grid_arrays(GridBuilder().build(roof, GridParams()), roof)
+    out = (np.empty(n), np.empty(n, np.int32), np.empty(n), np.empty(n))
+    cast_grouped(gr, o, d, 0.0, 1.0, True, True, out, 0.0, tri_only=True)
+    blocked = out[1] >= 0
+    assert not (shown & ~blocked).any(), np.flatnonzero(shown & ~blocked)[:5]
+    assert not shown[scale < 1.0].any()
+    inside = (scale > 1.0 + 1e-5) & (np.arange(n) >= n // 3)
+    assert blocked[inside].all() and shown[inside].mean() > 0.7   # (not the cells a triangle's edge crosses)
+    pick = rng.choice(np.flatnonzero(shown), 2000, replace=False)
+    t, f, _ = brute_cast(roof, o[pick], d[pick], 0.0, 1.0)
+    assert (f >= 0).all()
 
 
 def _tiles(n, size, y=0.0, tilt=0.0):
@@ -153,7 +198,7 @@ def test_light_map_keeps_a_cluster_s_triangles_off_its_plane(rng):
     lm = LightMap(light, cl)
     lm.build(tris)
     marks = np.full(n, 1, np.uint8)
-    clear_lit(lm.arrays(tris), _hits(p, up), np.arange(n), off, o, dd, 1, marks)
+    clear_lit(lm.arrays(tris), _hits(p, up), np.arange(n), off, o, dd, 1, marks, np.zeros(n, bool))
     g = grid_arrays(GridBuilder().build(tris, GridParams()), tris)
     out = (np.empty(n), np.empty(n, np.int32), np.empty(n), np.empty(n))
     cast_grouped(g, o, dd, 0.0, 1.0, True, True, out, 0.0, tri_only=True)
@@ -179,7 +224,8 @@ def test_light_map_clears_a_floor_of_small_tiles(rng):
         lm = LightMap(light, plane_clusters(tris, eps))
         lm.build(tris)
         marks = np.full(len(o), 1, np.uint8)
-        cleared.append(clear_lit(lm.arrays(tris), _hits(p, n), np.arange(len(o)), off, o, d, 1, marks))
+        cleared.append(clear_lit(lm.arrays(tris), _hits(p, n), np.arange(len(o)), off, o, d, 1, marks,
+                                 np.zeros(len(o), bool))[0])
         assert cleared[-1] == (marks == 0).sum()
     assert cleared[0] == len(o) and cleared[1] < 0.5 * len(o)
 

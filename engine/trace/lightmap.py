@@ -30,8 +30,17 @@ wholly at or below the plane through p along n_g, to within off / 4 (its corners
 that plane) while the light lies at least off / 2 above it: the segment lies at least off / 2
 above that plane (a convex neighbour's triangles, a curved surface's).  Such a segment is left out
 of the grid's casts (its grid bit cleared), and the verdict is the one the casts would give:
-nothing blocks it.  A map is never made for a light with a triangle nearer than NEAR_FLOOR of the
-scene's diagonal (segments that start there could leave the light's cell by rounding).
+nothing blocks it.
+
+A map also keeps, per cell, the least over the triangles whose projection covers the cell (every
+direction of the cell passes through the triangle, with COVER_MARGIN of a cell to spare) of the
+greatest distance from the light to the triangle along the cell's directions (grown by COVER_GROW).
+A segment whose hit end lies farther than that is blocked, exactly: it passes through that
+triangle's inside before its end.  No grid casts it.  Such cells are those of a lamp's shade around
+its light, or of a table seen from below; the cells a triangle's edge crosses are not covered.
+
+A map is never made for a light with a triangle nearer than NEAR_FLOOR of the scene's diagonal
+(segments that start there could leave the light's cell by rounding).
 
 The maps are made for the first grid of a render (the static part of a split scene, or a scene's
 only grid) when the same triangles (the same array, of the same contents: :func:`tri_hash`) and
@@ -39,7 +48,7 @@ the same light come back in a following frame (:class:`LightMaps`): a scene whos
 every frame never makes one.  A frame makes at most one map (the lights' maps come one by one in
 the frames that follow), and the clusters are found with the first.  On a cold compile cache,
 build_light_map first compiles on a background thread while the frames go on without maps.  Each
-map takes 8 K bytes a cell (9.4 MiB at RES 256); the clusters at most 48 bytes a triangle."""
+map takes 8 K + 4 bytes a cell (10.5 MiB at RES 256); the clusters at most 48 bytes a triangle."""
 
 import numpy as np
 from numba import njit, prange
@@ -65,6 +74,11 @@ MAX_MAPS = 16
 #: triangles whose corners lie within this fraction of the scene's diagonal of one plane share a
 #: cluster (a tenth of the shadow offset, gridrt.trace.render.SHADOW_OFFSET)
 CLUSTER_EPS = 1e-7
+#: a map's cell counts as covered by a triangle when its directions pass through the triangle with
+#: this fraction of a cell to spare on every side
+COVER_MARGIN = 0.01
+#: the greatest distance of a covering triangle along a cell's directions is grown by this fraction
+COVER_GROW = 1e-6
 #: heights above a cluster's plane count only beyond this fraction of the coordinates' size (the
 #: rounding of the casts and of the heights themselves, with room to spare)
 PLANE_SLACK = 1e-9
@@ -129,32 +143,34 @@ def plane_clusters(tris, eps):
 
 class LightMap:
     """One point light's map: light (3,) float64 (in the grid's frame), dist (6, RES, RES, K)
-    float32 and key (6, RES, RES, K) int32, clusters of the :class:`Clusters` cl (see the module
-    docstring; -1 and inf where a cell keeps fewer)."""
+    float32 and key (6, RES, RES, K) int32, clusters of the :class:`Clusters` cl (-1 and inf where
+    a cell keeps fewer), and cover (6, RES, RES) float32 (inf where no triangle covers the cell; see
+    the module docstring)."""
 
-    __slots__ = ("light", "dist", "key", "cl")
+    __slots__ = ("light", "dist", "key", "cover", "cl")
 
     def __init__(self, light, cl):
         self.light = np.array(light, np.float64)
         self.dist = np.empty((6, RES, RES, K), np.float32)
         self.key = np.empty((6, RES, RES, K), np.int32)
+        self.cover = np.empty((6, RES, RES), np.float32)
         self.cl = cl
 
     def build(self, tris):
         """Fill the map over tris (the clusters' triangles); returns build_light_map's least
         distance."""
-        return build_light_map(tris, self.cl.of, self.light, self.dist, self.key)
+        return build_light_map(tris, self.cl.of, self.light, self.dist, self.key, self.cover)
 
     def arrays(self, tris):
         """Its :class:`gridrt.trace.records.LightMapArrays` over the mapped triangles tris."""
-        return LightMapArrays(self.light, self.dist, self.key, self.cl.planes, self.cl.lone, tris)
+        return LightMapArrays(self.light, self.dist, self.key, self.cover, self.cl.planes, self.cl.lone, tris)
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def build_light_map(tris, of, light, dist, key):
-    """Fill a map's dist and key (see the module docstring) from the triangles tris (F, 3, 3)
-    float32 in the clusters of[f] (int32) for a point light at light (3,) float64, the six faces in
-    parallel.  Returns the least distance of a triangle (its bounding box) from the light."""
+def build_light_map(tris, of, light, dist, key, cover):
+    """Fill a map's dist, key and cover (see the module docstring) from the triangles tris (F, 3,
+    3) float32 in the clusters of[f] (int32) for a point light at light (3,) float64, the six faces
+    in parallel.  Returns the least distance of a triangle (its bounding box) from the light."""
     F = tris.shape[0]
     R = dist.shape[1]
     near = np.full(6, np.inf)
@@ -167,6 +183,7 @@ def build_light_map(tris, of, light, dist, key):
         Q = np.empty((3, 8))
         dist[face] = np.inf
         key[face] = -1
+        cover[face] = np.inf
         for f in range(F):
             cf = of[f]
             mind = _box_distance(tris, f, light)
@@ -196,7 +213,42 @@ def build_light_map(tris, of, light, dist, key):
                 for j in range(j0, j1 + 1):
                     d = np.float32(max(mind, _plane_distance(plane, i, j, R)) * (1.0 - DIST_SHRINK))
                     _keep(dist, key, face, i, j, d, cf)
+                _cover(P, n, plane, i, R, cover[face])
     return near.min()
+
+
+@inner(cache=True, _nrt=False, error_model="numpy")
+def _cover(P, n, plane, i, R, cover):
+    """The cells of column i of a face (cover (R, R) float32) whose directions all pass through
+    the projected polygon P[:, :n] (:func:`_clip_to_pyramid`: a triangle seen from the light, convex)
+    with COVER_MARGIN of a cell to spare: cover keeps the least, over the triangles, of the greatest
+    distance from the light to the triangle's plane along a cell's directions (its corners', grown
+    by COVER_GROW; the plane in front at each).  A cell's corners lie in a convex polygon when both
+    ends of each of its rows do: its rows w lie in the spans of w at the column's two sides."""
+    m = COVER_MARGIN * 2.0 / R
+    ua, ub = i * 2.0 / R - 1.0 - m, (i + 1) * 2.0 / R - 1.0 + m
+    la, ha = _column_span(P, n, ua, ua)
+    lb, hb = _column_span(P, n, ub, ub)
+    lo, hi = max(la, lb) + m, min(ha, hb) - m
+    if not lo < hi:
+        return
+    j0 = max(0, int(np.ceil((lo + 1.0) * 0.5 * R)))
+    j1 = min(R, int(np.floor((hi + 1.0) * 0.5 * R)))   # (cells j0 .. j1 - 1: [w_j, w_j+1] in [lo, hi])
+    nz, nu, nw, h = plane
+    if not h > 0.0:
+        return
+    for j in range(j0, j1):
+        w0, w1 = j * 2.0 / R - 1.0 - m, (j + 1) * 2.0 / R - 1.0 + m
+        far = 0.0
+        for u in (ua, ub):
+            for w in (w0, w1):
+                dot = nz + nu * u + nw * w
+                if not dot > 0.0:
+                    far = np.inf
+                far = max(far, h * np.sqrt(1.0 + u * u + w * w) / dot)
+        c = np.float32(far * (1.0 + COVER_GROW))
+        if c < cover[i, j]:
+            cover[i, j] = c
 
 
 @inner(cache=True, _nrt=False, error_model="numpy")
@@ -330,19 +382,23 @@ def _column_span(P, n, ua, ub):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def clear_lit(lmap, hp, rows, off, o, d, bit, marks):
+def clear_lit(lmap, hp, rows, off, o, d, bit, marks, blocked):
     """Clear ``bit`` in marks[m] (uint8) of each shadow segment m (o + t d, 0 < t < 1, from the
     light's end o to its hit end o + d, by the hit of pixel rows[m] of hp,
     :class:`gridrt.trace.records.HitPoints`, moved off by off along its normal n_g) that the map
-    lmap (:class:`gridrt.trace.records.LightMapArrays`) shows clear (see the module docstring).
-    Returns how many were cleared.  (The test is written out in the loop: as a function of its
-    own, called per segment with the map's arrays, it took twice as long.)"""
+    lmap (:class:`gridrt.trace.records.LightMapArrays`) shows clear, and set blocked[m] (bool)
+    where it shows the segment blocked (False elsewhere; see the module docstring).  Returns (how
+    many it showed clear, how many blocked).  (The test is written out in the loop: as a function
+    of its own, called per segment with the map's arrays, it took twice as long.)"""
     light, dist, key, planes, lone, tris = lmap.light, lmap.dist, lmap.key, lmap.planes, lmap.lone, lmap.tris
+    cover = lmap.cover
     pos, ng = hp.pos, hp.ng
     R = dist.shape[1]
     lx, ly, lz = light[0], light[1], light[2]
     cleared = 0
+    shown = 0
     for m in prange(o.shape[0]):
+        blocked[m] = False
         ex, ey, ez = o[m, 0] + d[m, 0], o[m, 1] + d[m, 1], o[m, 2] + d[m, 2]
         vx, vy, vz = ex - lx, ey - ly, ez - lz
         ax, ay, az = abs(vx), abs(vy), abs(vz)
@@ -356,7 +412,12 @@ def clear_lit(lmap, hp, rows, off, o, d, bit, marks):
             continue
         i = min(R - 1, max(0, int(np.floor((u / z + 1.0) * 0.5 * R))))
         j = min(R - 1, max(0, int(np.floor((w / z + 1.0) * 0.5 * R))))
-        dd = np.sqrt(vx * vx + vy * vy + vz * vz) * (1.0 + DIST_GROW)
+        dd = np.sqrt(vx * vx + vy * vy + vz * vz)
+        if dd * (1.0 - DIST_GROW) > cover[face, i, j]:   # a triangle covers the cell before the end
+            blocked[m] = True
+            shown += 1
+            continue
+        dd *= 1.0 + DIST_GROW
         r = rows[m]
         px, py, pz = pos[r, 0], pos[r, 1], pos[r, 2]
         nx, ny, nz = ng[r, 0], ng[r, 1], ng[r, 2]
@@ -389,7 +450,7 @@ def clear_lit(lmap, hp, rows, off, o, d, bit, marks):
         if clear:
             marks[m] &= ~np.uint8(bit)
             cleared += 1
-    return cleared
+    return cleared, shown
 
 
 @njit(cache=True, error_model="numpy")

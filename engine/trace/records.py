@@ -93,10 +93,10 @@ ShadowSegments = namedtuple("ShadowSegments", "rows o d grids weight")
 Draws = namedtuple("Draws", "k shift lit factor guide block bw")
 
 #: One point light's map for the shadow segments the material pass makes (gridrt.trace.lightmap):
-#: light (3,) float64, dist (6, R, R, K) float32 and key (6, R, R, K) int32 (R = 0: no map), the
-#: clusters' planes (C, 5) float64 and lone (C,) int32 (gridrt.trace.lightmap.Clusters), and tris
-#: (F, 3, 3) float32 the mapped grid's triangles.
-LightMapArrays = namedtuple("LightMapArrays", "light dist key planes lone tris")
+#: light (3,) float64, dist (6, R, R, K) float32, key (6, R, R, K) int32 and cover (6, R, R)
+#: float32, the clusters' planes (C, 5) float64 and lone (C,) int32
+#: (gridrt.trace.lightmap.Clusters), and tris (F, 3, 3) float32 the mapped grid's triangles.
+LightMapArrays = namedtuple("LightMapArrays", "light dist key cover planes lone tris")
 
 #: The material pass's buffers for shadows (Python side, gridrt.trace.render.Renderer keeps them
 #: from frame to frame): the :class:`HitPoints` hp, the :class:`ShadowRays` rays, the pixels in

@@ -391,6 +391,7 @@ class Renderer:
         self.guide = None    # (guide, squares a row) of the last render that drew lights (light_guide)
         self._lightmaps = LightMaps()   # the first grid's point lights' maps (gridrt.trace.lightmap)
         self.shadow_clear = 0   # shadow segments of the last render that a light map showed clear (not cast there)
+        self.shadow_blocked = 0   # and those it showed blocked (not cast at all)
 
     def buffers(self, W, H):
         if self._bufs is None or self._bufs[0].shape[:2] != (H, W):
@@ -572,11 +573,13 @@ class Renderer:
         f32 = params.packet_precision == "float32"
         cast, start = 0, None
 
-        def blocked_of(segs, s0, m):
-            """sb.blocked[:m]: which of segments s0 .. s0 + m of segs hit something in any grid."""
+        def blocked_of(segs, s0, m, shown=False):
+            """sb.blocked[:m]: which of segments s0 .. s0 + m of segs hit something in any grid
+            (shown: sb.blocked[:m] holds those a light map showed blocked, leave_clear)."""
             o, d, marks = segs.o[s0:s0 + m], segs.d[s0:s0 + m], segs.grids[s0:s0 + m]
             blocked = sb.blocked[:m]
-            blocked[:] = False
+            if not shown:
+                blocked[:] = False
             live = np.empty(m, np.int64)
             for gi, g in enumerate(grids):  # any hit in any grid shadows: the segments not blocked yet
                 n = live_segments(blocked, marks, (1 << gi) if gi < 8 else -1, live)
@@ -592,14 +595,18 @@ class Renderer:
         # point lights over the first grid's triangles, the same as in an earlier frame: their
         # segments that a light map shows clear are left out of that grid's casts (bit 0)
         maps = self._lightmaps.for_lights(grids[0], lights, diag)
-        self.shadow_clear = 0
+        self.shadow_clear = self.shadow_blocked = 0
 
         def leave_clear(segs, s0, m, li):
-            """Clear bit 0 of segments s0 .. s0 + m of segs (light li's) that its map shows clear."""
+            """Clear bit 0 of segments s0 .. s0 + m of segs (light li's) that its map shows clear,
+            and write sb.blocked[:m]: those it shows blocked.  Whether it wrote them (a map)."""
             if maps[li] is None or m == 0:
-                return
-            self.shadow_clear += int(clear_lit(maps[li].arrays(grids[0].tris), hp, segs.rows[s0:s0 + m], off,
-                                               segs.o[s0:s0 + m], segs.d[s0:s0 + m], 1, segs.grids[s0:s0 + m]))
+                return False
+            cl, bl = clear_lit(maps[li].arrays(grids[0].tris), hp, segs.rows[s0:s0 + m], off, segs.o[s0:s0 + m],
+                               segs.d[s0:s0 + m], 1, segs.grids[s0:s0 + m], sb.blocked[:m])
+            self.shadow_clear += int(cl)
+            self.shadow_blocked += int(bl)
+            return True
 
         k = params.light_samples
         if k and len(lights) > 1:  # k lights drawn per hit pixel, weighted to keep the mean: every
@@ -618,9 +625,9 @@ class Renderer:
                 s0, m = 0, int(light_segments(lights, li, hp, off, far, order, rays, segs, boxes))
             else:
                 s0, m = int(start[li]), int(start[li + 1] - start[li])
-            leave_clear(segs, s0, m, li)
+            shown = leave_clear(segs, s0, m, li)
             cast += m
-            blocked = blocked_of(segs, s0, m)
+            blocked = blocked_of(segs, s0, m, shown)
             add_light(segs.rows[s0:s0 + m], blocked, segs.weight[s0:s0 + m], tvd, float(lights[li, 4]),
                       float(lights[li, 5]), float(lights[li, 6]), acc)
         compose(W, H, acc, img)
