@@ -1,6 +1,7 @@
 """Shadow segments left out by light maps: BENCHMARKS.md section 15, table "scene | lights | threads
 | frame ms without maps | frame ms with maps | with / without | shadow rays/px | shown clear | shown
-blocked | maps made (ms, once) | map memory | frames identical".
+blocked | shadow Mrays/s without maps | shadow Mrays/s with maps | maps made (ms, once) | map memory |
+frames identical".
 
     .venv/bin/python scripts/light_maps.py
 
@@ -13,7 +14,9 @@ move, the lights and the static part stay); frame ms: the median of ``--runs`` f
 untimed ones, one and then one for each light (the maps are made one a frame from the second), at
 each thread count (the process pinned to as many cores).  Shown clear: the share of the shadow
 segments that the maps showed clear, which the static grid then does not cast; shown blocked:
-those they showed blocked, which no grid casts.  Maps made: the
+those they showed blocked, which no grid casts.  Shadow Mrays/s: a frame's shadow segments over the
+median time of its batch casts (gridrt.trace.batch.cast_grouped), with maps the maps' test
+(gridrt.trace.lightmap.clear_lit) counted in: the segments whose verdict is found, a second.  Maps made: the
 time of making them and of putting the triangles in clusters (once, with the first map); map
 memory: the maps' and the clusters' arrays.  Every timed frame of the two pipelines is compared
 pixel for pixel, in the image and the colours before clamping.
@@ -36,7 +39,10 @@ from tables import (add_out_option, add_own_camera_options, material_pipeline, o
 LIGHTMAP = importlib.import_module("gridrt.trace.lightmap")
 SCENES = "kitchen:5,museum:0"
 HEADER = ["scene", "lights", "threads", "frame ms without maps", "frame ms with maps", "with / without",
-          "shadow rays/px", "shown clear", "shown blocked", "maps made (ms, once)", "map memory", "frames identical"]
+          "shadow rays/px", "shown clear", "shown blocked", "shadow Mrays/s without maps", "shadow Mrays/s with maps",
+          "maps made (ms, once)", "map memory", "frames identical"]
+#: the module whose cast_grouped and clear_lit the material pass calls (timed through it)
+RENDER = importlib.import_module("gridrt.trace.render")
 
 
 def parse_args(argv=None):
@@ -77,6 +83,29 @@ class BuildTimer:
         LIGHTMAP.build_light_map, LIGHTMAP.plane_clusters = self.build, self.clusters
 
 
+class ShadowTimer:
+    """Sums the seconds of the material pass's cast_grouped and clear_lit calls while it is
+    entered, into ``s``."""
+
+    def __init__(self):
+        self.s = 0.0
+        self.calls = RENDER.cast_grouped, RENDER.clear_lit
+
+    def __enter__(self):
+        def timer(fn):
+            def timed(*args, **kw):
+                t0 = time.perf_counter()
+                out = fn(*args, **kw)
+                self.s += time.perf_counter() - t0
+                return out
+            return timed
+        RENDER.cast_grouped, RENDER.clear_lit = (timer(fn) for fn in self.calls)
+        return self
+
+    def __exit__(self, *exc):
+        RENDER.cast_grouped, RENDER.clear_lit = self.calls
+
+
 def pipeline(sc, size, threads, maps):
     """The frame pipeline of one side: the scene through its own camera, material and shadows."""
     pipe = material_pipeline(sc, size, threads)
@@ -96,15 +125,17 @@ def measure(a):
                 off.step(t0 + k / 30)
                 k += 1
         TWINS.wait()
-        times = {True: [], False: []}
+        times, shadow = {True: [], False: []}, {True: [], False: []}
         same, segs, left, shut = 0, 0, 0, 0
         for k in range(k, k + a.runs):
             t = t0 + k / 30
             f = {}
             for side, p in ((True, on), (False, off)):   # in turns
                 s = time.perf_counter()
-                fr = p.step(t)
+                with ShadowTimer() as casts:
+                    fr = p.step(t)
                 times[side].append((time.perf_counter() - s) * 1e3)
+                shadow[side].append(casts.s)
                 f[side] = (fr.image.copy(), fr.hdr.copy(), fr.stats)
             same += np.array_equal(f[True][0], f[False][0]) and np.array_equal(f[True][1], f[False][1])
             segs += f[True][2]["shadow_rays_per_pixel"] * a.size * (a.size * 3 // 4)
@@ -112,12 +143,13 @@ def measure(a):
             shut += on.renderer.shadow_blocked
         ms = {side: stat(v)[0] for side, v in times.items()}
         st = f[True][2]
+        rate = {side: segs / a.runs / max(stat(v)[0], 1e-9) / 1e6 for side, v in shadow.items()}
         cl = on.renderer._lightmaps._clusters
         mib = (built.n * 6 * RES * RES * (K * 8 + 4) + sum(x.nbytes for x in (cl.of, cl.planes, cl.lone))) / 2**20
         rows.append([sc.label, str(int(st["lights"])), str(T), f"{ms[False]:.1f}", f"{ms[True]:.1f}",
                      f"{ms[True] / ms[False]:.2f}", f"{st['shadow_rays_per_pixel']:.2f}",
-                     f"{left / max(segs, 1):.1%}", f"{shut / max(segs, 1):.1%}",
-                     f"{built.n} lights, {1e3 * built.s:.0f}",
+                     f"{left / max(segs, 1):.1%}", f"{shut / max(segs, 1):.1%}", f"{rate[False]:.1f}",
+                     f"{rate[True]:.1f}", f"{built.n} lights, {1e3 * built.s:.0f}",
                      f"{mib:.1f} MiB", f"{same} of {a.runs}"])
         print(f"# {sc.label} T={T}: {ms[False]:.1f} -> {ms[True]:.1f} ms, shown clear {left / max(segs, 1):.1%}, "
               f"blocked {shut / max(segs, 1):.1%}",

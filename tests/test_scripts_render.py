@@ -105,7 +105,8 @@ def test_light_maps_prints_its_table():
     r = rows[0]
     assert NUMBER.fullmatch(r[3]) and NUMBER.fullmatch(r[4]) and NUMBER.fullmatch(r[5]), r
     assert 0 < float(r[7].rstrip("%")) <= 100 and 0 <= float(r[8].rstrip("%")) <= 100, r
-    assert r[9].startswith("2 lights, ") and r[11] == "2 of 2", r
+    assert NUMBER.fullmatch(r[9]) and NUMBER.fullmatch(r[10]) and float(r[10]) > 0, r
+    assert r[11].startswith("2 lights, ") and r[13] == "2 of 2", r
 
 
 def test_character_frame_prints_its_table():
