@@ -593,7 +593,8 @@ class Renderer:
             return blocked
 
         # point lights over the first grid's triangles, the same as in an earlier frame: their
-        # segments that a light map shows clear are left out of that grid's casts (bit 0)
+        # segments that a light map shows clear are left out of that grid's casts (bit 0), and those
+        # it shows blocked out of every grid's
         maps = self._lightmaps.for_lights(grids[0], lights, diag)
         self.shadow_clear = self.shadow_blocked = 0
 
