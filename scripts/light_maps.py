@@ -55,55 +55,34 @@ def parse_args(argv=None):
     return start(p, argv)
 
 
-class BuildTimer:
-    """Sums the seconds of LightMaps' build_light_map calls (n: how many) and of its plane_clusters
-    calls while it is entered."""
+class Timed:
+    """While entered, the functions ``names`` of ``module`` are timed where they are called
+    through it: s[name] their seconds, n[name] their calls; seconds() the sum."""
 
-    def __init__(self):
-        self.s, self.n = 0.0, 0
-        self.build, self.clusters = LIGHTMAP.build_light_map, LIGHTMAP.plane_clusters
+    def __init__(self, module, *names):
+        self.module, self.fns = module, {name: getattr(module, name) for name in names}
+        self.s, self.n = dict.fromkeys(names, 0.0), dict.fromkeys(names, 0)
+
+    def _timed(self, name, fn):
+        def timed(*args, **kw):
+            t0 = time.perf_counter()
+            out = fn(*args, **kw)
+            self.s[name] += time.perf_counter() - t0
+            self.n[name] += 1
+            return out
+        return timed
 
     def __enter__(self):
-        def timed(*args):
-            t0 = time.perf_counter()
-            near = self.build(*args)
-            self.s += time.perf_counter() - t0
-            self.n += 1
-            return near
-
-        def clusters(*args):
-            t0 = time.perf_counter()
-            cl = self.clusters(*args)
-            self.s += time.perf_counter() - t0
-            return cl
-        LIGHTMAP.build_light_map, LIGHTMAP.plane_clusters = timed, clusters
+        for name, fn in self.fns.items():
+            setattr(self.module, name, self._timed(name, fn))
         return self
 
     def __exit__(self, *exc):
-        LIGHTMAP.build_light_map, LIGHTMAP.plane_clusters = self.build, self.clusters
+        for name, fn in self.fns.items():
+            setattr(self.module, name, fn)
 
-
-class ShadowTimer:
-    """Sums the seconds of the material pass's cast_grouped and clear_lit calls while it is
-    entered, into ``s``."""
-
-    def __init__(self):
-        self.s = 0.0
-        self.calls = RENDER.cast_grouped, RENDER.clear_lit
-
-    def __enter__(self):
-        def timer(fn):
-            def timed(*args, **kw):
-                t0 = time.perf_counter()
-                out = fn(*args, **kw)
-                self.s += time.perf_counter() - t0
-                return out
-            return timed
-        RENDER.cast_grouped, RENDER.clear_lit = (timer(fn) for fn in self.calls)
-        return self
-
-    def __exit__(self, *exc):
-        RENDER.cast_grouped, RENDER.clear_lit = self.calls
+    def seconds(self):
+        return sum(self.s.values())
 
 
 def pipeline(sc, size, threads, maps):
@@ -118,7 +97,7 @@ def measure(a):
     rows = []
     for sc, t0, T in own_camera_runs(a):
         on, off = pipeline(sc, a.size, T, True), pipeline(sc, a.size, T, False)
-        with BuildTimer() as built:
+        with Timed(LIGHTMAP, "build_light_map", "plane_clusters") as built:   # (the maps, the clusters)
             lights, k = 1, 0
             while k < 1 + lights:   # (compiles, the static grid; then a light's map a frame)
                 lights = int(on.step(t0 + k / 30).stats["lights"])
@@ -132,10 +111,10 @@ def measure(a):
             f = {}
             for side, p in ((True, on), (False, off)):   # in turns
                 s = time.perf_counter()
-                with ShadowTimer() as casts:
+                with Timed(RENDER, "cast_grouped", "clear_lit") as casts:
                     fr = p.step(t)
                 times[side].append((time.perf_counter() - s) * 1e3)
-                shadow[side].append(casts.s)
+                shadow[side].append(casts.seconds())
                 f[side] = (fr.image.copy(), fr.hdr.copy(), fr.stats)
             same += np.array_equal(f[True][0], f[False][0]) and np.array_equal(f[True][1], f[False][1])
             segs += f[True][2]["shadow_rays_per_pixel"] * a.size * (a.size * 3 // 4)
@@ -145,11 +124,12 @@ def measure(a):
         st = f[True][2]
         rate = {side: segs / a.runs / max(stat(v)[0], 1e-9) / 1e6 for side, v in shadow.items()}
         cl = on.renderer._lightmaps._clusters
-        mib = (built.n * 6 * RES * RES * (K * 8 + 4) + sum(x.nbytes for x in (cl.of, cl.planes, cl.lone))) / 2**20
+        made = built.n["build_light_map"]
+        mib = (made * 6 * RES * RES * (K * 8 + 4) + sum(x.nbytes for x in (cl.of, cl.planes, cl.lone))) / 2**20
         rows.append([sc.label, str(int(st["lights"])), str(T), f"{ms[False]:.1f}", f"{ms[True]:.1f}",
                      f"{ms[True] / ms[False]:.2f}", f"{st['shadow_rays_per_pixel']:.2f}",
                      f"{left / max(segs, 1):.1%}", f"{shut / max(segs, 1):.1%}", f"{rate[False]:.1f}",
-                     f"{rate[True]:.1f}", f"{built.n} lights, {1e3 * built.s:.0f}",
+                     f"{rate[True]:.1f}", f"{made} lights, {1e3 * built.seconds():.0f}",
                      f"{mib:.1f} MiB", f"{same} of {a.runs}"])
         print(f"# {sc.label} T={T}: {ms[False]:.1f} -> {ms[True]:.1f} ms, shown clear {left / max(segs, 1):.1%}, "
               f"blocked {shut / max(segs, 1):.1%}",

@@ -129,8 +129,7 @@ def plane_clusters(tris, eps):
     planes = np.zeros((C, 5))
     planes[:C0, :3], planes[:C0, 3] = n[first], h[first]
     planes[C0:, :3], planes[C0:, 3] = n[alone], h[alone]
-    own = np.abs(np.einsum("fkc,fc->fk", t, n) - h[:, None]).max(1)
-    dev = np.where(alone, own, dev)
+    dev[alone] = np.abs(np.einsum("fkc,fc->fk", t[alone], n[alone]) - h[alone][:, None]).max(1)
     np.maximum.at(planes[:, 4], of, dev)
     planes[:, 4] += 1e-12 * float(np.abs(t).max(initial=0.0))
     planes[of[~ok], 4] = np.inf
@@ -225,6 +224,9 @@ def _cover(P, n, plane, i, R, cover):
     distance from the light to the triangle's plane along a cell's directions (its corners', grown
     by COVER_GROW; the plane in front at each).  A cell's corners lie in a convex polygon when both
     ends of each of its rows do: its rows w lie in the spans of w at the column's two sides."""
+    nz, nu, nw, h = plane
+    if not h > 0.0:   # (a triangle without area, or edge-on to the light)
+        return
     m = COVER_MARGIN * 2.0 / R
     ua, ub = i * 2.0 / R - 1.0 - m, (i + 1) * 2.0 / R - 1.0 + m
     la, ha = _column_span(P, n, ua, ua)
@@ -234,18 +236,13 @@ def _cover(P, n, plane, i, R, cover):
         return
     j0 = max(0, int(np.ceil((lo + 1.0) * 0.5 * R)))
     j1 = min(R, int(np.floor((hi + 1.0) * 0.5 * R)))   # (cells j0 .. j1 - 1: [w_j, w_j+1] in [lo, hi])
-    nz, nu, nw, h = plane
-    if not h > 0.0:
-        return
     for j in range(j0, j1):
         w0, w1 = j * 2.0 / R - 1.0 - m, (j + 1) * 2.0 / R - 1.0 + m
         far = 0.0
         for u in (ua, ub):
             for w in (w0, w1):
                 dot = nz + nu * u + nw * w
-                if not dot > 0.0:
-                    far = np.inf
-                far = max(far, h * np.sqrt(1.0 + u * u + w * w) / dot)
+                far = max(far, h * np.sqrt(1.0 + u * u + w * w) / dot) if dot > 0.0 else np.inf
         c = np.float32(far * (1.0 + COVER_GROW))
         if c < cover[i, j]:
             cover[i, j] = c
