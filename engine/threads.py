@@ -170,6 +170,38 @@ def use_threads(n):
 
 
 
+#: the process's pool of worker threads for on_threads (made at its first use)
+_POOL = []
+_POOL_LOCK = threading.Lock()
+
+
+def on_threads(n, work):
+    """``[work(0), ..., work(n - 1)]``: work(0) in the calling thread, the others at the same time
+    on the process's pool of worker threads (``max_threads() - 1`` of them, started as needed).
+
+    For kernels compiled with ``nogil=True`` that share one piece of work among their calls through
+    an atomic counter: each call takes the next part until none is left, so a call that starts late
+    (the pool busy with another caller's calls) finds less or nothing to do, and the calls finish
+    together however the threads were scheduled.  numba's own parallel loops need a second, larger
+    compile of the code they call (the parfor lowering and one more optimisation pass over the
+    whole call tree); these threads run the one compiled kernel.  An exception of any call is
+    raised here once every call has ended."""
+    futures = []
+    if n > 1:
+        with _POOL_LOCK:
+            if not _POOL:
+                from concurrent.futures import ThreadPoolExecutor  # deferred: only multi-threaded work needs it
+
+                _POOL.append(ThreadPoolExecutor(max(1, max_threads() - 1), thread_name_prefix="gridrt"))
+        futures = [_POOL[0].submit(work, k) for k in range(1, n)]
+    try:
+        first = work(0)
+    finally:
+        for f in futures:  # every call ends before this returns or raises
+            f.exception()
+    return [first] + [f.result() for f in futures]
+
+
 #: threading layers that tolerate parallel kernels launched from several Python threads at once
 #: (numba's workqueue layer aborts the process: "Concurrent access has been detected")
 _CONCURRENT_LAYERS = ("omp", "tbb")

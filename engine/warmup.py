@@ -27,7 +27,7 @@ from contextlib import contextmanager
 from numba.core import event
 from numba.core.dispatcher import Dispatcher
 
-from .trace.cgt.frame import _render_tiles, cgt_render_kernel
+from .trace.cgt.frame import _render_tiles
 from .trace.render import render_kernel, render_serial
 from .trace.twin import has_cache_entry
 
@@ -216,10 +216,10 @@ def compile_progress(report, package="gridrt"):
 
 
 def _kernels(traversal="dda"):
-    """The render kernels a first frame of this traversal may run: the parallel one and its serial
-    twin (gridrt.trace.twin; the serial one runs while the parallel one is not compiled)."""
-    # (the serial CGT render is a Python function around the kernel _render_tiles)
-    return [cgt_render_kernel, _render_tiles] if traversal == "cgt" else [render_kernel, render_serial]
+    """The render kernels a first frame of this traversal may run: the DDA's parallel one and its
+    serial twin (gridrt.trace.twin; the serial one runs while the parallel one is not compiled),
+    or the CGT's one kernel, which any number of threads run (gridrt.trace.cgt.cgt_render)."""
+    return [_render_tiles] if traversal == "cgt" else [render_kernel, render_serial]
 
 
 def cache_is_cold(traversal="dda"):

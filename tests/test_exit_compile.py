@@ -140,7 +140,7 @@ def compile_():
     print("compiled", flush=True)
 
 job = threading.Thread(target=compile_, daemon=True)
-job.kernel = "cgt_render_kernel"
+job.kernel = "render_kernel"
 TWINS._compiling[("stand-in",)] = job
 job.start()
 print("the frames are written", flush=False)
@@ -154,7 +154,7 @@ def test_leave_does_not_wait_for_a_compile(code):
             timeout=300)  # (it would take 600 s to wait)
     assert r.returncode == code, r.stderr
     assert r.stdout == "the frames are written\n"  # (flushed before leaving)
-    assert r.stderr == NOTICE + "cgt_render_kernel (it compiles again next start)\n"
+    assert r.stderr == NOTICE + "render_kernel (it compiles again next start)\n"
 
 
 def test_leave_after_a_dump_waits_for_a_compile():
@@ -164,10 +164,10 @@ def test_leave_after_a_dump_waits_for_a_compile():
     r = run(["-c", textwrap.dedent(STAND_IN.format(code=0, seconds=2, finish=True))], timeout=300)
     assert r.returncode == 0, r.stderr
     assert r.stdout == "the frames are written\ncompiled\n"
-    assert r.stderr == FINISHING + "cgt_render_kernel for later runs (Ctrl-C skips it)\n"
+    assert r.stderr == FINISHING + "render_kernel for later runs (Ctrl-C skips it)\n"
     r = run(["-c", textwrap.dedent(STAND_IN.format(code=2, seconds=600, finish=True))], timeout=300)
     assert r.returncode == 2, r.stderr
-    assert r.stderr == NOTICE + "cgt_render_kernel (it compiles again next start)\n"
+    assert r.stderr == NOTICE + "render_kernel (it compiles again next start)\n"
 
 
 def test_ctrl_c_skips_the_finishing_wait():
@@ -178,14 +178,14 @@ def test_ctrl_c_skips_the_finishing_wait():
                          preexec_fn=sigint_default)
     try:
         line = p.stderr.readline()
-        assert line == FINISHING + "cgt_render_kernel for later runs (Ctrl-C skips it)\n", line
+        assert line == FINISHING + "render_kernel for later runs (Ctrl-C skips it)\n", line
         p.send_signal(signal.SIGINT)
         out, err = p.communicate(timeout=300)  # (it would take 600 s to wait)
     finally:
         p.kill()
     assert p.returncode == 0, err
     assert out == "the frames are written\n"
-    assert err == NOTICE + "cgt_render_kernel (it compiles again next start)\n"
+    assert err == NOTICE + "render_kernel (it compiles again next start)\n"
 
 
 def test_leave_without_a_compile_and_in_process():

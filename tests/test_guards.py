@@ -203,9 +203,10 @@ BOUNDARIES = {
         "internal: as image_width; tile_order writes each of the N rays' indices once into the (N,) buffer it "
         "allocates (a width and first column from image_width, checked there)",
         ["test_guard_cast_rays", "test_guard_cast_batch"]),
-    "gridrt.trace.cgt.frame:cgt_render_serial": (
-        "internal: Renderer.render's one-thread CGT path (gridrt.trace.twin), called after its checks, with its "
-        "buffers", ["test_guard_render", "test_stale_grid_is_refused"]),
+    "gridrt.trace.cgt.frame:cgt_render.work": (
+        "internal: one thread's share of cgt_render, Renderer.render's CGT path, called after its checks, with its "
+        "buffers and a checked thread count; the runs' counter and each thread's scratch made there",
+        ["test_guard_render", "test_stale_grid_is_refused"]),
     "gridrt.trace.render:Renderer.render": (
         "as cast_rays, plus the second grid's tris and id maps; image buffers sized W x H",
         ["test_guard_render", "test_stale_grid_is_refused"]),

@@ -1,9 +1,10 @@
 """A parallel render kernel and its serial twin (gridrt.trace.twin).
 
-* The render kernels' twins (DDA and CGT, with and without shadows, one grid and a split scene of
-  two) write the same image, t, triangle and counter buffers and return the same sums, bit for
-  bit, as the parallel kernels on 2 and 3 threads; and both give the brute-force float64 caster's
-  hits (tests/reference.py) on the primary rays.
+* The DDA render kernel's twin, with and without shadows, one grid and a split scene of two,
+  writes the same image, t, triangle and counter buffers as the parallel kernel on 2 and 3
+  threads, and the CGT render (one kernel that threads share: gridrt.trace.cgt.cgt_render) writes
+  the same buffers and returns the same sums on 1, 2 and 3 threads; both give the brute-force
+  float64 caster's hits (tests/reference.py) on the primary rays.
 * The choice (a fresh process and a fresh numba cache, with two small kernels written for the
   test): one thread calls the serial kernel; on a cold cache the first call on two threads is
   serial too and compiles nothing parallel, the second starts the parallel compile in the
@@ -28,7 +29,7 @@ from gridrt.config import RenderParams
 from gridrt.grid import build_grid
 from gridrt.trace.grids import grid_arrays
 from gridrt.trace.records import Buffers, make_packets, make_shading, make_view
-from gridrt.trace.cgt import cgt_render_kernel, cgt_render_serial
+from gridrt.trace.cgt import cgt_render
 from gridrt.trace.render import render_kernel, render_serial
 from gridrt.trace.twin import TWINS, Twins, parallel_first
 
@@ -61,7 +62,7 @@ def _scene():
 @pytest.mark.parametrize("shadows", [False, True])
 def test_serial_twin_equals_parallel_kernel(traversal, shadows):
     both, one, two, cam = _scene()
-    parallel, serial = (cgt_render_kernel, cgt_render_serial) if traversal == "cgt" else (render_kernel, render_serial)
+    serial = cgt_render if traversal == "cgt" else render_serial  # (cgt_render: one thread by default)
     W, H = 96, 72
     light = cam.basis()[0] + np.array([2.0, 3.0, 1.0]) if shadows else None
     if traversal == "dda" and light is None:
@@ -76,7 +77,7 @@ def test_serial_twin_equals_parallel_kernel(traversal, shadows):
 
             use_threads(threads)
             b = _args(grids, cam, W, H, shadows, light=light, f32=f32)
-            out = parallel(*b)
+            out = cgt_render(*b, threads=threads) if traversal == "cgt" else render_kernel(*b)
             for x, y in zip(ref_bufs, b[-1]):
                 np.testing.assert_array_equal(x, y)
             if traversal == "cgt":
@@ -109,7 +110,7 @@ import json, sys
 import numpy as np
 import gridrt  # (sets numba's thread count before numba starts its threads)
 from numba.core import event
-from gridrt.trace.cgt import cgt_render_kernel, cgt_render_serial
+from gridrt.trace.cgt import cgt_render
 from gridrt.trace.render import render_kernel, render_serial
 from gridrt.trace.twin import TWINS, Twins, parallel_first
 import twin_kernels as k
@@ -185,6 +186,32 @@ def test_background_compile_failure_is_reported():
         t(2, _broken, _fine, x, out)
     t(1, _broken, _fine, x, out)  # one thread: the serial kernel, as before
     np.testing.assert_array_equal(out, x)
+
+
+def test_on_threads_runs_every_call_at_once_and_raises_once_all_have_ended():
+    """gridrt.threads.on_threads: the calls run at the same time (three calls meet at a barrier,
+    which times out unless all three are running), their results come back in order, and the
+    exception of one call is raised only after every other call has ended."""
+    import threading
+
+    from gridrt.threads import on_threads
+
+    meet = threading.Barrier(3, timeout=60)
+    names = on_threads(3, lambda k: (meet.wait(), k, threading.current_thread().name)[1:])
+    assert [k for k, _ in names] == [0, 1, 2]
+    assert names[0][1] == threading.current_thread().name and len({n for _, n in names}) == 3
+    ended, meet = [], threading.Barrier(3, timeout=60)
+
+    def work(k):
+        meet.wait()
+        if k == 1:
+            raise ValueError("call 1 fails")
+        threading.Event().wait(0.2 * k)  # call 2 ends well after the failing one and call 0
+        ended.append(k)
+
+    with pytest.raises(ValueError, match="call 1 fails"):
+        on_threads(3, work)
+    assert sorted(ended) == [0, 2]
 
 
 def test_renderer_frames_equal_across_the_switch():

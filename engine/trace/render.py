@@ -17,11 +17,11 @@ Shading (all colours linear in [0, 1], stored as ``uint8(round(255 * c))``, alph
 
 Traversal (RenderParams.traversal): ``dda`` traces one ray at a time (render_kernel);
 ``cgt`` traces 8x8-pixel packets and their shadow rays with coherent grid traversal
-(gridrt.trace.cgt.cgt_render_kernel): the same t, triangle and colour buffers (both give a
-tie, two triangles hit at exactly the same t, to the lower triangle index).  Each render kernel
-has a serial twin (render_serial, cgt_render_serial) that writes the same buffers;
-Renderer.render calls it on one thread and while the parallel kernel is not compiled yet
-(gridrt.trace.twin).
+(gridrt.trace.cgt.cgt_render: one kernel that several threads share): the same t, triangle and
+colour buffers (both give a tie, two triangles hit at exactly the same t, to the lower triangle
+index).  The DDA's parallel kernel has a serial twin (render_serial) that writes the same
+buffers; Renderer.render calls it on one thread and while the parallel kernel is not compiled
+yet (gridrt.trace.twin).
 
 The unit geometric normal is normalize((v1 - v0) x (v2 - v0)).
 """
@@ -31,7 +31,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, parallel_chunksize, prange
+from numba import njit, prange
 
 from ..arrays import as_origin, check_ray_values, check_rays
 from ..compiles import inner
@@ -46,7 +46,7 @@ from .batch import MAX_CELLS, SHADOW_MAX_CELLS, cast_grouped, odd_directions, ti
 from .traverse import SCRATCH, near_all, trace_grids
 from .twin import TWINS
 from ..camera import Camera, pixel_dir
-from .cgt.frame import cgt_render_kernel, cgt_render_serial
+from .cgt.frame import cgt_render
 from .grids import grid_arrays, grid_tuple, pack_grids, unpack_grids
 from .lightmap import LightMaps, clear_lit
 from .material import (add_light, compose, draw_shift, drawn_segments, light_segments, live_segments, mark_blocked,
@@ -494,11 +494,7 @@ class Renderer:
             near = near_all([(g.lo, g.hi) for g in grids], [basis[0]] + ([light] if shadows else []))
             pk = make_packets(params.packet_precision == "float32", *params.packet, far=not near)
             # light None: the CGT kernel without its shadow path (compiles faster)
-            with parallel_chunksize(1):  # dynamic scheduling of the kernel's chunks of tiles
-                # the parallel kernel, or its serial twin on one thread and while the parallel one
-                # compiles (gridrt.trace.twin)
-                sums = TWINS(threads, cgt_render_kernel, cgt_render_serial, grids, v, look,
-                             light if shadows else None, pk, out)
+            sums = cgt_render(grids, v, look, light if shadows else None, pk, out, threads)
         else:
             TWINS(threads, render_kernel, render_serial, grids, v, look, light, out)
         shade_ms, n_lights, n_shadow, hdr = 0.0, (1 if params.shadows else 0), None, None

@@ -1,7 +1,8 @@
 """A parallel kernel and its serial twin: the first frame need not wait for the parallel one.
 
-A render kernel exists twice: ``parallel`` (``prange`` over chunks of tiles) and ``serial`` (the
-same tiles in order on one thread, through the same tile kernel).  Both take the same arguments
+The DDA render kernel and the material pass exist twice: ``parallel`` (``prange`` over chunks of
+tiles) and ``serial`` (the same tiles in order on one thread, through the same tile kernel).  (The
+CGT render needs no twin: its threads share one kernel, gridrt.trace.cgt.cgt_render.)  Both take the same arguments
 and write the same buffers bit for bit, since no result depends on which thread renders a tile.
 The serial one compiles seconds faster on a cold numba cache: the parallel one adds numba's parfor
 lowering and one more optimisation and machine-code pass over its whole call tree (BENCHMARKS.md

@@ -46,11 +46,11 @@ The package by layer:
 * :mod:`.walk`: one packet through a grid (slices, cells, macro cells, the two-level walk, far
   origins, incoherent packets split by direction class): :func:`trace_packet`,
   :func:`trace_packet_grids`;
-* :mod:`.frame`: a frame rendered as packets: :func:`cgt_render_kernel`, :func:`cgt_render_serial`;
+* :mod:`.frame`: a frame rendered as packets on any number of threads: :func:`cgt_render`;
 * :mod:`.profile`: the cycle counts of a packet's phases (trace_packet's ``prof``).
 """
 
-from .frame import _camera_rays, _render_tiles, cgt_render_kernel, cgt_render_serial
+from .frame import _camera_rays, _render_tiles, cgt_render
 from .profile import (C_CELLS, C_PACKETS, C_SLICES, C_TESTS, NPROF, P_RAYS, P_TESTS, PROFILE_PHASES, _lap,
                       _now)
 from .rays import (F_BF, F_BT, F_OU, F_OV, F_SZ, IO_DX, IO_DY, IO_DZ, IO_F, IO_NC, IO_NT, IO_OX, IO_OY, IO_OZ, IO_T,

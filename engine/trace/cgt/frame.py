@@ -1,13 +1,15 @@
 """A frame rendered as packets: the camera rays of a block of pixels, writing a packet's pixels,
-the tiles of a frame (_render_tiles) and the parallel and serial render kernels."""
+the tiles of a frame (_render_tiles, a kernel that threads share) and the frame on any number of
+threads (cgt_render)."""
 
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from ...compiles import inner
-from ..grids import pack_grids, unpack_grids
+from ...grid.atomics import atomic_add
+from ...threads import on_threads
 from ..prefetch import _prefetch_write
 from ..records import Buffers, Scratch
 from ..shade import BACKGROUND, _u8, cost_rgb, facing_normal, lambert_rgb, normal_rgb, scene_id, shadow_ray
@@ -17,7 +19,7 @@ from .rays import (IO_DX, IO_DY, IO_DZ, IO_F, IO_NT, IO_OX, IO_OY, IO_OZ, IO_T, 
 from .walk import trace_packet_grids
 
 
-#: the render kernel's parallel work items (runs of consecutive tiles sharing one scratch allocation)
+#: the runs of consecutive tiles a frame on several threads is shared out in (cgt_render)
 CHUNKS = 256
 
 
@@ -121,10 +123,12 @@ def _prefetch_tile(ti, ntx, view, out):
         _prefetch_write(img, 4 * p)
 
 
-@njit(cache=True, _nrt=False, error_model="numpy")
+@njit(cache=True, _nrt=False, error_model="numpy", nogil=True)
 def _render_tiles(grids, view, looks, light, packets, tiles, out, scratch):
-    """Render the tiles tiles = (t0, t1), t0..t1-1 (row-major) of the view
-    (:class:`gridrt.trace.records.View`), each as packets of up to kw x kh pixels (packets:
+    """Render the view's tiles (:class:`gridrt.trace.records.View`, row-major) in runs of
+    tiles = (next, per): next (1,) int64 counts the runs of ``per`` consecutive tiles taken so far,
+    and each call takes the next run (an atomic add) until none is left, so that calls on several
+    threads share the frame (cgt_render).  Each tile as packets of up to kw x kh pixels (packets:
     :class:`gridrt.trace.records.Packets`): trace and shade each packet (looks:
     :class:`gridrt.trace.records.Shading`; its shadow rays as another packet) into the flat
     buffers out (see _write_out), with the worker's scratch (:class:`gridrt.trace.records.Scratch`).
@@ -136,141 +140,106 @@ def _render_tiles(grids, view, looks, light, packets, tiles, out, scratch):
     basis, W, H, tile = view.basis, view.W, view.H, view.tile
     mode, off, watertight = looks.mode, looks.off, looks.watertight
     f32, kw, kh, far = packets.f32, packets.kw, packets.kh, packets.far
-    t0, t1 = tiles
+    nxt, per = tiles
+    ntiles = ((W + tile - 1) // tile) * ((H + tile - 1) // tile)
     S, io, io2, sio, sj, col, mb, acc = (scratch.S, scratch.io, scratch.io2, scratch.sio, scratch.sj, scratch.col,
                                          scratch.mb, scratch.acc)
     primary = PacketQuery(0.0, watertight, False, f32, far)  # the nearest hit
     shadow = PacketQuery(0.0, watertight, True, f32, far)  # any hit
     ntx = (W + tile - 1) // tile
     ex, ey, ez = basis[0, 0], basis[0, 1], basis[0, 2]
-    if t0 < t1:
+    while True:
+        t0 = atomic_add(nxt, 0, np.int64(1)) * per
+        if t0 >= ntiles:
+            break
+        t1 = min(t0 + per, ntiles)
         _prefetch_tile(t0, ntx, view, out)
-    for ti in range(t0, t1):
-        tx0 = (ti % ntx) * tile
-        ty0 = (ti // ntx) * tile
-        tx1 = min(tx0 + tile, W)
-        ty1 = min(ty0 + tile, H)
-        if ti + 1 < t1:  # the next tile's output lines load while this tile is traced
-            _prefetch_tile(ti + 1, ntx, view, out)
-        for py0 in range(ty0, ty1, kh):
-            for px0 in range(tx0, tx1, kw):
-                pw = min(kw, tx1 - px0)
-                ph = min(kh, ty1 - py0)
-                n = pw * ph
-                _camera_rays(basis, W, H, px0, py0, pw, ph, io)
-                nfb = trace_packet_grids(grids, n, io, io2, primary, S, mb)
-                # colours into col (3 * PN), shadow rays of lit hits into sio
-                m = 0
-                for j in range(n):
-                    f = int(io[IO_F * PN + j])
-                    r, g, b = BACKGROUND[0], BACKGROUND[1], BACKGROUND[2]
-                    if mode == 2:
-                        r, g, b = cost_rgb(int(io[IO_NT * PN + j]))
-                    elif f >= 0 and mode != 3:  # (mode 3: the material pass colours the hits)
-                        t = io[IO_T * PN + j]
-                        dx = io[IO_DX * PN + j]
-                        dy = io[IO_DY * PN + j]
-                        dz = io[IO_DZ * PN + j]
-                        nx, ny, nz, dn = facing_normal(grids[int(io[IO_W * PN + j])].tris, f, dx, dy, dz)
-                        if mode == 1:
-                            r, g, b = normal_rgb(nx, ny, nz)
-                        else:
-                            if light is None:  # no shadows: numba prunes the shadow path (light: NoneType)
-                                s = -dn
+        for ti in range(t0, t1):
+            tx0 = (ti % ntx) * tile
+            ty0 = (ti // ntx) * tile
+            tx1 = min(tx0 + tile, W)
+            ty1 = min(ty0 + tile, H)
+            if ti + 1 < t1:  # the next tile's output lines load while this tile is traced
+                _prefetch_tile(ti + 1, ntx, view, out)
+            for py0 in range(ty0, ty1, kh):
+                for px0 in range(tx0, tx1, kw):
+                    pw = min(kw, tx1 - px0)
+                    ph = min(kh, ty1 - py0)
+                    n = pw * ph
+                    _camera_rays(basis, W, H, px0, py0, pw, ph, io)
+                    nfb = trace_packet_grids(grids, n, io, io2, primary, S, mb)
+                    # colours into col (3 * PN), shadow rays of lit hits into sio
+                    m = 0
+                    for j in range(n):
+                        f = int(io[IO_F * PN + j])
+                        r, g, b = BACKGROUND[0], BACKGROUND[1], BACKGROUND[2]
+                        if mode == 2:
+                            r, g, b = cost_rgb(int(io[IO_NT * PN + j]))
+                        elif f >= 0 and mode != 3:  # (mode 3: the material pass colours the hits)
+                            t = io[IO_T * PN + j]
+                            dx = io[IO_DX * PN + j]
+                            dy = io[IO_DY * PN + j]
+                            dz = io[IO_DZ * PN + j]
+                            nx, ny, nz, dn = facing_normal(grids[int(io[IO_W * PN + j])].tris, f, dx, dy, dz)
+                            if mode == 1:
+                                r, g, b = normal_rgb(nx, ny, nz)
                             else:
-                                need, sox, soy, soz, lx, ly, lz, ld, s = shadow_ray(
-                                    (ex, ey, ez), t, (dx, dy, dz), (nx, ny, nz), light, off)
-                                if need:
-                                    sio[IO_OX * PN + m] = sox
-                                    sio[IO_OY * PN + m] = soy
-                                    sio[IO_OZ * PN + m] = soz
-                                    sio[IO_DX * PN + m] = lx
-                                    sio[IO_DY * PN + m] = ly
-                                    sio[IO_DZ * PN + m] = lz
-                                    sio[IO_TMAX * PN + m] = ld
-                                    sj[m] = j
-                                    col[j] = s  # lit unless the shadow ray hits something
-                                    m += 1
-                                    continue
-                            r, g, b = lambert_rgb(s)
-                    col[j] = r
-                    col[PN + j] = g
-                    col[2 * PN + j] = b
-                if light is not None and m > 0:
-                    nfb += trace_packet_grids(grids, m, sio, io2, shadow, S, mb)
-                    for q in range(m):
-                        j = sj[q]
-                        r, g, b = lambert_rgb(col[j] if sio[IO_F * PN + q] < 0.0 else 0.0)
+                                if light is None:  # no shadows: numba prunes the shadow path (light: NoneType)
+                                    s = -dn
+                                else:
+                                    need, sox, soy, soz, lx, ly, lz, ld, s = shadow_ray(
+                                        (ex, ey, ez), t, (dx, dy, dz), (nx, ny, nz), light, off)
+                                    if need:
+                                        sio[IO_OX * PN + m] = sox
+                                        sio[IO_OY * PN + m] = soy
+                                        sio[IO_OZ * PN + m] = soz
+                                        sio[IO_DX * PN + m] = lx
+                                        sio[IO_DY * PN + m] = ly
+                                        sio[IO_DZ * PN + m] = lz
+                                        sio[IO_TMAX * PN + m] = ld
+                                        sj[m] = j
+                                        col[j] = s  # lit unless the shadow ray hits something
+                                        m += 1
+                                        continue
+                                r, g, b = lambert_rgb(s)
                         col[j] = r
                         col[PN + j] = g
                         col[2 * PN + j] = b
-                hits, tests, cells = _write_out(io, col, W, (px0, py0, pw, ph), grids, out)
-                acc[0] += hits
-                acc[1] += tests
-                acc[2] += cells
-                acc[3] += nfb
+                    if light is not None and m > 0:
+                        nfb += trace_packet_grids(grids, m, sio, io2, shadow, S, mb)
+                        for q in range(m):
+                            j = sj[q]
+                            r, g, b = lambert_rgb(col[j] if sio[IO_F * PN + q] < 0.0 else 0.0)
+                            col[j] = r
+                            col[PN + j] = g
+                            col[2 * PN + j] = b
+                    hits, tests, cells = _write_out(io, col, W, (px0, py0, pw, ph), grids, out)
+                    acc[0] += hits
+                    acc[1] += tests
+                    acc[2] += cells
+                    acc[3] += nfb
 
 
-@inner(cache=True)
-def _sums(acc):
-    """The column sums of acc (nch, 4) int64, in a new (4,) array.  (A loop: acc.sum(axis=0) would
-    compile numba's string formatting for its axis error, a second on a cold start.)"""
-    out = np.zeros(4, np.int64)
-    for ch in range(acc.shape[0]):
-        for k in range(4):
-            out[k] += acc[ch, k]
-    return out
-
-
-@inner(cache=True)
-def _chunking(W, H, tile):
-    """(tiles, chunks, tiles per chunk): the frame's tiles in runs of consecutive tiles."""
-    ntiles = ((W + tile - 1) // tile) * ((H + tile - 1) // tile)
-    nch = min(ntiles, CHUNKS)
-    return ntiles, nch, (ntiles + nch - 1) // nch
-
-
-@njit(cache=True, parallel=True, error_model="numpy")
-def cgt_render_kernel(grids, view, looks, light, packets, out):
-    """render_kernel (the same grids, view, looks, light and buffers out, the same shading) with
-    primary and shadow rays traced as packets of up to kw x kh pixels (at most PN rays) within
-    each tile, their triangle tests in float32 with f32 (packets:
-    :class:`gridrt.trace.records.Packets`; see trace_packet).  out.cost / out.cells hold the CGT
-    counters (see gridrt.trace.cgt).  Returns (4,) int64: pixels hit, the sums of out.cost and
-    out.cells, and the number of rays (primary and shadow) traced in packets split by direction
-    class (trace_packet)."""
-    # scratch is allocated once per chunk (a run of consecutive tiles); call under
-    # numba.parallel_chunksize(1) so threads take chunks dynamically.  The result does not
-    # depend on the chunking or the scheduling.
-    W, H = view.W, view.H
-    ntiles, nch, per = _chunking(W, H, view.tile)
-    acc = np.zeros((nch, 4), np.int64)
-    flat = pack_grids(grids)  # (a tuple of grids cannot enter the parallel loop as it is: see grids.py)
-    for ch in prange(nch):
-        _render_tiles(
-            unpack_grids(flat), view, looks, light, packets, (ch * per, min((ch + 1) * per, ntiles)),
-            Buffers(out.img.reshape(H * W * 4), out.t.reshape(H * W), out.tri.reshape(H * W), out.cost.reshape(H * W),
-                    out.cells.reshape(H * W)),
-            Scratch(np.empty(NS * PN), np.empty(NIO * PN), np.empty(NIO * PN), np.empty(NIO * PN),
-                    np.empty(PN, np.int64), np.empty(3 * PN), np.empty(MBOX, np.int32), acc[ch]),
-        )
-    return _sums(acc)
-
-
-def cgt_render_serial(grids, view, looks, light, packets, out):
-    """cgt_render_kernel on one thread: all tiles in order, one scratch; the same buffers and sums
-    bit for bit (tiles are independent).  A Python function around the kernel _render_tiles, so
-    that a cold first frame compiles one level of kernels less: numba optimises and generates
-    machine code for a kernel's whole call tree again at every level that wraps it (about 1 s
-    here; gridrt.trace.twin)."""
+def cgt_render(grids, view, looks, light, packets, out, threads=1):
+    """Render the view into the image buffers out (:class:`gridrt.trace.records.Buffers`, (H, W, 4)
+    and (H, W)) on ``threads`` threads: each runs the kernel _render_tiles with its own scratch,
+    and they share the frame's tiles in runs (CHUNKS of them; one run on one thread) through one
+    counter (gridrt.threads.on_threads).  The same buffers and sums bit for bit on any number of
+    threads, as no pixel depends on which thread renders it.  Returns (4,) int64: pixels hit, the
+    sums of out.cost and out.cells, and the number of rays traced in packets split by direction
+    class (trace_packet).  A Python function around one kernel, compiled once for every thread
+    count: numba's parallel loop would compile the whole call tree a second time, in seconds."""
     W, H, tile = view.W, view.H, view.tile
     ntiles = ((W + tile - 1) // tile) * ((H + tile - 1) // tile)
-    acc = np.zeros(4, np.int64)
-    _render_tiles(
-        grids, view, looks, light, packets, (0, ntiles),
-        Buffers(out.img.reshape(H * W * 4), out.t.reshape(H * W), out.tri.reshape(H * W), out.cost.reshape(H * W),
-                out.cells.reshape(H * W)),
-        Scratch(np.empty(NS * PN), np.empty(NIO * PN), np.empty(NIO * PN), np.empty(NIO * PN), np.empty(PN, np.int64),
-                np.empty(3 * PN), np.empty(MBOX, np.int32), acc),
-    )
-    return acc
+    runs = (np.zeros(1, np.int64), ntiles if threads == 1 else -(-ntiles // max(1, min(ntiles, CHUNKS))))
+    flat = Buffers(out.img.reshape(H * W * 4), out.t.reshape(H * W), out.tri.reshape(H * W), out.cost.reshape(H * W),
+                   out.cells.reshape(H * W))
+
+    def work(k):
+        acc = np.zeros(4, np.int64)
+        _render_tiles(grids, view, looks, light, packets, runs, flat,
+                      Scratch(np.empty(NS * PN), np.empty(NIO * PN), np.empty(NIO * PN), np.empty(NIO * PN),
+                              np.empty(PN, np.int64), np.empty(3 * PN), np.empty(MBOX, np.int32), acc))
+        return acc
+
+    return np.sum(on_threads(threads, work), axis=0)
