@@ -31,10 +31,13 @@ own in float64.  Hits may then depend on the grouping, but only at near-ties and
 rounding of an edge.
 """
 
+import numba
 import numpy as np
-from numba import njit, parallel_chunksize, prange
+from numba import njit, prange
 
 from ..compiles import inner
+from ..grid.atomics import atomic_add
+from ..threads import on_threads
 from .cgt import (IO_DX, IO_DY, IO_DZ, IO_F, IO_OX, IO_OY, IO_OZ, IO_TMAX, MBOX, NIO, NS, PN, PacketQuery,
                   direction_class, trace_packet)
 from .intersect import ray_shear
@@ -51,7 +54,7 @@ MAX_CELLS = 32.0
 #: points rather than from one eye: a run wider than this goes through the single-ray DDA (measured:
 #: BENCHMARKS.md section 15, "Shadow rays as packets")
 SHADOW_MAX_CELLS = 8.0
-#: groups of runs per parallel work item (one scratch allocation each)
+#: runs per work item, the batch's share that a thread takes at a time (cast_runs)
 GROUPS_PER_ITEM = 16
 #: bits of each slope in the sort key's Morton code
 SLOPE_BITS = 10
@@ -163,27 +166,41 @@ def _cast_run(g, origins, dirs, idx, s, n, q, how, scratch, out):
     return n
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def cast_runs_kernel(g, origins, dirs, idx, q, how, out):
+@njit(cache=True, error_model="numpy", nogil=True)
+def cast_runs_kernel(g, origins, dirs, idx, q, how, out, nxt):
     """Pass 1 (idx empty: the rays in order, how.singly False) or pass 2 (idx: the rays left,
     sorted; how.singly True) of a batch cast (the :class:`Query` q, the :class:`CastPass` how)
     over the grid g (GridArrays), in runs of RUN rays, into the :class:`HitArrays` out of (N,)
-    arrays (pass 1 sets out.left to 1 for the rays it leaves).  Returns the number of rays traced
-    in packets.  (Call under numba.parallel_chunksize(1).)"""
+    arrays (pass 1 sets out.left to 1 for the rays it leaves).  The runs go in work items of
+    GROUPS_PER_ITEM runs, and each call takes the next item (an atomic add on nxt (1,) int64, the
+    items taken so far) until none is left, so that calls on several threads share the batch
+    (cast_runs).  Returns the number of rays this call traced in packets."""
     M = idx.shape[0] if idx.shape[0] > 0 else origins.shape[0]
     nruns = (M + RUN - 1) // RUN
     nitems = (nruns + GROUPS_PER_ITEM - 1) // GROUPS_PER_ITEM
-    packets = np.zeros(nitems, np.int64)
-    for it in prange(nitems):
-        scratch = PacketScratch(np.empty(NIO * PN), np.empty(NS * PN), np.empty(MBOX, np.int32),
-                                np.empty(SCRATCH, np.int32))
+    scratch = PacketScratch(np.empty(NIO * PN), np.empty(NS * PN), np.empty(MBOX, np.int32),
+                            np.empty(SCRATCH, np.int32))
+    total = 0
+    while True:
+        it = atomic_add(nxt, 0, np.int64(1))
+        if it >= nitems:
+            break
         for run in range(it * GROUPS_PER_ITEM, min((it + 1) * GROUPS_PER_ITEM, nruns)):
             s = run * RUN
-            packets[it] += _cast_run(g, origins, dirs, idx, s, min(RUN, M - s), q, how, scratch, out)
-    total = 0
-    for it in range(nitems):
-        total += packets[it]
+            total += _cast_run(g, origins, dirs, idx, s, min(RUN, M - s), q, how, scratch, out)
     return total
+
+
+def cast_runs(g, origins, dirs, idx, q, how, out):
+    """cast_runs_kernel on the calling thread's numba thread count (gridrt.threads.use_threads) of
+    threads, at most one a work item (gridrt.threads.on_threads): the same hits on any number of
+    threads, as each ray's are its own.  Returns the rays traced in packets.  (Python threads
+    around one kernel: numba's parallel loop would compile the whole call tree a second time.)"""
+    M = idx.shape[0] if idx.shape[0] > 0 else origins.shape[0]
+    items = -(-M // (RUN * GROUPS_PER_ITEM))
+    nxt = np.zeros(1, np.int64)
+    threads = max(1, min(numba.get_num_threads(), items))
+    return sum(on_threads(threads, lambda k: cast_runs_kernel(g, origins, dirs, idx, q, how, out, nxt)))
 
 
 @njit(cache=True, error_model="numpy")
@@ -363,18 +380,14 @@ def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cel
         return 0, 0
     max_cells = float(max_cells)
     q = query(tmin, tmax, watertight, any_hit)
-    # (the run kernels under parallel_chunksize(1): runs differ in cost, so threads take work
-    # items one at a time; not sort_keys, whose rows cost alike)
+    # (cast_runs: runs differ in cost, so threads take work items one at a time)
     if max_cells <= 0.0:
-        with parallel_chunksize(1):
-            cast_runs_kernel(g, origins, dirs, NO_ROWS if rows is None else rows, q,
-                             cast_pass(-1.0, True, f32, tri_only), HitArrays(*out, NO_LEFT))
+        cast_runs(g, origins, dirs, NO_ROWS if rows is None else rows, q, cast_pass(-1.0, True, f32, tri_only),
+                  HitArrays(*out, NO_LEFT))
         return 0, 0
     left = np.zeros(N, np.uint8)
-    with parallel_chunksize(1):
-        p1 = cast_runs_kernel(g, origins, dirs, pass1_order(origins, dirs) if rows is None else rows, q,
-                              cast_pass(max_cells, False, f32, tri_only),
-                              HitArrays(*out, left))
+    p1 = cast_runs(g, origins, dirs, pass1_order(origins, dirs) if rows is None else rows, q,
+                   cast_pass(max_cells, False, f32, tri_only), HitArrays(*out, left))
     rows = np.flatnonzero(left.view(np.bool_))   # (0/1 bytes read as bools: numpy finds them 7x faster)
     if len(rows) == 0:
         return int(p1), 0
@@ -391,7 +404,6 @@ def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cel
         # sort (timsort on int64) runs in about half the time of its quicksort on these keys,
         # which arrive in long sorted runs (a tile's rays share a bin)
         rows = rows[np.argsort(keys, kind="stable")]
-    with parallel_chunksize(1):
-        p2 = cast_runs_kernel(g, origins, dirs, rows, q, cast_pass(max_cells if sort else -1.0, True, f32, tri_only),
-                              HitArrays(*out, NO_LEFT))
+    p2 = cast_runs(g, origins, dirs, rows, q, cast_pass(max_cells if sort else -1.0, True, f32, tri_only),
+                   HitArrays(*out, NO_LEFT))
     return int(p1), int(p2)
