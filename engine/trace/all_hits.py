@@ -38,9 +38,10 @@ from numba import njit, prange
 from ..arrays import check_ray_values, check_rays
 from ..compiles import inner
 from ..errors import InputError
+from ..grid.atomics import atomic_add
 from ..grid.two_level import leaf_axis
 from ..memory import check_fits
-from ..threads import check_threads, launch_guard, use_threads
+from ..threads import check_threads, launch_guard, on_threads, use_threads
 from .cgt.rays import direction_class
 from .intersect import ray_shear, woop_shear
 
@@ -345,33 +346,40 @@ def sort_hits(bt, bf, bu, bv, n):
         bt[j + 1], bf[j + 1], bu[j + 1], bv[j + 1] = t, f, u, v
 
 
-@njit(cache=True, parallel=True)
-def count_kernel(g, rays, cap, chunks, counts):
+@njit(cache=True, nogil=True)
+def count_kernel(g, rays, cap, chunks, counts, nxt):
     """counts[i]: the hits of ray i of the :data:`HitRays` rays (in the grid's frame) in the
-    :data:`HitGrid` g; -1 for a ray with more than ``cap`` hits.  The rays go in ``chunks``
-    parallel runs, each with its own scratch."""
+    :data:`HitGrid` g; -1 for a ray with more than ``cap`` hits.  The rays go in ``chunks`` runs:
+    each call takes the next (an atomic add on nxt (1,) int64, the runs taken so far) until none is
+    left, so that calls on several threads share the rays (_on_chunks)."""
     O, D, tmin, tmax = rays
     N = len(O)
-    for part in prange(chunks):
-        buf = HitBuffers(np.empty(cap), np.empty(cap, np.int32), np.empty(cap), np.empty(cap))
-        mb = np.empty(MAILBOX, np.int32)
+    buf = HitBuffers(np.empty(cap), np.empty(cap, np.int32), np.empty(cap), np.empty(cap))
+    mb = np.empty(MAILBOX, np.int32)
+    while True:
+        part = atomic_add(nxt, 0, np.int64(1))
+        if part >= chunks:
+            break
         for i in range(part * N // chunks, (part + 1) * N // chunks):
             counts[i] = ray_hits(g, O[i], D[i], tmin[i], tmax[i], buf, mb, g.leaf_first)
 
 
-@njit(cache=True, parallel=True)
-def slot_kernel(g, rays, cap, chunks, counts, slots):
+@njit(cache=True, nogil=True)
+def slot_kernel(g, rays, cap, chunks, counts, slots, nxt):
     """One walk a ray: counts[i] as count_kernel's (-1 above ``cap``), and ray i's nearest K hits,
     sorted, into row i of the :data:`HitBuffers` slots ((N, K) each; K = slots.t.shape[1]): the
-    first min(counts[i], K) entries of the row hold hits."""
+    first min(counts[i], K) entries of the row hold hits.  The rays in runs, as count_kernel's."""
     O, D, tmin, tmax = rays
     st, sf, su, sv = slots
     K = st.shape[1]
     N = len(O)
-    for part in prange(chunks):
-        buf = HitBuffers(np.empty(cap), np.empty(cap, np.int32), np.empty(cap), np.empty(cap))
-        bt, bf, bu, bv = buf
-        mb = np.empty(MAILBOX, np.int32)
+    buf = HitBuffers(np.empty(cap), np.empty(cap, np.int32), np.empty(cap), np.empty(cap))
+    bt, bf, bu, bv = buf
+    mb = np.empty(MAILBOX, np.int32)
+    while True:
+        part = atomic_add(nxt, 0, np.int64(1))
+        if part >= chunks:
+            break
         for i in range(part * N // chunks, (part + 1) * N // chunks):
             nh = ray_hits(g, O[i], D[i], tmin[i], tmax[i], buf, mb, g.leaf_first)
             counts[i] = nh
@@ -379,6 +387,14 @@ def slot_kernel(g, rays, cap, chunks, counts, slots):
                 sort_hits(bt, bf, bu, bv, nh)
                 for j in range(min(nh, K)):
                     st[i, j], sf[i, j], su[i, j], sv[i, j] = bt[j], bf[j], bu[j], bv[j]
+
+
+def _on_chunks(kernel, threads, g, rays, cap, chunks, *out):
+    """count_kernel or slot_kernel over ``chunks`` runs of the rays, on up to ``threads`` threads
+    (gridrt.threads.on_threads; numba's parallel loop would compile the whole walk a second time):
+    the same counts and hits on any number of threads, as each ray's are its own."""
+    nxt = np.zeros(1, np.int64)
+    on_threads(max(1, min(threads, chunks)), lambda k: kernel(g, rays, cap, chunks, *out, nxt))
 
 
 #: the grid as the all-hits kernels take it: the grid's (F, 3, 3) float32 triangles, its box lo,
@@ -504,7 +520,7 @@ def query_hits(grid, tris, origins, dirs, origin, t_min, t_max, max_hits=None, t
     with launch_guard():
         if count_only:
             if N:
-                count_kernel(g, rays, min(F, FIRST_CAP), chunks, counts)
+                _on_chunks(count_kernel, threads, g, rays, min(F, FIRST_CAP), chunks, counts)
                 _recount(g, rays, counts, F, threads)
             return counts if perm is None else _unpermuted(counts, perm)
         hits = _all_hits(g, rays, counts, F, chunks, threads, max_hits)
@@ -542,7 +558,7 @@ def _recount(g, rays, counts, F, threads):
     many = np.flatnonzero(counts < 0)
     if len(many):
         sub = np.zeros(len(many), np.int64)
-        count_kernel(g, _take(rays, many), F, max(1, min(len(many), threads)), sub)
+        _on_chunks(count_kernel, threads, g, _take(rays, many), F, max(1, min(len(many), threads)), sub)
         counts[many] = sub
     return many
 
@@ -566,7 +582,7 @@ def _all_hits(g, rays, counts, F, chunks, threads, max_hits):
         e = min(N, s + SLOT_BLOCK)
         block = _take(rays, slice(s, e))
         slots = _slots(e - s, keep)
-        slot_kernel(g, block, min(F, FIRST_CAP), max(1, min(e - s, chunks)), counts[s:e], slots)
+        _on_chunks(slot_kernel, threads, g, block, min(F, FIRST_CAP), max(1, min(e - s, chunks)), counts[s:e], slots)
         over = _recount(g, block, counts[s:e], F, threads)   # (their slots were not written)
         n = counts[s:e] if max_hits is None else np.minimum(counts[s:e], max_hits)
         full = n > keep   # rays whose hits the slots do not all hold
@@ -578,7 +594,8 @@ def _all_hits(g, rays, counts, F, chunks, threads, max_hits):
             idx = np.flatnonzero(full)
             wide = _slots(len(idx), int(n[idx].max()))
             cap = int(counts[s:e][idx].max())   # (room for every hit, to sort them)
-            slot_kernel(g, _take(block, idx), cap, max(1, min(len(idx), threads)), np.zeros(len(idx), np.int64), wide)
+            _on_chunks(slot_kernel, threads, g, _take(block, idx), cap, max(1, min(len(idx), threads)),
+                       np.zeros(len(idx), np.int64), wide)
             at = np.zeros(e - s, np.int64)
             np.cumsum(n[:-1], out=at[1:])
             mask = (np.arange(keep)[None, :] < n[:, None]) & ~full[:, None]
