@@ -28,6 +28,9 @@ def _host_features():
 
 
 AVX512 = "+avx512f" in _host_features().split(",")
+#: the second width, a fresh compile of the kernels again: in the slow set (.ci/run runs it), the
+#: default width in the quick one
+WIDTH_256 = pytest.param("256", marks=pytest.mark.slow)
 
 
 def test_features_for_each_width():
@@ -76,7 +79,7 @@ def _run_probe(tmp_path, width, src, warm=None):
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-@pytest.mark.parametrize("width", ["auto", "256"])
+@pytest.mark.parametrize("width", ["auto", WIDTH_256])
 def test_generated_code_width(tmp_path, width):
     r = _run_probe(tmp_path, width, _PROBE)
     print(width, r["zmm_ps"], "zmm packed-single ops,", r["ymm_ps"], "ymm")
@@ -112,7 +115,7 @@ print(json.dumps({"features": config.CPU_FEATURES or "", "zmm_pd": sum("zmm" in 
 """
 
 
-@pytest.mark.parametrize("width", ["auto", "256"])
+@pytest.mark.parametrize("width", ["auto", WIDTH_256])
 def test_single_ray_cell_test_width(tmp_path, width):
     """The single-ray traversal tests a crowded cell's triangles side by side
     (gridrt.trace.traverse._test_cell_wt): its compiled code (trace_ray, in a fresh process and
@@ -157,7 +160,7 @@ print(json.dumps({"features": config.CPU_FEATURES or "", "zmm_pd": sum("zmm" in 
 """
 
 
-@pytest.mark.parametrize("width", ["auto", "256"])
+@pytest.mark.parametrize("width", ["auto", WIDTH_256])
 def test_material_pass_width(tmp_path, width):
     """The material pass shades LANES hits side by side (gridrt.trace.material._surface_lanes,
     _texel_lanes, _shade_lanes): its compiled code (shade_serial, in a fresh process and cache)
