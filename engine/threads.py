@@ -170,9 +170,12 @@ def use_threads(n):
 
 
 
-#: the process's pool of worker threads for on_threads (made at its first use)
+#: the process's pool of worker threads for on_threads (made at its first use; a forked child,
+#: which has none of its threads, makes its own)
 _POOL = []
 _POOL_LOCK = threading.Lock()
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_POOL.clear)
 
 
 def on_threads(n, work):

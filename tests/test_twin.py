@@ -214,6 +214,28 @@ def test_on_threads_runs_every_call_at_once_and_raises_once_all_have_ended():
     assert sorted(ended) == [0, 2]
 
 
+_FORKED = """
+import os
+from gridrt.threads import on_threads
+assert on_threads(2, lambda k: k) == [0, 1]  # (the pool's threads exist now)
+pid = os.fork()
+if pid == 0:
+    print("child", on_threads(2, lambda k: 10 * k), flush=True)
+    os._exit(0)
+_, status = os.waitpid(pid, 0)
+print("parent", on_threads(2, lambda k: k), os.waitstatus_to_exitcode(status), flush=True)
+"""
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="no os.fork on this platform")
+def test_on_threads_in_a_forked_child():
+    """A process forked after on_threads started its pool (whose threads the child does not have)
+    runs on_threads on a pool of its own, rather than waiting for ever on threads that are gone."""
+    r = subprocess.run([sys.executable, "-c", _FORKED], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.splitlines() == ["child [0, 10]", "parent [0, 1] 0"], r.stdout
+
+
 def test_renderer_frames_equal_across_the_switch():
     """Frames through Renderer on 2 threads: the first ones from the serial twin (on a cold cache) or
     the parallel kernel, later ones from the parallel kernel: all equal, bit for bit."""
