@@ -223,7 +223,7 @@ def _render_tiles(grids, view, looks, light, packets, tiles, out, scratch):
 def cgt_render(grids, view, looks, light, packets, out, threads=1):
     """Render the view into the image buffers out (:class:`gridrt.trace.records.Buffers`, (H, W, 4)
     and (H, W)) on ``threads`` threads: each runs the kernel _render_tiles with its own scratch,
-    and they share the frame's tiles in runs (CHUNKS of them; one run on one thread) through one
+    and they share the frame's tiles in runs (CHUNKS of them, on any thread count) through one
     counter (gridrt.threads.on_threads).  The same buffers and sums bit for bit on any number of
     threads, as no pixel depends on which thread renders it.  Returns (4,) int64: pixels hit, the
     sums of out.cost and out.cells, and the number of rays traced in packets split by direction
@@ -231,7 +231,7 @@ def cgt_render(grids, view, looks, light, packets, out, threads=1):
     count: numba's parallel loop would compile the whole call tree a second time, in seconds."""
     W, H, tile = view.W, view.H, view.tile
     ntiles = ((W + tile - 1) // tile) * ((H + tile - 1) // tile)
-    runs = (np.zeros(1, np.int64), ntiles if threads == 1 else -(-ntiles // max(1, min(ntiles, CHUNKS))))
+    runs = (np.zeros(1, np.int64), -(-ntiles // max(1, min(ntiles, CHUNKS))))
     flat = Buffers(out.img.reshape(H * W * 4), out.t.reshape(H * W), out.tri.reshape(H * W), out.cost.reshape(H * W),
                    out.cells.reshape(H * W))
 
