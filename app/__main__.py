@@ -89,9 +89,9 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 
 
 def leave(code, finish=False):
-    """The program's exit status ``code`` once its work is done.  When a parallel kernel is still
+    """The program's exit status ``code`` once its work is done.  When parallel kernels are still
     compiling in the background (gridrt.trace.twin): with ``finish`` and status 0 (a dump that
-    did its work: batch work, whose next run should find the kernel cached), says so in one line
+    did its work: batch work, whose next run should find the kernels cached), says so in one line
     and waits for the compile, which Ctrl-C skips; otherwise (the viewer, a failed or interrupted
     dump, or Ctrl-C) says in one line that it does not wait and ends the process at once
     (os._exit, after flushing stdout and stderr): the interpreter's shutdown then never runs
@@ -136,7 +136,7 @@ def main(argv=None):
 
 def _main(argv):
     args = build_parser("dump" if argv[:1] == ["dump"] else None).parse_args(cli.join_negative_values(argv))
-    if args.command == "bench":  # warm-up runs compile the parallel render kernels the timed runs use
+    if args.command == "bench":  # warm-up runs compile the parallel kernels the timed runs use
         kernels = parallel_first()
     else:
         kernels = contextlib.nullcontext()

@@ -3,8 +3,8 @@ not a rendering time (its stats say so, and medians and plots leave it out).
 
 numba broadcasts a ``numba:compile`` event when a dispatcher really compiles (not when it loads
 from the on-disk cache); :class:`CompileWatch` counts them from any thread, and also knows a
-compile that was under way when it began or ended (a parallel kernel compiling in the background,
-gridrt.trace.twin, while frames render on its serial twin).
+compile that was under way when it began or ended (the build's parallel kernels compiling in the
+background, gridrt.trace.twin, while the serial strategy stands in for them).
 
 :func:`inner` compiles a kernel that only other kernels call: numba then makes no entry point
 from Python for it (its argument unboxing and result boxing, about a tenth of a cold start's

@@ -28,7 +28,7 @@ from numba.core import event
 from numba.core.dispatcher import Dispatcher
 
 from .trace.cgt.frame import _render_tiles
-from .trace.render import render_kernel, render_serial
+from .trace.render import dda_tiles
 from .trace.twin import has_cache_entry
 
 
@@ -216,14 +216,12 @@ def compile_progress(report, package="gridrt"):
 
 
 def _kernels(traversal="dda"):
-    """The render kernels a first frame of this traversal may run: the DDA's parallel one and its
-    serial twin (gridrt.trace.twin; the serial one runs while the parallel one is not compiled),
-    or the CGT's one kernel, which any number of threads run (gridrt.trace.cgt.cgt_render)."""
-    return [_render_tiles] if traversal == "cgt" else [render_kernel, render_serial]
+    """The render kernel a first frame of this traversal runs, on any number of threads: the DDA's
+    (gridrt.trace.render.dda_render) or the CGT's (gridrt.trace.cgt.cgt_render)."""
+    return [_render_tiles] if traversal == "cgt" else [dda_tiles]
 
 
 def cache_is_cold(traversal="dda"):
-    """True when neither render kernel of this traversal (one of them runs every first frame: the
-    parallel one, or its serial twin while the parallel one is not compiled) has an on-disk
+    """True when the render kernel of this traversal (every first frame runs it) has no on-disk
     compile cache entry for this machine yet."""
     return not any(has_cache_entry(k) for k in _kernels(traversal))

@@ -154,8 +154,9 @@ def test_compile_notice_only_when_compiling(tmp_path):
     fresh NUMBA_CACHE_DIR), not on an identical second run (every kernel loads from the cache),
     and again on a third run with a build strategy this cache has not seen (its kernels compile).
     DDA traversal: its cold start compiles in about half the time of the CGT one.  The first run's
-    parallel render kernel compiles in the background from its second frame, and the dump waits
-    for that compile at exit, so the second run finds every kernel cached.
+    default build strategy compiles in the background from its second frame (the serial strategy
+    builds meanwhile), and the dump waits for that compile at exit, so the second run finds every
+    kernel cached.
 
     Whether a run compiled is read from the cache folder, independently of the notice: numba
     writes an index and a data file for every kernel it compiles (cache=True), so a run that

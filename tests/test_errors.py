@@ -56,7 +56,7 @@ def install_kernel_tripwires(monkeypatch):
 
     for mod, names in (
         (common, ["scene_bounds", "clear_macro_range", "clear_macro_parallel", "macro_build_range", "macro_build_parallel"]),
-        (render_mod, ["cast_grouped", "render_kernel", "render_serial", "cgt_render"]),
+        (render_mod, ["cast_grouped", "dda_render", "cgt_render", "shade"]),
         (cam_mod, ["_fill_rays"]),
     ):
         for n in names:

@@ -2,9 +2,10 @@
 did its work finishes it, Ctrl-C skips that, and the viewer never waits on it.
 
 * A real dump with an empty numba cache (``slow``: it compiles every kernel, minutes on a loaded
-  machine): from its second frame on the parallel render kernel compiles in the background; the
-  dump ends after its last frame with every frame and stats row written, says in one line that it
-  finishes that compile, waits for it and exits 0.  The next run with the same cache folder
+  machine): from its second frame on the default build strategy's parallel kernels compile in the
+  background (the serial strategy builds meanwhile); the dump ends after its last frame with every
+  frame and stats row written, says in one line that it finishes that compile, waits for it and
+  exits 0.  The next run with the same cache folder
   compiles nothing (the cache files stay as they were) and writes the same images.
 * The same dump with Ctrl-C while it finishes the compile (``slow``): status 0, the frames
   written, the one-line notice that it did not wait; a second run with the same cache folder works
@@ -16,9 +17,10 @@ did its work finishes it, Ctrl-C skips that, and the viewer never waits on it.
   output written before it, and no wait; with ``finish`` and status 0, the finishing line and the
   wait for a short stand-in, and Ctrl-C during the wait for a long one: the notice, status 0.
   In-process callers of main (argv given) never leave the process.
-* The viewer: Esc under Xvfb with an empty numba cache (``slow``) ends with status 0 and the
-  notice; a render thread still busy with its frame is left behind after at most 2 s.
-* Twins' background compile of a real numba kernel runs on a daemon thread, is listed by
+* The viewer: Esc under Xvfb with an empty numba cache (``slow``) ends with status 0, with the
+  notice when the build's warm-up is still compiling; a render thread still busy with its frame is
+  left behind after at most 2 s.
+* Twins' background warm-up compiling a real numba kernel runs on a daemon thread, is listed by
   ``compiling()`` while it runs, and ``wait()`` still waits for it (the benchmarks' and tests' use).
 """
 
@@ -68,8 +70,8 @@ def frames_complete(out, n):
     return images
 
 
-DUMP = ["-m", "gridrt", "dump", "--scene", "icosphere", "--frames", "4", "--size", "16x12", "--threads", "2",
-        "--traversal", "dda", "--no-progress"]
+DUMP = ["-m", "gridrt", "dump", "--scene", "icosphere", "--animate", "twist", "--frames", "4", "--size", "16x12",
+        "--threads", "2", "--traversal", "dda", "--no-progress"]
 
 
 @pytest.mark.slow
@@ -81,13 +83,13 @@ def test_dump_with_a_cold_cache_finishes_the_background_compile(tmp_path):
     assert "Traceback" not in r.stderr
     lines = r.stderr.splitlines()
     assert [ln for ln in lines if ln.startswith(FINISHING)] == [
-        FINISHING + "render_kernel for later runs (Ctrl-C skips it)"], r.stderr
+        FINISHING + "sort_first build for later runs (Ctrl-C skips it)"], r.stderr
     assert not any(ln.startswith(NOTICE) for ln in lines), r.stderr
     assert "wrote 4 frames" in r.stdout
     first = frames_complete(tmp_path / "a", 4)
     written = cache_files(cache)
-    assert any(p.name.startswith("render.render_kernel-") and p.suffix == ".nbi" for p in written), sorted(written)
-    # the same cache again: the parallel kernel loads, nothing compiles
+    assert any(p.name.startswith("sort_first.count_slabs-") and p.suffix == ".nbi" for p in written), sorted(written)
+    # the same cache again: the parallel kernels load, nothing compiles
     r = run(DUMP + ["--out", str(tmp_path / "b")], env)
     assert r.returncode == 0, r.stderr
     assert "Compiling numba kernels" not in r.stderr and FINISHING not in r.stderr and NOTICE not in r.stderr, r.stderr
@@ -119,7 +121,7 @@ def test_ctrl_c_skips_the_finishing_compile(tmp_path):
         p.kill()
     err = "".join(seen) + err
     assert p.returncode == 0, err
-    assert NOTICE + "render_kernel (it compiles again next start)" in err.splitlines(), err
+    assert NOTICE + "sort_first build (it compiles again next start)" in err.splitlines(), err
     assert "Traceback" not in err
     first = frames_complete(tmp_path / "a", 2)
     # the same cache again: whatever the abandoned compile left, the run loads or compiles cleanly
@@ -140,7 +142,7 @@ def compile_():
     print("compiled", flush=True)
 
 job = threading.Thread(target=compile_, daemon=True)
-job.kernel = "render_kernel"
+job.kernel = "sort_first build"
 TWINS._compiling[("stand-in",)] = job
 job.start()
 print("the frames are written", flush=False)
@@ -154,7 +156,7 @@ def test_leave_does_not_wait_for_a_compile(code):
             timeout=300)  # (it would take 600 s to wait)
     assert r.returncode == code, r.stderr
     assert r.stdout == "the frames are written\n"  # (flushed before leaving)
-    assert r.stderr == NOTICE + "render_kernel (it compiles again next start)\n"
+    assert r.stderr == NOTICE + "sort_first build (it compiles again next start)\n"
 
 
 def test_leave_after_a_dump_waits_for_a_compile():
@@ -164,10 +166,10 @@ def test_leave_after_a_dump_waits_for_a_compile():
     r = run(["-c", textwrap.dedent(STAND_IN.format(code=0, seconds=2, finish=True))], timeout=300)
     assert r.returncode == 0, r.stderr
     assert r.stdout == "the frames are written\ncompiled\n"
-    assert r.stderr == FINISHING + "render_kernel for later runs (Ctrl-C skips it)\n"
+    assert r.stderr == FINISHING + "sort_first build for later runs (Ctrl-C skips it)\n"
     r = run(["-c", textwrap.dedent(STAND_IN.format(code=2, seconds=600, finish=True))], timeout=300)
     assert r.returncode == 2, r.stderr
-    assert r.stderr == NOTICE + "render_kernel (it compiles again next start)\n"
+    assert r.stderr == NOTICE + "sort_first build (it compiles again next start)\n"
 
 
 def test_ctrl_c_skips_the_finishing_wait():
@@ -178,14 +180,14 @@ def test_ctrl_c_skips_the_finishing_wait():
                          preexec_fn=sigint_default)
     try:
         line = p.stderr.readline()
-        assert line == FINISHING + "render_kernel for later runs (Ctrl-C skips it)\n", line
+        assert line == FINISHING + "sort_first build for later runs (Ctrl-C skips it)\n", line
         p.send_signal(signal.SIGINT)
         out, err = p.communicate(timeout=300)  # (it would take 600 s to wait)
     finally:
         p.kill()
     assert p.returncode == 0, err
     assert out == "the frames are written\n"
-    assert err == NOTICE + "render_kernel (it compiles again next start)\n"
+    assert err == NOTICE + "sort_first build (it compiles again next start)\n"
 
 
 def test_leave_without_a_compile_and_in_process():
@@ -232,23 +234,17 @@ def test_background_compile_is_a_daemon_and_listed():
         for i in prange(a.shape[0]):
             a[i] *= 2.0
 
-    @njit
-    def twice_serial(a):
-        for i in range(a.shape[0]):
-            a[i] *= 2.0
-
     tw = Twins()
     a = np.ones(8)
-    for _ in range(2):  # the second call starts the background compile
-        tw(2, twice, twice_serial, a)
+    assert tw.warm(("twice",), "twice", lambda: twice(a), True) is False  # starts the background compile
     jobs = list(tw._compiling.values())
     assert len(jobs) == 1 and jobs[0].daemon
-    assert tw.compiling() in (["test_background_compile_is_a_daemon_and_listed.<locals>.twice"], [])
+    assert tw.compiling() in (["twice"], [])
     tw.wait()
     assert tw.compiling() == [] and not jobs[0].is_alive()
-    tw(2, twice, twice_serial, a)  # now the parallel kernel
+    assert tw.warm(("twice",), "twice", lambda: twice(a), True) is True  # warm now: the job does not run again
     assert len(twice.signatures) == 1
-    np.testing.assert_array_equal(a, 8.0)
+    np.testing.assert_array_equal(a, 2.0)
 
 
 def test_viewer_leaves_without_a_busy_render_thread(capsys):
@@ -291,9 +287,9 @@ def test_viewer_leaves_without_a_busy_render_thread(capsys):
                     reason="needs Xvfb and xdotool (apt-get install xvfb xauth xdotool)")
 def test_viewer_esc_with_a_cold_cache(tmp_path, monkeypatch):
     """The viewer on 2 threads with an empty numba cache (tests/test_viewer.py's Xvfb harness):
-    after its first frames (the parallel kernel compiles in the background from the second on,
-    and so may the default build strategy's warm-up, gridrt.grid.build) Esc ends it with status 0
-    and the notice that it did not wait for that compile."""
+    after its first frames (the default build strategy's warm-up compiles in the background from
+    the second on, gridrt.grid.build) Esc ends it with status 0, and with the notice that it did
+    not wait for that compile when it was still running."""
     from helpers.viewer import _App, _X
 
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
@@ -306,8 +302,7 @@ def test_viewer_esc_with_a_cold_cache(tmp_path, monkeypatch):
         assert app.proc.wait(120) == 0, app.output()
         out = app.output()
         notices = [line for line in out.splitlines() if line.startswith(NOTICE)]
-        assert notices in ([NOTICE + "render_kernel (it compiles again next start)"],
-                           [NOTICE + "render_kernel, sort_first build (it compiles again next start)"]), out
+        assert notices in ([NOTICE + "sort_first build (it compiles again next start)"], []), out
         assert "Traceback" not in out
     finally:
         if app is not None:

@@ -6,21 +6,19 @@ parts, each part gridded on its own in one frame, traced through the tuple of th
   as scene ids through each part's ids map, differing only at exact ties;
 * the packet traversal gives the single-ray one's t bit for bit, and so does one grid over the
   whole scene (splitting changes which grid holds a triangle, not the arithmetic);
-* any_hit (shadow rays): a hit exactly where the reference has one before tmax;
-* :func:`pack_grids` / :func:`unpack_grids` take a tuple of grids into a parallel loop and out
-  again unchanged (numba refuses a tuple of tuples as a parallel loop's input).
+* any_hit (shadow rays): a hit exactly where the reference has one before tmax.
 """
 
 import numpy as np
 import pytest
-from numba import njit, prange, typeof
+from numba import njit, typeof
 
 import reference as R
 from conftest import icosphere_tris, random_triangles
 from gridrt.config import GridParams
 from gridrt.grid import build_grid
 from gridrt.trace import cgt
-from gridrt.trace.grids import GridArrays, carries_leaves, grid_tuple, pack_grids, unpack_grids
+from gridrt.trace.grids import GridArrays, carries_leaves, grid_tuple
 from gridrt.trace.traverse import SCRATCH, trace_grids
 
 
@@ -57,23 +55,6 @@ def _packets(grids, origins, dirs, tmax, any_hit, out_w, out_f, out_t):
             out_w[a + j] = int(io[cgt.IO_W * cgt.PN + j])
             out_f[a + j] = int(io[cgt.IO_F * cgt.PN + j])
             out_t[a + j] = io[cgt.IO_T * cgt.PN + j]
-
-
-@njit(cache=True, parallel=True)
-def _through_prange(grids, out):
-    """Per grid, inside a parallel loop: (triangles, sum of tri_ids, ids, macro, dims[0])."""
-    flat = pack_grids(grids)
-    for i in prange(len(grids)):
-        gs = unpack_grids(flat)
-        k = 0
-        for g in gs:
-            if k == i:
-                out[i, 0] = g.tris.shape[0]
-                out[i, 1] = g.tri_ids[: g.cell_start[g.cell_start.shape[0] - 1, g.cell_start.shape[1] - 1]].sum()
-                out[i, 2] = g.ids.shape[0]
-                out[i, 3] = g.macro
-                out[i, 4] = g.dims[0]
-            k += 1
 
 
 def split_scene(tris, parts, seed=0, kinds=None):
@@ -207,14 +188,3 @@ def test_grid_sequences_any_hit(kernel):
     for i in np.flatnonzero(got)[:50]:
         one = R.ref_cast(tris[tri[i] : tri[i] + 1], o[i : i + 1], d[i : i + 1], tmax=tmax[i])
         assert one.hit[0] and abs(one.t[0] - t[i]) <= 1e-5 * max(one.t[0], 1e-6)
-
-
-def test_pack_unpack_in_parallel_loop():
-    tris = random_triangles(np.random.default_rng(9), 300)
-    for parts in (1, 2, 3):
-        grids, ids, _ = split_scene(tris, parts, seed=parts)
-        out = np.zeros((parts, 5), np.int64)
-        _through_prange(grids, out)
-        for p, g in enumerate(grids):
-            used = g.cell_start[-1, -1]
-            assert out[p].tolist() == [len(g.tris), int(g.tri_ids[:used].sum()), len(g.ids), g.macro, g.dims[0]]

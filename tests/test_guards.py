@@ -211,8 +211,14 @@ BOUNDARIES = {
         "internal: one thread's share of cgt_render, Renderer.render's CGT path, called after its checks, with its "
         "buffers and a checked thread count; the runs' counter and each thread's scratch made there",
         ["test_guard_render", "test_stale_grid_is_refused"]),
-    "gridrt.trace.render:Renderer.render": (
-        "as cast_rays, plus the second grid's tris and id maps; image buffers sized W x H",
+    "gridrt.trace.material:shade.work": (
+        "internal: one thread's share of the material pass, called by Renderer._shade_material after its checks, "
+        "with the buffers it sized W x H and a checked thread count; the rows' counter made there",
+        ["test_guard_render_material"]),
+    "gridrt.trace.render:dda_render.work": (
+        "internal: one thread's share of dda_render, Renderer.render's DDA path, called after its checks (as "
+        "cast_rays, plus the second grid's tris and id maps) with image buffers sized W x H and a checked thread "
+        "count; the runs' counter made there",
         ["test_guard_render", "test_stale_grid_is_refused"]),
     "gridrt.trace.render:Renderer._shade_material": (
         "the material pass: called by Renderer.render after _check_looks (the scene's triangles (F, 3, 3) "

@@ -1,16 +1,15 @@
-"""A parallel render kernel and its serial twin (gridrt.trace.twin).
+"""Renders on any number of threads (gridrt.threads.on_threads) and the background warm-ups of
+parallel work (gridrt.trace.twin).
 
-* The DDA render kernel's twin, with and without shadows, one grid and a split scene of two,
-  writes the same image, t, triangle and counter buffers as the parallel kernel on 2 and 3
-  threads, and the CGT render (one kernel that threads share: gridrt.trace.cgt.cgt_render) writes
-  the same buffers and returns the same sums on 1, 2 and 3 threads; both give the brute-force
-  float64 caster's hits (tests/reference.py) on the primary rays.
-* The choice (a fresh process and a fresh numba cache, with two small kernels written for the
-  test): one thread calls the serial kernel; on a cold cache the first call on two threads is
-  serial too and compiles nothing parallel, the second starts the parallel compile in the
-  background, and once that is done the parallel kernel serves; a later process with that cache
-  calls the parallel kernel from the first call and compiles nothing.
-* A parallel kernel that fails to compile in the background is reported in the caller's thread.
+* The DDA render (gridrt.trace.render.dda_render) and the CGT render (gridrt.trace.cgt.cgt_render),
+  each one kernel that threads share, with and without shadows, on one grid and a split scene of
+  two, write the same image, t, triangle and counter buffers on 1, 2 and 3 threads (the CGT one
+  returns the same sums), and give the brute-force float64 caster's hits (tests/reference.py) on
+  the primary rays.
+* on_threads runs its calls at the same time, in order, raises once all have ended, and works in
+  a forked child.
+* Twins.warm runs a job once, in the background, reports its failure in the caller's thread, and
+  a library program that ends during a warm-up waits for it at exit.
 """
 
 import json
@@ -20,18 +19,16 @@ import textwrap
 
 import numpy as np
 import pytest
-from numba import njit, prange
 
 import reference as R
 from conftest import icosphere_tris
 from gridrt.camera import Camera
-from gridrt.config import RenderParams
 from gridrt.grid import build_grid
 from gridrt.trace.grids import grid_arrays
 from gridrt.trace.records import Buffers, make_packets, make_shading, make_view
 from gridrt.trace.cgt import cgt_render
-from gridrt.trace.render import render_kernel, render_serial
-from gridrt.trace.twin import TWINS, Twins, parallel_first
+from gridrt.trace.render import dda_render
+from gridrt.trace.twin import Twins, parallel_first
 
 
 
@@ -60,9 +57,9 @@ def _scene():
 
 @pytest.mark.parametrize("traversal", ["dda", "cgt"])
 @pytest.mark.parametrize("shadows", [False, True])
-def test_serial_twin_equals_parallel_kernel(traversal, shadows):
+def test_render_on_any_thread_count_equals_one_thread(traversal, shadows):
     both, one, two, cam = _scene()
-    serial = cgt_render if traversal == "cgt" else render_serial  # (cgt_render: one thread by default)
+    render = cgt_render if traversal == "cgt" else dda_render
     W, H = 96, 72
     light = cam.basis()[0] + np.array([2.0, 3.0, 1.0]) if shadows else None
     if traversal == "dda" and light is None:
@@ -70,14 +67,11 @@ def test_serial_twin_equals_parallel_kernel(traversal, shadows):
     f32 = False if traversal == "cgt" else None
     for grids in (one, two):
         a = _args(grids, cam, W, H, shadows, light=light, f32=f32)
-        ref = serial(*a)
+        ref = render(*a, threads=1)
         ref_bufs = [b.copy() for b in a[-1]]
         for threads in (2, 3):
-            from gridrt.threads import use_threads
-
-            use_threads(threads)
             b = _args(grids, cam, W, H, shadows, light=light, f32=f32)
-            out = cgt_render(*b, threads=threads) if traversal == "cgt" else render_kernel(*b)
+            out = render(*b, threads=threads)
             for x, y in zip(ref_bufs, b[-1]):
                 np.testing.assert_array_equal(x, y)
             if traversal == "cgt":
@@ -97,95 +91,7 @@ from numba import njit, prange
 def par(x, out):
     for i in prange(x.shape[0]):
         out[i] = 2.0 * x[i] + 1.0
-
-
-@njit(cache=True)
-def ser(x, out):
-    for i in range(x.shape[0]):
-        out[i] = 2.0 * x[i] + 1.0
 '''
-
-_DRIVER = '''
-import json, sys
-import numpy as np
-import gridrt  # (sets numba's thread count before numba starts its threads)
-from numba.core import event
-from gridrt.trace.cgt import cgt_render
-from gridrt.trace.render import render_kernel, render_serial
-from gridrt.trace.twin import TWINS, Twins, parallel_first
-import twin_kernels as k
-
-compiled = []
-
-
-class L(event.Listener):
-    def on_start(self, ev):
-        compiled.append(ev.data["dispatcher"].py_func.__name__)
-
-    def on_end(self, ev):
-        pass
-
-
-event.register("numba:compile", L())
-t = Twins()
-x = np.arange(1000.0)
-steps = []
-for threads in [int(a) for a in sys.argv[1:]]:
-    out = np.zeros_like(x)
-    f = t.pick(threads, k.par, k.ser, (x, out))
-    f(x, out)
-    steps.append(["par" if f is k.par else "ser", bool((out == 2 * x + 1).all()), bool(t._compiling)])
-    t.wait()
-print(json.dumps({"steps": steps, "compiled": compiled}))
-'''
-
-
-def _drive(tmp_path, cache, *threads):
-    env = {"NUMBA_CACHE_DIR": str(cache), "PYTHONPATH": str(tmp_path), "PATH": "/usr/bin:/bin"}
-    r = subprocess.run([sys.executable, str(tmp_path / "driver.py"), *map(str, threads)],
-                       capture_output=True, text=True, env=env, timeout=300)
-    assert r.returncode == 0, r.stderr
-    return json.loads(r.stdout.strip().splitlines()[-1])
-
-
-def test_choice_on_cold_and_warm_cache(tmp_path):
-    (tmp_path / "twin_kernels.py").write_text(_KERNELS)
-    (tmp_path / "driver.py").write_text(textwrap.dedent(_DRIVER))
-    cache = tmp_path / "cache"
-    cold = _drive(tmp_path, cache, 1, 2, 2, 2)
-    assert [s[:2] for s in cold["steps"]] == [["ser", True], ["ser", True], ["ser", True], ["par", True]]
-    # the parallel kernel compiled in the background from the second two-thread call, not before
-    assert [s[2] for s in cold["steps"]] == [False, False, True, False]
-    assert cold["compiled"] == ["ser", "par"]
-    warm = _drive(tmp_path, cache, 2, 1)
-    assert [s[:2] for s in warm["steps"]] == [["par", True], ["ser", True]]
-    assert warm["compiled"] == []  # both loaded from the cache
-    one = _drive(tmp_path, tmp_path / "cache1", 2)  # a cold one-call run never compiles the parallel one
-    assert one["steps"] == [["ser", True, False]] and one["compiled"] == ["ser"]
-
-
-@njit(parallel=True)
-def _broken(x, out):
-    for i in prange(x.shape[0]):
-        out[i] = x[i] + _NOT_DEFINED  # noqa: F821 (the compile fails in the background)
-
-
-@njit
-def _fine(x, out):
-    for i in range(x.shape[0]):
-        out[i] = x[i]
-
-
-def test_background_compile_failure_is_reported():
-    t = Twins()
-    x, out = np.arange(4.0), np.zeros(4)
-    t(2, _broken, _fine, x, out)
-    t(2, _broken, _fine, x, out)  # starts the background compile, which fails
-    t.wait()
-    with pytest.raises(RuntimeError, match="compiling _broken failed"):
-        t(2, _broken, _fine, x, out)
-    t(1, _broken, _fine, x, out)  # one thread: the serial kernel, as before
-    np.testing.assert_array_equal(out, x)
 
 
 def test_on_threads_runs_every_call_at_once_and_raises_once_all_have_ended():
@@ -234,45 +140,6 @@ def test_on_threads_in_a_forked_child():
     r = subprocess.run([sys.executable, "-c", _FORKED], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
     assert r.stdout.splitlines() == ["child [0, 10]", "parent [0, 1] 0"], r.stdout
-
-
-def test_renderer_frames_equal_across_the_switch():
-    """Frames through Renderer on 2 threads: the first ones from the serial twin (on a cold cache) or
-    the parallel kernel, later ones from the parallel kernel: all equal, bit for bit."""
-    both, one, two, cam = _scene()
-    grid = build_grid(both)
-    from gridrt.trace.render import Renderer
-
-    rd = Renderer()
-    frames = []
-    for _ in range(3):
-        r = rd.render(grid, both, cam, RenderParams(64, 48, threads=2))
-        frames.append((r.image.copy(), r.t.copy(), r.tri.copy(), r.stats.tests_per_ray))
-        TWINS.wait()
-    serial = Renderer().render(grid, both, cam, RenderParams(64, 48, threads=1))
-    for f in frames:
-        np.testing.assert_array_equal(f[0], serial.image)
-        np.testing.assert_array_equal(f[1], serial.t)
-        np.testing.assert_array_equal(f[2], serial.tri)
-        assert f[3] == serial.stats.tests_per_ray
-
-
-def test_parallel_first_calls_the_parallel_kernel_at_once():
-    """Benchmarks (gridrt bench) run under parallel_first: the first call on two threads is parallel,
-    and only within the block."""
-    @njit(parallel=True)
-    def par(x, out):
-        for i in prange(x.shape[0]):
-            out[i] = x[i] + 1.0
-
-    t = Twins()
-    x, out = np.arange(4.0), np.zeros(4)
-    assert t.pick(2, par, _fine, (x, out)) is _fine
-    with parallel_first():
-        assert t.pick(2, par, _fine, (x, out)) is par and t.pick(1, par, _fine, (x, out)) is _fine
-        t(2, par, _fine, x, out)
-    np.testing.assert_array_equal(out, x + 1.0)
-    assert t.pick(2, par, _fine, (x, out)) is par  # compiled now: parallel from here on
 
 
 # ------------------------------------------------------------------------ the build's stand-in
@@ -369,15 +236,14 @@ import twin_kernels as k
 
 x = np.arange(1000.0)
 out = np.zeros_like(x)
-TWINS(2, k.par, k.ser, x, out)  # the first call on two threads: serial
-TWINS(2, k.par, k.ser, x, out)  # the second starts the parallel kernel's compile in the background
-print(json.dumps({"compiling": TWINS.compiling(), "ok": bool((out == 2 * x + 1).all())}), flush=True)
+TWINS.warm(("par",), "par", lambda: k.par(x, out), True)  # compiles the parallel kernel in the background
+print(json.dumps({"compiling": TWINS.compiling()}), flush=True)
 '''
 
 
 def test_library_exit_waits_for_a_background_compile(tmp_path):
-    """A program that uses gridrt as a library and ends while a parallel kernel compiles in the
-    background: the interpreter's exit waits for the compile (one line on stderr says so), exits
+    """A program that uses gridrt as a library and ends while a warm-up compiles a parallel kernel in
+    the background: the interpreter's exit waits for the compile (one line on stderr says so), exits
     with status 0, and the kernel is in the cache for the next run."""
     (tmp_path / "twin_kernels.py").write_text(_KERNELS)
     (tmp_path / "driver.py").write_text(textwrap.dedent(_EXIT_DRIVER))
@@ -387,7 +253,7 @@ def test_library_exit_waits_for_a_background_compile(tmp_path):
                        timeout=300)
     assert r.returncode == 0, r.stderr
     seen = json.loads(r.stdout.strip().splitlines()[-1])
-    assert seen == {"compiling": ["par"], "ok": True}
+    assert seen == {"compiling": ["par"]}
     assert "gridrt: finishing the background compile of par before exit" in r.stderr, r.stderr
     assert "Assertion" not in r.stderr and "Traceback" not in r.stderr, r.stderr
     # the compile ended before the process did: the parallel kernel loads from the cache

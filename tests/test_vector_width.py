@@ -142,7 +142,7 @@ import numpy as np
 import gridrt
 from numba.core import config
 from gridrt.camera import Camera
-from gridrt.trace.material import shade_serial, surface_arrays
+from gridrt.trace.material import shade_rows, surface_arrays
 from gridrt.trace.records import HitPoints, make_view
 
 tris = np.random.default_rng(0).uniform(0, 1, (50, 3, 3)).astype(np.float32)
@@ -150,9 +150,9 @@ view = make_view(Camera(eye=(0.5, 0.5, 3.0), target=(0.5, 0.5, 0.5)).basis(), 40
 ibuf = np.zeros((30, 40), np.int32)
 lights = np.array([[0.0, 2.0, 2.0, 2.0, 1.0, 1.0, 1.0, 0.0]])
 e64, e32 = np.empty((0, 3)), np.empty((0, 3), np.float32)
-shade_serial(view, ibuf, surface_arrays(tris, None, None), lights, False, np.zeros((30, 40, 4), np.uint8),
-             HitPoints(e64, e64, e32, e32, e32))
-asm = shade_serial.inspect_asm(shade_serial.signatures[0])
+shade_rows(view, ibuf, surface_arrays(tris, None, None), lights, False, np.zeros((30, 40, 4), np.uint8),
+           HitPoints(e64, e64, e32, e32, e32), np.zeros(1, np.int64))
+asm = shade_rows.inspect_asm(shade_rows.signatures[0])
 ops = re.findall(r"^\s+(v(?:sub|mul|div|sqrt)pd)\s+([^\n]*)", asm, re.M)
 print(json.dumps({"features": config.CPU_FEATURES or "", "zmm_pd": sum("zmm" in a for _, a in ops),
                   "ymm_pd": sum("ymm" in a and "zmm" not in a for _, a in ops),
@@ -163,7 +163,7 @@ print(json.dumps({"features": config.CPU_FEATURES or "", "zmm_pd": sum("zmm" in 
 @pytest.mark.parametrize("width", ["auto", WIDTH_256])
 def test_material_pass_width(tmp_path, width):
     """The material pass shades LANES hits side by side (gridrt.trace.material._surface_lanes,
-    _texel_lanes, _shade_lanes): its compiled code (shade_serial, in a fresh process and cache)
+    _texel_lanes, _shade_lanes): its compiled code (shade_rows, in a fresh process and cache)
     holds packed-double arithmetic, divisions and square roots included, in zmm registers with
     the default width on an AVX-512 CPU and in ymm ones with GRIDRT_VECTOR_WIDTH=256 (a pixel at
     a time has none).  As in a frame, the camera's rays are in the cache before the pass compiles:

@@ -6,12 +6,6 @@ split scene, later other parts) and trace every ray through all of them, nearest
 grids of one tuple must have the same numba type (the same array dtypes and layouts:
 :func:`grid_arrays` makes them so), so that kernels can loop over the tuple and index it with a
 run-time grid number.
-
-numba's parallel loops cannot take a tuple of tuples from outside the loop (a limit of numba's parfors:
-prange expands tuple inputs one level, and a nested tuple is refused as a non-scalar gufunc
-argument), so a parallel kernel passes its grids into the loop with :func:`pack_grids` (one flat
-tuple of all their fields, outside the loop) and :func:`unpack_grids` (the tuple of grids again,
-inside it).  Both are resolved at compile time into plain tuple element moves.
 """
 
 from collections import namedtuple
@@ -33,7 +27,6 @@ from numba.extending import overload
 #: two apart at run time.
 GridArrays = namedtuple(
     "GridArrays", "tris lo hi cell inv_cell dims cell_start tri_ids macro mdims macro_full ids leaf_first leaf_res")
-NFIELDS = len(GridArrays._fields)
 NO_IDS = np.zeros(0, np.int32)
 NO_LEAVES = np.zeros(0, np.int32)
 NO_RES = np.zeros((0, 3), np.int32)
@@ -107,32 +100,7 @@ def with_leaves_only(name, params, call, without):
     return stub
 
 
-def pack_grids(grids):
-    """(kernels only) The fields of every grid of the tuple ``grids``, as one flat tuple."""
-    raise NotImplementedError("pack_grids is only callable from numba kernels")
-
-
-def unpack_grids(flat):
-    """(kernels only) The tuple of :class:`GridArrays` that :func:`pack_grids` flattened."""
-    raise NotImplementedError("unpack_grids is only callable from numba kernels")
-
-
 def _compile(src, name, **env):
     ns = dict(env)
     exec(src, ns)  # noqa: S102  (source generated in this module: a tuple's length, fixed argument names)
     return ns[name]
-
-
-@overload(pack_grids)
-def _pack_grids(grids):
-    n = len(grids)
-    items = "".join(f"grids[{i}][{j}], " for i in range(n) for j in range(NFIELDS))
-    return _compile(f"def impl(grids):\n    return ({items})\n", "impl")
-
-
-@overload(unpack_grids)
-def _unpack_grids(flat):
-    n = len(flat) // NFIELDS
-    items = "".join(
-        "GridArrays(" + ", ".join(f"flat[{i * NFIELDS + j}]" for j in range(NFIELDS)) + "), " for i in range(n))
-    return _compile(f"def impl(flat):\n    return ({items})\n", "impl", GridArrays=GridArrays)

@@ -41,9 +41,11 @@ import numpy as np
 from numba import njit, prange
 
 from ..compiles import inner
+from ..grid.atomics import atomic_add
 from ..scene.surface import (AMBIENT_FRACTION, DEFAULT_DIFFUSE, FALLOFF_INVERSE_SQUARE, LIGHT_DIRECTIONAL, LIGHT_POINT,
                              Surface)
 from .records import SurfaceArrays
+from ..threads import on_threads
 from .shade import put_pixel
 from .traverse import _clip_box
 
@@ -315,7 +317,7 @@ def _shade_lanes(lights, buf):
 
 @inner(cache=True, _nrt=False, error_model="numpy")
 def _shade_row(y, view, ibuf, surf, lights, deferred, img, hp, buf, ib):
-    """Row y of shade_kernel, LANES pixels at a time side by side (buf, ib: the scratch rows,
+    """Row y of shade_rows, LANES pixels at a time side by side (buf, ib: the scratch rows,
     ROWS and IROWS of LANES): their corners gathered (:func:`_gather`), the surface they show
     (:func:`_surface_lanes`), the texels (:func:`_texel_lanes`), the colours the lights and the
     ambient term multiply, tvd = T V D and tva = T V A; then the lights' terms
@@ -370,27 +372,35 @@ def _shade_row(y, view, ibuf, surf, lights, deferred, img, hp, buf, ib):
                           min(buf[(R_RGB + 2) * C + j], 1.0))
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def shade_kernel(view, ibuf, surf, lights, deferred, img, hp):
+@njit(cache=True, nogil=True, error_model="numpy")
+def shade_rows(view, ibuf, surf, lights, deferred, img, hp, nxt):
     """Colour the hit pixels of img (H,W,4) (ibuf: scene ids, -1 a miss, whose background the render
     kernel wrote; view: :class:`gridrt.trace.records.View`) with the surface surf
     (:class:`gridrt.trace.records.SurfaceArrays`) and the lights (L, 8) (frame coordinates), or
     with ``deferred`` (shadows) write each hit's point, normals, T V D and T V A (acc; -1 in
     acc[i] for a miss) into the flat (W*H, 3) buffers of hp
     (:class:`gridrt.trace.records.HitPoints`) for :func:`light_segments`, :func:`add_light` and
-    :func:`compose`."""
-    for y in prange(view.H):
-        # (a row's scratch: 8 KiB, next to a row's shading)
-        _shade_row(np.int64(y), view, ibuf, surf, lights, deferred, img, hp, np.empty(ROWS * LANES),
-                   np.empty(IROWS * LANES, np.int64))
-
-
-@njit(cache=True, error_model="numpy")
-def shade_serial(view, ibuf, surf, lights, deferred, img, hp):
-    """shade_kernel on one thread (gridrt.trace.twin)."""
+    :func:`compose`: the rows taken one at a time from the counter nxt ((1,) int64) until none is
+    left, so that calls on several threads share one image (:func:`shade`)."""
+    # (a row's scratch: 8 KiB, next to a row's shading)
     buf, ib = np.empty(ROWS * LANES), np.empty(IROWS * LANES, np.int64)
-    for y in range(view.H):
+    while True:
+        y = atomic_add(nxt, 0, np.int64(1))
+        if y >= view.H:
+            break
         _shade_row(y, view, ibuf, surf, lights, deferred, img, hp, buf, ib)
+
+
+def shade(view, ibuf, surf, lights, deferred, img, hp, threads=1):
+    """The material pass (:func:`shade_rows`) on ``threads`` threads (gridrt.threads.on_threads),
+    sharing the image's rows through one counter: the same pixels and hit buffers bit for bit on
+    any number of threads."""
+    nxt = np.zeros(1, np.int64)
+
+    def work(k):
+        shade_rows(view, ibuf, surf, lights, deferred, img, hp, nxt)
+
+    on_threads(threads, work)
 
 
 #: pixels of the order per work item of light_segments (its passes over the order)

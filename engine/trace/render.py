@@ -15,13 +15,13 @@ Shading (all colours linear in [0, 1], stored as ``uint8(round(255 * c))``, alph
                        With ``traversal="cgt"`` a test is one of the packet's triangle tests
                        made while the ray was active (gridrt.trace.cgt), so this image differs.
 
-Traversal (RenderParams.traversal): ``dda`` traces one ray at a time (render_kernel);
-``cgt`` traces 8x8-pixel packets and their shadow rays with coherent grid traversal
-(gridrt.trace.cgt.cgt_render: one kernel that several threads share): the same t, triangle and
-colour buffers (both give a tie, two triangles hit at exactly the same t, to the lower triangle
-index).  The DDA's parallel kernel has a serial twin (render_serial) that writes the same
-buffers; Renderer.render calls it on one thread and while the parallel kernel is not compiled
-yet (gridrt.trace.twin).
+Traversal (RenderParams.traversal): ``dda`` traces one ray at a time (dda_render, threads
+sharing the kernel dda_tiles); ``cgt`` traces 8x8-pixel packets and their shadow rays with
+coherent grid traversal (gridrt.trace.cgt.cgt_render, threads sharing the kernel _render_tiles):
+the same t, triangle and colour buffers (both give a tie, two triangles hit at exactly the same t,
+to the lower triangle index).  Each is one nogil kernel that the threads of
+gridrt.threads.on_threads call together, taking runs of tiles from one counter: one compile
+serves every thread count, and the first frame renders on every thread.
 
 The unit geometric normal is normalize((v1 - v0) x (v2 - v0)).
 """
@@ -31,26 +31,26 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from ..arrays import as_origin, check_ray_values, check_rays
 from ..compiles import inner
 from ..config import DEFAULT_MAX_BYTES, PACKET_PRECISIONS, RenderParams, _positive_int
 from ..errors import InputError
+from ..grid.atomics import atomic_add
 from ..grid.layout import Grid
 from ..memory import check_fits
 from ..stats import RenderStats
-from ..threads import check_threads, launch_guard, use_threads
+from ..threads import check_threads, launch_guard, on_threads, use_threads
 from ..scene.surface import Surface, as_lights
 from .batch import MAX_CELLS, SHADOW_MAX_CELLS, cast_grouped, odd_directions, tile_order
 from .traverse import SCRATCH, near_all, trace_grids
-from .twin import TWINS
 from ..camera import Camera, pixel_dir
-from .cgt.frame import cgt_render
-from .grids import grid_arrays, grid_tuple, pack_grids, unpack_grids
+from .cgt.frame import CHUNKS, cgt_render
+from .grids import grid_arrays, grid_tuple
 from .lightmap import LightMaps, clear_lit
 from .material import (add_light, compose, draw_shift, drawn_segments, light_segments, live_segments, mark_blocked,
-                       near_boxes, shade_kernel, shade_serial, surface_arrays)
+                       near_boxes, shade, surface_arrays)
 from .records import (Buffers, HitPoints, ShadowBuffers, ShadowRays, ShadowSegments, make_draws, make_packets,
                       make_shading, make_view)
 from .shade import (  # noqa: F401  (the shading constants stay importable from here)
@@ -66,7 +66,7 @@ SHADING_CODES = {"lambert": 0, "normal": 1, "cost": 2, "material": 3}
 
 @inner(cache=True)
 def _render_tile(grids, view, looks, light, ti, out, mb):
-    """Tile ti (row-major) of render_kernel, with the mailbox mb."""
+    """Tile ti (row-major) of dda_tiles, with the mailbox mb."""
     basis, W, H, tile = view.basis, view.W, view.H, view.tile
     mode, shadows, off, watertight = looks.mode, looks.shadows, looks.off, looks.watertight
     img, tbuf, idbuf, costbuf, cellbuf = out.img, out.t, out.tri, out.cost, out.cells
@@ -104,33 +104,43 @@ def _render_tile(grids, view, looks, light, ti, out, mb):
             put_pixel(img, y, x, r, g, b)
 
 
-@njit(cache=True, parallel=True)
-def render_kernel(grids, view, looks, light, out):
-    """Render the view's W x H pixels (:class:`gridrt.trace.records.View`) into the buffers out
-    (:class:`gridrt.trace.records.Buffers`): img (H,W,4) uint8, t (H,W) float32, tri (H,W) int32,
-    cost (H,W) int32 (triangle tests) and cells (H,W) int32 (cells visited).
+@njit(cache=True, nogil=True)
+def dda_tiles(grids, view, looks, light, runs, out):
+    """Render tiles of the view's W x H pixels (:class:`gridrt.trace.records.View`) into the buffers
+    out (:class:`gridrt.trace.records.Buffers`): img (H,W,4) uint8, t (H,W) float32, tri (H,W)
+    int32, cost (H,W) int32 (triangle tests) and cells (H,W) int32 (cells visited), one ray at a
+    time: runs of ``per`` consecutive tiles (row-major) taken from the counter nxt, runs = (nxt
+    (1,) int64, per), until none is left, so that calls on several threads share one frame
+    (:func:`dda_render`).
 
     grids: a tuple of GridArrays (gridrt.trace.grids), traversed together (one grid, or a scene
     split into static and moving parts); tri holds the scene ids of the hit triangles (through
     each grid's ids map where it has one).  looks: :class:`gridrt.trace.records.Shading`; light:
     the (3,) light position of the shadow rays (read with looks.shadows only).
     """
-    W, H, tile = view.W, view.H, view.tile
-    ntiles = ((W + tile - 1) // tile) * ((H + tile - 1) // tile)
-    flat = pack_grids(grids)  # (a tuple of grids cannot enter the parallel loop as it is: see grids.py)
-    for ti in prange(ntiles):
-        _render_tile(unpack_grids(flat), view, looks, light, np.int64(ti), out, np.empty(SCRATCH, np.int32))
-
-
-@njit(cache=True)
-def render_serial(grids, view, looks, light, out):
-    """render_kernel on one thread: the same tiles in order, the same buffers bit for bit; compiles
-    faster (gridrt.trace.twin)."""
+    nxt, per = runs
     W, H, tile = view.W, view.H, view.tile
     ntiles = ((W + tile - 1) // tile) * ((H + tile - 1) // tile)
     mb = np.empty(SCRATCH, np.int32)
-    for ti in range(ntiles):
-        _render_tile(grids, view, looks, light, ti, out, mb)
+    while True:
+        t0 = atomic_add(nxt, 0, np.int64(1)) * per
+        if t0 >= ntiles:
+            break
+        for ti in range(t0, min(t0 + per, ntiles)):
+            _render_tile(grids, view, looks, light, ti, out, mb)
+
+
+def dda_render(grids, view, looks, light, out, threads=1):
+    """Render the view into out on ``threads`` threads (gridrt.threads.on_threads), each running
+    :func:`dda_tiles`; they share the frame's tiles in CHUNKS runs through one counter.  The same
+    buffers bit for bit on any number of threads: no pixel depends on which thread renders it."""
+    ntiles = ((view.W + view.tile - 1) // view.tile) * ((view.H + view.tile - 1) // view.tile)
+    runs = (np.zeros(1, np.int64), -(-ntiles // max(1, min(ntiles, CHUNKS))))
+
+    def work(k):
+        dda_tiles(grids, view, looks, light, runs, out)
+
+    on_threads(threads, work)
 
 
 def _check_grid_tris(grid, tris):
@@ -496,7 +506,7 @@ class Renderer:
             # light None: the CGT kernel without its shadow path (compiles faster)
             sums = cgt_render(grids, v, look, light if shadows else None, pk, out, threads)
         else:
-            TWINS(threads, render_kernel, render_serial, grids, v, look, light, out)
+            dda_render(grids, v, look, light, out, threads)
         shade_ms, n_lights, n_shadow, hdr = 0.0, (1 if params.shadows else 0), None, None
         if material:
             t1 = time.perf_counter()
@@ -555,7 +565,7 @@ class Renderer:
             hp = HitPoints(np.empty((0, 3)), np.empty((0, 3)), np.empty((0, 3), np.float32),
                            np.empty((0, 3), np.float32), np.empty((0, 3), np.float32))
         v = make_view(camera.basis(), W, H, params.tile)
-        TWINS(threads, shade_kernel, shade_serial, v, ib, surf, lights, deferred, img, hp)
+        shade(v, ib, surf, lights, deferred, img, hp, threads)
         if not deferred:
             return len(lights), 0
         rays, order, segs, out_b = sb.rays, sb.order, sb.segs, sb.out

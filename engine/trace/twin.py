@@ -1,36 +1,30 @@
-"""A parallel kernel and its serial twin: the first frame need not wait for the parallel one.
+"""Work whose parallel kernels compile in the background while a serial stand-in serves.
 
-The DDA render kernel and the material pass exist twice: ``parallel`` (``prange`` over chunks of
-tiles) and ``serial`` (the same tiles in order on one thread, through the same tile kernel).  (The
-CGT render needs no twin: its threads share one kernel, gridrt.trace.cgt.cgt_render.)  Both take the same arguments
-and write the same buffers bit for bit, since no result depends on which thread renders a tile.
-The serial one compiles seconds faster on a cold numba cache: the parallel one adds numba's parfor
-lowering and one more optimisation and machine-code pass over its whole call tree (BENCHMARKS.md
-section 10).
+On a cold numba cache a kernel with a numba parallel loop (``prange``) compiles seconds slower
+than the same work on one thread: numba's parfor lowering adds one more optimisation and
+machine-code pass over the whole call tree (BENCHMARKS.md section 10).  The renders need no such
+stand-in: their kernels are ``nogil`` and several threads share one compiled kernel
+(gridrt.threads.on_threads).  Two pieces of work keep parallel loops and a stand-in:
 
-:class:`Twins` picks one per call (``TWINS``, the process's scheduler; a call names both kernels,
-so that every caller of a kernel stays visible where it is called):
+* the default build strategy's parallel kernels (gridrt.grid.build._parallel_ready), while the
+  serial strategy builds the same grids;
+* the light maps' kernel (gridrt.trace.lightmap), while frames render without maps (the same
+  images).
 
-* one thread: the serial kernel (the parallel one would run the same code on one thread);
-* the parallel kernel compiled for these argument types in this process, or in the on-disk cache
-  for this machine (:func:`has_cache_entry`; it then loads in milliseconds): the parallel kernel;
-* otherwise (a cold cache): the serial kernel, and from the second call with these argument types
-  on, the parallel kernel compiles in a background thread while the serial one goes on serving;
-  once compiled it takes over.  A one-frame run never compiles it.
+:meth:`Twins.warm` decides, per piece of work, whether it has warmed up in this process (its
+kernels compiled by a run of it, a job) and otherwise starts that job on a daemon thread, once
+(``TWINS``, the process's scheduler).  :func:`has_cache_entry` tells whether a kernel would load
+from the on-disk cache instead (in milliseconds).
 
-:meth:`Twins.warm` does the same for work that is more than one kernel: the default build
-strategy's parallel kernels (gridrt.grid.build), warmed up by a small build in the background
-while the serial strategy builds the same grids.
-
-Benchmarks run under :func:`parallel_first`: their untimed warm-up runs then compile the parallel
-kernel on first use, in the caller's thread, so that timed runs never time the serial
-kernel standing in for it.
+Benchmarks run under :func:`parallel_first`: the work then counts as warm, and the untimed
+warm-up runs compile the parallel kernels on first use, in the caller's thread, so that timed
+runs never time a stand-in.
 
 The background compile is a daemon thread.  A dump that did its work waits for it at exit, after
-saying so in one line, so that its next run finds the kernel cached (gridrt.app.__main__.leave,
+saying so in one line, so that its next run finds the kernels cached (gridrt.app.__main__.leave,
 :meth:`Twins.compiling`, :meth:`Twins.wait`); Ctrl-C skips that wait.  The viewer, a failed
 dump, or a skipped wait does not wait: the command line leaves at once with os._exit after saying
-so (the kernel then compiles again on the next start), so that the interpreter's shutdown never
+so (the kernels then compile again on the next start), so that the interpreter's shutdown never
 runs beside a compiling thread.  A program that uses gridrt as a library and ends while a
 background compile runs waits for it at exit in the same way (an atexit handler, registered with
 the first background compile, says so in one line on stderr; Ctrl-C ends the process at once):
@@ -48,40 +42,25 @@ import sys
 import threading
 from contextlib import contextmanager
 
-import numpy as np
 
-
-def has_cache_entry(kernel, sig=None):
-    """True when the kernel's on-disk cache index holds a compiled version for this machine (CPU
-    and numba version) and the kernel's current source, as numba's own loader requires; for the
-    argument types ``sig`` (a tuple of numba types) when given, else for any."""
+def has_cache_entry(kernel):
+    """True when the kernel's on-disk cache index holds a compiled version (for any argument types)
+    for this machine (CPU and numba version) and the kernel's current source, as numba's own loader
+    requires."""
     cache = getattr(kernel, "_cache", None)
     try:
         index = cache._cache_file._load_index()  # {} when absent, from another numba, or stale
         codegen = kernel.targetctx.codegen()
-        if sig is not None:
-            return cache._index_key(tuple(sig), codegen) in index
         return any(cache._index_key(key[0], codegen) == key for key in index)
     except Exception:  # numba's internals moved: fall back to the existence of the index file
         path = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
         return path is not None and os.path.exists(path)
 
 
-def _fingerprint(a):
-    """A cheap stand-in for the numba type of an argument (numba's typeof of a tuple of grids takes
-    about 80 us): Python type, and dtype, dimensions and contiguity for an array, element by element
-    for a tuple.  Two arguments with the same fingerprint have the same numba type."""
-    if isinstance(a, np.ndarray):
-        return (a.dtype.str, a.ndim, a.flags.c_contiguous, a.flags.f_contiguous, a.flags.writeable, a.flags.aligned)
-    if isinstance(a, tuple):
-        return (type(a), tuple(_fingerprint(x) for x in a))
-    return type(a)
-
-
 @contextmanager
 def parallel_first():
-    """Within the block, every :class:`Twins` calls the parallel kernel on more than one thread,
-    compiling it when first needed, in the caller's thread: what a benchmark wants."""
+    """Within the block, :meth:`Twins.warm` says yes at once: the parallel kernels compile when
+    first needed, in the caller's thread, as a benchmark wants."""
     before = Twins.eager
     Twins.eager = True
     try:
@@ -91,62 +70,18 @@ def parallel_first():
 
 
 class Twins:
-    """Calls ``parallel`` (a numba dispatcher) or its serial twin ``serial`` (a dispatcher, or a
-    Python function around one; the same arguments and the same results), as the module docstring
-    says, keeping per parallel kernel and argument types what has been served and compiled."""
+    """Background warm-ups of parallel work (the module docstring), keeping per piece of work what
+    has warmed up, what is warming up and what failed."""
 
     eager = False  # parallel_first()
 
     def __init__(self):
         self._lock = threading.Lock()
-        self._seen = set()  # (parallel kernel, argument types) served serially once
-        self._compiling = {}  # (parallel kernel, argument types) -> background thread
-        self._failed = {}  # parallel kernel -> the exception of its background compile that failed
-        self._ready = set()  # (parallel kernel, argument fingerprints) the parallel kernel is compiled for
+        self._compiling = {}  # key of the work -> background thread
+        self._failed = {}  # key of the work -> the exception of its background job that failed
+        self._ready = set()  # keys of the work warmed up
         self.started = 0  # background compiles started in this process
         self._exit_wait = False  # the atexit handler is registered
-
-    @staticmethod
-    def signature(parallel, args):
-        """The numba argument types of ``args``, as the dispatcher keys its compiled versions."""
-        return tuple(parallel.typeof_pyval(a) for a in args)
-
-
-    def pick(self, threads, parallel, serial, args):
-        """The function to call for ``args`` on ``threads`` threads (see the module docstring)."""
-        if threads <= 1:
-            return serial
-        if self.eager or not hasattr(parallel, "overloads"):  # (a stand-in for a kernel, in tests)
-            return parallel
-        fp = (id(parallel),) + tuple(_fingerprint(a) for a in args)
-        if fp in self._ready:
-            return parallel
-        sig = self.signature(parallel, args)
-        key = (id(parallel), sig)
-        with self._lock:
-            failed = self._failed.get(id(parallel))
-            if failed is not None:  # a defect, not bad input: say so in the caller's thread
-                raise RuntimeError(f"compiling {parallel.py_func.__qualname__} failed") from failed
-            if sig in parallel.overloads:
-                self._ready.add(fp)
-                return parallel
-            if key in self._compiling:
-                return serial  # still compiling
-            if has_cache_entry(parallel, sig):  # it loads from the on-disk cache in milliseconds
-                return parallel
-            if key in self._seen:
-                self._start(key, parallel.py_func.__qualname__, self._compile, parallel, sig)
-            else:
-                self._seen.add(key)
-            return serial
-
-    def _compile(self, parallel, sig):
-        try:
-            parallel.compile(sig)
-        except Exception as e:  # noqa: BLE001 (raised in the next caller's thread)
-            self._failed[id(parallel)] = e
-        with self._lock:
-            self._compiling.pop((id(parallel), sig), None)
 
     def warm(self, key, name, job, start):
         """Whether the work behind ``key`` has warmed up in this process (its kernels compiled by
@@ -209,7 +144,7 @@ class Twins:
                 self._ready.add(key)
 
     def compiling(self):
-        """The names of the parallel kernels whose background compile is still running (sorted)."""
+        """The names of the work whose background compile is still running (sorted)."""
         with self._lock:
             return sorted({job.kernel for job in self._compiling.values() if job.is_alive()})
 
@@ -219,10 +154,6 @@ class Twins:
             jobs = list(self._compiling.values())
         for job in jobs:
             job.join()
-
-    def __call__(self, threads, parallel, serial, *args):
-        return self.pick(threads, parallel, serial, args)(*args)
-
 
 #: the process's scheduler
 TWINS = Twins()
