@@ -44,8 +44,8 @@ from ..compiles import inner
 from ..grid.atomics import atomic_add
 from ..scene.surface import (AMBIENT_FRACTION, DEFAULT_DIFFUSE, FALLOFF_INVERSE_SQUARE, LIGHT_DIRECTIONAL, LIGHT_POINT,
                              Surface)
-from .records import SurfaceArrays
 from ..threads import on_threads
+from .records import SurfaceArrays
 from .shade import put_pixel
 from .traverse import _clip_box
 
