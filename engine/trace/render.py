@@ -46,7 +46,7 @@ from ..scene.surface import Surface, as_lights
 from .batch import MAX_CELLS, SHADOW_MAX_CELLS, cast_grouped, odd_directions, tile_order
 from .traverse import SCRATCH, near_all, trace_grids
 from ..camera import Camera, pixel_dir
-from .cgt.frame import CHUNKS, cgt_render
+from .cgt.frame import cgt_render, tile_runs
 from .grids import grid_arrays, grid_tuple
 from .lightmap import LightMaps, clear_lit
 from .material import (add_light, compose, draw_shift, drawn_segments, light_segments, live_segments, mark_blocked,
@@ -132,10 +132,9 @@ def dda_tiles(grids, view, looks, light, runs, out):
 
 def dda_render(grids, view, looks, light, out, threads=1):
     """Render the view into out on ``threads`` threads (gridrt.threads.on_threads), each running
-    :func:`dda_tiles`; they share the frame's tiles in CHUNKS runs through one counter.  The same
+    :func:`dda_tiles`; they share the frame's tiles in runs through one counter (tile_runs).  The same
     buffers bit for bit on any number of threads: no pixel depends on which thread renders it."""
-    ntiles = ((view.W + view.tile - 1) // view.tile) * ((view.H + view.tile - 1) // view.tile)
-    runs = (np.zeros(1, np.int64), -(-ntiles // max(1, min(ntiles, CHUNKS))))
+    runs = tile_runs(view)
 
     def work(k):
         dda_tiles(grids, view, looks, light, runs, out)

@@ -19,8 +19,17 @@ from .rays import (IO_DX, IO_DY, IO_DZ, IO_F, IO_NT, IO_OX, IO_OY, IO_OZ, IO_T, 
 from .walk import trace_packet_grids
 
 
-#: the runs of consecutive tiles a frame on several threads is shared out in (cgt_render)
+#: the runs of consecutive tiles a frame on several threads is shared out in (cgt_render,
+#: gridrt.trace.render.dda_render)
 CHUNKS = 256
+
+
+def tile_runs(view):
+    """(next, per) for the render kernels that threads share: a fresh (1,) int64 counter of the
+    runs taken and ``per``, the tiles of one run, so that the view's tiles (row-major) make at most
+    CHUNKS runs."""
+    ntiles = ((view.W + view.tile - 1) // view.tile) * ((view.H + view.tile - 1) // view.tile)
+    return np.zeros(1, np.int64), -(-ntiles // max(1, min(ntiles, CHUNKS)))
 
 
 @inner(cache=True, _nrt=False, error_model="numpy")
@@ -229,9 +238,8 @@ def cgt_render(grids, view, looks, light, packets, out, threads=1):
     sums of out.cost and out.cells, and the number of rays traced in packets split by direction
     class (trace_packet).  A Python function around one kernel, compiled once for every thread
     count: numba's parallel loop would compile the whole call tree a second time, in seconds."""
-    W, H, tile = view.W, view.H, view.tile
-    ntiles = ((W + tile - 1) // tile) * ((H + tile - 1) // tile)
-    runs = (np.zeros(1, np.int64), -(-ntiles // max(1, min(ntiles, CHUNKS))))
+    W, H = view.W, view.H
+    runs = tile_runs(view)
     flat = Buffers(out.img.reshape(H * W * 4), out.t.reshape(H * W), out.tri.reshape(H * W), out.cost.reshape(H * W),
                    out.cells.reshape(H * W))
 
