@@ -5,6 +5,8 @@ The bench's error figures are recomputed here independently: the engine's image 
 pixels against ``reference.ref_cast`` on ``reference.ref_camera_rays``.
 """
 
+import json
+import os
 import sys
 
 import numpy as np
@@ -197,6 +199,34 @@ def test_bench_frame_quick(tmp_path):
         pipe.step(0.0)
         check_grid_columns(r, pipe.step(1 / 30).stats, 500)
     assert "Static/moving split" in summary and "Grid kinds side by side" in summary
+    # a smoke run records no effective cores (it starts none of the probe's busy processes)
+    info = json.loads((out / "machine.json").read_text())
+    assert info["effective_cores_start"] is None and info["effective_cores_end"] is None
+    assert "effective cores: not measured (a --quick smoke run)" in summary
+
+
+def test_effective_cores_probe_runs_busy_processes_and_only_when_asked(monkeypatch):
+    """machine_info measures the effective cores with busy processes (1 alone, twice, then one
+    per core at once) and finish_machine again at the end; without ``probe`` neither starts one."""
+    from gridrt.app.bench import machine
+
+    started = []
+    real = machine.subprocess.Popen
+
+    def popen(args, *a, **k):
+        if args[0] == sys.executable:  # (not the CPU model's uname or the commit's git)
+            started.append(args)
+        return real(args, *a, **k)
+
+    monkeypatch.setattr(machine.subprocess, "Popen", popen)
+    info = machine.finish_machine(machine.machine_info([1], probe=False))
+    assert started == [] and info["effective_cores_start"] is None and info["effective_cores_end"] is None
+    info = machine.finish_machine(machine.machine_info([1]))
+    cores = os.cpu_count()
+    assert len(started) == 2 * (2 + cores) and all(a[1] == "-c" for a in started)
+    for key in ("effective_cores_start", "effective_cores_end"):
+        assert 0 < info[key] < float("inf")
+    assert "effective cores (" in "\n".join(machine.machine_md(info))
 
 
 def test_bench_trade_quick_matches_an_independent_recount(tmp_path):

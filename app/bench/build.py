@@ -440,7 +440,7 @@ def run_build(a):
     cores = check_threads(None)
     threads = thread_list(a.threads) if a.threads else list(range(1, cores + 1))
     out = out_dir(a.out)
-    info = machine_info(threads)
+    info = machine_info(threads, probe=not a.quick)
     if note:
         print(f"note: {note}", file=sys.stderr)
     scenes = {}
@@ -473,7 +473,7 @@ def _run_build_cluster(a, specs, note, strategies, kinds, base, size, runs, warm
         print(f"note: {note}", file=sys.stderr)
     with open_cluster(a) as (cl, pressed):
         threads = thread_list(a.threads) if a.threads else list(range(1, worker_cores(cl) + 1))
-        info = machine_info(threads)
+        info = machine_info(threads, probe=not a.quick)
         info["cluster"] = cl.where
         calls = build_calls(specs, strategies, kinds, threads, base, runs, warmup, size)
         rows, machines = run_configs(cl, calls, "build sweep (cluster)", a.no_progress, pressed=pressed)

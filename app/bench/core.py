@@ -105,7 +105,7 @@ def run_core(a):
         if t not in TRAVERSALS:
             raise InputError(f"unknown traversal {t!r}; choose from {', '.join(TRAVERSALS)}")
     out = out_dir(a.out)
-    info = machine_info(threads)
+    info = machine_info(threads, probe=not a.quick)
     print(f"machine: {info['cpu']}, {info['cores']} cores, numba {info['numba']}, numpy {info['numpy']}",
           file=sys.stderr)
     if note:

@@ -120,7 +120,7 @@ def run_frame(a):
     if wants_cluster(a):
         return _run_frame_cluster(a, specs, note, travs, kinds, size, runs, warmup, base)
     out = out_dir(a.out)
-    info = machine_info(threads)
+    info = machine_info(threads, probe=not a.quick)
     if note:
         print(f"note: {note}", file=sys.stderr)
     scenes = [resolve_scene(s) for s in specs]
@@ -166,7 +166,7 @@ def _run_frame_cluster(a, specs, note, travs, kinds, size, runs, warmup, base):
         print(f"note: {note}", file=sys.stderr)
     with open_cluster(a) as (cl, pressed):
         threads = thread_list(a.threads) if a.threads else sorted({1, worker_cores(cl)})
-        info = machine_info(threads)
+        info = machine_info(threads, probe=not a.quick)
         info["cluster"] = cl.where
         facts = scene_facts(cl, specs, a.no_progress, pressed)
         plan = [(s, (th, tr, sp, gk)) for s, f in zip(specs, facts) for th in threads for tr in travs

@@ -110,7 +110,7 @@ def run_looks(a):
     if note:
         print(f"note: {note}")
     out = out_dir(a.out)
-    info = machine_info(threads)
+    info = machine_info(threads, probe=not a.quick)
     scenes = [resolve_scene(s) for s in specs]
     bar = progress(len(scenes) * len(threads), "bench looks", a.no_progress)
     rows = []

@@ -77,9 +77,11 @@ def effective_cores():
     return round(n * alone / together, 2)
 
 
-def machine_info(threads):
+def machine_info(threads, probe=True):
     """Dict describing this run: date, CPU model, cores, CPUs allowed, threads used, load
-    average, memory, versions (python, numpy, numba, embreex, ...), commit, command line."""
+    average, memory, versions (python, numpy, numba, embreex, ...), commit, command line, and with
+    ``probe`` the effective cores (:func:`effective_cores`, None without: a --quick smoke run, whose
+    figures are not measurements, skips the probe's busy processes)."""
     try:
         allowed = len(os.sched_getaffinity(0))
     except AttributeError:
@@ -104,7 +106,7 @@ def machine_info(threads):
         "threads_used": list(threads),
         "memory": mem,
         "load_average_start": load,
-        "effective_cores_start": effective_cores(),
+        "effective_cores_start": effective_cores() if probe else None,
         "python": platform.python_version(),
         "numpy": np.__version__,
         "numba": numba.__version__,
@@ -119,12 +121,13 @@ def machine_info(threads):
 
 
 def finish_machine(info):
-    """Add the end-of-run load average (a high one means other processes shared the cores)."""
+    """Add the end-of-run load average (a high one means other processes shared the cores) and
+    the effective cores, where machine_info measured them at the start (None where it did not)."""
     try:
         info["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
     except OSError:
         info["load_average_end"] = []
-    info["effective_cores_end"] = effective_cores()
+    info["effective_cores_end"] = None if info.get("effective_cores_start") is None else effective_cores()
     return info
 
 
@@ -153,6 +156,8 @@ def machine_md(info):
     if eff:
         lines.append(f"- effective cores ({info['cores']} busy processes at once against one alone): "
                      f"{info.get('effective_cores_start')} at start, {info.get('effective_cores_end')} at end")
+    elif "effective_cores_start" in info:
+        lines.append("- effective cores: not measured (a --quick smoke run)")
     cores = info["cores"] or 1
     if eff and min(eff) < 0.8 * cores:
         lines.append(f"- **note:** this machine delivered only {min(eff)} of its {cores} cores at some point of the run "

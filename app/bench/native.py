@@ -333,7 +333,7 @@ def run_native(a):
         except MissingPeer as e:
             print(f"note: embreex not measured: {e}", file=sys.stderr)
     out = None if a.export_only else out_dir(a.out)
-    info = machine_info(threads)
+    info = machine_info(threads, probe=not a.quick)
     if binary is not None:
         info["native"] = " ".join(run_harness_info(binary))
     rows = []

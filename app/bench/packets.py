@@ -142,7 +142,7 @@ def run_packets(a):
     if note:
         print(f"note: {note}")
     out = out_dir(a.out)
-    info = machine_info([1])
+    info = machine_info([1], probe=not a.quick)
     scenes = [resolve_scene(s) for s in specs]
     bar = progress(len(scenes) * len(views) * len(precisions), "bench packets", a.no_progress)
     rows = []

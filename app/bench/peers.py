@@ -160,7 +160,7 @@ def run_peers(a):
     specs, note = scene_list(a.scenes, PEER_SCENES, PEER_FALLBACK, quick=["icosphere:1280:twist"] if a.quick else None)
     threads = thread_list(a.threads)
     out = out_dir(a.out)
-    info = machine_info(threads)
+    info = machine_info(threads, probe=not a.quick)
     if emb is not None:
         info["embree"] = repr(emb.device)
     for peer in others:

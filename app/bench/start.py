@@ -108,7 +108,7 @@ def run_start(a):
     else:
         runs, warmup = a.runs, a.warmup
     out = out_dir(a.out)
-    info = machine_info([dump_threads(extra)])
+    info = machine_info([dump_threads(extra)], probe=not a.quick)
     pyc_off = bool(os.environ.get("PYTHONDONTWRITEBYTECODE"))
     kinds = [("warm", None)] + ([("warm, .pyc files", {k: v for k, v in os.environ.items()
                                                         if k != "PYTHONDONTWRITEBYTECODE"})] if pyc_off else [])

@@ -277,7 +277,7 @@ class _Setup:
 def run_trade(a):
     o = _options(a)
     out = out_dir(a.out)
-    info = machine_info([o.threads])
+    info = machine_info([o.threads], probe=not a.quick)
     su = _setup(a, o, *_default_specs(a))
     dcfg = baseline(su.sc.spec, o.size, a.strategy, o.threads, su.cam, a.time)
     configs = _configs(a, o.knobs, dcfg)

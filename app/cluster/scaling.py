@@ -128,7 +128,7 @@ def run_cluster_bench(a):
     source = scene_spec(text).source
     args = ["--scene", source, "--frames", str(frames), "--size", f"{size}x{size}", *a.dump_args.split()]
     out = out_dir(a.out)
-    info = machine_info(sorted({t for _, _, t in configs}))
+    info = machine_info(sorted({t for _, _, t in configs}), probe=not a.quick)
     samples = {c[0]: [] for c in configs}
     bar = progress(len(configs) * (a.runs + a.warmup), "bench cluster", a.no_progress)
     with tempfile.TemporaryDirectory(prefix="gridrt-bench-cluster-") as tmp:
