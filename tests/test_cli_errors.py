@@ -96,6 +96,7 @@ def test_non_indexed_primitive_message_does_not_talk_of_indices(tmp_path):
 # ----------------------------------------------------------------------------- counts and warnings
 
 
+@pytest.mark.slow  # (the largest icosphere, 5,242,880 triangles, built and rendered: about 12 s of CPU)
 def test_icosphere_count_beyond_the_largest_says_what_it_made(tmp_path):
     r = dump(tmp_path, "--scene", "icosphere", "--count", "1000000000")
     assert r.returncode == 0, r.stderr[-2000:]

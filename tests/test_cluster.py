@@ -264,6 +264,7 @@ def wait_for_frames(folder, n, proc, timeout=300):
     raise AssertionError(f"no {n} frames in {timeout} s")
 
 
+@pytest.mark.slow  # (a fault on a real cluster: a reference dump and a cluster run of 60 frames, about 25 s)
 def test_worker_killed_mid_run_loses_no_frame(tmp_path, slow_ref, dask_cluster):
     """SIGKILL one of the two workers while both are busy: its chunks run again on the other, the
     dump completes and is the one-process dump; after the kill only the survivor renders."""
@@ -297,6 +298,7 @@ def descendants(pid):
         return []
 
 
+@pytest.mark.slow  # (a fault on a real cluster, with the 60-frame reference dump)
 def test_ctrl_c_stops_the_cluster_and_leaves_whole_frames(tmp_path, slow_ref):
     """Ctrl-C (SIGINT to the process group, as a terminal sends it) on ``--workers 2``: the
     command exits with 130, its worker processes are gone, and the folder holds whole frames
@@ -432,6 +434,7 @@ def bench_rows(folder, name):
         return list(csv.DictReader(fh))
 
 
+@pytest.mark.slow  # (a sweep here and on a local cluster of 2 processes, 25 s; the quick run benches on a scheduler)
 def test_bench_build_on_a_local_cluster(tmp_path):
     """``bench build --workers 2``: the rows (grid contents: cells, references, bytes) are a local
     run's, in its order; every row names its worker and that worker's machine, and machine.json

@@ -532,6 +532,7 @@ def assert_quiet_stop(returncode, stderr, procs):
     assert not alive, f"processes left running: {alive}"
 
 
+@pytest.mark.slow  # (a fault on a real cluster under load)
 def test_ctrl_c_of_a_cluster_dump_under_load_prints_no_traceback(tmp_path):
     """Ctrl-C with a CPU hog on the machine: the dump stops with gridrt's own lines only (no
     Dask log line, no traceback from a heartbeat or a connection closed while the cluster

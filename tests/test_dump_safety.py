@@ -583,6 +583,7 @@ def test_sigint_during_a_cold_compile_ends_the_dump_at_once(tmp_path):
     assert whole_frames(out, buffers=True) == n
 
 
+@pytest.mark.slow  # (a fault on a real cluster; the quick run keeps the one-process SIGTERM)
 def test_sigterm_stops_a_cluster_dump_with_whole_frames_and_it_resumes(tmp_path):
     """SIGTERM to a cluster dump (--workers 1) once frames land: exit 143, one line, the workers
     gone, whole frames only; resumed on the cluster for five frames more, the folder is the

@@ -201,7 +201,8 @@ def test_grid_max_cells_cap(rng):
     assert gb.spec.capped
 
 
-@pytest.mark.parametrize("relpath,density,macro", [(TEAPOT, 4.0, 4), (TEAPOT, 1.0, 2), (ARMADILLO, 4.0, 4)])
+@pytest.mark.parametrize("relpath,density,macro", [(TEAPOT, 4.0, 4), (TEAPOT, 1.0, 2),
+                                                     pytest.param(ARMADILLO, 4.0, 4, marks=pytest.mark.slow)])
 def test_grid_equals_reference_real_mesh(relpath, density, macro):
     tris = load_tris(relpath)
     check_against_reference(tris, GridParams(density=density, macro=macro))
