@@ -152,7 +152,18 @@ class DaskCluster:
 
 @pytest.fixture
 def dask_cluster(tmp_path):
+    """A cluster of the test's own (a test that kills a worker)."""
     cl = DaskCluster(tmp_path / "cluster")
+    try:
+        yield cl
+    finally:
+        cl.close()
+
+
+@pytest.fixture(scope="module")
+def shared_cluster(tmp_path_factory):
+    """One cluster for the module's tests that leave its processes as they found them."""
+    cl = DaskCluster(tmp_path_factory.mktemp("shared") / "cluster")
     try:
         yield cl
     finally:
@@ -237,14 +248,14 @@ def test_a_scene_that_moves_its_frame_between_chunks(tmp_path):
     assert pipe.recentred >= 5, "the scene does not move the pipeline's frame: the test shows nothing"
 
 
-def test_existing_scheduler_dump(tmp_path, fast_ref, dask_cluster):
+def test_existing_scheduler_dump(tmp_path, fast_ref, shared_cluster):
     """``--scheduler`` on a real ``dask scheduler`` with two ``dask worker`` processes: the same
     files; each worker divides the machine's cores with the other."""
     out = tmp_path / "d"
-    r = gridrt("dump", *FAST, "--scheduler", dask_cluster.address, "--chunk", 4, "--no-progress", "--out", out)
+    r = gridrt("dump", *FAST, "--scheduler", shared_cluster.address, "--chunk", 4, "--no-progress", "--out", out)
     assert r.returncode == 0, r.stderr
     assert_same_dump(out, fast_ref)
-    assert set(worker_column(out)) <= set(dask_cluster.addresses.values())
+    assert set(worker_column(out)) <= set(shared_cluster.addresses.values())
     assert {int(x["threads"]) for x in rows_of(out)} == {max(1, (os.cpu_count() or 1) // 2)}
 
 
@@ -455,18 +466,18 @@ def test_bench_build_on_a_local_cluster(tmp_path):
     assert "measured on a local cluster of 2 worker processes" in (remote / "summary.md").read_text()
 
 
-def test_bench_frame_on_an_existing_scheduler(tmp_path, dask_cluster):
+def test_bench_frame_on_an_existing_scheduler(tmp_path, shared_cluster):
     """``bench frame --scheduler``: the frames' figures that are not timings (hit fraction, tests
     and cells per ray, references) are a local run's; each row names one of the cluster's workers."""
     args = ["bench", "frame", "--quick", "--scenes", "marbles:500,icosphere:320", "--threads", "1,2",
             "--no-progress"]
     local, remote = tmp_path / "local", tmp_path / "cluster"
     assert gridrt(*args, "--out", local).returncode == 0
-    r = gridrt(*args, "--scheduler", dask_cluster.address, "--out", remote)
+    r = gridrt(*args, "--scheduler", shared_cluster.address, "--out", remote)
     assert r.returncode == 0, r.stderr
     a, b = bench_rows(local, "frame.csv"), bench_rows(remote, "frame.csv")
     keys = ["scene", "threads", "traversal", "split", "grid", "references", "hit_fraction", "tests_per_ray",
             "cells_per_ray"]
     assert [[x[k] for k in keys] for x in b] == [[x[k] for k in keys] for x in a]
-    assert {x["worker"] for x in b} <= set(dask_cluster.addresses.values())
+    assert {x["worker"] for x in b} <= set(shared_cluster.addresses.values())
     assert all(float(x["fps"]) > 0 for x in b)
