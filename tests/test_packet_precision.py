@@ -234,7 +234,8 @@ print("_move_far", " ".join(sorted({str(sig[3]) for sig in walk._move_far.signat
 """
 
 
-@pytest.mark.parametrize("precision", ["float64", pytest.param("float32", marks=pytest.mark.slow)])
+@pytest.mark.slow  # (a fresh compile of a CGT render in a process of its own, about 20 s, for each precision)
+@pytest.mark.parametrize("precision", ["float64", "float32"])
 def test_float64_packets_compile_no_float32_tests(precision, tmp_path):
     """A CGT render with float64 packets (the default) compiles the float32 test kernels at most
     as the stubs that return at once on S32 None (their signatures all take none), none of their

@@ -28,9 +28,9 @@ def _host_features():
 
 
 AVX512 = "+avx512f" in _host_features().split(",")
-#: the second width, a fresh compile of the kernels again: in the slow set (.ci/run runs it), the
-#: default width in the quick one
-WIDTH_256 = pytest.param("256", marks=pytest.mark.slow)
+#: the widths whose generated code is checked, each a fresh compile in a process of its own: these
+#: checks are in the slow set (.ci/run runs it); the quick run keeps the features' check
+WIDTHS = ["auto", "256"]
 
 
 def test_features_for_each_width():
@@ -79,7 +79,8 @@ def _run_probe(tmp_path, width, src, warm=None):
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-@pytest.mark.parametrize("width", ["auto", WIDTH_256])
+@pytest.mark.slow
+@pytest.mark.parametrize("width", WIDTHS)
 def test_generated_code_width(tmp_path, width):
     r = _run_probe(tmp_path, width, _PROBE)
     print(width, r["zmm_ps"], "zmm packed-single ops,", r["ymm_ps"], "ymm")
@@ -115,7 +116,8 @@ print(json.dumps({"features": config.CPU_FEATURES or "", "zmm_pd": sum("zmm" in 
 """
 
 
-@pytest.mark.parametrize("width", ["auto", WIDTH_256])
+@pytest.mark.slow
+@pytest.mark.parametrize("width", WIDTHS)
 def test_single_ray_cell_test_width(tmp_path, width):
     """The single-ray traversal tests a crowded cell's triangles side by side
     (gridrt.trace.traverse._test_cell_wt): its compiled code (trace_ray, in a fresh process and
@@ -160,7 +162,8 @@ print(json.dumps({"features": config.CPU_FEATURES or "", "zmm_pd": sum("zmm" in 
 """
 
 
-@pytest.mark.parametrize("width", ["auto", WIDTH_256])
+@pytest.mark.slow
+@pytest.mark.parametrize("width", WIDTHS)
 def test_material_pass_width(tmp_path, width):
     """The material pass shades LANES hits side by side (gridrt.trace.material._surface_lanes,
     _texel_lanes, _shade_lanes): its compiled code (shade_rows, in a fresh process and cache)
@@ -194,6 +197,7 @@ print(json.dumps({"bounds_ps": sum(w for o, w in b if re.fullmatch(r"v(?:min|max
 """
 
 
+@pytest.mark.slow
 def test_build_passes_width(tmp_path):
     """Two passes of every build are vector code when compiled without parallel=True (the
     serial strategy's and every small scene's): the bounds lanes (gridrt.grid.common
