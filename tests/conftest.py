@@ -116,6 +116,28 @@ def pytest_sessionfinish(session):
         config.cache.set(QUICK_SKIPPED, sorted(_SKIPPED))
 
 
+#: test files that compile the same kernels (every build strategy's, for uniform and two-level
+#: grids): under ``--dist loadfile`` they are one work unit, so that on a cold numba cache one
+#: worker compiles those kernels once instead of two workers compiling them at the same time
+SHARED_COMPILES = {"tests/test_grid_reference.py": "every strategy's builds",
+                   "tests/test_two_level.py": "every strategy's builds"}
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """pytest-xdist's loadfile scheduling with the files of SHARED_COMPILES in one work unit."""
+    if config.getoption("dist", None) != "loadfile":
+        return None
+    from xdist.scheduler import LoadFileScheduling
+
+    class SharedCompiles(LoadFileScheduling):
+        def _split_scope(self, nodeid):
+            path = super()._split_scope(nodeid)
+            return SHARED_COMPILES.get(path, path)
+
+    return SharedCompiles(config, log)
+
+
 def pytest_addoption(parser):
     parser.addoption(
         "--rest",
