@@ -120,6 +120,7 @@ def test_dump_mesh_far_from_origin(teapot, tmp_path):
     check_offsets(results, ref, W * H)
 
 
+@pytest.mark.slow  # (the second traversal and a deformed mesh: the quick run keeps the CGT dump)
 def test_dump_mesh_far_from_origin_dda_and_deformed(teapot, tmp_path):
     """The single-ray traversal, and a twisted mesh (the deformer evaluates in the scene's frame)."""
     from gridrt.scene import Deform, Mesh
