@@ -139,6 +139,12 @@ class DaskCluster:
         self.procs.append(p)
         return p
 
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
     def close(self):
         for p in reversed(self.procs):  # the workers first: they do not wait for a scheduler gone
             if p.poll() is None:
@@ -153,21 +159,15 @@ class DaskCluster:
 @pytest.fixture
 def dask_cluster(tmp_path):
     """A cluster of the test's own (a test that kills a worker)."""
-    cl = DaskCluster(tmp_path / "cluster")
-    try:
+    with DaskCluster(tmp_path / "cluster") as cl:
         yield cl
-    finally:
-        cl.close()
 
 
 @pytest.fixture(scope="module")
 def shared_cluster(tmp_path_factory):
     """One cluster for the module's tests that leave its processes as they found them."""
-    cl = DaskCluster(tmp_path_factory.mktemp("shared") / "cluster")
-    try:
+    with DaskCluster(tmp_path_factory.mktemp("shared") / "cluster") as cl:
         yield cl
-    finally:
-        cl.close()
 
 
 # ---------------------------------------------------------------------------------------------
