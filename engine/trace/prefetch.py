@@ -7,17 +7,17 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 
-def _prefetch_codegen(write):
+def _prefetch_codegen(write, nidx=1):
     """Codegen of a prefetch (llvm.prefetch, for reading or writing, kept in every cache level;
-    a prefetch never faults) of arr[i, 0, ...]: the element at the index given, then zeros up to
-    the array's dimensions."""
+    a prefetch never faults) of arr[i, 0, ...] (nidx = 1) or arr[l, i, 0, ...] (nidx = 2): the
+    element at the indices given, then zeros up to the array's dimensions."""
 
     def codegen(context, builder, signature, args):
         aryty = signature.args[0]
         ary = context.make_array(aryty)(context, builder, args[0])
         zero = context.get_constant(types.intp, 0)
-        idx = context.cast(builder, args[1], signature.args[1], types.intp)
-        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [idx] + [zero] * (aryty.ndim - 1),
+        idx = [context.cast(builder, args[k], signature.args[k], types.intp) for k in range(1, nidx + 1)]
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, idx + [zero] * (aryty.ndim - nidx),
                                        wraparound=False)
         i8p = ir.PointerType(ir.IntType(8))
         i32 = ir.IntType(32)
@@ -40,6 +40,13 @@ def _prefetch_tri(typingctx, tris, f):
 def _prefetch_write(typingctx, arr, i):
     """Prefetch element i of the 1D array arr, for writing."""
     return types.void(arr, i), _prefetch_codegen(True)
+
+
+@intrinsic
+def _prefetch_row(typingctx, arr, l, i):
+    """Prefetch element [l, i] of the 2D array arr (a cell's range in one layer of cell_start),
+    for reading."""
+    return types.void(arr, l, i), _prefetch_codegen(False, 2)
 
 
 @intrinsic

@@ -39,7 +39,7 @@ from ..compiles import inner, one_per_types
 from ..grid.two_level import leaf_axis
 from .grids import is_two_level, with_leaves_only
 from .intersect import intersect_fast, intersect_watertight, ray_shear, woop_edges, woop_shear, woop_terms
-from .prefetch import _prefetch_tri
+from .prefetch import _prefetch_row, _prefetch_tri
 from .query import Ray, Shear
 
 #: mailbox slots per ray (direct-mapped by triangle id)
@@ -557,12 +557,17 @@ def _trace_near(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
             while True:
                 cells += 1
                 c = ix + nx * (iy + ny * iz)
+                # the next cell first (the step does not depend on the tests), and its range's load
+                # started before the tests of this one
+                te, ix, iy, iz, leaves = _next_cell(ray, l3, c3, (ix, iy, iz), (x0, y0, z0), (x1, y1, z1))
+                if not leaves:
+                    cn = ix + nx * (iy + ny * iz)
+                    for l in range(cell_start.shape[0]):
+                        _prefetch_row(cell_start, l, cn)
                 best_f, best_t, best_u, best_v, tests, done = _test_cell(
                     tris, tri_ids, cell_start, c, mailbox, buf, ray, (best_f, best_t, best_u, best_v), tests)
                 if done:
                     return best_f, best_t, best_u, best_v, cells, tests
-                # step to the next cell, or out of the macro cell
-                te, ix, iy, iz, leaves = _next_cell(ray, l3, c3, (ix, iy, iz), (x0, y0, z0), (x1, y1, z1))
                 if best_t <= te or te > t1:
                     return _result(best_f, best_t, best_u, best_v, cells, tests)
                 if leaves:
