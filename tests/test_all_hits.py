@@ -14,6 +14,7 @@ import gridrt
 from gridrt.config import GridParams
 from gridrt.errors import InputError
 from gridrt.scene import icosphere_mesh
+from gridrt.trace import all_hits as ah
 from gridrt.trace.all_hits import det2_sign
 from reference import ref_all_hits
 
@@ -42,15 +43,24 @@ def test_det2_sign_exact():
         assert det2_sign(a, b, c, d) == (exact > 0) - (exact < 0), (a, b, c, d)
 
 
-@pytest.mark.parametrize("mesh, grid", [("icosphere", "uniform"), ("icosphere", "two_level"),
-                                        ("ellipsoid", "two_level"),
-                                        pytest.param("armadillo", "uniform", marks=pytest.mark.slow)])
-def test_all_hits_against_brute_force(mesh, grid):
+@pytest.mark.parametrize("mesh, grid, prefetch", [("icosphere", "uniform", False), ("icosphere", "two_level", False),
+                                                  ("icosphere", "uniform", True), ("icosphere", "two_level", True),
+                                                  ("ellipsoid", "two_level", False),
+                                                  pytest.param("armadillo", "uniform", False, marks=pytest.mark.slow)])
+def test_all_hits_against_brute_force(monkeypatch, mesh, grid, prefetch):
     """Random rays (origins inside and around the mesh): the hits, in order, are the float64 brute
     force's, triangle for triangle, wherever no brute-force hit lies within 1e-6 (barycentric) of
     an edge; count_hits agrees with all_hits; every ray's crossings of the closed mesh pair up
     (even counts from outside the bounds).  The ellipsoid's two-level grid has leaf grids of
-    different resolutions along the three axes."""
+    different resolutions along the three axes.  With ``prefetch`` the walk starts the loads of
+    each cell's triangles before it tests them (which it does on large meshes only) on this
+    small one."""
+    walks = []
+    if prefetch:
+        monkeypatch.setattr(ah, "PREFETCH_TRIANGLES", 1)
+    on_chunks = ah._on_chunks
+    monkeypatch.setattr(ah, "_on_chunks", lambda kernel, threads, g, *rest: (walks.append(g.prefetch),
+                                                                            on_chunks(kernel, threads, g, *rest))[1])
     if mesh in ("icosphere", "ellipsoid"):
         m = icosphere_mesh(5120)
         V, Fc = m.vertices * ([1.0, 1.7, 0.6] if mesh == "ellipsoid" else 1.0), m.faces
@@ -82,6 +92,7 @@ def test_all_hits_against_brute_force(mesh, grid):
     assert compared > 0.95 * N and got.counts().sum() > N, (compared, got.counts().sum())
     outside = np.any((O < lo) | (O > hi), axis=1)
     assert np.all(got.counts()[outside] % 2 == 0)
+    assert walks and set(walks) == {prefetch}
 
 
 def _edges_and_vertices(faces):
@@ -339,7 +350,6 @@ def test_cast_takes_t_min_and_t_max():
 def _ordering(monkeypatch, on):
     """Make count_hits and all_hits take every batch in the order of order_keys (on) or never
     (off); returns the list the keys' calls are counted in."""
-    import gridrt.trace.all_hits as ah   # deferred: the module whose thresholds this changes
     monkeypatch.setattr(ah, "ORDER_RAYS", 1 if on else 1 << 62)
     monkeypatch.setattr(ah, "ORDER_TRIANGLES", 1 if on else 1 << 62)
     calls, keys = [], ah.order_keys
@@ -358,7 +368,6 @@ def test_rays_with_many_hits_and_small_blocks(monkeypatch, first_cap, block, ord
     smaller than the batch, taken in the caller's order or in the cache-friendly one; the hits, in
     order, are the float64 brute force's, with and without a max_hits cap below and above what the
     first walk keeps."""
-    import gridrt.trace.all_hits as ah   # deferred: the module whose sizes this test shrinks
     monkeypatch.setattr(ah, "FIRST_CAP", first_cap)
     monkeypatch.setattr(ah, "SLOT_BLOCK", block)
     keyed = _ordering(monkeypatch, ordered)
@@ -391,7 +400,6 @@ def test_rays_in_cache_order_give_the_callers_order(monkeypatch):
     in the caller's order, with and without max_hits, the same counts, and the counts the float64
     brute force finds where no hit lies within 1e-6 of an edge.  The rays' keys do order them
     (the order differs from the caller's)."""
-    import gridrt.trace.all_hits as ah   # deferred: the module whose order_keys this reads
     m = icosphere_mesh(5120)
     caster = gridrt.RayCaster(m.vertices, m.faces)
     rng = np.random.default_rng(4)

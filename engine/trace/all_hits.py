@@ -44,6 +44,7 @@ from ..memory import check_fits
 from ..threads import check_threads, launch_guard, on_threads, use_threads
 from .cgt.rays import direction_class
 from .intersect import ray_shear, woop_shear
+from .prefetch import _prefetch_row, _prefetch_tri
 
 
 @njit(cache=True, inline="always")
@@ -69,6 +70,11 @@ def _two_sum(a, b):
 
 #: slots of a ray's mailbox (direct-mapped by triangle id; a power of two)
 MAILBOX = 32
+#: on a mesh of at least this many triangles (2.4 MB of them) the walk starts the loads of a
+#: cell's triangles before it tests them, so that their cache misses overlap (HitGrid.prefetch);
+#: on smaller ones, which stay in the caches, that pass over the cell's list costs more than it
+#: saves (measured: BENCHMARKS.md section 18)
+PREFETCH_TRIANGLES = 1 << 16
 #: a 2x2 determinant a d - b c whose float64 value exceeds this fraction of |a d| + |b c| has that
 #: value's sign (the rounding of two products and a difference stays below 3 units of 2^-53 of it)
 TRUST = 1e-14
@@ -254,7 +260,7 @@ def ray_hits(g, o, d, tmin, tmax, buf, mb, leaf_first):
     an argument of its own so that for a uniform grid (None) numba prunes the leaf walk before
     compiling (through gridrt.trace.grids.is_two_level the first count_hits compiled 0.3 s
     longer)."""
-    tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids, _, _ = g
+    tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids, _, _, prefetch = g
     bt, bf, bu, bv = buf
     t0, t1 = _clip(lo, hi, o, d, tmin, tmax)
     if not (t0 <= t1):
@@ -301,6 +307,21 @@ def ray_hits(g, o, d, tmin, tmax, buf, mb, leaf_first):
             tend = min(tout, t1)
             while True:
                 c = base + ix * st[0] + iy * st[1] + iz * st[2]
+                # the step first (it does not depend on the hits), so that the next cell's range
+                # loads while this cell's triangles are tested
+                if tx <= ty and tx <= tz:
+                    stop, ix, tx = _advance(ix, sx, tx, dtx, x0, x1, tend)
+                elif ty <= tz:
+                    stop, iy, ty = _advance(iy, sy, ty, dty, y0, y1, tend)
+                else:
+                    stop, iz, tz = _advance(iz, sz, tz, dtz, z0, z1, tend)
+                if not stop:
+                    for l in range(L):
+                        _prefetch_row(cs, l, base + ix * st[0] + iy * st[1] + iz * st[2])
+                if prefetch:
+                    for l in range(L):
+                        for r in range(cs[l, c], cs[l, c + 1]):
+                            _prefetch_tri(tris, tri_ids[r])
                 for l in range(L):
                     for r in range(cs[l, c], cs[l, c + 1]):
                         f = tri_ids[r]
@@ -313,12 +334,6 @@ def ray_hits(g, o, d, tmin, tmax, buf, mb, leaf_first):
                             nh = _add_hit(f, t, u, v, nh, bt, bf, bu, bv)
                             if nh < 0:
                                 return -1
-                if tx <= ty and tx <= tz:
-                    stop, ix, tx = _advance(ix, sx, tx, dtx, x0, x1, tend)
-                elif ty <= tz:
-                    stop, iy, ty = _advance(iy, sy, ty, dty, y0, y1, tend)
-                else:
-                    stop, iz, tz = _advance(iz, sz, tz, dtz, z0, z1, tend)
                 if stop:
                     break
         # the next macro cell, entered at tout
@@ -401,8 +416,9 @@ def _on_chunks(kernel, threads, g, rays, cap, chunks, *out):
 #: hi, cell size and dims, macro size k, macro dims and flags, one CSR of triangle ids over its
 #: cells (a two-level grid's leaf cells): cs (L, C + 1) int32, tri_ids (R,) int32, and a two-level
 #: grid's leaf_first (T + 1,) and leaf_res (T, 3) int32 (gridrt.grid.two_level; None for a uniform
-#: grid)
-HitGrid = namedtuple("HitGrid", "tris lo hi cell dims k mdims macro_full cs tri_ids leaf_first leaf_res")
+#: grid); prefetch: whether the walk starts the loads of a cell's triangles before it tests them
+#: (PREFETCH_TRIANGLES)
+HitGrid = namedtuple("HitGrid", "tris lo hi cell dims k mdims macro_full cs tri_ids leaf_first leaf_res prefetch")
 #: the rays: origins and directions (N, 3) float64 in the grid's frame, t bounds (N,) float64
 HitRays = namedtuple("HitRays", "O D tmin tmax")
 #: one worker's scratch: t, triangle, u, v of a ray's hits so far
@@ -515,7 +531,8 @@ def query_hits(grid, tris, origins, dirs, origin, t_min, t_max, max_hits=None, t
     chunks = max(1, min(N, 4 * threads))
     counts = np.zeros(N, np.int64)
     g = HitGrid(tris, lo, hi, cell, dims, int(s.macro), np.ascontiguousarray(s.mdims, np.int64),
-                np.ascontiguousarray(grid.macro_full, np.uint8), cs, ids, leaf_first, leaf_res)
+                np.ascontiguousarray(grid.macro_full, np.uint8), cs, ids, leaf_first, leaf_res,
+                len(tris) >= PREFETCH_TRIANGLES)
     rays = HitRays(O, D, tmin, tmax)
     with launch_guard():
         if count_only:
