@@ -59,8 +59,12 @@ def test_all_hits_against_brute_force(monkeypatch, mesh, grid, prefetch):
     if prefetch:
         monkeypatch.setattr(ah, "PREFETCH_TRIANGLES", 1)
     on_chunks = ah._on_chunks
-    monkeypatch.setattr(ah, "_on_chunks", lambda kernel, threads, g, *rest: (walks.append(g.prefetch),
-                                                                            on_chunks(kernel, threads, g, *rest))[1])
+
+    def noted(kernel, threads, g, *rest):
+        walks.append(g.prefetch)
+        return on_chunks(kernel, threads, g, *rest)
+
+    monkeypatch.setattr(ah, "_on_chunks", noted)
     if mesh in ("icosphere", "ellipsoid"):
         m = icosphere_mesh(5120)
         V, Fc = m.vertices * ([1.0, 1.7, 0.6] if mesh == "ellipsoid" else 1.0), m.faces

@@ -44,7 +44,7 @@ from ..memory import check_fits
 from ..threads import check_threads, launch_guard, on_threads, use_threads
 from .cgt.rays import direction_class
 from .intersect import ray_shear, woop_shear
-from .prefetch import _prefetch_row, _prefetch_tri
+from .prefetch import prefetch_range, prefetch_triangles
 
 
 @njit(cache=True, inline="always")
@@ -305,8 +305,8 @@ def ray_hits(g, o, d, tmin, tmax, buf, mb, leaf_first):
             sy, ty, dty = _axis(oy, dy, blo[1], bsz[1], iy)
             sz, tz, dtz = _axis(oz, dz, blo[2], bsz[2], iz)
             tend = min(tout, t1)
+            c = base + ix * st[0] + iy * st[1] + iz * st[2]
             while True:
-                c = base + ix * st[0] + iy * st[1] + iz * st[2]
                 # the step first (it does not depend on the hits), so that the next cell's range
                 # loads while this cell's triangles are tested
                 if tx <= ty and tx <= tz:
@@ -315,13 +315,11 @@ def ray_hits(g, o, d, tmin, tmax, buf, mb, leaf_first):
                     stop, iy, ty = _advance(iy, sy, ty, dty, y0, y1, tend)
                 else:
                     stop, iz, tz = _advance(iz, sz, tz, dtz, z0, z1, tend)
+                cn = base + ix * st[0] + iy * st[1] + iz * st[2]
                 if not stop:
-                    for l in range(L):
-                        _prefetch_row(cs, l, base + ix * st[0] + iy * st[1] + iz * st[2])
+                    prefetch_range(cs, cn)
                 if prefetch:
-                    for l in range(L):
-                        for r in range(cs[l, c], cs[l, c + 1]):
-                            _prefetch_tri(tris, tri_ids[r])
+                    prefetch_triangles(tris, tri_ids, cs, c)
                 for l in range(L):
                     for r in range(cs[l, c], cs[l, c + 1]):
                         f = tri_ids[r]
@@ -336,6 +334,7 @@ def ray_hits(g, o, d, tmin, tmax, buf, mb, leaf_first):
                                 return -1
                 if stop:
                     break
+                c = cn
         # the next macro cell, entered at tout
         if mtx <= mty and mtx <= mtz:
             stop, mi, mtx = _advance(mi, msx, mtx, mdtx, 0, mx - 1, t1)

@@ -1,8 +1,8 @@
 """Cache prefetch hints and the cycle counter for the traversal kernels (numba intrinsics around
-llvm.prefetch and llvm.readcyclecounter)."""
+llvm.prefetch and llvm.readcyclecounter, and the loops over a cell that the walks share)."""
 
 from llvmlite import ir
-from numba import types
+from numba import njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
@@ -47,6 +47,23 @@ def _prefetch_row(typingctx, arr, l, i):
     """Prefetch element [l, i] of the 2D array arr (a cell's range in one layer of cell_start),
     for reading."""
     return types.void(arr, l, i), _prefetch_codegen(False, 2)
+
+
+@njit(cache=True, inline="always")
+def prefetch_range(cell_start, c):
+    """Start the load of cell c's range, in every layer of cell_start (L, C + 1)."""
+    for l in range(cell_start.shape[0]):
+        _prefetch_row(cell_start, l, c)
+
+
+@njit(cache=True, inline="always")
+def prefetch_triangles(tris, tri_ids, cell_start, c):
+    """Start the loads of the triangles cell c lists (every layer of cell_start), so that their
+    cache misses (a cell's triangles lie anywhere in tris) overlap instead of queueing one test at
+    a time."""
+    for l in range(cell_start.shape[0]):
+        for r in range(cell_start[l, c], cell_start[l, c + 1]):
+            _prefetch_tri(tris, tri_ids[r])
 
 
 @intrinsic

@@ -39,7 +39,7 @@ from ..compiles import inner, one_per_types
 from ..grid.two_level import leaf_axis
 from .grids import is_two_level, with_leaves_only
 from .intersect import intersect_fast, intersect_watertight, ray_shear, woop_edges, woop_shear, woop_terms
-from .prefetch import _prefetch_row, _prefetch_tri
+from .prefetch import prefetch_range, prefetch_triangles
 from .query import Ray, Shear
 
 #: mailbox slots per ray (direct-mapped by triangle id)
@@ -399,9 +399,7 @@ def _test_cell(tris, tri_ids, cell_start, c, mailbox, buf, ray, best, tests):
         nref += cell_start[l, c + 1] - cell_start[l, c]
     side = ray.watertight and nref >= SIDE_BY_SIDE
     if not side:
-        for l in range(L):
-            for r in range(cell_start[l, c], cell_start[l, c + 1]):
-                _prefetch_tri(tris, tri_ids[r])
+        prefetch_triangles(tris, tri_ids, cell_start, c)
     for l in range(L):
         r0, r1 = cell_start[l, c], cell_start[l, c + 1]
         if side:
@@ -554,16 +552,15 @@ def _trace_near(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
                 ix = _entry_cell(lx, inv_cell[0], nx, ox, dx, t_in, x0, x1, sx, entered == 0)
                 iy = _entry_cell(ly, inv_cell[1], ny, oy, dy, t_in, y0, y1, sy, entered == 1)
                 iz = _entry_cell(lz, inv_cell[2], nz, oz, dz, t_in, z0, z1, sz, entered == 2)
+            c = ix + nx * (iy + ny * iz)
             while True:
                 cells += 1
-                c = ix + nx * (iy + ny * iz)
                 # the next cell first (the step does not depend on the tests), and its range's load
                 # started before the tests of this one
                 te, ix, iy, iz, leaves = _next_cell(ray, l3, c3, (ix, iy, iz), (x0, y0, z0), (x1, y1, z1))
+                cn = ix + nx * (iy + ny * iz)
                 if not leaves:
-                    cn = ix + nx * (iy + ny * iz)
-                    for l in range(cell_start.shape[0]):
-                        _prefetch_row(cell_start, l, cn)
+                    prefetch_range(cell_start, cn)
                 best_f, best_t, best_u, best_v, tests, done = _test_cell(
                     tris, tri_ids, cell_start, c, mailbox, buf, ray, (best_f, best_t, best_u, best_v), tests)
                 if done:
@@ -572,6 +569,7 @@ def _trace_near(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
                     return _result(best_f, best_t, best_u, best_v, cells, tests)
                 if leaves:
                     break
+                c = cn
         # step to the next macro cell (the macro DDA decides where the ray goes next, also when
         # the cell DDA left the macro cell through another face within rounding of a corner)
         te, entered, mi, mj, mk, m, tmx, tmy, tmz, out = _next_block(
