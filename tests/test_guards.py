@@ -199,6 +199,10 @@ BOUNDARIES = {
         "internal: called by cast_grouped only, after cast_batch's checks, with the rows it ordered or sorted "
         "itself and out's (N,) arrays; the work items' counter made there, one thread a work item at most",
         ["test_guard_cast_rays", "test_stale_grid_is_refused", "test_guard_cast_batch"]),
+    "gridrt.trace.batch:stream_runs": (
+        "internal: called by cast_grouped only, after cast_batch's checks, with the rows it ordered itself (or "
+        "none: every ray) and out's (N,) arrays, as cast_runs",
+        ["test_guard_cast_rays", "test_stale_grid_is_refused", "test_guard_cast_batch"]),
     "gridrt.trace.batch:image_width": (
         "internal: called by cast_grouped only, after cast_batch's checks (rays (N, 3) float64); _steps reads rows "
         "0..K-1 of the rays into a buffer of K - 1 it allocates, K <= N",

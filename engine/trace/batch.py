@@ -15,7 +15,11 @@ A batch (``cast_rays``, ``RayCaster.cast``) is cast in two passes over groups of
 2. the rays left, sorted by a key (:func:`sort_keys`: the permutation class of the direction, the
    macro cell of the origin, then the direction's slopes on a Morton curve), again in runs of RUN:
    rays the caller shuffled come together again.  A run that passes the same test is a packet,
-   the other rays are traced one at a time (:func:`gridrt.trace.traverse.trace_ray`).
+   the other rays are traced one at a time (:func:`gridrt.trace.traverse.trace_ray`).  When the
+   rays left are all over the place (not sorted) on a uniform grid of at least
+   ``STREAM_TRIANGLES`` triangles, they are traced one at a time but several interleaved
+   (:func:`stream_runs`, gridrt.trace.stream), so that their cache misses overlap; a cast that
+   asks for no packets (``max_cells`` <= 0) takes the same path there.
 
 Results do not depend on the order or grouping of the rays: the packet loops repeat the single
 ray's intersection arithmetic operation for operation and both give a tie (two triangles hit at
@@ -41,7 +45,8 @@ from ..threads import on_threads
 from .cgt import (IO_DX, IO_DY, IO_DZ, IO_F, IO_OX, IO_OY, IO_OZ, IO_TMAX, MBOX, NIO, NS, PN, PacketQuery,
                   direction_class, trace_packet)
 from .intersect import ray_shear
-from .query import HitArrays, PacketScratch, cast_pass, query
+from .query import HitArrays, PacketScratch, StreamScratch, cast_pass, query
+from .stream import LANES, NF, NI, STREAM_TRIANGLES, stream_rays
 from .traverse import (MOVED, NEAR, SCRATCH, TINY_DIR, _floor_clamp, _test_triangle, far_interval, far_shift, far_t,
                        is_far, trace_ray)
 
@@ -64,6 +69,7 @@ COARSE_BITS = 5
 MIN_PER_BIN = 16.0
 NO_ROWS = np.zeros(0, np.int64)
 NO_LEFT = np.zeros(0, np.uint8)
+NO_COUNTS = np.zeros((2, 0), np.int64)
 
 
 @inner(cache=True, _nrt=False)
@@ -189,6 +195,40 @@ def cast_runs_kernel(g, origins, dirs, idx, q, how, out, nxt):
             s = run * RUN
             total += _cast_run(g, origins, dirs, idx, s, min(RUN, M - s), q, how, scratch, out)
     return total
+
+
+@njit(cache=True, nogil=True)
+def stream_runs_kernel(g, origins, dirs, idx, q, out, counts, nxt):
+    """The rays idx (all rays when idx is empty) traced one at a time, interleaved
+    (:func:`gridrt.trace.stream.stream_rays`), into the :class:`HitArrays` out (and each ray's
+    cells visited and triangle tests into counts, (2, N) int64, unless it is (2, 0)), in work items
+    of RUN * GROUPS_PER_ITEM rays taken as cast_runs_kernel takes its items."""
+    M = idx.shape[0] if idx.shape[0] > 0 else origins.shape[0]
+    per = RUN * GROUPS_PER_ITEM
+    nitems = (M + per - 1) // per
+    sc = StreamScratch(np.empty((LANES, NF)), np.empty((LANES, NI), np.int64), np.empty((LANES, SCRATCH), np.int32))
+    while True:
+        it = atomic_add(nxt, 0, np.int64(1))
+        if it >= nitems:
+            break
+        s = it * per
+        stream_rays(g, origins, dirs, idx, s, min(per, M - s), q, sc, out, counts)
+
+
+def streams(g):
+    """Whether a batch cast traces the rays it takes one at a time interleaved
+    (:func:`stream_runs`): on uniform grids of at least STREAM_TRIANGLES triangles."""
+    return len(g.tris) >= STREAM_TRIANGLES and (g.leaf_first is None or len(g.leaf_first) == 0)
+
+
+def stream_runs(g, origins, dirs, idx, q, out, counts=NO_COUNTS):
+    """stream_runs_kernel on the threads cast_runs would use (the same hits on any number of
+    threads)."""
+    M = idx.shape[0] if idx.shape[0] > 0 else origins.shape[0]
+    items = -(-M // (RUN * GROUPS_PER_ITEM))
+    nxt = np.zeros(1, np.int64)
+    threads = max(1, min(numba.get_num_threads(), items))
+    on_threads(threads, lambda k: stream_runs_kernel(g, origins, dirs, idx, q, out, counts, nxt))
 
 
 def cast_runs(g, origins, dirs, idx, q, how, out):
@@ -382,8 +422,11 @@ def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cel
     q = query(tmin, tmax, watertight, any_hit)
     # (cast_runs: runs differ in cost, so threads take work items one at a time)
     if max_cells <= 0.0:
-        cast_runs(g, origins, dirs, NO_ROWS if rows is None else rows, q, cast_pass(-1.0, True, f32, tri_only),
-                  HitArrays(*out, NO_LEFT))
+        if streams(g):
+            stream_runs(g, origins, dirs, NO_ROWS if rows is None else rows, q, HitArrays(*out, NO_LEFT))
+        else:
+            cast_runs(g, origins, dirs, NO_ROWS if rows is None else rows, q, cast_pass(-1.0, True, f32, tri_only),
+                      HitArrays(*out, NO_LEFT))
         return 0, 0
     left = np.zeros(N, np.uint8)
     p1 = cast_runs(g, origins, dirs, pass1_order(origins, dirs) if rows is None else rows, q,
@@ -404,6 +447,10 @@ def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cel
         # sort (timsort on int64) runs in about half the time of its quicksort on these keys,
         # which arrive in long sorted runs (a tile's rays share a bin)
         rows = rows[np.argsort(keys, kind="stable")]
+    elif streams(g):
+        # (on large meshes, interleaved: gridrt.trace.stream)
+        stream_runs(g, origins, dirs, rows, q, HitArrays(*out, NO_LEFT))
+        return int(p1), 0
     p2 = cast_runs(g, origins, dirs, rows, q, cast_pass(max_cells if sort else -1.0, True, f32, tri_only),
                    HitArrays(*out, NO_LEFT))
     return int(p1), int(p2)

@@ -10,7 +10,8 @@ plain 3-tuples.
 * :class:`Query`: what a batch cast asks of every ray (t range and flags), made by :func:`query`;
 * :class:`CastPass`: how one pass of a batch cast traces its runs;
 * :class:`HitArrays`: a batch cast's outputs, one row per ray;
-* :class:`PacketScratch`: one worker's scratch for packets and single rays.
+* :class:`PacketScratch`: one worker's scratch for packets and single rays;
+* :class:`StreamScratch`: one worker's scratch for single rays traced interleaved.
 """
 
 from collections import namedtuple
@@ -47,6 +48,11 @@ HitArrays = namedtuple("HitArrays", "t tri u v left")
 #: One worker's scratch: a packet's rows io and slices S (float64), its mailbox mb and a single
 #: ray's mailbox mb1 (int32).
 PacketScratch = namedtuple("PacketScratch", "io S mb mb1")
+
+#: One worker's scratch for rays traced interleaved (gridrt.trace.stream): each lane's float64
+#: and int64 state rows fs and is_, and its single-ray scratch mbs (int32 rows of trace_ray's
+#: layout: the mailbox, then the side-by-side test's rows).
+StreamScratch = namedtuple("StreamScratch", "fs is_ mbs")
 
 
 def query(tmin, tmax, watertight, any_hit):
