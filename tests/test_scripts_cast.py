@@ -126,6 +126,18 @@ def test_contains_order_prints_its_table():
     assert all(NUMBER.fullmatch(c) for r in rows for c in r[3:]), rows
 
 
+@pytest.mark.slow
+def test_interleaved_rays_prints_its_table():
+    """The interleaved-rays table at a small size: BENCHMARKS.md's header, a row a thread count,
+    Mrays/s and ratios as numbers, and every ray's hit the same both ways."""
+    header, rows = run_script("interleaved_rays.py", "--size", "32", "--runs", "1", "--scenes", "icosphere:1280",
+                              "--threads", "1,2")
+    doc_header, _ = doc_table("interleaved_rays.py")
+    assert header == doc_header
+    assert [r[:2] for r in rows] == [["icosphere 1.3k, random", "1"], ["icosphere 1.3k, random", "2"]]
+    assert all(NUMBER.fullmatch(c) for r in rows for c in r[2:5]) and all(r[5] == "yes" for r in rows), rows
+
+
 def _script_module(monkeypatch, name):
     monkeypatch.syspath_prepend(str(REPO / "scripts"))
     spec = importlib.util.spec_from_file_location(name, REPO / "scripts" / f"{name}.py")
