@@ -28,6 +28,10 @@ from .traverse import (MAILBOX, _clip_box, _entry_cell, _macro_exit_t, _next_blo
 
 #: rays interleaved (each with its own state row and mailbox)
 LANES = 8
+#: what a lane does next: test its next cell (STAY), step through the macro cells from the one it
+#: left (LEAVE) or from the one its new ray starts in (ENTER), hand in its ray's hit (DONE), take
+#: a new ray (FREE)
+STAY, LEAVE, ENTER, DONE, FREE = 0, 1, 2, 3, 4
 #: batch casts trace their incoherent rays interleaved on meshes of at least this many triangles
 #: (measured: BENCHMARKS.md section 13; on smaller meshes, whose cells and triangles stay in the
 #: caches, keeping the lanes' state costs more than the overlap gains)
@@ -36,10 +40,10 @@ STREAM_TRIANGLES = 1 << 18
 #: origin and factors, the clipped exit t1, the macro cell's exits, the t where the ray entered
 #: it, and the nearest hit so far (t, u, v)
 F_O, F_D, F_INV, F_OK, F_S, F_T1, F_TM, F_TIN, F_T, F_U, F_V, NF = 0, 3, 6, 9, 12, 15, 16, 19, 20, 21, 22, 23
-#: the int64 state row: the ray's index (-1: the lane is free), the steps along
-#: each axis, the shear's permutation, the macro cell's indices and linear index, the cell's
-#: indices and linear index, the axis it entered the macro cell through, cells, tests, and the
-#: triangle of the nearest hit so far
+#: the int64 state row: the ray's index (-1: the lane is free), the steps along each axis, the
+#: shear's permutation, the macro cell's indices and linear index, the cell's indices and linear
+#: index, the axis it entered the macro cell through, cells, tests, and the triangle of the
+#: nearest hit so far
 I_RAY, I_S, I_K, I_M, I_MLIN, I_C, I_CLIN, I_ENT, I_CELLS, I_TESTS, I_F, NI = (
     0, 1, 4, 7, 10, 11, 14, 15, 16, 17, 18, 19)
 
@@ -55,17 +59,17 @@ def _lane_ray(fs, is_, k, tmin, watertight, any_hit):
 
 
 @njit(cache=True, inline="always")
-def _to_macro(g, fs, is_, k, ray):
+def _to_macro(g, fs, is_, k, ray, step_first):
     """Lane k from its macro cell on (the one it starts in, or entered at t F_TIN through axis
-    I_ENT): the first macro cell that holds triangles and the cell where the ray enters it, its
-    range's load started; or, when the ray leaves the grid or passes t1 or its nearest hit first,
-    True (the ray is done)."""
+    I_ENT; with step_first, from the macro cell after it): the first macro cell that holds
+    triangles and the cell where the ray enters it, its range's load started; or, when the ray
+    leaves the grid or passes t1 or its nearest hit first, True (the ray is done)."""
     lo, n, kk = g.lo, g.dims, g.macro
     nx, ny, nz = n[0], n[1], n[2]
     m = is_[k, I_MLIN]
     mi, mj, mk = is_[k, I_M], is_[k, I_M + 1], is_[k, I_M + 2]
     while True:
-        if g.macro_full[m] != 0:
+        if not step_first and g.macro_full[m] != 0:
             if is_[k, I_ENT] >= 0:
                 ent = is_[k, I_ENT]
                 t_in = fs[k, F_TIN]
@@ -85,6 +89,7 @@ def _to_macro(g, fs, is_, k, ray):
             kk, (lo[0], lo[1], lo[2]), (g.cell[0], g.cell[1], g.cell[2]), (nx, ny, nz))
         if out or te > fs[k, F_T1] or fs[k, F_T] <= te:
             return True
+        step_first = False
         fs[k, F_TM], fs[k, F_TM + 1], fs[k, F_TM + 2] = tmx, tmy, tmz
         is_[k, I_ENT] = ent
         fs[k, F_TIN] = te
@@ -92,9 +97,8 @@ def _to_macro(g, fs, is_, k, ray):
 
 @njit(cache=True, inline="always")
 def _lane_start(g, o, d, q, sc, k):
-    """Ray (o, d) of the :class:`Query` q set up in lane k of the scratch sc (its first cell's
-    range on the way), or True when it has nothing to trace (it misses the grid's box, or every
-    macro cell it crosses is empty)."""
+    """Ray (o, d) of the :class:`Query` q set up in lane k of the scratch sc, in the macro cell it
+    starts in (:func:`_to_macro` goes on from there), or True when it misses the grid's box."""
     tmin, tmax = q.tmin, q.tmax
     fs, is_, mbs = sc.fs, sc.is_, sc.mbs
     lo, hi = g.lo, g.hi
@@ -130,13 +134,14 @@ def _lane_start(g, o, d, q, sc, k):
     fs[k, F_TM + 2] = _macro_exit_t(lo[2], g.cell[2], mk, kk, n[2], ray.s[2], o[2], ray.inv[2])
     is_[k, I_ENT] = -1
     fs[k, F_TIN] = t0
-    return _to_macro(g, fs, is_, k, ray)
+    return False
 
 
 @njit(cache=True, inline="always")
 def _test_step(g, sc, k, ray):
     """Lane k's step (of the scratch sc) that tests its cell's triangles and moves on to the next
-    cell (or macro cell); True when the ray is done."""
+    cell: STAY when that one lies in the same macro cell (its range's load started), LEAVE when
+    the ray leaves the macro cell (:func:`_to_macro` steps on), DONE when the ray is done."""
     fs, is_, mbs = sc.fs, sc.is_, sc.mbs
     lo, cl, n, kk = g.lo, g.cell, g.dims, g.macro
     nx, ny, nz = n[0], n[1], n[2]
@@ -154,23 +159,13 @@ def _test_step(g, sc, k, ray):
     fs[k, F_T], fs[k, F_U], fs[k, F_V] = best_t, best_u, best_v
     is_[k, I_TESTS] = tests
     if done or best_t <= te or te > fs[k, F_T1]:
-        return True
-    if not leaves:
-        cn = ix + nx * (iy + ny * iz)
-        is_[k, I_C], is_[k, I_C + 1], is_[k, I_C + 2], is_[k, I_CLIN] = ix, iy, iz, cn
-        prefetch_range(g.cell_start, cn)
-        return False
-    mi, mj, mk, m = is_[k, I_M], is_[k, I_M + 1], is_[k, I_M + 2], is_[k, I_MLIN]
-    te, ent, mi, mj, mk, m, tmx, tmy, tmz, out = _next_block(
-        ray, (fs[k, F_TM], fs[k, F_TM + 1], fs[k, F_TM + 2]), (mi, mj, mk), m, (g.mdims[0], g.mdims[1], g.mdims[2]),
-        kk, (lo[0], lo[1], lo[2]), (cl[0], cl[1], cl[2]), (nx, ny, nz))
-    if out or te > fs[k, F_T1] or best_t <= te:
-        return True
-    fs[k, F_TM], fs[k, F_TM + 1], fs[k, F_TM + 2] = tmx, tmy, tmz
-    is_[k, I_M], is_[k, I_M + 1], is_[k, I_M + 2], is_[k, I_MLIN] = mi, mj, mk, m
-    is_[k, I_ENT] = ent
-    fs[k, F_TIN] = te
-    return _to_macro(g, fs, is_, k, ray)
+        return DONE
+    if leaves:
+        return LEAVE
+    cn = ix + nx * (iy + ny * iz)
+    is_[k, I_C], is_[k, I_C + 1], is_[k, I_C + 2], is_[k, I_CLIN] = ix, iy, iz, cn
+    prefetch_range(g.cell_start, cn)
+    return STAY
 
 
 @inner(cache=True, _nrt=False)
@@ -198,39 +193,47 @@ def stream_rays(g, origins, dirs, idx, s, n, q, sc, out, counts):
                 prefetch_triangles(g.tris, g.tri_ids, g.cell_start, is_[k, I_CLIN])
         for k in range(LANES):
             i = is_[k, I_RAY]
+            step = FREE
             if i >= 0:
-                ray = _lane_ray(fs, is_, k, tmin, watertight, any_hit)
-                if not _test_step(g, sc, k, ray):
+                step = _test_step(g, sc, k, _lane_ray(fs, is_, k, tmin, watertight, any_hit))
+            while step != STAY:
+                if step == LEAVE or step == ENTER:
+                    done = _to_macro(g, fs, is_, k, _lane_ray(fs, is_, k, tmin, watertight, any_hit), step == LEAVE)
+                    step = DONE if done else STAY
                     continue
-                f = is_[k, I_F]
-                if f < 0:
-                    tri[i], t[i], u[i], v[i] = -1, np.inf, 0.0, 0.0
-                else:
-                    tri[i], t[i], u[i], v[i] = f, fs[k, F_T], fs[k, F_U], fs[k, F_V]
-                if with_counts:
-                    counts[0, i], counts[1, i] = is_[k, I_CELLS], is_[k, I_TESTS]
-                is_[k, I_RAY] = -1
-                busy -= 1
-            # a free lane takes the next ray that has something to trace (its first cell's range
-            # then arrives while the other lanes take their steps)
-            while nxt < n:
-                i = idx[s + nxt] if use_idx else s + nxt
-                nxt += 1
-                o = (origins[i, 0], origins[i, 1], origins[i, 2])
-                d = (dirs[i, 0], dirs[i, 1], dirs[i, 2])
-                if is_two_level(g) or is_far(lo, hi, o[0], o[1], o[2]):
-                    f, th, uh, vh, nc, nt = trace_ray(g, o, d, tmin, tmax, watertight, any_hit, mbs[k])
-                    tri[i], t[i], u[i], v[i] = f, th, uh, vh
+                if step == DONE:
+                    i = is_[k, I_RAY]
+                    f = is_[k, I_F]
+                    if f < 0:
+                        tri[i], t[i], u[i], v[i] = -1, np.inf, 0.0, 0.0
+                    else:
+                        tri[i], t[i], u[i], v[i] = f, fs[k, F_T], fs[k, F_U], fs[k, F_V]
                     if with_counts:
-                        counts[0, i], counts[1, i] = nc, nt
-                    continue
-                if _lane_start(g, o, d, q, sc, k):
-                    tri[i], t[i], u[i], v[i] = -1, np.inf, 0.0, 0.0
-                    if with_counts:
-                        counts[0, i], counts[1, i] = 0, 0
-                    continue
-                is_[k, I_RAY] = i
-                busy += 1
-                break
+                        counts[0, i], counts[1, i] = is_[k, I_CELLS], is_[k, I_TESTS]
+                    is_[k, I_RAY] = -1
+                    busy -= 1
+                # the lane is free: it takes the next ray that has something to trace (its first
+                # cell's range then arrives while the other lanes take their steps)
+                step = STAY
+                while nxt < n:
+                    i = idx[s + nxt] if use_idx else s + nxt
+                    nxt += 1
+                    o = (origins[i, 0], origins[i, 1], origins[i, 2])
+                    d = (dirs[i, 0], dirs[i, 1], dirs[i, 2])
+                    if is_two_level(g) or is_far(lo, hi, o[0], o[1], o[2]):
+                        f, th, uh, vh, nc, nt = trace_ray(g, o, d, tmin, tmax, watertight, any_hit, mbs[k])
+                        tri[i], t[i], u[i], v[i] = f, th, uh, vh
+                        if with_counts:
+                            counts[0, i], counts[1, i] = nc, nt
+                        continue
+                    if _lane_start(g, o, d, q, sc, k):
+                        tri[i], t[i], u[i], v[i] = -1, np.inf, 0.0, 0.0
+                        if with_counts:
+                            counts[0, i], counts[1, i] = 0, 0
+                        continue
+                    is_[k, I_RAY] = i
+                    busy += 1
+                    step = ENTER
+                    break
         if busy == 0:
             return
