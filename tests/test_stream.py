@@ -48,16 +48,19 @@ def _mesh(name):
         return icosphere_tris(3)
     if name == "teapot":
         return load_tris(TEAPOT)
+    if name == "flat":  # every vertex on one plane: a grid one cell thick
+        return np.ascontiguousarray(random_scene(np.random.default_rng(17), 300, "mixed", 2), np.float32)
     # duplicated triangles (exact ties) and zero-area ones
     return np.ascontiguousarray(random_scene(np.random.default_rng(13), 400, "mixed", None, dup_frac=0.3,
                                              degen_frac=0.1), np.float32)
 
 
 def _rays(tris, rng, n):
-    """Random rays from inside and around the mesh's box, rays aimed at it from outside, and rays
-    from 1e7 box sizes away (the far-origin path) aimed at it."""
+    """Random rays from inside the mesh's box (grown by 1% of its size), rays aimed at it from
+    around it, and rays from 1e7 box sizes away (the far-origin path) aimed at it."""
     lo, hi = tris.reshape(-1, 3).min(0).astype(np.float64), tris.reshape(-1, 3).max(0).astype(np.float64)
-    o1, d1 = random_rays(rng, n, lo, hi, outside=0.0)
+    pad = 0.01 * float((hi - lo).max())  # (a flat mesh's box is flat: its origins would lie on the mesh)
+    o1, d1 = random_rays(rng, n, lo - pad, hi + pad, outside=0.0)
     o2, d2 = random_rays(rng, n, lo, hi, outside=0.5, aim=True)
     size = float((hi - lo).max())
     o3 = 0.5 * (lo + hi) + rng.normal(size=(n // 8, 3)) * 1e7 * size
@@ -65,7 +68,7 @@ def _rays(tris, rng, n):
     return np.concatenate([o1, o2, o3]), np.concatenate([d1, d2, d3])
 
 
-@pytest.mark.parametrize("name", ["icosphere", "teapot", "dups"])
+@pytest.mark.parametrize("name", ["icosphere", "teapot", "dups", "flat"])
 def test_interleaved_walk_equals_trace_ray(name):
     """Every ray, in the given order and through a shuffled subset of indices, on 1 and 3 threads."""
     tris = np.ascontiguousarray(_mesh(name), np.float32)
