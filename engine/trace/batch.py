@@ -45,8 +45,8 @@ from ..threads import on_threads
 from .cgt import (IO_DX, IO_DY, IO_DZ, IO_F, IO_OX, IO_OY, IO_OZ, IO_TMAX, MBOX, NIO, NS, PN, PacketQuery,
                   direction_class, trace_packet)
 from .intersect import ray_shear
-from .query import HitArrays, PacketScratch, StreamScratch, cast_pass, query
-from .stream import LANES, NF, NI, STREAM_TRIANGLES, stream_rays
+from .query import HitArrays, PacketScratch, cast_pass, query
+from .stream import STREAM_TRIANGLES, stream_rays, stream_scratch
 from .traverse import (MOVED, NEAR, SCRATCH, TINY_DIR, _floor_clamp, _test_triangle, far_interval, far_shift, far_t,
                        is_far, trace_ray)
 
@@ -206,7 +206,7 @@ def stream_runs_kernel(g, origins, dirs, idx, q, out, counts, nxt):
     M = idx.shape[0] if idx.shape[0] > 0 else origins.shape[0]
     per = RUN * GROUPS_PER_ITEM
     nitems = (M + per - 1) // per
-    sc = StreamScratch(np.empty((LANES, NF)), np.empty((LANES, NI), np.int64), np.empty((LANES, SCRATCH), np.int32))
+    sc = stream_scratch()
     while True:
         it = atomic_add(nxt, 0, np.int64(1))
         if it >= nitems:
@@ -224,11 +224,17 @@ def streams(g):
 def stream_runs(g, origins, dirs, idx, q, out, counts=NO_COUNTS):
     """stream_runs_kernel on the threads cast_runs would use (the same hits on any number of
     threads)."""
+    threads, nxt = _work_items(origins, idx)
+    on_threads(threads, lambda k: stream_runs_kernel(g, origins, dirs, idx, q, out, counts, nxt))
+
+
+def _work_items(origins, idx):
+    """(threads, counter) for a batch's work items of RUN * GROUPS_PER_ITEM rays (the rays idx,
+    every ray when it is empty): the calling thread's numba thread count, at most one a work item,
+    and the (1,) int64 counter of the items taken."""
     M = idx.shape[0] if idx.shape[0] > 0 else origins.shape[0]
     items = -(-M // (RUN * GROUPS_PER_ITEM))
-    nxt = np.zeros(1, np.int64)
-    threads = max(1, min(numba.get_num_threads(), items))
-    on_threads(threads, lambda k: stream_runs_kernel(g, origins, dirs, idx, q, out, counts, nxt))
+    return max(1, min(numba.get_num_threads(), items)), np.zeros(1, np.int64)
 
 
 def cast_runs(g, origins, dirs, idx, q, how, out):
@@ -236,10 +242,7 @@ def cast_runs(g, origins, dirs, idx, q, how, out):
     threads, at most one a work item (gridrt.threads.on_threads): the same hits on any number of
     threads, as each ray's are its own.  Returns the rays traced in packets.  (Python threads
     around one kernel: numba's parallel loop would compile the whole call tree a second time.)"""
-    M = idx.shape[0] if idx.shape[0] > 0 else origins.shape[0]
-    items = -(-M // (RUN * GROUPS_PER_ITEM))
-    nxt = np.zeros(1, np.int64)
-    threads = max(1, min(numba.get_num_threads(), items))
+    threads, nxt = _work_items(origins, idx)
     return sum(on_threads(threads, lambda k: cast_runs_kernel(g, origins, dirs, idx, q, how, out, nxt)))
 
 

@@ -22,9 +22,9 @@ from numba import njit
 from ..compiles import inner
 from .grids import is_two_level
 from .prefetch import prefetch_range, prefetch_triangles
-from .query import Ray, Shear
-from .traverse import (MAILBOX, _clip_box, _entry_cell, _macro_exit_t, _next_block, _next_cell, _ray_setup,
-                       _test_cell, is_far, trace_ray)
+from .query import Ray, Shear, StreamScratch
+from .traverse import (MAILBOX, SCRATCH, _block_box, _clip_box, _entry_cells, _macro_start, _next_block, _next_cell,
+                       _ray_setup, _result, _test_cell, is_far, trace_ray)
 
 #: rays interleaved (each with its own state row and mailbox)
 LANES = 8
@@ -46,6 +46,21 @@ F_O, F_D, F_INV, F_OK, F_S, F_T1, F_TM, F_TIN, F_T, F_U, F_V, NF = 0, 3, 6, 9, 1
 #: nearest hit so far
 I_RAY, I_S, I_K, I_M, I_MLIN, I_C, I_CLIN, I_ENT, I_CELLS, I_TESTS, I_F, NI = (
     0, 1, 4, 7, 10, 11, 14, 15, 16, 17, 18, 19)
+
+
+@njit(cache=True, inline="always")
+def stream_scratch():
+    """A new :class:`gridrt.trace.query.StreamScratch` of LANES lanes (in a kernel)."""
+    return StreamScratch(np.empty((LANES, NF)), np.empty((LANES, NI), np.int64), np.empty((LANES, SCRATCH), np.int32))
+
+
+@njit(cache=True, inline="always")
+def _hand_in(out, counts, i, hit):
+    """Ray i's hit (triangle, t, u, v, cells, tests) into row i of the :class:`HitArrays` out, and
+    its counts into column i of counts unless it is empty."""
+    out.tri[i], out.t[i], out.u[i], out.v[i] = hit[0], hit[1], hit[2], hit[3]
+    if counts.shape[1] > 0:
+        counts[0, i], counts[1, i] = hit[4], hit[5]
 
 
 @njit(cache=True, inline="always")
@@ -71,14 +86,9 @@ def _to_macro(g, fs, is_, k, ray, step_first):
     while True:
         if not step_first and g.macro_full[m] != 0:
             if is_[k, I_ENT] >= 0:
-                ent = is_[k, I_ENT]
-                t_in = fs[k, F_TIN]
-                x0, y0, z0 = mi * kk, mj * kk, mk * kk
-                x1, y1, z1 = min(x0 + kk, nx), min(y0 + kk, ny), min(z0 + kk, nz)
-                ic = g.inv_cell
-                is_[k, I_C] = _entry_cell(lo[0], ic[0], nx, ray.o[0], ray.d[0], t_in, x0, x1, ray.s[0], ent == 0)
-                is_[k, I_C + 1] = _entry_cell(lo[1], ic[1], ny, ray.o[1], ray.d[1], t_in, y0, y1, ray.s[1], ent == 1)
-                is_[k, I_C + 2] = _entry_cell(lo[2], ic[2], nz, ray.o[2], ray.d[2], t_in, z0, z1, ray.s[2], ent == 2)
+                b0, b1 = _block_box((mi, mj, mk), kk, (nx, ny, nz))
+                is_[k, I_C], is_[k, I_C + 1], is_[k, I_C + 2] = _entry_cells(
+                    lo, g.inv_cell, (nx, ny, nz), ray, fs[k, F_TIN], b0, b1, is_[k, I_ENT])
             c = is_[k, I_C] + nx * (is_[k, I_C + 1] + ny * is_[k, I_C + 2])
             is_[k, I_CLIN] = c
             is_[k, I_M], is_[k, I_M + 1], is_[k, I_M + 2], is_[k, I_MLIN] = mi, mj, mk, m
@@ -105,7 +115,6 @@ def _lane_start(g, o, d, q, sc, k):
     t0, t1 = _clip_box(lo, hi, o, d, tmin, tmax)
     if not (t0 <= t1):
         return True
-    kk = g.macro
     n = g.dims
     ix, iy, iz, ray = _ray_setup(lo, g.inv_cell, n, o, d, t0, tmin, q.watertight, q.any_hit, mbs[k])
     for a in range(3):
@@ -125,13 +134,8 @@ def _lane_start(g, o, d, q, sc, k):
     is_[k, I_CELLS] = 0
     is_[k, I_TESTS] = 0
     is_[k, I_C], is_[k, I_C + 1], is_[k, I_C + 2] = ix, iy, iz
-    mi, mj, mk = ix // kk, iy // kk, iz // kk
-    md = g.mdims
-    is_[k, I_M], is_[k, I_M + 1], is_[k, I_M + 2] = mi, mj, mk
-    is_[k, I_MLIN] = mi + md[0] * (mj + md[1] * mk)
-    fs[k, F_TM] = _macro_exit_t(lo[0], g.cell[0], mi, kk, n[0], ray.s[0], o[0], ray.inv[0])
-    fs[k, F_TM + 1] = _macro_exit_t(lo[1], g.cell[1], mj, kk, n[1], ray.s[1], o[1], ray.inv[1])
-    fs[k, F_TM + 2] = _macro_exit_t(lo[2], g.cell[2], mk, kk, n[2], ray.s[2], o[2], ray.inv[2])
+    (is_[k, I_M], is_[k, I_M + 1], is_[k, I_M + 2], is_[k, I_MLIN], fs[k, F_TM], fs[k, F_TM + 1],
+     fs[k, F_TM + 2]) = _macro_start(lo, g.cell, n, g.macro, g.mdims, (ix, iy, iz), ray)
     is_[k, I_ENT] = -1
     fs[k, F_TIN] = t0
     return False
@@ -147,10 +151,9 @@ def _test_step(g, sc, k, ray):
     nx, ny, nz = n[0], n[1], n[2]
     c = is_[k, I_CLIN]
     is_[k, I_CELLS] += 1
-    x0, y0, z0 = is_[k, I_M] * kk, is_[k, I_M + 1] * kk, is_[k, I_M + 2] * kk
+    b0, b1 = _block_box((is_[k, I_M], is_[k, I_M + 1], is_[k, I_M + 2]), kk, (nx, ny, nz))
     te, ix, iy, iz, leaves = _next_cell(ray, (lo[0], lo[1], lo[2]), (cl[0], cl[1], cl[2]),
-                                        (is_[k, I_C], is_[k, I_C + 1], is_[k, I_C + 2]), (x0, y0, z0),
-                                        (min(x0 + kk, nx), min(y0 + kk, ny), min(z0 + kk, nz)))
+                                        (is_[k, I_C], is_[k, I_C + 1], is_[k, I_C + 2]), b0, b1)
     mb = mbs[k]
     best_f, best_t, best_u, best_v, tests, done = _test_cell(
         g.tris, g.tri_ids, g.cell_start, c, mb, mb[MAILBOX:].view(np.float64), ray,
@@ -177,9 +180,7 @@ def stream_rays(g, origins, dirs, idx, s, n, q, sc, out, counts):
     (2, 0)) is not empty.  sc: the worker's :class:`StreamScratch`."""
     tmin, tmax, watertight, any_hit = q.tmin, q.tmax, q.watertight, q.any_hit
     fs, is_, mbs = sc.fs, sc.is_, sc.mbs
-    t, tri, u, v = out.t, out.tri, out.u, out.v
     use_idx = idx.shape[0] > 0
-    with_counts = counts.shape[1] > 0
     lo, hi = g.lo, g.hi
     nxt = 0
     busy = 0
@@ -202,14 +203,8 @@ def stream_rays(g, origins, dirs, idx, s, n, q, sc, out, counts):
                     step = DONE if done else STAY
                     continue
                 if step == DONE:
-                    i = is_[k, I_RAY]
-                    f = is_[k, I_F]
-                    if f < 0:
-                        tri[i], t[i], u[i], v[i] = -1, np.inf, 0.0, 0.0
-                    else:
-                        tri[i], t[i], u[i], v[i] = f, fs[k, F_T], fs[k, F_U], fs[k, F_V]
-                    if with_counts:
-                        counts[0, i], counts[1, i] = is_[k, I_CELLS], is_[k, I_TESTS]
+                    _hand_in(out, counts, is_[k, I_RAY], _result(is_[k, I_F], fs[k, F_T], fs[k, F_U], fs[k, F_V],
+                                                                 is_[k, I_CELLS], is_[k, I_TESTS]))
                     is_[k, I_RAY] = -1
                     busy -= 1
                 # the lane is free: it takes the next ray that has something to trace (its first
@@ -221,15 +216,10 @@ def stream_rays(g, origins, dirs, idx, s, n, q, sc, out, counts):
                     o = (origins[i, 0], origins[i, 1], origins[i, 2])
                     d = (dirs[i, 0], dirs[i, 1], dirs[i, 2])
                     if is_two_level(g) or is_far(lo, hi, o[0], o[1], o[2]):
-                        f, th, uh, vh, nc, nt = trace_ray(g, o, d, tmin, tmax, watertight, any_hit, mbs[k])
-                        tri[i], t[i], u[i], v[i] = f, th, uh, vh
-                        if with_counts:
-                            counts[0, i], counts[1, i] = nc, nt
+                        _hand_in(out, counts, i, trace_ray(g, o, d, tmin, tmax, watertight, any_hit, mbs[k]))
                         continue
                     if _lane_start(g, o, d, q, sc, k):
-                        tri[i], t[i], u[i], v[i] = -1, np.inf, 0.0, 0.0
-                        if with_counts:
-                            counts[0, i], counts[1, i] = 0, 0
+                        _hand_in(out, counts, i, (-1, np.inf, 0.0, 0.0, 0, 0))
                         continue
                     is_[k, I_RAY] = i
                     busy += 1

@@ -471,6 +471,37 @@ def _next_block(ray, tm, bi, m, mdims, k, lo, c, n):
     return te, entered, mi, mj, mk, m, tmx, tmy, tmz, False
 
 
+@njit(cache=True, inline="always")
+def _macro_start(lo, c, n, k, mdims, i, ray):
+    """The macro cell (k^3 cells of size c from lo, mdims of them, in a grid of n cells) holding
+    cell i of the :class:`Ray` ``ray``'s start: its indices, its linear index and the t where the
+    ray leaves it along each axis."""
+    mi, mj, mk = i[0] // k, i[1] // k, i[2] // k
+    m = mi + mdims[0] * (mj + mdims[1] * mk)
+    tmx = _macro_exit_t(lo[0], c[0], mi, k, n[0], ray.s[0], ray.o[0], ray.inv[0])
+    tmy = _macro_exit_t(lo[1], c[1], mj, k, n[1], ray.s[1], ray.o[1], ray.inv[1])
+    tmz = _macro_exit_t(lo[2], c[2], mk, k, n[2], ray.s[2], ray.o[2], ray.inv[2])
+    return mi, mj, mk, m, tmx, tmy, tmz
+
+
+@njit(cache=True, inline="always")
+def _block_box(bi, k, n):
+    """The cells [x0, x1) x [y0, y1) x [z0, z1) of macro cell bi (the last ones cut at the grid's
+    n cells): ((x0, y0, z0), (x1, y1, z1))."""
+    x0, y0, z0 = bi[0] * k, bi[1] * k, bi[2] * k
+    return (x0, y0, z0), (min(x0 + k, n[0]), min(y0 + k, n[1]), min(z0 + k, n[2]))
+
+
+@njit(cache=True, inline="always")
+def _entry_cells(lo, inv_cell, n, ray, t_in, b0, b1, entered):
+    """The cell where the :class:`Ray` ``ray`` enters the block of cells [b0, b1) at t_in through
+    axis ``entered`` (:func:`_entry_cell` along each axis)."""
+    o, d, s = ray.o, ray.d, ray.s
+    return (_entry_cell(lo[0], inv_cell[0], n[0], o[0], d[0], t_in, b0[0], b1[0], s[0], entered == 0),
+            _entry_cell(lo[1], inv_cell[1], n[1], o[1], d[1], t_in, b0[1], b1[1], s[1], entered == 1),
+            _entry_cell(lo[2], inv_cell[2], n[2], o[2], d[2], t_in, b0[2], b1[2], s[2], entered == 2))
+
+
 @one_per_types
 @njit(cache=True, _nrt=False)
 def trace_ray(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
@@ -510,12 +541,9 @@ def _trace_near(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
     if not (t0 <= t1):
         return -1, np.inf, 0.0, 0.0, 0, 0
 
-    ox, oy, oz = o
-    dx, dy, dz = d
     nx, ny, nz = dims[0], dims[1], dims[2]
     ix, iy, iz, ray = _ray_setup(lo, inv_cell, dims, o, d, t0, tmin, watertight, any_hit, mailbox)
     buf = mailbox[MAILBOX:].view(np.float64)
-    sx, sy, sz = ray.s
 
     best_t = tmax
     best_f = -1
@@ -523,10 +551,8 @@ def _trace_near(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
     best_v = 0.0
     cells = 0
     tests = 0
-    lx, ly, lz = lo[0], lo[1], lo[2]
-    cx, cy, cz = cell[0], cell[1], cell[2]
-    l3 = (lx, ly, lz)
-    c3 = (cx, cy, cz)
+    l3 = (lo[0], lo[1], lo[2])
+    c3 = (cell[0], cell[1], cell[2])
     n3 = (nx, ny, nz)
     # two nested DDAs: over macro cells (k^3 cells), and over the cells of each macro cell that
     # holds triangles.  The macro cell's indices and its exits along each axis are kept from
@@ -534,30 +560,21 @@ def _trace_near(g, o, d, tmin, tmax, watertight, any_hit, mailbox):
     # macro cell holds triangles.
     k = macro
     mx, my, mz = mdims[0], mdims[1], mdims[2]
-    mi = ix // k
-    mj = iy // k
-    mk = iz // k
-    m = mi + mx * (mj + my * mk)
-    tmx = _macro_exit_t(lx, cx, mi, k, nx, sx, ox, ray.inv[0])
-    tmy = _macro_exit_t(ly, cy, mj, k, ny, sy, oy, ray.inv[1])
-    tmz = _macro_exit_t(lz, cz, mk, k, nz, sz, oz, ray.inv[2])
+    mi, mj, mk, m, tmx, tmy, tmz = _macro_start(l3, c3, n3, k, (mx, my, mz), (ix, iy, iz), ray)
     entered = -1  # the axis the ray entered the current macro cell through (-1: it starts in it)
     t_in = t0
     while True:
         if macro_full[m] != 0:
-            # the macro cell's cells: [x0, x1) x [y0, y1) x [z0, z1) (the last ones cut at the grid)
-            x0, y0, z0 = mi * k, mj * k, mk * k
-            x1, y1, z1 = min(x0 + k, nx), min(y0 + k, ny), min(z0 + k, nz)
+            # the macro cell's cells: [b0, b1) (the last ones cut at the grid)
+            b0, b1 = _block_box((mi, mj, mk), k, n3)
             if entered >= 0:
-                ix = _entry_cell(lx, inv_cell[0], nx, ox, dx, t_in, x0, x1, sx, entered == 0)
-                iy = _entry_cell(ly, inv_cell[1], ny, oy, dy, t_in, y0, y1, sy, entered == 1)
-                iz = _entry_cell(lz, inv_cell[2], nz, oz, dz, t_in, z0, z1, sz, entered == 2)
+                ix, iy, iz = _entry_cells(l3, inv_cell, n3, ray, t_in, b0, b1, entered)
             c = ix + nx * (iy + ny * iz)
             while True:
                 cells += 1
                 # the next cell first (the step does not depend on the tests), and its range's load
                 # started before the tests of this one
-                te, ix, iy, iz, leaves = _next_cell(ray, l3, c3, (ix, iy, iz), (x0, y0, z0), (x1, y1, z1))
+                te, ix, iy, iz, leaves = _next_cell(ray, l3, c3, (ix, iy, iz), b0, b1)
                 cn = ix + nx * (iy + ny * iz)
                 if not leaves:
                     prefetch_range(cell_start, cn)
