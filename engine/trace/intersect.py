@@ -82,6 +82,25 @@ def woop_shear(p0, p1, p2, ok, Sx, Sy):
 
 
 @njit(cache=True, inline="always")
+def gather_rows(tris, ids, i0, m, kx, ky, kz, rows, C):
+    """The triangles ids[i0], ..., ids[i0 + m - 1] of tris ((F, 3, 3)) into the lanes 0..m-1 of
+    the rows of ``rows`` (a row of C lanes each): row 3 v + a holds coordinate (kx, ky, kz)[a] of
+    vertex v (permuted by a ray's shear, as :func:`woop_shear` takes them), in rows' precision;
+    the loops that test C triangles side by side read them from there."""
+    for j in range(m):
+        f = ids[i0 + j]
+        rows[j] = tris[f, 0, kx]
+        rows[C + j] = tris[f, 0, ky]
+        rows[2 * C + j] = tris[f, 0, kz]
+        rows[3 * C + j] = tris[f, 1, kx]
+        rows[4 * C + j] = tris[f, 1, ky]
+        rows[5 * C + j] = tris[f, 1, kz]
+        rows[6 * C + j] = tris[f, 2, kx]
+        rows[7 * C + j] = tris[f, 2, ky]
+        rows[8 * C + j] = tris[f, 2, kz]
+
+
+@njit(cache=True, inline="always")
 def woop_edges(Ax, Ay, Bx, By, Cx, Cy):
     """The edge functions (U, V, W) of a sheared triangle (see :func:`woop_shear`).  Each is a
     difference of two products of the same vertex coordinates, so a shared edge gives the two

@@ -38,7 +38,8 @@ from numba import njit
 from ..compiles import inner, one_per_types
 from ..grid.two_level import leaf_axis
 from .grids import is_two_level, with_leaves_only
-from .intersect import intersect_fast, intersect_watertight, ray_shear, woop_edges, woop_shear, woop_terms
+from .intersect import (gather_rows, intersect_fast, intersect_watertight, ray_shear, woop_edges, woop_shear,
+                        woop_terms)
 from .prefetch import prefetch_range, prefetch_triangles
 from .query import Ray, Shear
 
@@ -343,17 +344,7 @@ def _test_cell_wt(tris, tri_ids, r0, r1, buf, ray, best, tests):
     C = CHUNK
     for c0 in range(r0, r1, C):
         m = min(C, r1 - c0)
-        for j in range(m):
-            f = tri_ids[c0 + j]
-            buf[j] = tris[f, 0, kx]
-            buf[C + j] = tris[f, 0, ky]
-            buf[2 * C + j] = tris[f, 0, kz]
-            buf[3 * C + j] = tris[f, 1, kx]
-            buf[4 * C + j] = tris[f, 1, ky]
-            buf[5 * C + j] = tris[f, 1, kz]
-            buf[6 * C + j] = tris[f, 2, kx]
-            buf[7 * C + j] = tris[f, 2, ky]
-            buf[8 * C + j] = tris[f, 2, kz]
+        gather_rows(tris, tri_ids, c0, m, kx, ky, kz, buf, C)
         for j in range(C):  # (a fixed trip count: whole vectors, no scalar remainder; lanes m.. hold
             # whatever the scratch held, and their results are never read)
             Ax, Ay, Bx, By, Cx, Cy, az, bz, cz = woop_shear(
