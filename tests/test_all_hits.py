@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from numba import njit
 
 import gridrt
 from gridrt.config import GridParams
@@ -16,6 +17,7 @@ from gridrt.errors import InputError
 from gridrt.scene import icosphere_mesh
 from gridrt.trace import all_hits as ah
 from gridrt.trace.all_hits import det2_sign
+from gridrt.trace.intersect import ray_shear
 from reference import ref_all_hits
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets"
@@ -436,3 +438,90 @@ def test_rays_in_cache_order_give_the_callers_order(monkeypatch):
         compared += 1
         assert counts[i] == np.count_nonzero((t > tmin[i]) & (t < tmax[i])), i
     assert compared > 0.95 * N
+
+
+@njit
+def _lanes_and_once(tris, o, d, tmin, tmax, sizes, lanes, once):
+    """Every triangle of tris against the ray (o, d): through ah._test_lanes in chunks of
+    sizes[k % len(sizes)] triangles, its hits into the HitBuffers ``lanes``, and through
+    ah.intersect_once one at a time, into ``once``; the two counts."""
+    sh = ray_shear((o[0], o[1], o[2]), (d[0], d[1], d[2]))
+    s = ah.hit_scratch()
+    pend, rows = s.pend, s.rows
+    n_lanes = np.int64(0)
+    f0, k = 0, 0
+    while f0 < len(tris):
+        m = min(sizes[k % len(sizes)], len(tris) - f0)
+        for j in range(m):
+            pend[j] = f0 + j
+        n_lanes = ah._test_lanes(tris, pend, np.int64(m), rows, sh, tmin, tmax, n_lanes, lanes)
+        f0 += m
+        k += 1
+    n_once = 0
+    for f in range(len(tris)):
+        hit, t, u, v = ah.intersect_once(tris, f, sh, tmin, tmax)
+        if hit:
+            once.t[n_once], once.tri[n_once], once.u[n_once], once.v[n_once] = t, f, u, v
+            n_once += 1
+    return n_lanes, n_once
+
+
+def _undecided(tris, o, d):
+    """Whether any edge function of any triangle at the ray is exactly 0 in float64 (numpy's own
+    shear: the lanes must hand such a triangle to the exact test)."""
+    k = int(np.argmax(np.abs(d)))
+    kx, ky = (k + 1) % 3, (k + 2) % 3
+    if d[k] < 0:
+        kx, ky = ky, kx
+    p = tris.astype(np.float64) - o
+    x = p[..., kx] - d[kx] / d[k] * p[..., k]
+    y = p[..., ky] - d[ky] / d[k] * p[..., k]
+    e = [x[:, b] * y[:, a] - y[:, b] * x[:, a] for a, b in ((1, 2), (2, 0), (0, 1))]
+    return bool(np.any(np.stack(e) == 0.0))
+
+
+def test_side_by_side_lanes_equal_one_at_a_time():
+    """The walk tests the triangles it collects side by side, LANES at a time (_test_lanes), and
+    hands a lane whose float64 edge values do not decide their signs to the one-at-a-time exact
+    test: for every chunk size, on rays through a flat mesh of integer coordinates exactly at its
+    vertices and edges (edge functions exactly 0: the exact test's tie rule), tilted rays, and
+    random rays through the icosphere with t ranges, the hits are intersect_once's, triangle for
+    triangle, bit for bit in t, u and v."""
+    # a 6 x 6 square of unit cells, two triangles each, in the plane z = 0
+    n = 6
+    ii, jj = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+    V = np.column_stack([ii.ravel(), jj.ravel(), np.zeros(ii.size)]).astype(np.float64)
+    at = lambda i, j: i * (n + 1) + j
+    F = np.array([q for i in range(n) for j in range(n)
+                  for q in ([at(i, j), at(i + 1, j), at(i + 1, j + 1)], [at(i, j), at(i + 1, j + 1), at(i, j + 1)])])
+    flat = np.ascontiguousarray(V[F], np.float32)
+    rays = []
+    for x in np.arange(1.0, n, 0.5):          # vertices and edge midpoints, straight down and tilted
+        for y in np.arange(1.0, n, 0.5):
+            rays += [((x, y, 2.0), (0.0, 0.0, -1.0)), ((x, y, 2.0), (0.0, 0.0, 1.0)),
+                     ((x - 1.0, y - 0.5, 2.0), (0.5, 0.25, -1.0)), ((x + 2.0, y, 1.0), (-2.0, 0.0, -1.0))]
+    m = icosphere_mesh(1280)
+    sphere = np.ascontiguousarray(m.vertices[m.faces], np.float32)
+    rng = np.random.default_rng(12)
+    cases = [(flat, np.array(o, np.float64), np.array(d, np.float64), 0.0, np.inf) for o, d in rays]
+    for _ in range(40):
+        o = rng.normal(size=3) * 2.0
+        cases.append((sphere, o, rng.uniform(-0.5, 0.5, 3) - o, rng.uniform(0, 0.3), rng.choice([np.inf, 0.6])))
+    for t_ in m.vertices[rng.integers(0, len(m.vertices), 20)]:   # rays at the sphere's vertices
+        o = 3.0 * rng.normal(size=3)
+        cases.append((sphere, o, t_ - o, 0.0, np.inf))
+    buffers = lambda: ah.HitBuffers(np.empty(2000), np.empty(2000, np.int32), np.empty(2000), np.empty(2000))
+    undecided = flat_hits = 0
+    for c, (tris, o, d, tmin, tmax) in enumerate(cases):
+        sizes = np.array([ah.LANES, 1 + c % ah.LANES, 3], np.int64)
+        lanes, once = buffers(), buffers()
+        nl, no = _lanes_and_once(tris, o, d, tmin, tmax, sizes, lanes, once)
+        a = np.argsort(lanes.tri[:nl])
+        assert nl == no, c
+        for x, y in zip(lanes, once):
+            assert np.array_equal(x[:nl][a], y[:no]), c
+        undecided += _undecided(tris, o, d)
+        if tris is flat and d[2] != 0 and tmax == np.inf:
+            flat_hits += nl
+            assert nl == (1 if (o[2] > 0) == (d[2] < 0) else 0), c   # one triangle where the ray meets the plane
+    assert undecided > 100 and flat_hits > 100, (undecided, flat_hits)

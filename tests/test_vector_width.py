@@ -116,20 +116,44 @@ print(json.dumps({"features": config.CPU_FEATURES or "", "zmm_pd": sum("zmm" in 
 """
 
 
+_PROBE_ALL_HITS = r"""
+import json, re
+import numpy as np
+import gridrt
+from numba import njit
+from gridrt.trace import all_hits as ah
+from gridrt.trace.intersect import ray_shear
+
+@njit
+def one(tris, pend, rows, buf):
+    sh = ray_shear((0.1, 0.2, -1.0), (0.0, 0.0, 1.0))
+    return ah._test_lanes(tris, pend, np.int64(ah.LANES), rows, sh, 0.0, np.inf, np.int64(0), buf)
+
+tris = np.random.default_rng(0).uniform(0, 1, (50, 3, 3)).astype(np.float32)
+buf = ah.HitBuffers(np.empty(50), np.empty(50, np.int32), np.empty(50), np.empty(50))
+one(tris, np.arange(ah.LANES, dtype=np.int32), np.zeros(ah.LANE_ROWS * ah.LANES), buf)
+asm = one.overloads[one.signatures[0]].library.get_asm_str()
+ops = re.findall(r"^\s+(v(?:sub|mul|add)pd)\s+([^\n]*)", asm, re.M)
+print(json.dumps({"zmm_pd": sum("zmm" in a for _, a in ops),
+                  "ymm_pd": sum("ymm" in a and "zmm" not in a for _, a in ops)}))
+"""
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("width", WIDTHS)
-def test_single_ray_cell_test_width(tmp_path, width):
-    """The single-ray traversal tests a crowded cell's triangles side by side
-    (gridrt.trace.traverse._test_cell_wt): its compiled code (trace_ray, in a fresh process and
-    cache) holds packed-double subtractions, products and divisions, in zmm registers with the
-    default width on an AVX-512 CPU and in ymm ones with GRIDRT_VECTOR_WIDTH=256 (scalar code
-    has none)."""
-    r = _run_probe(tmp_path, width, _PROBE_SINGLE)
-    print(width, r["zmm_pd"], "zmm packed-double ops,", r["ymm_pd"], "ymm")
+@pytest.mark.parametrize("what", ["the single-ray cell test", "the all-hits lane test"])
+def test_packed_double_width(tmp_path, width, what):
+    """Two loops test triangles side by side in float64 lanes: the single-ray traversal's crowded
+    cells (gridrt.trace.traverse._test_cell_wt, compiled in trace_ray) and the all-hits walk's
+    collected triangles (gridrt.trace.all_hits._test_lanes).  In a fresh process and cache, the
+    compiled code of each holds packed-double arithmetic, in zmm registers with the default width
+    on an AVX-512 CPU and in ymm ones with GRIDRT_VECTOR_WIDTH=256 (scalar code has none)."""
+    r = _run_probe(tmp_path, width, _PROBE_SINGLE if what.startswith("the single") else _PROBE_ALL_HITS)
+    print(what, width, r["zmm_pd"], "zmm packed-double ops,", r["ymm_pd"], "ymm")
     if width == "auto" and AVX512:
-        assert r["zmm_pd"] >= 20, "the single-ray cell test does not use 512-bit registers"
+        assert r["zmm_pd"] >= 20, f"{what} does not use 512-bit registers"
     else:
-        assert r["zmm_pd"] == 0 and r["ymm_pd"] >= 20, "the single-ray cell test is not 4-wide ymm code"
+        assert r["zmm_pd"] == 0 and r["ymm_pd"] >= 20, f"{what} is not 4-wide ymm code"
 
 
 _WARM_CAMERA = r"""

@@ -20,12 +20,13 @@ Triangles whose plane contains the ray (det = 0) are never hit.  A hit needs t_m
 
 The traversal visits the grid's cells along the ray with a 3D DDA from the box entry to the exit
 or t_max (macro cells, and the cells of those that hold triangles; a two-level grid's top cells,
-and the leaf cells of those that hold triangles), tests the triangles listed in each, each once
-as far as a small mailbox remembers, and keeps each triangle's hit once (a triangle listed in
-several cells gives the same hit each time).  The hits of a ray are sorted by t, ties by triangle
-id.  A large batch on a large mesh is walked in the order of its rays' origins along a Morton
-curve (:func:`order_keys`), so that rays from nearby points meet the same cells one after
-another, and its results are put back in the caller's order.
+and the leaf cells of those that hold triangles), collects the triangles listed in each, each
+once as far as a small mailbox remembers, tests them LANES at a time side by side (a ray's hits
+do not depend on the order of its tests: there is no early exit), and keeps each triangle's hit
+once (a triangle listed in several cells gives the same hit each time).  The hits of a ray are
+sorted by t, ties by triangle id.  A large batch on a large mesh is walked in the order of its
+rays' origins along a Morton curve (:func:`order_keys`), so that rays from nearby points meet
+the same cells one after another, and its results are put back in the caller's order.
 """
 
 import math
@@ -43,7 +44,7 @@ from ..grid.two_level import leaf_axis
 from ..memory import check_fits
 from ..threads import check_threads, launch_guard, on_threads, use_threads
 from .cgt.rays import direction_class
-from .intersect import ray_shear, woop_shear
+from .intersect import gather_rows, ray_shear, woop_shear
 from .prefetch import prefetch_range, prefetch_triangles
 
 
@@ -70,6 +71,10 @@ def _two_sum(a, b):
 
 #: slots of a ray's mailbox (direct-mapped by triangle id; a power of two)
 MAILBOX = 32
+#: triangles a ray's walk collects before it tests them side by side (:func:`_test_lanes`)
+LANES = 8
+#: rows of _test_lanes' scratch
+LANE_ROWS = 14
 #: on a mesh of at least this many triangles (2.4 MB of them) the walk starts the loads of a
 #: cell's triangles before it tests them, so that their cache misses overlap (HitGrid.prefetch);
 #: on smaller ones, which stay in the caches, that pass over the cell's list costs more than it
@@ -172,6 +177,65 @@ def intersect_once(tris, f, sh, tmin, tmax):
     return True, t, V / det, W / det
 
 
+@inner(cache=True, _nrt=False, error_model="numpy")
+def _test_lanes(tris, pend, m, rows, sh, tmin, tmax, nh, buf):
+    """The triangles pend[:m] (m <= LANES) against the ray of the Shear sh, side by side: their
+    vertices gathered into the float64 rows of ``rows`` (permuted by the shear), then Woop's test
+    of each in one loop over LANES lanes without branches, which LLVM vectorizes (lanes m.. compute
+    on stale scratch, unread).  A lane whose three edge functions' float64 values decide their
+    signs is a hit or a miss exactly as :func:`intersect_once` finds it (the same operations in the
+    same order); a lane where a value does not decide its sign, and two decided signs do not
+    already disagree, goes to intersect_once.  The hits go into buf (:func:`_add_hit`); returns the
+    new count, or -1 when they do not fit.  Compiled once for ray_hits' two calls (_nrt=False:
+    numba does not inline it), with numpy's error model (no check of the division by det, which a
+    zero det never reaches as 0)."""
+    kx, ky, kz, okx, oky, okz, Sx, Sy, Sz = sh
+    bt, bf, bu, bv = buf
+    C = LANES
+    gather_rows(tris, pend, 0, m, kx, ky, kz, rows, C)
+    for j in range(C):
+        Ax, Ay, Bx, By, Cx, Cy, az, bz, cz = woop_shear(
+            (rows[j], rows[C + j], rows[2 * C + j]), (rows[3 * C + j], rows[4 * C + j], rows[5 * C + j]),
+            (rows[6 * C + j], rows[7 * C + j], rows[8 * C + j]), (okx, oky, okz), Sx, Sy)
+        # the edge functions as _edge computes them, and whether each value decides its sign
+        x, y = Cx * By, Cy * Bx
+        U = x - y
+        tu = abs(U) > TRUST * (abs(x) + abs(y))
+        x, y = Ax * Cy, Ay * Cx
+        V = x - y
+        tv = abs(V) > TRUST * (abs(x) + abs(y))
+        x, y = Bx * Ay, By * Ax
+        W = x - y
+        tw = abs(W) > TRUST * (abs(x) + abs(y))
+        pos = (tu & (U > 0.0)) | (tv & (V > 0.0)) | (tw & (W > 0.0))
+        neg = (tu & (U < 0.0)) | (tv & (V < 0.0)) | (tw & (W < 0.0))
+        det = U + V + W
+        t = (U * (Sz * az) + V * (Sz * bz) + W * (Sz * cz)) / (det if det != 0.0 else 1.0)
+        hit = (det != 0.0) & (tmin < t) & (t < tmax)
+        decided = tu & tv & tw
+        # 0: a miss, 1: a hit, 2: for intersect_once
+        rows[9 * C + j] = 0.0 if (pos & neg) else (2.0 if not decided else (1.0 if hit else 0.0))
+        rows[10 * C + j] = t
+        rows[11 * C + j] = V
+        rows[12 * C + j] = W
+        rows[13 * C + j] = det
+    for j in range(m):
+        how = rows[9 * C + j]
+        if how == 0.0:
+            continue
+        f = pend[j]
+        if how == 1.0:
+            det = rows[13 * C + j]
+            nh = _add_hit(f, rows[10 * C + j], rows[11 * C + j] / det, rows[12 * C + j] / det, nh, bt, bf, bu, bv)
+        else:
+            hit, t, u, v = intersect_once(tris, f, sh, tmin, tmax)
+            if hit:
+                nh = _add_hit(f, t, u, v, nh, bt, bf, bu, bv)
+        if nh < 0:
+            return -1
+    return nh
+
+
 @inner(cache=True)
 def _clip(lo, hi, o, d, tmin, tmax):
     t0, t1 = tmin, tmax
@@ -249,19 +313,21 @@ def _leaf_block(g, m, top):
 
 
 @inner(cache=True)
-def ray_hits(g, o, d, tmin, tmax, buf, mb, leaf_first):
+def ray_hits(g, o, d, tmin, tmax, buf, scratch, leaf_first):
     """The hits of the ray from o along d ((3,) float64) with tmin < t < tmax in the
     :data:`HitGrid` g, each triangle once, into the :data:`HitBuffers` buf (unsorted); their
     count, or -1 when they do not fit.  Two nested DDAs: over the macro cells (k^3 cells; an
     empty one is crossed in one step) and over the cells of each macro cell that holds triangles
     (a two-level grid: over its top cells, and the leaf cells of each that holds triangles).
-    mb ((MAILBOX,) int32 scratch): a mailbox, so that a triangle listed in the cells the ray
-    crossed last is not tested again (a test gives the same hit every time).  leaf_first: g's,
+    scratch (:data:`HitScratch`): its mailbox, so that a triangle listed in the cells the ray
+    crossed last is not tested again (a test gives the same hit every time), and the triangles
+    collected for the next side-by-side test (:func:`_test_lanes`, once LANES are collected and
+    once at the end of the walk), with that test's rows.  leaf_first: g's,
     an argument of its own so that for a uniform grid (None) numba prunes the leaf walk before
     compiling (through gridrt.trace.grids.is_two_level the first count_hits compiled 0.3 s
     longer)."""
     tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids, _, _, prefetch = g
-    bt, bf, bu, bv = buf
+    mb, pend, rows = scratch
     t0, t1 = _clip(lo, hi, o, d, tmin, tmax)
     if not (t0 <= t1):
         return 0
@@ -281,7 +347,9 @@ def ray_hits(g, o, d, tmin, tmax, buf, mb, leaf_first):
     msy, mty, mdty = _axis(oy, dy, lo[1], by, mj)
     msz, mtz, mdtz = _axis(oz, dz, lo[2], bz, mk)
     L = cs.shape[0]
-    nh = 0
+    # (typed as the counts they become: a literal 0 would compile _test_lanes once more)
+    nh = np.int64(0)
+    npend = np.int64(0)
     tin = t0
     while True:
         tout = min(mtx, mty, mtz)
@@ -327,11 +395,13 @@ def ray_hits(g, o, d, tmin, tmax, buf, mb, leaf_first):
                         if mb[slot] == f:
                             continue
                         mb[slot] = f
-                        hit, t, u, v = intersect_once(tris, f, sh, tmin, tmax)
-                        if hit:
-                            nh = _add_hit(f, t, u, v, nh, bt, bf, bu, bv)
+                        pend[npend] = f
+                        npend += 1
+                        if npend == LANES:
+                            nh = _test_lanes(tris, pend, npend, rows, sh, tmin, tmax, nh, buf)
                             if nh < 0:
                                 return -1
+                            npend = 0
                 if stop:
                     break
                 c = cn
@@ -345,6 +415,8 @@ def ray_hits(g, o, d, tmin, tmax, buf, mb, leaf_first):
         if stop:
             break
         tin = tout
+    if npend:
+        nh = _test_lanes(tris, pend, npend, rows, sh, tmin, tmax, nh, buf)
     return nh
 
 
@@ -369,13 +441,13 @@ def count_kernel(g, rays, cap, chunks, counts, nxt):
     O, D, tmin, tmax = rays
     N = len(O)
     buf = HitBuffers(np.empty(cap), np.empty(cap, np.int32), np.empty(cap), np.empty(cap))
-    mb = np.empty(MAILBOX, np.int32)
+    scratch = hit_scratch()
     while True:
         part = atomic_add(nxt, 0, np.int64(1))
         if part >= chunks:
             break
         for i in range(part * N // chunks, (part + 1) * N // chunks):
-            counts[i] = ray_hits(g, O[i], D[i], tmin[i], tmax[i], buf, mb, g.leaf_first)
+            counts[i] = ray_hits(g, O[i], D[i], tmin[i], tmax[i], buf, scratch, g.leaf_first)
 
 
 @njit(cache=True, nogil=True)
@@ -389,13 +461,13 @@ def slot_kernel(g, rays, cap, chunks, counts, slots, nxt):
     N = len(O)
     buf = HitBuffers(np.empty(cap), np.empty(cap, np.int32), np.empty(cap), np.empty(cap))
     bt, bf, bu, bv = buf
-    mb = np.empty(MAILBOX, np.int32)
+    scratch = hit_scratch()
     while True:
         part = atomic_add(nxt, 0, np.int64(1))
         if part >= chunks:
             break
         for i in range(part * N // chunks, (part + 1) * N // chunks):
-            nh = ray_hits(g, O[i], D[i], tmin[i], tmax[i], buf, mb, g.leaf_first)
+            nh = ray_hits(g, O[i], D[i], tmin[i], tmax[i], buf, scratch, g.leaf_first)
             counts[i] = nh
             if nh > 0:
                 sort_hits(bt, bf, bu, bv, nh)
@@ -409,6 +481,17 @@ def _on_chunks(kernel, threads, g, rays, cap, chunks, *out):
     the same counts and hits on any number of threads, as each ray's are its own."""
     nxt = np.zeros(1, np.int64)
     on_threads(max(1, min(threads, chunks)), lambda k: kernel(g, rays, cap, chunks, *out, nxt))
+
+
+#: one worker's scratch for ray_hits: the mailbox (MAILBOX,) int32, the triangles collected for the
+#: next side-by-side test (LANES,) int32, and that test's rows (LANE_ROWS * LANES,) float64
+HitScratch = namedtuple("HitScratch", "mb pend rows")
+
+
+@inner(cache=True)
+def hit_scratch():
+    """A fresh :data:`HitScratch`."""
+    return HitScratch(np.empty(MAILBOX, np.int32), np.empty(LANES, np.int32), np.zeros(LANE_ROWS * LANES))
 
 
 #: the grid as the all-hits kernels take it: the grid's (F, 3, 3) float32 triangles, its box lo,
