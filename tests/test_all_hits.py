@@ -48,15 +48,17 @@ def test_det2_sign_exact():
 @pytest.mark.parametrize("mesh, grid, prefetch", [("icosphere", "uniform", False), ("icosphere", "two_level", False),
                                                   ("icosphere", "uniform", True), ("icosphere", "two_level", True),
                                                   ("ellipsoid", "two_level", False),
+                                                  ("soup", "uniform", False), ("soup", "uniform", True),
                                                   pytest.param("armadillo", "uniform", False, marks=pytest.mark.slow)])
 def test_all_hits_against_brute_force(monkeypatch, mesh, grid, prefetch):
     """Random rays (origins inside and around the mesh): the hits, in order, are the float64 brute
     force's, triangle for triangle, wherever no brute-force hit lies within 1e-6 (barycentric) of
-    an edge; count_hits agrees with all_hits; every ray's crossings of the closed mesh pair up
+    an edge; count_hits agrees with all_hits; every ray's crossings of a closed mesh pair up
     (even counts from outside the bounds).  The ellipsoid's two-level grid has leaf grids of
-    different resolutions along the three axes.  With ``prefetch`` the walk starts the loads of
-    each cell's triangles before it tests them (which it does on large meshes only) on this
-    small one."""
+    different resolutions along the three axes.  The soup of small triangles fills its box, so
+    every macro cell holds triangles and rays list more cells than the walk visits at once
+    (all_hits.CELLS).  With ``prefetch`` the walk starts the loads of its cells' references and
+    triangles before it tests them (which it does on large meshes only) on these small ones."""
     walks = []
     if prefetch:
         monkeypatch.setattr(ah, "PREFETCH_TRIANGLES", 1)
@@ -70,6 +72,11 @@ def test_all_hits_against_brute_force(monkeypatch, mesh, grid, prefetch):
     if mesh in ("icosphere", "ellipsoid"):
         m = icosphere_mesh(5120)
         V, Fc = m.vertices * ([1.0, 1.7, 0.6] if mesh == "ellipsoid" else 1.0), m.faces
+    elif mesh == "soup":
+        r = np.random.default_rng(3)
+        centres = (np.stack(np.meshgrid(*[np.arange(12)] * 3, indexing="ij"), -1).reshape(-1, 1, 3) + 0.5) / 12
+        V = (centres + r.normal(0, 0.05, (len(centres), 3, 3))).reshape(-1, 3)   # one on each point of a lattice
+        Fc = np.arange(len(V)).reshape(-1, 3)
     else:
         V, Fc = _armadillo()
     caster = gridrt.RayCaster(V, Fc, GridParams(grid=grid))
@@ -96,8 +103,19 @@ def test_all_hits_against_brute_force(monkeypatch, mesh, grid, prefetch):
         assert np.allclose(got.t[s], t, rtol=1e-9, atol=0) and np.allclose(got.u[s], u, atol=1e-9) \
             and np.allclose(got.v[s], v, atol=1e-9)
     assert compared > 0.95 * N and got.counts().sum() > N, (compared, got.counts().sum())
-    outside = np.any((O < lo) | (O > hi), axis=1)
-    assert np.all(got.counts()[outside] % 2 == 0)
+    if mesh == "soup":   # the cells of the box a ray crosses (every one listed: all macro cells hold triangles)
+        assert np.all(caster.grid.macro_full)
+        sp = caster.grid.spec
+        cell, dims, glo = np.asarray(sp.cell), np.asarray(sp.dims), np.asarray(sp.lo) + caster.origin
+        inv = 1.0 / np.where(D == 0, 1e-300, D)
+        ta, tb = (glo - O) * inv, (glo + dims * cell - O) * inv
+        t0, t1 = np.maximum(np.minimum(ta, tb).max(1), 0), np.maximum(ta, tb).min(1)
+        at = lambda t: np.clip(np.floor((O + t[:, None] * D - glo) / cell), 0, dims - 1)
+        crossed = np.where(t0 < t1, np.abs(at(t1) - at(t0)).sum(1) + 1, 0)
+        assert crossed.max() > ah.CELLS, crossed.max()
+    else:
+        outside = np.any((O < lo) | (O > hi), axis=1)
+        assert np.all(got.counts()[outside] % 2 == 0)
     assert walks and set(walks) == {prefetch}
 
 

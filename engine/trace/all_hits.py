@@ -45,7 +45,7 @@ from ..memory import check_fits
 from ..threads import check_threads, launch_guard, on_threads, use_threads
 from .cgt.rays import direction_class
 from .intersect import gather_rows, ray_shear, woop_shear
-from .prefetch import prefetch_range, prefetch_triangles
+from .prefetch import prefetch_ids, prefetch_range, prefetch_triangles
 
 
 @njit(cache=True, inline="always")
@@ -75,10 +75,12 @@ MAILBOX = 32
 LANES = 8
 #: rows of _test_lanes' scratch
 LANE_ROWS = 14
-#: on a mesh of at least this many triangles (2.4 MB of them) the walk starts the loads of a
-#: cell's triangles before it tests them, so that their cache misses overlap (HitGrid.prefetch);
-#: on smaller ones, which stay in the caches, that pass over the cell's list costs more than it
-#: saves (measured: BENCHMARKS.md section 18)
+#: cells a ray's walk lists before it visits them (_visit_cells)
+CELLS = 32
+#: on a mesh of at least this many triangles (2.4 MB of them) the walk starts the loads of its
+#: listed cells' references, then of their triangles, before it tests them, so that their cache
+#: misses overlap (HitGrid.prefetch, _visit_cells); on smaller ones, which stay in the caches,
+#: those passes over the cells' lists cost more than they save (measured: BENCHMARKS.md section 18)
 PREFETCH_TRIANGLES = 1 << 16
 #: a 2x2 determinant a d - b c whose float64 value exceeds this fraction of |a d| + |b c| has that
 #: value's sign (the rounding of two products and a difference stays below 3 units of 2^-53 of it)
@@ -319,15 +321,17 @@ def ray_hits(g, o, d, tmin, tmax, buf, scratch, leaf_first):
     count, or -1 when they do not fit.  Two nested DDAs: over the macro cells (k^3 cells; an
     empty one is crossed in one step) and over the cells of each macro cell that holds triangles
     (a two-level grid: over its top cells, and the leaf cells of each that holds triangles).
-    scratch (:data:`HitScratch`): its mailbox, so that a triangle listed in the cells the ray
-    crossed last is not tested again (a test gives the same hit every time), and the triangles
-    collected for the next side-by-side test (:func:`_test_lanes`, once LANES are collected and
-    once at the end of the walk), with that test's rows.  leaf_first: g's,
+    The walk lists the cells it crosses (starting the load of each one's range as it lists it)
+    and visits them CELLS at a time and at its end (:func:`_visit_cells`), which collects their
+    triangles and tests them LANES at a time (:func:`_test_lanes`).  scratch
+    (:data:`HitScratch`): the mailbox, so that a triangle listed in the cells the ray crossed last
+    is not tested again (a test gives the same hit every time), the triangles collected for the
+    next test and that test's rows, and the cells listed.  leaf_first: g's,
     an argument of its own so that for a uniform grid (None) numba prunes the leaf walk before
     compiling (through gridrt.trace.grids.is_two_level the first count_hits compiled 0.3 s
     longer)."""
-    tris, lo, hi, cell, dims, k, mdims, macro_full, cs, tri_ids, _, _, prefetch = g
-    mb, pend, rows = scratch
+    tris, lo, hi, cell, dims, k, mdims, macro_full, cs, _, _, _, _ = g
+    mb, pend, rows, todo = scratch
     t0, t1 = _clip(lo, hi, o, d, tmin, tmax)
     if not (t0 <= t1):
         return 0
@@ -346,10 +350,10 @@ def ray_hits(g, o, d, tmin, tmax, buf, scratch, leaf_first):
     msx, mtx, mdtx = _axis(ox, dx, lo[0], bx, mi)
     msy, mty, mdty = _axis(oy, dy, lo[1], by, mj)
     msz, mtz, mdtz = _axis(oz, dz, lo[2], bz, mk)
-    L = cs.shape[0]
     # (typed as the counts they become: a literal 0 would compile _test_lanes once more)
     nh = np.int64(0)
     npend = np.int64(0)
+    nt = np.int64(0)
     tin = t0
     while True:
         tout = min(mtx, mty, mtz)
@@ -374,37 +378,25 @@ def ray_hits(g, o, d, tmin, tmax, buf, scratch, leaf_first):
             sz, tz, dtz = _axis(oz, dz, blo[2], bsz[2], iz)
             tend = min(tout, t1)
             c = base + ix * st[0] + iy * st[1] + iz * st[2]
+            prefetch_range(cs, c)
             while True:
-                # the step first (it does not depend on the hits), so that the next cell's range
-                # loads while this cell's triangles are tested
+                todo[nt] = c
+                nt += 1
+                if nt == CELLS:
+                    nh, npend = _visit_cells(g, todo, nt, sh, tmin, tmax, nh, npend, buf, scratch)
+                    if nh < 0:
+                        return -1
+                    nt = 0
                 if tx <= ty and tx <= tz:
                     stop, ix, tx = _advance(ix, sx, tx, dtx, x0, x1, tend)
                 elif ty <= tz:
                     stop, iy, ty = _advance(iy, sy, ty, dty, y0, y1, tend)
                 else:
                     stop, iz, tz = _advance(iz, sz, tz, dtz, z0, z1, tend)
-                cn = base + ix * st[0] + iy * st[1] + iz * st[2]
-                if not stop:
-                    prefetch_range(cs, cn)
-                if prefetch:
-                    prefetch_triangles(tris, tri_ids, cs, c)
-                for l in range(L):
-                    for r in range(cs[l, c], cs[l, c + 1]):
-                        f = tri_ids[r]
-                        slot = f & (MAILBOX - 1)
-                        if mb[slot] == f:
-                            continue
-                        mb[slot] = f
-                        pend[npend] = f
-                        npend += 1
-                        if npend == LANES:
-                            nh = _test_lanes(tris, pend, npend, rows, sh, tmin, tmax, nh, buf)
-                            if nh < 0:
-                                return -1
-                            npend = 0
                 if stop:
                     break
-                c = cn
+                c = base + ix * st[0] + iy * st[1] + iz * st[2]
+                prefetch_range(cs, c)
         # the next macro cell, entered at tout
         if mtx <= mty and mtx <= mtz:
             stop, mi, mtx = _advance(mi, msx, mtx, mdtx, 0, mx - 1, t1)
@@ -415,9 +407,48 @@ def ray_hits(g, o, d, tmin, tmax, buf, scratch, leaf_first):
         if stop:
             break
         tin = tout
+    if nt:
+        nh, npend = _visit_cells(g, todo, nt, sh, tmin, tmax, nh, npend, buf, scratch)
+        if nh < 0:
+            return -1
     if npend:
         nh = _test_lanes(tris, pend, npend, rows, sh, tmin, tmax, nh, buf)
     return nh
+
+
+@inner(cache=True, _nrt=False)
+def _visit_cells(g, todo, n, sh, tmin, tmax, nh, npend, buf, scratch):
+    """The triangles of the cells todo[:n] that the mailbox has not seen, added to the ones
+    collected (scratch.pend[:npend]) and tested LANES at a time: (hits so far or -1, collected
+    and not yet tested).  On a large mesh (g.prefetch) the loads of the cells' reference lists
+    start first, then those of their triangles, each for all n cells before the next: the cache
+    misses of a ray's cells overlap (the ray has no early exit, so its cells are known)."""
+    tris, cs, tri_ids = g.tris, g.cs, g.tri_ids
+    mb, pend, rows, _ = scratch
+    L = cs.shape[0]
+    if g.prefetch:
+        for k in range(n):
+            for l in range(L):
+                prefetch_ids(tri_ids, cs[l, todo[k]])
+        for k in range(n):
+            prefetch_triangles(tris, tri_ids, cs, todo[k])
+    for k in range(n):
+        c = todo[k]
+        for l in range(L):
+            for r in range(cs[l, c], cs[l, c + 1]):
+                f = tri_ids[r]
+                slot = f & (MAILBOX - 1)
+                if mb[slot] == f:
+                    continue
+                mb[slot] = f
+                pend[npend] = f
+                npend += 1
+                if npend == LANES:
+                    nh = _test_lanes(tris, pend, npend, rows, sh, tmin, tmax, nh, buf)
+                    if nh < 0:
+                        return nh, npend
+                    npend = 0
+    return nh, npend
 
 
 @inner(cache=True)
@@ -484,22 +515,24 @@ def _on_chunks(kernel, threads, g, rays, cap, chunks, *out):
 
 
 #: one worker's scratch for ray_hits: the mailbox (MAILBOX,) int32, the triangles collected for the
-#: next side-by-side test (LANES,) int32, and that test's rows (LANE_ROWS * LANES,) float64
-HitScratch = namedtuple("HitScratch", "mb pend rows")
+#: next side-by-side test (LANES,) int32, that test's rows (LANE_ROWS * LANES,) float64, and the
+#: cells listed for the next visit (CELLS,) int64
+HitScratch = namedtuple("HitScratch", "mb pend rows todo")
 
 
 @inner(cache=True)
 def hit_scratch():
     """A fresh :data:`HitScratch`."""
-    return HitScratch(np.empty(MAILBOX, np.int32), np.empty(LANES, np.int32), np.zeros(LANE_ROWS * LANES))
+    return HitScratch(np.empty(MAILBOX, np.int32), np.empty(LANES, np.int32), np.zeros(LANE_ROWS * LANES),
+                      np.empty(CELLS, np.int64))
 
 
 #: the grid as the all-hits kernels take it: the grid's (F, 3, 3) float32 triangles, its box lo,
 #: hi, cell size and dims, macro size k, macro dims and flags, one CSR of triangle ids over its
 #: cells (a two-level grid's leaf cells): cs (L, C + 1) int32, tri_ids (R,) int32, and a two-level
 #: grid's leaf_first (T + 1,) and leaf_res (T, 3) int32 (gridrt.grid.two_level; None for a uniform
-#: grid); prefetch: whether the walk starts the loads of a cell's triangles before it tests them
-#: (PREFETCH_TRIANGLES)
+#: grid); prefetch: whether the walk starts the loads of its cells' references and triangles before
+#: it tests them (PREFETCH_TRIANGLES)
 HitGrid = namedtuple("HitGrid", "tris lo hi cell dims k mdims macro_full cs tri_ids leaf_first leaf_res prefetch")
 #: the rays: origins and directions (N, 3) float64 in the grid's frame, t bounds (N,) float64
 HitRays = namedtuple("HitRays", "O D tmin tmax")

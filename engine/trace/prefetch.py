@@ -57,6 +57,12 @@ def prefetch_range(cell_start, c):
 
 
 @njit(cache=True, inline="always")
+def prefetch_ids(tri_ids, r):
+    """Start the load of tri_ids[r] (the start of a cell's references)."""
+    _prefetch_tri(tri_ids, r)
+
+
+@njit(cache=True, inline="always")
 def prefetch_triangles(tris, tri_ids, cell_start, c):
     """Start the loads of the triangles cell c lists (every layer of cell_start), so that their
     cache misses (a cell's triangles lie anywhere in tris) overlap instead of queueing one test at
