@@ -44,7 +44,7 @@ from ..grid.two_level import leaf_axis
 from ..memory import check_fits
 from ..threads import check_threads, launch_guard, on_threads, use_threads
 from .cgt.rays import direction_class
-from .intersect import gather_rows, ray_shear, woop_shear
+from .intersect import gather_rows, ray_shear, woop_shear, woop_terms
 from .prefetch import prefetch_ids, prefetch_range, prefetch_triangles
 
 
@@ -199,24 +199,16 @@ def _test_lanes(tris, pend, m, rows, sh, tmin, tmax, nh, buf):
         Ax, Ay, Bx, By, Cx, Cy, az, bz, cz = woop_shear(
             (rows[j], rows[C + j], rows[2 * C + j]), (rows[3 * C + j], rows[4 * C + j], rows[5 * C + j]),
             (rows[6 * C + j], rows[7 * C + j], rows[8 * C + j]), (okx, oky, okz), Sx, Sy)
-        # the edge functions as _edge computes them, and whether each value decides its sign
-        x, y = Cx * By, Cy * Bx
-        U = x - y
-        tu = abs(U) > TRUST * (abs(x) + abs(y))
-        x, y = Ax * Cy, Ay * Cx
-        V = x - y
-        tv = abs(V) > TRUST * (abs(x) + abs(y))
-        x, y = Bx * Ay, By * Ax
-        W = x - y
-        tw = abs(W) > TRUST * (abs(x) + abs(y))
-        pos = (tu & (U > 0.0)) | (tv & (V > 0.0)) | (tw & (W > 0.0))
-        neg = (tu & (U < 0.0)) | (tv & (V < 0.0)) | (tw & (W < 0.0))
-        det = U + V + W
-        t = (U * (Sz * az) + V * (Sz * bz) + W * (Sz * cz)) / (det if det != 0.0 else 1.0)
+        U, su = _edge(Bx, By, Cx, Cy)   # as intersect_once: the edges B -> C, C -> A, A -> B
+        V, sv = _edge(Cx, Cy, Ax, Ay)
+        W, sw = _edge(Ax, Ay, Bx, By)
+        det, T, _ = woop_terms(U, V, W, az, bz, cz, Sz)
+        t = T / (det if det != 0.0 else 1.0)
         hit = (det != 0.0) & (tmin < t) & (t < tmax)
-        decided = tu & tv & tw
-        # 0: a miss, 1: a hit, 2: for intersect_once
-        rows[9 * C + j] = 0.0 if (pos & neg) else (2.0 if not decided else (1.0 if hit else 0.0))
+        # 0: a miss (two decided signs disagree, or all three agree and no hit in range), 1: a hit,
+        # 2: for intersect_once (a sign left undecided)
+        disagree = (su * sv < 0) | (sv * sw < 0) | (su * sw < 0)
+        rows[9 * C + j] = 0.0 if disagree else (2.0 if su * sv * sw == 0 else (1.0 if hit else 0.0))
         rows[10 * C + j] = t
         rows[11 * C + j] = V
         rows[12 * C + j] = W
@@ -378,8 +370,8 @@ def ray_hits(g, o, d, tmin, tmax, buf, scratch, leaf_first):
             sz, tz, dtz = _axis(oz, dz, blo[2], bsz[2], iz)
             tend = min(tout, t1)
             c = base + ix * st[0] + iy * st[1] + iz * st[2]
-            prefetch_range(cs, c)
             while True:
+                prefetch_range(cs, c)
                 todo[nt] = c
                 nt += 1
                 if nt == CELLS:
@@ -396,7 +388,6 @@ def ray_hits(g, o, d, tmin, tmax, buf, scratch, leaf_first):
                 if stop:
                     break
                 c = base + ix * st[0] + iy * st[1] + iz * st[2]
-                prefetch_range(cs, c)
         # the next macro cell, entered at tout
         if mtx <= mty and mtx <= mtz:
             stop, mi, mtx = _advance(mi, msx, mtx, mdtx, 0, mx - 1, t1)
