@@ -417,6 +417,7 @@ def test_bench_looks_quick(tmp_path):
     assert "bytes/texel" in (out / "summary.md").read_text()
 
 
+@pytest.mark.slow  # (compiles the packet profiler, for this benchmark alone)
 def test_bench_packets_quick(tmp_path):
     """The packet profile: its counts equal the CGT render's own (tests per packet from the cost
     buffer, independently), every phase is measured, and profiling leaves every traced result as

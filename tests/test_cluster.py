@@ -194,6 +194,7 @@ def test_local_cluster_dump_is_the_one_process_dump(tmp_path, fast_ref):
     assert "a local cluster of 2 worker processes" in r.stdout
 
 
+@pytest.mark.slow  # (a real cluster started for it; the quick run keeps the local cluster's dump)
 def test_more_threads_than_cores_are_warned_about(tmp_path):
     cores = os.cpu_count() or 1
     r = gridrt("dump", "--frames", "2", "--size", "16x12", "--workers", 2, "--threads", cores, "--no-progress",
@@ -202,6 +203,7 @@ def test_more_threads_than_cores_are_warned_about(tmp_path):
     assert f"gridrt: warning: 2 workers x {cores} threads = {2 * cores} threads on {cores} cores" in r.stderr
 
 
+@pytest.mark.slow  # (a real cluster started for it; the quick run keeps the local cluster's dump)
 def test_settable_threads_and_a_scene_with_looks(tmp_path):
     """``--threads 1`` per worker is taken; a scene with textures and lights (the shipped MD2 with
     its skin) renders the same on the cluster as in one process."""
@@ -215,6 +217,7 @@ def test_settable_threads_and_a_scene_with_looks(tmp_path):
     assert {x["shading"] for x in rows_of(out)} == {"material"}
 
 
+@pytest.mark.slow  # (a real cluster started for it; the quick run keeps the local cluster's dump)
 def test_a_scene_that_moves_its_frame_between_chunks(tmp_path):
     """A folder of frames whose object travels 1.5 times its size per frame: the pipeline moves
     its frame of reference again and again, so chunks started from the first frame's origin are
@@ -248,6 +251,7 @@ def test_a_scene_that_moves_its_frame_between_chunks(tmp_path):
     assert pipe.recentred >= 5, "the scene does not move the pipeline's frame: the test shows nothing"
 
 
+@pytest.mark.slow  # (a real cluster started for it; the quick run keeps the local cluster's dump)
 def test_existing_scheduler_dump(tmp_path, fast_ref, shared_cluster):
     """``--scheduler`` on a real ``dask scheduler`` with two ``dask worker`` processes: the same
     files; each worker divides the machine's cores with the other."""
@@ -339,6 +343,7 @@ def test_ctrl_c_stops_the_cluster_and_leaves_whole_frames(tmp_path, slow_ref):
         Image.open(out / f"frame_{i:05d}.png").load()  # whole: decodes
 
 
+@pytest.mark.slow  # (a real cluster started for it; the quick run keeps the local cluster's dump)
 def test_scene_that_fails_to_load_gives_the_local_error_once(tmp_path):
     """A scene file the workers cannot read stops the run with the error a local run gives, printed
     once, and exit status 2."""
@@ -356,6 +361,7 @@ def test_scene_that_fails_to_load_gives_the_local_error_once(tmp_path):
     assert not list((tmp_path / "b").glob("*.png"))
 
 
+@pytest.mark.slow  # (a real cluster started for it; the quick run keeps the local cluster's dump)
 def test_a_warning_is_printed_once_as_a_local_run_prints_it(tmp_path):
     """A scene whose detail is under float32's floor (80 triangles 1e-3 across beside one 1e4
     across): every worker's pipeline warns at its first frame; the client prints the warning once,
@@ -422,6 +428,7 @@ def test_bad_cluster_options(tmp_path, args, message):
     assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow  # (a real cluster started for it; the quick run keeps the local cluster's dump)
 def test_dashboard_is_live():
     """The dashboard address a local cluster prints answers (bokeh serves it)."""
     from gridrt.app.cluster.scheduler import Cluster
@@ -466,6 +473,7 @@ def test_bench_build_on_a_local_cluster(tmp_path):
     assert "measured on a local cluster of 2 worker processes" in (remote / "summary.md").read_text()
 
 
+@pytest.mark.slow  # (a real cluster started for it; the quick run keeps the local cluster's dump)
 def test_bench_frame_on_an_existing_scheduler(tmp_path, shared_cluster):
     """``bench frame --scheduler``: the frames' figures that are not timings (hit fraction, tests
     and cells per ray, references) are a local run's; each row names one of the cluster's workers."""

@@ -76,6 +76,7 @@ def port_of(address):
     return int(str(address).rsplit(":", 1)[1].split("/")[0])
 
 
+@pytest.mark.slow  # (a real cluster or server started for it; the quick run keeps the dump's loopback check)
 def test_local_cluster_and_its_dashboard_listen_on_loopback_only():
     """Every socket the scheduler, the nanny, the worker and the dashboard listen on (this process
     and its children) is bound to a loopback address; the scheduler's and the dashboard's ports
@@ -126,6 +127,7 @@ def test_cli_dump_listens_on_loopback_only(tmp_path):
     assert all(ipaddress.ip_address(ip).is_loopback for ip, _ in found), found
 
 
+@pytest.mark.slow  # (a real cluster or server started for it; the quick run keeps the dump's loopback check)
 def test_listen_is_for_a_local_cluster_and_an_address_of_this_machine(tmp_path):
     line = one_error_line(gridrt("dump", "--frames", "1", "--listen", "127.0.0.1", "--out", tmp_path / "a"))
     assert "--listen applies to a local cluster" in line
@@ -277,6 +279,7 @@ def test_anything_but_a_scheduler_is_one_line_within_the_deadline(name, fake_ser
     assert timeouts and all(t is not None and 0 < t <= 1 for t in timeouts), timeouts
 
 
+@pytest.mark.slow  # (a real cluster or server started for it; the quick run keeps the dump's loopback check)
 def test_the_deadline_is_the_issues_and_reaches_the_socket(fake_server, timeouts):
     """The default deadline (a silent port waits it out) is at most 10 s, and is what the
     connection and the reads get."""
@@ -338,6 +341,7 @@ def test_cli_scheduler_answering_like_http_is_one_line(tmp_path, fake_server):
     assert not (tmp_path / "d").exists() or not list((tmp_path / "d").glob("*.png"))
 
 
+@pytest.mark.slow  # (a real cluster or server started for it; the quick run keeps the dump's loopback check)
 def test_cli_real_http_server_is_one_line(tmp_path):
     """A real HTTP server (which waits for a request, as web servers do) on 127.0.0.1: one line
     after the deadline, not a traceback trying to allocate what its answer's bytes would say."""
@@ -425,6 +429,7 @@ def test_cli_malformed_address_is_one_line(tmp_path):
 # --workers beyond what the machine holds
 # ---------------------------------------------------------------------------------------------
 
+@pytest.mark.slow  # (a real cluster or server started for it; the quick run keeps the dump's loopback check)
 def test_cli_workers_beyond_the_machine_are_refused_before_anything_starts(tmp_path):
     cores = len(os.sched_getaffinity(0))
     out = tmp_path / "d"

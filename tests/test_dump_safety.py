@@ -350,6 +350,7 @@ def test_a_real_full_file_system(small_fs, tmp_path):
     assert whole_frames(out, buffers=True) == n
 
 
+@pytest.mark.slow  # (a real cluster started for it; the quick run keeps the one-process cases)
 def test_a_real_full_file_system_under_a_cluster_dump(small_fs):
     """The same on a cluster (--workers 1): the client stops at the write that fails, with one
     line, and the folder holds whole frames only."""
@@ -446,6 +447,7 @@ def test_resume_with_other_settings_is_refused(tmp_path, capsys, small_ref):
     assert snapshot(out) == before
 
 
+@pytest.mark.slow  # (a real cluster started for it; the quick run keeps the one-process cases)
 def test_one_process_and_cluster_dumps_resume_each_others_folders(tmp_path, capsys):
     """A one-process dump of 2 frames resumed on a cluster (--workers 1) to 4 frames, and that
     folder resumed in one process to 6: the folder is the straight one-process dump of 6 frames,

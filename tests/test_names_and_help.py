@@ -286,6 +286,7 @@ PLOTS = {
 }
 
 
+@pytest.mark.slow  # (draws every plot of each benchmark and measures its lettering, up to 7 s a benchmark)
 @pytest.mark.parametrize("kind", list(PLOTS))
 def test_benchmark_plots_are_legible_at_their_saved_size(kind, tmp_path, monkeypatch):
     from matplotlib.backends.backend_agg import RendererAgg

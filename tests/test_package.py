@@ -33,6 +33,7 @@ def wheel(tmp_path_factory):
     return whl
 
 
+@pytest.mark.slow  # (builds and installs a wheel in a venv of its own)
 def test_wheel_installs_only_gridrt(wheel):
     names = zipfile.ZipFile(wheel).namelist()
     top = {n.split("/")[0] for n in names}
@@ -50,6 +51,7 @@ def test_wheel_installs_only_gridrt(wheel):
         assert name in names and zipfile.ZipFile(wheel).read(name) == p.read_bytes(), name
 
 
+@pytest.mark.slow  # (builds and installs a wheel in a venv of its own)
 def test_wheel_runs_from_its_own_files(wheel, tmp_path):
     """Unpacked alone on the path (no repository): the package, its shaders, its assets (the
     built-in scenes load from gridrt/assets) and -m gridrt."""

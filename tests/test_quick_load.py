@@ -14,6 +14,7 @@ import textwrap
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -65,6 +66,7 @@ def _run(tmp_path, *extra):
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow  # (a fresh process loading a cache it fills first)
 def test_a_cached_gridrt_kernel_loads_without_numbas_full_refresh(tmp_path):
     rng = np.random.default_rng(7)
     points = rng.normal(size=(5000, 3)) * [1.0, 20.0, 300.0] + [5.0, -7.0, 1e4]

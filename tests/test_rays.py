@@ -345,7 +345,8 @@ def _exhaustive_wt(tris, o, d, tmin, tmax, out_t, out_f, out_u, out_v):
         out_t[i], out_f[i], out_u[i], out_v[i] = (bt, bf, bu, bv) if bf >= 0 else (np.inf, -1, 0.0, 0.0)
 
 
-@pytest.mark.parametrize("kind", ["uniform", "two_level"])
+# (two-level: its casts compile apart from the uniform grid's; test_two_level checks them in the quick run)
+@pytest.mark.parametrize("kind", ["uniform", pytest.param("two_level", marks=pytest.mark.slow)])
 def test_crowded_cells_bit_for_bit(kind):
     """Cells crowded with triangles (a coarse grid over 600 triangles, a third of them duplicates:
     exact ties) through the single-ray traversal, which tests a crowded cell's triangles side by

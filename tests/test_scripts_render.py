@@ -7,6 +7,8 @@ for their form only.
 
 import re
 
+import pytest
+
 from helpers.scripts import NUMBER, doc_table, needs, run_script
 
 #: "a / b": a figure at each of two settings (threads, or precisions), either maybe in bold
@@ -33,6 +35,7 @@ def test_float32_floor_prints_its_table():
     assert all(a > b for a, b in zip(steps, steps[1:])), steps
 
 
+@pytest.mark.slow  # (a subprocess that compiles the script's packet settings; the quick run keeps the other scripts)
 def test_cast_max_cells_prints_its_table():
     rows = check_labels("cast_max_cells.py", "--size", "64", "--runs", "1", "--threads", "1,2")
     for r in rows:

@@ -725,6 +725,7 @@ def test_cgt_equals_dda(name, view):
 _CAMREF = {}
 
 
+@pytest.mark.slow  # (every packet shape in both precisions; test_render_two_level renders CGT in the quick run)
 @pytest.mark.parametrize("packet", [1, 4, 16, (16, 4), (3, 7), pytest.param((1, 16), marks=pytest.mark.soak),
                                     pytest.param((16, 8), marks=pytest.mark.soak)])
 def test_cgt_packet_sizes(packet):

@@ -852,6 +852,7 @@ def test_viewer_window_under_xvfb(tmp_path):
         x.close()
 
 
+@pytest.mark.slow  # (a window of its own under Xvfb; the quick run keeps the main window test)
 @needs_x
 def test_viewer_side_panel_under_xvfb(tmp_path, xvfb):
     """At the window size the viewer opens with, the panel hides nothing of the image: the window
@@ -906,6 +907,7 @@ def test_viewer_side_panel_under_xvfb(tmp_path, xvfb):
     _quit(app)
 
 
+@pytest.mark.slow  # (a window of its own under Xvfb; the quick run keeps the main window test)
 @needs_x
 def test_viewer_panel_remembered_under_xvfb(tmp_path, xvfb, config_home):
     """The panel's arrow collapses it to a strip (the image takes the rest of the window); the next
@@ -980,6 +982,7 @@ def _same_camera(cam_json, cam):
 
 @pytest.mark.skipif(shutil.which("Xvfb") is None or shutil.which("xdotool") is None,
                     reason="needs Xvfb and xdotool (apt-get install xvfb xauth xdotool)")
+@pytest.mark.slow  # (a window of its own under Xvfb; the quick run keeps the main window test)
 def test_viewer_scene_camera_under_xvfb(tmp_path):
     """The viewer on a BART scene (the museum): it starts looking through the scene's own camera
     (the state's camera is the scene's at the frame's time, computed here); the "scene camera" box
