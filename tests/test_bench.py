@@ -229,6 +229,7 @@ def test_effective_cores_probe_runs_busy_processes_and_only_when_asked(monkeypat
     assert "effective cores (" in "\n".join(machine.machine_md(info))
 
 
+@pytest.mark.slow  # (the trade benchmark's quick sweep: nine knobs, several of them kernels of their own to compile)
 def test_bench_trade_quick_matches_an_independent_recount(tmp_path):
     from gridrt import GridParams, RenderParams, build_grid, render
 

@@ -552,7 +552,7 @@ def signal_after(proc, path, delay, sig, group=False, before=lambda: None):
             os.killpg(proc.pid, signal.SIGKILL)
 
 
-@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize("seed", [1, pytest.param(2, marks=pytest.mark.slow)])  # (seed 2: two more moments, slow run)
 @pytest.mark.parametrize("sig, code, why", [
     (signal.SIGINT, 130, "interrupted (SIGINT)"),
     (signal.SIGTERM, 143, "terminated (SIGTERM)"),

@@ -177,6 +177,7 @@ def _gltf_moved(src, dst, offset):
     Path(dst).write_text(json.dumps(doc))
 
 
+@pytest.mark.slow  # (the same dump far from the origin through another loader: the quick run keeps the mesh's)
 def test_dump_animated_gltf_far_from_origin(tmp_path):
     from gridrt.scene import make_scene
 
@@ -221,6 +222,7 @@ def test_static_gltf_far_from_origin(tmp_path):
 # ------------------------------------------------------------------------------------- BART
 
 
+@pytest.mark.slow  # (the same dump far from the origin through another loader: the quick run keeps the mesh's)
 def test_dump_bart_far_from_origin(tmp_path):
     from gridrt.scene import make_scene
 
