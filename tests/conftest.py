@@ -19,6 +19,7 @@ import compileall
 import os
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -26,13 +27,15 @@ import pytest
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before anything imports numba)
 
+REPO = Path(__file__).resolve().parents[1]
+
 #: the development data set, shared/data beside the repository (present on the development
 #: machines only; treated as absent when GRIDRT_NO_SHARED_DATA is set to anything but "" or "0").
-SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+SHARED_DATA = REPO.parent / "shared" / "data"
 NO_SHARED_DATA = os.environ.get("GRIDRT_NO_SHARED_DATA", "") not in ("", "0")
 
 #: the repository's assets/ (real files that ship with gridrt; see assets/README.md)
-ASSETS = Path(__file__).resolve().parents[1] / "assets"
+ASSETS = REPO / "assets"
 
 TEAPOT = "static/utah_teapot/teapot.obj"
 ARMADILLO = "static/armadillo/armadillo.off"
@@ -58,7 +61,6 @@ CONVERTED = {ARMADILLO: "armadillo.ply"}
 
 
 #: the repository's folders of Python files that the tests import or start processes of
-REPO = Path(__file__).resolve().parents[1]
 SOURCES = ("engine", "app", "scripts", "tests")
 
 
@@ -67,7 +69,7 @@ def pytest_configure(config):
     the tests start (most of them gridrt commands) would compile gridrt's sources again, about
     0.3 s each on a 2-vCPU host: the controlling process compiles them once here,
     before the workers start, and the processes read the bytecode (only its writing is off)."""
-    if hasattr(config, "workerinput"):
+    if hasattr(config, "workerinput") or not sys.dont_write_bytecode:
         return
     for folder in SOURCES:
         compileall.compile_dir(REPO / folder, quiet=2)
