@@ -333,6 +333,13 @@ def test_camera_basis_is_exact_and_survives_extreme_vectors():
     right = np.cross(fwd, up) / np.linalg.norm(np.cross(fwd, up))
     np.testing.assert_array_equal(b[:4], [eye, fwd, right, np.cross(right, fwd)])
     assert b[4, 0] == np.tan(np.radians(50.0) / 2)
+    rng = np.random.default_rng(7)
+    for _ in range(300):  # random cameras from 1e-6 to 1e6 across: the same bits as np.cross's formula
+        eye, target, up = rng.normal(size=(3, 3)) * 10.0 ** rng.uniform(-6, 6, (3, 1))
+        b = Camera(eye=tuple(eye), target=tuple(target), up=tuple(up), fov=50.0).basis()
+        fwd = (target - eye) / np.linalg.norm(target - eye)
+        right = np.cross(fwd, up) / np.linalg.norm(np.cross(fwd, up))
+        np.testing.assert_array_equal(b[:4], [eye, fwd, right, np.cross(right, fwd)])
     unit = Camera(eye=(3.0, 0.0, 0.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 1.0)).basis()
     for up_ in [(0.0, 1e300, 1e300), (0.0, 1e-300, 1e-300)]:
         np.testing.assert_allclose(Camera(eye=(3.0, 0.0, 0.0), target=(0.0, 0.0, 0.0), up=up_).basis(), unit,
