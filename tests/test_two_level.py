@@ -831,7 +831,8 @@ def probe_two_level(relpath, n_probes, batch=200_000):
     holes = fast = at = done = dropped = seed = 0
     t0 = time.perf_counter()
     while done < n_probes:
-        o, d, dist, drop = edge_probes(m.v, m.faces, m.normals, m.centre, m.radius, 500 + seed, min(batch, n_probes - done + 64))
+        o, d, dist, drop = edge_probes(m.v, m.faces, m.normals, m.centre, m.radius, 500 + seed, min(batch, n_probes - done + 64),
+                                       (m.edges, m.ef))
         o, d, dist = o[: n_probes - done], d[: n_probes - done], dist[: n_probes - done]
         seed += 1
         dropped += drop

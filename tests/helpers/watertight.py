@@ -44,10 +44,11 @@ def face_normals(v, faces):
     return n if vol > 0 else -n
 
 
-def targets_and_fans(rng, v, faces, n_vertices, n_mid, n_rand):
-    """Targets (T, 3) float64 with their incident faces as CSR (offsets (T+1,), face ids)."""
+def targets_and_fans(rng, v, faces, n_vertices, n_mid, n_rand, tables=None):
+    """Targets (T, 3) float64 with their incident faces as CSR (offsets (T+1,), face ids).
+    ``tables``: the mesh's (edges, edge faces) from edge_table, when the caller keeps them."""
     v64 = v.astype(np.float64)
-    edges, ef = edge_table(faces)
+    edges, ef = edge_table(faces) if tables is None else tables
     # vertices and their fans
     vf_v = faces.reshape(-1)
     vf_f = np.repeat(np.arange(len(faces)), 3)
@@ -56,7 +57,8 @@ def targets_and_fans(rng, v, faces, n_vertices, n_mid, n_rand):
     vstart = np.searchsorted(vf_v, np.arange(len(v) + 1))
     vids = rng.choice(len(v), min(n_vertices, len(v)), replace=False)
     pts = [v64[vids]]
-    fans = [vf_f[vstart[i] : vstart[i + 1]] for i in vids]
+    counts = [vstart[vids + 1] - vstart[vids]]
+    fans = [vf_f[csr_gather(vstart[vids], counts[0])]]
     # edge midpoints and random points along edges: fans of two faces
     for n, mid in ((n_mid, True), (n_rand, False)):
         k = min(n, len(edges)) if mid else n
@@ -64,9 +66,16 @@ def targets_and_fans(rng, v, faces, n_vertices, n_mid, n_rand):
         a, b = v64[edges[eids, 0]], v64[edges[eids, 1]]
         s = np.full((len(eids), 1), 0.5) if mid else rng.uniform(0.0, 1.0, (len(eids), 1))
         pts.append(a + s * (b - a))
-        fans += list(ef[eids])
-    counts = np.array([len(x) for x in fans])
+        counts.append(np.full(len(eids), 2))
+        fans.append(ef[eids].reshape(-1))
+    counts = np.concatenate(counts)
     return np.concatenate(pts), np.concatenate([[0], np.cumsum(counts)]), np.concatenate(fans)
+
+
+def csr_gather(starts, counts):
+    """The indices starts[i] .. starts[i] + counts[i] - 1 of every i, one after another."""
+    ends = np.cumsum(counts)
+    return np.arange(ends[-1] if len(ends) else 0) - np.repeat(ends - counts - starts, counts)
 
 
 def origins_in_front(rng, targets, offs, fan, normals, centre, radius, min_cos=0.1):
@@ -86,7 +95,7 @@ def origins_in_front(rng, targets, offs, fan, normals, centre, radius, min_cos=0
         cand /= np.linalg.norm(cand, axis=1, keepdims=True)
         rep = np.repeat(cand, np.diff(offs)[todo], axis=0)
         sub_offs = np.concatenate([[0], np.cumsum(np.diff(offs)[todo])])
-        sub_fan = np.concatenate([fan[offs[i] : offs[i + 1]] for i in todo])
+        sub_fan = fan[csr_gather(offs[todo], np.diff(offs)[todo])]
         dots = np.einsum("kc,kc->k", rep, normals[sub_fan])
         good = np.minimum.reduceat(dots, sub_offs[:-1]) > min_cos
         u[todo[good]] = cand[good]
@@ -154,13 +163,14 @@ def _unit(x):
     return x / np.linalg.norm(x, axis=-1, keepdims=True)
 
 
-def edge_probes(v, faces, normals, centre, radius, seed, n):
+def edge_probes(v, faces, normals, centre, radius, seed, n, tables=None):
     """About n probes at a closed mesh's shared vertices and edges (faces' outward unit normals,
     bounding sphere centre and radius), from in front of every face at their targets: (origins,
-    unit directions, distances to the targets, probes dropped for want of such an origin)."""
+    unit directions, distances to the targets, probes dropped for want of such an origin).
+    ``tables``: as targets_and_fans takes them."""
     rng = np.random.default_rng(seed)
     nv = min(n // 10, len(v))
-    tg, offs, fan = targets_and_fans(rng, v, faces, nv, n // 10, n - nv - n // 10)
+    tg, offs, fan = targets_and_fans(rng, v, faces, nv, n // 10, n - nv - n // 10, tables)
     o, t, ok = origins_in_front(rng, tg, offs, fan, normals, centre, radius)
     d = t - o
     dist = np.linalg.norm(d, axis=1)
@@ -266,10 +276,11 @@ class ProbeMesh:
         of the directions to a and b (target as far away as the edge, so that target - eye keeps its
         precision), up is the normal of the plane through the eye and the edge, and the field of
         view spans the edge less ``margin``: with height 1 every pixel-centre ray lies in that
-        plane and crosses the edge.  Returns the cameras and, per camera and pixel, the distance
-        along the ray to the crossing (rays from the documented pinhole formula, reference.py's
-        ref_camera_rays), checked to pass within float64 rounding of the edge line (1e-13 of the
-        eye's largest coordinate plus the mesh's radius) and to cross it strictly inside the edge.
+        plane and crosses the edge.  Returns the cameras, per camera and pixel the distance along
+        the ray to the crossing, and the rays' unit directions (cameras, width, 3) (rays from the
+        documented pinhole formula, reference.py's ref_camera_rays); each ray is checked to pass
+        within float64 rounding of the edge line (1e-13 of the eye's largest coordinate plus the
+        mesh's radius) and to cross it strictly inside the edge.
         """
         eids = rng.integers(0, len(self.edges), n)
         a, b = self.v64[self.edges[eids, 0]], self.v64[self.edges[eids, 1]]
@@ -297,7 +308,7 @@ class ProbeMesh:
         scale = np.abs(eyes).max(axis=1, keepdims=True) + self.radius
         assert (gap <= 1e-13 * scale).all(), f"row rays miss their edge line by up to {(gap / scale).max():.2e}"
         assert ((s > 0.0) & (s < 1.0)).all(), "a row ray crosses the edge line outside the edge"
-        return cams, t
+        return cams, t, d
 
 
 #: the packet tests: (watertight, float32 tests, key); the float32 watertight test's t is good to
@@ -349,7 +360,7 @@ def packet_counts(m, grid, rng, n_packets):
 def row_counts(m, grid, rng, n_cameras, width=ROW_WIDTH):
     """Edge-row cameras rendered by Renderer.render with traversal="cgt" and the three TESTS:
     counts (see cgt_report)."""
-    cams, tref = m.edge_rows(rng, n_cameras, width)
+    cams, tref, dirs = m.edge_rows(rng, n_cameras, width)
     r = Renderer()
     c = {"edges": len(cams), "rays": len(cams) * width}
     for wt, f32, key in TESTS:
@@ -357,13 +368,12 @@ def row_counts(m, grid, rng, n_cameras, width=ROW_WIDTH):
         holes = at = fb = 0
         rp = RenderParams(width=width, height=1, traversal="cgt", watertight=wt, shading="normal",
                           packet_precision="float32" if f32 else "float64")
-        for cam, tr in zip(cams, tref):
+        for cam, tr, d in zip(cams, tref, dirs):
             out = r.render(grid, m.tris, cam, rp)
             t = out.t.reshape(-1).astype(np.float64)  # a float32 buffer: rounding 6e-8 < REL
             f = out.tri.reshape(-1)
             hole = (f < 0) | (t > tr * (1 + rel))
             if f32:  # a hit beyond the target on a triangle facing the eye is not a hole (see TESTS)
-                d = ref_camera_rays(cam.eye, cam.target, cam.up, cam.fov, width, 1)[1]
                 hole &= ~((f >= 0) & facing_eye(m, f, d))
             holes += int(hole.sum())
             at += int((np.abs(t - tr) <= rel * tr).sum())
