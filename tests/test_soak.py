@@ -5,11 +5,14 @@ shared edges of closed real meshes (the shipped Armadillo; dragon and Lucy from 
 origin outside the mesh's bounding sphere and in front of every face touching its target (so the
 ray crosses the surface there, see tests/test_watertight.py).  On a closed mesh such a ray must
 hit no later than its target: a miss or a hit at t > |target - origin| (1 + 1e-6) is a *hole*.
-The grid of every build strategy is built once per mesh and the probes are cast in batches; the
-watertight test (Woop, Benthin, Wald, JCGT 2013) must give 0 holes for every strategy, and the
-fast Moller-Trumbore test's hole rate is printed.  Default: 40,000 probes per mesh and strategy
-(1.08M watertight casts in all); ``-m soak``: 10M probes per mesh and strategy
-(GRIDRT_SOAK_RAYS to change it).
+The grid of every build strategy is built once per mesh, and every strategy's grid must hold the
+serial one's (cell, triangle) pairs.  The probes are cast in batches through the serial
+strategy's grid, and each batch also through the other strategies' grids (in a long run, one
+other strategy's per batch, in turn); the watertight test (Woop, Benthin, Wald, JCGT 2013) must
+give 0 holes in every grid, and the fast Moller-Trumbore test's hole rate is printed.  Default:
+40,000 probes per mesh, through every strategy's grid (1.08M watertight casts in all);
+``-m soak``: 10M probes per mesh (GRIDRT_SOAK_RAYS to change it), about 1.25M of them through each
+other strategy's grid.
 
 The same meshes through the packet traversal (CGT), with the two probe sets of
 tests/test_watertight.py (see its docstring): star packets (up to 8 x 8 rays from one eye, aimed
@@ -46,7 +49,7 @@ from gridrt.pipeline import FramePipeline
 from gridrt.scene import make_scene
 from gridrt.trace import cast_rays
 from gridrt.trace.twin import TWINS
-from helpers.watertight import ROW_WIDTH, ProbeMesh, cgt_counts, cgt_report, edge_probes, face_normals
+from helpers.watertight import ROW_WIDTH, ProbeMesh, cgt_counts, cgt_report, edge_probes, edge_table, face_normals
 
 DRAGON = "static/stanford_dragon/dragon.obj"
 LUCY = "static/lucy/Lucy100k.ply"
@@ -77,6 +80,7 @@ class Prober:
         self.v, self.f = load_mesh_arrays(relpath)
         self.tris = np.ascontiguousarray(self.v[self.f])
         self.normals = face_normals(self.v, self.f)
+        self.tables = edge_table(self.f)
         v64 = self.v.astype(np.float64)
         self.centre = 0.5 * (v64.min(0) + v64.max(0))
         self.radius = float(np.linalg.norm(v64 - self.centre, axis=1).max())
@@ -84,7 +88,17 @@ class Prober:
 
     def batch(self, seed, n):
         """About n probes: (origins, unit directions, distance to target), float64."""
-        return edge_probes(self.v, self.f, self.normals, self.centre, self.radius, seed, n)
+        return edge_probes(self.v, self.f, self.normals, self.centre, self.radius, seed, n, self.tables)
+
+    def check_same_pairs(self):
+        """Every strategy's grid holds the serial one's cells and (cell, triangle) pairs (in its
+        own layers and order: those may differ)."""
+        ref = self.grids["serial"]
+        want = np.unique(ref.pairs(), axis=0)
+        for s, g in self.grids.items():
+            assert np.array_equal(g.spec.dims, ref.spec.dims) and np.array_equal(g.spec.lo, ref.spec.lo), s
+            got = np.unique(g.pairs(), axis=0)
+            assert np.array_equal(got, want), f"{self.name}: the {s} grid holds other pairs than serial's"
 
 
 def holes(h, dist):
@@ -92,31 +106,40 @@ def holes(h, dist):
 
 
 def probe(relpath, n_probes):
+    """n_probes probes in batches of BATCH through the serial strategy's grid (watertight and fast
+    test); the other strategies' grids, which hold the same pairs (checked), take the batches in
+    turn: every batch when there are fewer batches than strategies, else every eighth."""
     p = Prober(relpath)
+    p.check_same_pairs()
+    others = [s for s in STRATEGIES if s != "serial"]
+    every = -(-n_probes // BATCH) < len(others)
     t0 = time.perf_counter()
     wt = {s: 0 for s in STRATEGIES}
-    fast = {s: 0 for s in STRATEGIES}
-    done = dropped = at_target = 0
+    cast = {s: 0 for s in STRATEGIES}
+    fast = done = dropped = at_target = 0
     seed = 0
     while done < n_probes:
         o, d, dist, drop = p.batch(1000 + seed, min(BATCH, n_probes - done + 64))
         o, d, dist = o[: n_probes - done], d[: n_probes - done], dist[: n_probes - done]
-        seed += 1
         dropped += drop
-        for s, g in p.grids.items():
-            h = cast_rays(g, p.tris, o, d, watertight=True)
+        for s in ["serial"] + (others if every else [others[seed % len(others)]]):
+            h = cast_rays(p.grids[s], p.tris, o, d, watertight=True)
             wt[s] += holes(h, dist)
+            cast[s] += len(o)
             if s == "serial":
                 at_target += int((np.abs(h.t - dist) <= 1e-6 * dist).sum())
-                fast[s] += holes(cast_rays(g, p.tris, o, d, watertight=False), dist)
+                fast += holes(cast_rays(p.grids[s], p.tris, o, d, watertight=False), dist)
+        seed += 1
         done += len(o)
     secs = time.perf_counter() - t0
-    rate = fast["serial"] / done
-    print(f"FIGURE watertight {p.name}: {done} probes x {len(STRATEGIES)} strategies = {done * len(STRATEGIES)} casts "
-          f"in {secs:.1f} s; holes with the watertight test: {sum(wt.values())} ({wt}); {at_target} probes "
-          f"({100 * at_target / done:.1f}%) hit at their target; fast (Moller-Trumbore) test: {fast['serial']} holes, "
-          f"rate {100 * rate:.3f}%; {dropped} targets dropped (no origin in front of all their faces)")
+    rate = fast / done
+    print(f"FIGURE watertight {p.name}: {done} probes, {sum(cast.values())} watertight casts through the "
+          f"{len(STRATEGIES)} strategies' grids ({cast}) in {secs:.1f} s; holes with the watertight test: "
+          f"{sum(wt.values())} ({wt}); {at_target} probes ({100 * at_target / done:.1f}%) hit at their target; "
+          f"fast (Moller-Trumbore) test: {fast} holes, rate {100 * rate:.3f}%; {dropped} targets dropped (no origin in "
+          f"front of all their faces)")
     assert sum(wt.values()) == 0, f"{p.name}: the watertight test let rays through: {wt}"
+    assert min(cast.values()) > 0
     assert at_target > 0.5 * done  # the probes really reach their targets (most are not blocked earlier)
     assert dropped < 0.01 * done
     return done, rate
