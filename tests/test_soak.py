@@ -49,7 +49,7 @@ from gridrt.pipeline import FramePipeline
 from gridrt.scene import make_scene
 from gridrt.trace import cast_rays
 from gridrt.trace.twin import TWINS
-from helpers.watertight import ROW_WIDTH, ProbeMesh, cgt_counts, cgt_report, edge_probes, edge_table, face_normals
+from helpers.watertight import ROW_WIDTH, ProbeMesh, cgt_counts, cgt_report
 
 DRAGON = "static/stanford_dragon/dragon.obj"
 LUCY = "static/lucy/Lucy100k.ply"
@@ -73,22 +73,13 @@ def rss_mb():
 
 
 class Prober:
-    """A closed mesh, its grids (one per strategy) and a generator of probe batches."""
+    """A closed mesh (ProbeMesh: its probes) and its grids, one per strategy."""
 
     def __init__(self, relpath):
         self.name = relpath.split("/")[-1]
-        self.v, self.f = load_mesh_arrays(relpath)
-        self.tris = np.ascontiguousarray(self.v[self.f])
-        self.normals = face_normals(self.v, self.f)
-        self.tables = edge_table(self.f)
-        v64 = self.v.astype(np.float64)
-        self.centre = 0.5 * (v64.min(0) + v64.max(0))
-        self.radius = float(np.linalg.norm(v64 - self.centre, axis=1).max())
+        self.mesh = ProbeMesh(*load_mesh_arrays(relpath))
+        self.tris = self.mesh.tris
         self.grids = {s: build_grid(self.tris, GridParams(strategy=s, threads=2, density=4.0)) for s in STRATEGIES}
-
-    def batch(self, seed, n):
-        """About n probes: (origins, unit directions, distance to target), float64."""
-        return edge_probes(self.v, self.f, self.normals, self.centre, self.radius, seed, n, self.tables)
 
     def check_same_pairs(self):
         """Every strategy's grid holds the serial one's cells and (cell, triangle) pairs (in its
@@ -119,7 +110,7 @@ def probe(relpath, n_probes):
     fast = done = dropped = at_target = 0
     seed = 0
     while done < n_probes:
-        o, d, dist, drop = p.batch(1000 + seed, min(BATCH, n_probes - done + 64))
+        o, d, dist, drop = p.mesh.edge_probes(1000 + seed, min(BATCH, n_probes - done + 64))
         o, d, dist = o[: n_probes - done], d[: n_probes - done], dist[: n_probes - done]
         dropped += drop
         for s in ["serial"] + (others if every else [others[seed % len(others)]]):

@@ -50,7 +50,7 @@ from helpers.cgt import assert_same, check_f32, render_both
 from helpers.cgt import camera as cgt_camera
 from helpers.cgt import scene as cgt_scene
 from helpers.rays import GRAZE, _hard_rays, assert_hits_match, get_case
-from helpers.watertight import (REL, ProbeMesh, add_counts, edge_probes, face_normals, origins_in_front, packet_counts,
+from helpers.watertight import (REL, ProbeMesh, add_counts, face_normals, origins_in_front, packet_counts,
                              row_counts, shoot, targets_and_fans)
 
 STRATEGIES = names()
@@ -831,8 +831,7 @@ def probe_two_level(relpath, n_probes, batch=200_000):
     holes = fast = at = done = dropped = seed = 0
     t0 = time.perf_counter()
     while done < n_probes:
-        o, d, dist, drop = edge_probes(m.v, m.faces, m.normals, m.centre, m.radius, 500 + seed, min(batch, n_probes - done + 64),
-                                       (m.edges, m.ef))
+        o, d, dist, drop = m.edge_probes(500 + seed, min(batch, n_probes - done + 64))
         o, d, dist = o[: n_probes - done], d[: n_probes - done], dist[: n_probes - done]
         seed += 1
         dropped += drop

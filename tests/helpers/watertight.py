@@ -44,17 +44,20 @@ def face_normals(v, faces):
     return n if vol > 0 else -n
 
 
+def mesh_tables(faces, n_vertices):
+    """A closed mesh's tables: its unique edges and their two faces (edge_table), and its vertex
+    fans as CSR (offsets (n_vertices+1,), face ids)."""
+    edges, ef = edge_table(faces)
+    vf = faces.reshape(-1)
+    order = np.argsort(vf, kind="stable")
+    return edges, ef, np.searchsorted(vf[order], np.arange(n_vertices + 1)), np.repeat(np.arange(len(faces)), 3)[order]
+
+
 def targets_and_fans(rng, v, faces, n_vertices, n_mid, n_rand, tables=None):
     """Targets (T, 3) float64 with their incident faces as CSR (offsets (T+1,), face ids).
-    ``tables``: the mesh's (edges, edge faces) from edge_table, when the caller keeps them."""
+    ``tables``: the mesh's mesh_tables, when the caller keeps them."""
     v64 = v.astype(np.float64)
-    edges, ef = edge_table(faces) if tables is None else tables
-    # vertices and their fans
-    vf_v = faces.reshape(-1)
-    vf_f = np.repeat(np.arange(len(faces)), 3)
-    order = np.argsort(vf_v, kind="stable")
-    vf_v, vf_f = vf_v[order], vf_f[order]
-    vstart = np.searchsorted(vf_v, np.arange(len(v) + 1))
+    edges, ef, vstart, vf_f = mesh_tables(faces, len(v)) if tables is None else tables
     vids = rng.choice(len(v), min(n_vertices, len(v)), replace=False)
     pts = [v64[vids]]
     counts = [vstart[vids + 1] - vstart[vids]]
@@ -167,7 +170,7 @@ def edge_probes(v, faces, normals, centre, radius, seed, n, tables=None):
     """About n probes at a closed mesh's shared vertices and edges (faces' outward unit normals,
     bounding sphere centre and radius), from in front of every face at their targets: (origins,
     unit directions, distances to the targets, probes dropped for want of such an origin).
-    ``tables``: as targets_and_fans takes them."""
+    ``tables``: as targets_and_fans takes them (ProbeMesh.edge_probes passes its own)."""
     rng = np.random.default_rng(seed)
     nv = min(n // 10, len(v))
     tg, offs, fan = targets_and_fans(rng, v, faces, nv, n // 10, n - nv - n // 10, tables)
@@ -185,13 +188,10 @@ class ProbeMesh:
         self.v, self.faces = v, faces
         self.tris = np.ascontiguousarray(v[faces])
         self.v64 = v.astype(np.float64)
-        self.edges, self.ef = edge_table(faces)
+        self.tables = mesh_tables(faces, len(v))
+        self.edges, self.ef, self.vstart, self.vf_f = self.tables
         self.keys = self.edges[:, 0] * len(v) + self.edges[:, 1]  # sorted (np.unique's order)
         self.normals = face_normals(v, faces)
-        vf = faces.reshape(-1)
-        order = np.argsort(vf, kind="stable")
-        self.vf_f = np.repeat(np.arange(len(faces)), 3)[order]
-        self.vstart = np.searchsorted(vf[order], np.arange(len(v) + 1))
         self.centre = 0.5 * (self.v64.min(0) + self.v64.max(0))
         self.radius = float(np.linalg.norm(self.v64 - self.centre, axis=1).max())
 
@@ -199,8 +199,11 @@ class ProbeMesh:
         """Fans of vertices vids as CSR: (offsets (len(vids)+1,), face ids, owner index per face)."""
         k = self.vstart[vids + 1] - self.vstart[vids]
         offs = np.concatenate([[0], np.cumsum(k)])
-        owner = np.repeat(np.arange(len(vids)), k)
-        return offs, self.vf_f[np.arange(offs[-1]) - offs[owner] + self.vstart[vids][owner]], owner
+        return offs, self.vf_f[csr_gather(self.vstart[vids], k)], np.repeat(np.arange(len(vids)), k)
+
+    def edge_probes(self, seed, n):
+        """edge_probes on this mesh."""
+        return edge_probes(self.v, self.faces, self.normals, self.centre, self.radius, seed, n, self.tables)
 
     def edge_ids(self, a, b):
         key = np.minimum(a, b) * len(self.v) + np.maximum(a, b)
