@@ -430,13 +430,27 @@ def test_bad_cluster_options(tmp_path, args, message):
 
 @pytest.mark.slow  # (a real cluster started for it; the quick run keeps the local cluster's dump)
 def test_dashboard_is_live():
-    """The dashboard address a local cluster prints answers (bokeh serves it)."""
-    from gridrt.app.cluster.scheduler import Cluster
+    """The dashboard address a local cluster prints answers (bokeh serves it), also when its usual
+    port is taken (another cluster running): then it is served on another port, the address says
+    which, and no warning about the port reaches the user."""
+    import warnings
 
-    with Cluster(workers=1) as cl:
-        assert cl.dashboard.startswith("http://")
-        with urllib.request.urlopen(cl.dashboard, timeout=30) as page:
-            assert page.status == 200
+    from gridrt.app.cluster.scheduler import DASHBOARD_PORT, Cluster
+
+    with socket.socket() as held:
+        try:
+            held.bind(("127.0.0.1", DASHBOARD_PORT))
+            held.listen()
+        except OSError:
+            pass  # taken already, by something else
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with Cluster(workers=1) as cl:
+                assert cl.dashboard.startswith("http://127.0.0.1:")
+                assert f":{DASHBOARD_PORT}/" not in cl.dashboard, cl.dashboard
+                with urllib.request.urlopen(cl.dashboard, timeout=30) as page:
+                    assert page.status == 200
+    assert not [w for w in caught if "in use" in str(w.message)], [str(w.message) for w in caught]
 
 
 # ---------------------------------------------------------------------------------------------

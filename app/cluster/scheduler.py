@@ -306,8 +306,13 @@ class Cluster:
             # one task at a time per worker (a chunk or a configuration uses its own threads);
             # logs above errors only: a worker killed on purpose is not news
             try:
-                self.cluster = dist.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host=host,
-                                                 dashboard_address=dashboard, silence_logs=logging.ERROR)
+                with warnings.catch_warnings():
+                    # Dask warns when the dashboard's port is taken (another cluster running) and serves it
+                    # on a free one: the address printed (self.dashboard) is the one it took
+                    warnings.filterwarnings("ignore", message=r"Port \d+ is already in use")
+                    self.cluster = dist.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                                     host=host, dashboard_address=dashboard,
+                                                     silence_logs=logging.ERROR)
             except (OSError, RuntimeError) as e:  # (Dask reports a failed bind as a RuntimeError)
                 raise InputError(f"the local cluster did not start on {host} ({' '.join(str(e).split())}); "
                                  f"--listen takes an address of this machine (default {LOOPBACK})") from None
