@@ -7,6 +7,7 @@ import pytest
 
 import gridrt
 from conftest import icosphere
+from helpers.memory import traced
 from reference import compare_hits, ref_cast
 
 
@@ -155,9 +156,14 @@ def _odd_rays(rng, n, offset):
 
 def test_chunk_boundaries_change_nothing(rng, monkeypatch):
     """A batch cast in chunks (of 1, 7, 1000 rays) gives exactly the hits of one cast, for
-    RayCaster.cast and cast_rays, from float64, strided and float32 inputs, with rays of odd
-    direction lengths on both sides of chunk boundaries; and those hits are the reference's."""
+    RayCaster.cast and cast_rays, from float64, strided, Fortran-order and float32 inputs, with
+    rays of odd direction lengths on both sides of chunk boundaries; and those hits are the
+    reference's.  Whatever the inputs' layout, the batch kernel is given C-contiguous rays (one
+    compile serves every layout)."""
+    from numba import types
+
     from gridrt.trace import cast_rays
+    from gridrt.trace.batch import cast_runs_kernel
 
     render_mod = sys.modules["gridrt.trace.render"]
     offset = np.array([300.0, -20.0, 7.0])
@@ -169,9 +175,13 @@ def test_chunk_boundaries_change_nothing(rng, monkeypatch):
     o, d, scale = _odd_rays(rng, 3001, offset)
     wide = np.zeros((len(o), 7))
     wide[:, 1:7:2] = d
-    variants = {"float64": (o, d), "strided": (o, wide[:, 1:7:2]),
+    wide_o = np.zeros((len(o), 6))
+    wide_o[:, ::2] = o
+    variants = {"float64": (o, d), "strided": (wide_o[:, ::2], wide[:, 1:7:2]),
+                "fortran": (np.asfortranarray(o), np.asfortranarray(d)),
                 "float32": (o.astype(np.float32), (d / scale[:, None]).astype(np.float32))}
-    assert not variants["strided"][1].flags.c_contiguous
+    assert not variants["strided"][0].flags.c_contiguous and not variants["strided"][1].flags.c_contiguous
+    assert not variants["fortran"][0].flags.c_contiguous
     for name, (oo, dd) in variants.items():
         whole = [caster.cast(oo, dd), cast_rays(grid, tris32, oo, dd)]
         for chunk in (1, 7, 1000):
@@ -187,13 +197,13 @@ def test_chunk_boundaries_change_nothing(rng, monkeypatch):
             assert (ref.tri >= 0).sum() > 1000
             # t is in units of the direction as given: scale it to the unit-length one's
             assert len(compare_hits(whole[0].t * scale, whole[0].tri, ref).bad) == 0, name
+    layouts = {a.layout for sig in cast_runs_kernel.signatures for a in sig if isinstance(a, types.Array)}
+    assert layouts == {"C"}, cast_runs_kernel.signatures
 
 
 def test_cast_memory_is_bounded(rng, monkeypatch):
     """A cast allocates its results plus one chunk's scratch, not copies of its inputs: float32,
     strided rays, all with odd direction lengths (the costliest case), cast 8192 at a time."""
-    import tracemalloc
-
     render_mod = sys.modules["gridrt.trace.render"]
     v, f = icosphere(2)
     caster = gridrt.RayCaster(v.astype(np.float64) + 40.0, f)
@@ -206,14 +216,9 @@ def test_cast_memory_is_bounded(rng, monkeypatch):
     bound = render_mod.cast_bytes(n, chunk)
     # the bound is well below the results plus even one float64 copy of the origins
     assert bound < 28 * n + 24 * n // 2
-    tracemalloc.start()
-    try:
-        tracemalloc.reset_peak()
-        base = tracemalloc.get_traced_memory()[0]
+    with traced() as m:
         hits = caster.cast(o_in, d_in)
-        peak = tracemalloc.get_traced_memory()[1] - base
-    finally:
-        tracemalloc.stop()
+    peak = m.peak
     mib = 1 / 2**20
     print(f"FIGURE cast memory: {n} rays, chunk {chunk}: peak {peak * mib:.2f} MiB allocated, results "
           f"{28 * n * mib:.2f} MiB, declared bound {bound * mib:.2f} MiB, "
@@ -229,22 +234,16 @@ def test_cast_memory_is_bounded(rng, monkeypatch):
 def test_batch_beyond_the_budget_is_refused_before_allocating(rng):
     """A RayCaster's casts share its params' memory budget (max_bytes): a batch whose results do
     not fit is refused with a message naming the rays and the budget, allocating nothing."""
-    import tracemalloc
-
     v, f = icosphere(1)
     caster = gridrt.RayCaster(v, f, gridrt.GridParams(max_bytes=1 << 20))
     o, d = _rays(rng, 3000)
     assert len(compare_hits(caster.cast(o, d).t, caster.cast(o, d).tri, _local_ref(v, f, o, d)).bad) == 0
     n = 1_000_000
     big_o, big_d = np.broadcast_to(o[:1], (n, 3)), np.broadcast_to(d[:1], (n, 3))
-    tracemalloc.start()
-    try:
+    with traced() as m:
         with pytest.raises(gridrt.InputError, match=rf"casting {n} rays at once needs \d+ MiB .*max_bytes=1 MiB"):
             caster.cast(big_o, big_d)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
-    assert peak < 1 << 16, peak
+    assert m.peak < 1 << 16, m.peak
     assert caster.cast(big_o, big_d, max_bytes=1 << 30).tri.shape == (n,)
 
 

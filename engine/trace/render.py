@@ -271,7 +271,7 @@ def cast_batch(grid, tris, origins, dirs, origin=None, tmin=0.0, tmax=np.inf, wa
             if frame is None:
                 oc = np.ascontiguousarray(o[s:e], dtype=np.float64)
             else:
-                oc = np.subtract(o[s:e], frame, dtype=np.float64)
+                oc = np.subtract(o[s:e], frame, dtype=np.float64, order="C")  # (any layout in: one kernel)
             dc = np.ascontiguousarray(d[s:e], dtype=np.float64)
             out = (hits.t[s:e], hits.tri[s:e], hits.u[s:e], hits.v[s:e])
             # directions far from unit length are rescaled by exact powers of two (t scales back
