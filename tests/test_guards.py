@@ -53,6 +53,7 @@ from gridrt.config import GridParams, RenderParams
 from gridrt.errors import InputError
 from gridrt.grid import GridBuilder, build_grid, names
 from gridrt.threads import max_threads
+from helpers.memory import traced
 
 REPO = Path(__file__).resolve().parents[1]
 ENGINE = REPO / "engine"
@@ -672,8 +673,6 @@ def test_guard_cast_batch(good_grid, good_caster, tripwires, monkeypatch):
     """The chunked caster behind cast_rays and RayCaster.cast checks every chunk's rays before it
     casts the first one (a bad ray in the last chunk reaches no kernel), refuses a batch beyond
     its memory budget before allocating, and checks its own arguments."""
-    import tracemalloc
-
     render_mod = import_module("gridrt.trace.render")  # (gridrt.trace.render is also a function's name)
     grid, caster = good_grid, good_caster
     monkeypatch.setattr(render_mod, "CAST_CHUNK", 4)
@@ -693,14 +692,10 @@ def test_guard_cast_batch(good_grid, good_caster, tripwires, monkeypatch):
             expect_guard(cast, match)
     huge = 10**12
     ob, db = np.broadcast_to(o[:1], (huge, 3)), np.broadcast_to(d[:1], (huge, 3))  # costs no memory
-    tracemalloc.start()
-    try:
+    with traced() as m:
         for cast in (lambda: render_mod.cast_rays(grid, GOOD, ob, db), lambda: caster.cast(ob, db)):
             expect_guard(cast, f"casting {huge} rays at once needs .* above the memory budget")
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
-    assert peak < 1 << 20, f"a refused batch allocated {peak} bytes"
+    assert m.peak < 1 << 20, f"a refused batch allocated {m.peak} bytes"
     expect_guard(lambda: render_mod.cast_rays(grid, GOOD, o, d, max_bytes=28 * 50 - 1), "memory budget")
     expect_guard(lambda: render_mod.cast_rays(grid, GOOD, o, d, max_bytes=0), "max_bytes")
     for kw, match in ((dict(chunk=0), "chunk"), (dict(origin=[0, np.nan, 0]), "origin"),

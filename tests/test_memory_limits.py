@@ -22,7 +22,6 @@ import resource
 import subprocess
 import sys
 import textwrap
-import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +32,7 @@ from gridrt import memory
 from gridrt.errors import InputError
 
 from conftest import icosphere, icosphere_tris
+from helpers.memory import traced
 
 ROOT = Path(__file__).resolve().parents[1]
 TEAPOT = ROOT / "assets" / "teapot.obj"
@@ -42,14 +42,9 @@ LOW, HIGH = 0.8, 1.5
 
 def traced_peak(fn):
     """(fn(), the peak of memory allocated during fn beyond what was held at its start)."""
-    tracemalloc.start()
-    try:
-        tracemalloc.reset_peak()
-        base = tracemalloc.get_traced_memory()[0]
+    with traced() as m:
         out = fn()
-        return out, tracemalloc.get_traced_memory()[1] - base
-    finally:
-        tracemalloc.stop()
+    return out, m.peak
 
 
 def limit_to(monkeypatch, nbytes, source="test limit"):

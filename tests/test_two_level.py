@@ -28,7 +28,6 @@ threads write the first leaf cell of a chunk); the other tests build on the defa
 
 import os
 import time
-import tracemalloc
 import warnings
 
 import numpy as np
@@ -46,6 +45,7 @@ from gridrt.errors import InputError
 from gridrt.grid import GridBuilder, build_grid, names
 from gridrt.trace import cast_rays, render
 from helpers.grids import _check_pairs, check_spec
+from helpers.memory import traced
 from helpers.cgt import assert_same, check_f32, render_both
 from helpers.cgt import camera as cgt_camera
 from helpers.cgt import scene as cgt_scene
@@ -939,18 +939,13 @@ def test_huge_and_degenerate_triangles_mixed():
 
 def peak_during(call):
     """(exception, peak bytes traced while ``call`` ran)."""
-    tracemalloc.start()
-    tracemalloc.reset_peak()
-    try:
-        call()
-    except InputError as e:
-        err = e
-    else:
-        err = None
-    finally:
-        peak = tracemalloc.get_traced_memory()[1]
-        tracemalloc.stop()
-    return err, peak
+    err = None
+    with traced() as m:
+        try:
+            call()
+        except InputError as e:
+            err = e
+    return err, m.peak
 
 
 MIB = 1 << 20
