@@ -20,6 +20,15 @@ INDEX_DTYPE = np.int32
 COORD_LIMIT = 1e30
 
 
+def read_only(a):
+    """A read-only view of a (no copy).  numba types a read-only array apart from a writable one:
+    a record whose arrays may come from either (a file's buffer, a caller's array, an array made
+    here) gets read-only views of all of them, so that its kernels compile once."""
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
 def _finite_check(a, what):
     if not np.isfinite(a).all():
         bad = np.argwhere(~np.isfinite(a))[0]

@@ -40,6 +40,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from ..arrays import read_only
 from ..compiles import inner
 from ..grid.atomics import atomic_add
 from ..scene.surface import (AMBIENT_FRACTION, DEFAULT_DIFFUSE, FALLOFF_INVERSE_SQUARE, LIGHT_DIRECTIONAL, LIGHT_POINT,
@@ -753,14 +754,5 @@ def surface_arrays(tris, surface, normals):
     float32, or None: the geometric ones)."""
     ps = (surface if surface is not None else default_surface(len(tris))).packed
     nrm = normals if normals is not None else np.zeros((0, 3, 3), np.float32)
-    return SurfaceArrays(*(_read_only(a) for a in (tris, nrm, ps.material, ps.diffuse, ps.ambient, ps.texture,
+    return SurfaceArrays(*(read_only(a) for a in (tris, nrm, ps.material, ps.diffuse, ps.ambient, ps.texture,
                                                    ps.tex_data, ps.tex_info, ps.uv, ps.colors)))
-
-
-def _read_only(a):
-    """A read-only view of a (no copy): every field of a SurfaceArrays is read-only whether its
-    array came from a file's buffer or was made here, so the material kernels compile once (numba
-    types a read-only array apart from a writable one)."""
-    v = a.view()
-    v.flags.writeable = False
-    return v
