@@ -37,7 +37,7 @@ import numpy as np
 from numba import njit, prange
 
 from .api import RayCaster
-from .arrays import check_ray_values, check_rays
+from .arrays import check_ray_values, check_rays, read_only
 from .config import GridParams
 from .errors import InputError
 from .trace.all_hits import t_bounds
@@ -346,7 +346,8 @@ class RayScene:
         lo, hi = self._box(x)
         out = np.empty(len(o), np.bool_)
         if len(o):
-            reach_box(o, inv, tmin, tmax, lo, hi, out)
+            # (read-only views: the caller's bounds or arrays made here, one compile)
+            reach_box(*(read_only(a) for a in (o, inv, tmin, tmax, lo, hi)), out)
         return out
 
     def _reached(self, live, o, d, inv, tmin, tmax, keep=None):

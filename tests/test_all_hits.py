@@ -180,7 +180,8 @@ def test_rays_from_the_surface_and_grazing():
 def test_all_hits_ranges_cap_threads_order(grid):
     """t_min / t_max (numbers or one per ray) keep the hits inside them; max_hits keeps each ray's
     nearest ones; the hits are the same for 1, 2 and 3 threads, for the rays in any order, and for
-    a uniform or two-level grid."""
+    a uniform or two-level grid.  Rays and bounds given as numbers, arrays or read-only arrays are
+    one kind of input to the kernels (one compile each for a grid kind)."""
     m = icosphere_mesh(5120)
     V = np.concatenate([m.vertices, m.vertices * 0.5 + 0.1])   # two nested spheres: up to 4 crossings
     Fc = np.concatenate([m.faces, m.faces + len(m.vertices)])
@@ -207,6 +208,17 @@ def test_all_hits_ranges_cap_threads_order(grid):
     for i in range(N):
         t = ref.t[ref.offsets[i]:ref.offsets[i + 1]]
         assert np.array_equal(r.t[r.offsets[i]:r.offsets[i + 1]], t[(t > tmin[i]) & (t < tmax[i])])
+    frozen = [a.copy() for a in (O, D, tmin, tmax)]
+    for a in frozen:
+        a.flags.writeable = False
+    for a, b in zip(caster.all_hits(*frozen), r):
+        assert np.array_equal(a, b)
+    assert np.array_equal(caster.count_hits(*frozen), r.counts())
+    for kernel in (ah.slot_kernel, ah.count_kernel):
+        kinds = {}
+        for sig in kernel.signatures:
+            kinds.setdefault(sig[0], set()).add(sig[1])
+        assert all(len(rays) == 1 for rays in kinds.values()), (kernel, kinds)
     assert np.array_equal(caster.count_hits(O, D, 0.2, 0.9), np.diff(caster.all_hits(O, D, 0.2, 0.9).offsets))
     c = caster.all_hits(O, D, max_hits=2)
     assert np.array_equal(c.counts(), np.minimum(ref.counts(), 2))

@@ -124,7 +124,11 @@ def test_cast_against_the_baked_scene():
 def test_all_hits_and_counts_against_the_baked_scene():
     """Every hit, in order, is the brute force's over the baked triangles (instance and triangle
     for each) for rays whose hits lie clear of edges; count_hits equals all_hits' counts; max_hits
-    keeps each ray's nearest; per-ray t ranges; the result does not depend on the rays' order."""
+    keeps each ray's nearest; per-ray t ranges; the result does not depend on the rays' order.
+    Bounds given as numbers or as (read-only) arrays are one kind of input to the kernel that
+    finds the instances a ray reaches (one compile)."""
+    from gridrt.instances import reach_box
+
     scene = _scene()
     T, inst, tri = _baked(scene)
     O, D = _rays(scene, 400, 2)
@@ -153,6 +157,12 @@ def test_all_hits_and_counts_against_the_baked_scene():
         s = slice(got.offsets[i], got.offsets[i + 1])
         want = (got.t[s] > t0[i]) & (got.t[s] < t1[i])
         assert np.array_equal(ranged.t[ranged.offsets[i]:ranged.offsets[i + 1]], got.t[s][want])
+    frozen = [a.copy() for a in (O, D, t0, t1)]
+    for a in frozen:
+        a.flags.writeable = False
+    for a, b in zip(scene.all_hits(*frozen), ranged):
+        assert np.array_equal(a, b)
+    assert len(reach_box.signatures) == 1, reach_box.signatures
     p = rng.permutation(len(O))
     shuffled = scene.all_hits(O[p], D[p])
     assert np.array_equal(shuffled.counts(), got.counts()[p])

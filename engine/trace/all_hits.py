@@ -36,7 +36,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from ..arrays import check_ray_values, check_rays
+from ..arrays import check_ray_values, check_rays, read_only
 from ..compiles import inner
 from ..errors import InputError
 from ..grid.atomics import atomic_add
@@ -639,7 +639,7 @@ def query_hits(grid, tris, origins, dirs, origin, t_min, t_max, max_hits=None, t
     g = HitGrid(tris, lo, hi, cell, dims, int(s.macro), np.ascontiguousarray(s.mdims, np.int64),
                 np.ascontiguousarray(grid.macro_full, np.uint8), cs, ids, leaf_first, leaf_res,
                 len(tris) >= PREFETCH_TRIANGLES)
-    rays = HitRays(O, D, tmin, tmax)
+    rays = _rays(O, D, tmin, tmax)
     with launch_guard():
         if count_only:
             if N:
@@ -687,7 +687,13 @@ def _recount(g, rays, counts, F, threads):
 
 
 def _take(rays, idx):
-    return HitRays(*(a[idx] for a in rays))
+    return _rays(*(a[idx] for a in rays))
+
+
+def _rays(*arrays):
+    """HitRays of read-only views of the arrays: the caller's arrays (read-only or not) or copies
+    made here, the kernels compile once (numba types read-only arrays apart)."""
+    return HitRays(*(read_only(a) for a in arrays))
 
 
 def _slots(n, k):
