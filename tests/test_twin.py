@@ -28,16 +28,18 @@ from gridrt.trace.grids import grid_arrays
 from gridrt.trace.records import Buffers, make_packets, make_shading, make_view
 from gridrt.trace.cgt import cgt_render
 from gridrt.trace.render import dda_render
+from gridrt.trace.traverse import near_all
 from gridrt.trace.twin import Twins, parallel_first
 
 
 
 def _args(grids, camera, W, H, shadows, shading=0, light=None, off=1e-6, f32=None):
     """Render kernel arguments (gridrt.trace.records), the buffers last; f32 (True / False: the
-    CGT kernels' packet precision, with the packet shape) or None (the DDA kernels)."""
+    CGT kernels' packet precision, with the packet shape; without the far-ray path, as the
+    renderer has it for a camera and light near the grids) or None (the DDA kernels)."""
     bufs = Buffers(np.zeros((H, W, 4), np.uint8), np.zeros((H, W), np.float32), np.zeros((H, W), np.int32),
                    np.zeros((H, W), np.int32), np.zeros((H, W), np.int32))
-    prec = () if f32 is None else (make_packets(f32, 8, 8),)
+    prec = () if f32 is None else (make_packets(f32, 8, 8, far=False),)
     looks = make_shading(shading, shadows, off, True)
     return (grids, make_view(camera.basis(), W, H, 16), looks, light) + prec + (bufs,)
 
@@ -66,6 +68,7 @@ def test_render_on_any_thread_count_equals_one_thread(traversal, shadows):
         light = np.zeros(3)  # the DDA kernel takes the light as an array and `shadows` as the switch
     f32 = False if traversal == "cgt" else None
     for grids in (one, two):
+        assert near_all([(g.lo, g.hi) for g in grids], [cam.basis()[0]] + ([light] if shadows else []))  # (see _args)
         a = _args(grids, cam, W, H, shadows, light=light, f32=f32)
         ref = render(*a, threads=1)
         ref_bufs = [b.copy() for b in a[-1]]
