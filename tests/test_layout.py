@@ -76,6 +76,13 @@ def _parse_text(name, text):
     return ast.parse(text, filename=name)
 
 
+@functools.lru_cache(maxsize=None)
+def _nodes(tree):
+    """Every node of a syntax tree (ast.walk's order), listed once per tree: the checks walk the
+    same cached trees many times."""
+    return list(ast.walk(tree))
+
+
 def _imported_names(mod, is_pkg, node):
     """Absolute names an Import / ImportFrom node names: for ``from P import a`` both P and P.a
     (P.a counts only where it is a module); relative imports resolved against ``mod``."""
@@ -95,7 +102,7 @@ def _imported_names(mod, is_pkg, node):
 def _function_nodes(tree):
     """ids of the Import / ImportFrom nodes inside a function body (at any depth)."""
     inner = set()
-    for fn in ast.walk(tree):
+    for fn in _nodes(tree):
         if isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
             for n in ast.walk(fn):
                 if isinstance(n, (ast.Import, ast.ImportFrom)):
@@ -113,7 +120,7 @@ def import_graph(roots=None, top_level_only=False):
     graph = {}
     for mod, path in mods.items():
         tree = _parse(path)
-        nodes = tree.body if top_level_only else list(ast.walk(tree))
+        nodes = tree.body if top_level_only else _nodes(tree)
         edges = {}
         for node in nodes:
             if isinstance(node, (ast.Import, ast.ImportFrom)):
@@ -191,12 +198,13 @@ def _rel(path):
         return str(path)
 
 
+@functools.lru_cache(maxsize=None)
 def _aliases(tree, mod="", is_pkg=False):
     """{local name: absolute dotted name} of the module's imports (``import numba as nb`` gives
     nb -> numba, ``from numba import njit as nj`` gives nj -> numba.njit; relative imports are
     resolved against the module ``mod``)."""
     out = {}
-    for node in ast.walk(tree):
+    for node in _nodes(tree):
         if isinstance(node, ast.Import):
             for a in node.names:
                 if a.asname:
@@ -252,12 +260,12 @@ def compiled_functions(roots=None):
         tree = _parse(path)
         aliases = _aliases(tree, mod, path.name == "__init__.py")
         defs = {}
-        for node in ast.walk(tree):
+        for node in _nodes(tree):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
                 defs.setdefault(node.name, node)
                 if any(_is_compiler(d, aliases) for d in node.decorator_list):
                     out.append((path, node.lineno, node.name, count_params(node)))
-        for node in ast.walk(tree):
+        for node in _nodes(tree):
             # njit(...)(body) or njit(body): the function named by the argument is compiled
             if isinstance(node, ast.Call) and node.args and isinstance(node.args[0], ast.Name):
                 if _is_compiler(node.func, aliases) and (isinstance(node.func, ast.Call)
@@ -296,10 +304,10 @@ def python_uses(folders):
             tree = _parse(p)
             aliases = _aliases(tree)
             jitted = set()
-            for fn in ast.walk(tree):
+            for fn in _nodes(tree):
                 if isinstance(fn, ast.FunctionDef) and any(_is_compiler(d, aliases) for d in fn.decorator_list):
                     jitted.update(id(n) for stmt in fn.body for n in ast.walk(stmt))
-            for n in ast.walk(tree):
+            for n in _nodes(tree):
                 if id(n) not in jitted:
                     if isinstance(n, ast.Name):
                         names.add(n.id)
@@ -313,7 +321,7 @@ def _function_defs(roots=None):
     for mod, path in modules(roots).items():
         tree = _parse(path)
         aliases = _aliases(tree, mod, path.name == "__init__.py")
-        for node in ast.walk(tree):
+        for node in _nodes(tree):
             if isinstance(node, ast.FunctionDef):
                 yield path, node, aliases
 
@@ -349,10 +357,10 @@ def undeclared_inner_imports(roots=None):
     out = []
     for mod, path in modules(roots).items():
         source = path.read_text()
-        tree = ast.parse(source, filename=str(path))
+        tree = _parse_text(str(path), source)
         comments = _comments(source)
         inner = _function_nodes(tree)
-        for node in ast.walk(tree):
+        for node in _nodes(tree):
             if id(node) in inner and not DEFERRED.search(comments.get(node.lineno, "")):
                 out.append(f"{_rel(path)}:{node.lineno} {ast.unparse(node)}")
     return sorted(out, key=lambda s: (s.split(":")[0], int(s.split(":")[1].split()[0])))
