@@ -171,9 +171,11 @@ def test_uniform_grids_compile_no_two_level_code():
             f"grids {'with' if two else 'without'} leaf arrays: trace_ray_2l {'missing' if two else 'compiled in'}"
 
 
+@pytest.mark.parametrize("parts", [2, pytest.param(3, marks=pytest.mark.slow)], ids=["2 grids", "3 grids"])
 @pytest.mark.parametrize("kernel", [_dda, _packets], ids=["dda", "packets"])
-def test_grid_sequences_any_hit(kernel):
-    """Shadow-ray semantics over three grids: a hit iff the scene has one in (0, tmax)."""
+def test_grid_sequences_any_hit(kernel, parts):
+    """Shadow-ray semantics over two grids (three in the slow run, a compile of its own): a hit iff
+    the scene has one in (0, tmax)."""
     tris = np.asarray(icosphere_tris(3, radius=1.0), np.float32)
     o, d = rays(tris, 1200, seed=2)
     ref = R.ref_cast(tris, o, d)
@@ -181,7 +183,7 @@ def test_grid_sequences_any_hit(kernel):
     far = np.arange(len(o)) % 2 == 0
     tmax = np.where(ref.hit, np.where(far, 1.5 * ref.t, 0.5 * ref.t), np.inf)
     want = ref.hit & far
-    grids, ids, origin = split_scene(tris, 3)
+    grids, ids, origin = split_scene(tris, parts)
     tri, t = trace(kernel, grids, ids, origin, o, d, tmax, True)
     got = tri >= 0
     assert ref.hit.sum() > 200 and want.sum() > 100
