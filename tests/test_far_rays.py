@@ -219,7 +219,7 @@ def far_cameras(teapot):
 RW, RH = 16, 12
 
 
-@pytest.mark.parametrize("traversal", ["dda", "cgt"])
+@pytest.mark.parametrize("traversal", ["dda", pytest.param("cgt", marks=pytest.mark.slow)])
 def test_renders_from_far_away(teapot, far_cameras, traversal):
     """The dda and cgt renders (watertight and fast tests) from far cameras hit what the exact
     camera rays hit."""

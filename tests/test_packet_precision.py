@@ -1,6 +1,7 @@
 """CGT packet tests in float32 (``RenderParams.packet_precision="float32"``, ``cast_rays(...,
 packet_precision="float32")``): engine/trace/cgt.py's _test_wt32 / _test_mt32 and the float64
-fallback _fix_wt64.
+fallback _fix_wt64.  The renders' tests are in the slow run (the float32 render kernels compile
+for them alone); the quick run keeps the batch casts, the packet tests and the fallback.
 
 * Renders (both intersection tests; the test_cgt scenes and views) agree with the float64 brute
   force (tests/reference.py) up to float32 rounding: every pixel that differs is a near-tie in t
@@ -44,6 +45,7 @@ from gridrt.trace.grids import grid_arrays
 from helpers.cgt import camera, check_f32, grid_of, trace_one_packet
 
 
+@pytest.mark.slow  # (the float32 packets' render kernels, about 18 s to compile, for these tests alone)
 @pytest.mark.parametrize("watertight", [True, False])
 @pytest.mark.parametrize("name", ["random", "icosphere", "teapot", "terrain", "cubes", "dups"])
 def test_f32_render_matches_brute_force(name, watertight):
@@ -65,6 +67,7 @@ def test_f32_render_matches_brute_force(name, watertight):
             assert len(d64.bad) == 0
 
 
+@pytest.mark.slow  # (the float32 packets' render kernels, about 18 s to compile, for these tests alone)
 @pytest.mark.parametrize("packet", [1, 4, 16, (16, 4), (3, 7)])
 def test_f32_packet_sizes(packet):
     """float32 packets of every size agree with the brute force alike.  (Not bit for bit with
@@ -79,6 +82,7 @@ def test_f32_packet_sizes(packet):
                       f"{name}/{view} packet {packet}")
 
 
+@pytest.mark.slow  # (the float32 packets' render kernels, about 18 s to compile, for these tests alone)
 def test_f32_images_identical_across_threads():
     tris, grid = grid_of("teapot")
     cam = camera("framed", tris)
@@ -92,6 +96,7 @@ def test_f32_images_identical_across_threads():
             assert np.array_equal(getattr(a, f), getattr(b, f)), f"{f} differs at {threads} threads"
 
 
+@pytest.mark.slow  # (the float32 packets' render kernels, about 18 s to compile, for these tests alone)
 def test_f32_far_from_the_frame():
     """Two unit spheres 1e4 apart (the grid's frame is centred between them) and a camera 4 units
     from one: float32 of the frame coordinates themselves (5000 * 6e-8 = 3e-4) would move edges by
