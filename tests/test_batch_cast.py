@@ -295,7 +295,8 @@ def _tilted_surface(n, tilt):
     return np.array(tris), c0, e1, e2, nz
 
 
-@pytest.mark.parametrize("kind", ["uniform", "two_level"])
+# (two-level: the slow run's, with the two-level batch cast kernel's other tests: test_two_level.py)
+@pytest.mark.parametrize("kind", ["uniform", pytest.param("two_level", marks=pytest.mark.slow)])
 def test_shadow_segments_ending_on_a_surface(kind):
     """Shadow segments from a point light to points just off a tilted, finely split surface (in 8x8
     tiles, as the material pass casts them), with small occluders all along the segments, some

@@ -159,7 +159,8 @@ def axis_pencils(teapot):
     return out
 
 
-@pytest.mark.parametrize("kind", ["uniform", "two_level"])
+# (two-level: the slow run's, with the two-level batch cast kernel's other tests: test_two_level.py)
+@pytest.mark.parametrize("kind", ["uniform", pytest.param("two_level", marks=pytest.mark.slow)])
 def test_casts_along_every_axis(teapot, axis_pencils, kind):
     import gridrt
     from gridrt.config import GridParams

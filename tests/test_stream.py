@@ -9,6 +9,9 @@ that use it on large meshes.
 * batch casts on a mesh at or above the threshold take it (a wrapped stream_runs records the
   call), below it they do not, and with it forced on a small mesh their hits are the same for
   1, 2 and 3 threads and any order of the rays, and the brute force's.
+
+The slow run's (the interleaved walk's kernel compiles for these tests alone, about 20 s): the
+quick run's batch casts, on meshes below the threshold, do not take it.
 """
 
 import importlib
@@ -28,6 +31,7 @@ from gridrt.trace.stream import STREAM_TRIANGLES
 from gridrt.trace.traverse import SCRATCH, trace_ray
 
 batch = importlib.import_module("gridrt.trace.batch")
+pytestmark = pytest.mark.slow
 
 
 @njit(cache=True)

@@ -537,6 +537,13 @@ def hard_case(scene):
     return _HARD[scene]
 
 
+#: the tests that cast rays through two-level grids (cast_rays, RayCaster): the slow run's, as the
+#: two-level grid's batch cast kernel takes about 40 s to compile for them alone; the quick run
+#: keeps the two-level contents, renders (DDA and CGT, with their watertightness probes) and all-hits
+BATCH_CAST = pytest.mark.slow
+
+
+@BATCH_CAST
 @pytest.mark.parametrize("packets", [False, True], ids=["single", "packets"])
 @pytest.mark.parametrize("watertight", [True, False], ids=["watertight", "fast"])
 @pytest.mark.parametrize("scene", ["random", "icosphere", "teapot"])
@@ -558,6 +565,7 @@ def test_cast_rays_match_reference(scene, watertight, packets):
     ("thread_grids", 0.0625, 2.0, "bbox"),
     ("sort_middle", 2.0, 1.0, "exact"),
 ])
+@BATCH_CAST
 def test_cast_rays_grid_params(strategy, top_density, leaf_density, insert):
     """Top strategy, densities and insertion test change no hit."""
     c = get_case("random")
@@ -567,6 +575,7 @@ def test_cast_rays_grid_params(strategy, top_density, leaf_density, insert):
                       c.o, c.d)
 
 
+@BATCH_CAST
 def test_cast_rays_tmin_tmax_and_any_hit():
     c = get_case("icosphere")
     g = build_grid(c.tris, two_level())
@@ -583,6 +592,7 @@ def test_cast_rays_tmin_tmax_and_any_hit():
         np.testing.assert_allclose(h.t[idx], own, rtol=1e-9)
 
 
+@BATCH_CAST
 def test_cast_rays_threads_identical():
     c = get_case("random")
     g = build_grid(c.tris, two_level())
@@ -593,6 +603,7 @@ def test_cast_rays_threads_identical():
             assert np.array_equal(getattr(h, f), getattr(base, f)), f"{f} differs between 1 and {n} threads"
 
 
+@BATCH_CAST
 def test_raycaster_two_level():
     """RayCaster over an indexed mesh far from the origin, two-level grid, then an update."""
     v, f = icosphere(3, radius=1.0)
@@ -615,6 +626,7 @@ def test_raycaster_two_level():
             assert_hits_match(caster.cast(o, d, packets=packets), ref, f"RayCaster frame {k} packets={packets}", o, d)
 
 
+@BATCH_CAST
 def test_far_from_origin_hits():
     """A scene 1e6 from the origin: the brute force's hits (in the grid's frame, where the grid
     keeps the scene's float32 precision)."""
@@ -801,6 +813,7 @@ def pipeline(scene, kind, traversal, size=(80, 60)):
 # watertightness (tests/test_watertight.py's probes)
 
 
+@BATCH_CAST
 @pytest.mark.parametrize("top_density,leaf_density", [(0.0625, 2.0), (0.01, 8.0), (1.0, 0.5)])
 def test_watertight_icosphere(rng, top_density, leaf_density):
     """Rays at shared vertices and edges of a closed icosphere from in front of all their faces:
@@ -815,6 +828,7 @@ def test_watertight_icosphere(rng, top_density, leaf_density):
           two_level(top_density=top_density, leaf_density=leaf_density))
 
 
+@BATCH_CAST
 def test_watertight_jittered_sphere_from_inside(rng):
     v, f = icosphere(3, radius=1.0)
     v = (v * rng.uniform(0.97, 1.03, (len(v), 1))).astype(np.float32)
@@ -908,6 +922,7 @@ def test_refuses_bad_values(value):
         GridBuilder(two_level(threads=2)).build(tris)
 
 
+@BATCH_CAST
 def test_all_degenerate():
     """build_grid refuses a scene of zero-area triangles; a frame of them (GridBuilder, the
     animation path) gives an empty two-level grid, in which every ray misses."""
@@ -991,6 +1006,7 @@ def test_leaf_cells_beyond_int32():
 # one builder, frame after frame
 
 
+@BATCH_CAST
 def test_builder_switches_kinds_over_frames():
     """One GridBuilder over an animated scene (the marbles, moving every frame), with the grid
     kind, insertion test and densities changing, and a frame of another size: every frame's
