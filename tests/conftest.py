@@ -68,11 +68,38 @@ def pytest_configure(config):
     """Where Python writes no bytecode (PYTHONDONTWRITEBYTECODE, set on some hosts), every process
     the tests start (most of them gridrt commands) would compile gridrt's sources again, about
     0.3 s each on a 2-vCPU host: the controlling process compiles them once here,
-    before the workers start, and the processes read the bytecode (only its writing is off)."""
+    before the workers start, and the processes read the bytecode (only its writing is off).
+    Likewise pytest's rewriting of the test modules' asserts, which each worker would otherwise
+    do again on every run (8-16 s a worker): see :func:`_rewrite_asserts_once`."""
     if hasattr(config, "workerinput") or not sys.dont_write_bytecode:
         return
     for folder in SOURCES:
         compileall.compile_dir(REPO / folder, quiet=2)
+    _rewrite_asserts_once(config)
+
+
+def _rewrite_asserts_once(config):
+    """Write pytest's cached, assert-rewritten bytecode of the test modules and conftest files
+    (pytest reads that cache whether or not Python may write bytecode, but writes it only where it
+    may).  Through pytest's own rewriting functions, as its import hook calls them; with another
+    pytest whose internals differ, nothing is written and the workers rewrite as before."""
+    try:
+        from _pytest.assertion.rewrite import (PYC_TAIL, _read_pyc, _rewrite_test, _write_pyc, assertstate_key,
+                                               get_cache_dir)
+
+        state = config.stash[assertstate_key]
+    except (ImportError, AttributeError, KeyError):
+        return
+    for fn in sorted((REPO / "tests").rglob("*.py")):
+        if fn.name != "conftest.py" and not fn.name.startswith("test_"):
+            continue
+        cache = get_cache_dir(fn)
+        pyc = cache / (fn.name[:-3] + PYC_TAIL)
+        if _read_pyc(fn, pyc, state.trace) is not None:
+            continue
+        cache.mkdir(exist_ok=True)
+        source_hash, co = _rewrite_test(fn, config)
+        _write_pyc(state, co, source_hash, pyc)
 
 
 def soak_requested(config):
