@@ -16,6 +16,7 @@
 """
 
 import compileall
+import fnmatch
 import os
 import shutil
 import subprocess
@@ -90,8 +91,9 @@ def _rewrite_asserts_once(config):
         state = config.stash[assertstate_key]
     except (ImportError, AttributeError, KeyError):
         return
+    patterns = ["conftest.py", *config.getini("python_files")]  # (what pytest's import hook rewrites)
     for fn in sorted((REPO / "tests").rglob("*.py")):
-        if fn.name != "conftest.py" and not fn.name.startswith("test_"):
+        if not any(fnmatch.fnmatch(fn.name, p) for p in patterns):
             continue
         cache = get_cache_dir(fn)
         pyc = cache / (fn.name[:-3] + PYC_TAIL)

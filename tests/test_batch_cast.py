@@ -32,6 +32,7 @@ from gridrt.errors import InputError
 from gridrt.grid import GridParams, build_grid
 from gridrt.threads import use_threads
 from gridrt.trace import cast_rays
+from helpers.grids import CAST_KINDS
 
 batch = importlib.import_module("gridrt.trace.batch")
 FIELDS = ("t", "tri", "u", "v")
@@ -295,8 +296,7 @@ def _tilted_surface(n, tilt):
     return np.array(tris), c0, e1, e2, nz
 
 
-# (two-level: the slow run's, with the two-level batch cast kernel's other tests: test_two_level.py)
-@pytest.mark.parametrize("kind", ["uniform", pytest.param("two_level", marks=pytest.mark.slow)])
+@pytest.mark.parametrize("kind", CAST_KINDS)
 def test_shadow_segments_ending_on_a_surface(kind):
     """Shadow segments from a point light to points just off a tilted, finely split surface (in 8x8
     tiles, as the material pass casts them), with small occluders all along the segments, some

@@ -26,6 +26,7 @@ import pytest
 
 import reference as R
 from conftest import data_path
+from helpers.grids import CAST_KINDS
 
 DISTANCES = (1e8, 1e12, 3e16, 1e20, 1e29)
 AXES = [np.eye(3)[k] * s for k in range(3) for s in (1.0, -1.0)]
@@ -159,8 +160,7 @@ def axis_pencils(teapot):
     return out
 
 
-# (two-level: the slow run's, with the two-level batch cast kernel's other tests: test_two_level.py)
-@pytest.mark.parametrize("kind", ["uniform", pytest.param("two_level", marks=pytest.mark.slow)])
+@pytest.mark.parametrize("kind", CAST_KINDS)
 def test_casts_along_every_axis(teapot, axis_pencils, kind):
     import gridrt
     from gridrt.config import GridParams

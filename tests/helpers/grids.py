@@ -1,8 +1,14 @@
 """Checks of a grid's layout, macro-cell flags and (cell, triangle) pairs against the brute-force reference."""
 
 import numpy as np
+import pytest
 
 import reference as R
+
+#: the grid kinds of a test that casts rays through a grid (cast_rays, RayCaster): the two-level
+#: case in the slow run only, as the two-level grid's batch cast kernel takes about 40 s to compile
+#: for those tests alone (test_two_level.py's casts are marked alike)
+CAST_KINDS = ["uniform", pytest.param("two_level", marks=pytest.mark.slow)]
 
 
 def check_spec(grid, tris, params):
