@@ -1,6 +1,7 @@
 """Hard shadows of point lights, the casts alone: BENCHMARKS.md section 15, table "scene | triangles
-| lights | shadow rays | threads | gridrt Mrays/s | embreex occluded Mrays/s | gridrt / embreex |
-differ from single rays | brute force checked | differ from brute force".
+| lights | shadow rays | threads | gridrt Mrays/s | embreex occluded Mrays/s | native Mrays/s |
+native robust Mrays/s | gridrt / embreex | gridrt / native | differ from single rays | brute force
+checked | differ from brute force | differ from native, native robust".
 
     .venv/bin/python scripts/shadow_rays.py
 
@@ -22,18 +23,26 @@ force finds no crossing, or its nearest crossing lies within (1e-9, 1 - 1e-9) an
 inside its triangle's edges: at an edge or an end point, float32 and float64 arithmetic may judge
 a ray differently).  embreex (robust scene, ``query='OCCLUDED'``, float32 segments, tfar 1) casts the
 same segments over the same triangles, in chunks spread over a pool of the thread count's Python
-threads, timed alike.
+threads, timed alike.  Native Embree 3 (C++, gridrt.app.bench.occluded: ``rtcOccluded1``,
+``rtcOccluded16`` packets and ``rtcOccluded1M`` streams of the same segments in groups of 64 in
+the same order, each batch against its grid's triangles, on the thread count's pinned threads;
+default build quality) casts them too, with default scene flags and with the robust flag: each
+column is its fastest mode's median round (the mode in brackets), ``--runs`` after ``--warmup``.
+The segments on which gridrt and native robust disagree (at most 256 a row) are checked against the
+float64 brute force (printed: where it is clear of rounding, which side it agrees with).
 """
 
 import argparse
 import concurrent.futures
 import importlib
+import tempfile
 
 import numpy as np
 
 import gridrt  # noqa: F401  (sets NUMBA_NUM_THREADS before numba loads)
 from gridrt.app.bench.affinity import Affinity
 from gridrt.app.bench.looks import looks_spec
+from gridrt.app.bench import occluded as native_occluded
 from gridrt.app.bench.native import _bary_min
 from gridrt.app.bench.output import md_table
 from gridrt.app.bench.reference import brute_cast
@@ -53,7 +62,10 @@ from tables import add_out_option, items, start
 RENDER = importlib.import_module("gridrt.trace.render")
 SCENES = "kitchen,icosphere:20480:twist,lucy:twist,icosphere:1310720:twist"
 HEADER = ["scene", "triangles", "lights", "shadow rays", "threads", "gridrt Mrays/s", "embreex occluded Mrays/s",
-          "gridrt / embreex", "differ from single rays", "brute force checked", "differ from brute force"]
+          "native Mrays/s", "native robust Mrays/s", "gridrt / embreex", "gridrt / native", "differ from single rays",
+          "brute force checked", "differ from brute force", "differ from native, native robust"]
+#: disagreements with native robust checked against the brute force, at most, a row
+NATIVE_CHECK = 256
 #: clear of rounding: t and the barycentric margin (see the docstring)
 CLEAR = 1e-9
 
@@ -69,6 +81,9 @@ def parse_args(argv=None):
     p.add_argument("--warmup", type=int, default=1, help="untimed rounds first (default: the table's, 1)")
     p.add_argument("--check", type=int, default=2000,
                    help="segments checked against the float64 brute force (default: the table's, 2000)")
+    p.add_argument("--native-bin", default=str(native_occluded.DEFAULT_BIN),
+                   help="the native occlusion tool, compiled there from gridrt/app/bench/occluded.cpp when missing "
+                        "(default %(default)s)")
     add_out_option(p)
     return start(p, argv)
 
@@ -156,32 +171,77 @@ class Occluded:
         return np.concatenate([EmbreeSide.blocked(p) for p in parts])
 
 
+class Native:
+    """The kept batches in the native occlusion tool's folder (one mesh a grid, in the order the
+    batches first use them)."""
+
+    def __init__(self, calls, binary, folder):
+        self.binary, self.folder = binary, folder
+        meshes, batches = {}, []
+        for g, o, d, *_ in calls:
+            m = meshes.setdefault(id(g.tris), (len(meshes), g.tris))[0]
+            batches.append((m, o, d))
+        native_occluded.write_folder(folder, [t for _, t in meshes.values()], batches)
+
+    def best(self, threads, runs, warmup, robust):
+        """(median ms of a round, mode, verdicts) of the fastest mode."""
+        res = native_occluded.cast(self.binary, self.folder, threads, runs, warmup, robust=robust, verdicts=True)
+        r = min(res.values(), key=lambda r: r["ms"])
+        return r["ms"], r["mode"], r["verdicts"]
+
+
+def native_side(calls, binary, folder):
+    """A :class:`Native` over the batches, or None (with a note) where the tool cannot be built."""
+    try:
+        return Native(calls, native_occluded.build(binary), folder)
+    except MissingPeer as e:
+        print(f"note: {e}")
+        return None
+
+
 def median_s(fn, runs, warmup):
     """The median seconds of ``runs`` calls of fn after ``warmup`` untimed ones."""
     return timings(fn, runs, warmup)[0] / 1e3
 
 
-def brute_check(calls, blocked, n, rng):
-    """(checked, differing) of n segments drawn at random against the float64 brute force, where
-    its verdict is clear of rounding."""
+def brute_verdicts(calls, pick):
+    """(clear, blocked) of the float64 brute force on the segments ``pick`` (sorted indices into
+    every batch's segments, joined): clear where its verdict is clear of rounding (no crossing,
+    or the nearest crossing well within (0, 1) and well inside its triangle)."""
     sizes = np.array([len(c[1]) for c in calls])
     starts = np.concatenate([[0], np.cumsum(sizes)])
-    pick = np.sort(rng.choice(starts[-1], size=min(n, starts[-1]), replace=False))
-    checked = differ = 0
+    clear, hit = np.zeros(len(pick), bool), np.zeros(len(pick), bool)
     for k, (g, o, d, *_rest) in enumerate(calls):
-        sel = pick[(pick >= starts[k]) & (pick < starts[k + 1])] - starts[k]
-        if not len(sel):
+        m = (pick >= starts[k]) & (pick < starts[k + 1])
+        if not m.any():
             continue
+        sel = pick[m] - starts[k]
         tris = np.asarray(g.tris, np.float64)
         oo, dd = o[sel], d[sel]
         t, f, _ = brute_cast(tris, oo, dd, 0.0, 1.0)
-        hit = f >= 0
-        # a hit is clear when its crossing lies well within (0, 1) and well inside its triangle
-        clear = ~hit | ((t > CLEAR) & (t < 1.0 - CLEAR) & (_bary_min(tris, oo, dd, np.where(hit, f, -1)) > CLEAR))
-        ours = blocked[starts[k] + sel]
-        checked += int(clear.sum())
-        differ += int((clear & (ours != hit)).sum())
-    return checked, differ
+        h = f >= 0
+        clear[m] = ~h | ((t > CLEAR) & (t < 1.0 - CLEAR) & (_bary_min(tris, oo, dd, np.where(h, f, -1)) > CLEAR))
+        hit[m] = h
+    return clear, hit
+
+
+def brute_check(calls, blocked, n, rng):
+    """(checked, differing) of n segments drawn at random against the float64 brute force, where
+    its verdict is clear of rounding."""
+    total = sum(len(c[1]) for c in calls)
+    pick = np.sort(rng.choice(total, size=min(n, total), replace=False))
+    clear, hit = brute_verdicts(calls, pick)
+    return int(clear.sum()), int((clear & (blocked[pick] != hit)).sum())
+
+
+def who_is_right(calls, blocked, theirs, limit, rng):
+    """(gridrt right, the other right, unclear) over at most ``limit`` segments (drawn at random) on
+    which the flags ``blocked`` and ``theirs`` differ, by the float64 brute force."""
+    differ = np.flatnonzero(blocked != theirs)
+    pick = np.sort(rng.choice(differ, size=min(limit, len(differ)), replace=False))
+    clear, hit = brute_verdicts(calls, pick)
+    mine = blocked[pick] == hit
+    return int((clear & mine).sum()), int((clear & ~mine).sum()), int((~clear).sum())
 
 
 def main(argv=None):
@@ -205,6 +265,8 @@ def measure(a):
         except MissingPeer as e:
             print(f"note: embreex not measured: {e}")
             emb = None
+        folder = tempfile.TemporaryDirectory(prefix="shadow-native-")
+        nat = native_side(calls, a.native_bin, folder.name)
         use_threads(2)
         outs = outputs(calls)
         cast_all(calls, outs, 0.0)
@@ -217,14 +279,29 @@ def measure(a):
                 if emb:
                     es = median_s(lambda: emb.cast(pool, T), a.runs, a.warmup)
                     eb = emb.blocked(emb.cast(pool, T))
+                if nat:
+                    nms, nmode, nb = nat.best(T, a.runs, a.warmup, robust=False)
+                    rms, rmode, rb = nat.best(T, a.runs, a.warmup, robust=True)
             use_threads(2)
             checked, differ = brute_check(calls, blocked, a.check, np.random.default_rng(1))
-            rows.append([label, f"{ntri:,}", str(lights), f"{n:,}", str(T), f"{n / s / 1e6:.1f}",
-                         "-" if emb is None else f"{n / es / 1e6:.1f}", "-" if emb is None else f"{es / s:.2f}",
-                         str(int((blocked != single).sum())), str(checked), str(differ)])
+            mrays = lambda sec: f"{n / sec / 1e6:.1f}"
+            native = ["-"] * 4
+            if nat:
+                fastest = min(nms, rms) / 1e3
+                native = [f"{mrays(nms / 1e3)} ({nmode})", f"{mrays(rms / 1e3)} ({rmode})", f"{fastest / s:.2f}",
+                          f"{int((nb != blocked).sum())}, {int((rb != blocked).sum())}"]
+                right = who_is_right(calls, blocked, rb, NATIVE_CHECK, np.random.default_rng(2))
+                print(f"# {label} T={T}: native robust disagreements checked: gridrt right {right[0]}, native "
+                      f"right {right[1]}, unclear {right[2]}", flush=True)
+            rows.append([label, f"{ntri:,}", str(lights), f"{n:,}", str(T), mrays(s),
+                         "-" if emb is None else mrays(es), native[0], native[1],
+                         "-" if emb is None else f"{es / s:.2f}", native[2],
+                         str(int((blocked != single).sum())), str(checked), str(differ), native[3]])
             print(f"# {label} T={T}: {n / s / 1e6:.1f} Mrays/s"
                   + ("" if emb is None else f", embreex {n / es / 1e6:.1f}; differ from embreex "
-                     f"{int((eb != blocked).sum())}"), flush=True)
+                     f"{int((eb != blocked).sum())}")
+                  + ("" if nat is None else f", native {native[0]}, robust {native[1]}"), flush=True)
+        folder.cleanup()
     return rows
 
 
