@@ -306,7 +306,7 @@ def _leaf_block(g, m, top):
             (np.int64(1), rx, rx * ry))
 
 
-@inner(cache=True)
+@inner(cache=True, _nrt=False)
 def ray_hits(g, o, d, tmin, tmax, buf, scratch, leaf_first):
     """The hits of the ray from o along d ((3,) float64) with tmin < t < tmax in the
     :data:`HitGrid` g, each triangle once, into the :data:`HitBuffers` buf (unsorted); their
@@ -321,7 +321,8 @@ def ray_hits(g, o, d, tmin, tmax, buf, scratch, leaf_first):
     next test and that test's rows, and the cells listed.  leaf_first: g's,
     an argument of its own so that for a uniform grid (None) numba prunes the leaf walk before
     compiling (through gridrt.trace.grids.is_two_level the first count_hits compiled 0.3 s
-    longer)."""
+    longer).  Compiled without reference counting (_nrt=False: it allocates nothing): counting
+    references on the arrays it is given cost about 200 ns a call (BENCHMARKS.md section 18)."""
     tris, lo, hi, cell, dims, k, mdims, macro_full, cs, _, _, _, _ = g
     mb, pend, rows, todo = scratch
     t0, t1 = _clip(lo, hi, o, d, tmin, tmax)
