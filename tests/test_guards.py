@@ -241,19 +241,17 @@ BOUNDARIES = {
         "wrote, each below W * H) in the HitPoints of W * H, and a light map LightMaps made (cells clamped into "
         "its RES x RES faces, its triangle indices those of the grid's tris it was made from)",
         ["test_guard_render_material", "test_guard_light_samples"]),
-    "gridrt.trace.lightmap:LightMaps.for_lights": (
-        "internal: called by _shade_material only, with the first grid's GridArrays (its tris (F, 3, 3) float32, "
-        "checked by Renderer.render) and the lights _check_looks validated; tri_hash reads the tris' words; "
-        "the clusters (plane_clusters, numpy) give each triangle a cluster below their count",
-        ["test_guard_render_material"]),
     "gridrt.trace.lightmap:LightMap.build": (
         "internal: called by LightMaps.for_lights and _warm_build with the tris the clusters were found for "
         "(one cluster number each, below the clusters' count); build_light_map writes the map's arrays, "
         "allocated here, every cell index clamped into [0, RES)",
         ["test_guard_render_material"]),
     "gridrt.trace.lightmap:_compiled": (
-        "internal: whether build_light_map is compiled (its cache entry), else its compile started through "
-        "_warm_build; no data", ["test_guard_render_material"]),
+        "internal: whether build_light_map and clear_lit are compiled (their cache entries), else their compile "
+        "started through _warm_build; no data", ["test_guard_render_material"]),
+    "gridrt.trace.lightmap:_warm_build": (
+        "internal: its own data only: a map over one triangle of its own, and clear_lit on an empty batch (no "
+        "segment: no index read)", ["test_guard_render_material"]),
     "gridrt.trace.render:Renderer.light_guide": (
         "internal: called by _shade_material only, where lights are drawn (RenderParams.light_samples 1..8, "
         "checked when made), with the frame's W and H and the lights _check_looks validated; the probes are "

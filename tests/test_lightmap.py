@@ -333,3 +333,40 @@ def test_a_light_map_without_memory_is_not_made(rng, monkeypatch):
     monkeypatch.setattr(LM, "LightMap", NoMemory)
     assert maps.for_lights(g, lights, 6.0) == [None] and maps.for_lights(g, lights, 6.0) == [None]
     assert len(tries) == 1
+
+
+def test_the_background_compile_takes_the_render_s_types(rng, monkeypatch):
+    """The maps' background compile (_warm_build) calls build_light_map and clear_lit with the
+    argument types a render with maps passes them, so that on a cold compile cache no frame
+    compiles them in the render's thread (a new type would: numba compiles per type)."""
+    import importlib
+
+    import numba
+
+    import gridrt.trace.lightmap as LM
+    render_module = importlib.import_module("gridrt.trace.render")
+    phase, seen = ["warm"], {"warm": {}, "render": {}}
+
+    def spy(name, fn):
+        def call(*args):
+            seen[phase[0]].setdefault(name, set()).add(tuple(str(numba.typeof(a)) for a in args))
+            return fn(*args)
+        return call
+
+    for name in ("build_light_map", "clear_lit"):
+        monkeypatch.setattr(LM, name, spy(name, getattr(LM, name)))
+    monkeypatch.setattr(render_module, "clear_lit", LM.clear_lit)
+    LM._warm_build()
+    phase[0] = "render"
+    monkeypatch.setattr(LM, "_READY", [True])   # (the kernels taken as compiled: no background warm-up here)
+    tris, looks = scene(rng)
+    g = GridBuilder().build(tris)
+    looks_e = Looks(tris, engine_surface(looks), looks.normals, engine_lights(looks))
+    params = RenderParams(width=64, height=48, shading="material", shadows=True, threads=2)
+    r = Renderer()
+    for _ in range(4):
+        r.render(g, tris, CAM, params, looks=looks_e)
+    assert r.shadow_clear > 0   # (the maps were made and used)
+    assert sorted(seen["render"]) == ["build_light_map", "clear_lit"]
+    for name, types in seen["render"].items():
+        assert types <= seen["warm"][name], name

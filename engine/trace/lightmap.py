@@ -43,19 +43,22 @@ A map is never made for a light with a triangle nearer than NEAR_FLOOR of the sc
 (segments that start there could leave the light's cell by rounding).
 
 The maps are made for the first grid of a render (the static part of a split scene, or a scene's
-only grid) when the same triangles (the same array, of the same contents: :func:`tri_hash`) and
+only grid) when the same triangles (the same array, of the same contents: :func:`tri_digest`) and
 the same light come back in a following frame (:class:`LightMaps`): a scene whose triangles move
 every frame never makes one.  A frame makes at most one map (the lights' maps come one by one in
 the frames that follow), and the clusters are found with the first.  On a cold compile cache,
-build_light_map first compiles on a background thread while the frames go on without maps.  Each
-map takes 8 K + 4 bytes a cell (10.5 MiB at RES 256); the clusters at most 48 bytes a triangle."""
+build_light_map and clear_lit first compile on a background thread while the frames go on
+without maps.  Each map takes 8 K + 4 bytes a cell (10.5 MiB at RES 256); the clusters at most 48
+bytes a triangle."""
+
+import hashlib
 
 import numpy as np
 from numba import njit, prange
 
 from ..compiles import inner
 from ..scene.surface import LIGHT_POINT
-from .records import LightMapArrays
+from .records import HitPoints, LightMapArrays
 from .twin import TWINS, has_cache_entry
 
 #: cells along each edge of a face of a light's direction cube (measured: BENCHMARKS.md section 15,
@@ -450,32 +453,42 @@ def clear_lit(lmap, hp, rows, off, o, d, bit, marks, blocked):
     return cleared, shown
 
 
-@njit(cache=True, error_model="numpy")
-def tri_hash(words):
-    """A 64-bit hash of the uint32 words (the bits of a triangle array): whether its contents
-    changed in place between two frames."""
-    h = np.uint64(0xCBF29CE484222325)
-    for k in range(words.shape[0]):
-        h = (h ^ np.uint64(words[k])) * np.uint64(0x100000001B3)
-        h ^= h >> np.uint64(29)
-    return h
+def tri_digest(tris):
+    """A digest of the bits of a triangle array (hashlib's SHA-1: no kernel to compile, about the
+    time of one pass over the array): whether its contents changed in place between two frames."""
+    return hashlib.sha1(np.ascontiguousarray(tris)).digest()
 
 
 _UNSEEN = object()
+#: set once the maps' kernels are known to run without compiling in the render's thread
+_READY = []
 
 
 def _compiled():
-    """Whether build_light_map can run without compiling in the render's thread: it is in the
-    on-disk cache, or compiled in this process.  On a cold cache the first call starts its compile
-    on a background thread (gridrt.trace.twin.Twins.warm: a build over one triangle) and the
-    frames go on without maps (the same images) until it is done."""
-    return has_cache_entry(build_light_map) or TWINS.warm("light-map", "build_light_map", _warm_build, True)
+    """Whether the maps' kernels (build_light_map and clear_lit) can run without compiling in the
+    render's thread: they are in the on-disk cache, or compiled in this process.  On a cold cache
+    the first call (a frame that would make a map: not the first frame, whose kernels load from
+    the cache through numba's compiler lock, which a compile holds) starts their compile on a
+    background thread (gridrt.trace.twin.Twins.warm: a map over one triangle and its test of no
+    segment, with the types the renders pass) and the frames go on without maps (the same images)
+    until it is done."""
+    if not _READY and (all(has_cache_entry(k) for k in (build_light_map, clear_lit))
+                       or TWINS.warm("light-map", "build_light_map", _warm_build, True)):
+        _READY.append(True)
+    return bool(_READY)
 
 
 def _warm_build():
-    """A map over one triangle: build_light_map compiled for the types of the renders' maps."""
+    """A map over one triangle and its test of an empty batch: build_light_map and clear_lit
+    compiled for the types the renders pass (the material pass's shadow buffers: hit points in
+    float64 and float32 rows, segments' rows int64, ends float64, grid marks uint8, blocked flags
+    bool; tests/test_lightmap.py sets these against a render's)."""
     tris = np.ones((1, 3, 3), np.float32)
-    LightMap(np.zeros(3), plane_clusters(tris, 1.0)).build(tris)
+    lm = LightMap(np.zeros(3), plane_clusters(tris, 1.0))
+    lm.build(tris)
+    f64, f32 = np.empty((0, 3)), np.empty((0, 3), np.float32)
+    clear_lit(lm.arrays(tris), HitPoints(f64, f64, f32, f32, f32), np.empty(0, np.int64), 0.0, f64, f64, 1,
+              np.empty(0, np.uint8), np.empty(0, bool))
 
 
 class LightMaps:
@@ -494,7 +507,7 @@ class LightMaps:
         """The maps (LightMap or None per light) of the grid g (GridArrays) for lights (L, 8) in
         its frame, this frame; diag: the scene's diagonal."""
         tris = g.tris
-        h = tri_hash(tris.reshape(-1).view(np.uint32))
+        h = tri_digest(tris)
         if self._tris is not tris or self._hash != h:
             self._tris, self._hash, self._maps, self._clusters = tris, h, {}, None
         out, maps, made = [], {}, False
