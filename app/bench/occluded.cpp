@@ -5,7 +5,8 @@
 //   embree_occluded <dir> <threads> <reps> <warmup> [--modes 1,p16,1M] [--robust] [--verdicts]
 //
 // <dir> holds little-endian C-order .npy files:
-//   mesh_<m>.npy                 (F,3,3) float32: the corners of each triangle, m = 0, 1, ...
+//   mesh_<m>.npy                 (F,3,3) float32: the corners of each triangle, m = 0 .. the largest
+//                                in batch_mesh.npy
 //   batch_mesh.npy               (B,) int32: the mesh each batch of segments is cast against
 //   batch_<b>_origins.npy        (N_b,3) float32 \  segment b's rays o + t d, t in [0, 1]: blocked when
 //   batch_<b>_directions.npy     (N_b,3) float32 /  a triangle crosses it (rtcOccluded, tnear 0, tfar 1)
@@ -275,20 +276,26 @@ int main(int argc, char** argv) {
 
   Npy which = read_npy(dir + "/batch_mesh.npy", "<i4");
   if (which.shape.size() != 1) fail("batch_mesh.npy must be (B,)");
-  std::vector<Npy> meshes;
-  std::vector<RTCScene> scenes;
-  std::vector<uint32_t> index;
+  int32_t last = -1;
   for (int32_t m : which.i32) {
-    if (m < 0 || m > static_cast<int32_t>(meshes.size())) fail("batch_mesh.npy: meshes must be numbered 0, 1, ...");
-    if (m < static_cast<int32_t>(meshes.size())) continue;
+    if (m < 0) fail("batch_mesh.npy: a mesh number below 0");
+    last = std::max(last, m);
+  }
+  std::vector<Npy> meshes;
+  size_t most = 0;
+  for (int32_t m = 0; m <= last; ++m) {
     meshes.push_back(read_npy(dir + "/mesh_" + std::to_string(m) + ".npy", "<f4"));
     const Npy& t = meshes.back();
     if (t.shape.size() != 3 || t.shape[1] != 3 || t.shape[2] != 3) fail("mesh_<m>.npy must be (F,3,3)");
+    most = std::max(most, t.shape[0]);
+  }
+  // one index buffer for every mesh (triangle f: vertices 3f, 3f + 1, 3f + 2), which Embree shares:
+  // sized for the largest mesh before any scene holds it
+  std::vector<uint32_t> index(3 * most);
+  for (size_t i = 0; i < index.size(); ++i) index[i] = static_cast<uint32_t>(i);
+  std::vector<RTCScene> scenes;
+  for (const Npy& t : meshes) {
     size_t F = t.shape[0];
-    if (index.size() < 3 * F) {
-      index.resize(3 * F);
-      for (size_t i = 0; i < index.size(); ++i) index[i] = static_cast<uint32_t>(i);
-    }
     RTCScene sc = rtcNewScene(dev);
     rtcSetSceneFlags(sc, robust ? RTC_SCENE_FLAG_ROBUST : RTC_SCENE_FLAG_NONE);
     RTCGeometry g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);

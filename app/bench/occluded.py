@@ -70,10 +70,6 @@ def write_folder(folder, meshes, batches):
         np.save(folder / f"batch_{b}_origins.npy", o)
         np.save(folder / f"batch_{b}_directions.npy", d)
         which.append(m)
-    # (the tool numbers meshes by first use: renumber them so)
-    order = {m: k for k, m in enumerate(dict.fromkeys(which))}
-    if any(order[m] != m for m in order):
-        raise InputError("batches must use the meshes in the order they are listed (mesh 0 first)")
     np.save(folder / "batch_mesh.npy", np.asarray(which, "<i4"))
     return folder
 
