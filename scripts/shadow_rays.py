@@ -297,8 +297,8 @@ def measure(a):
                          "-" if emb is None else mrays(es), native[0], native[1],
                          "-" if emb is None else f"{es / s:.2f}", native[2],
                          str(int((blocked != single).sum())), str(checked), str(differ), native[3]])
-            print(f"# {label} T={T}: {n / s / 1e6:.1f} Mrays/s"
-                  + ("" if emb is None else f", embreex {n / es / 1e6:.1f}; differ from embreex "
+            print(f"# {label} T={T}: {mrays(s)} Mrays/s"
+                  + ("" if emb is None else f", embreex {mrays(es)}; differ from embreex "
                      f"{int((eb != blocked).sum())}")
                   + ("" if nat is None else f", native {native[0]}, robust {native[1]}"), flush=True)
         folder.cleanup()

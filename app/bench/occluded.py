@@ -4,11 +4,11 @@ table (scripts/shadow_rays.py).
 occluded.cpp, beside this module, reads a folder of meshes and batches of segments (its head
 comment gives the format, the modes and the timing), casts every batch against its mesh with
 ``rtcOccluded1``, ``rtcOccluded16`` packets or ``rtcOccluded1M`` streams on N pinned threads, and
-prints one ``RESULT`` line of timings a mode.  :func:`build` compiles it with g++ against Debian's
-``libembree-dev`` (``-O3 -march=native``), :func:`write_folder` writes the folder and :func:`cast`
-runs it."""
+prints one ``RESULT`` line of timings a mode, as the harness of gridrt.app.bench.native does
+(:func:`gridrt.app.bench.native.run_harness` runs both).  :func:`build` compiles it with g++
+against Debian's ``libembree-dev`` (``-O3 -march=native``), :func:`write_folder` writes the
+folder and :func:`cast` runs it."""
 
-import json
 import os
 import shutil
 import subprocess
@@ -18,6 +18,7 @@ import numpy as np
 
 from gridrt.errors import InputError
 
+from .native import run_harness
 from .sides import MissingPeer
 
 SOURCE = Path(__file__).with_name("occluded.cpp")
@@ -28,14 +29,14 @@ MODES = ("1", "p16", "1M")
 INSTALL_HINT = "install Embree 3's headers and a C++ compiler (Debian: apt-get install libembree-dev g++)"
 
 
-def build(binary=DEFAULT_BIN, compiler=None):
+def build(binary=DEFAULT_BIN):
     """The path of the compiled tool, compiling occluded.cpp when the binary is missing or older than
     the source; MissingPeer naming what to install when the compiler or Embree's header is absent,
     InputError with the compiler's last line when it fails."""
     binary = Path(binary)
     if binary.is_file() and binary.stat().st_mtime >= SOURCE.stat().st_mtime:
         return binary
-    cxx = compiler or shutil.which("g++")
+    cxx = shutil.which("g++")
     if cxx is None or not HEADER.is_file():
         raise MissingPeer(f"native Embree is not measured: no {'g++' if cxx is None else HEADER}; {INSTALL_HINT}")
     binary.parent.mkdir(parents=True, exist_ok=True)
@@ -78,17 +79,11 @@ def cast(binary, folder, threads, reps, warmup, modes=MODES, robust=False, verdi
     """Run the tool on ``folder``: {mode: its RESULT dict (ms, ms_min, ms_max of a round, segments,
     batches, blocked: how many)}, each with ``"verdicts"`` (a bool array over every batch's
     segments, the last round's) when ``verdicts``."""
-    args = [str(binary), str(folder), str(threads), str(reps), str(warmup), "--modes", ",".join(modes)]
+    args = [folder, threads, reps, warmup, "--modes", ",".join(modes)]
     args += ["--robust"] * bool(robust) + ["--verdicts"] * bool(verdicts)
-    p = subprocess.run(args, capture_output=True, text=True)
-    if p.returncode != 0:
-        last = (p.stderr.strip().splitlines() or ["(no output)"])[-1]
-        raise InputError(f"the native occlusion tool failed (exit {p.returncode}): {last}")
     out = {}
-    for line in p.stdout.splitlines():
-        if line.startswith("RESULT "):
-            r = json.loads(line[len("RESULT "):])
-            if verdicts:
-                r["verdicts"] = np.load(Path(folder) / f"verdicts_{r['mode']}.npy").astype(bool)
-            out[r["mode"]] = r
+    for r in run_harness(binary, args):   # (the same RESULT lines and errors as the harness's)
+        if verdicts:
+            r["verdicts"] = np.load(Path(folder) / f"verdicts_{r['mode']}.npy").astype(bool)
+        out[r["mode"]] = r
     return out
