@@ -48,6 +48,7 @@ from gridrt.trace.render import Renderer
 from ..cli import option_help
 
 from .affinity import Affinity
+from .harness import NATIVE_WARMUP, export_folder, folder_name
 from .machine import finish_machine, machine_info
 from .options import add_dt_arg, check_frame_args, thread_list
 from .output import figure, md_table, out_dir, progress, write_csv, write_json, write_summary
@@ -64,8 +65,6 @@ DEFAULT_BIN = Path(os.environ.get("TMPDIR") or "/tmp") / "embree-native" / "embr
 #: meshes filling the view from 20k to 1.3M triangles, and the marbles (640k moving triangles)
 NATIVE_SCENES = ["icosphere:20480:twist", "lucy:twist", "icosphere:1310720:twist", "marbles:640000"]
 NATIVE_FALLBACK = ["icosphere:20480:twist", "icosphere:81920:twist", "icosphere:1310720:twist", "marbles:640000"]
-#: the harness's untimed dynamic frames before the timed ones
-NATIVE_WARMUP = 2
 #: the harness's cast modes
 MODES = ("1", "p16", "1M")
 
@@ -107,51 +106,6 @@ def check_binary(path):
     if not (p.is_file() and os.access(p, os.X_OK)):
         raise InputError(f"no native Embree harness at {p}: {build_hint()}")
     return p
-
-
-def write_ply(path, V):
-    """A binary PLY of the unshared vertices V (3F, 3): triangle f is vertices 3f, 3f+1, 3f+2."""
-    F = len(V) // 3
-    head = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(V)}\nproperty float x\nproperty float y\n"
-            f"property float z\nelement face {F}\nproperty list uchar int vertex_indices\nend_header\n")
-    rec = np.zeros(F, dtype=[("n", "u1"), ("i", "<i4", (3,))])
-    rec["n"] = 3
-    rec["i"] = np.arange(3 * F, dtype=np.int32).reshape(F, 3)
-    with open(path, "wb") as fh:
-        fh.write(head.encode("ascii"))
-        fh.write(np.ascontiguousarray(V, "<f4").tobytes())
-        fh.write(rec.tobytes())
-
-
-def export_folder(folder, label, frames, cam, size, o32, d32, ro32, rd32, dt):
-    """Write one scene in the harness's folder format: ``frames`` (NF, F, 3, 3) float32 triangles (frame
-    0 the mesh at rest; the harness warms up on frames 0 and 1 and times the rest), the camera ``cam``
-    and its size x size rays (o32, d32), the random rays (ro32, rd32)."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    nf, F = frames.shape[:2]
-    V = np.ascontiguousarray(frames.reshape(nf, 3 * F, 3), np.float32)
-    save = lambda name, x: np.save(folder / name, np.ascontiguousarray(x))
-    save("vertices.npy", V[0])
-    save("faces.npy", np.arange(3 * F, dtype=np.int32).reshape(F, 3))
-    save("frames.npy", V)
-    save("primary_origins.npy", np.asarray(o32, np.float32))
-    save("primary_directions.npy", np.asarray(d32, np.float32))
-    save("incoherent_origins.npy", np.asarray(ro32, np.float32))
-    save("incoherent_directions.npy", np.asarray(rd32, np.float32))
-    write_ply(folder / "mesh.ply", V[0])
-    vec = lambda v: ",".join(repr(float(x)) for x in v)
-    camera = dict(eye=list(map(float, cam.eye)), target=list(map(float, cam.target)), up=list(map(float, cam.up)),
-                  fov=float(cam.fov), res=size,
-                  gridrt_flags=f"--eye={vec(cam.eye)} --target={vec(cam.target)} --up={vec(cam.up)} "
-                               f"--fov={float(cam.fov)!r} --size={size}x{size}")
-    (folder / "camera.json").write_text(json.dumps(camera, indent=1))
-    lo, hi = V[0].min(axis=0), V[0].max(axis=0)
-    meta = dict(mesh=label, vertices=3 * F, triangles=F, res=size, incoherent=len(ro32), bbox_lo=lo.tolist(),
-                bbox_hi=hi.tolist(), deformation=f"{label}: the scene's own animation", dt=dt,
-                frame_t=[dt * i for i in range(nf)], warmup_frames=NATIVE_WARMUP, timed_frames=nf - NATIVE_WARMUP)
-    (folder / "meta.json").write_text(json.dumps(meta, indent=1))
-    return folder
 
 
 def run_harness(binary, args):
@@ -347,7 +301,7 @@ def run_native(a):
             # (a copy of each frame: triangles_at may hand back the same buffer at every call)
             frames = np.stack([np.array(sc.scene.triangles_at(i * a.dt, origin=origin), np.float32)
                                for i in range(nframes)])
-            folder = export_folder(root / _folder_name(sc.label), sc.label, frames, cam, size, o32, d32, ro32, rd32,
+            folder = export_folder(root / folder_name(sc.label), sc.label, frames, cam, size, o32, d32, ro32, rd32,
                                    a.dt)
             bar.update()
             if a.export_only:
@@ -360,7 +314,7 @@ def run_native(a):
                 row = dict(scene=sc.label, view=a.view, triangles=int(frames.shape[1]), threads=T,
                            strategy=spec.grid.strategy, size=size, camera_rays=len(o32), random_rays=len(ro32),
                            frames=runs)
-                hdir = root / _folder_name(sc.label) / "hits" if k == 0 else None
+                hdir = root / folder_name(sc.label) / "hits" if k == 0 else None
                 with Affinity(T) as aff:
                     row["pinned"] = aff.applied
                     row.update(native_figures(binary, folder, T, runs, runs, hdir))
@@ -394,10 +348,6 @@ def run_harness_info(binary):
     p = subprocess.run([str(binary), "info", "1"], capture_output=True, text=True)
     lines = [line.strip() for line in p.stdout.splitlines() if line.strip().startswith(("Embree", "ISA"))]
     return lines[:2] or ["(the harness printed no version)"]
-
-
-def _folder_name(label):
-    return "".join(c if c.isalnum() or c in "-_." else "_" for c in label)
 
 
 def _derive(row):
