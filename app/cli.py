@@ -49,6 +49,10 @@ OPTION_HELP = {
     "--packet-precision": "precision of the CGT packets' triangle tests: float64 (the DDA's hits bit for bit) or "
                           "float32 (twice the lanes; hits agree up to float32 rounding)",
     "--dt": "time step between frames, seconds",
+    "--export": "also write the rays, meshes and frames the benchmark casts in the native Embree harness's folder "
+                "format here, one folder per scene (bench peers: per scene and camera view, SCENE_frame and "
+                "SCENE_fill), for the harness's own `native.py run FOLDER`",
+    "--export-only": "only write the folders (into --export), measure nothing",
     "--no-helper": "compile in this process alone; without it, on an empty numba cache and two cores or more, a "
                    "helper process compiles the first frame's ray casting while this one builds its grid",
 }

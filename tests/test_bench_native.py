@@ -107,3 +107,99 @@ def test_bench_native_quick_against_the_harness(tmp_path, harness):
     for r in rows:
         assert float(r["o_frame_ms"]) > 0 and float(r["n_refit_frame_ms"]) > 0 and float(r["n_rebuild_frame_ms"]) > 0
         assert float(r["random_over_native"]) == pytest.approx(float(r["o_mrays_random"]) / float(r["n_mrays_random"]))
+
+
+def _peers_export(tmp_path, monkeypatch, views):
+    """A quick ``bench peers`` run with --export: the folders, and the rays and triangles gridrt's
+    batch cast got from that run (a spy on cast_rays), per view in the run's order."""
+    from gridrt.app.bench import peers
+
+    cast = []
+    real = peers.cast_rays
+
+    def spy(g, tris, o, d, **kw):
+        cast.append((np.array(tris, np.float32), np.array(o), np.array(d)))
+        return real(g, tris, o, d, **kw)
+
+    monkeypatch.setattr(peers, "cast_rays", spy)
+    exp = tmp_path / "export"
+    assert main(["bench", "peers", "--quick", "--no-progress", "--out", str(tmp_path / "out"), "--threads", "1",
+                 "--views", views, "--dt", "0.05", "--export", str(exp)]) == 0
+    return exp, cast
+
+
+def test_peers_export_holds_the_rays_and_frames_the_peers_cast(tmp_path, monkeypatch):
+    """``bench peers --export``: one harness folder per camera view, whose primary rays are the very
+    arrays that view's run cast, whose incoherent rays are those the random view cast, and whose
+    frames are the triangles each of the run's frames cast against (the harness's format: the
+    vertices unshared, warm-up frames first)."""
+    exp, cast = _peers_export(tmp_path, monkeypatch, "frame,fill,random")
+    assert sorted(p.name for p in exp.iterdir()) == ["icosphere_1280_twist_fill", "icosphere_1280_twist_frame"]
+    runs = 2  # the quick run: 1 warm-up frame and 1 timed, then 1 static cast on the last frame
+    by_view = {v: cast[i * (runs + 1):(i + 1) * (runs + 1)] for i, v in enumerate(("frame", "fill", "random"))}
+    assert len(cast) == 3 * (runs + 1)
+    for view in ("frame", "fill"):
+        d = exp / f"icosphere_1280_twist_{view}"
+        frames, F = np.load(d / "frames.npy"), np.load(d / "faces.npy")
+        assert frames.shape[0] == NATIVE_WARMUP + 1  # (the harness times at least one frame after its warm-up)
+        for i, (tris, o, dr) in enumerate(by_view[view][:runs]):
+            np.testing.assert_array_equal(frames[i][F], tris)
+            np.testing.assert_array_equal(np.load(d / "primary_origins.npy"), o.astype(np.float32))
+            np.testing.assert_array_equal(np.load(d / "primary_directions.npy"), dr.astype(np.float32))
+            assert np.array_equal(o.astype(np.float32).astype(np.float64), o)  # (float32 rays, given once)
+        _, ro, rd = by_view["random"][0]
+        np.testing.assert_array_equal(np.load(d / "incoherent_origins.npy"), ro.astype(np.float32))
+        np.testing.assert_array_equal(np.load(d / "incoherent_directions.npy"), rd.astype(np.float32))
+        meta = json.loads((d / "meta.json").read_text())
+        assert meta["mesh"] == f"icosphere:1280:twist [{view}]" and meta["res"] == 64
+        cam = json.loads((d / "camera.json").read_text())
+        o, dd = Camera(eye=tuple(cam["eye"]), target=tuple(cam["target"]), up=tuple(cam["up"]),
+                       fov=cam["fov"]).rays(64, 64)
+        np.testing.assert_array_equal(np.load(d / "primary_directions.npy"), np.asarray(dd, np.float32))
+    # the two views' cameras differ (fill moves in), the random rays are shared
+    assert not np.array_equal(np.load(exp / "icosphere_1280_twist_fill" / "primary_origins.npy"),
+                              np.load(exp / "icosphere_1280_twist_frame" / "primary_origins.npy"))
+
+
+def test_peers_export_only_random_uses_the_scene_camera(tmp_path):
+    """With no camera view in --views the folder's primary rays are the scene's own camera's (the frame
+    view's); --export-only measures nothing and writes no output folder."""
+    exp = tmp_path / "export"
+    assert main(["bench", "peers", "--quick", "--no-progress", "--views", "random", "--export", str(exp),
+                 "--export-only", "--out", str(tmp_path / "out")]) == 0
+    assert [p.name for p in exp.iterdir()] == ["icosphere_1280_twist_frame"]
+    assert not (tmp_path / "out").exists()
+    _, _, fo, fd, _, _ = camera_rays(resolve_scene(QUICK_SCENE), 64)
+    np.testing.assert_array_equal(np.load(exp / "icosphere_1280_twist_frame" / "primary_directions.npy"), fd)
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--export-only"], "--export DIR"),
+    (["--export", "EXP", "--size", "60"], "multiple of 8"),
+])
+def test_bench_peers_export_bad_arguments(tmp_path, capsys, args, message):
+    args = [str(tmp_path / "e") if x == "EXP" else x for x in args]
+    assert main(["bench", "peers", "--no-progress", "--out", str(tmp_path / "x"), "--threads", "1", *args]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_the_harness_casts_the_peers_export(tmp_path, harness):
+    """The native harness runs on a ``bench peers`` folder as it is written, and its hits on the
+    camera and random rays are the float64 brute force's."""
+    exp = tmp_path / "export"
+    assert main(["bench", "peers", "--quick", "--no-progress", "--views", "fill,random", "--export", str(exp),
+                 "--export-only"]) == 0
+    from gridrt.app.bench.native import run_harness
+
+    d = exp / "icosphere_1280_twist_fill"
+    hdir = tmp_path / "hits"
+    hdir.mkdir()
+    res = run_harness(harness, ["static", d, 1, 1, "--hits", hdir])
+    assert {r["rays"] for r in res if r["kind"] == "cast"} == {"primary", "incoherent"}
+    tris = np.load(d / "frames.npy")[0].reshape(-1, 3, 3).astype(np.float64)
+    for rays, mode in (("primary", "p16"), ("incoherent", "1")):
+        o, dr = np.load(d / f"{rays}_origins.npy"), np.load(d / f"{rays}_directions.npy")
+        ref = ref_cast(tris, o.astype(np.float64), dr.astype(np.float64)).tri
+        native = np.load(hdir / f"{rays}_{mode}_tri.npy")
+        assert (ref >= 0).any() and (ref < 0).any()
+        assert (native == ref).mean() >= 0.995

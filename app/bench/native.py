@@ -84,12 +84,9 @@ def add_parser(bsub, common):
     add_dt_arg(p)
     p.add_argument("--native-bin", default=str(DEFAULT_BIN),
                    help=f"the harness's binary (default {DEFAULT_BIN}, where its build.sh writes it)")
-    p.add_argument("--export", default=None,
-                   help="keep the folders written for the harness here, one per scene (default: a temporary "
-                        "folder, removed at the end)")
-    p.add_argument("--export-only", action="store_true",
-                   help="only write the folders (into --export), measure nothing: the harness's own native.py "
-                        "runs them")
+    p.add_argument("--export", default=None, metavar="DIR",
+                   help=option_help("--export", "a temporary folder, removed at the end"))
+    p.add_argument("--export-only", action="store_true", help=option_help("--export-only"))
     p.set_defaults(func=run_native)
 
 

@@ -28,11 +28,17 @@ Other peers, measured the same way in the same run: Embree with the other scene 
 robust, or robust beside ``--embree-fast``), and when installed (optional extras, each named with
 its install command when absent; app/bench/sides.py) Open3D's RaycastingScene (``open3d-cpu``) and
 Mitsuba 3's CPU variant ``llvm_ad_rgb`` (``mitsuba``, ``drjit``).
+
+``--export DIR`` also writes each scene in the folder format of the native Embree harness
+(``../shared/tools/embree-native``; app/bench/harness.py), one folder per scene and camera view: the
+frames this run casts, that view's camera and its rays as primary rays, and the random view's rays as
+incoherent rays, the very arrays the peers get; ``--export-only`` writes the folders alone.
 """
 
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import numpy as np
 
@@ -46,6 +52,7 @@ from gridrt.trace.render import Renderer, cast_rays
 from ..cli import add_packet_args, option_help
 
 from .affinity import Affinity
+from .harness import NATIVE_WARMUP, export_folder, folder_name
 from .machine import finish_machine, machine_info
 from .options import add_dt_arg, add_grid_kind_args, check_frame_args, grid_kinds, thread_list
 from .output import figure, grid_columns, grid_label, md_table, out_dir, progress, write_csv, write_json, write_summary
@@ -88,6 +95,8 @@ def add_parser(bsub, common):
                         "a grid), random (origins uniform in the scene's bounds, directions uniform on the sphere)")
     add_grid_kind_args(p)  # (gridrt's grid; each kind a row of its own, the peers measured again beside it)
     add_packet_args(p)  # (gridrt's: the precision applies to its renders and casts)
+    p.add_argument("--export", default=None, metavar="DIR", help=option_help("--export", "no folders"))
+    p.add_argument("--export-only", action="store_true", help=option_help("--export-only"))
     p.set_defaults(func=run_peers)
 
 
@@ -133,12 +142,49 @@ def _judge(tris, o, d, idx, t_o, f_o, t_e, f_e, threads):
                 embree_right=int(right_against(t_e[idx], f_e[idx], rt, rf, rt2).sum()))
 
 
+def export_views(views):
+    """The camera views a scene is exported with: those of ``views``, or the scene's own camera."""
+    return [v for v in views if v != "random"] or ["frame"]
+
+
+def export_scene(root, sc, size, views, nframes, dt):
+    """Write scene ``sc`` in the harness's folder format under ``root``, one folder per camera view
+    of :func:`export_views` (named SCENE_VIEW): ``nframes`` frames at t = i dt (as :func:`_time_frames`
+    makes them), that view's camera and its rays, and the random view's rays, each as
+    :func:`peer_rays` gives them to every tracer. The folders, in order."""
+    origin, _, ro32, rd32, _, _ = peer_rays(sc, size, "random")
+    # (a copy of each frame: triangles_at may hand back the same buffer at every call)
+    frames = np.stack([np.array(sc.scene.triangles_at(i * dt, origin=origin), np.float32) for i in range(nframes)])
+    out = []
+    for view in export_views(views):
+        vorigin, cam, o32, d32, _, _ = peer_rays(sc, size, view)
+        assert np.array_equal(vorigin, origin)  # (every view casts in the same frame)
+        out.append(export_folder(root / folder_name(f"{sc.label}_{view}"), f"{sc.label} [{view}]", frames, cam,
+                                 size, o32, d32, ro32, rd32, dt))
+    return out
+
+
 def run_peers(a):
     check_frame_args(a)
     views = [v.strip() for v in a.views.split(",") if v.strip()]
     for v in views:
         if v not in VIEWS:
             raise InputError(f"unknown view {v!r} in --views; choose from {', '.join(VIEWS)}")
+    if a.export_only and not a.export:
+        raise InputError("--export-only writes the folders into --export DIR: give it")
+    size = 64 if a.quick else a.size
+    runs, warmup = (1, 1) if a.quick else (a.runs, a.warmup)
+    if a.export and size % 8:
+        raise InputError(f"--export needs --size a multiple of 8 (the harness casts 8x8 tiles), got {size}")
+    specs, note = scene_list(a.scenes, PEER_SCENES, PEER_FALLBACK, quick=["icosphere:1280:twist"] if a.quick else None)
+    if a.export_only:
+        if note:
+            print(f"note: {note}", file=sys.stderr)
+        for spec in specs:
+            sc = resolve_scene(spec)
+            for folder in export_scene(Path(a.export), sc, size, views, max(warmup + runs, NATIVE_WARMUP + 1), a.dt):
+                print(f"{folder}: {sc.label}")
+        return 0
     others, absent = [], []
     try:
         emb = EmbreeSide(robust=not a.embree_fast)
@@ -153,11 +199,8 @@ def run_peers(a):
         except MissingPeer as e:
             absent.append(f"{side.label}: {e}")
             print(f"note: {side.label} not measured: {e}", file=sys.stderr)
-    size = 64 if a.quick else a.size
-    runs, warmup = (1, 1) if a.quick else (a.runs, a.warmup)
     kinds = grid_kinds(a)
     base = peers_spec(a, size)  # (the packet checked here, before any scene loads)
-    specs, note = scene_list(a.scenes, PEER_SCENES, PEER_FALLBACK, quick=["icosphere:1280:twist"] if a.quick else None)
     threads = thread_list(a.threads)
     out = out_dir(a.out)
     info = machine_info(threads, probe=not a.quick)
@@ -168,6 +211,9 @@ def run_peers(a):
     if note:
         print(f"note: {note}", file=sys.stderr)
     scenes = [resolve_scene(s) for s in specs]
+    if a.export:
+        for sc in scenes:
+            export_scene(Path(a.export), sc, size, views, max(warmup + runs, NATIVE_WARMUP + 1), a.dt)
     rows = []
     bar = progress(len(scenes) * len(views) * len(threads) * len(kinds) * (warmup + runs + 1), "bench peers",
                    a.no_progress)
