@@ -96,11 +96,13 @@ class Spy:
         self.cast = RENDER.cast_grouped
 
     def __enter__(self):
-        def spy(g, o, d, tmin, tmax, watertight, any_hit, out, max_cells, f32, tri_only=False, rows=None):
+        def spy(g, o, d, tmin, tmax, watertight, any_hit, out, max_cells, f32, tri_only=False, rows=None,
+                sorted_max_cells=None):
             kept = (o.copy(), d.copy()) if rows is None else (o[rows], d[rows])
-            self.calls.append((g, *kept, (tmin, tmax, watertight, any_hit), max_cells, f32, tri_only))
+            self.calls.append((g, *kept, (tmin, tmax, watertight, any_hit), (max_cells, sorted_max_cells), f32,
+                               tri_only))
             return self.cast(g, o, d, tmin, tmax, watertight, any_hit, out, max_cells, f32, tri_only=tri_only,
-                             rows=rows)
+                             rows=rows, sorted_max_cells=sorted_max_cells)
         RENDER.cast_grouped = spy
         return self
 
@@ -139,7 +141,10 @@ def outputs(calls):
 def cast_all(calls, outs, max_cells=None):
     """Cast every kept batch again into its buffers of outs (with its own max_cells, or this one)."""
     for (g, o, d, q, mc, f32, tri_only), out in zip(calls, outs):
-        RENDER.cast_grouped(g, o, d, *q, out, mc if max_cells is None else max_cells, f32, tri_only=tri_only)
+        if max_cells is None:
+            RENDER.cast_grouped(g, o, d, *q, out, mc[0], f32, tri_only=tri_only, sorted_max_cells=mc[1])
+        else:
+            RENDER.cast_grouped(g, o, d, *q, out, max_cells, f32, tri_only=tri_only)
 
 
 def blocked_of(outs):

@@ -112,14 +112,15 @@ def test_packets_equal_single_rays_any_order(name):
                 assert rk.tri[0] == 0 and abs(rk.t[0] - a.t[k]) <= 1e-5 * max(rk.t[0], 1e-9) + 1e-9, (name, k)
         # the material pass's casts read only the triangle (tri_only): the same occlusion, and each
         # reported triangle is hit within the segment
-        from gridrt.trace.batch import SHADOW_MAX_CELLS, cast_grouped
+        from gridrt.trace.batch import SHADOW_MAX_CELLS, SHADOW_SORTED_MAX_CELLS, cast_grouped
         from gridrt.trace.grids import grid_arrays
 
         g = grid_arrays(grid, tris)
         for f32 in (False, True):
             out = (np.full(len(so), np.nan), np.full(len(so), -2, np.int32), np.full(len(so), np.nan),
                    np.full(len(so), np.nan))
-            cast_grouped(g, so, sd, 0.0, 1.0, True, True, out, SHADOW_MAX_CELLS, f32, tri_only=True)
+            cast_grouped(g, so, sd, 0.0, 1.0, True, True, out, SHADOW_MAX_CELLS, f32, tri_only=True,
+                         sorted_max_cells=SHADOW_SORTED_MAX_CELLS)
             assert np.array_equal(out[1] >= 0, s1.tri >= 0), f"{name}: tri_only occlusion differs (f32={f32})"
             hit = np.flatnonzero(out[1] >= 0)
             for k in hit[:200]:
@@ -303,7 +304,7 @@ def test_shadow_segments_ending_on_a_surface(kind):
     just before their ends and some just beyond them: the packets block exactly the segments the
     float64 brute force and the single rays block, uniform and two-level grids, at 1 and 2
     threads, float64 and float32 tests."""
-    from gridrt.trace.batch import SHADOW_MAX_CELLS, cast_grouped
+    from gridrt.trace.batch import SHADOW_MAX_CELLS, SHADOW_SORTED_MAX_CELLS, cast_grouped
     from gridrt.trace.grids import grid_arrays
 
     rng = np.random.default_rng(8)
@@ -337,7 +338,16 @@ def test_shadow_segments_ending_on_a_surface(kind):
         for f32 in (False, True):
             out = (np.empty(len(o)), np.empty(len(o), np.int32), np.empty(len(o)), np.empty(len(o)))
             use_threads(threads)
-            p1, _ = cast_grouped(g, o, d, 0.0, 1.0, True, True, out, SHADOW_MAX_CELLS, f32, tri_only=True)
+            p1, _ = cast_grouped(g, o, d, 0.0, 1.0, True, True, out, SHADOW_MAX_CELLS, f32, tri_only=True,
+                                 sorted_max_cells=SHADOW_SORTED_MAX_CELLS)
             assert p1 >= 0.9 * len(o), f"only {p1} of {len(o)} segments went through packets"
             got = out[1] >= 0
             assert np.array_equal(got, ref), f"{kind} T={threads} f32={f32}: {int((got != ref).sum())} differ"
+            # pass 1 at a bound of half a cell leaves most tiles; sorted, pass 2 traces them as packets
+            # of its own bound
+            out = (np.empty(len(o)), np.empty(len(o), np.int32), np.empty(len(o)), np.empty(len(o)))
+            p1, p2 = cast_grouped(g, o, d, 0.0, 1.0, True, True, out, 0.5, f32, tri_only=True,
+                                  sorted_max_cells=SHADOW_SORTED_MAX_CELLS)
+            assert p1 <= 0.5 * len(o) and p2 >= 0.5 * (len(o) - p1), (p1, p2)
+            got = out[1] >= 0
+            assert np.array_equal(got, ref), f"{kind} T={threads} f32={f32} pass 2: {int((got != ref).sum())} differ"

@@ -59,6 +59,10 @@ MAX_CELLS = 32.0
 #: points rather than from one eye: a run wider than this goes through the single-ray DDA (measured:
 #: BENCHMARKS.md section 15, "Shadow rays as packets")
 SHADOW_MAX_CELLS = 8.0
+#: the bound for the shadow rays pass 1 leaves, once sorted (cast_grouped's ``sorted_max_cells``):
+#: sorted by direction from the light they share, the runs are coherent and wide packets pay
+#: (measured: BENCHMARKS.md section 15, "Hard shadows of point lights: the casts alone")
+SHADOW_SORTED_MAX_CELLS = MAX_CELLS
 #: runs per work item, the batch's share that a thread takes at a time (cast_runs)
 GROUPS_PER_ITEM = 16
 #: bits of each slope in the sort key's Morton code
@@ -411,10 +415,11 @@ def pass1_order(origins, dirs):
 
 
 def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cells=MAX_CELLS, f32=False,
-                 tri_only=False, rows=None):
+                 tri_only=False, rows=None, sorted_max_cells=None):
     """Cast the rays (origins, dirs (N,3) float64, checked) through the grid g (GridArrays) into
     out = (t, tri, u, v) as the module docstring describes; ``max_cells`` <= 0 traces every ray
-    singly; f32: the packets' triangle tests in float32; tri_only: the caller reads only tri (see
+    singly; ``sorted_max_cells`` (None: max_cells) is pass 2's bound for the sorted rays pass 1
+    left; f32: the packets' triangle tests in float32; tri_only: the caller reads only tri (see
     :class:`gridrt.trace.query.CastPass`).  rows (int64, non-empty): only those rays, taken in
     that order by pass 1 (out's other rows are left as they are).  Returns (rays traced in packets
     in pass 1, in pass 2)."""
@@ -422,6 +427,7 @@ def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cel
     if N == 0:
         return 0, 0
     max_cells = float(max_cells)
+    sorted_max_cells = max_cells if sorted_max_cells is None else float(sorted_max_cells)
     q = query(tmin, tmax, watertight, any_hit)
     # (cast_runs: runs differ in cost, so threads take work items one at a time)
     if max_cells <= 0.0:
@@ -454,6 +460,6 @@ def cast_grouped(g, origins, dirs, tmin, tmax, watertight, any_hit, out, max_cel
         # (on large meshes, interleaved: gridrt.trace.stream)
         stream_runs(g, origins, dirs, rows, q, HitArrays(*out, NO_LEFT))
         return int(p1), 0
-    p2 = cast_runs(g, origins, dirs, rows, q, cast_pass(max_cells if sort else -1.0, True, f32, tri_only),
+    p2 = cast_runs(g, origins, dirs, rows, q, cast_pass(sorted_max_cells if sort else -1.0, True, f32, tri_only),
                    HitArrays(*out, NO_LEFT))
     return int(p1), int(p2)
