@@ -203,3 +203,22 @@ def test_the_harness_casts_the_peers_export(tmp_path, harness):
         native = np.load(hdir / f"{rays}_{mode}_tri.npy")
         assert (ref >= 0).any() and (ref < 0).any()
         assert (native == ref).mean() >= 0.995
+
+
+@pytest.mark.parametrize("command,scene_folder", [("native", "icosphere_1280_twist"),
+                                                  ("peers", "icosphere_1280_twist_frame")])
+def test_export_where_no_folder_can_be_made(tmp_path, capsys, command, scene_folder):
+    """--export naming a file, a folder under a file, or a folder where a file holds a scene's
+    folder's name: a clear error naming the path, before anything is measured, and no traceback."""
+    blocker = tmp_path / "a_file"
+    blocker.write_bytes(b"not a folder")
+    taken = tmp_path / "taken"
+    taken.mkdir()
+    (taken / scene_folder).write_bytes(b"not a folder")
+    for export, message in ((blocker, f"cannot create the --export folder {blocker}"),
+                            (blocker / "sub", f"cannot create the --export folder {blocker / 'sub'}"),
+                            (taken, f"cannot write the harness folder {taken / scene_folder}")):
+        assert main(["bench", command, "--quick", "--no-progress", "--export", str(export), "--export-only"]) == 2
+        err = capsys.readouterr().err
+        assert message in err and "Traceback" not in err, err
+    assert blocker.read_bytes() == b"not a folder" and (taken / scene_folder).read_bytes() == b"not a folder"

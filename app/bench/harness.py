@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from gridrt.errors import InputError
+
 #: the harness's untimed dynamic frames before the timed ones
 NATIVE_WARMUP = 2
 
@@ -24,10 +26,28 @@ def write_ply(path, V):
         fh.write(rec.tobytes())
 
 
+def export_root(path):
+    """The folder ``--export`` names, made where missing; a clear error where it cannot be."""
+    p = Path(path)
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise InputError(f"cannot create the --export folder {p}: {e.strerror}") from None
+    return p
+
+
 def export_folder(folder, label, frames, cam, size, o32, d32, ro32, rd32, dt):
     """Write one scene in the harness's folder format: ``frames`` (NF, F, 3, 3) float32 triangles (frame
     0 the mesh at rest; the harness warms up on frames 0 and 1 and times the rest), the camera ``cam``
     and its size x size rays (o32, d32), the random rays (ro32, rd32)."""
+    try:
+        return _write_folder(folder, label, frames, cam, size, o32, d32, ro32, rd32, dt)
+    except OSError as e:
+        raise InputError(f"cannot write the harness folder {folder}: {e.strerror}") from None
+
+
+def _write_folder(folder, label, frames, cam, size, o32, d32, ro32, rd32, dt):
+    """The folder's files (:func:`export_folder`)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     nf, F = frames.shape[:2]

@@ -48,7 +48,7 @@ from gridrt.trace.render import Renderer
 from ..cli import option_help
 
 from .affinity import Affinity
-from .harness import NATIVE_WARMUP, export_folder, folder_name
+from .harness import NATIVE_WARMUP, export_folder, export_root, folder_name
 from .machine import finish_machine, machine_info
 from .options import add_dt_arg, check_frame_args, thread_list
 from .output import figure, md_table, out_dir, progress, write_csv, write_json, write_summary
@@ -270,6 +270,7 @@ def run_native(a):
     if a.export_only and not a.export:
         raise InputError("--export-only writes the folders into --export DIR: give it")
     binary = None if a.export_only else check_binary(a.native_bin)
+    export = export_root(a.export) if a.export else None
     size = 64 if a.quick else a.size
     runs, warmup = (1, 1) if a.quick else (a.runs, a.warmup)
     nframes = NATIVE_WARMUP + runs
@@ -290,7 +291,7 @@ def run_native(a):
     rows = []
     bar = progress(len(specs) * (1 + (0 if a.export_only else len(threads))), "bench native", a.no_progress)
     with tempfile.TemporaryDirectory(prefix="gridrt_native_") as tmp:
-        root = Path(a.export) if a.export else Path(tmp)
+        root = export if export is not None else Path(tmp)
         for spec_text in specs:
             sc = resolve_scene(spec_text)
             origin, cam, o32, d32, _, _ = peer_rays(sc, size, a.view)

@@ -38,7 +38,6 @@ incoherent rays, the very arrays the peers get; ``--export-only`` writes the fol
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
-from pathlib import Path
 
 import numpy as np
 
@@ -52,7 +51,7 @@ from gridrt.trace.render import Renderer, cast_rays
 from ..cli import add_packet_args, option_help
 
 from .affinity import Affinity
-from .harness import NATIVE_WARMUP, export_folder, folder_name
+from .harness import NATIVE_WARMUP, export_folder, export_root, folder_name
 from .machine import finish_machine, machine_info
 from .options import add_dt_arg, add_grid_kind_args, check_frame_args, grid_kinds, thread_list
 from .output import figure, grid_columns, grid_label, md_table, out_dir, progress, write_csv, write_json, write_summary
@@ -176,13 +175,14 @@ def run_peers(a):
     runs, warmup = (1, 1) if a.quick else (a.runs, a.warmup)
     if a.export and size % 8:
         raise InputError(f"--export needs --size a multiple of 8 (the harness casts 8x8 tiles), got {size}")
+    export = export_root(a.export) if a.export else None
     specs, note = scene_list(a.scenes, PEER_SCENES, PEER_FALLBACK, quick=["icosphere:1280:twist"] if a.quick else None)
     if a.export_only:
         if note:
             print(f"note: {note}", file=sys.stderr)
         for spec in specs:
             sc = resolve_scene(spec)
-            for folder in export_scene(Path(a.export), sc, size, views, max(warmup + runs, NATIVE_WARMUP + 1), a.dt):
+            for folder in export_scene(export, sc, size, views, max(warmup + runs, NATIVE_WARMUP + 1), a.dt):
                 print(f"{folder}: {sc.label}")
         return 0
     others, absent = [], []
@@ -211,9 +211,9 @@ def run_peers(a):
     if note:
         print(f"note: {note}", file=sys.stderr)
     scenes = [resolve_scene(s) for s in specs]
-    if a.export:
+    if export is not None:
         for sc in scenes:
-            export_scene(Path(a.export), sc, size, views, max(warmup + runs, NATIVE_WARMUP + 1), a.dt)
+            export_scene(export, sc, size, views, max(warmup + runs, NATIVE_WARMUP + 1), a.dt)
     rows = []
     bar = progress(len(scenes) * len(views) * len(threads) * len(kinds) * (warmup + runs + 1), "bench peers",
                    a.no_progress)
