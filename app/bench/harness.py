@@ -8,6 +8,8 @@ import numpy as np
 
 from gridrt.errors import InputError
 
+from .output import out_dir
+
 #: the harness's untimed dynamic frames before the timed ones
 NATIVE_WARMUP = 2
 
@@ -28,12 +30,7 @@ def write_ply(path, V):
 
 def export_root(path):
     """The folder ``--export`` names, made where missing; a clear error where it cannot be."""
-    p = Path(path)
-    try:
-        p.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise InputError(f"cannot create the --export folder {p}: {e.strerror}") from None
-    return p
+    return out_dir(path, "the --export folder")
 
 
 def export_folder(folder, label, frames, cam, size, o32, d32, ro32, rd32, dt):

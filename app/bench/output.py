@@ -16,12 +16,13 @@ from gridrt.errors import InputError
 from .machine import machine_md
 
 
-def out_dir(path):
+def out_dir(path, what="output folder"):
+    """The folder ``path``, made where missing; a clear error naming it (as ``what``) where it cannot be."""
     p = Path(path)
     try:
         p.mkdir(parents=True, exist_ok=True)
     except OSError as e:
-        raise InputError(f"cannot create output folder {p}: {e.strerror}") from None
+        raise InputError(f"cannot create {what} {p}: {e.strerror}") from None
     return p
 
 
