@@ -82,10 +82,10 @@ def measure(sc, settings, w, h, frames, threads):
 
 def main(argv=None):
     a = parse_args(argv)
-    first, second = RENDER.SHADOW_MAX_CELLS, RENDER.SHADOW_SORTED_MAX_CELLS
-    settings = [(float(v), second) for v in items(a.values)] + [(first, float(v)) for v in items(a.sorted)]
-    labels = ["single rays (0)" if v == 0 else f"{v:g}" for v, _ in settings[:len(items(a.values))]]
-    labels += [f"sorted {v:g}" for _, v in settings[len(labels):]]
+    firsts, sorts = [float(v) for v in items(a.values)], [float(v) for v in items(a.sorted)]
+    settings = ([(v, RENDER.SHADOW_SORTED_MAX_CELLS) for v in firsts]
+                + [(RENDER.SHADOW_MAX_CELLS, v) for v in sorts])
+    labels = ["single rays (0)" if v == 0 else f"{v:g}" for v in firsts] + [f"sorted {v:g}" for v in sorts]
     w, h = (int(x) for x in a.size.lower().split("x"))
     rows = []
     for name in items(a.scenes):

@@ -8,6 +8,8 @@ import numpy as np
 
 from gridrt.errors import InputError
 
+from ..cli import option_help
+
 from .output import out_dir
 
 #: the harness's untimed dynamic frames before the timed ones
@@ -28,9 +30,18 @@ def write_ply(path, V):
         fh.write(rec.tobytes())
 
 
-def export_root(path):
-    """The folder ``--export`` names, made where missing; a clear error where it cannot be."""
-    return out_dir(path, "the --export folder")
+def add_export_args(p, default):
+    """--export DIR (``default``: what the command does without it, in words) and --export-only."""
+    p.add_argument("--export", default=None, metavar="DIR", help=option_help("--export", default))
+    p.add_argument("--export-only", action="store_true", help=option_help("--export-only"))
+
+
+def export_arg(a):
+    """The folder --export names, made where missing (a clear error where it cannot be), or None
+    without it; --export-only without --export is an error."""
+    if a.export_only and not a.export:
+        raise InputError("--export-only writes the folders into --export DIR: give it")
+    return out_dir(a.export, "the --export folder") if a.export else None
 
 
 def export_folder(folder, label, frames, cam, size, o32, d32, ro32, rd32, dt):

@@ -48,7 +48,7 @@ from gridrt.trace.render import Renderer
 from ..cli import option_help
 
 from .affinity import Affinity
-from .harness import NATIVE_WARMUP, export_folder, export_root, folder_name
+from .harness import NATIVE_WARMUP, add_export_args, export_arg, export_folder, folder_name
 from .machine import finish_machine, machine_info
 from .options import add_dt_arg, check_frame_args, thread_list
 from .output import figure, md_table, out_dir, progress, write_csv, write_json, write_summary
@@ -84,9 +84,7 @@ def add_parser(bsub, common):
     add_dt_arg(p)
     p.add_argument("--native-bin", default=str(DEFAULT_BIN),
                    help=f"the harness's binary (default {DEFAULT_BIN}, where its build.sh writes it)")
-    p.add_argument("--export", default=None, metavar="DIR",
-                   help=option_help("--export", "a temporary folder, removed at the end"))
-    p.add_argument("--export-only", action="store_true", help=option_help("--export-only"))
+    add_export_args(p, "a temporary folder, removed at the end")
     p.set_defaults(func=run_native)
 
 
@@ -267,10 +265,8 @@ def run_native(a):
     check_frame_args(a)
     if a.size % 8:
         raise InputError(f"--size must be a multiple of 8 (the harness casts 8x8 tiles), got {a.size}")
-    if a.export_only and not a.export:
-        raise InputError("--export-only writes the folders into --export DIR: give it")
+    export = export_arg(a)
     binary = None if a.export_only else check_binary(a.native_bin)
-    export = export_root(a.export) if a.export else None
     size = 64 if a.quick else a.size
     runs, warmup = (1, 1) if a.quick else (a.runs, a.warmup)
     nframes = NATIVE_WARMUP + runs

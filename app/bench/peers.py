@@ -51,7 +51,7 @@ from gridrt.trace.render import Renderer, cast_rays
 from ..cli import add_packet_args, option_help
 
 from .affinity import Affinity
-from .harness import NATIVE_WARMUP, export_folder, export_root, folder_name
+from .harness import NATIVE_WARMUP, add_export_args, export_arg, export_folder, folder_name
 from .machine import finish_machine, machine_info
 from .options import add_dt_arg, add_grid_kind_args, check_frame_args, grid_kinds, thread_list
 from .output import figure, grid_columns, grid_label, md_table, out_dir, progress, write_csv, write_json, write_summary
@@ -94,8 +94,7 @@ def add_parser(bsub, common):
                         "a grid), random (origins uniform in the scene's bounds, directions uniform on the sphere)")
     add_grid_kind_args(p)  # (gridrt's grid; each kind a row of its own, the peers measured again beside it)
     add_packet_args(p)  # (gridrt's: the precision applies to its renders and casts)
-    p.add_argument("--export", default=None, metavar="DIR", help=option_help("--export", "no folders"))
-    p.add_argument("--export-only", action="store_true", help=option_help("--export-only"))
+    add_export_args(p, "no folders")
     p.set_defaults(func=run_peers)
 
 
@@ -169,20 +168,19 @@ def run_peers(a):
     for v in views:
         if v not in VIEWS:
             raise InputError(f"unknown view {v!r} in --views; choose from {', '.join(VIEWS)}")
-    if a.export_only and not a.export:
-        raise InputError("--export-only writes the folders into --export DIR: give it")
     size = 64 if a.quick else a.size
     runs, warmup = (1, 1) if a.quick else (a.runs, a.warmup)
     if a.export and size % 8:
         raise InputError(f"--export needs --size a multiple of 8 (the harness casts 8x8 tiles), got {size}")
-    export = export_root(a.export) if a.export else None
+    export = export_arg(a)
+    nframes = max(warmup + runs, NATIVE_WARMUP + 1)   # (the frames exported: the harness times one at least)
     specs, note = scene_list(a.scenes, PEER_SCENES, PEER_FALLBACK, quick=["icosphere:1280:twist"] if a.quick else None)
+    if note:
+        print(f"note: {note}", file=sys.stderr)
     if a.export_only:
-        if note:
-            print(f"note: {note}", file=sys.stderr)
         for spec in specs:
             sc = resolve_scene(spec)
-            for folder in export_scene(export, sc, size, views, max(warmup + runs, NATIVE_WARMUP + 1), a.dt):
+            for folder in export_scene(export, sc, size, views, nframes, a.dt):
                 print(f"{folder}: {sc.label}")
         return 0
     others, absent = [], []
@@ -208,12 +206,10 @@ def run_peers(a):
         info["embree"] = repr(emb.device)
     for peer in others:
         info[peer.name] = peer.version
-    if note:
-        print(f"note: {note}", file=sys.stderr)
     scenes = [resolve_scene(s) for s in specs]
     if export is not None:
         for sc in scenes:
-            export_scene(export, sc, size, views, max(warmup + runs, NATIVE_WARMUP + 1), a.dt)
+            export_scene(export, sc, size, views, nframes, a.dt)
     rows = []
     bar = progress(len(scenes) * len(views) * len(threads) * len(kinds) * (warmup + runs + 1), "bench peers",
                    a.no_progress)

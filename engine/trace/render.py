@@ -575,7 +575,6 @@ class Renderer:
         tvd, acc = hp.tvd, hp.acc
         off, far = SHADOW_OFFSET * diag, 2.0 * max(diag, 1e-300)
         max_cells = SHADOW_MAX_CELLS if params.traversal == "cgt" else 0.0
-        sorted_cells = SHADOW_SORTED_MAX_CELLS
         f32 = params.packet_precision == "float32"
         cast, start = 0, None
 
@@ -594,7 +593,7 @@ class Renderer:
                 every = n == m
                 out = tuple(a[:m] for a in out_b)   # (the results in the segments' rows)
                 cast_grouped(g, o, d, 0.0, 1.0, bool(params.watertight), True, out, max_cells, f32, tri_only=True,
-                             rows=None if every else live[:n], sorted_max_cells=sorted_cells)
+                             rows=None if every else live[:n], sorted_max_cells=SHADOW_SORTED_MAX_CELLS)
                 mark_blocked(live, n, every, out[1], blocked)
             return blocked
 
